@@ -1,0 +1,41 @@
+# Two set-up commands: `make demo` and `make test` (both create .venv and install on first use).
+PY ?= python3
+VENV ?= .venv
+VPY := $(VENV)/bin/python
+# On the CPU box these resolve to wheels already on disk; an unpinned torch would pull a multi-GB
+# CUDA build. On a CUDA workstation override, e.g. `make test TORCH_SPEC=` to keep the venv's torch.
+TORCH_SPEC ?= torch==2.14.1 torchvision==0.29.1
+NERFSTUDIO_SPEC ?= nerfstudio==1.1.5
+PIP := $(VPY) -m pip --disable-pip-version-check
+PYTEST_ARGS ?=
+
+.PHONY: install demo test test-fast bench clean-venv
+
+$(VPY):
+	$(PY) -m venv $(VENV)
+
+$(VENV)/.installed: pyproject.toml Makefile | $(VPY)
+	@if [ -n "$(TORCH_SPEC)" ]; then $(PIP) install -q $(TORCH_SPEC); fi
+	# nerfstudio 1.1.5 pins gsplat/viser/timm older than what it runs with (see README):
+	# install it without its pins, then our own dependency set (pyproject.toml).
+	$(PIP) install -q --no-deps $(NERFSTUDIO_SPEC)
+	$(PIP) install -q -e ".[dev]"
+	$(VPY) -c "import cinenerf_ns, nerfstudio, gsplat, viser, open_clip, cvxpy, osqp, clarabel; print('cinenerf_ns installed')"
+	@touch $@
+
+install: $(VENV)/.installed
+
+demo: install
+	$(VPY) -m cinenerf_ns.demo
+
+test: install
+	$(VPY) -m pytest $(PYTEST_ARGS)
+
+test-fast: install
+	$(VPY) -m pytest -m "not slow and not browser" $(PYTEST_ARGS)
+
+bench: install
+	$(VPY) benchmarks/bench_planner.py
+
+clean-venv:
+	rm -rf $(VENV)
