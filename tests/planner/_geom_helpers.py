@@ -7,6 +7,10 @@ import torch
 
 from cinenerf_ns.planner.scene import EllipsoidScene, quat_wxyz_to_rotmat
 
+# The test box has 2 cores shared by several jobs: multi-threaded torch ops stall waiting for busy
+# threads (10-50x slower on small tensors). Geometry tests are small, so one thread.
+torch.set_num_threads(1)
+
 
 def random_scene(n: int, seed: int = 0, extent: float = 1.0, rmin: float = 0.01, rmax: float = 0.2,
                  camera_radius: float = 0.05, dtype=torch.float64, flat: bool = False) -> EllipsoidScene:
