@@ -148,6 +148,24 @@ class EllipsoidScene:
             source_index=idx,
         )
 
+    @classmethod
+    def from_ply(
+        cls,
+        path,
+        config: Optional[SceneConfig] = None,
+        device: Union[str, torch.device, None] = None,
+        dtype: torch.dtype = torch.float32,
+    ) -> "EllipsoidScene":
+        """Obstacles from a standard 3DGS .ply (x,y,z, scale_* log, rot_* wxyz, opacity logit)."""
+        from .ply import read_splat_ply
+
+        sp = read_splat_ply(path)
+
+        def t(a):
+            return torch.as_tensor(a.astype("float64"), device=device).to(dtype)
+
+        return cls.from_splat(t(sp.means), t(sp.quats_wxyz), t(sp.log_scales), t(sp.opacity_logits), config)
+
     # ------------------------------------------------------------------ helpers
     def __len__(self) -> int:
         return int(self.means.shape[0])

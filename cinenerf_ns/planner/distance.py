@@ -1,0 +1,240 @@
+"""Exact float64 distance references: point <-> ellipsoid surface, scene clearance, ellipsoid pairs.
+
+Point to ellipsoid (Eberly, "Distance from a point to an ellipse, an ellipsoid, or a hyperellipsoid").
+In the ellipsoid frame with axes sorted e0 >= e1 >= e2 and y = |w| (first octant, by symmetry), the
+closest surface point is x_i = e_i^2 y_i / (t + e_i^2) where the Lagrange multiplier t solves
+F(t) = sum (e_i y_i / (t + e_i^2))^2 = 1. In Eberly's scaled variables z_i = y_i/e_i,
+r_i = (e_i/e2)^2, s = t/e2^2:  G(s) = sum_i (r_i z_i / (s + r_i))^2 - 1 = 0 on s > -1, and G is convex
+and decreasing there. Degenerate case (the point lies on the plane y2 = 0 inside the ellipsoid and
+G(-1+) <= 0): the multiplier is s = -1 and the surface point is x_i = e_i r_i z_i/(r_i - 1) on the axes
+with r_i > 1, the remaining mass going to axis 2. This covers points inside, on axes, at the centre
+and very flat ellipsoids. The root is found by Newton steps from a lower bound (monotone for a
+convex decreasing function) safeguarded by bisection.
+
+The ellipsoid is {x : |diag(1/a) R^T (x - mu)| <= 1}; R is taken as orthonormal (a float32 rotation is
+orthonormal to ~1e-7, which is the accuracy of "exact" here in world units relative to the scene).
+"""
+from __future__ import annotations
+
+import math
+from typing import Optional, Tuple, Union
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from .errors import InvalidInputError
+from .scene import EllipsoidScene
+
+
+def _distance_local(w: Tensor, radii: Tensor, max_iter: int = 200) -> Tensor:
+    """Signed distance [...] from local points w [..., 3] to ellipsoids with semi-axes radii [..., 3]
+    centred at the origin, axis-aligned (float64)."""
+    w, radii = torch.broadcast_tensors(w.double(), radii.double())
+    e, order = torch.sort(radii, dim=-1, descending=True)  # e0 >= e1 >= e2
+    y = w.abs().gather(-1, order)
+    z = y / e
+    inside = (z * z).sum(-1) < 1
+    r = (e / e[..., 2:3]) ** 2  # [..., 3] r_i >= 1, r_2 = 1
+    pos = z > 0
+
+    def g_and_dg(s: Tensor) -> Tuple[Tensor, Tensor]:
+        q = torch.where(pos, r * z / (s[..., None] + r), torch.zeros_like(z))
+        return (q * q).sum(-1) - 1, (-2 * q * q / (s[..., None] + r)).sum(-1)
+
+    # G(-1+): infinite when a term with r_i == 1 has z_i > 0, else finite.
+    pole = (pos & (r <= 1)).any(-1)
+    with torch.no_grad():
+        rz = torch.where(pos & (r > 1), r * z / (r - 1).clamp_min(1e-300), torch.zeros_like(z))
+        g_m = (rz * rz).sum(-1) - 1
+    degenerate = ~pole & (g_m <= 0)
+
+    # Root bracket: lo = max_i r_i (z_i - 1) over z_i > 0 (there term i alone is >= 1, so G >= 0),
+    # clipped to > -1; hi = -1 + |r z| (there G <= 0).
+    lo = torch.where(pos, r * (z - 1), torch.full_like(z, -math.inf)).max(-1).values
+    lo = torch.maximum(lo, torch.full_like(lo, -1.0))
+    hi = -1 + (r * z).norm(dim=-1)
+    hi = torch.maximum(hi, lo)
+    work = ~degenerate & pos.any(-1)
+    lo = torch.where(work, lo, torch.zeros_like(lo))
+    hi = torch.where(work, hi, torch.zeros_like(hi))
+    # at lo == -1 with no pole, G(-1) = g_m > 0 is finite, fine; with a pole lo > -1.
+    for _ in range(max_iter):
+        g_lo, dg_lo = g_and_dg(lo)
+        newton = lo - g_lo / dg_lo
+        mid = 0.5 * (lo + hi)
+        g_mid, _ = g_and_dg(mid)
+        # bisection step shrinks the bracket; Newton from the (left) lower bound stays left of the root
+        lo2 = torch.where(g_mid > 0, mid, lo)
+        hi2 = torch.where(g_mid > 0, hi, mid)
+        ok = torch.isfinite(newton) & (newton > lo2) & (newton < hi2)
+        g_nt, _ = g_and_dg(torch.where(ok, newton, lo2))
+        lo2 = torch.where(ok & (g_nt >= 0), newton, lo2)
+        hi2 = torch.where(ok & (g_nt < 0), newton, hi2)
+        done = ((hi2 - lo2) <= 1e-15 * (1 + hi2.abs())) | ((newton - lo).abs() <= 1e-15 * (1 + lo.abs()))
+        lo, hi = lo2, hi2
+        if bool((done | ~work).all()):
+            break
+    s = lo  # converged lower bound of the root
+    x = torch.where(pos, e * r * z / (s[..., None] + r), torch.zeros_like(z))
+    # degenerate: s = -1
+    xd = e * rz
+    rest = (1 - ((xd / e) ** 2).sum(-1)).clamp_min(0)
+    xd = torch.cat([xd[..., :2], (e[..., 2] * torch.sqrt(rest))[..., None]], -1)
+    x = torch.where(degenerate[..., None], xd, x)
+    # centre with all z = 0 is degenerate too (g_m = -1): x = (0, 0, e2), handled above.
+    d = (x - y).norm(dim=-1)
+    return torch.where(inside, -d, d)
+
+
+def point_ellipsoid_distance(
+    points: Tensor,  # [P, 3]
+    means: Tensor,  # [N, 3]
+    rotations: Tensor,  # [N, 3, 3]
+    radii: Tensor,  # [N, 3]
+) -> Tensor:
+    """Signed Euclidean distance [P, N] (float64) from each point to each ellipsoid surface
+    (negative inside). Dense: use for tests and small N; ``clearance`` uses the index."""
+    p = torch.as_tensor(points).double()
+    d = p[:, None, :] - means.double()[None]  # [P, N, 3]
+    w = (d[..., :, None] * rotations.double()[None]).sum(-2)  # R^T d
+    return _distance_local(w, radii.double()[None].expand_as(w))
+
+
+def pair_distance(points: Tensor, scene: EllipsoidScene, pi: Tensor, gi: Tensor) -> Tensor:
+    """Signed distance [K] for pairs (points[pi[k]], ellipsoid gi[k]) (float64)."""
+    rot = scene.rotations.index_select(0, gi).double()
+    mu = scene.means.index_select(0, gi).double()
+    w = ((points.double().index_select(0, pi) - mu)[:, :, None] * rot).sum(-2)
+    return _distance_local(w, scene.radii.index_select(0, gi))
+
+
+def clearance(
+    points: Tensor,  # [P, 3]
+    scene: EllipsoidScene,
+    index=None,
+    return_index: bool = False,
+    chunk_pairs: int = 2_000_000,
+) -> Union[Tensor, Tuple[Tensor, Tensor]]:
+    """Exact clearance [P] (float64) = min_j signed_dist(point, E_j) - camera_radius.
+
+    Candidates come from the index with a search radius that doubles until the best distance found
+    is within it (then no ellipsoid outside the search box can be closer, since the distance to an
+    ellipsoid is at least the distance to its AABB); cheap bounds prune candidates before the exact
+    root finding. Without an index (or if the search outgrows the scene) all ellipsoids are tested.
+    With ``return_index`` also returns the id [P] of the nearest ellipsoid."""
+    pts = torch.as_tensor(points, device=scene.device)
+    if pts.ndim != 2 or pts.shape[-1] != 3:
+        raise InvalidInputError(f"points must be [P, 3], got {tuple(pts.shape)}")
+    if not bool(torch.isfinite(pts).all()):
+        raise InvalidInputError("points contain NaN or inf")
+    pts = pts.double()
+    P = pts.shape[0]
+    best = torch.full((P,), math.inf, dtype=torch.float64, device=pts.device)
+    arg = torch.full((P,), -1, dtype=torch.long, device=pts.device)
+    todo = torch.arange(P, device=pts.device)
+    if index is not None and P:
+        lo_s, hi_s = index.lo.min(0).values, index.hi.max(0).values
+        diag = float((hi_s - lo_s).norm())
+        rad = torch.full((P,), max(index.levels[0].cell, 1e-6), dtype=torch.float64, device=pts.device)
+        while todo.numel():
+            pi, gi = index.query_points(pts[todo], rad[todo])
+            d, g_best = _min_over_pairs(pts[todo], scene, pi, gi, todo.numel())
+            # exact when the best distance is within the box half-width (+ pad, the boxes' growth)
+            ok = d <= rad[todo] + index.pad
+            best[todo[ok]] = d[ok]
+            arg[todo[ok]] = g_best[ok]
+            todo = todo[~ok]
+            rad[todo] *= 4
+            # once the search box covers the whole scene for every remaining point, go brute force
+            far = (rad[todo] > diag + (pts[todo] - 0.5 * (lo_s + hi_s)).norm(dim=-1))
+            if bool(far.all()):
+                break
+    if todo.numel():
+        n = len(scene)
+        step = max(1, chunk_pairs // max(n, 1))
+        for i in range(0, todo.numel(), step):
+            t = todo[i : i + step]
+            pi = torch.arange(t.numel(), device=pts.device).repeat_interleave(n)
+            gi = torch.arange(n, device=pts.device).repeat(t.numel())
+            d, g_best = _min_over_pairs(pts[t], scene, pi, gi, t.numel())
+            best[t], arg[t] = d, g_best
+    out = best - scene.camera_radius
+    return (out, arg) if return_index else out
+
+
+def _min_over_pairs(pts: Tensor, scene: EllipsoidScene, pi: Tensor, gi: Tensor, P: int) -> Tuple[Tensor, Tensor]:
+    """min over candidate pairs of the exact signed distance, per point: ([P] (inf if none), arg [P])."""
+    dev = pts.device
+    best = torch.full((P,), math.inf, dtype=torch.float64, device=dev)
+    arg = torch.full((P,), -1, dtype=torch.long, device=dev)
+    if pi.numel() == 0:
+        return best, arg
+    mu = scene.means.index_select(0, gi).double()
+    rad = scene.radii.index_select(0, gi).double()
+    dist_c = (pts.index_select(0, pi) - mu).norm(dim=-1)
+    # bounds on the signed distance: lb = |p - mu| - a_max;  ub = |p - mu| - a_min (inside) or
+    # |p - mu|(1 - 1/m) via the radial surface point (m = Mahalanobis norm) (outside).
+    lb = dist_c - rad.max(-1).values
+    rot = scene.rotations.index_select(0, gi).double()
+    w = ((pts.index_select(0, pi) - mu)[:, :, None] * rot).sum(-2)
+    m = (w / rad).norm(dim=-1)
+    ub = torch.where(m > 1, dist_c * (1 - 1 / m.clamp_min(1e-300)), dist_c - rad.min(-1).values)
+    u_best = torch.full((P,), math.inf, dtype=torch.float64, device=dev).scatter_reduce(0, pi, ub, "amin")
+    keep = torch.nonzero(lb <= u_best.index_select(0, pi) + 1e-12).squeeze(-1)
+    d = _distance_local(w[keep], rad[keep])
+    best = best.scatter_reduce(0, pi[keep], d, "amin")
+    # argmin: first pair achieving the min
+    is_min = d <= best.index_select(0, pi[keep])
+    arg[pi[keep][is_min]] = gi[keep][is_min]
+    return best, arg
+
+
+# ---------------------------------------------------------------------------- ellipsoid pairs
+def _mahal2(x: np.ndarray, mu: np.ndarray, rot: np.ndarray, radii: np.ndarray) -> float:
+    w = rot.T @ (x - mu) / radii
+    return float(w @ w)
+
+
+def ellipsoid_scaling_factor(mu_a, rot_a, radii_a, mu_b, rot_b, radii_b) -> float:
+    """lambda* = min_x max(|x|_A, |x|_B) (Mahalanobis norms about each centre), by convex optimisation
+    (scipy SLSQP, float64). Scaling both ellipsoids about their centres by lambda* makes them touch:
+    lambda* < 1 <=> they overlap, > 1 <=> disjoint. Theorem 1 states max_s K(s) = lambda*^2, so this is an
+    independent reference for Theorem 1 / Proposition 1."""
+    from scipy.optimize import minimize
+
+    A = [np.asarray(torch.as_tensor(t).double().cpu()) for t in (mu_a, rot_a, radii_a)]
+    B = [np.asarray(torch.as_tensor(t).double().cpu()) for t in (mu_b, rot_b, radii_b)]
+    ha = np.sqrt(((A[1] * A[2][None, :]) ** 2).sum(-1)).max()
+    hb = np.sqrt(((B[1] * B[2][None, :]) ** 2).sum(-1)).max()
+    x0 = (A[0] * hb + B[0] * ha) / (ha + hb)
+    scale = max(ha, hb)
+    fun = lambda v: v[3]
+    cons = [
+        {"type": "ineq", "fun": lambda v: v[3] - _mahal2(A[0] + scale * v[:3], *A)},
+        {"type": "ineq", "fun": lambda v: v[3] - _mahal2(A[0] + scale * v[:3], *B)},
+    ]
+    v0 = np.concatenate([(x0 - A[0]) / scale, [max(_mahal2(x0, *A), _mahal2(x0, *B))]])
+    res = minimize(fun, v0, constraints=cons, method="SLSQP", options={"ftol": 1e-15, "maxiter": 500})
+    x = A[0] + scale * res.x[:3]
+    return math.sqrt(max(_mahal2(x, *A), _mahal2(x, *B)))
+
+
+def ellipsoid_ellipsoid_distance(mu_a, rot_a, radii_a, mu_b, rot_b, radii_b) -> float:
+    """Euclidean distance between two ellipsoids (0 when they overlap), scipy SLSQP in float64 on
+    min |x - y|^2 s.t. x in A, y in B (a convex problem, so the local optimum is global)."""
+    from scipy.optimize import minimize
+
+    A = [np.asarray(torch.as_tensor(t).double().cpu()) for t in (mu_a, rot_a, radii_a)]
+    B = [np.asarray(torch.as_tensor(t).double().cpu()) for t in (mu_b, rot_b, radii_b)]
+    if ellipsoid_scaling_factor(*A, *B) <= 1:
+        return 0.0
+    scale = float(max(A[2].max(), B[2].max()))
+    fun = lambda v: float(((v[:3] - v[3:]) ** 2).sum())
+    cons = [
+        {"type": "ineq", "fun": lambda v: 1 - _mahal2(scale * v[:3], *A)},
+        {"type": "ineq", "fun": lambda v: 1 - _mahal2(scale * v[3:], *B)},
+    ]
+    v0 = np.concatenate([A[0], B[0]]) / scale
+    res = minimize(fun, v0, constraints=cons, method="SLSQP", options={"ftol": 1e-16, "maxiter": 1000})
+    return scale * math.sqrt(max(res.fun, 0.0))

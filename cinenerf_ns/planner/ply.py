@@ -1,0 +1,219 @@
+"""Read and write standard 3D Gaussian Splatting ``.ply`` files (numpy only, no plyfile).
+
+The 3DGS layout (Kerbl et al., also written by ``ns-export gaussian-splat``) is one ``vertex`` element
+with float properties ``x y z`` (means), ``scale_0..2`` (log scales), ``rot_0..3`` (quaternion, wxyz),
+``opacity`` (logit), ``f_dc_0..2`` (SH DC colour) and ``f_rest_*`` (higher SH bands); ``nx ny nz``
+are usually present and unused. Binary (little or big endian) and ascii bodies are read.
+"""
+from __future__ import annotations
+
+import os
+import re
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Dict, Optional, Union
+
+import numpy as np
+
+from .errors import InvalidInputError
+
+_PLY_TYPES = {
+    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
+    "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
+    "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
+}
+REQUIRED = ("x", "y", "z", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3", "opacity")
+
+
+@dataclass
+class SplatPly:
+    """Raw splat parameters of a .ply file (numpy, float32 unless the file says otherwise)."""
+
+    means: np.ndarray  # [N, 3]
+    quats_wxyz: np.ndarray  # [N, 4]
+    log_scales: np.ndarray  # [N, 3]
+    opacity_logits: np.ndarray  # [N]
+    colors_dc: Optional[np.ndarray] = None  # [N, 3] SH DC coefficients (f_dc_*), None if absent
+    sh_rest: Optional[np.ndarray] = None  # [N, K] f_rest_* in file order, None if absent
+    extra: Dict[str, np.ndarray] = field(default_factory=dict)  # any other vertex property [N]
+
+
+def _parse_header(f, path: Path):
+    first = f.readline()
+    if first.strip() != b"ply":
+        raise InvalidInputError(f"{path} is not a .ply file (first line {first[:20]!r}, want 'ply')")
+    fmt = None
+    elements = []  # [name, count, [(prop_name, dtype or ('list', count_t, item_t))]]
+    while True:
+        line = f.readline()
+        if not line:
+            raise InvalidInputError(f"{path}: .ply header has no 'end_header' line (truncated file?)")
+        tok = line.decode("ascii", errors="replace").split()
+        if not tok or tok[0] in ("comment", "obj_info"):
+            continue
+        if tok[0] == "end_header":
+            break
+        if tok[0] == "format":
+            fmt = tok[1]
+        elif tok[0] == "element":
+            elements.append([tok[1], int(tok[2]), []])
+        elif tok[0] == "property":
+            if not elements:
+                raise InvalidInputError(f"{path}: .ply property before any element")
+            if tok[1] == "list":
+                elements[-1][2].append((tok[4], ("list", _PLY_TYPES[tok[2]], _PLY_TYPES[tok[3]])))
+            else:
+                if tok[1] not in _PLY_TYPES:
+                    raise InvalidInputError(f"{path}: unknown .ply property type {tok[1]!r}")
+                elements[-1][2].append((tok[2], _PLY_TYPES[tok[1]]))
+    if fmt not in ("binary_little_endian", "binary_big_endian", "ascii"):
+        raise InvalidInputError(f"{path}: unsupported .ply format {fmt!r}")
+    return fmt, elements
+
+
+def read_ply_vertices(path: Union[str, Path]) -> np.ndarray:
+    """The ``vertex`` element of a .ply file as a numpy structured array [N]."""
+    path = Path(path)
+    if not path.is_file():
+        raise InvalidInputError(f"scene file not found: {path}")
+    with open(path, "rb") as f:
+        fmt, elements = _parse_header(f, path)
+        if fmt == "ascii":
+            lines = f.read().decode("ascii", errors="replace").splitlines()
+            pos = 0
+            for name, count, props in elements:
+                if name == "vertex":
+                    if any(isinstance(t, tuple) for _, t in props):
+                        raise InvalidInputError(f"{path}: list properties in 'vertex' are not supported")
+                    dt = np.dtype([(p, t) for p, t in props])
+                    rows = [ln.split() for ln in lines[pos:pos + count]]
+                    if len(rows) != count or any(len(r) != len(props) for r in rows):
+                        raise InvalidInputError(f"{path}: ascii vertex data is truncated or malformed")
+                    arr = np.empty(count, dtype=dt)
+                    data = np.asarray(rows, dtype=np.float64)
+                    for k, (p, _) in enumerate(props):
+                        arr[p] = data[:, k]
+                    return arr
+                pos += count
+            raise InvalidInputError(f"{path}: .ply file has no 'vertex' element")
+        endian = "<" if fmt == "binary_little_endian" else ">"
+        for name, count, props in elements:
+            if any(isinstance(t, tuple) for _, t in props):
+                if name == "vertex":
+                    raise InvalidInputError(f"{path}: list properties in 'vertex' are not supported")
+                raise InvalidInputError(
+                    f"{path}: element {name!r} with list properties precedes 'vertex'; cannot locate vertex data"
+                )
+            dt = np.dtype([(p, endian + t) for p, t in props])
+            if name == "vertex":
+                buf = f.read(dt.itemsize * count)
+                if len(buf) != dt.itemsize * count:
+                    raise InvalidInputError(
+                        f"{path}: truncated .ply: {count} vertices need {dt.itemsize * count} bytes, "
+                        f"found {len(buf)}"
+                    )
+                return np.frombuffer(buf, dtype=dt, count=count)
+            f.seek(dt.itemsize * count, os.SEEK_CUR)
+    raise InvalidInputError(f"{path}: .ply file has no 'vertex' element")
+
+
+def _numbered(names, prefix: str):
+    ks = sorted((int(m.group(1)), n) for n in names if (m := re.fullmatch(prefix + r"(\d+)", n)))
+    return [n for _, n in ks]
+
+
+def read_splat_ply(path: Union[str, Path]) -> SplatPly:
+    """Splat parameters of a standard 3DGS .ply (see module docstring)."""
+    v = read_ply_vertices(path)
+    names = v.dtype.names or ()
+    missing = [p for p in REQUIRED if p not in names]
+    if missing:
+        raise InvalidInputError(
+            f"{path} is not a Gaussian splat .ply: vertex properties {missing} are missing "
+            f"(found {list(names)[:20]}{'...' if len(names) > 20 else ''})"
+        )
+
+    def cols(ns):
+        return np.stack([np.asarray(v[n]) for n in ns], axis=-1)
+
+    dc = _numbered(names, "f_dc_")
+    rest = _numbered(names, "f_rest_")
+    known = set(REQUIRED) | set(dc) | set(rest) | {"nx", "ny", "nz"}
+    return SplatPly(
+        means=cols(("x", "y", "z")),
+        quats_wxyz=cols(("rot_0", "rot_1", "rot_2", "rot_3")),
+        log_scales=cols(("scale_0", "scale_1", "scale_2")),
+        opacity_logits=np.asarray(v["opacity"]).copy(),
+        colors_dc=cols(dc) if dc else None,
+        sh_rest=cols(rest) if rest else None,
+        extra={n: np.asarray(v[n]).copy() for n in names if n not in known},
+    )
+
+
+def write_splat_ply(
+    path: Union[str, Path],
+    means,  # [N, 3]
+    quats,  # [N, 4] wxyz
+    log_scales,  # [N, 3]
+    opacity_logits,  # [N] or [N, 1]
+    colors_dc=None,  # [N, 3] or None (zeros written)
+    extra: Optional[Dict[str, object]] = None,  # name -> [N] (or [N, K] written as name_0..name_{K-1})
+) -> Path:
+    """Write a binary little-endian float32 3DGS .ply (atomic: temp file + rename).
+
+    Accepts numpy arrays or torch tensors. ``extra={"f_rest": sh[N, 45]}`` writes f_rest_0..44."""
+
+    def arr(x, name, width=None):
+        if hasattr(x, "detach"):
+            x = x.detach().cpu().numpy()
+        x = np.asarray(x, dtype=np.float32)
+        if width is None:
+            x = x.reshape(-1)
+        elif x.ndim != 2 or x.shape[1] != width:
+            raise InvalidInputError(f"write_splat_ply: {name} must be [N, {width}], got {x.shape}")
+        return x
+
+    m = arr(means, "means", 3)
+    n = m.shape[0]
+    cols = {"x": m[:, 0], "y": m[:, 1], "z": m[:, 2]}
+    zeros = np.zeros(n, np.float32)
+    cols.update(nx=zeros, ny=zeros, nz=zeros)
+    dc = np.zeros((n, 3), np.float32) if colors_dc is None else arr(colors_dc, "colors_dc", 3)
+    cols.update({f"f_dc_{i}": dc[:, i] for i in range(3)})
+    for name, val in (extra or {}).items():
+        a = val.detach().cpu().numpy() if hasattr(val, "detach") else np.asarray(val)
+        a = a.astype(np.float32)
+        if a.ndim == 1:
+            cols[name] = a
+        elif a.ndim == 2:
+            cols.update({f"{name}_{i}": a[:, i] for i in range(a.shape[1])})
+        else:
+            raise InvalidInputError(f"write_splat_ply: extra[{name!r}] must be [N] or [N, K], got {a.shape}")
+    cols["opacity"] = arr(opacity_logits, "opacity_logits")
+    ls, q = arr(log_scales, "log_scales", 3), arr(quats, "quats", 4)
+    cols.update({f"scale_{i}": ls[:, i] for i in range(3)})
+    cols.update({f"rot_{i}": q[:, i] for i in range(4)})
+    for k, c in cols.items():
+        if c.shape != (n,):
+            raise InvalidInputError(f"write_splat_ply: property {k} has {c.shape[0]} rows, means have {n}")
+    dt = np.dtype([(k, "<f4") for k in cols])
+    rec = np.empty(n, dtype=dt)
+    for k, c in cols.items():
+        rec[k] = c
+    header = "ply\nformat binary_little_endian 1.0\n" f"element vertex {n}\n"
+    header += "".join(f"property float {k}\n" for k in cols) + "end_header\n"
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(header.encode("ascii"))
+            f.write(rec.tobytes())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path

@@ -1,0 +1,68 @@
+import numpy as np
+import pytest
+import torch
+
+from cinenerf_ns.planner.errors import InvalidInputError
+from cinenerf_ns.planner.ply import read_splat_ply, write_splat_ply
+
+
+def _params(n=50, seed=0):
+    g = np.random.default_rng(seed)
+    return (g.normal(size=(n, 3)), g.normal(size=(n, 4)), g.normal(size=(n, 3)) - 3, g.normal(size=n),
+            g.normal(size=(n, 3)))
+
+
+def test_round_trip(tmp_path):
+    m, q, s, o, c = _params()
+    rest = np.random.default_rng(1).normal(size=(50, 45))
+    p = write_splat_ply(tmp_path / "a.ply", m, q, s, o, colors_dc=c, extra={"f_rest": rest, "foo": np.arange(50)})
+    sp = read_splat_ply(p)
+    f32 = lambda x: np.asarray(x, np.float32)
+    np.testing.assert_array_equal(sp.means, f32(m))
+    np.testing.assert_array_equal(sp.quats_wxyz, f32(q))
+    np.testing.assert_array_equal(sp.log_scales, f32(s))
+    np.testing.assert_array_equal(sp.opacity_logits, f32(o))
+    np.testing.assert_array_equal(sp.colors_dc, f32(c))
+    np.testing.assert_array_equal(sp.sh_rest, f32(rest))  # f_rest_10 sorted numerically, not as text
+    np.testing.assert_array_equal(sp.extra["foo"], np.arange(50, dtype=np.float32))
+
+
+def test_torch_inputs_and_standard_layout(tmp_path):
+    m, q, s, o, _ = _params(7)
+    p = write_splat_ply(tmp_path / "b.ply", torch.tensor(m), torch.tensor(q), torch.tensor(s), torch.tensor(o)[:, None])
+    head = p.read_bytes().split(b"end_header")[0].decode()
+    for prop in ("x", "nx", "f_dc_0", "opacity", "scale_2", "rot_3"):
+        assert f"property float {prop}\n" in head
+    assert read_splat_ply(p).means.shape == (7, 3)
+
+
+def test_big_endian_and_ascii(tmp_path):
+    names = ["x", "y", "z", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3", "opacity"]
+    vals = np.arange(2 * len(names), dtype=np.float32).reshape(2, -1)
+    head = "ply\nformat {}\nelement vertex 2\n" + "".join(f"property float {n}\n" for n in names) + "end_header\n"
+    (tmp_path / "be.ply").write_bytes(head.format("binary_big_endian 1.0").encode() + vals.astype(">f4").tobytes())
+    (tmp_path / "as.ply").write_text(head.format("ascii 1.0") + "\n".join(" ".join(map(str, r)) for r in vals) + "\n")
+    for f in ("be.ply", "as.ply"):
+        sp = read_splat_ply(tmp_path / f)
+        np.testing.assert_array_equal(sp.means, vals[:, :3])
+        np.testing.assert_array_equal(sp.opacity_logits, vals[:, 10])
+
+
+def test_missing_file_and_properties(tmp_path):
+    with pytest.raises(InvalidInputError, match="not found"):
+        read_splat_ply(tmp_path / "nope.ply")
+    head = "ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
+    (tmp_path / "pts.ply").write_bytes(head.encode() + np.zeros(3, "<f4").tobytes())
+    with pytest.raises(InvalidInputError, match="missing"):
+        read_splat_ply(tmp_path / "pts.ply")
+    (tmp_path / "junk.ply").write_bytes(b"hello")
+    with pytest.raises(InvalidInputError, match="not a .ply"):
+        read_splat_ply(tmp_path / "junk.ply")
+
+
+def test_truncated(tmp_path):
+    m, q, s, o, _ = _params(5)
+    p = write_splat_ply(tmp_path / "t.ply", m, q, s, o)
+    p.write_bytes(p.read_bytes()[:-10])
+    with pytest.raises(InvalidInputError, match="truncated"):
+        read_splat_ply(p)

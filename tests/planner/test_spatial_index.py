@@ -1,0 +1,97 @@
+import torch
+from hypothesis import given, settings, strategies as st
+
+from _geom_helpers import random_scene
+from cinenerf_ns.planner.distance import point_ellipsoid_distance
+from cinenerf_ns.planner.errors import InvalidInputError
+from cinenerf_ns.planner.scene import EllipsoidScene
+from cinenerf_ns.planner.spatial_index import GridIndex
+
+import pytest
+
+
+def _brute_pairs(index, qlo, qhi):
+    m = ((index.lo[None] <= qhi[:, None]) & (index.hi[None] >= qlo[:, None])).all(-1)
+    return set(zip(*[t.tolist() for t in torch.nonzero(m, as_tuple=True)]))
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 300), cell=st.sampled_from([None, 0.03, 0.2, 5.0]),
+       radius=st.floats(0.0, 0.5), huge=st.booleans())
+def test_query_points_equals_brute_force(seed, n, cell, radius, huge):
+    sc = random_scene(n, seed, rmin=0.005, rmax=0.1)
+    if huge:  # a few huge ellipsoids must land in coarse levels, not blow up memory
+        sc.radii[: max(1, n // 10)] *= 30
+    idx = GridIndex.build(sc, cell_size=cell)
+    g = torch.Generator().manual_seed(seed)
+    pts = torch.rand(64, 3, generator=g, dtype=torch.float64) * 3 - 1.5
+    pi, gi = idx.query_points(pts, radius)
+    got = list(zip(pi.tolist(), gi.tolist()))
+    assert len(got) == len(set(got)), "duplicate pairs"
+    assert pi.tolist() == sorted(pi.tolist())
+    assert set(got) == _brute_pairs(idx, pts - radius, pts + radius)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), radius=st.floats(0.0, 0.3))
+def test_never_misses_an_ellipsoid_within_radius(seed, radius):
+    sc = random_scene(150, seed, camera_radius=0.04)
+    idx = GridIndex.build(sc)
+    g = torch.Generator().manual_seed(seed + 1)
+    pts = torch.rand(100, 3, generator=g, dtype=torch.float64) * 2.6 - 1.3
+    d = point_ellipsoid_distance(pts, sc.means, sc.rotations, sc.radii)  # [P, N]
+    need = set(zip(*[t.tolist() for t in torch.nonzero(d <= radius + sc.camera_radius, as_tuple=True)]))
+    pi, gi = idx.query_points(pts, radius)
+    assert need <= set(zip(pi.tolist(), gi.tolist()))
+
+
+def test_query_box_and_huge_levels():
+    sc = random_scene(500, 3, rmin=0.01, rmax=0.05)
+    sc.radii[:5] = 50.0  # spans the whole scene many times
+    idx = GridIndex.build(sc)
+    st_ = idx.stats()
+    assert len(st_["levels"]) >= 2
+    assert sum(l["entries"] for l in st_["levels"]) < 500 * 27 + 5 * 27
+    lo, hi = torch.tensor([-0.2, -0.2, -0.2]), torch.tensor([0.1, 0.3, 0.0])
+    ids = idx.query_box(lo, hi)
+    want = sorted(g for _, g in _brute_pairs(idx, lo.double()[None], hi.double()[None]))
+    assert ids.tolist() == want and set(range(5)) <= set(ids.tolist())
+    far = idx.query_box(torch.full((3,), 1e3), torch.full((3,), 1e3 + 1))
+    assert far.numel() == 0
+
+
+def test_pad_and_errors():
+    sc = random_scene(20, 0, camera_radius=0.07)
+    idx = GridIndex.build(sc)
+    assert idx.pad == 0.07
+    h = sc.half_extents()
+    assert (idx.hi >= sc.means + h + 0.07).all() and (idx.lo <= sc.means - h - 0.07).all()
+    with pytest.raises(InvalidInputError):
+        idx.query_points(torch.tensor([[float("nan"), 0, 0]]), 0.1)
+    with pytest.raises(InvalidInputError):
+        idx.query_points(torch.zeros(2, 3), -1.0)
+    with pytest.raises(InvalidInputError):
+        GridIndex.build(sc, cell_size=0.0)
+    pi, gi = idx.query_points(torch.zeros(0, 3), 0.1)
+    assert pi.numel() == 0
+
+
+def test_float32_scene_and_per_point_radius():
+    sc = random_scene(200, 5).to(dtype=torch.float32)
+    idx = GridIndex.build(sc)
+    pts = torch.rand(50, 3) * 2 - 1
+    rad = torch.rand(50) * 0.2
+    pi, gi = idx.query_points(pts, rad)
+    p64 = pts.double()
+    assert set(zip(pi.tolist(), gi.tolist())) == _brute_pairs(idx, p64 - rad.double()[:, None], p64 + rad.double()[:, None])
+
+
+@pytest.mark.gpu
+def test_cuda_matches_cpu():
+    sc = random_scene(300, 1)
+    idx = GridIndex.build(sc)
+    idx_c = GridIndex.build(sc.to("cuda"))
+    pts = torch.rand(100, 3, dtype=torch.float64) * 2 - 1
+    a = idx.query_points(pts, 0.1)
+    b = idx_c.query_points(pts.cuda(), 0.1)
+    assert a[0].tolist() == b[0].cpu().tolist() and a[1].tolist() == b[1].cpu().tolist()
