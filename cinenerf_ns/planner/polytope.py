@@ -123,85 +123,127 @@ def chebyshev_center(A: ArrayLike, b: ArrayLike) -> tuple[np.ndarray, float]:
 
 
 # ---------------------------------------------------------------------------------------- helpers
-def _k_sphere(w2: Tensor, lam: Tensor, kappa: float, s: Tensor) -> Tensor:
+# The per-ellipsoid kernels run in float64 numpy on the host: they are applied to small chunks
+# (tens of ellipsoids) inside a sequential loop, where numpy's per-call cost (~1 us) beats torch's.
+def _k_sphere(w2: np.ndarray, lam: np.ndarray, kappa: float, s: np.ndarray) -> np.ndarray:
     """Corollary 1: K(s) = sum_i w_i^2 s(1-s) / (kappa + s (lambda_i - kappa)).
     w2, lam [K, 3]; s [K, T] in (0, 1) -> [K, T]."""
     s3 = s[..., None]  # [K, T, 1]
     return (w2[:, None, :] * s3 * (1 - s3) / (kappa + s3 * (lam[:, None, :] - kappa))).sum(-1)
 
 
-def _argmax_k(w2: Tensor, lam: Tensor, kappa: float, n_samples: int = 24, iters: int = 20) -> Tensor:
+def _argmax_k(w2: np.ndarray, lam: np.ndarray, kappa: float, n_samples: int = 32, iters: int = 10) -> np.ndarray:
     """s* = argmax_{s in (0,1)} K(s) per row [K]: K is concave in s, so a coarse grid then golden
-    section inside the best bracket converges to the maximiser (only the normal depends on it)."""
+    section inside the best bracket converges to the maximiser (~1e-3 in s; only the normal uses it, never the offset)."""
     k = w2.shape[0]
-    grid = torch.linspace(0.0, 1.0, n_samples + 2, dtype=w2.dtype, device=w2.device)[1:-1]  # [T]
-    vals = _k_sphere(w2, lam, kappa, grid.expand(k, -1))  # [K, T]
+    grid = np.linspace(0.0, 1.0, n_samples + 2)[1:-1]  # [T]
+    vals = _k_sphere(w2, lam, kappa, np.broadcast_to(grid, (k, n_samples)))  # [K, T]
     best = vals.argmax(-1)  # [K]
     step = grid[1] - grid[0]
-    lo = (grid[best] - step).clamp_min(1e-9)
-    hi = (grid[best] + step).clamp_max(1 - 1e-9)
+    lo = np.maximum(grid[best] - step, 1e-9)
+    hi = np.minimum(grid[best] + step, 1 - 1e-9)
     g = (math.sqrt(5) - 1) / 2
     for _ in range(iters):
         m1 = hi - g * (hi - lo)
         m2 = lo + g * (hi - lo)
-        k12 = _k_sphere(w2, lam, kappa, torch.stack([m1, m2], -1))  # [K, 2]
+        k12 = _k_sphere(w2, lam, kappa, np.stack([m1, m2], -1))  # [K, 2]
         left = k12[:, 0] > k12[:, 1]
-        hi = torch.where(left, m2, hi)
-        lo = torch.where(left, lo, m1)
+        hi = np.where(left, m2, hi)
+        lo = np.where(left, lo, m1)
     return 0.5 * (lo + hi)
 
 
-def _closest_t(w2: Tensor, lam: Tensor, iters: int = 25) -> Tensor:
-    """t >= 0 with sum_i lambda_i w_i^2 / (lambda_i + t)^2 = 1 (closest point of the ellipsoid to an
-    outside point: y - mu = Sigma (Sigma + t I)^{-1} Delta). f is convex decreasing in t, so Newton from
-    t = 0 increases monotonically to the root. Rows with the point inside (f(0) <= 0) get t = 0."""
+def _closest_t(w2: np.ndarray, lam: np.ndarray, iters: int = 10) -> np.ndarray:
+    """t >= 0 with sum_i lambda_i w_i^2 / (lambda_i + t)^2 = 1: the closest point of the ellipsoid to an
+    outside body-frame point w is y = lambda w / (lambda + t), its outer normal ∝ w / (lambda + t).
+
+    Newton on phi(t) = (sum_i c_i / (lambda_i + t)^2)^(-1/2) = 1 (c = lambda w^2): phi is a power mean
+    with exponent -2 of the affine lambda_i + t, hence concave and increasing, so Newton started left
+    of the root (phi(0) = 1/m < 1) stays left and converges monotonically; phi is nearly linear
+    (exactly linear for one axis), so ~8 steps reach 1e-12 relative accuracy. t never exceeds the
+    root, which callers rely on for lower bounds. Rows with the point inside get t = 0."""
+    c = lam * w2  # [K, 3]
     # start from a lower bound of the root: f(t) >= lambda_min |w|^2 / (lambda_max + t)^2
-    t = (torch.sqrt(lam.min(-1).values * w2.sum(-1)) - lam.max(-1).values).clamp_min(0)
+    t = np.maximum(np.sqrt(lam.min(-1) * w2.sum(-1)) - lam.max(-1), 0.0)
     for _ in range(iters):
-        den = lam + t[:, None]  # [K, 3]
-        f = (lam * w2 / den**2).sum(-1) - 1
-        df = (-2 * lam * w2 / den**3).sum(-1)
-        step = torch.where(f > 0, -f / df.clamp(max=-1e-300), torch.zeros_like(f))
-        t = t + step
+        den = lam + t[:, None]
+        q = c / den**2
+        S = q.sum(-1)
+        phi = 1.0 / np.sqrt(np.maximum(S, 1e-300))
+        dphi = phi**3 * (q / den).sum(-1)
+        t = t + np.where(phi < 1.0, (1.0 - phi) / np.maximum(dphi, 1e-300), 0.0)
     return t
 
 
-def _gather(scene, ids: Tensor, device, dtype=torch.float64):
-    mu = scene.means[ids].to(device=device, dtype=dtype)  # [K, 3]
-    rot = scene.rotations[ids].to(device=device, dtype=dtype)  # [K, 3, 3]
-    axes = scene.radii[ids].to(device=device, dtype=dtype)  # [K, 3]
-    return mu, rot, axes
-
-
-def _support_gap(n: Tensor, mu: Tensor, rot: Tensor, axes: Tensor, r: float) -> Tensor:
-    """min over E (+) B_r of n.x = n.mu - ||diag(a) R^T n|| - r, for unit n [K,3] -> [K]."""
-    nb = torch.einsum("kji,kj->ki", rot, n)  # R^T n  [K, 3]
-    return (n * mu).sum(-1) - (axes * nb).norm(dim=-1) - r
-
-
 def candidate_ids(scene, index, box_lo: Tensor, box_hi: Tensor) -> Tensor:
-    """Ids [K] of ellipsoids whose camera-inflated body can meet the box (exact AABB test after the
-    index's coarse query). index: anything with query_box(lo[3], hi[3]) -> LongTensor, or None."""
+    """Ids [K] of ellipsoids whose camera-inflated body may meet the box (a superset: bounding-sphere
+    test after the index's coarse AABB query). index: anything with query_box(lo[3], hi[3]) ->
+    LongTensor, or None (then all ellipsoids are scanned)."""
     r = float(scene.camera_radius)
     dev = scene.means.device
+    m = scene.means
+    lo = torch.as_tensor(box_lo, device=dev).to(m.dtype)
+    hi = torch.as_tensor(box_hi, device=dev).to(m.dtype)
     if index is not None:
-        ids = torch.as_tensor(
-            index.query_box(box_lo.to(dev, scene.means.dtype) - r, box_hi.to(dev, scene.means.dtype) + r),
-            device=dev,
-        ).long()
+        ids = torch.as_tensor(index.query_box(lo - r, hi + r), device=dev).long()
+        if ids.numel() == 0:
+            return ids
+        m = m[ids]
+        amax = scene.radii[ids].max(-1).values
     else:
-        # no index: coarse filter on the means with the largest semi-axis, then the exact AABB test
-        grow = float(scene.radii.max()) + r if len(scene) else 0.0
-        m = scene.means
-        near = ((m >= box_lo.to(dev, m.dtype) - grow - 1e-6) & (m <= box_hi.to(dev, m.dtype) + grow + 1e-6)).all(-1)
-        ids = torch.nonzero(near).squeeze(-1)
-    if ids.numel() == 0:
-        return ids
-    mu = scene.means[ids].double()
-    h = torch.sqrt(((scene.rotations[ids].double() * scene.radii[ids].double()[:, None, :]) ** 2).sum(-1)) + r
-    lo, hi = box_lo.to(dev, torch.float64), box_hi.to(dev, torch.float64)
-    meets = ((mu - h) <= hi).all(-1) & ((mu + h) >= lo).all(-1)
-    return ids[meets]
+        amax = scene.radii.max(-1).values
+    # distance from the mean to the box <= bounding-sphere radius + r (+ rounding slack)
+    gap = (m - torch.minimum(torch.maximum(m, lo), hi)).norm(dim=-1)
+    near = gap <= amax + r + 1e-6 * (1 + m.abs().max(-1).values)
+    sel = torch.nonzero(near).squeeze(-1)
+    return ids[sel] if index is not None else sel
+
+
+def _np(x: Tensor) -> np.ndarray:
+    return x.detach().cpu().to(torch.float64).numpy()
+
+
+def _plane_candidates(seeds: np.ndarray, mu: np.ndarray, rot: np.ndarray, axes: np.ndarray, r: float,
+                      normal: str, margin: float):
+    """Per ellipsoid, the best-slack safe plane among the normal rules -> (n [C,3], b [C], slack [C]).
+    slack = b - max_s n.seed_s (>= 0: every seed inside)."""
+    lam = axes**2  # [C, 3]
+    wb = np.einsum("cji,csj->csi", rot, seeds[None, :, :] - mu[:, None, :])  # body coords [C, S, 3]
+    if seeds.shape[0] == 2:
+        # reference point: the segment point closest to mu in the ellipsoid metric (a 1-D quadratic)
+        d = wb[:, 1] - wb[:, 0]  # [C, 3]
+        den = (d**2 / lam).sum(-1)
+        u = np.clip(-(wb[:, 0] * d / lam).sum(-1) / np.maximum(den, 1e-300), 0.0, 1.0)
+        u = np.where(den > 0, u, 0.0)
+        w = wb[:, 0] + u[:, None] * d  # [C, 3]
+    else:
+        w = wb[np.arange(len(mu)), (wb**2 / lam[:, None, :]).sum(-1).argmin(-1)]  # [C, 3]
+    degenerate = (w**2).sum(-1) < 1e-24  # reference point at the centre: any direction is valid
+    w = np.where(degenerate[:, None], np.array([0.0, 0.0, 1e-12]), w)
+    w2 = w**2
+    cands = []  # body-frame normals pointing from the reference point toward the ellipsoid
+    if normal in ("auto", "prop2"):
+        s = _argmax_k(w2, lam, r * r)[:, None]
+        cands.append(-(s * (1 - s) / (r * r + s * (lam - r * r))) * w)
+    if normal in ("auto", "mahalanobis"):
+        cands.append(-w / lam)
+    if normal in ("auto", "closest"):
+        cands.append(-w / (lam + _closest_t(w2, lam)[:, None]))
+    nb = np.stack(cands)  # [R, C, 3]
+    nb = nb / np.maximum(np.linalg.norm(nb, axis=-1, keepdims=True), 1e-300)
+    nw = np.einsum("cij,rcj->rci", rot, nb)  # world normals R nb  [R, C, 3]
+    # exact offset: n.mu - ||diag(a) R^T n|| - r (module docstring); R^T n = nb
+    offs = (nw * mu).sum(-1) - np.linalg.norm(axes * nb, axis=-1) - r - margin  # [R, C]
+    slack = offs - np.einsum("rci,si->rcs", nw, seeds).max(-1)  # [R, C]
+    best = slack.argmax(0)
+    ar = np.arange(len(mu))
+    return nw[best, ar], offs[best, ar], slack[best, ar]
+
+
+def _support_gap(n: np.ndarray, mu: np.ndarray, rot: np.ndarray, axes: np.ndarray, r: float) -> np.ndarray:
+    """min over E_c (+) B_r of n_f.x for planes n [F,3] and ellipsoids [C] -> [C, F]."""
+    nb = np.einsum("cji,fj->cfi", rot, n)  # R_c^T n_f  [C, F, 3]
+    return mu @ n.T - np.linalg.norm(axes[:, None, :] * nb, axis=-1) - r
 
 
 # ---------------------------------------------------------------------------------------- main
@@ -216,121 +258,121 @@ def safe_polytope(
     normal: str = "auto",
     require_seed_inside: bool = True,
     prune: bool = True,
+    chunk: int = 32,
 ) -> Polytope:
     """Safe polytope around seed points [S, 3] inside the box [box_lo, box_hi].
 
     Every point of the returned polytope, used as a camera centre, keeps the camera ball
     (scene.camera_radius) at distance >= ``margin`` outside every ellipsoid of the scene (exact, see
     module docstring) and lies in the box. All seed points are inside (else SeedNotFreeError when
-    ``require_seed_inside``; with False the polytope is returned anyway and may exclude them or be empty,
-    which ``closest_safe_point`` uses). Planes are float64 on the scene's device.
+    ``require_seed_inside``; with False the polytope is returned anyway and may exclude them or be
+    empty, which ``closest_safe_point`` uses). Planes are float64 on the scene's device.
 
     normal: "auto" (best of the three below per ellipsoid), "prop2" (paper: Q(s*) Delta),
     "closest" (normal at the closest ellipsoid point), "mahalanobis" (Sigma^{-1} Delta).
+    prune: nearest-first redundancy removal (False: one plane per ellipsoid meeting the box).
+    chunk: ellipsoids are visited in order of a distance lower bound, ``chunk`` at a time; planes are
+    only computed for ellipsoids not already cut off by earlier planes, so far clutter costs ~nothing.
     """
     dev = scene.means.device
-    seeds = torch.as_tensor(seed_points, device=dev).to(torch.float64).reshape(-1, 3)  # [S, 3]
-    if seeds.shape[0] == 0 or not torch.isfinite(seeds).all():
-        raise InvalidInputError(f"safe_polytope needs finite seed points [S, 3], got {tuple(seeds.shape)}")
+    seeds_t = torch.as_tensor(seed_points, device=dev).to(torch.float64).reshape(-1, 3)  # [S, 3]
+    if seeds_t.shape[0] == 0 or not torch.isfinite(seeds_t).all():
+        raise InvalidInputError(f"safe_polytope needs finite seed points [S, 3], got {tuple(seeds_t.shape)}")
     if box_lo is None or box_hi is None:
         raise InvalidInputError("safe_polytope needs a local box (box_lo, box_hi)")
-    lo = torch.as_tensor(box_lo, device=dev).to(torch.float64).reshape(3)
-    hi = torch.as_tensor(box_hi, device=dev).to(torch.float64).reshape(3)
-    if not (torch.isfinite(lo).all() and torch.isfinite(hi).all() and (hi > lo).all()):
-        raise InvalidInputError(f"bad polytope box lo={lo.tolist()} hi={hi.tolist()}")
-    if require_seed_inside and not ((seeds >= lo).all() and (seeds <= hi).all()):
+    lo_t = torch.as_tensor(box_lo, device=dev).to(torch.float64).reshape(3)
+    hi_t = torch.as_tensor(box_hi, device=dev).to(torch.float64).reshape(3)
+    if not (torch.isfinite(lo_t).all() and torch.isfinite(hi_t).all() and (hi_t > lo_t).all()):
+        raise InvalidInputError(f"bad polytope box lo={lo_t.tolist()} hi={hi_t.tolist()}")
+    if require_seed_inside and not ((seeds_t >= lo_t).all() and (seeds_t <= hi_t).all()):
         raise InvalidInputError("seed points must lie inside the polytope box")
     if normal not in ("auto", "prop2", "closest", "mahalanobis"):
         raise InvalidInputError(f"unknown normal rule {normal!r}")
     r = float(scene.camera_radius)
-    eye = torch.eye(3, dtype=torch.float64, device=dev)
-    A_box = torch.cat([eye, -eye])  # [6, 3]
-    b_box = torch.cat([hi, -lo])  # [6]
+    seeds = _np(seeds_t)
+    lo, hi = _np(lo_t), _np(hi_t)
+    A_box = np.vstack([np.eye(3), -np.eye(3)])  # [6, 3]
+    b_box = np.concatenate([hi, -lo])
 
-    ids = candidate_ids(scene, index, lo, hi)  # [K]
-    if ids.numel() == 0:
-        return Polytope(A_box, b_box, seeds, ids)
-    mu, rot, axes = _gather(scene, ids, dev)  # [K,3], [K,3,3], [K,3]
-    lam = axes**2  # [K, 3]
-
-    # reference point per ellipsoid: the seed closest in the ellipsoid metric (segment: closest point)
-    wb = torch.einsum("kji,ksj->ksi", rot, seeds[None, :, :] - mu[:, None, :])  # [K, S, 3]
-    mah = (wb**2 / lam[:, None, :]).sum(-1)  # [K, S]
-    if seeds.shape[0] == 2:
-        # minimise m(u) = |L^{-1}(w0 + u (w1 - w0))|^2 over u in [0, 1] (a quadratic)
-        d = wb[:, 1] - wb[:, 0]  # [K, 3]
-        den = (d**2 / lam).sum(-1)
-        u = (-(wb[:, 0] * d / lam).sum(-1) / den.clamp_min(1e-300)).clamp(0, 1)
-        u = torch.where(den > 0, u, torch.zeros_like(u))
-        w = wb[:, 0] + u[:, None] * d  # [K, 3]
-    else:
-        w = wb[torch.arange(len(ids), device=dev), mah.argmin(-1)]  # [K, 3]
-    w2 = w**2
-    degenerate = w2.sum(-1) < 1e-24  # reference point at the centre: any direction is valid
-    w = torch.where(degenerate[:, None], torch.tensor([0.0, 0.0, 1e-12], dtype=w.dtype, device=dev), w)
-    w2 = w**2
-
-    cands = []  # body-frame normals pointing from the seed toward the ellipsoid, [K, 3] each
-    if normal in ("auto", "prop2"):
-        s = _argmax_k(w2, lam, r * r)
-        q = s[:, None] * (1 - s[:, None]) / (r * r + s[:, None] * (lam - r * r))
-        cands.append(-q * w)
-    if normal in ("auto", "mahalanobis"):
-        cands.append(-w / lam)
-    if normal in ("auto", "closest"):
-        t = _closest_t(w2, lam)
-        cands.append(-w / (lam + t[:, None]))
-    nb = torch.stack(cands)  # [C, K, 3]
-    nb = nb / nb.norm(dim=-1, keepdim=True).clamp_min(1e-300)
-    n_world = torch.einsum("kij,ckj->cki", rot, nb)  # R nb  [C, K, 3]
-    offs = (n_world * mu).sum(-1) - (axes * nb).norm(dim=-1) - r - margin  # [C, K]
-    proj = torch.einsum("cki,si->cks", n_world, seeds).max(-1).values  # [C, K]
-    slack_c = offs - proj  # [C, K]  >= 0: all seeds inside this plane
-    best = slack_c.argmax(0)  # [K]
-    ar = torch.arange(len(ids), device=dev)
-    n_sel = n_world[best, ar]  # [K, 3]
-    b_sel = offs[best, ar]  # [K]
-    slack = slack_c[best, ar]  # [K]
-
-    if require_seed_inside and bool((slack < 0).any()):
-        bad = slack < 0
-        raise SeedNotFreeError(
-            f"seed {'segment' if seeds.shape[0] == 2 else 'point(s)'} is within the camera radius {r:g} of "
-            f"{int(bad.sum())} ellipsoid(s) (worst slack {float(slack.min()):.3g}); no safe polytope contains it",
-            ellipsoid_ids=ids[bad], min_slack=float(slack.min()),
-        )
-
-    if prune:
-        keep = _prune(n_sel, b_sel, slack, mu, rot, axes, r)
-    else:
-        keep = torch.arange(len(ids), device=dev)
-    A = torch.cat([A_box, n_sel[keep]])
-    b = torch.cat([b_box, b_sel[keep]])
-    return Polytope(A, b, seeds, ids[keep])
-
-
-def _prune(n_sel: Tensor, b_sel: Tensor, slack: Tensor, mu: Tensor, rot: Tensor, axes: Tensor, r: float) -> Tensor:
-    """Greedy nearest-first redundancy removal; returns the kept rows (indices into the K candidates).
-
-    Runs in numpy on the host: the loop is sequential and per-step arrays are small, so host numpy
-    beats per-op device launches; the inputs are only K x 15 numbers."""
-    order = torch.argsort(slack).cpu().numpy()
-    n = n_sel.detach().cpu().numpy()[order]  # [K, 3]
-    b = b_sel.detach().cpu().numpy()[order]
-    m = mu.detach().cpu().numpy()[order]
-    R = rot.detach().cpu().numpy()[order]
-    a = axes.detach().cpu().numpy()[order]
-    alive_idx = np.arange(len(order))  # positions (in sorted order) still undecided
-    kept = []
-    while alive_idx.size:
-        i = alive_idx[0]
-        kept.append(i)
-        rest = alive_idx[1:]
-        if rest.size == 0:
-            break
-        ni = n[i]
-        # min over E_j (+) B_r of ni.x for all remaining j
-        nbody = np.einsum("kji,j->ki", R[rest], ni)  # R_j^T ni  [J, 3]
-        gap = m[rest] @ ni - np.linalg.norm(a[rest] * nbody, axis=1) - r  # [J]
-        alive_idx = rest[gap < b[i]]
-    return torch.as_tensor(order[np.asarray(kept, dtype=np.int64)], device=n_sel.device)
+    ids = candidate_ids(scene, index, lo_t, hi_t)  # [K] on device
+    K = int(ids.numel())
+    planes_n, planes_b, planes_id = [], [], []
+    if K:
+        mu_all = _np(scene.means[ids])  # [K, 3]
+        amax = _np(scene.radii[ids].max(-1).values)  # [K] bounding-sphere radii
+        # visiting order: lower bound of the distance from the seed set to the inflated body
+        if seeds.shape[0] == 2:
+            d = seeds[1] - seeds[0]
+            u = np.clip((mu_all - seeds[0]) @ d / max(float(d @ d), 1e-300), 0, 1)
+            dist = np.linalg.norm(seeds[0] + u[:, None] * d - mu_all, axis=1)
+        else:
+            dist = np.linalg.norm(mu_all[:, None, :] - seeds[None], axis=-1).min(1)
+        order = np.argsort(dist - amax, kind="stable")
+        queue = order
+        ids_cpu = ids.cpu()
+        step = chunk if prune else K
+        bad = []
+        while queue.size:
+            ch, rest = queue[:step], queue[step:]
+            if ch.size == 0:
+                break
+            sel = torch.as_tensor(ch)
+            rot = _np(scene.rotations[ids[sel.to(dev)]])
+            axes = _np(scene.radii[ids[sel.to(dev)]])
+            mu = mu_all[ch]
+            n_c, b_c, slack_c = _plane_candidates(seeds, mu, rot, axes, r, normal, margin)
+            if require_seed_inside and (slack_c < 0).any():
+                # no plane of this ellipsoid's family keeps all seeds; it is only fatal if no other
+                # plane cuts it off either, which is decided once all planes are known
+                neg = slack_c < 0
+                bad.append((ch[neg], mu[neg], rot[neg], axes[neg], slack_c[neg]))
+                keep_c = ~neg
+                ch, mu, rot, axes = ch[keep_c], mu[keep_c], rot[keep_c], axes[keep_c]
+                n_c, b_c, slack_c = n_c[keep_c], b_c[keep_c], slack_c[keep_c]
+            if not prune:
+                planes_n.append(n_c), planes_b.append(b_c), planes_id.append(ch)
+                break
+            # redundancy inside the chunk, vectorised: beyond[i, j] = ellipsoid i lies beyond plane j
+            # (exact support test) for the chunk's own planes and for the planes kept so far
+            beyond_own = _support_gap(n_c, mu, rot, axes, r) >= b_c  # [C, C]
+            if planes_n:
+                kn, kb = np.vstack(planes_n), np.concatenate(planes_b)
+                dead = (_support_gap(kn, mu, rot, axes, r) >= kb).any(1)  # [C]
+            else:
+                dead = np.zeros(len(ch), dtype=bool)
+            taken = np.zeros(len(ch), dtype=bool)
+            for i in np.argsort(slack_c, kind="stable"):  # nearest plane first
+                if dead[i] or beyond_own[i, taken].any():
+                    continue  # already cut off by a kept plane: needs no plane of its own
+                taken[i] = True
+            if taken.any():
+                nn, nbv = n_c[taken], b_c[taken]
+                planes_n.append(nn)
+                planes_b.append(nbv)
+                planes_id.append(ch[taken])
+                if rest.size:
+                    # drop the rest that lie beyond a new plane (bounding sphere: sound, cheap)
+                    gap_lb = mu_all[rest] @ nn.T - amax[rest, None] - r  # [J, F_new]
+                    rest = rest[~(gap_lb >= nbv).any(1)]
+            queue = rest
+        if bad:
+            b_ch, b_mu, b_rot, b_axes, b_slack = (np.concatenate([x[i] for x in bad]) for i in range(5))
+            if planes_n:
+                kn, kb = np.vstack(planes_n), np.concatenate(planes_b)
+                cut = (_support_gap(kn, b_mu, b_rot, b_axes, r) >= kb).any(1)
+                b_ch, b_slack = b_ch[~cut], b_slack[~cut]
+            worst = float(b_slack.min()) if b_slack.size else 0.0
+        if bad and b_ch.size:
+            bad_ids = ids_cpu[torch.as_tensor(b_ch)]
+            raise SeedNotFreeError(
+                f"seed {'segment' if seeds.shape[0] == 2 else 'point(s)'} is within the camera radius {r:g} of "
+                f"{len(bad_ids)} ellipsoid(s) (worst slack {worst:.3g}); no safe polytope contains it",
+                ellipsoid_ids=bad_ids, min_slack=worst,
+            )
+    A = np.vstack([A_box] + planes_n)
+    b = np.concatenate([b_box] + planes_b)
+    kept = torch.as_tensor(np.concatenate(planes_id) if planes_id else np.zeros(0, np.int64))
+    return Polytope(
+        torch.as_tensor(A, device=dev), torch.as_tensor(b, device=dev), seeds_t,
+        ids[kept.to(dev)] if K else ids,
+    )
