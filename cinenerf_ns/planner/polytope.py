@@ -165,6 +165,12 @@ def _closest_t(w2: np.ndarray, lam: np.ndarray, iters: int = 10) -> np.ndarray:
     c = lam * w2  # [K, 3]
     # start from a lower bound of the root: f(t) >= lambda_min |w|^2 / (lambda_max + t)^2
     t = np.maximum(np.sqrt(lam.min(-1) * w2.sum(-1)) - lam.max(-1), 0.0)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # w = 0 rows: no step taken
+        t = _closest_t_steps(c, lam, t, iters)
+    return t
+
+
+def _closest_t_steps(c: np.ndarray, lam: np.ndarray, t: np.ndarray, iters: int) -> np.ndarray:
     for _ in range(iters):
         den = lam + t[:, None]
         q = c / den**2
@@ -307,15 +313,22 @@ def safe_polytope(
             dist = np.linalg.norm(seeds[0] + u[:, None] * d - mu_all, axis=1)
         else:
             dist = np.linalg.norm(mu_all[:, None, :] - seeds[None], axis=-1).min(1)
-        order = np.argsort(dist - amax, kind="stable")
-        queue = order
+        key = dist - amax
+        queue = np.arange(K)  # undecided candidates, unordered: only each chunk is sorted
         ids_cpu = ids.cpu()
         step = chunk if prune else K
         bad = []
         while queue.size:
-            ch, rest = queue[:step], queue[step:]
-            if ch.size == 0:
-                break
+            if queue.size > step:
+                # the `step` nearest by the lower bound (O(K) partition instead of a full sort)
+                part = np.argpartition(key[queue], step - 1)[:step]
+                ch = queue[part]
+                left = np.ones(queue.size, dtype=bool)
+                left[part] = False
+                rest = queue[left]
+            else:
+                ch, rest = queue, queue[:0]
+            ch = ch[np.argsort(key[ch], kind="stable")]
             sel = torch.as_tensor(ch)
             rot = _np(scene.rotations[ids[sel.to(dev)]])
             axes = _np(scene.radii[ids[sel.to(dev)]])
