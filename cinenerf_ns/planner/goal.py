@@ -197,9 +197,10 @@ def _nearest_free_voxel_centre(t, scene, index, grid, reachable, clear, max_cand
             if float(d.min()) <= R * vs or covers_all:
                 order = torch.argsort(d)[:max_candidates]
                 cand = centres[order]
-                ok = torch.as_tensor(clear(cand.to(scene.means.device))).reshape(-1).cpu()
-                if bool(ok.any()):
-                    return cand[int(torch.nonzero(ok)[0, 0])]
+                for k in range(0, cand.shape[0], 16):  # nearest first, a few exact tests at a time
+                    ok = torch.as_tensor(clear(cand[k:k + 16].to(scene.means.device))).reshape(-1).cpu()
+                    if bool(ok.any()):
+                        return cand[k + int(torch.nonzero(ok)[0, 0])]
                 if covers_all:
                     break
         elif covers_all:

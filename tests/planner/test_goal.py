@@ -38,7 +38,13 @@ def conservative_grid(scene, lo=-1.0, res=16, size=2.0) -> Grid:
     vs = size / res
     idx = np.stack(np.meshgrid(*[np.arange(res)] * 3, indexing="ij"), -1).reshape(-1, 3)
     centres = lo + (idx + 0.5) * vs
-    occ = clearance(centres, scene) < 0.5 * vs * np.sqrt(3)
+    radii = scene.radii.numpy()
+    if np.allclose(radii, radii[:, :1]):  # spheres: exact distance in closed form (fast)
+        d = np.linalg.norm(centres[:, None] - scene.means.numpy()[None], axis=-1) - radii[None, :, 0]
+        cl = d.min(1) - scene.camera_radius
+    else:
+        cl = clearance(centres, scene)
+    occ = cl < 0.5 * vs * np.sqrt(3)
     return Grid(occ.reshape(res, res, res), torch.full((3,), lo, dtype=torch.float64), vs)
 
 
@@ -130,12 +136,12 @@ def test_goal_bad_input():
         closest_safe_point([0.0, 0], scene)
 
 
-@settings(max_examples=50, deadline=None)
+@settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 2**31 - 1))
 def test_points_clearance_lower_is_a_tight_lower_bound(seed):
     rng = np.random.default_rng(seed)
     scene = random_scene(rng, 6, amax=0.3, camera_radius=0.03)
-    pts = rng.uniform(-1, 1, size=(20, 3))
+    pts = rng.uniform(-1, 1, size=(10, 3))
     got = points_clearance_lower(torch.as_tensor(pts), scene).numpy()
     ref = clearance(pts, scene)
     near = got < np.inf
@@ -150,7 +156,7 @@ def test_points_clearance_lower_is_a_tight_lower_bound(seed):
 def test_sample_free_starts_seeded_safe_and_in_region():
     rng = np.random.default_rng(0)
     scene = random_scene(rng, 10, amax=0.3, camera_radius=0.03)
-    grid = conservative_grid(scene)
+    grid = conservative_grid(scene, res=8)
     a = sample_free_starts(12, scene, None, grid, generator=7, region_lo=[-0.8, -0.8, -0.5], region_hi=[0.8, 0.8, 0.5])
     b = sample_free_starts(12, scene, None, grid, generator=torch.Generator().manual_seed(7),
                            region_lo=[-0.8, -0.8, -0.5], region_hi=[0.8, 0.8, 0.5])
