@@ -1,0 +1,146 @@
+"""Safe flight corridor: one safe polytope per segment of a (shortcut) polyline (issue 3, item 5).
+
+Polytope m is seeded by the whole segment [w_m, w_{m+1}] (both endpoints, hence the segment, inside),
+in a local box = segment bounding box grown by ``box_margin``. Consecutive polytopes share the
+waypoint w_{m+1}, so their intersection is never empty; we also measure how much room it has
+(Chebyshev radius of P_m ∩ P_{m+1}: a cheap lower bound first, the LP only when that is small),
+because C1/C2 Bezier joins want control points on both sides of the junction. The straight polyline
+itself is always a feasible trajectory of the corridor, so a thin junction only costs smoothness,
+never safety or feasibility; it is reported (``thin_joints``) and warned about.
+
+A segment that no polytope can contain (it grazes an obstacle closer than the camera radius: the
+per-ellipsoid planes are tangent to the inflated ellipsoid, so for a segment outside every inflated
+ellipsoid this is rare) is split at its midpoint and retried, up to ``max_split_depth`` times.
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from .errors import InvalidInputError, PlanningError
+from .polytope import Polytope, SeedNotFreeError, chebyshev_center, safe_polytope
+
+
+class CorridorError(PlanningError):
+    """A path segment stays within the camera radius of the scene even after splitting."""
+
+
+@dataclass
+class Corridor:
+    """Polytopes P_0..P_{M-1} around the segments of waypoints w_0..w_M (P_m contains [w_m, w_{m+1}])."""
+
+    polytopes: list[Polytope]
+    waypoints: Tensor  # [M+1, 3] float64
+    overlap_radius: Tensor = field(default=None)  # [M-1] lower bound of the Chebyshev radius of P_m ∩ P_{m+1}
+    thin_joints: list[int] = field(default_factory=list)  # m with overlap_radius[m] < min_overlap
+    n_splits: int = 0  # midpoint splits that were needed
+
+    def __len__(self) -> int:
+        return len(self.polytopes)
+
+    def constraints(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """[(A [F,3], b [F])] float64 numpy, one per segment (what the trajectory QP consumes)."""
+        return [p.to_numpy() for p in self.polytopes]
+
+    @property
+    def num_faces(self) -> list[int]:
+        return [p.num_faces for p in self.polytopes]
+
+
+def _segment_polytopes(p0, p1, scene, index, box_margin, depth, max_depth, kw, out, stats, seg_id):
+    seg = torch.stack([p0, p1])  # [2, 3]
+    lo = seg.min(0).values - box_margin
+    hi = seg.max(0).values + box_margin
+    try:
+        out.append((safe_polytope(seg, scene, index, lo, hi, **kw), p0, p1))
+        return
+    except SeedNotFreeError as e:
+        if depth >= max_depth:
+            raise CorridorError(
+                f"path segment {seg_id} ({p0.tolist()} -> {p1.tolist()}) passes within the camera radius of "
+                f"the scene (worst slack {e.min_slack:.3g}) even after {max_depth} splits; the initial path is "
+                f"not collision-free (check the occupancy grid / shortcut segment test)"
+            ) from e
+    stats["splits"] += 1
+    mid = 0.5 * (p0 + p1)
+    _segment_polytopes(p0, mid, scene, index, box_margin, depth + 1, max_depth, kw, out, stats, seg_id)
+    _segment_polytopes(mid, p1, scene, index, box_margin, depth + 1, max_depth, kw, out, stats, seg_id)
+
+
+def build_corridor(
+    waypoints,  # [K, 3]
+    scene,
+    index=None,
+    box_margin: float = 0.1,
+    *,
+    max_split_depth: int = 4,
+    min_overlap: float = 1e-3,
+    margin: float = 1e-6,
+    normal: str = "auto",
+    exact_overlap: bool = False,
+) -> Corridor:
+    """Corridor of safe polytopes along a polyline of camera centres.
+
+    waypoints: [K, 3] (K >= 2; repeated consecutive points are dropped). Returns a Corridor whose
+    ``waypoints`` [M+1, 3] include any midpoints added by splitting (M >= K-1 segments).
+    box_margin: each polytope lives in its segment's bounding box grown by this (scene units); larger
+    boxes give the QP more room but cost more planes.
+    min_overlap: junctions whose overlap (Chebyshev radius of P_m ∩ P_{m+1}) is below this are
+    reported in ``thin_joints`` with a warning. exact_overlap: always solve the LP (else only when the
+    cheap lower bound, the shared waypoint's distance to the nearest face of either polytope, is small).
+    Raises InvalidInputError (bad waypoints), CorridorError (a segment cannot be covered).
+    """
+    dev = scene.means.device
+    w = torch.as_tensor(waypoints, device=dev).to(torch.float64)
+    if w.ndim != 2 or w.shape[-1] != 3 or w.shape[0] < 2:
+        raise InvalidInputError(f"build_corridor needs waypoints [K>=2, 3], got {tuple(w.shape)}")
+    if not torch.isfinite(w).all():
+        raise InvalidInputError("build_corridor: waypoints contain NaN/inf")
+    if not (box_margin > 0):
+        raise InvalidInputError(f"box_margin must be > 0, got {box_margin}")
+    keep = torch.ones(w.shape[0], dtype=torch.bool, device=dev)
+    keep[1:] = (w[1:] - w[:-1]).norm(dim=-1) > 1e-12
+    w = w[keep]
+    if w.shape[0] < 2:
+        raise InvalidInputError("build_corridor: all waypoints coincide (start == goal?)")
+
+    kw = dict(margin=margin, normal=normal)
+    pieces: list = []
+    stats = {"splits": 0}
+    for m in range(w.shape[0] - 1):
+        _segment_polytopes(w[m], w[m + 1], scene, index, box_margin, 0, max_split_depth, kw, pieces, stats, m)
+    polys = [p for p, _, _ in pieces]
+    wps = torch.stack([pieces[0][1]] + [p1 for _, _, p1 in pieces])  # [M+1, 3]
+
+    radii = []
+    thin = []
+    for m in range(len(polys) - 1):
+        wj = wps[m + 1]
+        lb = float(torch.minimum(polys[m].slack(wj), polys[m + 1].slack(wj)))
+        rad = lb
+        if exact_overlap or lb < min_overlap:
+            A = torch.cat([polys[m].A, polys[m + 1].A])
+            b = torch.cat([polys[m].b, polys[m + 1].b])
+            _, rad = chebyshev_center(A, b)
+            rad = max(rad, lb)
+        radii.append(rad)
+        if rad < min_overlap:
+            thin.append(m)
+    if thin:
+        warnings.warn(
+            f"corridor: {len(thin)} junction(s) have little room (overlap radius < {min_overlap:g}) at "
+            f"waypoints {[m + 1 for m in thin]}; the trajectory may slow down there",
+            stacklevel=2,
+        )
+    return Corridor(
+        polytopes=polys,
+        waypoints=wps,
+        overlap_radius=torch.tensor(radii, dtype=torch.float64),
+        thin_joints=thin,
+        n_splits=stats["splits"],
+    )

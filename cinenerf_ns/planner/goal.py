@@ -1,0 +1,282 @@
+"""Goal and start positions (issue 3, item 6).
+
+closest_safe_point (paper Sec. IV-C): the go-to target (e.g. an object's centroid) is usually inside
+the object. We grow a Prop-2 safe polytope around the target (it may exclude the target itself) and
+project the target onto it (a 3-variable QP, Clarabel); every point of that polytope is safe, so the
+projection is a safe goal as close to the target as that polytope allows. When the polytope is empty
+(target deep inside clutter) we fall back to the nearest free voxel of the occupancy grid that holds
+no Gaussian mean, verified with an exact point clearance test.
+
+sample_free_starts: seeded rejection sampling of camera centres in a region, pre-filtered by the
+grid's free voxels and accepted only after an exact clearance test.
+
+The grid is duck-typed: any object with ``occupied`` (bool [X, Y, Z]), ``lo`` [3], ``voxel_size``
+(float) and optionally ``voxel_to_world`` / ``world_to_voxel``; without those methods voxel (i,j,k)
+is the cube lo + [i, i+1) * voxel_size with centre lo + (i + 0.5) * voxel_size.
+"""
+from __future__ import annotations
+
+import math
+from typing import Callable, Optional, Union
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from .errors import GoalUnreachableError, InvalidInputError, StartInCollisionError
+from .polytope import _closest_t, candidate_ids, chebyshev_center, safe_polytope
+
+
+class NoFreeStartError(StartInCollisionError):
+    """No collision-free start position could be sampled in the requested region."""
+
+
+# ------------------------------------------------------------------------------------ grid helpers
+def _grid_arrays(grid):
+    occ = grid.occupied
+    occ = occ.detach().cpu().numpy() if isinstance(occ, Tensor) else np.asarray(occ)
+    lo = torch.as_tensor(grid.lo).detach().cpu().to(torch.float64).reshape(3)
+    vs = float(grid.voxel_size)
+    return occ.astype(bool), lo, vs
+
+
+def _voxel_to_world(grid, ijk: Tensor) -> Tensor:
+    if hasattr(grid, "voxel_to_world"):
+        return torch.as_tensor(grid.voxel_to_world(ijk)).detach().cpu().to(torch.float64)
+    _, lo, vs = _grid_arrays(grid)
+    return lo + (ijk.to(torch.float64) + 0.5) * vs
+
+
+def _world_to_voxel(grid, x: Tensor) -> Tensor:
+    if hasattr(grid, "world_to_voxel"):
+        return torch.as_tensor(grid.world_to_voxel(x)).detach().cpu().long()
+    _, lo, vs = _grid_arrays(grid)
+    return ((x.to(torch.float64) - lo) / vs).floor().long()
+
+
+# ------------------------------------------------------------------------------------ exact checks
+def points_clearance_lower(points: Tensor, scene, index=None) -> Tensor:
+    """Lower bound of min_j dist(x, E_j) - camera_radius for points [P, 3] -> [P] float64.
+
+    Exact up to the root-finder's tolerance, and never above the truth: the closest-point multiplier t
+    is approached from below by Newton (f convex decreasing), and |t w / (lambda + t)| grows with t.
+    Points inside an ellipsoid get -inf. Only ellipsoids whose camera-inflated AABB holds the point can
+    be within the camera radius, so those are the only ones examined (clearance is capped at 0 plus
+    +inf when none is near: the answer is ">= 0", which is all the callers need).
+    """
+    dev = scene.means.device
+    pts = torch.as_tensor(points, device=dev).to(torch.float64).reshape(-1, 3)
+    r = float(scene.camera_radius)
+    out = torch.full((pts.shape[0],), math.inf, dtype=torch.float64, device=dev)
+    for p in range(pts.shape[0]):
+        ids = candidate_ids(scene, index, pts[p], pts[p])
+        if ids.numel() == 0:
+            continue
+        mu = scene.means[ids].detach().cpu().double().numpy()
+        rot = scene.rotations[ids].detach().cpu().double().numpy()
+        lam = scene.radii[ids].detach().cpu().double().numpy() ** 2
+        w = np.einsum("kji,kj->ki", rot, pts[p].cpu().numpy() - mu)  # body frame [K, 3]
+        inside = (w**2 / lam).sum(-1) <= 1
+        t = _closest_t(w**2, lam, iters=30)
+        d = np.linalg.norm(t[:, None] * w / (lam + t[:, None]), axis=-1)
+        d = np.where(inside, -math.inf, d)
+        out[p] = float(d.min()) - r
+    return out
+
+
+def _default_clear(scene, index, margin):
+    def clear(points: Tensor) -> Tensor:
+        return points_clearance_lower(points, scene, index) >= margin
+
+    return clear
+
+
+# ------------------------------------------------------------------------------------ goal
+def _project_onto_polytope(A: np.ndarray, b: np.ndarray, target: np.ndarray) -> Optional[np.ndarray]:
+    """argmin |x - target|^2 s.t. A x <= b (Clarabel), then pulled exactly inside along the segment to the
+    Chebyshev centre (ratio test) so the returned point satisfies A x <= b in floating point.
+    None when the polytope has no interior."""
+    import clarabel
+    from scipy import sparse
+
+    c, rad = chebyshev_center(A, b)
+    if not (rad > 1e-9):
+        return None
+    P = sparse.csc_matrix(2.0 * np.eye(3))
+    q = -2.0 * target
+    settings = clarabel.DefaultSettings()
+    settings.verbose = False
+    solver = clarabel.DefaultSolver(P, q, sparse.csc_matrix(A), b, [clarabel.NonnegativeConeT(len(b))], settings)
+    sol = solver.solve()
+    x = np.asarray(sol.x, dtype=np.float64) if str(sol.status) in ("Solved", "AlmostSolved") else c.copy()
+    viol = A @ x - b
+    if (viol > 0).any():
+        ax, ac = A @ x, A @ c
+        alpha = np.max(np.where(viol > 0, viol / np.maximum(ax - ac, 1e-300), 0.0))
+        x = x + min(1.0, alpha * (1 + 1e-9) + 1e-12) * (c - x)
+    return x if (A @ x <= b).all() else None
+
+
+def closest_safe_point(
+    target,  # [3]
+    scene,
+    index=None,
+    grid=None,
+    *,
+    box_half: Optional[float] = None,
+    margin: float = 1e-6,
+    reachable: Optional[np.ndarray] = None,
+    clearance_fn: Optional[Callable[[Tensor], Tensor]] = None,
+    max_fallback_candidates: int = 256,
+) -> Tensor:
+    """Safe camera centre closest to ``target`` (as far as the method below can tell) -> [3] float64.
+
+    1. target already safe (exact clearance >= margin) -> target.
+    2. Prop-2 polytope in the box target +- box_half (default 8 voxels, or 0.2 without a grid), target
+       projected onto it (QP), verified inside -> that point (safe by construction of the polytope).
+    3. fallback: free voxels of ``grid`` holding no Gaussian mean (and inside ``reachable`` [X,Y,Z]
+       if given, e.g. the start's connected component), nearest first, the first whose centre passes
+       the exact clearance test.
+    Raises GoalUnreachableError when all three fail. ``clearance_fn(points[P,3]) -> bool[P]`` replaces
+    the built-in exact test (e.g. a closure over distance.clearance(...) >= 0).
+    """
+    dev = scene.means.device
+    t = torch.as_tensor(target, device=dev).to(torch.float64).reshape(-1)
+    if t.shape != (3,) or not torch.isfinite(t).all():
+        raise InvalidInputError(f"goal target must be 3 finite numbers, got {t.tolist()}")
+    clear = clearance_fn or _default_clear(scene, index, margin)
+    if bool(torch.as_tensor(clear(t[None])).reshape(-1)[0]):
+        return t
+    if box_half is None:
+        box_half = 8 * float(grid.voxel_size) if grid is not None else 0.2
+    P = safe_polytope(t[None], scene, index, t - box_half, t + box_half, margin=margin, require_seed_inside=False)
+    A, b = P.to_numpy()
+    x = _project_onto_polytope(A, b, t.cpu().numpy())
+    if x is not None:
+        return torch.as_tensor(x, dtype=torch.float64, device=dev)
+    if grid is None:
+        raise GoalUnreachableError(
+            f"no safe camera position found near the goal {t.tolist()} (it is buried in the scene) and no "
+            f"occupancy grid was given for the fallback"
+        )
+    return _nearest_free_voxel_centre(t, scene, index, grid, reachable, clear, max_fallback_candidates).to(dev)
+
+
+def _nearest_free_voxel_centre(t, scene, index, grid, reachable, clear, max_candidates) -> Tensor:
+    occ, lo, vs = _grid_arrays(grid)
+    shape = np.asarray(occ.shape)
+    free = ~occ
+    if reachable is not None:
+        reachable = np.asarray(reachable, dtype=bool)
+        if reachable.shape != occ.shape:
+            raise InvalidInputError(f"reachable mask {reachable.shape} does not match the grid {occ.shape}")
+        free &= reachable
+    tc = t.cpu()
+    v = _world_to_voxel(grid, tc).numpy()
+    vc = np.clip(v, 0, shape - 1)
+    R = 2
+    while True:
+        a = np.maximum(vc - R, 0)
+        e = np.minimum(vc + R + 1, shape)
+        sub = free[a[0]:e[0], a[1]:e[1], a[2]:e[2]].copy()
+        covers_all = (a == 0).all() and (e == shape).all()
+        if sub.any():
+            # voxels holding a Gaussian mean are not goals (paper): mark them in this window only
+            wlo = _voxel_to_world(grid, torch.as_tensor(a)) - 0.5 * vs
+            whi = _voxel_to_world(grid, torch.as_tensor(e - 1)) + 0.5 * vs
+            ids = candidate_ids(scene, index, wlo.to(scene.means.device), whi.to(scene.means.device))
+            if ids.numel():
+                mv = _world_to_voxel(grid, scene.means[ids].detach().cpu().to(torch.float64)).numpy() - a
+                ok = ((mv >= 0) & (mv < (e - a))).all(1)
+                mv = mv[ok]
+                sub[mv[:, 0], mv[:, 1], mv[:, 2]] = False
+            ijk = np.argwhere(sub) + a
+            centres = _voxel_to_world(grid, torch.as_tensor(ijk))
+            d = (centres - tc).norm(dim=-1)
+            # every voxel outside the window is at least R voxels away (target inside the grid)
+            if float(d.min()) <= R * vs or covers_all:
+                order = torch.argsort(d)[:max_candidates]
+                cand = centres[order]
+                for k in range(0, cand.shape[0], 16):  # nearest first, a few exact tests at a time
+                    ok = torch.as_tensor(clear(cand[k:k + 16].to(scene.means.device))).reshape(-1).cpu()
+                    if bool(ok.any()):
+                        return cand[k + int(torch.nonzero(ok)[0, 0])]
+                if covers_all:
+                    break
+        elif covers_all:
+            break
+        R *= 2
+    raise GoalUnreachableError(
+        f"no safe camera position found near the goal {t.tolist()}: the projection polytope is empty and "
+        f"no free voxel without Gaussian means passed the clearance test"
+    )
+
+
+# ------------------------------------------------------------------------------------ starts
+def sample_free_starts(
+    n: int,
+    scene,
+    index=None,
+    grid=None,
+    generator: Union[torch.Generator, int, None] = 0,
+    region_lo=None,
+    region_hi=None,
+    max_tries: int = 50,
+    *,
+    batch: Optional[int] = None,
+    margin: float = 1e-6,
+    reachable: Optional[np.ndarray] = None,
+    clearance_fn: Optional[Callable[[Tensor], Tensor]] = None,
+) -> Tensor:
+    """n collision-free camera centres [n, 3] float64, uniformly sampled in the region (seeded).
+
+    region_lo/hi default to the grid's extent (or the scene bounds without a grid); with a grid the
+    region is clipped to it and samples in occupied voxels (or outside ``reachable``) are rejected
+    before the exact clearance test. ``generator``: a torch.Generator (CPU) or an int seed; the same
+    seed gives the same starts. Raises NoFreeStartError (a StartInCollisionError) after ``max_tries``
+    batches without n free points.
+    """
+    if int(n) != n or n < 1:
+        raise InvalidInputError(f"number of starts must be a positive integer, got {n}")
+    n = int(n)
+    dev = scene.means.device
+    gen = generator if isinstance(generator, torch.Generator) else torch.Generator().manual_seed(int(generator or 0))
+    occ = None
+    if grid is not None:
+        occ, glo, vs = _grid_arrays(grid)
+        ghi = glo + torch.as_tensor(occ.shape, dtype=torch.float64) * vs
+        if reachable is not None:
+            reachable = np.asarray(reachable, dtype=bool)
+            if reachable.shape != occ.shape:
+                raise InvalidInputError(f"reachable mask {reachable.shape} does not match the grid {occ.shape}")
+            occ = occ | ~reachable
+    else:
+        glo, ghi = (x.detach().cpu().to(torch.float64) for x in scene.bounds())
+    lo = glo if region_lo is None else torch.maximum(torch.as_tensor(region_lo, dtype=torch.float64).reshape(3), glo)
+    hi = ghi if region_hi is None else torch.minimum(torch.as_tensor(region_hi, dtype=torch.float64).reshape(3), ghi)
+    if not (torch.isfinite(lo).all() and torch.isfinite(hi).all()) or (hi <= lo).any():
+        raise InvalidInputError(f"start region is empty: lo={lo.tolist()} hi={hi.tolist()} (after clipping to the grid)")
+    clear = clearance_fn or _default_clear(scene, index, margin)
+    batch = batch or max(4 * n, 32)
+    found = []
+    tried = 0
+    for _ in range(max_tries):
+        x = lo + torch.rand(batch, 3, generator=gen, dtype=torch.float64) * (hi - lo)  # [B, 3]
+        tried += batch
+        if occ is not None:
+            v = _world_to_voxel(grid, x).numpy()
+            inside = ((v >= 0) & (v < np.asarray(occ.shape))).all(1)
+            vcl = np.clip(v, 0, np.asarray(occ.shape) - 1)
+            keep = inside & ~occ[vcl[:, 0], vcl[:, 1], vcl[:, 2]]
+            x = x[torch.as_tensor(keep)]
+        if x.shape[0] == 0:
+            continue
+        x = x[: max(2 * (n - len(found)), 8)]  # bound the exact checks per batch
+        ok = torch.as_tensor(clear(x.to(dev))).reshape(-1).cpu()
+        found.extend(x[ok])
+        if len(found) >= n:
+            return torch.stack(found[:n]).to(dev)
+    raise NoFreeStartError(
+        f"found only {len(found)} of {n} collision-free start positions after {tried} random samples in the "
+        f"region lo={lo.tolist()} hi={hi.tolist()}; widen the region or lower the camera radius"
+    )

@@ -1,0 +1,391 @@
+"""Safe polytopes in the free space of an ellipsoid scene (paper Prop. 2, after Splat-Nav Prop. 2).
+
+A safe polytope P = {x : A x <= b} is a convex set of camera *centres* such that a camera ball of
+radius r centred anywhere in P touches no ellipsoid. It is the intersection of a local axis-aligned
+box with one halfspace per nearby ellipsoid.
+
+Offsets (why safety does not depend on how the normal was chosen)
+-----------------------------------------------------------------
+Ellipsoid E_j = {mu + R diag(a) u : |u| <= 1} (a = semi-axes). A camera centred at x touches E_j iff
+x is in the Minkowski sum E_j (+) B_r. For any unit vector n the support function of E_j is
+
+    h_E(n) = max_{y in E_j} n.y = n.mu + max_{|u|<=1} (diag(a) R^T n).u = n.mu + ||diag(a) R^T n||
+
+(= n.mu + ||Sigma^{1/2} n||), so every y in E_j satisfies n.y >= n.mu - ||Sigma^{1/2} n|| (apply h_E
+to -n). Take the halfspace H = {x : n.x <= n.mu - ||Sigma^{1/2} n|| - r}. For x in H and y in E_j,
+n.(y - x) >= r, and since |n| = 1, ||y - x|| >= n.(y - x) >= r (Cauchy-Schwarz). So every centre in H
+keeps the ball outside E_j, for EVERY unit n: H is the tangent halfspace of E_j (+) B_r with outer
+normal n, whose boundary supports the inflated ellipsoid. The normal only decides how much free
+space H keeps, never whether H is safe. We subtract a small extra ``margin`` for rounding.
+
+Normals (which free space we keep)
+----------------------------------
+Prop. 2 picks n ∝ Q_j (mu_j - x*) with Q_j = R diag(s*(1-s*) / (kappa + s*(lambda_i - kappa))) R^T,
+kappa = r^2, lambda_i = a_i^2 and s* = argmax_s K(s) (Corollary 1's K for a sphere camera). Note
+Q(s) ∝ (s Sigma + (1-s) kappa I)^{-1}, so these normals are the family (Sigma + t I)^{-1} Delta that
+also contains the exact closest-point normal (t solves sum lambda_i w_i^2/(lambda_i+t)^2 = 1) and
+the Mahalanobis normal Sigma^{-1} Delta (t = 0). With ``normal="auto"`` we compute all three at the
+seed's reference point and keep, per ellipsoid, the one leaving the seeds the most slack. For a
+segment seed the reference point is the segment point closest to mu in the ellipsoid metric; there
+the Mahalanobis plane contains the whole segment whenever its reference point is inside (the
+segment is tangent to the Mahalanobis level set there), which makes segment seeds robust.
+
+Redundancy removal
+------------------
+Ellipsoids are processed nearest plane first. After adding plane (n, b), every remaining ellipsoid
+whose inflated body lies entirely beyond it (min over E (+) B_r of n.x = n.mu - ||Sigma^{1/2} n|| - r
+>= b) is dropped: the polytope already excludes it. Dropping changes nothing about safety, because
+the polytope is still contained in that plane's halfspace, which excludes the dropped body.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Optional, Sequence, Union
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from .errors import InvalidInputError, PlanningError
+
+ArrayLike = Union[Tensor, np.ndarray, Sequence[float]]
+
+
+class SeedNotFreeError(PlanningError):
+    """A seed point (or a seed segment) of a safe polytope is too close to an ellipsoid: no plane of
+    that ellipsoid's family separates it. The corridor splits the segment when this happens."""
+
+    def __init__(self, message: str, ellipsoid_ids: Optional[Tensor] = None, min_slack: float = float("nan")):
+        super().__init__(message)
+        self.ellipsoid_ids = ellipsoid_ids  # [J] scene ids of the ellipsoids that cut the seed
+        self.min_slack = min_slack  # most negative (plane offset - seed projection), scene units
+
+
+@dataclass
+class Polytope:
+    """Convex polytope {x : A x <= b} with unit-norm rows of A."""
+
+    A: Tensor  # [F, 3] unit outward normals
+    b: Tensor  # [F]
+    seed: Tensor  # [S, 3] points the polytope was grown around (all inside)
+    ellipsoid_ids: Optional[Tensor] = field(default=None)  # [F - 6] scene id of each non-box plane
+
+    @property
+    def num_faces(self) -> int:
+        return int(self.A.shape[0])
+
+    def contains(self, x: ArrayLike, tol: float = 0.0) -> Tensor:
+        """bool[...] for points x [..., 3]: A x <= b + tol."""
+        x = torch.as_tensor(x, dtype=self.A.dtype, device=self.A.device)
+        return ((x @ self.A.T) <= self.b + tol).all(-1)
+
+    def slack(self, x: ArrayLike) -> Tensor:
+        """min_f (b_f - A_f x) [...]: Euclidean distance from x to the nearest face plane (negative outside)."""
+        x = torch.as_tensor(x, dtype=self.A.dtype, device=self.A.device)
+        return (self.b - x @ self.A.T).min(-1).values
+
+    def to_numpy(self) -> tuple[np.ndarray, np.ndarray]:
+        """(A [F,3], b [F]) as float64 numpy arrays (for solvers)."""
+        return self.A.detach().cpu().double().numpy(), self.b.detach().cpu().double().numpy()
+
+    def to(self, device: Union[str, torch.device]) -> "Polytope":
+        return Polytope(
+            self.A.to(device), self.b.to(device), self.seed.to(device),
+            None if self.ellipsoid_ids is None else self.ellipsoid_ids.to(device),
+        )
+
+
+def chebyshev_center(A: ArrayLike, b: ArrayLike) -> tuple[np.ndarray, float]:
+    """Centre and radius of the largest ball inside {x : A x <= b} (LP, HiGHS).
+
+    Returns (center [3], radius); radius is -inf when the polytope is empty and +inf when unbounded
+    (the radius is capped at 1e9 in that case).
+    """
+    from scipy.optimize import linprog
+
+    A = np.asarray(torch.as_tensor(A).detach().cpu().double())
+    b = np.asarray(torch.as_tensor(b).detach().cpu().double())
+    norms = np.linalg.norm(A, axis=1)  # [F]
+    d = A.shape[1]
+    # maximise rho  s.t.  A x + rho |a_f| <= b,  0 <= rho <= 1e9
+    c = np.zeros(d + 1)
+    c[-1] = -1.0
+    res = linprog(
+        c, A_ub=np.hstack([A, norms[:, None]]), b_ub=b,
+        bounds=[(None, None)] * d + [(0.0, 1e9)], method="highs",
+    )
+    if res.status == 2:  # infeasible even with rho = 0
+        return np.full(d, np.nan), -math.inf
+    if res.status != 0:
+        raise PlanningError(f"Chebyshev-centre LP failed: {res.message}")
+    return res.x[:d], float(res.x[-1])
+
+
+# ---------------------------------------------------------------------------------------- helpers
+# The per-ellipsoid kernels run in float64 numpy on the host: they are applied to small chunks
+# (tens of ellipsoids) inside a sequential loop, where numpy's per-call cost (~1 us) beats torch's.
+def _k_sphere(w2: np.ndarray, lam: np.ndarray, kappa: float, s: np.ndarray) -> np.ndarray:
+    """Corollary 1: K(s) = sum_i w_i^2 s(1-s) / (kappa + s (lambda_i - kappa)).
+    w2, lam [K, 3]; s [K, T] in (0, 1) -> [K, T]."""
+    s3 = s[..., None]  # [K, T, 1]
+    return (w2[:, None, :] * s3 * (1 - s3) / (kappa + s3 * (lam[:, None, :] - kappa))).sum(-1)
+
+
+def _argmax_k(w2: np.ndarray, lam: np.ndarray, kappa: float, n_samples: int = 32, iters: int = 10) -> np.ndarray:
+    """s* = argmax_{s in (0,1)} K(s) per row [K]: K is concave in s, so a coarse grid then golden
+    section inside the best bracket converges to the maximiser (~1e-3 in s; only the normal uses it, never the offset)."""
+    k = w2.shape[0]
+    grid = np.linspace(0.0, 1.0, n_samples + 2)[1:-1]  # [T]
+    vals = _k_sphere(w2, lam, kappa, np.broadcast_to(grid, (k, n_samples)))  # [K, T]
+    best = vals.argmax(-1)  # [K]
+    step = grid[1] - grid[0]
+    lo = np.maximum(grid[best] - step, 1e-9)
+    hi = np.minimum(grid[best] + step, 1 - 1e-9)
+    g = (math.sqrt(5) - 1) / 2
+    for _ in range(iters):
+        m1 = hi - g * (hi - lo)
+        m2 = lo + g * (hi - lo)
+        k12 = _k_sphere(w2, lam, kappa, np.stack([m1, m2], -1))  # [K, 2]
+        left = k12[:, 0] > k12[:, 1]
+        hi = np.where(left, m2, hi)
+        lo = np.where(left, lo, m1)
+    return 0.5 * (lo + hi)
+
+
+def _closest_t(w2: np.ndarray, lam: np.ndarray, iters: int = 10) -> np.ndarray:
+    """t >= 0 with sum_i lambda_i w_i^2 / (lambda_i + t)^2 = 1: the closest point of the ellipsoid to an
+    outside body-frame point w is y = lambda w / (lambda + t), its outer normal ∝ w / (lambda + t).
+
+    Newton on phi(t) = (sum_i c_i / (lambda_i + t)^2)^(-1/2) = 1 (c = lambda w^2): phi is a power mean
+    with exponent -2 of the affine lambda_i + t, hence concave and increasing, so Newton started left
+    of the root (phi(0) = 1/m < 1) stays left and converges monotonically; phi is nearly linear
+    (exactly linear for one axis), so ~8 steps reach 1e-12 relative accuracy. t never exceeds the
+    root, which callers rely on for lower bounds. Rows with the point inside get t = 0."""
+    c = lam * w2  # [K, 3]
+    # start from a lower bound of the root: f(t) >= lambda_min |w|^2 / (lambda_max + t)^2
+    t = np.maximum(np.sqrt(lam.min(-1) * w2.sum(-1)) - lam.max(-1), 0.0)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # w = 0 rows: no step taken
+        t = _closest_t_steps(c, lam, t, iters)
+    return t
+
+
+def _closest_t_steps(c: np.ndarray, lam: np.ndarray, t: np.ndarray, iters: int) -> np.ndarray:
+    for _ in range(iters):
+        den = lam + t[:, None]
+        q = c / den**2
+        S = q.sum(-1)
+        phi = 1.0 / np.sqrt(np.maximum(S, 1e-300))
+        dphi = phi**3 * (q / den).sum(-1)
+        t = t + np.where(phi < 1.0, (1.0 - phi) / np.maximum(dphi, 1e-300), 0.0)
+    return t
+
+
+def candidate_ids(scene, index, box_lo: Tensor, box_hi: Tensor) -> Tensor:
+    """Ids [K] of ellipsoids whose camera-inflated body may meet the box (a superset: bounding-sphere
+    test after the index's coarse AABB query). index: anything with query_box(lo[3], hi[3]) ->
+    LongTensor, or None (then all ellipsoids are scanned)."""
+    r = float(scene.camera_radius)
+    dev = scene.means.device
+    m = scene.means
+    lo = torch.as_tensor(box_lo, device=dev).to(m.dtype)
+    hi = torch.as_tensor(box_hi, device=dev).to(m.dtype)
+    if index is not None:
+        ids = torch.as_tensor(index.query_box(lo - r, hi + r), device=dev).long()
+        if ids.numel() == 0:
+            return ids
+        m = m[ids]
+        amax = scene.radii[ids].max(-1).values
+    else:
+        amax = scene.radii.max(-1).values
+    # distance from the mean to the box <= bounding-sphere radius + r (+ rounding slack)
+    gap = (m - torch.minimum(torch.maximum(m, lo), hi)).norm(dim=-1)
+    near = gap <= amax + r + 1e-6 * (1 + m.abs().max(-1).values)
+    sel = torch.nonzero(near).squeeze(-1)
+    return ids[sel] if index is not None else sel
+
+
+def _np(x: Tensor) -> np.ndarray:
+    return x.detach().cpu().to(torch.float64).numpy()
+
+
+def _plane_candidates(seeds: np.ndarray, mu: np.ndarray, rot: np.ndarray, axes: np.ndarray, r: float,
+                      normal: str, margin: float):
+    """Per ellipsoid, the best-slack safe plane among the normal rules -> (n [C,3], b [C], slack [C]).
+    slack = b - max_s n.seed_s (>= 0: every seed inside)."""
+    lam = axes**2  # [C, 3]
+    wb = np.einsum("cji,csj->csi", rot, seeds[None, :, :] - mu[:, None, :])  # body coords [C, S, 3]
+    if seeds.shape[0] == 2:
+        # reference point: the segment point closest to mu in the ellipsoid metric (a 1-D quadratic)
+        d = wb[:, 1] - wb[:, 0]  # [C, 3]
+        den = (d**2 / lam).sum(-1)
+        u = np.clip(-(wb[:, 0] * d / lam).sum(-1) / np.maximum(den, 1e-300), 0.0, 1.0)
+        u = np.where(den > 0, u, 0.0)
+        w = wb[:, 0] + u[:, None] * d  # [C, 3]
+    else:
+        w = wb[np.arange(len(mu)), (wb**2 / lam[:, None, :]).sum(-1).argmin(-1)]  # [C, 3]
+    degenerate = (w**2).sum(-1) < 1e-24  # reference point at the centre: any direction is valid
+    w = np.where(degenerate[:, None], np.array([0.0, 0.0, 1e-12]), w)
+    w2 = w**2
+    cands = []  # body-frame normals pointing from the reference point toward the ellipsoid
+    if normal in ("auto", "prop2"):
+        s = _argmax_k(w2, lam, r * r)[:, None]
+        cands.append(-(s * (1 - s) / (r * r + s * (lam - r * r))) * w)
+    if normal in ("auto", "mahalanobis"):
+        cands.append(-w / lam)
+    if normal in ("auto", "closest"):
+        cands.append(-w / (lam + _closest_t(w2, lam)[:, None]))
+    nb = np.stack(cands)  # [R, C, 3]
+    nb = nb / np.maximum(np.linalg.norm(nb, axis=-1, keepdims=True), 1e-300)
+    nw = np.einsum("cij,rcj->rci", rot, nb)  # world normals R nb  [R, C, 3]
+    # exact offset: n.mu - ||diag(a) R^T n|| - r (module docstring); R^T n = nb
+    offs = (nw * mu).sum(-1) - np.linalg.norm(axes * nb, axis=-1) - r - margin  # [R, C]
+    slack = offs - np.einsum("rci,si->rcs", nw, seeds).max(-1)  # [R, C]
+    best = slack.argmax(0)
+    ar = np.arange(len(mu))
+    return nw[best, ar], offs[best, ar], slack[best, ar]
+
+
+def _support_gap(n: np.ndarray, mu: np.ndarray, rot: np.ndarray, axes: np.ndarray, r: float) -> np.ndarray:
+    """min over E_c (+) B_r of n_f.x for planes n [F,3] and ellipsoids [C] -> [C, F]."""
+    nb = np.einsum("cji,fj->cfi", rot, n)  # R_c^T n_f  [C, F, 3]
+    return mu @ n.T - np.linalg.norm(axes[:, None, :] * nb, axis=-1) - r
+
+
+# ---------------------------------------------------------------------------------------- main
+def safe_polytope(
+    seed_points: ArrayLike,
+    scene,
+    index=None,
+    box_lo: Optional[ArrayLike] = None,
+    box_hi: Optional[ArrayLike] = None,
+    *,
+    margin: float = 1e-6,
+    normal: str = "auto",
+    require_seed_inside: bool = True,
+    prune: bool = True,
+    chunk: int = 32,
+) -> Polytope:
+    """Safe polytope around seed points [S, 3] inside the box [box_lo, box_hi].
+
+    Every point of the returned polytope, used as a camera centre, keeps the camera ball
+    (scene.camera_radius) at distance >= ``margin`` outside every ellipsoid of the scene (exact, see
+    module docstring) and lies in the box. All seed points are inside (else SeedNotFreeError when
+    ``require_seed_inside``; with False the polytope is returned anyway and may exclude them or be
+    empty, which ``closest_safe_point`` uses). Planes are float64 on the scene's device.
+
+    normal: "auto" (best of the three below per ellipsoid), "prop2" (paper: Q(s*) Delta),
+    "closest" (normal at the closest ellipsoid point), "mahalanobis" (Sigma^{-1} Delta).
+    prune: nearest-first redundancy removal (False: one plane per ellipsoid meeting the box).
+    chunk: ellipsoids are visited in order of a distance lower bound, ``chunk`` at a time; planes are
+    only computed for ellipsoids not already cut off by earlier planes, so far clutter costs ~nothing.
+    """
+    dev = scene.means.device
+    seeds_t = torch.as_tensor(seed_points, device=dev).to(torch.float64).reshape(-1, 3)  # [S, 3]
+    if seeds_t.shape[0] == 0 or not torch.isfinite(seeds_t).all():
+        raise InvalidInputError(f"safe_polytope needs finite seed points [S, 3], got {tuple(seeds_t.shape)}")
+    if box_lo is None or box_hi is None:
+        raise InvalidInputError("safe_polytope needs a local box (box_lo, box_hi)")
+    lo_t = torch.as_tensor(box_lo, device=dev).to(torch.float64).reshape(3)
+    hi_t = torch.as_tensor(box_hi, device=dev).to(torch.float64).reshape(3)
+    if not (torch.isfinite(lo_t).all() and torch.isfinite(hi_t).all() and (hi_t > lo_t).all()):
+        raise InvalidInputError(f"bad polytope box lo={lo_t.tolist()} hi={hi_t.tolist()}")
+    if require_seed_inside and not ((seeds_t >= lo_t).all() and (seeds_t <= hi_t).all()):
+        raise InvalidInputError("seed points must lie inside the polytope box")
+    if normal not in ("auto", "prop2", "closest", "mahalanobis"):
+        raise InvalidInputError(f"unknown normal rule {normal!r}")
+    r = float(scene.camera_radius)
+    seeds = _np(seeds_t)
+    lo, hi = _np(lo_t), _np(hi_t)
+    A_box = np.vstack([np.eye(3), -np.eye(3)])  # [6, 3]
+    b_box = np.concatenate([hi, -lo])
+
+    ids = candidate_ids(scene, index, lo_t, hi_t)  # [K] on device
+    K = int(ids.numel())
+    planes_n, planes_b, planes_id = [], [], []
+    if K:
+        mu_all = _np(scene.means[ids])  # [K, 3]
+        amax = _np(scene.radii[ids].max(-1).values)  # [K] bounding-sphere radii
+        # visiting order: lower bound of the distance from the seed set to the inflated body
+        if seeds.shape[0] == 2:
+            d = seeds[1] - seeds[0]
+            u = np.clip((mu_all - seeds[0]) @ d / max(float(d @ d), 1e-300), 0, 1)
+            dist = np.linalg.norm(seeds[0] + u[:, None] * d - mu_all, axis=1)
+        else:
+            dist = np.linalg.norm(mu_all[:, None, :] - seeds[None], axis=-1).min(1)
+        key = dist - amax
+        queue = np.arange(K)  # undecided candidates, unordered: only each chunk is sorted
+        ids_cpu = ids.cpu()
+        step = chunk if prune else K
+        bad = []
+        while queue.size:
+            if queue.size > step:
+                # the `step` nearest by the lower bound (O(K) partition instead of a full sort)
+                part = np.argpartition(key[queue], step - 1)[:step]
+                ch = queue[part]
+                left = np.ones(queue.size, dtype=bool)
+                left[part] = False
+                rest = queue[left]
+            else:
+                ch, rest = queue, queue[:0]
+            ch = ch[np.argsort(key[ch], kind="stable")]
+            sel = torch.as_tensor(ch)
+            rot = _np(scene.rotations[ids[sel.to(dev)]])
+            axes = _np(scene.radii[ids[sel.to(dev)]])
+            mu = mu_all[ch]
+            n_c, b_c, slack_c = _plane_candidates(seeds, mu, rot, axes, r, normal, margin)
+            if require_seed_inside and (slack_c < 0).any():
+                # no plane of this ellipsoid's family keeps all seeds; it is only fatal if no other
+                # plane cuts it off either, which is decided once all planes are known
+                neg = slack_c < 0
+                bad.append((ch[neg], mu[neg], rot[neg], axes[neg], slack_c[neg]))
+                keep_c = ~neg
+                ch, mu, rot, axes = ch[keep_c], mu[keep_c], rot[keep_c], axes[keep_c]
+                n_c, b_c, slack_c = n_c[keep_c], b_c[keep_c], slack_c[keep_c]
+            if not prune:
+                planes_n.append(n_c), planes_b.append(b_c), planes_id.append(ch)
+                break
+            # redundancy inside the chunk, vectorised: beyond[i, j] = ellipsoid i lies beyond plane j
+            # (exact support test) for the chunk's own planes and for the planes kept so far
+            beyond_own = _support_gap(n_c, mu, rot, axes, r) >= b_c  # [C, C]
+            if planes_n:
+                kn, kb = np.vstack(planes_n), np.concatenate(planes_b)
+                dead = (_support_gap(kn, mu, rot, axes, r) >= kb).any(1)  # [C]
+            else:
+                dead = np.zeros(len(ch), dtype=bool)
+            taken = np.zeros(len(ch), dtype=bool)
+            for i in np.argsort(slack_c, kind="stable"):  # nearest plane first
+                if dead[i] or beyond_own[i, taken].any():
+                    continue  # already cut off by a kept plane: needs no plane of its own
+                taken[i] = True
+            if taken.any():
+                nn, nbv = n_c[taken], b_c[taken]
+                planes_n.append(nn)
+                planes_b.append(nbv)
+                planes_id.append(ch[taken])
+                if rest.size:
+                    # drop the rest that lie beyond a new plane (bounding sphere: sound, cheap)
+                    gap_lb = mu_all[rest] @ nn.T - amax[rest, None] - r  # [J, F_new]
+                    rest = rest[~(gap_lb >= nbv).any(1)]
+            queue = rest
+        if bad:
+            b_ch, b_mu, b_rot, b_axes, b_slack = (np.concatenate([x[i] for x in bad]) for i in range(5))
+            if planes_n:
+                kn, kb = np.vstack(planes_n), np.concatenate(planes_b)
+                cut = (_support_gap(kn, b_mu, b_rot, b_axes, r) >= kb).any(1)
+                b_ch, b_slack = b_ch[~cut], b_slack[~cut]
+            worst = float(b_slack.min()) if b_slack.size else 0.0
+        if bad and b_ch.size:
+            bad_ids = ids_cpu[torch.as_tensor(b_ch)]
+            raise SeedNotFreeError(
+                f"seed {'segment' if seeds.shape[0] == 2 else 'point(s)'} is within the camera radius {r:g} of "
+                f"{len(bad_ids)} ellipsoid(s) (worst slack {worst:.3g}); no safe polytope contains it",
+                ellipsoid_ids=bad_ids, min_slack=worst,
+            )
+    A = np.vstack([A_box] + planes_n)
+    b = np.concatenate([b_box] + planes_b)
+    kept = torch.as_tensor(np.concatenate(planes_id) if planes_id else np.zeros(0, np.int64))
+    return Polytope(
+        torch.as_tensor(A, device=dev), torch.as_tensor(b, device=dev), seeds_t,
+        ids[kept.to(dev)] if K else ids,
+    )

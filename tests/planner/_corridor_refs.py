@@ -1,0 +1,103 @@
+"""Float64 exact references used by the corridor/polytope/goal tests (independent of the package code).
+
+point_ellipsoid_distance: Euclidean distance from points to ellipsoid surfaces, negative inside, by
+bracketed root finding (scipy brentq) on the closest-point Lagrange condition in the body frame:
+the closest point is y = (I + t L^-1)^-1 w with sum_i lam_i w_i^2 / (lam_i + t)^2 = 1 (lam = a^2),
+t > 0 outside. Inside points get the Mahalanobis-based sign only (the tests need "inside" and the
+exact distance outside).
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+from scipy.optimize import brentq
+
+
+def random_rotations(rng: np.random.Generator, n: int) -> np.ndarray:
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    w, x, y, z = q.T
+    R = np.stack(
+        [
+            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+        ],
+        axis=-1,
+    ).reshape(n, 3, 3)
+    return R
+
+
+def make_scene(means, rotations, radii, camera_radius):
+    from cinenerf_ns.planner.scene import EllipsoidScene
+
+    means = torch.as_tensor(np.asarray(means), dtype=torch.float64)
+    return EllipsoidScene(
+        means=means,
+        rotations=torch.as_tensor(np.asarray(rotations), dtype=torch.float64),
+        radii=torch.as_tensor(np.asarray(radii), dtype=torch.float64),
+        opacities=torch.ones(means.shape[0], dtype=torch.float64),
+        camera_radius=float(camera_radius),
+    )
+
+
+def random_scene(rng: np.random.Generator, n: int, lo=-1.0, hi=1.0, amin=0.02, amax=0.4, camera_radius=0.05):
+    means = rng.uniform(lo, hi, size=(n, 3))
+    radii = rng.uniform(amin, amax, size=(n, 3))
+    return make_scene(means, random_rotations(rng, n), radii, camera_radius)
+
+
+def _dist_one(w: np.ndarray, a: np.ndarray) -> float:
+    """Distance from body-frame point w to the axis-aligned ellipsoid with semi-axes a (>= 0 outside)."""
+    lam = a * a
+    m2 = float(np.sum(w * w / lam))
+    if m2 <= 1.0:
+        return -1.0  # inside (sign only)
+    f = lambda t: float(np.sum(lam * w * w / (lam + t) ** 2)) - 1.0  # noqa: E731
+    hi = 1.0
+    while f(hi) > 0:
+        hi *= 2.0
+    t = brentq(f, 0.0, hi, xtol=1e-15, rtol=1e-15, maxiter=500)
+    y = lam * w / (lam + t)
+    return float(np.linalg.norm(w - y))
+
+
+def point_ellipsoid_distance(points, scene) -> np.ndarray:
+    """[P, N] exact Euclidean distance (float64) from each point to each ellipsoid; -1 inside."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    mu = scene.means.double().numpy()
+    R = scene.rotations.double().numpy()
+    a = scene.radii.double().numpy()
+    out = np.empty((pts.shape[0], mu.shape[0]))
+    for j in range(mu.shape[0]):
+        wb = (pts - mu[j]) @ R[j]  # R^T (x - mu) for each point  [P, 3]
+        for i in range(pts.shape[0]):
+            out[i, j] = _dist_one(wb[i], a[j])
+    return out
+
+
+def clearance(points, scene) -> np.ndarray:
+    """[P] min_j dist(point, E_j) - camera_radius (exact, float64)."""
+    return point_ellipsoid_distance(points, scene).min(axis=1) - scene.camera_radius
+
+
+def polytope_min_distance(A, b, scene) -> np.ndarray:
+    """[N] exact min over x in {A x <= b} of dist(x, E_j), via one SOCP per ellipsoid (cvxpy + Clarabel).
+    Independent reference for "the whole polytope keeps the camera ball outside every ellipsoid"."""
+    import cvxpy as cp
+
+    mu = scene.means.double().numpy()
+    R = scene.rotations.double().numpy()
+    a = scene.radii.double().numpy()
+    out = np.empty(mu.shape[0])
+    x = cp.Variable(3)
+    y = cp.Variable(3)
+    Mmu = cp.Parameter(3)  # M mu (keeps the problem DPP)
+    M = cp.Parameter((3, 3))  # diag(1/a) R^T
+    prob = cp.Problem(cp.Minimize(cp.norm(x - y)), [A @ x <= b, cp.norm(M @ y - Mmu) <= 1])
+    for j in range(mu.shape[0]):
+        M.value = (R[j] / a[j][None, :]).T
+        Mmu.value = M.value @ mu[j]
+        prob.solve(solver=cp.CLARABEL)
+        out[j] = prob.value
+    return out

@@ -1,0 +1,184 @@
+"""Goal projection and start sampling (cinenerf_ns/planner/goal.py) against exact float64 references."""
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from cinenerf_ns.planner.errors import GoalUnreachableError, InvalidInputError, StartInCollisionError
+from cinenerf_ns.planner.goal import (
+    NoFreeStartError,
+    closest_safe_point,
+    points_clearance_lower,
+    sample_free_starts,
+)
+
+sys.path.insert(0, str(Path(__file__).parent))
+from _corridor_refs import clearance, make_scene, random_scene  # noqa: E402
+
+
+@dataclass
+class Grid:
+    """Duck-typed occupancy grid (voxel i covers lo + [i, i+1) * voxel_size)."""
+
+    occupied: np.ndarray
+    lo: torch.Tensor
+    voxel_size: float
+
+
+def conservative_grid(scene, lo=-1.0, res=16, size=2.0) -> Grid:
+    """Occupied iff the voxel centre's exact clearance < half the voxel diagonal (so every point of a
+    free voxel has clearance >= 0: clearance is 1-Lipschitz)."""
+    vs = size / res
+    idx = np.stack(np.meshgrid(*[np.arange(res)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    centres = lo + (idx + 0.5) * vs
+    radii = scene.radii.numpy()
+    if np.allclose(radii, radii[:, :1]):  # spheres: exact distance in closed form (fast)
+        d = np.linalg.norm(centres[:, None] - scene.means.numpy()[None], axis=-1) - radii[None, :, 0]
+        cl = d.min(1) - scene.camera_radius
+    else:
+        cl = clearance(centres, scene)
+    occ = cl < 0.5 * vs * np.sqrt(3)
+    return Grid(occ.reshape(res, res, res), torch.full((3,), lo, dtype=torch.float64), vs)
+
+
+def test_free_target_is_returned_unchanged():
+    scene = make_scene([[0.0, 0, 0]], np.eye(3)[None], [[0.2, 0.2, 0.2]], 0.05)
+    t = torch.tensor([0.5, 0.1, 0.0], dtype=torch.float64)
+    assert torch.equal(closest_safe_point(t, scene), t)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), rad=st.floats(0.05, 0.5), r=st.sampled_from([0.0, 0.03, 0.1]))
+def test_target_inside_sphere_projects_to_the_inflated_surface(seed, rad, r):
+    """For one sphere, the closest safe point is c + (R + r) * dir: the Prop-2 polytope finds it."""
+    rng = np.random.default_rng(seed)
+    c = rng.uniform(-0.5, 0.5, 3)
+    d = rng.normal(size=3)
+    d /= np.linalg.norm(d)
+    target = c + d * rad * rng.uniform(0.05, 0.95)
+    scene = make_scene([c], np.eye(3)[None], [[rad] * 3], r)
+    x = closest_safe_point(target, scene, box_half=1.0).numpy()
+    expect = c + d * (rad + r)
+    assert np.linalg.norm(x - expect) < 1e-5
+    assert clearance(x[None], scene)[0] >= 0
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(1, 12))
+def test_goal_is_safe_in_random_scenes(seed, n):
+    rng = np.random.default_rng(seed)
+    scene = random_scene(rng, n, amax=0.3, camera_radius=0.03)
+    target = scene.means[rng.integers(n)].numpy() + rng.normal(size=3) * 0.05  # usually inside
+    try:
+        x = closest_safe_point(target, scene, None, None, box_half=0.4)
+    except GoalUnreachableError:
+        return  # polytope empty and no grid: allowed (the fallback is tested below)
+    assert clearance(x.numpy()[None], scene)[0] >= -1e-9
+    if clearance(target[None], scene)[0] >= 1e-6:
+        assert np.allclose(x.numpy(), target)
+
+
+def buried_scene(r=0.03):
+    """Target at the origin inside two big overlapping spheres whose Prop-2 planes contradict."""
+    return make_scene([[-0.1, 0, 0], [0.1, 0, 0]], np.tile(np.eye(3), (2, 1, 1)), [[0.3] * 3] * 2, r)
+
+
+def test_buried_target_uses_the_free_voxel_fallback():
+    scene = buried_scene()
+    with pytest.raises(GoalUnreachableError, match="no occupancy grid"):
+        closest_safe_point([0.0, 0, 0], scene, None, None)
+    grid = conservative_grid(scene)
+    x = closest_safe_point([0.0, 0, 0], scene, None, grid)
+    assert clearance(x.numpy()[None], scene)[0] >= 0
+    ijk = np.floor((x.numpy() - grid.lo.numpy()) / grid.voxel_size).astype(int)
+    assert not grid.occupied[tuple(ijk)]
+    # it is the nearest free voxel centre (the grid's free voxels hold no mean here)
+    free = np.argwhere(~grid.occupied)
+    centres = grid.lo.numpy() + (free + 0.5) * grid.voxel_size
+    assert np.linalg.norm(x.numpy()) == pytest.approx(np.linalg.norm(centres, axis=1).min())
+
+
+def test_fallback_skips_voxels_holding_a_mean_and_respects_reachable():
+    # a tiny Gaussian (r = 0: it only blocks its own point) sits in the nearest free voxel
+    scene = buried_scene(r=0.0)
+    grid = conservative_grid(scene)
+    x0 = closest_safe_point([0.0, 0, 0], scene, None, grid).numpy()
+    tiny = make_scene(
+        np.vstack([scene.means.numpy(), x0[None]]), np.tile(np.eye(3), (3, 1, 1)),
+        np.vstack([scene.radii.numpy(), [[1e-4] * 3]]), 0.0,
+    )
+    x1 = closest_safe_point([0.0, 0, 0], tiny, None, grid).numpy()
+    ijk0 = np.floor((x0 - grid.lo.numpy()) / grid.voxel_size)
+    ijk1 = np.floor((x1 - grid.lo.numpy()) / grid.voxel_size)
+    assert not np.array_equal(ijk0, ijk1)
+    # only allow voxels with i >= 12: the answer moves there
+    reach = np.zeros_like(grid.occupied)
+    reach[12:] = True
+    x2 = closest_safe_point([0.0, 0, 0], scene, None, grid, reachable=reach).numpy()
+    assert np.floor((x2[0] + 1.0) / grid.voxel_size) >= 12
+    # nothing reachable at all
+    with pytest.raises(GoalUnreachableError):
+        closest_safe_point([0.0, 0, 0], scene, None, grid, reachable=np.zeros_like(grid.occupied))
+
+
+def test_goal_bad_input():
+    scene = buried_scene()
+    with pytest.raises(InvalidInputError):
+        closest_safe_point([0.0, np.nan, 0], scene)
+    with pytest.raises(InvalidInputError):
+        closest_safe_point([0.0, 0], scene)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1))
+def test_points_clearance_lower_is_a_tight_lower_bound(seed):
+    rng = np.random.default_rng(seed)
+    scene = random_scene(rng, 6, amax=0.3, camera_radius=0.03)
+    pts = rng.uniform(-1, 1, size=(10, 3))
+    got = points_clearance_lower(torch.as_tensor(pts), scene).numpy()
+    ref = clearance(pts, scene)
+    near = got < np.inf
+    assert (got[near] <= ref[near] + 1e-9).all()
+    both_out = near & (ref > -0.03) & (got > -np.inf)
+    assert np.allclose(got[both_out], ref[both_out], atol=1e-9)
+    # inf only where nothing is within the camera radius; -inf only inside an ellipsoid
+    assert (ref[~near] >= 0).all()
+    assert (ref[got == -np.inf] < 0).all()
+
+
+def test_sample_free_starts_seeded_safe_and_in_region():
+    rng = np.random.default_rng(0)
+    scene = random_scene(rng, 10, amax=0.3, camera_radius=0.03)
+    grid = conservative_grid(scene, res=8)
+    a = sample_free_starts(12, scene, None, grid, generator=7, region_lo=[-0.8, -0.8, -0.5], region_hi=[0.8, 0.8, 0.5])
+    b = sample_free_starts(12, scene, None, grid, generator=torch.Generator().manual_seed(7),
+                           region_lo=[-0.8, -0.8, -0.5], region_hi=[0.8, 0.8, 0.5])
+    assert a.shape == (12, 3) and a.dtype == torch.float64
+    assert torch.equal(a, b)
+    c = sample_free_starts(12, scene, None, grid, generator=8)
+    assert not torch.equal(a, c)
+    assert (a[:, 2] >= -0.5).all() and (a[:, 2] <= 0.5).all()
+    assert clearance(a.numpy(), scene).min() >= 0
+    assert clearance(c.numpy(), scene).min() >= 0
+    # without a grid: exact test only, region from the scene bounds
+    d = sample_free_starts(5, scene, None, None, generator=1)
+    assert clearance(d.numpy(), scene).min() >= 0
+
+
+def test_sample_free_starts_errors():
+    scene = make_scene([[0.0, 0, 0]], np.eye(3)[None], [[0.5, 0.5, 0.5]], 0.03)
+    with pytest.raises(NoFreeStartError, match="found only 0 of 3"):
+        sample_free_starts(3, scene, None, None, 0, [-0.1] * 3, [0.1] * 3, max_tries=3)
+    with pytest.raises(StartInCollisionError):  # NoFreeStartError is one
+        sample_free_starts(3, scene, None, None, 0, [-0.1] * 3, [0.1] * 3, max_tries=3)
+    with pytest.raises(InvalidInputError):
+        sample_free_starts(0, scene)
+    with pytest.raises(InvalidInputError):
+        sample_free_starts(2, scene, None, None, 0, [1.0] * 3, [0.0] * 3)
