@@ -104,6 +104,7 @@ class BezierTrajectory:
         self.control_points = cp
         self.durations = dur
         self._starts = np.concatenate([[0.0], np.cumsum(dur)[:-1]])  # [M] start time of each segment
+        self.info: dict = {}  # how the curve was made (solver status, timings); filled by the QP
 
     # ------------------------------------------------------------------ properties
     @property
@@ -142,6 +143,7 @@ class BezierTrajectory:
         seg = np.searchsorted(self._starts, tt, side="right") - 1
         seg = np.clip(seg, 0, self.num_segments - 1)  # [T]
         u = np.clip((tt - self._starts[seg]) / self.durations[seg], 0.0, 1.0)  # [T]
+        u[tt >= self.total_duration] = 1.0  # exact end point despite rounding of the cumulative sum
         return seg, u
 
     def evaluate(self, t: Any):
