@@ -122,6 +122,6 @@ def look_at_error_deg(positions: Any, rotations: Any, target: Any):
     pos = _to_numpy(positions)
     to_target = _to_numpy(target) - pos
     view = -_to_numpy(rotations)[..., :, 2]
-    cos = np.sum(_normalise(to_target) * view, axis=-1)
-    out = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    # atan2(|a x b|, a.b): accurate near 0, where arccos(dot) loses half the digits
+    out = np.degrees(np.arctan2(np.linalg.norm(np.cross(to_target, view), axis=-1), np.sum(to_target * view, axis=-1)))
     return _like(out, positions) if _is_torch(positions) else out
