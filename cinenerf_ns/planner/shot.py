@@ -38,6 +38,7 @@ class Shot:
     clearance: Optional[np.ndarray] = None  # [T] exact clearance of each frame (camera radius included)
     timings: Dict[str, float] = field(default_factory=dict)  # stage -> milliseconds
     fps: Optional[float] = None  # frame rate of `times` (derived from times when None)
+    curve_times: Optional[np.ndarray] = None  # [T] the trajectory's own time at each frame (dense resampling)
 
     def __post_init__(self) -> None:
         self.times = _to_numpy(self.times).reshape(-1)
@@ -62,6 +63,10 @@ class Shot:
             self.clearance = _to_numpy(self.clearance).reshape(-1)
             if self.clearance.shape != (t,):
                 raise InvalidInputError(f"Shot.clearance must have shape [{t}], got {self.clearance.shape}.")
+        if self.curve_times is not None:
+            self.curve_times = _to_numpy(self.curve_times).reshape(-1)
+            if self.curve_times.shape != (t,):
+                raise InvalidInputError(f"Shot.curve_times must have shape [{t}], got {self.curve_times.shape}.")
         if self.fps is None:
             self.fps = float(1.0 / np.median(np.diff(self.times))) if t > 1 else 30.0
 
@@ -106,6 +111,7 @@ class Shot:
             clearance=clearance,
             timings=timings,
             fps=path.fps,
+            curve_times=path.curve_times,
         )
 
     # ------------------------------------------------------------------ derived values
