@@ -47,11 +47,16 @@ def _like(out: np.ndarray, ref: Any):
 
 def bernstein_basis(degree: int, u: np.ndarray) -> np.ndarray:
     """Bernstein polynomials B_{i,degree}(u) for i = 0..degree: u [T] -> [T, degree+1] (float64)."""
-    u = np.asarray(u, dtype=np.float64)[..., None]  # [T, 1]
-    i = np.arange(degree + 1, dtype=np.float64)  # [D+1]
+    u = np.asarray(u, dtype=np.float64).reshape(-1)  # [T]
     binom = np.array([math.comb(degree, k) for k in range(degree + 1)], dtype=np.float64)
-    # 0**0 == 1 in numpy, so the end points u = 0 and u = 1 are exact.
-    return binom * u**i * (1.0 - u) ** (degree - i)
+    # powers by cumulative products (much faster than float **); column 0 is exactly 1, so the end
+    # points u = 0 and u = 1 are exact
+    up = np.ones((u.shape[0], degree + 1))
+    vp = np.ones((u.shape[0], degree + 1))
+    if degree > 0:
+        up[:, 1:] = np.cumprod(np.broadcast_to(u[:, None], (u.shape[0], degree)), axis=1)
+        vp[:, 1:] = np.cumprod(np.broadcast_to((1.0 - u)[:, None], (u.shape[0], degree)), axis=1)
+    return binom * up * vp[:, ::-1]
 
 
 def difference_matrix(degree: int, order: int) -> np.ndarray:
