@@ -40,6 +40,7 @@ from typing import Any, List, Sequence, Tuple
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.linalg import splu
 
 from .bezier import BezierTrajectory, _to_numpy, difference_matrix
 from .errors import GoalUnreachableError, InvalidInputError, PlanningError
@@ -77,6 +78,12 @@ class TrajectoryConfig:
     """QP solver: "clarabel" (interior point, robust, default) or "osqp" (ADMM with polishing)."""
     margin: float = 1e-5
     """Polytope offsets are shrunk by this distance (scene units) so solver tolerance cannot leave a point outside."""
+    osqp_margin: float = 1e-4
+    """The margin used with OSQP instead of `margin`: ADMM meets constraints only to ~eps * |b|, and its
+    polishing step often fails on this cost, so it needs more room."""
+
+    def effective_margin(self) -> float:
+        return self.osqp_margin if self.solver == "osqp" else self.margin
     max_iter: int = 200
     """Clarabel iteration limit (OSQP gets 100x this many ADMM iterations)."""
     tolerance: float = 1e-8
@@ -107,8 +114,8 @@ class TrajectoryConfig:
             raise InvalidInputError("nominal_speed and min_segment_duration must be positive.")
         if self.solver not in ("clarabel", "osqp"):
             raise InvalidInputError(f'solver must be "clarabel" or "osqp", got "{self.solver}".')
-        if self.margin < 0:
-            raise InvalidInputError(f"margin must be >= 0, got {self.margin}.")
+        if self.margin < 0 or self.osqp_margin < 0:
+            raise InvalidInputError(f"margins must be >= 0, got {self.margin}, {self.osqp_margin}.")
 
 
 # ---------------------------------------------------------------------------------------------- helpers
@@ -307,7 +314,7 @@ def build_corridor_qp(polytopes, waypoints, start, goal, config: TrajectoryConfi
         if free.size == 0:
             continue
         f = a.shape[0]
-        b_shrunk = b - config.margin * np.linalg.norm(a, axis=1)  # [F]
+        b_shrunk = b - config.effective_margin() * np.linalg.norm(a, axis=1)  # [F]
         nf = free.size
         # row index for (point p, face j) = row0 + p*F + j ; columns var(k, free[p], c)
         rr = row0 + (np.arange(nf)[:, None, None] * f + np.arange(f)[None, :, None])  # [nf, F, 1]
@@ -382,9 +389,15 @@ def _project_equalities(x: np.ndarray, qp: CorridorQP) -> np.ndarray:
     The solvers meet equalities only to their tolerance (OSQP ~1e-6); the correction is of that size, far
     below the corridor margin, and the corridor check after it still decides whether the result is kept.
     """
-    a = qp.A_eq.toarray()  # [n_eq, n], small
+    a = qp.A_eq  # [n_eq, n] sparse
     resid = a @ x - qp.b_eq
-    corr, *_ = np.linalg.lstsq(a @ a.T, resid, rcond=None)
+    gram = (a @ a.T).tocsc()  # [n_eq, n_eq] sparse SPD when the equalities are independent
+    try:
+        corr = splu(gram).solve(resid)
+        if not np.all(np.isfinite(corr)):
+            raise RuntimeError("singular")
+    except RuntimeError:  # dependent equalities (unusual degree/continuity mixes): least squares
+        corr, *_ = np.linalg.lstsq(gram.toarray(), resid, rcond=None)
     return x - a.T @ corr
 
 
@@ -408,7 +421,7 @@ def solve_corridor_qp(polytopes, waypoints, start, goal, config: TrajectoryConfi
     t2 = time.perf_counter()
     polys = qp.polytopes
     if outcome == "infeasible":
-        margins = [config.margin * np.linalg.norm(a, axis=1) for a, _ in polys]
+        margins = [config.effective_margin() * np.linalg.norm(a, axis=1) for a, _ in polys]
         raise CorridorInfeasibleError(
             "No smooth trajectory fits inside the safe corridor: "
             f"{_diagnose_infeasible(polys, margins)}. Try a lower continuity order, a higher degree, "
@@ -434,7 +447,8 @@ def solve_corridor_qp(polytopes, waypoints, start, goal, config: TrajectoryConfi
             worst = max(worst, float(np.max(cps[k, lo:hi] @ a.T - b)))
     if worst > 0:
         raise TrajectorySolverError(
-            f"The {config.solver} solution leaves the corridor by {worst:.2e}; increase TrajectoryConfig.margin."
+            f"The {config.solver} solution leaves the corridor by {worst:.2e}; increase TrajectoryConfig."
+            f"{'osqp_margin' if config.solver == 'osqp' else 'margin'} or use the clarabel solver."
         )
     traj = BezierTrajectory(cps, qp.durations)
     traj.info = {

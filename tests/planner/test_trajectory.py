@@ -79,7 +79,7 @@ def cvxpy_reference(polys, wp, start, goal, cfg: TrajectoryConfig):
         f = (v * np.sqrt(np.clip(w, 0, None))).T
         cost = cost + cp.sum_squares(f @ pts[k])
         a, b = polys[k]
-        shrunk = b - cfg.margin * np.linalg.norm(a, axis=1)
+        shrunk = b - cfg.effective_margin() * np.linalg.norm(a, axis=1)
         lo = cfg.rest_at_ends + 1 if k == 0 else 0
         hi = d - cfg.rest_at_ends if k == m - 1 else d + 1
         for i in range(lo, hi):
@@ -152,8 +152,10 @@ def test_matches_cvxpy_reference(seed, m, shape):
 @pytest.mark.parametrize("seed", range(4))
 def test_osqp_agrees_with_clarabel(seed):
     polys, wp = random_corridor(seed, m=6, faces=20)
-    a = solve_corridor_qp(polys, wp, wp[0], wp[-1], TrajectoryConfig(solver="clarabel"))
-    b = solve_corridor_qp(polys, wp, wp[0], wp[-1], TrajectoryConfig(solver="osqp"))
+    osqp_cfg = TrajectoryConfig(solver="osqp")
+    # same problem: Clarabel with the margin OSQP uses
+    a = solve_corridor_qp(polys, wp, wp[0], wp[-1], TrajectoryConfig(solver="clarabel", margin=osqp_cfg.osqp_margin))
+    b = solve_corridor_qp(polys, wp, wp[0], wp[-1], osqp_cfg)
     check_solution(b, polys, wp[0], wp[-1], TrajectoryConfig())
     assert b.info["objective"] == pytest.approx(a.info["objective"], rel=1e-4)
     np.testing.assert_allclose(a.control_points, b.control_points, atol=1e-3)
