@@ -325,6 +325,8 @@ def build_corridor_qp(polytopes, waypoints, start, goal, config: TrajectoryConfi
         blocks_v.append(np.broadcast_to(a[None], (nf, f, 3)).ravel())
         b_in.append(np.tile(b_shrunk, nf))
         row0 += nf * f
+    if row0 == 0:  # every control point pinned (one segment, 2(q+1) = D+1): the straight start-goal line
+        blocks_v, blocks_r, blocks_c, b_in = [np.zeros(0)], [np.zeros(0, int)], [np.zeros(0, int)], [np.zeros(0)]
     A_in = sp.csc_matrix(
         (np.concatenate(blocks_v), (np.concatenate(blocks_r), np.concatenate(blocks_c))), shape=(row0, n)
     )
@@ -348,7 +350,9 @@ def _solve_clarabel(qp: CorridorQP, config: TrajectoryConfig):
     settings.tol_gap_rel = config.tolerance
     A = sp.vstack([qp.A_eq, qp.A_in], format="csc")
     b = np.concatenate([qp.b_eq, qp.b_in])
-    cones = [clarabel.ZeroConeT(qp.A_eq.shape[0]), clarabel.NonnegativeConeT(qp.A_in.shape[0])]
+    cones = [clarabel.ZeroConeT(qp.A_eq.shape[0])]
+    if qp.A_in.shape[0] > 0:
+        cones.append(clarabel.NonnegativeConeT(qp.A_in.shape[0]))
     n = qp.P.shape[0]
     solver = clarabel.DefaultSolver(sp.triu(qp.P, format="csc"), np.zeros(n), A, b, cones, settings)
     sol = solver.solve()
@@ -439,13 +443,13 @@ def solve_corridor_qp(polytopes, waypoints, start, goal, config: TrajectoryConfi
     cps[0, : config.rest_at_ends + 1] = start
     cps[-1, npts - 1 - config.rest_at_ends :] = goal
     # verify every free control point against the true (unshrunk) polytope
-    worst = -np.inf
+    worst = -np.inf  # stays -inf when no control point is free
     for k, (a, b) in enumerate(polys):
         lo = config.rest_at_ends + 1 if k == 0 else 0
         hi = npts - 1 - config.rest_at_ends if k == m - 1 else npts
         if hi > lo:
             worst = max(worst, float(np.max(cps[k, lo:hi] @ a.T - b)))
-    if worst > 0:
+    if worst > 0:  # never return a point outside the true polytope
         raise TrajectorySolverError(
             f"The {config.solver} solution leaves the corridor by {worst:.2e}; increase TrajectoryConfig."
             f"{'osqp_margin' if config.solver == 'osqp' else 'margin'} or use the clarabel solver."
