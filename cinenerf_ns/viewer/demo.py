@@ -145,13 +145,17 @@ class StraightLinePlanner:
         c = self.clearance_lower_bound(pts)
         return bool(np.all(c > 0.5 * length / (n - 1))), pts, c
 
-    def _stop_short(self, start: np.ndarray, goal: np.ndarray) -> np.ndarray:
-        """Walk back from the goal (often an object's centre) towards the start to the first free point."""
-        for s in np.linspace(1.0, 0.0, 201):
-            p = start + s * (goal - start)
-            if self.clearance_lower_bound(p[None])[0] > 2 * self.camera_radius:
-                return p
-        return start
+    def _approach(self, start: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        """Fly from the start towards the goal (often an object's centre, inside it) and stop at the
+        last sample before the camera would come within 2 camera radii of any obstacle."""
+        length = float(np.linalg.norm(goal - start))
+        h = max(self.camera_radius / 2, 1e-3)
+        n = max(int(math.ceil(length / h)), 1) + 1
+        pts = start[None] + np.linspace(0.0, 1.0, n)[:, None] * (goal - start)[None]
+        blocked = np.nonzero(self.clearance_lower_bound(pts) <= 2 * self.camera_radius)[0]
+        if len(blocked) == 0:
+            return goal
+        return pts[max(int(blocked[0]) - 1, 0)]
 
     def plan(self, goal, look_at, start=None, seed: int = 0, n_candidates: int = 1) -> List[StraightShot]:
         goal, look_at = to_numpy(goal).reshape(3), to_numpy(look_at).reshape(3)
@@ -160,30 +164,42 @@ class StraightLinePlanner:
             start = to_numpy(start).reshape(3)
             if self.clearance_lower_bound(start[None])[0] <= 0:
                 raise StartInCollisionError(f"the start {np.round(start, 3).tolist()} is inside (or too near) the scene")
-            starts = [start]
-        else:
-            starts = []
-            for _ in range(400 * max(n_candidates, 1)):
-                p = rng.uniform(*self.region)
-                if self.clearance_lower_bound(p[None])[0] > 3 * self.camera_radius:
-                    starts.append(p)
-                    if len(starts) == n_candidates:
-                        break
-            if not starts:
-                raise StartInCollisionError("found no free random start in the scene bounds")
-        shots = []
-        for s in starts:
-            end = self._stop_short(s, goal)
-            ok, _, _ = self._segment_clear(s, end)
-            if not ok or np.linalg.norm(end - s) < 1e-6:
+            shot = self._try(start, goal, look_at)
+            if shot is None:
+                raise GoalUnreachableError(
+                    "no straight collision-free path from this start to the goal (the stand-in planner only "
+                    "flies straight lines; try a random start)"
+                )
+            return [shot]
+        shots, free_starts = [], 0
+        for _ in range(200 * max(n_candidates, 1)):  # random free starts until enough straight shots
+            p = rng.uniform(*self.region)
+            if self.clearance_lower_bound(p[None])[0] <= 3 * self.camera_radius:
                 continue
-            shots.append(self._make_shot(s, end, goal, look_at))
+            free_starts += 1
+            shot = self._try(p, goal, look_at)
+            if shot is not None:
+                shots.append(shot)
+                if len(shots) == n_candidates:
+                    break
+            if free_starts >= 60 * max(n_candidates, 1):
+                break
         if not shots:
+            if free_starts == 0:
+                raise StartInCollisionError("found no free random start in the scene bounds")
             raise GoalUnreachableError(
-                "no straight collision-free path to the goal from the tried starts (the stand-in planner "
-                "only flies straight lines; try a new random start)"
+                f"no straight collision-free path to the goal from {free_starts} random starts (the stand-in "
+                "planner only flies straight lines; the real planner goes around obstacles)"
             )
         return shots
+
+    def _try(self, s: np.ndarray, goal: np.ndarray, look_at: np.ndarray) -> Optional[StraightShot]:
+        end = self._approach(s, goal)
+        # it must get at least half-way: stopping in front of another object is not "going to" the goal
+        if np.linalg.norm(end - goal) > 0.5 * np.linalg.norm(s - goal) or np.linalg.norm(end - look_at) < 1e-6:
+            return None
+        ok, _, _ = self._segment_clear(s, end)
+        return self._make_shot(s, end, goal, look_at) if ok else None
 
     def _make_shot(self, a: np.ndarray, b: np.ndarray, goal: np.ndarray, look_at: np.ndarray) -> StraightShot:
         length = float(np.linalg.norm(b - a))

@@ -195,7 +195,7 @@ class ViserPanelUI:
                         pts = pts[np.random.default_rng(0).choice(len(pts), 50_000, replace=False)]
                     add(self.server.scene.add_point_cloud(
                         f"{base}/gaussians", points=(pts * self.scale).astype(np.float32), colors=color,
-                        point_size=0.6 * self.unit, point_shape="circle"))
+                        point_size=0.3 * self.unit, point_shape="circle"))
                 p = np.asarray(t.point) * self.scale
                 add(self.server.scene.add_icosphere(f"{base}/centroid", radius=1.2 * self.unit, color=color,
                                                      position=p))
@@ -220,7 +220,7 @@ class ViserPanelUI:
                     wxyz, p = nerfstudio_c2w_to_viser(np.c_[rot[i], pos[i]], self.scale)
                     add(self.server.scene.add_camera_frustum(
                         f"{base}/frustum_{j}", fov=np.deg2rad(self.fov_deg), aspect=self.aspect,
-                        scale=4 * self.unit, color=(255, 60, 200) if 0 < j < n_fr - 1 else (255, 255, 255),
+                        scale=1.5 * self.unit, color=(255, 60, 200) if 0 < j < n_fr - 1 else (255, 255, 255),
                         wxyz=wxyz, position=p, thickness=1.5, thickness_units="screen"))
             if options.show_corridor:
                 self._draw_corridor(shot, base)
