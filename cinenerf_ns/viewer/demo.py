@@ -127,13 +127,33 @@ class StraightLinePlanner:
         return cls(to_numpy(scene.means), to_numpy(scene.radii).max(-1), float(scene.camera_radius), **kw)
 
     def clearance_lower_bound(self, points: np.ndarray) -> np.ndarray:
-        """[P, 3] -> [P]: min_j |p - c_j| - R_j - camera_radius <= true clearance."""
+        """[P, 3] -> [P]: min_j |p - c_j| - R_j - camera_radius (<= the true clearance).
+
+        Exact value of that minimum through a KD-tree: with d1 the nearest-centre distance, any j
+        with |p - c_j| > d1 + max(R) has |p - c_j| - R_j > d1 >= the nearest centre's term, so only
+        centres within d1 + max(R) can attain the minimum."""
         pts = np.asarray(points, np.float64).reshape(-1, 3)
+        tree = self._tree()
+        d1, _ = tree.query(pts)
+        r_max = float(self.bound_radii.max()) if len(self.bound_radii) else 0.0
         out = np.empty(len(pts))
-        for i in range(0, len(pts), 256):
-            d = np.linalg.norm(pts[i : i + 256, None, :] - self.centers[None], axis=-1) - self.bound_radii[None]
-            out[i : i + 256] = d.min(1) - self.camera_radius
-        return out
+        for i, (p, near) in enumerate(zip(pts, tree.query_ball_point(pts, d1 + r_max + 1e-12))):
+            near = np.asarray(near, dtype=np.int64)
+            out[i] = (np.linalg.norm(self.centers[near] - p, axis=1) - self.bound_radii[near]).min()
+        return out - self.camera_radius
+
+    def clearance_lower_bound_reference(self, points: np.ndarray) -> np.ndarray:
+        """Brute force over all obstacles (float64), the reference the KD-tree version is tested against."""
+        pts = np.asarray(points, np.float64).reshape(-1, 3)
+        d = np.linalg.norm(pts[:, None, :] - self.centers[None], axis=-1) - self.bound_radii[None]
+        return d.min(1) - self.camera_radius
+
+    def _tree(self):
+        if getattr(self, "_kdtree", None) is None:
+            from scipy.spatial import cKDTree
+
+            self._kdtree = cKDTree(self.centers)
+        return self._kdtree
 
     def _segment_clear(self, a: np.ndarray, b: np.ndarray) -> Tuple[bool, np.ndarray, np.ndarray]:
         # Samples spaced h apart with clearance > h/2 cover the whole segment (distance is 1-Lipschitz).

@@ -95,6 +95,7 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
         # the browser camera moves over time while the shot plays (autoplay at the shot's real speed)
         n_before = len(reported)
         ARTIFACTS.mkdir(parents=True, exist_ok=True)
+        (ARTIFACTS / ".gitignore").write_text("*\n")  # test output, never committed
         shots = []
         for i in range(3):
             time.sleep(0.6)

@@ -103,3 +103,13 @@ def test_label_locate_and_parse_point(demo):
     assert parse_point("(1.5, -2e-1, .3)").tolist() == [1.5, -0.2, 0.3]
     for bad in ["1 2", "chair", "1 2 3 4", "nan 1 2", ""]:
         assert parse_point(bad) is None
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 10_000), st.integers(1, 300))
+def test_kdtree_clearance_equals_brute_force(seed, n):
+    rng = np.random.default_rng(seed)
+    planner = StraightLinePlanner(rng.uniform(-1, 1, (n, 3)), rng.exponential(0.1, n), camera_radius=0.03)
+    pts = rng.uniform(-1.5, 1.5, (50, 3))
+    np.testing.assert_allclose(planner.clearance_lower_bound(pts), planner.clearance_lower_bound_reference(pts),
+                               rtol=0, atol=1e-12)
