@@ -124,3 +124,34 @@ def test_control_is_found_by_nerfstudio_and_installs_panel(tmp_path):
         panel.close()
     finally:
         server.stop()
+
+
+def test_real_nerfstudio_viewer_installs_panel(tmp_path):
+    """nerfstudio 1.1.5's own Viewer (as ns-train / ns-viewer build it) on a minimal pipeline."""
+    from nerfstudio.configs.base_config import ViewerConfig
+    from nerfstudio.viewer.viewer import Viewer
+
+    model = TinySplatModel()
+    model.cine_panel = CinePanelControl(lambda: SplatModelBackend(model, Planners(), locate_first_half))
+
+    class Pipeline(nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.model = model
+            self.datamanager = SimpleNamespace(includes_time=False)
+
+    viewer = Viewer(
+        ViewerConfig(websocket_port=free_port(), websocket_host="127.0.0.1"),
+        log_filename=tmp_path / "run" / "viewer_log_filename.txt", datapath=tmp_path / "data",
+        pipeline=Pipeline(), train_lock=threading.Lock(),
+    )
+    try:
+        panel = model.cine_panel.panel
+        assert isinstance(panel, CinePanel)
+        assert panel.config.data_dir == tmp_path / "data"
+        assert panel.config.config_path == tmp_path / "run" / "config.yml"
+        assert panel.request_plan("0 0 1.5", "0 0 0").result(30) is not None, panel.status
+        assert panel.export("ns-take").path == tmp_path / "data" / "camera_paths" / "ns-take.json"
+        panel.close()
+    finally:
+        viewer.viser_server.stop()
