@@ -352,8 +352,9 @@ class CinePanel:
         self.last_timings = timings
         inner = getattr(shots[0], "timings", None) or {}
         detail = ", ".join(f"{k} {v:.2f} s" for k, v in inner.items() if isinstance(v, (int, float)))
+        by = getattr(self.backend, "planner_name", None)
         self._set_status(
-            f"Planned {len(shots)} candidate(s) in {timings['total_s']:.2f} s (query {timings['query_s']:.2f} s, "
+            f"Planned {len(shots)} candidate(s){f' with the {by}' if by else ''} in {timings['total_s']:.2f} s (query {timings['query_s']:.2f} s, "
             f"planner {timings['plan_s']:.2f} s{'; ' + detail if detail else ''}, drawing {timings['draw_s']:.2f} s). "
             f"{shot_summary(shots[0])}",
             "ok",
@@ -420,8 +421,8 @@ class CinePanel:
             self._anim_thread = threading.Thread(
                 target=self._animate, args=(shot, self._anim_stop), name="cine-animate", daemon=True
             )
+            self.view.set_playing(True)  # before the thread starts: a very short shot may end at once
             self._anim_thread.start()
-        self.view.set_playing(True)
 
     def pause(self) -> None:
         with self._lock:

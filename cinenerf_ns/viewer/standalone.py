@@ -165,7 +165,7 @@ def make_plan_fn(scene: EllipsoidScene, planner: str = "auto") -> Tuple[PlanFn, 
     from .demo import StraightLinePlanner
 
     stand_in = StraightLinePlanner.from_scene(scene)
-    return stand_in.plan, "straight-line stand-in planner (cinenerf_ns.planner.planner not available)"
+    return stand_in.plan, "straight-line stand-in planner"
 
 
 # --------------------------------------------------------------------------------------- viewer
@@ -238,7 +238,8 @@ class StandaloneViewer:
 
         self.panel._set_status(
             f"Loaded '{self.loaded.name}': {len(display)} Gaussians ({len(self.obstacles)} obstacles) in "
-            f"{time.perf_counter() - t0:.1f} s. Planner: {planner_name}. "
+            f"{time.perf_counter() - t0:.1f} s. Planner: {planner_name}"
+            f"{' (cinenerf_ns.planner.planner not importable)' if 'stand-in' in planner_name and cfg.planner == 'auto' else ''}. "
             f"{'Text queries: object names.' if self.backend._locate_fn else 'Type targets as x y z.'}",
             "info",
         )

@@ -47,6 +47,7 @@ class ViserPanelUI:
         self.scale = float(scale)
         self.root = root
         self.fov_deg, self.aspect = fov_deg, aspect
+        self.fov_rad = float(np.deg2rad(fov_deg))
         self.unit = max(scene_extent, 1e-3) * self.scale * 0.01  # 1% of the scene, in viser units
         self.gaussian_means: Optional[np.ndarray] = None  # [N, 3] scene units, for highlighting
         self._draw_lock = threading.RLock()
@@ -142,6 +143,8 @@ class ViserPanelUI:
         for client in list(self.server.get_clients().values()):
             try:
                 with client.atomic():
+                    # preview with the export's vertical fov, as nerfstudio's Render-tab preview does
+                    client.camera.fov = self.fov_rad
                     client.camera.wxyz = wxyz
                     client.camera.position = pos
                 moved += 1

@@ -28,6 +28,22 @@ def test_camera_path_is_read_by_nerfstudio():
     k = data["keyframes"]
     assert len(k) == 5 and all(len(f["matrix"]) == 16 for f in k)
     assert data["default_transition_sec"] * (len(k) - 1) == pytest.approx(2.0)
+    # what the Render tab's "Load Path" reads (nerfstudio/viewer/render_panel.py)
+    import viser.transforms as tf
+    from nerfstudio.viewer.render_panel import Keyframe
+
+    for frame in k:
+        pose = tf.SE3.from_matrix(np.array(frame["matrix"]).reshape(4, 4))
+        pose = tf.SE3.from_rotation_and_translation(pose.rotation() @ tf.SO3.from_x_radians(np.pi), pose.translation())
+        Keyframe(position=pose.translation() * 10, wxyz=pose.rotation().wxyz,
+                 override_fov_enabled=abs(frame["fov"] - data.get("default_fov", 0.0)) > 1e-3,
+                 override_fov_rad=frame["fov"] / 180.0 * np.pi,
+                 override_time_enabled=frame.get("override_time_enabled", False),
+                 override_time_val=frame.get("render_time", None), aspect=frame["aspect"],
+                 override_transition_enabled=frame.get("override_transition_enabled", None),
+                 override_transition_sec=frame.get("override_transition_sec", None))
+    first = tf.SE3.from_matrix(np.array(k[0]["matrix"]).reshape(4, 4))
+    np.testing.assert_allclose(first.translation(), shot.positions[0], atol=1e-9)
 
 
 def test_camera_path_from_torch_shot():
