@@ -1,0 +1,288 @@
+"""The panel's widgets and drawings on a viser server (the :class:`~.panel.PanelView` for viser).
+
+Used by both the nerfstudio viewer adapter and the standalone viewer. Scene coordinates are drawn at
+``scale`` times nerfstudio units (nerfstudio's viewer uses 10); cameras are converted with
+:func:`~.conventions.nerfstudio_c2w_to_viser`.
+"""
+from __future__ import annotations
+
+import datetime
+import logging
+import threading
+from pathlib import Path
+from typing import Any, Dict, List, Optional
+
+import numpy as np
+import viser
+
+from .backend import to_numpy
+from .conventions import VISER_NERFSTUDIO_SCALE_RATIO, nerfstudio_c2w_to_viser, viser_to_world
+from .panel import CinePanel, DisplayOptions, PanelBackend, PanelConfig, ShotLike, Target, min_clearance
+from .polytope_mesh import polytope_mesh
+
+log = logging.getLogger(__name__)
+
+_LEVEL_ICON = {"info": "", "busy": "⏳ ", "ok": "✅ ", "error": "⚠️ "}
+_TARGET_COLOR = {"Go to": (40, 220, 90), "Look at": (255, 150, 20)}
+_NO_CANDIDATES = "(plan first)"
+
+
+class ViserPanelUI:
+    """Builds the "Cinematography" GUI folder and implements ``PanelView`` on ``server``."""
+
+    def __init__(
+        self,
+        server: viser.ViserServer,
+        scale: float = VISER_NERFSTUDIO_SCALE_RATIO,
+        scene_extent: float = 2.0,
+        fov_deg: float = 50.0,
+        aspect: float = 16 / 9,
+        default_goto: str = "",
+        default_look_at: str = "",
+        folder_label: str = "Cinematography",
+        root: str = "/cine",
+        n_candidates: int = 3,
+    ) -> None:
+        self.server = server
+        self.scale = float(scale)
+        self.root = root
+        self.fov_deg, self.aspect = fov_deg, aspect
+        self.fov_rad = float(np.deg2rad(fov_deg))
+        self.unit = max(scene_extent, 1e-3) * self.scale * 0.01  # 1% of the scene, in viser units
+        self.gaussian_means: Optional[np.ndarray] = None  # [N, 3] scene units, for highlighting
+        self._draw_lock = threading.RLock()
+        self._nodes: Dict[str, List[Any]] = {"shot": [], "targets": []}
+        self.camera_updates = 0
+        self.panel: Optional[CinePanel] = None
+
+        gui = server.gui
+        with gui.add_folder(folder_label):
+            self.goto = gui.add_text("Go to", default_goto, hint="An object ('the chair') or coordinates 'x y z'")
+            self.look_at = gui.add_text("Look at", default_look_at, hint="An object or coordinates 'x y z'")
+            self.n_candidates = gui.add_number("Candidates", n_candidates, min=1, max=16, step=1,
+                                               hint="Shots planned from different random starts")
+            self.from_camera = gui.add_checkbox("Start at my camera", False,
+                                                hint="Plan from the current browser camera instead of a random start")
+            self.plan_button = gui.add_button("Plan", icon=viser.Icon.ROUTE, color="green")
+            self.new_start_button = gui.add_button("New random start", icon=viser.Icon.DICE)
+            self.candidate = gui.add_dropdown("Candidate", [_NO_CANDIDATES])
+            self.play_button = gui.add_button("Play", icon=viser.Icon.PLAYER_PLAY_FILLED)
+            self.pause_button = gui.add_button("Pause", icon=viser.Icon.PLAYER_PAUSE_FILLED, visible=False)
+            self.speed = gui.add_slider("Speed", min=0.25, max=4.0, step=0.25, initial_value=1.0)
+            self.loop = gui.add_checkbox("Loop", False)
+            with gui.add_folder("Show", expand_by_default=False):
+                self.show_path = gui.add_checkbox("Path + frustums", True)
+                self.show_targets = gui.add_checkbox("Selected objects", True)
+                self.show_corridor = gui.add_checkbox("Safe corridor", False)
+                self.show_clearance = gui.add_checkbox("Clearance numbers", False)
+            self.export_name = gui.add_text("Export name", datetime.datetime.now().strftime("cine-%Y-%m-%d-%H-%M-%S"))
+            self.export_button = gui.add_button("Export camera path", icon=viser.Icon.FILE_EXPORT)
+            self.export_info = gui.add_markdown("", visible=False)
+            self.status_md = gui.add_markdown("Type where the camera should go and what it should look at, then Plan.")
+
+    # ------------------------------------------------------------------ wiring
+    def attach(self, panel: CinePanel) -> None:
+        """Connect widgets to ``panel`` (callbacks only request work; the panel runs it on its threads)."""
+        self.panel = panel
+        p = panel
+
+        def guarded(fn):
+            def cb(event: viser.GuiEvent) -> None:
+                try:
+                    fn(event)
+                except Exception as err:  # never raise into viser's callback thread
+                    p._fail("Panel", err)
+
+            return cb
+
+        self.plan_button.on_click(guarded(lambda e: p.request_plan(
+            self.goto.value, self.look_at.value, n_candidates=int(self.n_candidates.value),
+            start_from_camera=bool(self.from_camera.value))))
+        self.new_start_button.on_click(guarded(lambda e: p.request_plan(
+            self.goto.value, self.look_at.value, n_candidates=int(self.n_candidates.value), new_start=True)))
+        self.play_button.on_click(guarded(lambda e: p.play()))
+        self.pause_button.on_click(guarded(lambda e: p.pause()))
+        self.speed.on_update(guarded(lambda e: p.set_speed(float(self.speed.value))))
+        self.loop.on_update(guarded(lambda e: p.set_loop(bool(self.loop.value))))
+        self.export_button.on_click(guarded(lambda e: p.export(self.export_name.value)))
+
+        @self.candidate.on_update
+        def _(event: viser.GuiEvent) -> None:
+            if event.client is None:  # set by show_candidates (server side), not by the user
+                return
+            value = self.candidate.value
+            if value != _NO_CANDIDATES:
+                p.select(int(value.split(":")[0]) - 1)
+
+        for box, key in [(self.show_path, "show_path"), (self.show_targets, "show_targets"),
+                         (self.show_corridor, "show_corridor"), (self.show_clearance, "show_clearance")]:
+            box.on_update(guarded(lambda e, box=box, key=key: p.set_display(**{key: bool(box.value)})))
+        p.options = DisplayOptions(self.show_path.value, self.show_targets.value,
+                                   self.show_corridor.value, self.show_clearance.value)
+
+    # ------------------------------------------------------------------ PanelView
+    def set_status(self, text: str, level: str) -> None:
+        self.status_md.content = f"{_LEVEL_ICON.get(level, '')}{text}"
+
+    def show_candidates(self, labels: List[str], selected: int) -> None:
+        opts = list(labels) or [_NO_CANDIDATES]
+        self.candidate.options = opts
+        self.candidate.value = opts[selected]
+
+    def set_playing(self, playing: bool) -> None:
+        self.play_button.visible = not playing
+        self.pause_button.visible = playing
+
+    def show_export(self, path: Path, command: str) -> None:
+        self.export_info.content = f"Wrote `{path}`. Render with:\n\n```\n{command}\n```"
+        self.export_info.visible = True
+
+    def set_camera(self, c2w: np.ndarray) -> int:
+        wxyz, pos = nerfstudio_c2w_to_viser(np.asarray(c2w), self.scale)
+        moved = 0
+        for client in list(self.server.get_clients().values()):
+            try:
+                with client.atomic():
+                    # preview with the export's vertical fov, as nerfstudio's Render-tab preview does
+                    client.camera.fov = self.fov_rad
+                    client.camera.wxyz = wxyz
+                    client.camera.position = pos
+                moved += 1
+            except AssertionError:
+                pass  # this client has not sent its first camera yet
+            except Exception:
+                log.debug("camera update for client %s failed", client.client_id, exc_info=True)
+        self.camera_updates += 1
+        return moved
+
+    def camera_position(self) -> Optional[np.ndarray]:
+        for client in self.server.get_clients().values():
+            try:
+                return viser_to_world(np.asarray(client.camera.position), self.scale)
+            except AssertionError:
+                continue
+        return None
+
+    # ------------------------------------------------------------------ drawing
+    def _clear(self, group: str) -> None:
+        for h in self._nodes[group]:
+            try:
+                h.remove()
+            except Exception:
+                pass
+        self._nodes[group] = []
+
+    def _means_for(self, mask: Optional[np.ndarray]) -> Optional[np.ndarray]:
+        """Gaussian means matching ``mask``'s length (training changes N: refetch from the backend)."""
+        if mask is None:
+            return None
+        if self.gaussian_means is None or len(self.gaussian_means) != len(mask):
+            if self.panel is None:
+                return None
+            self.gaussian_means = to_numpy(self.panel.backend.gaussians().means)
+        return self.gaussian_means if len(self.gaussian_means) == len(mask) else None
+
+    def draw_targets(self, targets: List[Target], options: DisplayOptions) -> None:
+        with self._draw_lock:
+            self._clear("targets")
+            if not options.show_targets:
+                return
+            add = self._nodes["targets"].append
+            for i, t in enumerate(targets):
+                color = _TARGET_COLOR.get(t.role, (200, 200, 200))
+                base = f"{self.root}/targets/{i}"
+                means = self._means_for(t.mask)
+                if means is not None:
+                    pts = means[t.mask]
+                    if len(pts) > 50_000:  # keep the message small; a subsample shows the object as well
+                        pts = pts[np.random.default_rng(0).choice(len(pts), 50_000, replace=False)]
+                    add(self.server.scene.add_point_cloud(
+                        f"{base}/gaussians", points=(pts * self.scale).astype(np.float32), colors=color,
+                        point_size=0.3 * self.unit, point_shape="circle"))
+                p = np.asarray(t.point) * self.scale
+                add(self.server.scene.add_icosphere(f"{base}/centroid", radius=1.2 * self.unit, color=color,
+                                                     position=p))
+                add(self.server.scene.add_label(f"{base}/label", f"{t.role}: {t.text}", position=p))
+
+    def draw_shot(self, shot: Optional[ShotLike], options: DisplayOptions) -> None:
+        with self._draw_lock:
+            self._clear("shot")
+            if shot is None:
+                return
+            add = self._nodes["shot"].append
+            pos = to_numpy(shot.positions)  # [T, 3]
+            rot = to_numpy(shot.rotations)  # [T, 3, 3]
+            base = f"{self.root}/shot"
+            if options.show_path:
+                idx = np.unique(np.linspace(0, len(pos) - 1, min(len(pos), 300)).round().astype(int))
+                add(self.server.scene.add_spline_catmull_rom(
+                    f"{base}/path", points=pos[idx] * self.scale, color=(255, 60, 200),
+                    thickness=3.0, thickness_units="screen"))
+                n_fr = min(8, len(pos))
+                for j, i in enumerate(np.linspace(0, len(pos) - 1, n_fr).round().astype(int)):
+                    wxyz, p = nerfstudio_c2w_to_viser(np.c_[rot[i], pos[i]], self.scale)
+                    add(self.server.scene.add_camera_frustum(
+                        f"{base}/frustum_{j}", fov=np.deg2rad(self.fov_deg), aspect=self.aspect,
+                        scale=1.5 * self.unit, color=(255, 60, 200) if 0 < j < n_fr - 1 else (255, 255, 255),
+                        wxyz=wxyz, position=p, thickness=1.5, thickness_units="screen"))
+            if options.show_corridor:
+                self._draw_corridor(shot, base)
+            if options.show_clearance:
+                clear = getattr(shot, "clearance", None)
+                if clear is not None:
+                    clear = to_numpy(clear).reshape(-1)
+                    picks = set(np.linspace(0, len(pos) - 1, 7).round().astype(int)) | {int(np.argmin(clear))}
+                    for i in sorted(picks):
+                        add(self.server.scene.add_label(
+                            f"{base}/clearance_{i}", f"{clear[i]:.3f}", position=pos[i] * self.scale))
+                else:
+                    m = min_clearance(shot)
+                    add(self.server.scene.add_label(
+                        f"{base}/clearance_min", f"min clearance {'n/a' if m is None else f'{m:.3f}'}",
+                        position=pos[len(pos) // 2] * self.scale))
+
+    def _draw_corridor(self, shot: ShotLike, base: str) -> None:
+        corridor = getattr(shot, "corridor", None)
+        polys = getattr(corridor, "polytopes", corridor) if corridor is not None else None
+        if not polys:
+            self._nodes["shot"].append(self.server.scene.add_label(
+                f"{base}/corridor_none", "(this planner gave no corridor)", position=to_numpy(shot.positions)[0] * self.scale))
+            return
+        for k, poly in enumerate(polys):
+            A, b = (poly.A, poly.b) if hasattr(poly, "A") else poly
+            seed = getattr(poly, "seed", None)
+            seed = None if seed is None else to_numpy(seed).reshape(-1, 3).mean(0)
+            mesh = polytope_mesh(to_numpy(A), to_numpy(b), seed)
+            if mesh is None:
+                continue
+            verts, faces = mesh
+            self._nodes["shot"].append(self.server.scene.add_mesh_simple(
+                f"{base}/corridor_{k}", vertices=(verts * self.scale).astype(np.float32), faces=faces,
+                color=(80, 170, 255), opacity=0.15, side="double", cast_shadow=False, receive_shadow=False))
+
+
+def attach_cine_panel(
+    server: viser.ViserServer,
+    backend: PanelBackend,
+    config: Optional[PanelConfig] = None,
+    exporter=None,
+    scale: float = VISER_NERFSTUDIO_SCALE_RATIO,
+    default_goto: str = "",
+    default_look_at: str = "",
+    folder_label: str = "Cinematography",
+) -> CinePanel:
+    """Add the cinematography panel to ``server`` and return its :class:`CinePanel`.
+
+    ``backend`` gives Gaussians / locate / plan (see :class:`PanelBackend`); coordinates are drawn at
+    ``scale`` x scene units (10 inside nerfstudio's viewer)."""
+    cfg = config or PanelConfig()
+    g = backend.gaussians()
+    means = to_numpy(g.means)
+    extent = float(np.linalg.norm(np.percentile(means, 98, axis=0) - np.percentile(means, 2, axis=0))) if len(means) else 2.0
+    ui = ViserPanelUI(server, scale=scale, scene_extent=extent, fov_deg=cfg.fov_deg,
+                      aspect=cfg.render_width / cfg.render_height, default_goto=default_goto,
+                      default_look_at=default_look_at, folder_label=folder_label, n_candidates=cfg.n_candidates)
+    ui.gaussian_means = means
+    panel = CinePanel(backend, ui, cfg, exporter)
+    ui.attach(panel)
+    return panel

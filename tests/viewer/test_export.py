@@ -1,0 +1,89 @@
+"""Camera-path export: the JSON nerfstudio's ns-render and Render tab read."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from cinenerf_ns.planner.errors import InvalidInputError
+from cinenerf_ns.viewer.export import camera_path_from_shot, check_export_name, render_command, write_json_atomic
+
+from viewer_fakes import line_shot
+
+
+def test_camera_path_is_read_by_nerfstudio():
+    from nerfstudio.cameras.camera_paths import get_path_from_json
+
+    shot = line_shot([0, 0, 0.5], [1, 0, 0.5], [2, 1, 0], duration=2.0)
+    data = camera_path_from_shot(shot, fov_deg=60, width=64, height=48, fps=15)
+    data = json.loads(json.dumps(data))  # JSON-clean
+    cams = get_path_from_json(data)
+    assert cams.camera_to_worlds.shape == (31, 3, 4)
+    np.testing.assert_allclose(cams.camera_to_worlds[0].numpy(), np.c_[shot.rotations[0], shot.positions[0]], atol=1e-6)
+    np.testing.assert_allclose(cams.camera_to_worlds[-1].numpy(), np.c_[shot.rotations[-1], shot.positions[-1]], atol=1e-6)
+    assert int(cams.width[0]) == 64 and int(cams.height[0]) == 48
+    # Render tab "Load Path": keyframes with 4x4 matrices; the spline lasts the shot's duration
+    k = data["keyframes"]
+    assert len(k) == 5 and all(len(f["matrix"]) == 16 for f in k)
+    assert data["default_transition_sec"] * (len(k) - 1) == pytest.approx(2.0)
+    # what the Render tab's "Load Path" reads (nerfstudio/viewer/render_panel.py)
+    import viser.transforms as tf
+    from nerfstudio.viewer.render_panel import Keyframe
+
+    for frame in k:
+        pose = tf.SE3.from_matrix(np.array(frame["matrix"]).reshape(4, 4))
+        pose = tf.SE3.from_rotation_and_translation(pose.rotation() @ tf.SO3.from_x_radians(np.pi), pose.translation())
+        Keyframe(position=pose.translation() * 10, wxyz=pose.rotation().wxyz,
+                 override_fov_enabled=abs(frame["fov"] - data.get("default_fov", 0.0)) > 1e-3,
+                 override_fov_rad=frame["fov"] / 180.0 * np.pi,
+                 override_time_enabled=frame.get("override_time_enabled", False),
+                 override_time_val=frame.get("render_time", None), aspect=frame["aspect"],
+                 override_transition_enabled=frame.get("override_transition_enabled", None),
+                 override_transition_sec=frame.get("override_transition_sec", None))
+    first = tf.SE3.from_matrix(np.array(k[0]["matrix"]).reshape(4, 4))
+    np.testing.assert_allclose(first.translation(), shot.positions[0], atol=1e-9)
+
+
+def test_camera_path_from_torch_shot():
+    shot = line_shot([0, 0, 0.5], [1, 0, 0.5], [2, 1, 0])
+    for f in ("times", "positions", "rotations"):
+        setattr(shot, f, torch.as_tensor(getattr(shot, f), dtype=torch.float32))
+    data = camera_path_from_shot(shot, 50, 100, 100, 30)
+    assert len(data["camera_path"]) == 31
+
+
+def test_bad_inputs():
+    shot = line_shot([0, 0, 0.5], [1, 0, 0.5], [2, 1, 0])
+    with pytest.raises(InvalidInputError):
+        camera_path_from_shot(shot, 0, 100, 100, 30)
+    with pytest.raises(InvalidInputError):
+        camera_path_from_shot(shot, 50, 100, 0, 30)
+    shot.times = shot.times[::-1]
+    with pytest.raises(InvalidInputError):
+        camera_path_from_shot(shot, 50, 100, 100, 30)
+
+
+def test_names():
+    assert check_export_name("take_1.v2") == "take_1.v2"
+    assert check_export_name(" a.json ") == "a"
+    for bad in ["", ".hidden", "a/b", "../x", "a b", "x" * 200]:
+        with pytest.raises(InvalidInputError):
+            check_export_name(bad)
+
+
+def test_write_json_atomic(tmp_path):
+    p = tmp_path / "camera_paths" / "a.json"
+    write_json_atomic(p, {"a": 1})
+    assert json.loads(p.read_text()) == {"a": 1}
+    with pytest.raises(ValueError):
+        write_json_atomic(p, {"a": float("inf")})
+    assert json.loads(p.read_text()) == {"a": 1}
+    assert [q.name for q in p.parent.iterdir()] == ["a.json"]
+
+
+def test_render_command(tmp_path):
+    cmd = render_command(None, tmp_path / "x.json", "fox", "x")
+    assert cmd.startswith("ns-render camera-path --load-config <path/to/your/run/config.yml>")
+    assert cmd.endswith("--output-path renders/fox/x.mp4")
