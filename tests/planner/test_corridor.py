@@ -21,7 +21,7 @@ from test_polytope import vertices_and_interior  # noqa: E402
 
 
 def free_polyline(rng, scene, k, step=0.4, tries=200):
-    """Random polyline of k points whose segments keep exact clearance > 0 (dense sampling)."""
+    """Random polyline of k points whose segments keep exact clearance > 0.01 everywhere."""
     pts = []
     for _ in range(tries):
         p = rng.uniform(-0.9, 0.9, 3)
@@ -33,8 +33,9 @@ def free_polyline(rng, scene, k, step=0.4, tries=200):
     while len(pts) < k:
         for _ in range(tries):
             q = pts[-1] + rng.normal(size=3) * step
-            ts = np.linspace(0, 1, 25)[:, None]
-            if clearance(pts[-1] + ts * (q - pts[-1]), scene).min() > 0.005:
+            # clearance is 1-Lipschitz: samples <= 0.02 apart all > 0.02 => the whole segment > 0.01
+            ts = np.linspace(0, 1, int(np.ceil(np.linalg.norm(q - pts[-1]) / 0.02)) + 1)[:, None]
+            if clearance(pts[-1] + ts * (q - pts[-1]), scene).min() > 0.02:
                 pts.append(q)
                 break
         else:
@@ -50,7 +51,7 @@ def test_corridor_covers_path_and_is_safe(seed, n, k):
     wps = free_polyline(rng, scene, k)
     if wps is None:
         return
-    # every segment keeps clearance > 0.005 (dense check), so exact-offset planes plus at most 4
+    # every segment keeps clearance > 0.01 (Lipschitz-dense check), so exact-offset planes plus at most 4
     # midpoint splits must cover it: a CorridorError here is a failure
     cor = build_corridor(wps, scene, None, box_margin=0.15, min_overlap=0.0, exact_overlap=True)
     assert isinstance(cor, Corridor)
