@@ -132,7 +132,7 @@ def _k_sphere(w2: np.ndarray, lam: np.ndarray, kappa: float, s: np.ndarray) -> n
     return (w2[:, None, :] * s3 * (1 - s3) / (kappa + s3 * (lam[:, None, :] - kappa))).sum(-1)
 
 
-def _argmax_k(w2: np.ndarray, lam: np.ndarray, kappa: float, n_samples: int = 32, iters: int = 10) -> np.ndarray:
+def _argmax_k(w2: np.ndarray, lam: np.ndarray, kappa: float, n_samples: int = 64, iters: int = 6) -> np.ndarray:
     """s* = argmax_{s in (0,1)} K(s) per row [K]: K is concave in s, so a coarse grid then golden
     section inside the best bracket converges to the maximiser (~1e-3 in s; only the normal uses it, never the offset)."""
     k = w2.shape[0]
@@ -185,6 +185,11 @@ def candidate_ids(scene, index, box_lo: Tensor, box_hi: Tensor) -> Tensor:
     """Ids [K] of ellipsoids whose camera-inflated body may meet the box (a superset: bounding-sphere
     test after the index's coarse AABB query). index: anything with query_box(lo[3], hi[3]) ->
     LongTensor, or None (then all ellipsoids are scanned)."""
+    return _candidates(scene, index, box_lo, box_hi)[0]
+
+
+def _candidates(scene, index, box_lo, box_hi):
+    """(ids [K] on the scene device, means [K, 3] float64 numpy, bounding radii [K] float64 numpy)."""
     r = float(scene.camera_radius)
     dev = scene.means.device
     m = scene.means
@@ -193,16 +198,18 @@ def candidate_ids(scene, index, box_lo: Tensor, box_hi: Tensor) -> Tensor:
     if index is not None:
         ids = torch.as_tensor(index.query_box(lo - r, hi + r), device=dev).long()
         if ids.numel() == 0:
-            return ids
+            return ids, np.zeros((0, 3)), np.zeros(0)
         m = m[ids]
         amax = scene.radii[ids].max(-1).values
     else:
+        ids = None
         amax = scene.radii.max(-1).values
     # distance from the mean to the box <= bounding-sphere radius + r (+ rounding slack)
     gap = (m - torch.minimum(torch.maximum(m, lo), hi)).norm(dim=-1)
     near = gap <= amax + r + 1e-6 * (1 + m.abs().max(-1).values)
     sel = torch.nonzero(near).squeeze(-1)
-    return ids[sel] if index is not None else sel
+    out = ids[sel] if ids is not None else sel
+    return out, _np(m[sel]), _np(amax[sel])
 
 
 def _np(x: Tensor) -> np.ndarray:
@@ -300,12 +307,10 @@ def safe_polytope(
     A_box = np.vstack([np.eye(3), -np.eye(3)])  # [6, 3]
     b_box = np.concatenate([hi, -lo])
 
-    ids = candidate_ids(scene, index, lo_t, hi_t)  # [K] on device
+    ids, mu_all, amax = _candidates(scene, index, lo_t, hi_t)  # [K] on device, [K,3], [K] host
     K = int(ids.numel())
     planes_n, planes_b, planes_id = [], [], []
     if K:
-        mu_all = _np(scene.means[ids])  # [K, 3]
-        amax = _np(scene.radii[ids].max(-1).values)  # [K] bounding-sphere radii
         # visiting order: lower bound of the distance from the seed set to the inflated body
         if seeds.shape[0] == 2:
             d = seeds[1] - seeds[0]
