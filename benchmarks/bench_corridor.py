@@ -114,6 +114,7 @@ def main() -> None:
     ap.add_argument("--res", type=int, default=100)
     ap.add_argument("--box-margin", type=float, default=0.1)
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--box", default="aabb", choices=["aabb", "oriented"])
     ap.add_argument("--astar-weight", type=float, default=1.0, help="1: optimal A*; >1: weighted A*")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -151,7 +152,7 @@ def main() -> None:
         t2 = time.perf_counter()
         c2 = time.process_time()
         try:
-            cor = build_corridor(short, scene, index, args.box_margin)
+            cor = build_corridor(short, scene, index, args.box_margin, box=args.box)
         except Exception as e:  # noqa: BLE001
             print("corridor:", e)
             continue
