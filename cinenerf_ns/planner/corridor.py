@@ -52,10 +52,27 @@ class Corridor:
         return [p.num_faces for p in self.polytopes]
 
 
-def _segment_polytopes(p0, p1, scene, index, box_margin, depth, max_depth, kw, out, stats, seg_id):
+def _segment_frame(p0: Tensor, p1: Tensor) -> Tensor:
+    """Orthonormal [3, 3] whose first column is the segment direction."""
+    u = p1 - p0
+    u = u / u.norm()
+    helper = torch.zeros_like(u)
+    helper[int(torch.argmin(u.abs()))] = 1.0
+    v = torch.linalg.cross(u, helper)
+    v = v / v.norm()
+    return torch.stack([u, v, torch.linalg.cross(u, v)], dim=1)
+
+
+def _segment_polytopes(p0, p1, scene, index, box_margin, depth, max_depth, kw, out, stats, seg_id, box):
     seg = torch.stack([p0, p1])  # [2, 3]
-    lo = seg.min(0).values - box_margin
-    hi = seg.max(0).values + box_margin
+    if box == "oriented":
+        rot = _segment_frame(p0, p1)
+        sb = seg @ rot  # segment in box coordinates
+        lo, hi = sb.min(0).values - box_margin, sb.max(0).values + box_margin
+        kw = dict(kw, box_rotation=rot)
+    else:
+        lo = seg.min(0).values - box_margin
+        hi = seg.max(0).values + box_margin
     try:
         out.append((safe_polytope(seg, scene, index, lo, hi, **kw), p0, p1))
         return
@@ -68,8 +85,8 @@ def _segment_polytopes(p0, p1, scene, index, box_margin, depth, max_depth, kw, o
             ) from e
     stats["splits"] += 1
     mid = 0.5 * (p0 + p1)
-    _segment_polytopes(p0, mid, scene, index, box_margin, depth + 1, max_depth, kw, out, stats, seg_id)
-    _segment_polytopes(mid, p1, scene, index, box_margin, depth + 1, max_depth, kw, out, stats, seg_id)
+    _segment_polytopes(p0, mid, scene, index, box_margin, depth + 1, max_depth, kw, out, stats, seg_id, box)
+    _segment_polytopes(mid, p1, scene, index, box_margin, depth + 1, max_depth, kw, out, stats, seg_id, box)
 
 
 def build_corridor(
@@ -83,6 +100,7 @@ def build_corridor(
     margin: float = 1e-6,
     normal: str = "auto",
     exact_overlap: bool = False,
+    box: str = "aabb",
 ) -> Corridor:
     """Corridor of safe polytopes along a polyline of camera centres.
 
@@ -93,6 +111,9 @@ def build_corridor(
     min_overlap: junctions whose overlap (Chebyshev radius of P_m ∩ P_{m+1}) is below this are
     reported in ``thin_joints`` with a warning. exact_overlap: always solve the LP (else only when the
     cheap lower bound, the shared waypoint's distance to the nearest face of either polytope, is small).
+    box: "aabb" (segment bounding box + margin, axis-aligned) or "oriented" (box aligned with the
+    segment, margin on every side): far fewer candidate ellipsoids for long diagonal segments, so
+    faster, but less room for the trajectory away from the segment.
     Raises InvalidInputError (bad waypoints), CorridorError (a segment cannot be covered).
     """
     dev = scene.means.device
@@ -101,6 +122,8 @@ def build_corridor(
         raise InvalidInputError(f"build_corridor needs waypoints [K>=2, 3], got {tuple(w.shape)}")
     if not torch.isfinite(w).all():
         raise InvalidInputError("build_corridor: waypoints contain NaN/inf")
+    if box not in ("aabb", "oriented"):
+        raise InvalidInputError(f"box must be 'aabb' or 'oriented', got {box!r}")
     if not (box_margin > 0):
         raise InvalidInputError(f"box_margin must be > 0, got {box_margin}")
     keep = torch.ones(w.shape[0], dtype=torch.bool, device=dev)
@@ -113,7 +136,7 @@ def build_corridor(
     pieces: list = []
     stats = {"splits": 0}
     for m in range(w.shape[0] - 1):
-        _segment_polytopes(w[m], w[m + 1], scene, index, box_margin, 0, max_split_depth, kw, pieces, stats, m)
+        _segment_polytopes(w[m], w[m + 1], scene, index, box_margin, 0, max_split_depth, kw, pieces, stats, m, box)
     polys = [p for p, _, _ in pieces]
     wps = torch.stack([pieces[0][1]] + [p1 for _, _, p1 in pieces])  # [M+1, 3]
 

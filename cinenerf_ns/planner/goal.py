@@ -56,13 +56,14 @@ def _world_to_voxel(grid, x: Tensor) -> Tensor:
 
 # ------------------------------------------------------------------------------------ exact checks
 def points_clearance_lower(points: Tensor, scene, index=None) -> Tensor:
-    """Lower bound of min_j dist(x, E_j) - camera_radius for points [P, 3] -> [P] float64.
+    """Clearance min_j dist(x, E_j) - camera_radius of points [P, 3] -> [P] float64, over the
+    ellipsoids that can come within the camera radius of x (inflated bounding sphere holds x).
 
-    Exact up to the root-finder's tolerance, and never above the truth: the closest-point multiplier t
-    is approached from below by Newton (f convex decreasing), and |t w / (lambda + t)| grows with t.
-    Points inside an ellipsoid get -inf. Only ellipsoids whose camera-inflated AABB holds the point can
-    be within the camera radius, so those are the only ones examined (clearance is capped at 0 plus
-    +inf when none is near: the answer is ">= 0", which is all the callers need).
+    Sign-exact: when the true clearance is negative, the offending ellipsoid is examined and the value
+    returned is a lower bound of the truth (tight to the root-finder's tolerance): the closest-point
+    multiplier t is approached from below and |t w / (lambda + t)| grows with t. When it is >= 0 the
+    value is >= 0 but may exceed the true clearance (far ellipsoids are skipped; +inf when none is
+    near). Points inside an ellipsoid get -inf. "Is this camera centre free?" is all callers ask.
     """
     dev = scene.means.device
     pts = torch.as_tensor(points, device=dev).to(torch.float64).reshape(-1, 3)

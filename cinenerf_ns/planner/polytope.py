@@ -132,7 +132,7 @@ def _k_sphere(w2: np.ndarray, lam: np.ndarray, kappa: float, s: np.ndarray) -> n
     return (w2[:, None, :] * s3 * (1 - s3) / (kappa + s3 * (lam[:, None, :] - kappa))).sum(-1)
 
 
-def _argmax_k(w2: np.ndarray, lam: np.ndarray, kappa: float, n_samples: int = 32, iters: int = 10) -> np.ndarray:
+def _argmax_k(w2: np.ndarray, lam: np.ndarray, kappa: float, n_samples: int = 64, iters: int = 6) -> np.ndarray:
     """s* = argmax_{s in (0,1)} K(s) per row [K]: K is concave in s, so a coarse grid then golden
     section inside the best bracket converges to the maximiser (~1e-3 in s; only the normal uses it, never the offset)."""
     k = w2.shape[0]
@@ -185,24 +185,40 @@ def candidate_ids(scene, index, box_lo: Tensor, box_hi: Tensor) -> Tensor:
     """Ids [K] of ellipsoids whose camera-inflated body may meet the box (a superset: bounding-sphere
     test after the index's coarse AABB query). index: anything with query_box(lo[3], hi[3]) ->
     LongTensor, or None (then all ellipsoids are scanned)."""
+    return _candidates(scene, index, box_lo, box_hi)[0]
+
+
+def _candidates(scene, index, box_lo, box_hi, box_rot=None):
+    """(ids [K] on the scene device, means [K, 3] float64 numpy, bounding radii [K] float64 numpy).
+    box_rot [3, 3] (columns = box axes): the box is {x : lo <= box_rot^T x <= hi}."""
     r = float(scene.camera_radius)
     dev = scene.means.device
     m = scene.means
     lo = torch.as_tensor(box_lo, device=dev).to(m.dtype)
     hi = torch.as_tensor(box_hi, device=dev).to(m.dtype)
+    rot = None if box_rot is None else torch.as_tensor(box_rot, device=dev).to(m.dtype)
     if index is not None:
-        ids = torch.as_tensor(index.query_box(lo - r, hi + r), device=dev).long()
+        if rot is None:
+            qlo, qhi = lo, hi
+        else:  # world AABB of the oriented box: centre +- |R| half-extents
+            c = rot @ (0.5 * (lo + hi))
+            h = rot.abs() @ (0.5 * (hi - lo))
+            qlo, qhi = c - h, c + h
+        ids = torch.as_tensor(index.query_box(qlo - r, qhi + r), device=dev).long()
         if ids.numel() == 0:
-            return ids
+            return ids, np.zeros((0, 3)), np.zeros(0)
         m = m[ids]
         amax = scene.radii[ids].max(-1).values
     else:
+        ids = None
         amax = scene.radii.max(-1).values
+    mb = m if rot is None else m @ rot  # means in box coordinates
     # distance from the mean to the box <= bounding-sphere radius + r (+ rounding slack)
-    gap = (m - torch.minimum(torch.maximum(m, lo), hi)).norm(dim=-1)
+    gap = (mb - torch.minimum(torch.maximum(mb, lo), hi)).norm(dim=-1)
     near = gap <= amax + r + 1e-6 * (1 + m.abs().max(-1).values)
     sel = torch.nonzero(near).squeeze(-1)
-    return ids[sel] if index is not None else sel
+    out = ids[sel] if ids is not None else sel
+    return out, _np(m[sel]), _np(amax[sel])
 
 
 def _np(x: Tensor) -> np.ndarray:
@@ -265,6 +281,7 @@ def safe_polytope(
     require_seed_inside: bool = True,
     prune: bool = True,
     chunk: int = 32,
+    box_rotation: Optional[ArrayLike] = None,
 ) -> Polytope:
     """Safe polytope around seed points [S, 3] inside the box [box_lo, box_hi].
 
@@ -279,6 +296,8 @@ def safe_polytope(
     prune: nearest-first redundancy removal (False: one plane per ellipsoid meeting the box).
     chunk: ellipsoids are visited in order of a distance lower bound, ``chunk`` at a time; planes are
     only computed for ellipsoids not already cut off by earlier planes, so far clutter costs ~nothing.
+    box_rotation: optional orthonormal [3, 3] whose columns are the box axes; the box is then
+    {x : box_lo <= box_rotation^T x <= box_hi} (an oriented box, e.g. aligned with a segment).
     """
     dev = scene.means.device
     seeds_t = torch.as_tensor(seed_points, device=dev).to(torch.float64).reshape(-1, 3)  # [S, 3]
@@ -290,22 +309,27 @@ def safe_polytope(
     hi_t = torch.as_tensor(box_hi, device=dev).to(torch.float64).reshape(3)
     if not (torch.isfinite(lo_t).all() and torch.isfinite(hi_t).all() and (hi_t > lo_t).all()):
         raise InvalidInputError(f"bad polytope box lo={lo_t.tolist()} hi={hi_t.tolist()}")
-    if require_seed_inside and not ((seeds_t >= lo_t).all() and (seeds_t <= hi_t).all()):
+    rot_t = None
+    if box_rotation is not None:
+        rot_t = torch.as_tensor(box_rotation, device=dev).to(torch.float64).reshape(3, 3)
+        if not torch.allclose(rot_t.T @ rot_t, torch.eye(3, dtype=torch.float64, device=dev), atol=1e-9):
+            raise InvalidInputError("box_rotation must be orthonormal")
+    seeds_box = seeds_t if rot_t is None else seeds_t @ rot_t
+    if require_seed_inside and not ((seeds_box >= lo_t - 1e-12).all() and (seeds_box <= hi_t + 1e-12).all()):
         raise InvalidInputError("seed points must lie inside the polytope box")
     if normal not in ("auto", "prop2", "closest", "mahalanobis"):
         raise InvalidInputError(f"unknown normal rule {normal!r}")
     r = float(scene.camera_radius)
     seeds = _np(seeds_t)
     lo, hi = _np(lo_t), _np(hi_t)
-    A_box = np.vstack([np.eye(3), -np.eye(3)])  # [6, 3]
+    axes_t = np.eye(3) if rot_t is None else _np(rot_t).T  # rows = box axes
+    A_box = np.vstack([axes_t, -axes_t])  # [6, 3]
     b_box = np.concatenate([hi, -lo])
 
-    ids = candidate_ids(scene, index, lo_t, hi_t)  # [K] on device
+    ids, mu_all, amax = _candidates(scene, index, lo_t, hi_t, rot_t)  # [K] on device, [K,3], [K] host
     K = int(ids.numel())
     planes_n, planes_b, planes_id = [], [], []
     if K:
-        mu_all = _np(scene.means[ids])  # [K, 3]
-        amax = _np(scene.radii[ids].max(-1).values)  # [K] bounding-sphere radii
         # visiting order: lower bound of the distance from the seed set to the inflated body
         if seeds.shape[0] == 2:
             d = seeds[1] - seeds[0]

@@ -1,7 +1,8 @@
 """Float64 exact references used by the corridor/polytope/goal tests (independent of the package code).
 
 point_ellipsoid_distance: Euclidean distance from points to ellipsoid surfaces, negative inside, by
-bracketed root finding (scipy brentq) on the closest-point Lagrange condition in the body frame:
+bracketed root finding (vectorised bisection; scipy brentq for a cross-check) on the closest-point
+Lagrange condition in the body frame:
 the closest point is y = (I + t L^-1)^-1 w with sum_i lam_i w_i^2 / (lam_i + t)^2 = 1 (lam = a^2),
 t > 0 outside. Inside points get the Mahalanobis-based sign only (the tests need "inside" and the
 exact distance outside).
@@ -62,8 +63,8 @@ def _dist_one(w: np.ndarray, a: np.ndarray) -> float:
     return float(np.linalg.norm(w - y))
 
 
-def point_ellipsoid_distance(points, scene) -> np.ndarray:
-    """[P, N] exact Euclidean distance (float64) from each point to each ellipsoid; -1 inside."""
+def point_ellipsoid_distance_brentq(points, scene) -> np.ndarray:
+    """[P, N] exact distance, one scalar brentq per pair (slow; cross-checks the vectorised one)."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     mu = scene.means.double().numpy()
     R = scene.rotations.double().numpy()
@@ -74,6 +75,32 @@ def point_ellipsoid_distance(points, scene) -> np.ndarray:
         for i in range(pts.shape[0]):
             out[i, j] = _dist_one(wb[i], a[j])
     return out
+
+
+def point_ellipsoid_distance(points, scene) -> np.ndarray:
+    """[P, N] exact Euclidean distance (float64) from each point to each ellipsoid; -1 inside.
+
+    Vectorised bisection on f(t) = sum_i lam_i w_i^2 / (lam_i + t)^2 - 1 over [0, a_max |w|]
+    (f(0) > 0 outside, f(a_max |w|) <= 0), 200 halvings: the bracket shrinks below float64
+    resolution, so the root is exact to rounding (no Newton: independent of the package's solver)."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    mu = scene.means.double().numpy()
+    R = scene.rotations.double().numpy()
+    a = scene.radii.double().numpy()
+    lam = (a * a)[None]  # [1, N, 3]
+    w = np.einsum("nji,pnj->pni", R, pts[:, None, :] - mu[None])  # body frame [P, N, 3]
+    inside = (w * w / lam).sum(-1) <= 1.0
+    lo = np.zeros(w.shape[:2])
+    hi = a.max(-1)[None] * np.linalg.norm(w, axis=-1) + 1e-300
+    c = lam * w * w
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        pos = (c / (lam + mid[..., None]) ** 2).sum(-1) > 1.0
+        lo = np.where(pos, mid, lo)
+        hi = np.where(pos, hi, mid)
+    t = 0.5 * (lo + hi)
+    d = np.linalg.norm(w - lam * w / (lam + t[..., None]), axis=-1)
+    return np.where(inside, -1.0, d)
 
 
 def clearance(points, scene) -> np.ndarray:

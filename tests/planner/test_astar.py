@@ -64,6 +64,10 @@ def test_astar_is_optimal_vs_dijkstra(seed, shape, density):
     assert path_cost(path) == pytest.approx(ref, abs=1e-9)
     path2 = astar(occ, s, g, check_components=False)
     assert path_cost(path2) == pytest.approx(ref, abs=1e-9)
+    # weighted A*: a valid path within the weight's suboptimality bound
+    path3 = astar(occ, s, g, heuristic_weight=1.5)
+    check_path(path3, occ, s, g)
+    assert ref - 1e-9 <= path_cost(path3) <= 1.5 * ref + 1e-9
 
 
 def test_reuse_prepared_grid_and_open_space_line():
@@ -100,6 +104,8 @@ def test_errors():
         astar(occ, (2, 2, 1.5), (1, 1, 1))
     with pytest.raises(InvalidInputError):
         astar(occ.astype(np.uint8), (2, 2, 2), (1, 1, 1))
+    with pytest.raises(InvalidInputError):
+        astar(occ, (2, 2, 2), (1, 1, 1), heuristic_weight=0.5)
     with pytest.raises(GoalUnreachableError, match="gave up"):
         astar(np.zeros((20, 20, 20), bool), (0, 0, 0), (19, 19, 19), max_expansions=5)
 

@@ -21,7 +21,7 @@ from test_polytope import vertices_and_interior  # noqa: E402
 
 
 def free_polyline(rng, scene, k, step=0.4, tries=200):
-    """Random polyline of k points whose segments keep exact clearance > 0 (dense sampling)."""
+    """Random polyline of k points whose segments keep exact clearance > 0.01 everywhere."""
     pts = []
     for _ in range(tries):
         p = rng.uniform(-0.9, 0.9, 3)
@@ -33,8 +33,9 @@ def free_polyline(rng, scene, k, step=0.4, tries=200):
     while len(pts) < k:
         for _ in range(tries):
             q = pts[-1] + rng.normal(size=3) * step
-            ts = np.linspace(0, 1, 25)[:, None]
-            if clearance(pts[-1] + ts * (q - pts[-1]), scene).min() > 0.005:
+            # clearance is 1-Lipschitz: samples <= 0.02 apart all > 0.02 => the whole segment > 0.01
+            ts = np.linspace(0, 1, int(np.ceil(np.linalg.norm(q - pts[-1]) / 0.02)) + 1)[:, None]
+            if clearance(pts[-1] + ts * (q - pts[-1]), scene).min() > 0.02:
                 pts.append(q)
                 break
         else:
@@ -43,16 +44,17 @@ def free_polyline(rng, scene, k, step=0.4, tries=200):
 
 
 @settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(seed=st.integers(0, 2**31 - 1), n=st.integers(1, 10), k=st.integers(2, 5))
-def test_corridor_covers_path_and_is_safe(seed, n, k):
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(1, 10), k=st.integers(2, 5),
+       box=st.sampled_from(["aabb", "oriented"]))
+def test_corridor_covers_path_and_is_safe(seed, n, k, box):
     rng = np.random.default_rng(seed)
     scene = random_scene(rng, n, amax=0.25, camera_radius=0.03)
     wps = free_polyline(rng, scene, k)
     if wps is None:
         return
-    # every segment keeps clearance > 0.005 (dense check), so exact-offset planes plus at most 4
+    # every segment keeps clearance > 0.01 (Lipschitz-dense check), so exact-offset planes plus at most 4
     # midpoint splits must cover it: a CorridorError here is a failure
-    cor = build_corridor(wps, scene, None, box_margin=0.15, min_overlap=0.0, exact_overlap=True)
+    cor = build_corridor(wps, scene, None, box_margin=0.15, min_overlap=0.0, exact_overlap=True, box=box)
     assert isinstance(cor, Corridor)
     assert len(cor) == cor.waypoints.shape[0] - 1 >= k - 1
     assert torch.allclose(cor.waypoints[0], torch.as_tensor(wps[0])) and torch.allclose(cor.waypoints[-1], torch.as_tensor(wps[-1]))
@@ -133,6 +135,22 @@ def test_bad_waypoints():
         build_corridor([[0.0, 0, 0], [np.nan, 0, 0]], scene)
     with pytest.raises(InvalidInputError):
         build_corridor([[0.0, 0, 0], [0.0, 0, 0]], scene)
+    with pytest.raises(InvalidInputError):
+        build_corridor([[0.0, 0, 0], [1.0, 0, 0]], scene, box="sphere")
     # duplicates are dropped
     cor = build_corridor([[0.0, 0, 0], [0.0, 0, 0], [0.5, 0, 0]], scene)
     assert len(cor) == 1
+
+
+def test_oriented_boxes_follow_the_segment():
+    scene = make_scene([[5.0, 5, 5]], np.eye(3)[None], [[0.2, 0.2, 0.2]], 0.03)
+    wps = np.array([[0.0, 0, 0], [1.0, 1.0, 1.0]])
+    cor = build_corridor(wps, scene, None, 0.1, box="oriented")
+    P = cor.polytopes[0]
+    V = vertices_and_interior(P, np.random.default_rng(0), 0)
+    u = (wps[1] - wps[0]) / np.linalg.norm(wps[1] - wps[0])
+    # every vertex within 0.1 * sqrt(2) of the segment's line and within the extended segment
+    along = (V - wps[0]) @ u
+    perp = np.linalg.norm((V - wps[0]) - along[:, None] * u, axis=1)
+    assert along.min() >= -0.1 - 1e-9 and along.max() <= np.sqrt(3) + 0.1 + 1e-9
+    assert perp.max() <= 0.1 * np.sqrt(2) + 1e-9

@@ -230,3 +230,40 @@ def test_cuda_matches_cpu():
     P1 = safe_polytope(x0, scene.to("cuda"), None, x0[0] - 0.5, x0[0] + 0.5)
     assert P1.A.is_cuda
     assert torch.allclose(P0.A, P1.A.cpu(), atol=1e-9) and torch.allclose(P0.b, P1.b.cpu(), atol=1e-9)
+
+
+def test_reference_distance_cross_check():
+    """The vectorised bisection reference agrees with scalar brentq (and with spheres in closed form)."""
+    from _corridor_refs import point_ellipsoid_distance_brentq
+
+    rng = np.random.default_rng(11)
+    scene = random_scene(rng, 7, amin=0.001, amax=0.5)
+    pts = rng.uniform(-1.5, 1.5, size=(40, 3))
+    assert np.allclose(point_ellipsoid_distance(pts, scene), point_ellipsoid_distance_brentq(pts, scene), atol=1e-10)
+    sph = make_scene([[0.1, 0.2, 0.3]], random_rotations(rng, 1), [[0.4] * 3], 0.0)
+    d = np.linalg.norm(pts - [0.1, 0.2, 0.3], axis=1) - 0.4
+    got = point_ellipsoid_distance(pts, sph)[:, 0]
+    assert np.allclose(got[d > 0], d[d > 0], atol=1e-12) and (got[d <= 0] == -1).all()
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(1, 10), use_index=st.booleans())
+def test_oriented_box_polytope(seed, n, use_index):
+    rng = np.random.default_rng(seed)
+    scene = random_scene(rng, n, amax=0.25, camera_radius=0.03)
+    R = random_rotations(rng, 1)[0]
+    x0 = rng.uniform(-0.8, 0.8, size=(1, 3))
+    xb = x0 @ R  # seed in box coordinates
+    lo, hi = xb[0] - rng.uniform(0.1, 0.5, 3), xb[0] + rng.uniform(0.1, 0.5, 3)
+    try:
+        P = safe_polytope(x0, scene, BoxIndex(scene) if use_index else None, lo, hi, box_rotation=R)
+    except SeedNotFreeError:
+        assert clearance(x0, scene)[0] < 1e-6
+        return
+    assert bool(P.contains(x0).all())
+    pts = vertices_and_interior(P, rng, 30)
+    pb = pts @ R
+    assert (pb >= lo - 1e-9).all() and (pb <= hi + 1e-9).all()
+    assert clearance(pts, scene).min() >= -1e-9
+    with pytest.raises(InvalidInputError):
+        safe_polytope(x0, scene, None, lo, hi, box_rotation=2 * R)
