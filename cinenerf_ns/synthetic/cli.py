@@ -5,7 +5,6 @@
 """
 from __future__ import annotations
 
-import torch
 import tyro
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
@@ -28,7 +27,8 @@ def main(config: DatasetConfig) -> dict:
         info = write_dataset(config, progress=lambda i, n: progress.update(task, completed=i))
     CONSOLE.print(
         f"[green]wrote {config.num_views} views of room seed {config.seed} to {config.output}[/green] "
-        f"(render {info['render_seconds']:.1f} s, total {info['total_seconds']:.1f} s, {torch.get_num_threads()} threads)"
+        f"(render {info['render_seconds']:.1f} s wall / {info['render_cpu_seconds']:.1f} s CPU, "
+        f"total {info['total_seconds']:.1f} s, {config.threads} thread(s))"
     )
     CONSOLE.print(f"train with: ns-train cinesplat --data {config.output}")
     return info

@@ -54,6 +54,9 @@ class DatasetConfig:
     ply_in_transforms: bool = False
     """Reference sparse_pc.ply from transforms.json (splatfacto then initialises from it). nerfstudio
     reads it with open3d, so only enable where open3d is installed."""
+    threads: int = 1
+    """torch CPU threads for rendering. 1 is fastest on a shared/busy CPU (multi-thread ops spin
+    while waiting for a core); on an idle multi-core box 2+ is faster."""
     room: RoomConfig = field(default_factory=RoomConfig)
     """Room size and contents."""
     cameras: CameraSamplingConfig = field(default_factory=CameraSamplingConfig)
@@ -72,6 +75,15 @@ def _write_ply(path: Path, xyz: np.ndarray, rgb: np.ndarray) -> None:
 def write_dataset(config: DatasetConfig, progress: Callable[[int, int], None] | None = None) -> dict:
     """Generate the room, render every view and write the dataset. Returns the info dict (timings)."""
     t_start = time.perf_counter()
+    threads_before = torch.get_num_threads()
+    torch.set_num_threads(max(1, config.threads))
+    try:
+        return _write_dataset(config, progress, t_start)
+    finally:
+        torch.set_num_threads(threads_before)
+
+
+def _write_dataset(config: DatasetConfig, progress, t_start: float) -> dict:
     out = Path(config.output)
     for sub in ("images", "labels") + (("depths",) if config.write_depth else ()):
         (out / sub).mkdir(parents=True, exist_ok=True)
@@ -84,10 +96,12 @@ def write_dataset(config: DatasetConfig, progress: Callable[[int, int], None] | 
 
     frames, pts, cols = [], [], []
     t_render = 0.0
+    cpu_render = 0.0
     for i in range(config.num_views):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         r = renderer.render(c2ws[i], intr, config.supersample)
         t_render += time.perf_counter() - t0
+        cpu_render += time.process_time() - c0
         stem = f"frame_{i:05d}"
         rgb8 = (r["rgb"].numpy() * 255 + 0.5).astype(np.uint8)
         Image.fromarray(rgb8).save(out / "images" / f"{stem}.png")
@@ -143,6 +157,7 @@ def write_dataset(config: DatasetConfig, progress: Callable[[int, int], None] | 
         "config": json.loads(json.dumps(asdict(config), default=str)),
         "num_views": config.num_views,
         "render_seconds": t_render,
+        "render_cpu_seconds": cpu_render,
         "total_seconds": time.perf_counter() - t_start,
         "torch_threads": torch.get_num_threads(),
         "coordinates": "original room frame: metres, +z up, floor z=0, room centred on x,y; "
