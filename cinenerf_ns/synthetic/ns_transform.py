@@ -106,5 +106,16 @@ class GroundTruthNS:
         return self.tf.points_to_ns(self.room.object_points(name, n, seed))
 
     def room_size(self) -> float:
-        """Diagonal of the interior box in nerfstudio units (reference length for centroid errors)."""
-        return float((self.room.interior_hi - self.room.interior_lo).norm()) * self.tf.scale
+        """Largest interior side in nerfstudio units (reference length for relative centroid errors)."""
+        return self.room.room_size() * self.tf.scale
+
+    @property
+    def labels(self) -> dict[int, str]:
+        return self.room.labels
+
+    def part_outlines_xy(self, n_circle: int = 32) -> list[tuple[str, "torch.Tensor"]]:
+        """(object name, closed xy polygon [K,2]) per part, in nerfstudio coordinates, for top-down plots."""
+        return [(name, self.tf.points_to_ns(poly)[:, :2]) for name, poly in self.room.part_outlines(n_circle)]
+
+    def interior_outline_xy(self) -> "torch.Tensor":
+        return self.tf.points_to_ns(self.room.interior_outline())[:, :2]

@@ -85,6 +85,10 @@ class Room:
     def interior_hi(self) -> Tensor:
         return torch.tensor([self.width / 2, self.depth / 2, self.height], dtype=torch.float64)
 
+    def room_size(self) -> float:
+        """Largest interior side (m): the reference length for relative centroid errors."""
+        return float(max(self.width, self.depth, self.height))
+
     # ------------------------------------------------------------------ signed distance
     def part_sdf(self, points: Tensor, part_ids: list[int] | None = None) -> Tensor:
         """Exact signed distance of points [P,3] to each selected part -> [P,K] (in points' dtype)."""
@@ -157,6 +161,38 @@ class Room:
             if k:
                 out[m] = prim.sample_inside(self.parts[i].kind, self.parts[i].params, k, g)
         return out
+
+    # ------------------------------------------------------------------ drawing helpers
+    def part_outlines(self, n_circle: int = 32) -> list[tuple[str, Tensor]]:
+        """(object name, closed 3-D polygon [K,3] at the part's mid-height) per object part: its xy outline."""
+        out = []
+        for o in self.objects:
+            for i in o.part_ids:
+                p = self.parts[i]
+                c = torch.tensor(p.params["centre"], dtype=torch.float64)
+                if p.kind == "box":
+                    hx, hy = p.params["half"][0], p.params["half"][1]
+                    xy = torch.tensor([[-hx, -hy], [hx, -hy], [hx, hy], [-hx, hy], [-hx, -hy]], dtype=torch.float64)
+                else:
+                    a = torch.linspace(0, 2 * math.pi, n_circle + 1, dtype=torch.float64)
+                    xy = p.params["radius"] * torch.stack([torch.cos(a), torch.sin(a)], -1)
+                poly = torch.cat([xy + c[:2], c[2].expand(len(xy), 1)], -1)
+                out.append((o.name, poly))
+        return out
+
+    def part_outlines_xy(self, n_circle: int = 32) -> list[tuple[str, Tensor]]:
+        return [(n, poly[:, :2]) for n, poly in self.part_outlines(n_circle)]
+
+    def interior_outline_xy(self) -> Tensor:
+        return self.interior_outline()[:, :2]
+
+    def interior_outline(self) -> Tensor:
+        """Closed floor outline [5,3] of the room interior (at z = 0)."""
+        lo, hi = self.interior_lo, self.interior_hi
+        return torch.tensor(
+            [[lo[0], lo[1], 0], [hi[0], lo[1], 0], [hi[0], hi[1], 0], [lo[0], hi[1], 0], [lo[0], lo[1], 0]],
+            dtype=torch.float64,
+        )
 
     # ------------------------------------------------------------------ io
     def to_dict(self) -> dict:
