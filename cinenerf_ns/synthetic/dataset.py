@@ -174,3 +174,18 @@ def load_labels(dataset: str | Path) -> dict[int, str]:
 
 def load_room(dataset: str | Path) -> Room:
     return Room.load(dataset)
+
+
+def load_point_cloud(dataset: str | Path) -> tuple[torch.Tensor, torch.Tensor]:
+    """sparse_pc.ply of a dataset without open3d: xyz [N,3] float64 (ORIGINAL room coordinates) and
+    rgb [N,3] uint8. Map into nerfstudio coordinates with NerfstudioTransform.points_to_ns (this is what
+    nerfstudio's dataparser does with ply_file_path, which needs open3d)."""
+    from plyfile import PlyData
+
+    path = Path(dataset) / "sparse_pc.ply"
+    if not path.exists():
+        raise FileNotFoundError(f"no point cloud at {path} (written by cinesplat-synth unless --points-per-view 0)")
+    v = PlyData.read(str(path))["vertex"]
+    xyz = torch.tensor(np.stack([v["x"], v["y"], v["z"]], -1), dtype=torch.float64)
+    rgb = torch.tensor(np.stack([v["red"], v["green"], v["blue"]], -1), dtype=torch.uint8)
+    return xyz, rgb

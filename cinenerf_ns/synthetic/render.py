@@ -210,22 +210,24 @@ class RoomRenderer:
         best_part = torch.full((R,), self.background_index, dtype=torch.long)
         if R == 0:
             return best_t, best_part, torch.zeros(0, 3, dtype=dt)
-        # tile cones: axis = normalised mean direction, half-angle from the widest ray
-        axis = torch.zeros(T, 3, dtype=dt).index_add_(0, tile_id, dirs)
+        # tile cones: axis = normalised mean direction, half-angle from the widest ray. Done in float64
+        # whatever the render dtype: acos near 1 loses ~sqrt(eps) rad in float32, more than the margin.
+        d64, o64 = dirs.double(), origins.double()
+        axis = torch.zeros(T, 3, dtype=torch.float64).index_add_(0, tile_id, d64)
         axis = axis / axis.norm(dim=-1, keepdim=True).clamp(min=1e-12)
-        cos_ray = (dirs * axis[tile_id]).sum(-1).clamp(-1, 1)
-        min_cos = torch.full((T,), 1.0, dtype=dt).scatter_reduce(0, tile_id, cos_ray, reduce="amin")
+        cos_ray = (d64 * axis[tile_id]).sum(-1).clamp(-1, 1)
+        min_cos = torch.full((T,), 1.0, dtype=torch.float64).scatter_reduce(0, tile_id, cos_ray, reduce="amin")
         half = torch.acos(min_cos)  # [T]
-        apex = torch.zeros(T, 3, dtype=dt).index_copy_(0, tile_id, origins)  # tiles share one origin
-        spread = torch.zeros(T, dtype=dt).scatter_reduce(
-            0, tile_id, (origins - apex[tile_id]).norm(dim=-1), reduce="amax")  # 0 for pinhole tiles
-        v = self.bound_centre[None] - apex[:, None]  # [T,P,3]
+        apex = torch.zeros(T, 3, dtype=torch.float64).index_copy_(0, tile_id, o64)  # tiles share one origin
+        spread = torch.zeros(T, dtype=torch.float64).scatter_reduce(
+            0, tile_id, (o64 - apex[tile_id]).norm(dim=-1), reduce="amax")  # 0 for pinhole tiles
+        v = self.bound_centre.double()[None] - apex[:, None]  # [T,P,3]
         dist = v.norm(dim=-1)  # [T,P]
-        rad = self.bound_radius[None] + spread[:, None]
+        rad = self.bound_radius.double()[None] + spread[:, None]
         inside = dist <= rad
         ang = torch.acos(((v * axis[:, None]).sum(-1) / dist.clamp(min=1e-12)).clamp(-1, 1))
         alpha = torch.asin((rad / dist.clamp(min=1e-12)).clamp(max=1.0))
-        cand = inside | (ang <= half[:, None] + alpha + 1e-4)  # [T,P]
+        cand = inside | (ang <= half[:, None] + alpha + 1e-6)  # [T,P]
         for i in range(self.background_index):
             rays = cand[:, i][tile_id].nonzero(as_tuple=True)[0]
             if rays.numel() == 0:

@@ -7,7 +7,7 @@ import torch
 from PIL import Image
 
 from cinenerf_ns.synthetic.cli import main
-from cinenerf_ns.synthetic.dataset import DatasetConfig, load_labels, load_room, write_dataset
+from cinenerf_ns.synthetic.dataset import DatasetConfig, load_labels, load_point_cloud, load_room, write_dataset
 from cinenerf_ns.synthetic.ns_transform import GroundTruthNS, NerfstudioTransform
 from cinenerf_ns.synthetic.room import Room
 
@@ -48,12 +48,10 @@ def test_files_written(dataset):
 
 
 def test_point_cloud_on_surfaces(dataset):
-    from plyfile import PlyData
-
     out, _, _ = dataset
-    v = PlyData.read(str(out / "sparse_pc.ply"))["vertex"]
-    xyz = torch.tensor(np.stack([v["x"], v["y"], v["z"]], -1), dtype=torch.float64)
-    assert len(xyz) == 8 * 50
+    xyz, rgb = load_point_cloud(out)
+    assert len(xyz) == 8 * 50 and rgb.shape == (400, 3) and rgb.dtype == torch.uint8
+    assert rgb.float().std() > 5  # coloured, not constant
     assert load_room(out).sdf(xyz).abs().max() < 1e-3  # float32 storage
 
 

@@ -50,6 +50,22 @@ def test_culled_cast_equals_brute_force(setup):
         assert torch.allclose(n1, n0, atol=1e-9)
 
 
+def test_culled_cast_float32_matches_brute_force():
+    room = generate_room(RoomConfig(), seed=4)
+    c2w, _ = sample_cameras(room, 4, seed=4)
+    r = RoomRenderer(room)  # float32, as the dataset writer uses it
+    intr = Intrinsics.from_fov(96, 72, 75)
+    for i in range(4):
+        o, d, _ = camera_rays(c2w[i].float(), intr)
+        o, d = o.reshape(-1, 3), d.reshape(-1, 3)
+        vv, uu = torch.meshgrid(torch.arange(72), torch.arange(96), indexing="ij")
+        tile = ((vv // 16) * 6 + uu // 16).reshape(-1)
+        t1, p1, _ = r.cast(o, d, tile)
+        t0, p0, _ = r.cast_reference(o, d)
+        assert torch.equal(t1, t0)
+        assert torch.equal(r.labels[p1], r.labels[p0])
+
+
 def test_depth_on_surface_and_labels_match_geometry(setup):
     room, c2w, _, r = setup
     intr = Intrinsics.from_fov(64, 48, 75)
