@@ -266,7 +266,10 @@ class RoomRenderer:
         seam = ((coord / s - board) < 0.04).to(self.dtype)
         grain = 0.5 + 0.5 * torch.sin(board * 2.7 + 13 * noise)
         m = torch.where(pat == 5, (0.3 + 0.7 * grain) * (1 - 0.8 * seam), m)
-        return 0.55 + 0.45 * m.clamp(0, 1)
+        # a faint noise layer on every pattern: no perfectly flat patch, so every surface carries
+        # photometric gradients in every direction (helps splat training)
+        m = m.clamp(0, 1) * (0.85 + 0.15 * (0.5 + 0.5 * noise))
+        return 0.55 + 0.45 * m
 
     def shade(self, t: Tensor, part: Tensor, normal: Tensor, origins: Tensor, dirs: Tensor) -> Tensor:
         """Linear RGB [R,3]: albedo * texture * (ambient + Lambert from a point light + fill light)."""

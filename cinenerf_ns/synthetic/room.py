@@ -269,6 +269,6 @@ def structure_parts(width: float, depth: float, height: float, ceiling: bool) ->
     if ceiling:
         parts.append(
             Part("box", {"centre": [0.0, 0.0, height + t / 2], "half": [w2 + t, d2 + t, t / 2]}, "ceiling", CEILING,
-                 (0.92, 0.92, 0.90), "noise", 0.4, 0, 31)
+                 (0.92, 0.92, 0.90), "checker", 0.6, 0, 31)  # ceiling tiles
         )
     return parts
