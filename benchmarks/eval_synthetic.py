@@ -207,8 +207,9 @@ def plot_topdown(
     room_xy = gt.interior_outline_xy().numpy()
     ax.plot(room_xy[:, 0], room_xy[:, 1], "k-", lw=2)
     names = object_names(gt)
-    cmap = plt.get_cmap("tab10")
-    colour = {n: cmap(i % 10) for i, n in enumerate(names)}
+    room = gt.room if isinstance(gt, GroundTruthNS) else gt
+    # draw each object in its own albedo (first part), so the plot reads like the renders
+    colour = {o.name: tuple(room.parts[o.part_ids[0]].colour) for o in room.objects}
     centres = gt.object_centres()
     for name, poly in gt.part_outlines_xy():
         xy = poly.numpy()
