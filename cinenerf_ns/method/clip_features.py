@@ -101,7 +101,7 @@ def load_clip(cfg: ClipFeatureConfig, device: torch.device | str = "cpu"):
         if cfg.checkpoint_path is not None and not Path(cfg.checkpoint_path).is_file():
             raise ClipWeightsError(f"CLIP checkpoint file not found: {cfg.checkpoint_path}")
         try:
-            model = open_clip.create_model(cfg.model_name, pretrained=src, device="cpu")
+            model = _create_cache_first(cfg.model_name, src, local_file=cfg.checkpoint_path is not None)
         except Exception as e:
             raise ClipWeightsError(
                 f"Could not load CLIP weights '{cfg.model_name}' / '{src}' ({type(e).__name__}: {str(e)[:160]}).\n"
@@ -114,6 +114,54 @@ def load_clip(cfg: ClipFeatureConfig, device: torch.device | str = "cpu"):
     model.eval().to(device)
     tokenizer = open_clip.get_tokenizer(cfg.model_name)
     return model, tokenizer
+
+
+def _online(host: str = "huggingface.co", timeout_s: float = 3.0) -> bool:
+    import socket
+
+    try:
+        socket.create_connection((host, 443), timeout=timeout_s).close()
+        return True
+    except OSError:
+        return False
+
+
+def _create_cache_first(model_name: str, src: str, local_file: bool):
+    """open_clip.create_model, first from the local cache only (instant, silent), then, if the hub is
+    reachable, with a download. Without network this fails fast instead of huggingface_hub's ~1 minute of
+    retries and log lines."""
+    import logging
+
+    import open_clip
+
+    if local_file:
+        return open_clip.create_model(model_name, pretrained=src, device="cpu")
+    try:
+        import huggingface_hub.constants as hfc
+    except Exception:  # pragma: no cover
+        hfc = None
+    old = getattr(hfc, "HF_HUB_OFFLINE", None)
+    loggers = [logging.getLogger("huggingface_hub"), logging.getLogger()]  # open_clip logs on root
+    old_levels = [lg.level for lg in loggers]
+    try:
+        if hfc is not None:
+            hfc.HF_HUB_OFFLINE = True
+        for lg in loggers:
+            lg.setLevel(logging.CRITICAL)
+        return open_clip.create_model(model_name, pretrained=src, device="cpu")
+    except Exception as cache_err:
+        if hfc is not None:
+            hfc.HF_HUB_OFFLINE = old
+        for lg, lv in zip(loggers, old_levels):
+            lg.setLevel(lv)
+        if not _online():
+            raise RuntimeError(f"not in the local cache and no network ({cache_err.__class__.__name__})") from None
+        return open_clip.create_model(model_name, pretrained=src, device="cpu")
+    finally:
+        if hfc is not None:
+            hfc.HF_HUB_OFFLINE = old
+        for lg, lv in zip(loggers, old_levels):
+            lg.setLevel(lv)
 
 
 @torch.no_grad()

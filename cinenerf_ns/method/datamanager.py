@@ -62,6 +62,7 @@ class CineSplatDatamanager(FullImageDatamanager):
         super().__init__(config, device=device, test_mode=test_mode, world_size=world_size, local_rank=local_rank, **kwargs)
         self.latent_targets: List[torch.Tensor] = []  # per train image [h, w, 3]
         self.latent_valid: List[torch.Tensor] = []  # per train image [h, w, 1] bool
+        self.semantic_stats: Dict = {}
         if test_mode == "val":
             self._prepare_semantics()
 
@@ -76,25 +77,38 @@ class CineSplatDatamanager(FullImageDatamanager):
         return base / ".cinesplat_cache"
 
     def _prepare_semantics(self) -> None:
+        from cinenerf_ns.method.clip_features import ClipWeightsError
         from cinenerf_ns.method.feature_cache import prepare_semantic_targets
+        from cinenerf_ns.method.label_features import LabelDataError
 
         outs = self.train_dataparser_outputs
         image_paths = [Path(p) for p in outs.image_filenames]
         data = Path(self.config.dataparser.data)
         data_dir = data if data.is_dir() else data.parent
-        sizes = [(int(h), int(w)) for h, w in zip(self.train_dataset.cameras.height.view(-1), self.train_dataset.cameras.width.view(-1))]
-        result = prepare_semantic_targets(
-            image_paths=image_paths,
-            image_sizes=sizes,
-            source=self.config.feature_source,
-            clip_config=self.config.clip,
-            codec_config=self.config.codec,
-            cache_dir=self._cache_dir(),
-            data_dir=data_dir,
-            labels_dir=self.config.labels_dir,
-            labels_json=self.config.labels_json,
-            device=self.device,
-        )
+        # features come from the images exactly as training sees them (after nerfstudio's undistortion)
+        cached = self.cached_train
+        sizes = [(int(d["image"].shape[0]), int(d["image"].shape[1])) for d in cached]
+        images = [(lambda i=i: cached[i]["image"]) for i in range(len(cached))]
+        try:
+            result = prepare_semantic_targets(
+                images=images,
+                image_paths=image_paths,
+                image_sizes=sizes,
+                source=self.config.feature_source,
+                clip_config=self.config.clip,
+                codec_config=self.config.codec,
+                cache_dir=self._cache_dir(),
+                data_dir=data_dir,
+                labels_dir=self.config.labels_dir,
+                labels_json=self.config.labels_json,
+                device=self.device,
+                log=lambda m: CONSOLE.print(m),
+            )
+        except (ClipWeightsError, LabelDataError) as e:
+            # one clear message, no stack trace of a download failure
+            CONSOLE.print(f"[bold red]cinesplat: {e}")
+            raise SystemExit(2) from None
+        self.semantic_stats = result.stats
         self.latent_targets = [t.to(self.device) for t in result.latent_targets]
         self.latent_valid = [v.to(self.device) for v in result.latent_valid]
         meta = self.train_dataset.metadata

@@ -87,6 +87,7 @@ class CineSplatModel(SplatfactoModel):
         meta = (self.kwargs.get("metadata") or {}) if hasattr(self, "kwargs") else {}
         info = dict(meta.get(META_INFO, {}) or {})
         self.cine_info: Dict[str, Any] = info  # feature source, text-encoder spec, label table, feature res
+        self.cine_info.setdefault("sh_degree", int(self.config.sh_degree))
         self.codec: Optional[FeatureCodec] = None
         if META_CODEC_STATE in meta and info:
             self._build_codec(info)
