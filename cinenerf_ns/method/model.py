@@ -214,7 +214,7 @@ class CineSplatModel(SplatfactoModel):
             scales=torch.exp(self.scales[sel]).detach(),
             opacities=torch.sigmoid(self.opacities[sel]).squeeze(-1).detach(),
             colors=colors,
-            viewmats=viewmat,
+            viewmats=viewmat.detach(),  # camera-pose refinement, if on, learns from RGB only
             Ks=K,
             width=width,
             height=height,
