@@ -133,6 +133,27 @@ class FeatureCodec(nn.Module):
     def forward(self, feats: Tensor) -> Tensor:
         return self.decode(self.encode(feats))
 
+    def decoded_cosines(self, latents: Tensor, emb: Tensor) -> Tensor:
+        """cos(f_dec(l), e) for latents [N, 3] and unit embeddings emb [T, D] -> [N, T], without building the
+        [N, D] decoded features (the 1M-Gaussian relevancy would otherwise write 2 GB per query).
+
+        Torch backend: with hidden h [N, H] and the last layer y = h W^T + c (c = bias + center),
+            y.e   = h (W e) + c.e
+            |y|^2 = sum((h G) * h) + 2 h (W c) + c.c,   G = W W^T   [H, H]
+        Exact algebra (float32 rounding differs from decode(): ~1e-6). tcnn backend: falls back to decode().
+        """
+        if self.backend != "torch":
+            return self.decode(latents) @ F.normalize(emb.float(), dim=-1).T
+        last = self.dec[-1]
+        h = self.dec[:-1](latents.float())  # [N, H]
+        W = last.weight  # [D, H]
+        c = last.bias + self.center  # [D]
+        e = F.normalize(emb.to(W), dim=-1)  # [T, D]
+        dots = h @ (e @ W).T + (e @ c)[None]  # [N, T]
+        G = W.T @ W  # [H, H]
+        sq = ((h @ G) * h).sum(-1) + 2 * (h @ (W.T @ c)) + c @ c  # [N]
+        return dots * torch.rsqrt(sq.clamp_min(1e-24))[:, None]
+
 
 def reconstruction_error(codec: FeatureCodec, feats: Tensor, batch: int = 65536) -> float:
     """Mean ``1 - cos(f_dec(f_enc(P)), P)`` over rows of feats [M, D]."""
@@ -196,7 +217,7 @@ def train_codec(
             opt.step()
             sched.step()
             if bar is not None and (it % 50 == 0 or it == cfg.train_steps - 1):
-                bar.update(task, completed=it + 1, description=f"1-cos {float(loss):.4f}")
+                bar.update(task, completed=it + 1, description=f"1-cos {float(loss.detach()):.4f}")
     finally:
         if bar is not None:
             bar.stop()

@@ -41,6 +41,13 @@ def relevancy_from_features(
     return pair.min(dim=1).values  # [N]
 
 
+def relevancy_from_cosines(sims: Tensor, temperature: float = 10.0) -> Tensor:
+    """sims [N, 1+K]: cosine with the query (column 0) and the K negatives -> relevancy [N]."""
+    if sims.shape[1] < 2:
+        raise QueryError("relevancy needs at least one negative phrase")
+    return torch.sigmoid(temperature * (sims[:, :1] - sims[:, 1:])).min(dim=1).values
+
+
 def relevancy(
     latents: Tensor,  # [N, 3]
     codec,  # FeatureCodec (decode: [M,3] -> unit [M,D]) or any callable doing that
@@ -48,8 +55,21 @@ def relevancy(
     neg_emb: Tensor,  # [K, D]
     temperature: float = 10.0,
     chunk: int = 1 << 20,
+    fast: bool = True,
 ) -> Tensor:
-    """Eq. 4: decode each Gaussian's latent and compare with the query and the negatives -> [N]."""
+    """Eq. 4: decode each Gaussian's latent and compare with the query and the negatives -> [N].
+
+    fast: use ``codec.decoded_cosines`` when the codec has it (same numbers without materialising the
+    decoded [N, D] features; see FeatureCodec.decoded_cosines)."""
+    if neg_emb.ndim == 1:
+        neg_emb = neg_emb[None]
+    if neg_emb.shape[0] == 0:
+        raise QueryError("relevancy needs at least one negative phrase")
+    if fast and hasattr(codec, "decoded_cosines"):
+        emb = torch.cat([text_emb.reshape(1, -1), neg_emb], dim=0)  # [1+K, D]
+        out = [relevancy_from_cosines(codec.decoded_cosines(latents[i : i + chunk], emb), temperature)
+               for i in range(0, latents.shape[0], chunk)]
+        return torch.cat(out) if out else latents.new_zeros(0)
     decode: Callable[[Tensor], Tensor] = codec.decode if hasattr(codec, "decode") else codec
     out = []
     for i in range(0, latents.shape[0], chunk):

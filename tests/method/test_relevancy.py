@@ -99,3 +99,19 @@ def test_mask_centroid_extent():
 def test_needs_a_negative():
     with pytest.raises(QueryError):
         relevancy_from_features(torch.ones(2, 3), torch.ones(3), torch.zeros(0, 3))
+
+
+def test_fast_path_equals_decode_path():
+    from cinenerf_ns.method.codec import CodecConfig, FeatureCodec
+
+    torch.manual_seed(0)
+    codec = FeatureCodec(40, CodecConfig(hidden_dim=16, backend="torch"))
+    with torch.no_grad():
+        codec.center.copy_(torch.randn(40) * 0.3)
+    lat = torch.rand(300, 3) * 2 - 1
+    q, negs = torch.randn(40), torch.randn(4, 40)
+    emb = F.normalize(torch.cat([q[None], negs]), dim=-1)
+    assert torch.allclose(codec.decoded_cosines(lat, emb), codec.decode(lat) @ emb.T, atol=1e-5)
+    fast = relevancy(lat, codec, q, negs, temperature=10.0, chunk=64)
+    slow = relevancy(lat, codec, q, negs, temperature=10.0, fast=False)
+    assert torch.allclose(fast, slow, atol=1e-5)
