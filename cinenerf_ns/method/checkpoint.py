@@ -84,9 +84,8 @@ def _codec_from(info: Dict[str, Any], state: Dict[str, Tensor], device) -> Any:
     from cinenerf_ns.method.codec import CodecConfig, FeatureCodec
 
     cfg = CodecConfig(**info["codec_config"])
-    if info.get("codec_backend") == "tcnn":
-        cfg.backend = "tcnn"
-    codec = FeatureCodec(int(info["feature_dim"]), cfg, device="cpu")
+    cfg.backend = info.get("codec_backend", "torch")  # the trained backend (tcnn weights need CUDA + tinycudann)
+    codec = FeatureCodec(int(info["feature_dim"]), cfg, device="cuda" if cfg.backend == "tcnn" else "cpu")
     codec.load_state_dict({k: v.float() for k, v in state.items()})
     codec.to(device).eval()
     for prm in codec.parameters():

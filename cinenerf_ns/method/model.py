@@ -120,8 +120,10 @@ class CineSplatModel(SplatfactoModel):
 
     def _build_codec(self, info: Dict[str, Any]) -> None:
         cfg = CodecConfig(**info["codec_config"])
-        # a checkpoint trained with the tcnn backend loads only where tcnn runs; torch weights load anywhere
-        self.codec = FeatureCodec(int(info["feature_dim"]), cfg, device="cpu")
+        # rebuild exactly the backend that was trained: torch weights load anywhere, tcnn ones need CUDA
+        # (FeatureCodec raises a clear error when tinycudann is missing)
+        cfg.backend = info.get("codec_backend", "torch")
+        self.codec = FeatureCodec(int(info["feature_dim"]), cfg, device="cuda" if cfg.backend == "tcnn" else "cpu")
         for p in self.codec.parameters():
             p.requires_grad_(False)
 
