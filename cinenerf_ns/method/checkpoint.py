@@ -1,0 +1,210 @@
+"""Load a splatfacto / cinesplat checkpoint into raw tensors without building nerfstudio's trainer.
+
+``load_splat(path)`` accepts a run's ``config.yml``, the run folder, a ``nerfstudio_models`` folder, a
+``.ckpt`` file, or a compact export (``.pt`` / ``.npz`` written by ``export_compact``). It reads the
+checkpoint with ``torch.load(weights_only=True)`` (numpy scalars of nerfstudio's scheduler state allowed via
+compat's safe globals) and never imports nerfstudio, gsplat or the CLIP model.
+
+Returned tensors (nerfstudio / gsplat conventions): means [N,3], quats [N,4] wxyz (unnormalised),
+scales [N,3] log, opacities [N] logit, features_dc [N,3] (SH DC, or logit colour when sh_degree == 0),
+latents [N,3] or None, codec (FeatureCodec, frozen) or None, info (dict), label_embeddings [L,D] or None.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Dict, Optional
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from cinenerf_ns.method.compat import register_torch_safe_globals
+
+PREFIX = "_model.gauss_params."
+SH_C0 = 0.28209479177387814
+
+
+class CheckpointError(ValueError):
+    """The path holds no loadable splat checkpoint. Message is user-facing."""
+
+
+@dataclass
+class SplatTensors:
+    means: Tensor
+    quats: Tensor
+    scales: Tensor
+    opacities: Tensor
+    features_dc: Optional[Tensor] = None
+    latents: Optional[Tensor] = None
+    codec: Any = None
+    codec_state: Optional[Dict[str, Tensor]] = None
+    info: Dict[str, Any] = field(default_factory=dict)
+    label_embeddings: Optional[Tensor] = None
+    step: int = -1
+    path: Optional[Path] = None
+
+    def __len__(self) -> int:
+        return int(self.means.shape[0])
+
+    def rgb(self) -> Optional[Tensor]:
+        """Base colour [N, 3] in [0, 1] (SH degree 0), assuming splatfacto's default sh_degree > 0."""
+        if self.features_dc is None:
+            return None
+        if self.info.get("sh_degree", 3) == 0:
+            return torch.sigmoid(self.features_dc)
+        return (self.features_dc * SH_C0 + 0.5).clamp(0, 1)
+
+
+def find_checkpoint(path: str | Path) -> Path:
+    """Resolve config.yml / run folder / models folder / .ckpt to the newest .ckpt file."""
+    p = Path(path)
+    if p.is_file() and p.suffix in (".ckpt", ".pt", ".npz"):
+        return p
+    if p.is_file() and p.name.endswith((".yml", ".yaml")):
+        p = p.parent
+    if p.is_dir():
+        cands = list((p / "nerfstudio_models").glob("*.ckpt")) + list(p.glob("*.ckpt"))
+        if not cands:
+            raise CheckpointError(f"no .ckpt found in {p} or {p / 'nerfstudio_models'} (has training saved a checkpoint?)")
+
+        def step_of(f: Path) -> int:
+            m = re.search(r"(\d+)", f.stem)
+            return int(m.group(1)) if m else -1
+
+        return max(cands, key=step_of)
+    raise CheckpointError(f"not a checkpoint, run folder or config.yml: {path}")
+
+
+def _codec_from(info: Dict[str, Any], state: Dict[str, Tensor], device) -> Any:
+    from cinenerf_ns.method.codec import CodecConfig, FeatureCodec
+
+    cfg = CodecConfig(**info["codec_config"])
+    cfg.backend = info.get("codec_backend", "torch")  # the trained backend (tcnn weights need CUDA + tinycudann)
+    codec = FeatureCodec(int(info["feature_dim"]), cfg, device="cuda" if cfg.backend == "tcnn" else "cpu")
+    codec.load_state_dict({k: v.float() for k, v in state.items()})
+    codec.to(device).eval()
+    for prm in codec.parameters():
+        prm.requires_grad_(False)
+    return codec
+
+
+def load_splat(path: str | Path, device: torch.device | str = "cpu") -> SplatTensors:
+    ckpt = find_checkpoint(path)
+    if ckpt.suffix == ".npz" or (ckpt.suffix == ".pt" and _is_compact(ckpt)):
+        return load_compact(ckpt, device)
+    register_torch_safe_globals()
+    try:
+        blob = torch.load(ckpt, map_location="cpu", weights_only=True)
+    except Exception as e:
+        raise CheckpointError(f"could not read checkpoint {ckpt}: {type(e).__name__}: {str(e)[:200]}") from None
+    sd = blob.get("pipeline", blob)
+    if PREFIX + "means" not in sd:
+        raise CheckpointError(f"{ckpt} is not a splatfacto/cinesplat checkpoint (no {PREFIX}means)")
+
+    def g(name: str) -> Optional[Tensor]:
+        t = sd.get(PREFIX + name)
+        return None if t is None else t.float().to(device)
+
+    extra = sd.get("_model._extra_state")
+    info = dict(extra.get("cine_info", {})) if isinstance(extra, dict) else {}
+    codec_state = {k[len("_model.codec.") :]: v for k, v in sd.items() if k.startswith("_model.codec.")}
+    codec = _codec_from(info, codec_state, device) if (codec_state and info) else None
+    lab = sd.get("_model.label_embeddings")
+    return SplatTensors(
+        means=g("means"),  # type: ignore[arg-type]
+        quats=g("quats"),  # type: ignore[arg-type]
+        scales=g("scales"),  # type: ignore[arg-type]
+        opacities=g("opacities").reshape(-1),  # type: ignore[union-attr]
+        features_dc=g("features_dc"),
+        latents=g("latents"),
+        codec=codec,
+        codec_state=codec_state or None,
+        info=info,
+        label_embeddings=lab.float().to(device) if lab is not None and lab.numel() > 0 else None,
+        step=int(blob.get("step", -1)) if isinstance(blob, dict) else -1,
+        path=ckpt,
+    )
+
+
+def _is_compact(path: Path) -> bool:
+    try:
+        blob = torch.load(path, map_location="cpu", weights_only=True)
+        return isinstance(blob, dict) and blob.get("format") == "cinesplat-compact"
+    except Exception:
+        return False
+
+
+def export_compact(st: SplatTensors, path: str | Path, half: bool = True) -> Path:
+    """Write a small self-contained scene (SH degree 0 colour): .pt (torch) or .npz (numpy).
+
+    Keys: means, quats, scales (log), opacities (logit), rgb [N,3], latents?, codec state, info (JSON),
+    label_embeddings?. ``half``: float16 for the per-Gaussian arrays (means stay float32: positions need it).
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    ht = torch.float16 if half else torch.float32
+    arrays: Dict[str, Tensor] = {
+        "means": st.means.float().cpu(),
+        "quats": st.quats.to(ht).cpu(),
+        "scales": st.scales.to(ht).cpu(),
+        "opacities": st.opacities.to(ht).cpu(),
+    }
+    rgb = st.rgb()
+    if rgb is not None:
+        arrays["rgb"] = rgb.to(ht).cpu()
+    if st.latents is not None:
+        arrays["latents"] = st.latents.to(ht).cpu()
+    if st.label_embeddings is not None:
+        arrays["label_embeddings"] = st.label_embeddings.to(ht).cpu()
+    codec_state = {k: v.float().cpu() for k, v in (st.codec_state or {}).items()}
+    info_json = json.dumps(st.info, default=str)
+    tmp = path.with_name(path.name + ".tmp")
+    if path.suffix == ".npz":
+        flat = {k: v.numpy() for k, v in arrays.items()}
+        flat.update({"codec." + k: v.numpy() for k, v in codec_state.items()})
+        flat["info_json"] = np.array(info_json)
+        with open(tmp, "wb") as f:
+            np.savez_compressed(f, **flat)
+    else:
+        torch.save({"format": "cinesplat-compact", "arrays": arrays, "codec": codec_state, "info_json": info_json}, tmp)
+    tmp.replace(path)
+    return path
+
+
+def load_compact(path: str | Path, device: torch.device | str = "cpu") -> SplatTensors:
+    path = Path(path)
+    if path.suffix == ".npz":
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: torch.from_numpy(z[k]) for k in z.files if k != "info_json" and not k.startswith("codec.")}
+            codec_state = {k[len("codec.") :]: torch.from_numpy(z[k]) for k in z.files if k.startswith("codec.")}
+            info = json.loads(str(z["info_json"]))
+    else:
+        blob = torch.load(path, map_location="cpu", weights_only=True)
+        if blob.get("format") != "cinesplat-compact":
+            raise CheckpointError(f"{path} is not a cinesplat compact export")
+        arrays, codec_state, info = blob["arrays"], blob["codec"], json.loads(blob["info_json"])
+    f = lambda k: arrays[k].float().to(device) if k in arrays else None  # noqa: E731
+    rgb = f("rgb")
+    info = dict(info)
+    info["sh_degree"] = 0
+    # store colour as the logit so SplatTensors.rgb() (sh_degree 0 -> sigmoid) returns it back
+    features_dc = torch.logit(rgb.clamp(1e-4, 1 - 1e-4)) if rgb is not None else None
+    codec = _codec_from(info, codec_state, device) if (codec_state and info.get("codec_config")) else None
+    return SplatTensors(
+        means=f("means"),  # type: ignore[arg-type]
+        quats=f("quats"),  # type: ignore[arg-type]
+        scales=f("scales"),  # type: ignore[arg-type]
+        opacities=f("opacities").reshape(-1),  # type: ignore[union-attr]
+        features_dc=features_dc,
+        latents=f("latents"),
+        codec=codec,
+        codec_state=codec_state or None,
+        info=info,
+        label_embeddings=f("label_embeddings"),
+        path=path,
+    )

@@ -1,0 +1,156 @@
+"""``SemanticScene``: text query -> per-Gaussian relevancy, object mask, centroid and extent.
+
+One API for the planner, the CLI and the viewer. Pure torch + the codec; the text encoder is any callable
+``list[str] -> [T, D]`` (``build_text_encoder`` makes the standard one from a checkpoint's info: the label
+table first, then the open_clip text tower). No nerfstudio / gsplat import.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Dict, Optional, Sequence, Tuple
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from cinenerf_ns.method.relevancy import (
+    DEFAULT_NEGATIVES,
+    QueryError,
+    object_centroid_extent,
+    relevancy as relevancy_fn,
+    relevancy_mask,
+)
+
+TextEncoder = Callable[[Sequence[str]], Tensor]
+
+
+def build_text_encoder(info: Dict, label_embeddings: Optional[Tensor] = None, device: torch.device | str = "cpu") -> TextEncoder:
+    """Texts equal (case-insensitively) to a trained label name use that label's stored embedding (exact,
+    needs no CLIP weights); other texts go through the CLIP text tower named in ``info["clip"]``,
+    loaded on first use (raises ClipWeightsError with instructions when weights are missing)."""
+    names = [n.strip().lower() for n in (info.get("label_names") or [])]
+    table = {}
+    if label_embeddings is not None and label_embeddings.numel() > 0 and len(names) == label_embeddings.shape[0]:
+        table = {n: label_embeddings[i].float() for i, n in enumerate(names)}
+    state: Dict = {}
+
+    def encode(texts: Sequence[str]) -> Tensor:
+        out: list = [None] * len(texts)
+        missing = []
+        for i, t in enumerate(texts):
+            key = t.strip().lower()
+            if key in table:
+                out[i] = table[key].to(device)
+            else:
+                missing.append(i)
+        if missing:
+            if "enc" not in state:
+                if not info.get("clip"):
+                    raise QueryError(
+                        "this scene has no text encoder spec; only its label names can be queried: "
+                        + ", ".join(info.get("label_names") or [])
+                    )
+                from cinenerf_ns.method.clip_features import clip_config_from_spec, make_text_encoder
+
+                state["enc"] = make_text_encoder(clip_config_from_spec(info["clip"]), device)
+            emb = state["enc"]([texts[i] for i in missing])
+            for j, i in enumerate(missing):
+                out[i] = emb[j].to(device)
+        return F.normalize(torch.stack(out).float(), dim=-1)
+
+    return encode
+
+
+@dataclass
+class LocateResult:
+    centroid: Tensor  # [3] opacity-weighted
+    mask: Tensor  # [N] bool
+    lo: Tensor  # [3] axis-aligned extent of the masked means
+    hi: Tensor  # [3]
+    relevancy: Tensor  # [N]
+
+
+class SemanticScene:
+    """Gaussians (means, activated opacities, latents) + frozen codec + text encoder.
+
+    means [N, 3], opacities [N] in [0, 1] (pass ``torch.sigmoid(logits)``), latents [N, 3].
+    """
+
+    def __init__(
+        self,
+        means: Tensor,
+        opacities: Tensor,
+        latents: Tensor,
+        codec,
+        text_encoder: TextEncoder,
+        negatives: Sequence[str] = DEFAULT_NEGATIVES,
+        temperature: float = 10.0,
+        threshold: float = 0.5,
+        min_opacity: float = 0.0,
+    ):
+        n = means.shape[0]
+        if means.shape != (n, 3) or latents.shape[0] != n or opacities.reshape(-1).shape[0] != n:
+            raise ValueError(
+                f"SemanticScene: inconsistent shapes means {tuple(means.shape)}, opacities {tuple(opacities.shape)}, "
+                f"latents {tuple(latents.shape)}"
+            )
+        self.means = means
+        self.opacities = opacities.reshape(-1)
+        self.latents = latents
+        self.codec = codec
+        self.text_encoder = text_encoder
+        self.negatives = tuple(negatives)
+        self.temperature = float(temperature)
+        self.threshold = float(threshold)
+        self.min_opacity = float(min_opacity)
+        self._neg_emb: Optional[Tensor] = None
+
+    @classmethod
+    def from_checkpoint(cls, path: str | Path, device: torch.device | str = "cpu", **kwargs) -> "SemanticScene":
+        """From a cinesplat config.yml / run folder / .ckpt / compact export (see checkpoint.py)."""
+        from cinenerf_ns.method.checkpoint import load_splat
+
+        st = load_splat(path, device=device)
+        if st.latents is None or st.codec is None:
+            raise QueryError(f"{path} has no semantic latents (a splatfacto checkpoint?); train it with ns-train cinesplat")
+        enc = build_text_encoder(st.info, st.label_embeddings, device=device)
+        return cls(st.means, torch.sigmoid(st.opacities), st.latents, st.codec, enc, **kwargs)
+
+    def __len__(self) -> int:
+        return self.means.shape[0]
+
+    def _embed(self, text: str) -> Tuple[Tensor, Tensor]:
+        if not isinstance(text, str) or not text.strip():
+            raise QueryError("empty text query: type what the camera should look at, e.g. 'the red chair'")
+        dev = self.latents.device
+        if self._neg_emb is None:
+            self._neg_emb = self.text_encoder(list(self.negatives)).to(dev)
+        q = self.text_encoder([text.strip()])[0].to(dev)
+        return q, self._neg_emb
+
+    @torch.no_grad()
+    def query(self, text: str) -> Tensor:
+        """Relevancy [N] in (0, 1) of every Gaussian for the text (eq. 4)."""
+        q, neg = self._embed(text)
+        return relevancy_fn(self.latents, self.codec, q, neg, temperature=self.temperature)
+
+    @torch.no_grad()
+    def locate_full(self, text: str, threshold: Optional[float] = None) -> LocateResult:
+        rel = self.query(text)
+        thr = self.threshold if threshold is None else float(threshold)
+        mask = relevancy_mask(rel, thr, self.opacities, self.min_opacity)
+        if not bool(mask.any()):
+            best = float(rel.max()) if rel.numel() else float("nan")
+            raise QueryError(
+                f"nothing in the scene matches '{text.strip()}': highest relevancy {best:.3f} is below the threshold "
+                f"{thr:.2f} (try other words or a lower threshold)"
+            )
+        c, lo, hi = object_centroid_extent(self.means, self.opacities, mask)
+        return LocateResult(centroid=c, mask=mask, lo=lo, hi=hi, relevancy=rel)
+
+    def locate(self, text: str, threshold: Optional[float] = None) -> Tuple[Tensor, Tensor]:
+        """(opacity-weighted centroid [3], mask [N] bool) of the Gaussians above the relevancy threshold."""
+        r = self.locate_full(text, threshold)
+        return r.centroid, r.mask

@@ -1,0 +1,189 @@
+#!/usr/bin/env bash
+# GPU check for cinenerf_ns on a CUDA machine with no network.
+#
+#   scripts/gpu_check.sh [STAGE...]      stages: install tests train render bench   (default: install tests train render)
+#
+# Environment:
+#   OUT        where logs, timings and rendered frames go (default ./gpu_check_out)
+#   WHEELS     folder of wheels to install with --no-index (default .whl; skipped when absent)
+#   FOX        the fox scene (default: first of $CINENERF_FOX, shared/data/fox, ../shared/data/fox)
+#   STEPS      ns-train iterations (default 2000)
+#   SITE       pip --target folder (default /tmp/site)
+#   PYTEST_ARGS extra pytest arguments (e.g. "-x")
+# Each stage appends "stage seconds rc" to $OUT/timings.txt; logs are $OUT/<stage>.log.
+# Stages are idempotent and can be run in separate calls (each under 10 minutes): install is skipped
+# when $SITE/.cinenerf_installed exists; render uses the newest training run under $WORK/outputs.
+# gsplat compiles its CUDA kernels on first use (~80 s on an H100); the tests stage pays it first.
+set -uo pipefail
+cd "$(dirname "$0")/.."
+REPO=$PWD
+OUT=${OUT:-$REPO/gpu_check_out}
+WHEELS=${WHEELS:-$REPO/.whl}
+SITE=${SITE:-/tmp/site}
+STEPS=${STEPS:-2000}
+WORK=${WORK:-/tmp/cinesplat_gpu_check}
+mkdir -p "$OUT" "$WORK"
+PY=${PY:-python3}
+
+if [ -z "${FOX:-}" ]; then
+  for c in "${CINENERF_FOX:-}" "$REPO/shared/data/fox" "$REPO/../shared/data/fox" "/work/shared/data/fox"; do
+    if [ -n "$c" ] && [ -f "$c/transforms.json" ]; then FOX=$c; break; fi
+  done
+fi
+
+export PYTHONPATH=$REPO:$SITE${PYTHONPATH:+:$PYTHONPATH}
+export PATH=$SITE/bin:$PATH
+export CINENERF_FOX=${FOX:-}
+export HF_HUB_OFFLINE=1   # no network: never wait on hub retries
+export PYTHONUNBUFFERED=1
+
+log() { echo "[gpu_check $(date -u +%H:%M:%S)] $*" | tee -a "$OUT/gpu_check.log"; }
+
+run_stage() {  # run_stage NAME CMD...
+  local name=$1; shift
+  log "stage $name: $*"
+  local t0=$(date +%s.%N)
+  "$@" > "$OUT/$name.log" 2>&1
+  local rc=$?
+  local t1=$(date +%s.%N)
+  local dt=$(echo "$t1 - $t0" | bc 2>/dev/null || $PY -c "print($t1-$t0)")
+  echo "$name $dt $rc" >> "$OUT/timings.txt"
+  log "stage $name: rc=$rc in ${dt}s (log: $OUT/$name.log)"
+  tail -n 25 "$OUT/$name.log"
+  return $rc
+}
+
+stage_install() {
+  if [ -f "$SITE/.cinenerf_installed" ]; then log "install: already done ($SITE)"; return 0; fi
+  mkdir -p "$SITE"
+  if ls "$WHEELS"/*.whl > /dev/null 2>&1; then
+    $PY -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target "$SITE" "$WHEELS"/*.whl || return 1
+  else
+    log "install: no wheels in $WHEELS; using the machine's packages"
+  fi
+  # nerfstudio discovers methods through installed entry points: write a minimal dist-info for the repo
+  # (the package itself is imported from $REPO through PYTHONPATH)
+  $PY - "$SITE" "$REPO" <<'EOF' || return 1
+import sys, pathlib
+try:
+    import tomllib
+except ImportError:  # py < 3.11
+    import tomli as tomllib
+site, repo = map(pathlib.Path, sys.argv[1:3])
+proj = tomllib.loads((repo / "pyproject.toml").read_text())["project"]
+di = site / f"{proj['name']}-{proj['version']}.dist-info"
+di.mkdir(parents=True, exist_ok=True)
+(di / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {proj['name']}\nVersion: {proj['version']}\n")
+lines = []
+for group, eps in [("console_scripts", proj.get("scripts", {}))] + list(proj.get("entry-points", {}).items()):
+    lines.append(f"[{group}]")
+    lines += [f"{k} = {v}" for k, v in eps.items()]
+    lines.append("")
+(di / "entry_points.txt").write_text("\n".join(lines))
+(di / "RECORD").write_text("")
+print("wrote", di)
+EOF
+  $PY - <<'EOF' || return 1
+import importlib, sys
+mods = ["torch", "nerfstudio", "gsplat", "viser", "open_clip", "cvxpy", "osqp", "clarabel", "pytest", "hypothesis", "scipy", "cinenerf_ns.method"]
+missing = []
+for m in mods:
+    try:
+        importlib.import_module(m)
+    except Exception as e:
+        missing.append(f"{m} ({type(e).__name__}: {e})")
+import torch
+print("torch", torch.__version__, "cuda", torch.cuda.is_available(), torch.cuda.get_device_name(0) if torch.cuda.is_available() else "-")
+from importlib.metadata import entry_points
+print("nerfstudio methods from plugins:", sorted(e.name for e in entry_points(group="nerfstudio.method_configs")))
+if missing:
+    print("MISSING:", *missing, sep="\n  ")
+    sys.exit(1)
+EOF
+  touch "$SITE/.cinenerf_installed"
+}
+
+stage_tests() {
+  # first touch of gsplat compiles its CUDA kernels: do it visibly, timed on its own
+  local t0=$(date +%s)
+  $PY -c "
+import torch, time
+from gsplat.rendering import rasterization
+t=time.time()
+m=torch.zeros(1,3,device='cuda'); m[0,2]=2
+r,a,_=rasterization(m, torch.tensor([[1.,0,0,0]],device='cuda'), torch.full((1,3),.1,device='cuda'), torch.ones(1,device='cuda'), torch.ones(1,3,device='cuda'), torch.eye(4,device='cuda')[None], torch.tensor([[[10.,0,4],[0,10,4],[0,0,1]]],device='cuda'), 8, 8)
+torch.cuda.synchronize(); print('gsplat first call (compile) %.1fs' % (time.time()-t))
+" || return 1
+  echo "gsplat_compile $(( $(date +%s) - t0 )) 0" >> "$OUT/timings.txt"
+  $PY -m pytest -q -ra ${PYTEST_ARGS:-} --junitxml="$OUT/pytest.xml"
+}
+
+stage_train() {
+  [ -n "${FOX:-}" ] || { echo "fox scene not found: set FOX=/path/to/fox"; return 1; }
+  # a copy (labels / caches never touch the shared scene); cp -a keeps mtimes so the feature cache key is stable
+  [ -f "$WORK/fox/transforms.json" ] || cp -a "$FOX" "$WORK/fox"
+  rm -rf "$WORK/outputs/fox/cinesplat/gpu_check"
+  local vis=viewer
+  $PY -c "import tensorboard" 2>/dev/null && vis=tensorboard
+  ns-train cinesplat \
+    --data "$WORK/fox" \
+    --output-dir "$WORK/outputs" --experiment-name fox --timestamp gpu_check \
+    --max-num-iterations "$STEPS" --steps-per-save "$STEPS" --steps-per-eval-all-images 100000 \
+    --vis "$vis" --viewer.quit-on-train-completion True \
+    --pipeline.datamanager.clip.random-weights True \
+    nerfstudio-data --downscale-factor 4 || return 1
+  local cfg="$WORK/outputs/fox/cinesplat/gpu_check/config.yml"
+  ls -la "$(dirname "$cfg")/nerfstudio_models" || return 1
+  grep -E "feature cache|latent targets|codec" "$OUT/train.log" | head -5
+  $PY - "$cfg" <<'EOF'
+import sys, time
+from pathlib import Path
+from cinenerf_ns.method.checkpoint import load_splat
+st = load_splat(sys.argv[1])
+print("checkpoint", st.path, "gaussians", len(st), "latents", None if st.latents is None else tuple(st.latents.shape),
+      "latent std", None if st.latents is None else float(st.latents.std()), "codec", st.codec is not None, "step", st.step)
+EOF
+}
+
+stage_render() {
+  local cfg="$WORK/outputs/fox/cinesplat/gpu_check/config.yml"
+  [ -f "$cfg" ] || { echo "no trained run at $cfg (run the train stage first)"; return 1; }
+  # a camera path through 24 of the training poses, in the dataparser's normalised coordinates
+  $PY - "$WORK/fox/transforms.json" "$(dirname "$cfg")/dataparser_transforms.json" "$WORK/camera_path.json" <<'EOF' || return 1
+import json, sys, math
+import numpy as np
+tr, dp, out = sys.argv[1:4]
+meta = json.load(open(tr)); d = json.load(open(dp))
+T = np.eye(4); T[:3] = np.array(d["transform"]); s = d["scale"]
+frames = sorted(meta["frames"], key=lambda f: f["file_path"])[:24]
+H, W = 480, 270
+fovy = 2 * math.degrees(math.atan(0.5 * meta["h"] / meta["fl_y"]))
+path = []
+for f in frames:
+    c2w = T @ np.array(f["transform_matrix"]); c2w[:3, 3] *= s
+    path.append({"camera_to_world": c2w.reshape(-1).tolist(), "fov": fovy, "aspect": W / H})
+json.dump({"camera_type": "perspective", "render_height": H, "render_width": W, "camera_path": path,
+           "fps": 24, "seconds": len(path) / 24, "smoothness_value": 0, "is_cycle": False, "crop": None}, open(out, "w"))
+print("camera path", out, len(path), "frames")
+EOF
+  rm -rf "$OUT/render"
+  ns-render camera-path --load-config "$cfg" --camera-path-filename "$WORK/camera_path.json" \
+    --output-path "$OUT/render" --output-format images --rendered-output-names rgb latent || return 1
+  ls "$OUT/render" | head; ls "$OUT/render" | wc -l
+}
+
+stage_bench() {
+  [ -n "${FOX:-}" ] || { echo "fox scene not found: set FOX=/path/to/fox"; return 1; }
+  $PY benchmarks/bench_method.py --fox "$FOX" --work "$WORK/bench" --clip-random-weights
+}
+
+STAGES=("$@")
+[ ${#STAGES[@]} -eq 0 ] && STAGES=(install tests train render)
+log "repo $REPO  out $OUT  fox ${FOX:-<missing>}  stages ${STAGES[*]}"
+nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader 2>/dev/null | tee -a "$OUT/gpu_check.log"
+status=0
+for s in "${STAGES[@]}"; do
+  run_stage "$s" "stage_$s" || { status=1; log "stage $s FAILED"; [ "$s" = install ] && break; }
+done
+log "done, status $status; timings:"; cat "$OUT/timings.txt"
+exit $status

@@ -1,0 +1,92 @@
+"""SemanticScene.query / locate with a known codec and text encoder; label-table text encoder."""
+from __future__ import annotations
+
+import pytest
+import torch
+import torch.nn.functional as F
+
+from cinenerf_ns.method.relevancy import QueryError, relevancy_from_features
+from cinenerf_ns.method.semantic_scene import SemanticScene, build_text_encoder
+
+
+class IdentityCodec:
+    """Latents are 3-dim unit 'features' directly (D = 3)."""
+
+    def decode(self, l):
+        return F.normalize(l, dim=-1)
+
+
+WORDS = {
+    "red chair": [1.0, 0.0, 0.0],
+    "palm tree": [0.0, 1.0, 0.0],
+    "object": [0.3, 0.3, 0.9],
+    "things": [0.2, 0.3, 0.9],
+    "stuff": [0.3, 0.2, 0.9],
+    "texture": [0.25, 0.25, 0.95],
+}
+
+
+def enc(texts):
+    return F.normalize(torch.tensor([WORDS[t] for t in texts]), dim=-1)
+
+
+def _scene(**kw):
+    # 4 "chair" Gaussians around (1, 2, 0), 3 "tree" Gaussians around (-5, 0, 0), 1 faint chair one far away
+    means = torch.tensor([[1.0, 2, 0], [1.2, 2, 0], [0.8, 2, 0], [1.0, 2.4, 0], [-5, 0, 0], [-5, 1, 0], [-5, 0, 1], [50, 50, 50]])
+    lat = torch.tensor([[1.0, 0, 0]] * 4 + [[0, 1.0, 0]] * 3 + [[1.0, 0, 0]])
+    opac = torch.tensor([1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.01])
+    return SemanticScene(means, opac, lat, IdentityCodec(), enc, **kw)
+
+
+def test_query_equals_formula():
+    s = _scene()
+    rel = s.query("red chair")
+    d = F.normalize(s.latents, dim=-1)
+    ref = relevancy_from_features(d, enc(["red chair"])[0], enc(["object", "things", "stuff", "texture"]), 10.0)
+    assert torch.allclose(rel, ref)
+    assert (rel[:4] > 0.5).all() and (rel[4:7] < 0.5).all()
+
+
+def test_locate_centroid_and_mask():
+    s = _scene(min_opacity=0.05)
+    c, mask = s.locate("red chair")
+    assert mask.tolist() == [True] * 4 + [False] * 4  # the faint far Gaussian is dropped by min_opacity
+    assert torch.allclose(c, torch.tensor([1.0, 2.1, 0.0]))
+    full = s.locate_full("palm tree")
+    assert full.mask.sum() == 3 and torch.allclose(full.lo, torch.tensor([-5.0, 0, 0]))
+    assert torch.allclose(full.hi, torch.tensor([-5.0, 1, 1]))
+    # without the opacity floor the faint Gaussian joins but barely moves the opacity-weighted centroid
+    c2, m2 = _scene().locate("red chair")
+    assert m2.sum() == 5 and (c2 - c).norm() < 0.6
+
+
+def test_errors():
+    s = _scene()
+    for bad in ["", "   "]:
+        with pytest.raises(QueryError, match="empty"):
+            s.query(bad)
+    with pytest.raises(QueryError, match="nothing in the scene matches"):
+        s.locate("red chair", threshold=0.9999)
+    with pytest.raises(ValueError, match="inconsistent"):
+        SemanticScene(torch.zeros(3, 3), torch.zeros(2), torch.zeros(3, 3), IdentityCodec(), enc)
+
+
+def test_label_table_encoder_needs_no_clip_for_label_names():
+    info = {"label_names": ["Floor", "palm tree"], "clip": None}
+    emb = F.normalize(torch.randn(2, 8), dim=-1)
+    e = build_text_encoder(info, emb)
+    out = e(["palm tree", " floor "])
+    assert torch.allclose(out, emb[[1, 0]])
+    with pytest.raises(QueryError, match="only its label names"):
+        e(["sofa"])
+
+
+def test_label_table_then_clip_text_tower(tiny_clip_models):
+    from cinenerf_ns.method.clip_features import ClipFeatureConfig, make_text_encoder
+
+    cfg = ClipFeatureConfig(model_name=tiny_clip_models[0], random_weights=True, random_seed=2)
+    emb = F.normalize(torch.randn(1, 32), dim=-1)
+    e = build_text_encoder({"label_names": ["lamp"], "clip": cfg.spec()}, emb)
+    ref = make_text_encoder(cfg)(["a sofa"])
+    out = e(["lamp", "a sofa"])
+    assert torch.allclose(out[0], emb[0]) and torch.allclose(out[1], ref[0], atol=1e-6)
