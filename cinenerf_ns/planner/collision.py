@@ -245,8 +245,16 @@ def points_collide(
     hit = torch.zeros(P, dtype=torch.bool, device=pts.device)
     if pi.numel():
         w, radii = _pair_locals(pts, scene, pi, gi)
-        coll = ~pairs_free(w, radii, rad.index_select(0, pi), margin)
-        hit[pi[coll]] = True
+        rr = rad.index_select(0, pi)
+        # Sure collisions first (cheap): the radial surface point mu + (x - mu)/m (m = Mahalanobis norm)
+        # is within r, or x is inside. Points with one sure collision need no K maximisation.
+        m = (w / radii).norm(dim=-1)
+        sure = (m <= 1) | (w.norm(dim=-1) * (1 - 1 / m.clamp_min(1e-300)) <= rr)
+        hit[pi[sure]] = True
+        rest = torch.nonzero(~sure & ~hit.index_select(0, pi)).squeeze(-1)
+        if rest.numel():
+            coll = ~pairs_free(w[rest], radii[rest], rr[rest], margin)
+            hit[pi[rest][coll]] = True
     return hit
 
 
