@@ -202,11 +202,27 @@ def _pair_geometry(pts: Tensor, scene: EllipsoidScene, pi: Tensor, gi: Tensor):
 
 
 def _bounds(w: Tensor, rad: Tensor, dist_c: Tensor) -> Tuple[Tensor, Tensor]:
-    """(lb, ub) of the signed distance: lb = |p - mu| - a_max; ub = |p - mu|(1 - 1/m) through the radial
-    surface point (m = Mahalanobis norm) outside, |p - mu| - a_min inside."""
-    lb = dist_c - rad.max(-1).values
+    """(lb, ub) of the signed distance, cheap (no root finding).
+
+    lb: E lies in its local box |w_i| <= a_i and in the ball of radius a_max, so the distance to the
+    box (when > 0, the point is outside E) and |p - mu| - a_max are lower bounds.
+    ub: distance to any surface point; the min of two: the radial point w/m (m = Mahalanobis norm)
+    and, for flat ellipsoids, the point above w on the surface (w with the shortest-axis coordinate
+    moved onto the surface, or the rim point if w lies outside the ellipse of the two long axes).
+    Inside points: ub = |p - mu| - a_min (the ball of radius a_min is inside E)."""
+    box = (w.abs() - rad).clamp_min(0).norm(dim=-1)
+    lb = torch.where(box > 0, torch.maximum(box, dist_c - rad.max(-1).values), dist_c - rad.max(-1).values)
     m = (w / rad).norm(dim=-1)
-    ub = torch.where(m > 1, dist_c * (1 - 1 / m.clamp_min(1e-300)), dist_c - rad.min(-1).values)
+    ub_radial = dist_c * (1 - 1 / m.clamp_min(1e-300))
+    k = rad.argmin(-1, keepdim=True)  # shortest axis
+    q = w.scatter(-1, k, torch.zeros_like(k, dtype=w.dtype))
+    rho2 = ((q / rad) ** 2).sum(-1)
+    wk = w.gather(-1, k)[..., 0]
+    ak = rad.gather(-1, k)[..., 0]
+    lift = torch.where(wk < 0, -ak, ak) * torch.sqrt((1 - rho2).clamp_min(0))
+    x = torch.where((rho2 <= 1)[..., None], q.scatter(-1, k, lift[..., None]), q / torch.sqrt(rho2.clamp_min(1e-300))[..., None])
+    ub_flat = (w - x).norm(dim=-1)
+    ub = torch.where(m > 1, torch.minimum(ub_radial, ub_flat), dist_c - rad.min(-1).values)
     return lb, ub
 
 
