@@ -168,3 +168,14 @@ def test_cuda_points_collide():
     scc = sc.to("cuda")
     b = points_collide(pts.cuda(), scc, GridIndex.build(scc))
     assert torch.equal(a, b.cpu())
+
+
+@pytest.mark.gpu
+def test_cuda_segments_collide():
+    sc = random_scene(100, 6, camera_radius=0.05)
+    p0 = torch.rand(200, 3, dtype=F64) * 2 - 1
+    p1 = p0 + torch.randn(200, 3, dtype=F64) * 0.2
+    a = segments_collide(p0, p1, sc, GridIndex.build(sc))
+    scc = sc.to("cuda")
+    b = segments_collide(p0.cuda(), p1.cuda(), scc, GridIndex.build(scc))
+    assert torch.equal(a, b.cpu())

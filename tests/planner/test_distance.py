@@ -135,3 +135,13 @@ def test_clearance_max_distance_cap():
         torch.testing.assert_close(got, want, atol=1e-12, rtol=0)
         assert ((arg == -1) == (exact > cap - 0.03)).all()
         torch.testing.assert_close(clearance(pts, sc, None, max_distance=cap), want, atol=1e-12, rtol=0)
+
+
+@pytest.mark.gpu
+def test_cuda_clearance_matches_cpu():
+    sc = random_scene(100, 4, camera_radius=0.03)
+    pts = torch.rand(200, 3, dtype=F64) * 3 - 1.5
+    a = clearance(pts, sc, GridIndex.build(sc))
+    scc = sc.to("cuda")
+    b = clearance(pts.cuda(), scc, GridIndex.build(scc))
+    torch.testing.assert_close(a, b.cpu(), atol=1e-10, rtol=0)
