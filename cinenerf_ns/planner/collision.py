@@ -245,9 +245,33 @@ def points_collide(
     hit = torch.zeros(P, dtype=torch.bool, device=pts.device)
     if pi.numel():
         w, radii = _pair_locals(pts, scene, pi, gi)
-        coll = ~pairs_free(w, radii, rad.index_select(0, pi), margin)
-        hit[pi[coll]] = True
+        rr = rad.index_select(0, pi)
+        # Sure collisions first (cheap): the radial surface point mu + (x - mu)/m (m = Mahalanobis norm)
+        # is within r, or x is inside. Points with one sure collision need no K maximisation.
+        m = (w / radii).norm(dim=-1)
+        sure = (m <= 1) | (w.norm(dim=-1) * (1 - 1 / m.clamp_min(1e-300)) <= rr)
+        hit[pi[sure]] = True
+        rest = torch.nonzero(~sure & ~hit.index_select(0, pi)).squeeze(-1)
+        if rest.numel():
+            coll = ~pairs_free(w[rest], radii[rest], rr[rest], margin)
+            hit[pi[rest][coll]] = True
     return hit
+
+
+def k_segment_sphere(w0: Tensor, dw: Tensor, radii: Tensor, r: Tensor, s: Tensor) -> Tensor:
+    """min over t in [0, 1] of Corollary 1's K(s) at the point w0 + t dw (ellipsoid frame).
+
+    For fixed s, K(s) at x is the quadratic form x^T D_s x with D_s = diag(s(1-s)/(s r^2 + (1-s) a_i^2)),
+    so along the segment it is A t^2 + 2 B t + C, minimised in closed form. As a minimum of concave
+    functions of s it is concave in s. w0, dw, radii [..., 3], r [...], s [..., S] -> [..., S]."""
+    sc = s[..., :, None]  # [..., S, 1]
+    d = sc * (1 - sc) / (sc * (r * r)[..., None, None] + (1 - sc) * (radii * radii)[..., None, :])  # [..., S, 3]
+    w0e, dwe = w0[..., None, :], dw[..., None, :]
+    A = (d * dwe * dwe).sum(-1)
+    B = (d * w0e * dwe).sum(-1)
+    C = (d * w0e * w0e).sum(-1)
+    t = torch.where(A > 0, -B / A.clamp_min(1e-300), torch.zeros_like(A)).clamp(0, 1)
+    return A * t * t + 2 * B * t + C
 
 
 def segments_collide(
@@ -257,46 +281,54 @@ def segments_collide(
     index=None,
     radius: Optional[float] = None,
     margin: float = DEFAULT_MARGIN,
-    min_piece: Optional[float] = None,
-    max_depth: int = 24,
 ) -> Tensor:
-    """bool [P]: True unless the ball swept along segment p0 -> p1 is proven clear (conservative).
+    """bool [P]: True unless the ball swept along segment p0 -> p1 (a capsule) is proven clear of every
+    ellipsoid (conservative).
 
-    A piece [a, b] of a segment is contained in the ball around its midpoint of radius
-    r + |b - a|/2, so if that ball is proven clear the whole piece is. Pieces that fail are split
-    in two; a piece whose midpoint ball of radius r collides proves a collision; pieces shorter than
-    ``min_piece`` (default r/1000) that are still undecided are reported colliding."""
+    Test per (segment, ellipsoid) pair: f(s) = min_t K_t(s) over the segment's points. f(s) > 1 means the
+    whole segment lies outside the ellipsoid E_s ⊇ E + B(r), a proof that the capsule is clear. f is
+    concave in s (min of concave functions) and K_t(s) is convex in t, so by Sion's minimax theorem
+    max_s min_t K = min_t max_s K: the test is exact up to the sampling of s (no subdivision needed)."""
     a = _as_points(p0, scene.device)
     b = _as_points(p1, scene.device)
     if a.shape != b.shape:
         raise InvalidInputError(f"segment ends disagree: {tuple(a.shape)} vs {tuple(b.shape)}")
     r = float(scene.camera_radius if radius is None else radius)
-    min_piece = max(r * 1e-3, 1e-9) if min_piece is None else float(min_piece)
     P = a.shape[0]
     hit = torch.zeros(P, dtype=torch.bool, device=a.device)
-    owner = torch.arange(P, device=a.device)
-    for _ in range(max_depth + 1):
-        if owner.numel() == 0:
-            break
-        mid = 0.5 * (a + b)
-        half = 0.5 * (b - a).norm(dim=-1)
-        # exact-radius test at the midpoint: a collision there is a real collision of the segment
-        swept_free = ~points_collide(mid, scene, index, radius=r + half, margin=margin)
-        undecided = ~swept_free
-        if bool(undecided.any()):
-            idx = torch.nonzero(undecided).squeeze(-1)
-            mid_coll = points_collide(mid[idx], scene, index, radius=r, margin=margin)
-            too_short = half[idx] * 2 <= min_piece
-            bad = mid_coll | too_short
-            hit[owner[idx[bad]]] = True
-            keep = idx[~bad]
-            keep = keep[~hit[owner[keep]]]  # segments already known to collide need no more work
-        else:
-            keep = idx = torch.zeros(0, dtype=torch.long, device=a.device)
-        m = mid[keep]
-        a = torch.cat([a[keep], m])
-        b = torch.cat([m, b[keep]])
-        owner = torch.cat([owner[keep], owner[keep]])
-    if owner.numel():
-        hit[owner] = True  # depth exhausted while undecided: conservative
+    if P == 0:
+        return hit
+    # candidates: ellipsoids whose AABB grown by r meets the segment's AABB
+    lo, hi = torch.minimum(a, b), torch.maximum(a, b)
+    if index is not None:
+        grow = max(r - index.pad, 0.0)
+        pi, gi = index.query_boxes(lo - grow, hi + grow)
+    else:
+        h = scene.half_extents().double() * (1 + 1e-9) + r + 1e-12
+        mu = scene.means.double()
+        m = ((mu[None] - h[None] <= hi[:, None]) & (mu[None] + h[None] >= lo[:, None])).all(-1)
+        pi, gi = torch.nonzero(m, as_tuple=True)
+    if pi.numel() == 0:
+        return hit
+    rot = scene.rotations.index_select(0, gi).double()
+    mu = scene.means.index_select(0, gi).double()
+    radii = scene.radii.index_select(0, gi).double()
+    w0 = ((a.index_select(0, pi) - mu)[:, :, None] * rot).sum(-2)  # [K, 3]
+    dw = ((b - a).index_select(0, pi)[:, :, None] * rot).sum(-2)
+    rr = torch.full((pi.numel(),), r, dtype=torch.float64, device=a.device)
+    # fast path: s optimal for the support direction at the segment point closest in Mahalanobis sense
+    A = ((dw / radii) ** 2).sum(-1)
+    t = torch.where(A > 0, -((w0 * dw) / radii**2).sum(-1) / A.clamp_min(1e-300), torch.zeros_like(A)).clamp(0, 1)
+    wc = w0 + t[:, None] * dw
+    hdir = (radii * wc / wc.norm(dim=-1, keepdim=True).clamp_min(1e-300)).norm(dim=-1)
+    s0 = (hdir / (hdir + r)).clamp(1e-12, 1 - 1e-12)
+    free = k_segment_sphere(w0, dw, radii, rr, s0[:, None])[:, 0] > 1 + margin
+    und = torch.nonzero(~free).squeeze(-1)
+    if und.numel():
+        w0u, dwu, ru, rru = w0[und], dw[und], radii[und], rr[und]
+        kmax, _ = maximize_concave(
+            lambda s: k_segment_sphere(w0u, dwu, ru, rru, s), (und.numel(),), a.device, torch.float64
+        )
+        free[und] = kmax > 1 + margin
+    hit[pi[~free]] = True
     return hit

@@ -114,15 +114,19 @@ def clearance(
     scene: EllipsoidScene,
     index=None,
     return_index: bool = False,
+    max_distance: Optional[float] = None,
     chunk_pairs: int = 2_000_000,
 ) -> Union[Tensor, Tuple[Tensor, Tensor]]:
     """Exact clearance [P] (float64) = min_j signed_dist(point, E_j) - camera_radius.
 
-    Candidates come from the index with a search radius that doubles until the best distance found
-    is within it (then no ellipsoid outside the search box can be closer, since the distance to an
-    ellipsoid is at least the distance to its AABB); cheap bounds prune candidates before the exact
-    root finding. Without an index (or if the search outgrows the scene) all ellipsoids are tested.
-    With ``return_index`` also returns the id [P] of the nearest ellipsoid."""
+    With an index, two phases per point: (1) grow a search box (doubling) until it holds a candidate,
+    and take U = the smallest cheap upper bound of the signed distance among those candidates;
+    (2) every ellipsoid closer than U has its AABB within the box of half-width U, so query that box,
+    prune with cheap lower bounds and run the exact root finding on the rest. Without an index all
+    ellipsoids are candidates. ``max_distance``: distances above it are not searched for and are
+    reported as max_distance (so the clearance is then max_distance - camera_radius, a lower bound);
+    use it to bound the work for points far from everything. ``return_index`` also returns the id [P]
+    of the nearest ellipsoid (-1 where capped)."""
     pts = torch.as_tensor(points, device=scene.device)
     if pts.ndim != 2 or pts.shape[-1] != 3:
         raise InvalidInputError(f"points must be [P, 3], got {tuple(pts.shape)}")
@@ -130,62 +134,122 @@ def clearance(
         raise InvalidInputError("points contain NaN or inf")
     pts = pts.double()
     P = pts.shape[0]
-    best = torch.full((P,), math.inf, dtype=torch.float64, device=pts.device)
-    arg = torch.full((P,), -1, dtype=torch.long, device=pts.device)
-    todo = torch.arange(P, device=pts.device)
+    dev = pts.device
+    cap = math.inf if max_distance is None else float(max_distance)
+    best = torch.full((P,), math.inf, dtype=torch.float64, device=dev)
+    arg = torch.full((P,), -1, dtype=torch.long, device=dev)
+    brute = torch.zeros(P, dtype=torch.bool, device=dev)
     if index is not None and P:
         lo_s, hi_s = index.lo.min(0).values, index.hi.max(0).values
-        diag = float((hi_s - lo_s).norm())
-        rad = torch.full((P,), max(index.levels[0].cell, 1e-6), dtype=torch.float64, device=pts.device)
+        # distance from each point to the scene box: no search box smaller than this can hit
+        gap = torch.maximum(lo_s - pts, pts - hi_s).clamp_min(0).max(-1).values
+        far_r = float((hi_s - lo_s).max()) + 1.0
+        rad = torch.maximum(torch.full((P,), max(index.levels[0].cell, 1e-6), dtype=torch.float64, device=dev), gap)
+        todo = torch.arange(P, device=dev)
         while todo.numel():
             pi, gi = index.query_points(pts[todo], rad[todo])
             d, g_best = _min_over_pairs(pts[todo], scene, pi, gi, todo.numel())
-            # exact when the best distance is within the box half-width (+ pad, the boxes' growth)
-            ok = d <= rad[todo] + index.pad
-            best[todo[ok]] = d[ok]
-            arg[todo[ok]] = g_best[ok]
-            todo = todo[~ok]
-            rad[todo] *= 4
-            # once the search box covers the whole scene for every remaining point, go brute force
-            far = (rad[todo] > diag + (pts[todo] - 0.5 * (lo_s + hi_s)).norm(dim=-1))
-            if bool(far.all()):
-                break
+            reach = rad[todo] + index.pad  # every ellipsoid closer than this was a candidate
+            exact = d <= reach
+            capped = ~exact & (reach >= cap)
+            best[todo[exact]], arg[todo[exact]] = d[exact], g_best[exact]
+            best[todo[capped]] = cap
+            # found something farther than the search box: one more query, exactly as large as needed
+            redo = torch.nonzero(~exact & ~capped & torch.isfinite(d)).squeeze(-1)
+            if redo.numel():
+                t = todo[redo]
+                u = torch.minimum(d[redo], torch.full_like(d[redo], cap))
+                pi2, gi2 = index.query_points(pts[t], (u - index.pad).clamp_min(0))
+                d2, g2 = _min_over_pairs(pts[t], scene, pi2, gi2, t.numel(), u)
+                # d2 is exact (all ellipsoids closer than u were candidates); the first-round d is a
+                # true distance too, kept where it is smaller (last-bit rounding differences)
+                first = d[redo] < d2
+                best[t] = torch.where(first, d[redo], d2)
+                arg[t] = torch.where(first, g_best[redo], g2)
+            todo = todo[~exact & ~capped & ~torch.isfinite(d)]  # nothing found yet: grow the box
+            rad[todo] *= 1.5
+            whole = rad[todo] > far_r + gap[todo]  # the box covers the scene: brute force
+            brute[todo[whole]] = True
+            todo = todo[~whole]
+        arg[best > cap] = -1
+        best = best.clamp_max(cap)
+    else:
+        brute[:] = True
+    todo = torch.nonzero(brute).squeeze(-1)
     if todo.numel():
         n = len(scene)
         step = max(1, chunk_pairs // max(n, 1))
         for i in range(0, todo.numel(), step):
             t = todo[i : i + step]
-            pi = torch.arange(t.numel(), device=pts.device).repeat_interleave(n)
-            gi = torch.arange(n, device=pts.device).repeat(t.numel())
+            pi = torch.arange(t.numel(), device=dev).repeat_interleave(n)
+            gi = torch.arange(n, device=dev).repeat(t.numel())
             d, g_best = _min_over_pairs(pts[t], scene, pi, gi, t.numel())
+            if not math.isinf(cap):
+                g_best = torch.where(d <= cap, g_best, torch.full_like(g_best, -1))
+                d = d.clamp_max(cap)
             best[t], arg[t] = d, g_best
     out = best - scene.camera_radius
     return (out, arg) if return_index else out
 
 
-def _min_over_pairs(pts: Tensor, scene: EllipsoidScene, pi: Tensor, gi: Tensor, P: int) -> Tuple[Tensor, Tensor]:
+def _pair_geometry(pts: Tensor, scene: EllipsoidScene, pi: Tensor, gi: Tensor):
+    mu = scene.means.index_select(0, gi).double()
+    rad = scene.radii.index_select(0, gi).double()
+    rot = scene.rotations.index_select(0, gi).double()
+    dvec = pts.index_select(0, pi) - mu
+    w = (dvec[:, :, None] * rot).sum(-2)  # R^T (p - mu)
+    return w, rad, dvec.norm(dim=-1)
+
+
+def _bounds(w: Tensor, rad: Tensor, dist_c: Tensor) -> Tuple[Tensor, Tensor]:
+    """(lb, ub) of the signed distance, cheap (no root finding).
+
+    lb: E lies in its local box |w_i| <= a_i and in the ball of radius a_max, so the distance to the
+    box (when > 0, the point is outside E) and |p - mu| - a_max are lower bounds.
+    ub: distance to any surface point; the min of two: the radial point w/m (m = Mahalanobis norm)
+    and, for flat ellipsoids, the point above w on the surface (w with the shortest-axis coordinate
+    moved onto the surface, or the rim point if w lies outside the ellipse of the two long axes).
+    Inside points: ub = |p - mu| - a_min (the ball of radius a_min is inside E)."""
+    box = (w.abs() - rad).clamp_min(0).norm(dim=-1)
+    lb = torch.where(box > 0, torch.maximum(box, dist_c - rad.max(-1).values), dist_c - rad.max(-1).values)
+    m = (w / rad).norm(dim=-1)
+    ub_radial = dist_c * (1 - 1 / m.clamp_min(1e-300))
+    k = rad.argmin(-1, keepdim=True)  # shortest axis
+    q = w.scatter(-1, k, torch.zeros_like(k, dtype=w.dtype))
+    rho2 = ((q / rad) ** 2).sum(-1)
+    wk = w.gather(-1, k)[..., 0]
+    ak = rad.gather(-1, k)[..., 0]
+    lift = torch.where(wk < 0, -ak, ak) * torch.sqrt((1 - rho2).clamp_min(0))
+    x = torch.where((rho2 <= 1)[..., None], q.scatter(-1, k, lift[..., None]), q / torch.sqrt(rho2.clamp_min(1e-300))[..., None])
+    ub_flat = (w - x).norm(dim=-1)
+    ub = torch.where(m > 1, torch.minimum(ub_radial, ub_flat), dist_c - rad.min(-1).values)
+    return lb, ub
+
+
+def _upper_bounds(pts: Tensor, scene: EllipsoidScene, pi: Tensor, gi: Tensor) -> Tensor:
+    if pi.numel() == 0:
+        return torch.zeros(0, dtype=torch.float64, device=pts.device)
+    return _bounds(*_pair_geometry(pts, scene, pi, gi))[1]
+
+
+def _min_over_pairs(
+    pts: Tensor, scene: EllipsoidScene, pi: Tensor, gi: Tensor, P: int, known_ub: Optional[Tensor] = None
+) -> Tuple[Tensor, Tensor]:
     """min over candidate pairs of the exact signed distance, per point: ([P] (inf if none), arg [P])."""
     dev = pts.device
     best = torch.full((P,), math.inf, dtype=torch.float64, device=dev)
     arg = torch.full((P,), -1, dtype=torch.long, device=dev)
     if pi.numel() == 0:
         return best, arg
-    mu = scene.means.index_select(0, gi).double()
-    rad = scene.radii.index_select(0, gi).double()
-    dist_c = (pts.index_select(0, pi) - mu).norm(dim=-1)
-    # bounds on the signed distance: lb = |p - mu| - a_max;  ub = |p - mu| - a_min (inside) or
-    # |p - mu|(1 - 1/m) via the radial surface point (m = Mahalanobis norm) (outside).
-    lb = dist_c - rad.max(-1).values
-    rot = scene.rotations.index_select(0, gi).double()
-    w = ((pts.index_select(0, pi) - mu)[:, :, None] * rot).sum(-2)
-    m = (w / rad).norm(dim=-1)
-    ub = torch.where(m > 1, dist_c * (1 - 1 / m.clamp_min(1e-300)), dist_c - rad.min(-1).values)
+    w, rad, dist_c = _pair_geometry(pts, scene, pi, gi)
+    lb, ub = _bounds(w, rad, dist_c)
     u_best = torch.full((P,), math.inf, dtype=torch.float64, device=dev).scatter_reduce(0, pi, ub, "amin")
+    if known_ub is not None:
+        u_best = torch.minimum(u_best, known_ub)
     keep = torch.nonzero(lb <= u_best.index_select(0, pi) + 1e-12).squeeze(-1)
     d = _distance_local(w[keep], rad[keep])
     best = best.scatter_reduce(0, pi[keep], d, "amin")
-    # argmin: first pair achieving the min
-    is_min = d <= best.index_select(0, pi[keep])
+    is_min = d <= best.index_select(0, pi[keep])  # argmin: a pair achieving the min
     arg[pi[keep][is_min]] = gi[keep][is_min]
     return best, arg
 

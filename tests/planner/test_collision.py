@@ -141,9 +141,12 @@ def test_segments_conservative(seed, r):
     d = point_ellipsoid_distance(samples.reshape(-1, 3), sc.means, sc.rotations, sc.radii).min(-1).values
     clear = d.reshape(40, 150).min(-1).values - r
     assert hit[clear <= 0].all()
-    # segments whose dense-sampled clearance is comfortably positive are reported free
-    # (150 samples are < 0.008 apart, well below the 0.02 slack)
-    assert not hit[clear > 0.02].any()
+    # tight: the exact clearance along a segment is at least the sampled one minus half the sample
+    # spacing (distance is 1-Lipschitz), so a segment whose sampled clearance beats that is free
+    slack = (p1 - p0).norm(dim=-1) / 149 / 2 + 1e-6
+    assert not hit[clear > slack].any()
+    # a zero-length segment is a point
+    assert torch.equal(segments_collide(p0, p0, sc, idx), points_collide(p0, sc, idx))
     assert torch.equal(segments_collide(p0, p1, sc, None), hit)
 
 
@@ -164,4 +167,15 @@ def test_cuda_points_collide():
     a = points_collide(pts, sc, GridIndex.build(sc))
     scc = sc.to("cuda")
     b = points_collide(pts.cuda(), scc, GridIndex.build(scc))
+    assert torch.equal(a, b.cpu())
+
+
+@pytest.mark.gpu
+def test_cuda_segments_collide():
+    sc = random_scene(100, 6, camera_radius=0.05)
+    p0 = torch.rand(200, 3, dtype=F64) * 2 - 1
+    p1 = p0 + torch.randn(200, 3, dtype=F64) * 0.2
+    a = segments_collide(p0, p1, sc, GridIndex.build(sc))
+    scc = sc.to("cuda")
+    b = segments_collide(p0.cuda(), p1.cuda(), scc, GridIndex.build(scc))
     assert torch.equal(a, b.cpu())

@@ -121,3 +121,27 @@ def test_ellipsoid_pair_references_agree(seed):
     d_pt = float(point_ellipsoid_distance(far[None], a[0][None], a[1][None], a[2][None])[0, 0])
     d_pair = ellipsoid_ellipsoid_distance(*a, far, torch.eye(3, dtype=F64), torch.full((3,), r, dtype=F64))
     assert d_pair == pytest.approx(d_pt - r, abs=1e-6)
+
+
+def test_clearance_max_distance_cap():
+    sc = random_scene(60, 9, rmin=0.01, rmax=0.1, camera_radius=0.03)
+    idx = GridIndex.build(sc)
+    g = torch.Generator().manual_seed(3)
+    pts = (torch.rand(200, 3, generator=g, dtype=F64) * 2 - 1) * 3
+    exact = clearance(pts, sc, idx)
+    for cap in (0.05, 0.3, 2.0):
+        got, arg = clearance(pts, sc, idx, return_index=True, max_distance=cap)
+        want = torch.minimum(exact, torch.full_like(exact, cap - 0.03))
+        torch.testing.assert_close(got, want, atol=1e-12, rtol=0)
+        assert ((arg == -1) == (exact > cap - 0.03)).all()
+        torch.testing.assert_close(clearance(pts, sc, None, max_distance=cap), want, atol=1e-12, rtol=0)
+
+
+@pytest.mark.gpu
+def test_cuda_clearance_matches_cpu():
+    sc = random_scene(100, 4, camera_radius=0.03)
+    pts = torch.rand(200, 3, dtype=F64) * 3 - 1.5
+    a = clearance(pts, sc, GridIndex.build(sc))
+    scc = sc.to("cuda")
+    b = clearance(pts.cuda(), scc, GridIndex.build(scc))
+    torch.testing.assert_close(a, b.cpu(), atol=1e-10, rtol=0)
