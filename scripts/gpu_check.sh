@@ -167,6 +167,14 @@ json.dump({"camera_type": "perspective", "render_height": H, "render_width": W, 
 print("camera path", out, len(path), "frames")
 EOF
   rm -rf "$OUT/render"
+  # ns-render checks that ffmpeg exists even for --output-format images (it never runs it then). The
+  # offline GPU machine has no ffmpeg, so put a stub on PATH that fails loudly if it is ever called.
+  if ! command -v ffmpeg > /dev/null; then
+    mkdir -p "$WORK/bin"
+    printf '#!/bin/sh\necho "ffmpeg stub (gpu_check.sh): real ffmpeg is not installed on this machine" >&2\nexit 1\n' > "$WORK/bin/ffmpeg"
+    chmod +x "$WORK/bin/ffmpeg"
+    export PATH="$WORK/bin:$PATH"
+  fi
   ns-render camera-path --load-config "$cfg" --camera-path-filename "$WORK/camera_path.json" \
     --output-path "$OUT/render" --output-format images --rendered-output-names rgb latent || return 1
   ls "$OUT/render" | head; ls "$OUT/render" | wc -l

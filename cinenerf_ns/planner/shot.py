@@ -39,6 +39,8 @@ class Shot:
     timings: Dict[str, float] = field(default_factory=dict)  # stage -> milliseconds
     fps: Optional[float] = None  # frame rate of `times` (derived from times when None)
     curve_times: Optional[np.ndarray] = None  # [T] the trajectory's own time at each frame (dense resampling)
+    safety: Optional[Dict[str, Any]] = None  # the planner's dense exact-clearance report (safety.safety_report)
+    goal_target: Optional[np.ndarray] = None  # [3] the requested go-to point (goal is the closest safe point to it)
 
     def __post_init__(self) -> None:
         self.times = _to_numpy(self.times).reshape(-1)

@@ -1,0 +1,395 @@
+"""The camera planner: go-to / look-at points in, verified safe shots out (paper Sec. IV).
+
+Pipeline per candidate (each stage timed in ``Shot.timings``):
+  start (given, or sampled free in the start's region)  ->  goal = closest safe point to the go-to
+  target in the start's free component  ->  A* on the conservative voxel grid  ->  line-of-sight
+  shortcut (swept-sphere test)  ->  safe polytope corridor (Prop. 2, exact offsets)  ->  Bezier QP
+  (control points inside the polytopes: the whole curve is safe by the convex-hull property)  ->
+  timing + look-at orientation  ->  exact clearance along the densely sampled curve (verification).
+
+One-time work (spatial index, occupancy grid, free-space components) happens in ``prepare()`` and
+is reported separately from per-plan cost.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Optional, Sequence, Union
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from .astar import AStarGrid, astar, shortcut
+from .collision import points_collide, segments_collide
+from .corridor import CorridorError, build_corridor
+from .distance import clearance
+from .errors import (
+    GoalUnreachableError,
+    InvalidInputError,
+    PlanningError,
+    StartInCollisionError,
+    UnsafeTrajectoryError,
+)
+from .goal import _project_onto_polytope, closest_safe_point, sample_free_starts
+from .polytope import safe_polytope
+from .occupancy import OccupancyGrid, build_occupancy
+from .safety import verify_shot
+from .scene import EllipsoidScene
+from .shot import Shot
+from .spatial_index import GridIndex
+from .timing import TimingConfig
+from .trajectory import TrajectoryConfig, solve_corridor_qp
+
+ArrayLike = Union[Tensor, np.ndarray, Sequence[float]]
+
+
+@dataclass
+class PlannerConfig:
+    """Everything the planner needs besides the scene and the request."""
+
+    grid_resolution: int = 96
+    """Voxels along the longest side of the planning bounds (A* grid; conservative occupancy)."""
+    bounds: Optional[tuple] = None
+    """(lo[3], hi[3]) planning region in scene units; None: the scene bounds (robust, see prepare())."""
+    start_region: Optional[tuple] = None
+    """(lo[3], hi[3]) where random starts are drawn; None: the planning bounds (e.g. pass the
+    training cameras' bounding box for real captures)."""
+    up: tuple = (0.0, 0.0, 1.0)
+    """World up direction: cameras keep their y axis as close to it as possible."""
+    box_margin: float = 0.15
+    """Each corridor polytope lives in its segment's bounding box grown by this (scene units)."""
+    trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
+    """Bezier degree, continuity, cost and solver of the corridor QP."""
+    timing: TimingConfig = field(default_factory=TimingConfig)
+    """Speed cap, ramps and frame rate."""
+    verify_spacing: float = 0.005
+    """Max distance between clearance samples when verifying a trajectory (scene units)."""
+    robust_bounds_quantile: float = 0.01
+    """With bounds=None the grid spans these quantiles of the Gaussian means (floaters far away
+    would otherwise blow up the grid) grown by 10%."""
+    max_attempts_per_candidate: int = 4
+    """Random starts tried per requested candidate before giving up on it."""
+
+
+@dataclass
+class PreparedScene:
+    index: GridIndex
+    grid: OccupancyGrid
+    astar_grid: AStarGrid
+    timings_ms: dict
+
+
+def _as_point(x: ArrayLike, what: str) -> np.ndarray:
+    try:
+        p = np.asarray(x.detach().cpu() if isinstance(x, Tensor) else x, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError) as e:
+        raise InvalidInputError(f"{what} must be 3 numbers, got {x!r}") from e
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise InvalidInputError(f"{what} must be 3 finite numbers, got {p.tolist()}")
+    return p
+
+
+class Planner:
+    """Plans camera shots through one scene. ``prepare()`` once, then ``plan()`` many times."""
+
+    def __init__(self, scene: EllipsoidScene, config: Optional[PlannerConfig] = None):
+        if len(scene) == 0:
+            from .errors import EmptySceneError
+
+            raise EmptySceneError("the scene has no obstacles; nothing to plan around")
+        self.scene = scene
+        self.config = config or PlannerConfig()
+        self.prepared: Optional[PreparedScene] = None
+
+    # ------------------------------------------------------------------ one-time work
+    def planning_bounds(self) -> tuple[Tensor, Tensor]:
+        cfg = self.config
+        dev = self.scene.device
+        if cfg.bounds is not None:
+            lo = torch.as_tensor(cfg.bounds[0], dtype=torch.float64, device=dev).reshape(3)
+            hi = torch.as_tensor(cfg.bounds[1], dtype=torch.float64, device=dev).reshape(3)
+            if not (torch.isfinite(lo).all() and torch.isfinite(hi).all() and (hi > lo).all()):
+                raise InvalidInputError(f"planning bounds need finite lo < hi, got {lo.tolist()}, {hi.tolist()}")
+            return lo, hi
+        m = self.scene.means.double()
+        q = cfg.robust_bounds_quantile
+        if len(self.scene) > 1000 and q > 0:
+            # torch.quantile has an input-size limit; a strided subsample is plenty for bounds
+            sub = m[:: max(1, len(m) // 200_000)]
+            lo = torch.quantile(sub, q, dim=0)
+            hi = torch.quantile(sub, 1 - q, dim=0)
+        else:
+            lo, hi = m.min(0).values, m.max(0).values
+        pad = 0.1 * (hi - lo).max() + self.scene.camera_radius
+        return lo - pad, hi + pad
+
+    def prepare(self) -> PreparedScene:
+        """Build the spatial index and the occupancy grid (timed, one-time)."""
+        t0 = time.perf_counter()
+        index = GridIndex.build(self.scene)
+        t1 = time.perf_counter()
+        lo, hi = self.planning_bounds()
+        grid = build_occupancy(self.scene, index, self.config.grid_resolution, bounds=(lo, hi))
+        t2 = time.perf_counter()
+        ag = AStarGrid(grid.numpy())
+        _ = ag.labels  # free-space components, used for reachability of goals and starts
+        t3 = time.perf_counter()
+        if not (~grid.occupied).any():
+            raise GoalUnreachableError(
+                "the occupancy grid has no free voxel: the camera radius is too large for this scene, or the "
+                "planning bounds hold no free space (raise --grid-resolution or check --bounds)"
+            )
+        self.prepared = PreparedScene(
+            index=index,
+            grid=grid,
+            astar_grid=ag,
+            timings_ms={"index_ms": 1e3 * (t1 - t0), "grid_ms": 1e3 * (t2 - t1), "components_ms": 1e3 * (t3 - t2)},
+        )
+        return self.prepared
+
+    def _prep(self) -> PreparedScene:
+        return self.prepared if self.prepared is not None else self.prepare()
+
+    # ------------------------------------------------------------------ helpers
+    def clearance(self, points: ArrayLike) -> np.ndarray:
+        """Exact clearance [P] (camera radius included) of camera centres [P, 3]."""
+        p = torch.as_tensor(np.asarray(points, dtype=np.float64).reshape(-1, 3), device=self.scene.device)
+        return clearance(p.to(self.scene.dtype) if self.scene.dtype == torch.float64 else p, self.scene, self._prep().index).detach().cpu().numpy()
+
+    def _free_voxel_near(self, p: np.ndarray, comp: Optional[int]) -> np.ndarray:
+        """Voxel [3] near world point p whose centre joins p by a collision-free segment (and lies in
+        free component ``comp`` when given)."""
+        prep = self._prep()
+        grid, labels = prep.grid, prep.astar_grid.labels
+        pt = torch.as_tensor(p, dtype=torch.float64, device=grid.device)
+        ijk = grid.world_to_voxel(pt)
+        shape = np.array(grid.shape)
+        if bool(grid.in_bounds(ijk)):
+            i, j, k = (int(v) for v in ijk)
+            if labels[i, j, k] > 0 and (comp is None or labels[i, j, k] == comp):
+                return np.array([i, j, k])
+        # search growing windows for free voxels, nearest first, whose segment from p is free
+        c = np.clip(ijk.cpu().numpy(), 0, shape - 1)
+        for R in (1, 2, 4, 8, 16):
+            a = np.maximum(c - R, 0)
+            e = np.minimum(c + R + 1, shape)
+            sub = labels[a[0]:e[0], a[1]:e[1], a[2]:e[2]]
+            ok = sub > 0 if comp is None else sub == comp
+            cand = np.argwhere(ok) + a
+            if len(cand) == 0:
+                continue
+            centres = grid.voxel_to_world(torch.as_tensor(cand, device=grid.device))
+            order = torch.argsort((centres - pt).norm(dim=-1))[:64]
+            cen = centres[order]
+            coll = segments_collide(pt.expand_as(cen).to(self.scene.dtype), cen.to(self.scene.dtype), self.scene, prep.index)
+            free = torch.nonzero(~coll).squeeze(-1)
+            if free.numel():
+                return cand[int(order[int(free[0])])]
+        raise GoalUnreachableError(
+            f"no free grid voxel can be reached in a straight line from {np.round(p, 4).tolist()}; the point is "
+            f"walled in at this grid resolution (raise --grid-resolution)"
+        )
+
+    def _reachable_goal(self, target: np.ndarray, comp: int) -> tuple[np.ndarray, np.ndarray]:
+        """Closest safe point to ``target`` that the free component ``comp`` reaches, and its voxel.
+
+        1. paper: closest_safe_point (target itself if free, else the projection of the target onto a
+           Prop-2 polytope grown at the target, else the nearest free voxel); accepted if a free voxel
+           of ``comp`` joins it by a straight collision-free segment.
+        2. otherwise (e.g. the centroid of a hollow object is free but walled in): the nearest voxel of
+           ``comp`` to the target, improved by projecting the target onto a safe polytope seeded at
+           that voxel's centre; the polytope is convex and holds the centre, so the segment between
+           them is safe and the goal stays reachable.
+        """
+        prep = self._prep()
+        grid, labels = prep.grid, prep.astar_grid.labels
+        dev = self.scene.device
+        try:
+            g = closest_safe_point(
+                torch.as_tensor(target, device=dev), self.scene, prep.index, grid, reachable=labels == comp,
+                clearance_fn=self._free_fn,
+            )
+            g = g.detach().cpu().numpy()
+            return g, self._free_voxel_near(g, comp)
+        except GoalUnreachableError:
+            pass
+        ijk = grid.nearest_free_voxel(torch.as_tensor(target, device=grid.device), allowed=torch.as_tensor(labels == comp, device=grid.device))
+        c = grid.voxel_to_world(ijk).to(dev)
+        half = torch.as_tensor(np.abs(target - c.cpu().numpy()), device=dev).clamp_min(grid.voxel_size) + grid.voxel_size
+        try:
+            poly = safe_polytope(c[None], self.scene, prep.index, c - half, c + half)
+            A, b = poly.to_numpy()
+            x = _project_onto_polytope(A, b, target)
+        except PlanningError:
+            x = None
+        g = c.cpu().numpy() if x is None else x
+        return g, ijk.cpu().numpy()
+
+    def segments_free(self, p0, p1) -> np.ndarray:
+        """bool [P]: segment p0[i] -> p1[i] proven collision-free for the camera ball (conservative).
+
+        Segments are cut into pieces no longer than the camera radius; a piece lies inside the ball of
+        radius r + |piece|/2 around its midpoint, so proving those balls clear (Cor. 1, batched in one
+        call) proves the segment clear. A piece that is not proven clear marks its segment as colliding."""
+        prep = self._prep()
+        a = np.asarray(p0, dtype=np.float64).reshape(-1, 3)
+        b = np.asarray(p1, dtype=np.float64).reshape(-1, 3)
+        r = self.scene.camera_radius
+        piece = max(r, 0.5 * prep.grid.voxel_size)
+        n = np.maximum(1, np.ceil(np.linalg.norm(b - a, axis=1) / piece).astype(np.int64))  # [P]
+        owner = np.repeat(np.arange(len(a)), n)
+        frac = np.concatenate([(np.arange(k) + 0.5) / k for k in n])
+        mids = a[owner] + frac[:, None] * (b - a)[owner]
+        half = 0.5 * np.linalg.norm(b - a, axis=1)[owner] / n[owner]
+        dev = self.scene.device
+        hit = points_collide(
+            torch.as_tensor(mids, device=dev).to(self.scene.dtype), self.scene, prep.index,
+            radius=torch.as_tensor(r + half, device=dev),
+        ).cpu().numpy()
+        bad = np.zeros(len(a), dtype=bool)
+        np.logical_or.at(bad, owner, hit)
+        return ~bad
+
+    def points_free(self, points) -> np.ndarray:
+        """bool [P]: camera ball at each point proven clear (conservative Cor. 1 test)."""
+        prep = self._prep()
+        p = torch.as_tensor(np.asarray(points, dtype=np.float64).reshape(-1, 3), device=self.scene.device)
+        return (~points_collide(p.to(self.scene.dtype), self.scene, prep.index)).cpu().numpy()
+
+    def _free_fn(self, points: Tensor) -> Tensor:
+        # goal/start acceptance only needs a proof of freedom: the conservative test is exact enough
+        return torch.as_tensor(self.points_free(points.detach().cpu().numpy()))
+
+    def _main_component(self) -> int:
+        labels = self._prep().astar_grid.labels
+        counts = np.bincount(labels.ravel())
+        counts[0] = 0
+        return int(np.argmax(counts))
+
+    # ------------------------------------------------------------------ planning
+    def plan(
+        self,
+        goal: ArrayLike,
+        look_at: ArrayLike,
+        start: Optional[ArrayLike] = None,
+        seed: int = 0,
+        n_candidates: int = 1,
+    ) -> list[Shot]:
+        """Plan ``n_candidates`` shots ending as close as safely possible to ``goal`` and always
+        looking at ``look_at``. With ``start`` all candidates start there (n_candidates is then 1);
+        otherwise starts are sampled free and reachable with the seeded generator.
+
+        Raises InvalidInputError, StartInCollisionError, GoalUnreachableError (see messages).
+        Every returned shot's exact clearance along the densely sampled curve is >= 0."""
+        goal_p = _as_point(goal, "go-to point")
+        look_p = _as_point(look_at, "look-at point")
+        if int(n_candidates) != n_candidates or n_candidates < 1:
+            raise InvalidInputError(f"number of candidates must be a positive integer, got {n_candidates}")
+        prep = self._prep()
+        labels = prep.astar_grid.labels
+        dev = self.scene.device
+        t_req = time.perf_counter()
+
+        if start is not None:
+            s = _as_point(start, "start point")
+            c = float(self.clearance(s[None])[0])
+            if c < 0:
+                raise StartInCollisionError(
+                    f"the start {np.round(s, 4).tolist()} puts the camera inside the scene (clearance {c:.4f}); "
+                    f"pick another start or use a random start"
+                )
+            starts = [s]
+            n_candidates = 1
+        else:
+            starts = []
+        comp_main = self._main_component()
+        reach = labels == comp_main
+        gen = torch.Generator().manual_seed(int(seed))
+        shots: list[Shot] = []
+        errors: list[str] = []
+        goal_cache: dict[int, np.ndarray] = {}
+        attempts = 0
+        max_attempts = n_candidates * self.config.max_attempts_per_candidate
+        pending = list(starts)
+        while len(shots) < n_candidates and attempts < max_attempts:
+            if not pending:
+                lo, hi = self.config.start_region or (None, None)
+                k = n_candidates - len(shots)
+                t0 = time.perf_counter()
+                pts = sample_free_starts(
+                    k, self.scene, prep.index, prep.grid, generator=gen, region_lo=lo, region_hi=hi, reachable=reach,
+                    clearance_fn=self._free_fn,
+                )
+                sample_ms = 1e3 * (time.perf_counter() - t0) / k
+                pending = [(p.cpu().numpy(), sample_ms) for p in pts]
+            item = pending.pop(0)
+            s, sample_ms = (item, 0.0) if isinstance(item, np.ndarray) else item
+            attempts += 1
+            try:
+                shots.append(self._plan_one(s, goal_p, look_p, goal_cache, sample_ms))
+            except (GoalUnreachableError, CorridorError, StartInCollisionError) as e:
+                errors.append(str(e))
+                if start is not None:
+                    raise
+        if not shots:
+            raise GoalUnreachableError(
+                f"no safe shot found after {attempts} start(s); last reason: {errors[-1] if errors else 'unknown'}"
+            )
+        for sh in shots:
+            sh.timings["request_total_ms"] = 1e3 * (time.perf_counter() - t_req)
+        return shots
+
+    def _plan_one(self, s: np.ndarray, goal_p: np.ndarray, look_p: np.ndarray, goal_cache: dict, sample_ms: float) -> Shot:
+        prep = self._prep()
+        grid, labels = prep.grid, prep.astar_grid.labels
+        dev = self.scene.device
+        cfg = self.config
+        tm: dict[str, float] = {"start_sample_ms": sample_ms}
+
+        t0 = time.perf_counter()
+        s_ijk = self._free_voxel_near(s, None)
+        comp = int(labels[tuple(s_ijk)])
+        if comp not in goal_cache:
+            goal_cache[comp] = self._reachable_goal(goal_p, comp)
+        g, g_ijk = goal_cache[comp]
+        t1 = time.perf_counter()
+        tm["goal_ms"] = 1e3 * (t1 - t0)
+
+        path = astar(prep.astar_grid, s_ijk, g_ijk)  # [K, 3]
+        t2 = time.perf_counter()
+        tm["astar_ms"] = 1e3 * (t2 - t1)
+        centres = grid.voxel_to_world(torch.as_tensor(path, device=grid.device)).cpu().numpy()
+        way = np.concatenate([s[None], centres, g[None]])
+
+        seg_free = self.segments_free
+        way = shortcut(way, seg_free)
+        t3 = time.perf_counter()
+        tm["shortcut_ms"] = 1e3 * (t3 - t2)
+        if np.linalg.norm(way[-1] - way[0]) < 1e-9:
+            raise GoalUnreachableError("the start is already at the goal; pick another start")
+
+        corridor = build_corridor(torch.as_tensor(way, device=dev), self.scene, prep.index, box_margin=cfg.box_margin)
+        t4 = time.perf_counter()
+        tm["corridor_ms"] = 1e3 * (t4 - t3)
+        traj = solve_corridor_qp(corridor.constraints(), corridor.waypoints.cpu().numpy(), s, g, cfg.trajectory)
+        t5 = time.perf_counter()
+        tm["qp_ms"] = 1e3 * (t5 - t4)
+
+        shot = Shot.from_trajectory(traj, look_p, timing=cfg.timing, up=cfg.up, corridor=corridor, timings=tm)
+        t6 = time.perf_counter()
+        report = verify_shot(shot, self.points_free, self.clearance, max_spacing=cfg.verify_spacing)
+        t7 = time.perf_counter()
+        tm["verify_ms"] = 1e3 * (t7 - t6)
+        if not report["safe"]:
+            # Cannot happen if the corridor and QP are right; never return such a shot.
+            raise UnsafeTrajectoryError(
+                f"verification found exact clearance {report['min_exact_clearance']:.3g} < 0 on the curve; this is a "
+                f"planner bug, please report it with the scene and seed"
+            )
+        shot.safety = report
+        shot.goal_target = goal_p
+        tm["plan_ms"] = 1e3 * (t7 - t0) + sample_ms
+        shot.timings = tm
+        return shot

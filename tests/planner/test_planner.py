@@ -1,0 +1,82 @@
+"""End-to-end plans through generated cluttered scenes: positive exact clearance, look-at error
+near zero, goal reached; bad requests get specific errors."""
+import numpy as np
+import pytest
+import torch
+
+from cinenerf_ns.planner.distance import clearance
+from cinenerf_ns.planner.errors import InvalidInputError, PlanningError, StartInCollisionError
+from cinenerf_ns.planner.planner import Planner, PlannerConfig
+from cinenerf_ns.planner.procedural import procedural_room
+from cinenerf_ns.planner.scene import EllipsoidScene
+
+
+@pytest.fixture(scope="module")
+def room():
+    s = procedural_room(4000, seed=1)
+    e = EllipsoidScene.from_splat(s.means, s.quats, s.log_scales, s.opacity_logits)
+    pl = Planner(e, PlannerConfig(grid_resolution=64))
+    pl.prepare()
+    return s, e, pl
+
+
+def _exact_min_clearance(scene, pl, shot, stride=3):
+    pts = torch.as_tensor(shot.positions[::stride], dtype=torch.float64)
+    return float(clearance(pts, scene, pl.prepared.index).min())
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_plans_are_safe_look_at_and_reach_goal(room, seed):
+    s, e, pl = room
+    goal = s.objects[0].center
+    look = s.objects[1].center
+    shots = pl.plan(goal, look, seed=seed)
+    assert len(shots) == 1
+    sh = shots[0]
+    assert sh.safety["safe"]
+    assert _exact_min_clearance(e, pl, sh) >= 0
+    assert np.max(sh.look_at_errors_deg()) < 0.01
+    # the goal is the closest reachable safe point: within the object's half-diagonal + camera radius + a voxel
+    o = s.objects[0]
+    tol = 0.5 * np.linalg.norm(o.size) + e.camera_radius + 2 * pl.prepared.grid.voxel_size
+    assert np.linalg.norm(sh.positions[-1] - sh.goal) < 1e-6
+    assert np.linalg.norm(sh.goal - goal) < tol
+    for k in ("goal_ms", "astar_ms", "corridor_ms", "qp_ms", "verify_ms", "plan_ms"):
+        assert sh.timings[k] >= 0
+
+
+def test_seeded_candidates_are_reproducible_and_differ(room):
+    s, e, pl = room
+    g, l = s.objects[2].center, s.objects[3].center
+    a = pl.plan(g, l, seed=5, n_candidates=3)
+    b = pl.plan(g, l, seed=5, n_candidates=3)
+    assert len(a) == 3
+    for x, y in zip(a, b):
+        assert np.allclose(x.start, y.start)
+    starts = np.stack([x.start for x in a])
+    assert np.min(np.linalg.norm(starts[:, None] - starts[None], axis=-1) + np.eye(3) * 9) > 1e-3
+
+
+def test_given_start(room):
+    s, e, pl = room
+    start = np.array([0.0, 0.0, 0.7])
+    sh = pl.plan(s.objects[0].center, s.objects[1].center, start=start)[0]
+    assert np.allclose(sh.positions[0], start, atol=1e-6)
+
+
+def test_bad_requests(room):
+    s, e, pl = room
+    g, l = s.objects[0].center, s.objects[1].center
+    with pytest.raises(InvalidInputError):
+        pl.plan([np.nan, 0, 0], l)
+    with pytest.raises(InvalidInputError):
+        pl.plan(g, [1, 2])
+    with pytest.raises(InvalidInputError):
+        pl.plan(g, l, n_candidates=0)
+    # a start on the floor puts the camera inside the floor Gaussians
+    with pytest.raises(StartInCollisionError):
+        pl.plan(g, l, start=[0.0, 0.0, 0.0])
+
+
+def test_errors_are_planning_errors():
+    assert issubclass(StartInCollisionError, PlanningError)
