@@ -1,0 +1,313 @@
+"""``cinesplat-plan``: plan camera shots through a splat from the command line (no viewer, no GPU needed).
+
+    cinesplat-plan --scene outputs/room/cinesplat/<run>/config.yml --go-to "armchair" --look-at "floor lamp"
+    cinesplat-plan --scene scene.ply --go-to "0.1 0.2 0.3" --look-at "0 0 0.2" --candidates 4
+    cinesplat-plan --scene procedural --go-to armchair --look-at "floor lamp"
+
+Targets are "x y z" points (scene units, nerfstudio's normalised coordinates for checkpoints) or text.
+Text needs semantics: a cinesplat checkpoint / compact export (relevancy of the distilled CLIP latents,
+eq. 4) or the procedural test scene (its ground-truth object names). Writes, per candidate, a
+nerfstudio camera-path JSON (``ns-render camera-path``), plus a safety report JSON and PNG plots.
+"""
+from __future__ import annotations
+
+import json
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Dict, List, Optional, Tuple
+
+import numpy as np
+import torch
+import tyro
+from rich.console import Console
+from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from cinenerf_ns.planner.camera_path import shot_to_camera_path, write_camera_path
+from cinenerf_ns.planner.errors import InvalidInputError, PlanningError
+from cinenerf_ns.planner.planner import Planner, PlannerConfig
+from cinenerf_ns.planner.safety import plot_clearance, plot_paths_topdown, safety_report
+from cinenerf_ns.planner.scene import EllipsoidScene, SceneConfig
+from cinenerf_ns.planner.timing import TimingConfig
+
+CONSOLE = Console()
+_NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
+
+
+@dataclass
+class PlanArgs:
+    """Plan camera shots: go to one thing, look at another."""
+
+    scene: str
+    """A cinesplat/splatfacto run (config.yml, its folder or a .ckpt), a compact export (.pt), a 3DGS .ply,
+    or 'procedural[:N[:SEED]]' (a generated test room with known object names)."""
+    go_to: str
+    """Where the camera should end: text (needs a semantic scene) or 'x y z'."""
+    look_at: str
+    """What every frame looks at: text or 'x y z'."""
+    start: Optional[str] = None
+    """Start point 'x y z'; default: random collision-free starts (seeded)."""
+    seed: int = 0
+    """Seed of the random starts (same seed, same starts)."""
+    candidates: int = 1
+    """Number of shots from different random starts."""
+    output_dir: Path = Path("cinesplat_plans")
+    """Where camera paths, the report and the plots go."""
+    name: str = "shot"
+    """File name stem of the outputs."""
+    fps: float = 30.0
+    """Frames per second of the exported path."""
+    max_speed: float = 0.5
+    """Camera speed cap, scene units per second."""
+    fov: float = 50.0
+    """Vertical field of view of the exported camera, degrees."""
+    width: int = 1280
+    """Render width written into the camera path."""
+    height: int = 720
+    """Render height written into the camera path."""
+    camera_radius: float = 0.03
+    """Camera body sphere radius, scene units (paper: 0.03)."""
+    beta: float = 2.0
+    """Ellipsoid size in sigmas (paper: 2), scaled by each Gaussian's opacity."""
+    opacity_floor: float = 0.05
+    """Gaussians below this opacity are not obstacles."""
+    grid_resolution: int = 96
+    """A* voxels along the longest side of the planning region."""
+    threshold: Optional[float] = None
+    """Relevancy threshold of text queries (default: the scene's)."""
+    device: str = "cpu"
+    """torch device of the scene tensors ('cpu' or 'cuda')."""
+    up: Tuple[float, float, float] = (0.0, 0.0, 1.0)
+    """World up direction (nerfstudio scenes: +z)."""
+
+
+@dataclass
+class LoadedScene:
+    scene: EllipsoidScene
+    locate: Optional[Callable[[str], Tuple[np.ndarray, str]]]  # text -> (point [3], description)
+    kind: str
+    source: str
+    config_path: Optional[Path] = None
+    extra: Dict[str, Any] = field(default_factory=dict)
+    start_region: Optional[Tuple[np.ndarray, np.ndarray]] = None  # where random starts are drawn
+
+
+def training_camera_region(config_path: Path, pad: float = 0.1) -> Optional[Tuple[np.ndarray, np.ndarray]]:
+    """Bounding box (in the run's normalised coordinates) of the training cameras of a nerfstudio run,
+    grown by ``pad``: the region random starts are drawn from (a real capture's free space is best known
+    where the cameras were). None when the run's data or dataparser transform cannot be read."""
+    try:
+        import yaml
+
+        run = config_path.parent
+        dp = json.loads((run / "dataparser_transforms.json").read_text())
+        T = np.eye(4)
+        T[:3] = np.asarray(dp["transform"], dtype=np.float64)
+        scale = float(dp["scale"])
+        text = config_path.read_text()
+        m = re.search(r"^\s*data: !!python/object/apply:pathlib\.\w+\n((?:\s*- .*\n)+)", text, re.M)
+        if m is None:
+            return None
+        parts = [ln.strip()[2:] for ln in m.group(1).splitlines() if ln.strip().startswith("- ")]
+        data = Path(*parts)
+        tj = data / "transforms.json" if data.is_dir() else data
+        frames = json.loads(tj.read_text())["frames"]
+        c = np.array([np.asarray(f["transform_matrix"], dtype=np.float64)[:3, 3] for f in frames])
+        c = (T[:3, :3] @ c.T).T + T[:3, 3]
+        c = c * scale
+        return c.min(0) - pad, c.max(0) + pad
+    except (OSError, KeyError, ValueError, ImportError):
+        return None
+
+
+def parse_point(text: str) -> Optional[np.ndarray]:
+    """'x y z' / 'x, y, z' / '[x, y, z]' -> [3]; None when the text is not three numbers."""
+    nums = re.findall(_NUM, text)
+    rest = re.sub(_NUM, "", text)
+    if len(nums) == 3 and not re.search(r"[A-Za-z]", rest):
+        return np.array([float(n) for n in nums])
+    return None
+
+
+def _word_match(query: str, names: List[str]) -> Optional[int]:
+    """Index of the name sharing the most words with the query (ties: shortest name); None if none."""
+    stop = {"the", "a", "an", "to", "at", "of", "go", "look"}
+    q = {w for w in re.findall(r"[a-z]+", query.lower()) if w not in stop}
+    best, best_k = None, (0, 0)
+    for i, n in enumerate(names):
+        w = set(re.findall(r"[a-z]+", n.lower()))
+        k = (len(q & w), -len(w))
+        if k[0] > 0 and k > best_k:
+            best, best_k = i, k
+    return best
+
+
+def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Optional[float] = None) -> LoadedScene:
+    """Scene file/spec -> obstacles + (optionally) a text locator."""
+    if spec.startswith("procedural"):
+        from cinenerf_ns.planner.procedural import procedural_room
+
+        parts = spec.split(":")
+        n = int(parts[1]) if len(parts) > 1 and parts[1] else 20_000
+        seed = int(parts[2]) if len(parts) > 2 else 0
+        room = procedural_room(n, seed=seed)
+        scene = EllipsoidScene.from_splat(room.means, room.quats, room.log_scales, room.opacity_logits, cfg).to(device)
+        names = [o.name for o in room.objects]
+
+        def locate(text: str):
+            i = _word_match(text, names)
+            if i is None:
+                raise InvalidInputError(f"no object matches '{text}' in the procedural room; objects: {', '.join(names)}")
+            return room.objects[i].center.astype(np.float64), f"object '{names[i]}' (ground-truth name)"
+
+        r = cfg.camera_radius
+        return LoadedScene(scene, locate, "procedural", spec, extra={"room": room},
+                           start_region=(room.free_lo + r, room.free_hi - r))
+    path = Path(spec)
+    if not path.exists():
+        raise InvalidInputError(f"scene not found: {spec} (give a config.yml, run folder, .ckpt, compact .pt or .ply)")
+    if path.suffix.lower() == ".ply":
+        return LoadedScene(EllipsoidScene.from_ply(path, cfg).to(device), None, "ply", str(path))
+    # checkpoints and compact exports go through the method's loader (no trainer is built)
+    from cinenerf_ns.method.checkpoint import load_compact, load_splat
+    from cinenerf_ns.method.checkpoint import _is_compact  # noqa: WPS450 (one loader, two formats)
+
+    st = load_compact(path, device=device) if _is_compact(path) else load_splat(path, device=device)
+    scene = EllipsoidScene.from_splat(st.means, st.quats, st.scales, st.opacities, cfg)
+    locate = None
+    if st.latents is not None and st.codec is not None:
+        from cinenerf_ns.method.semantic_scene import SemanticScene, build_text_encoder
+
+        enc = build_text_encoder(st.info, st.label_embeddings, device=device)
+        kw = {} if threshold is None else {"threshold": threshold}
+        sem = SemanticScene(st.means, torch.sigmoid(st.opacities.reshape(-1)), st.latents, st.codec, enc, **kw)
+        label_names = list(st.info.get("label_names") or [])
+
+        def locate(text: str):
+            q = text.strip()
+            # offline scenes answer their own label names exactly; a query sharing words with one label
+            # is mapped to it (no CLIP weights needed). Other text goes to the CLIP text tower.
+            if label_names and q.lower() not in [n.lower() for n in label_names]:
+                i = _word_match(q, label_names)
+                if i is not None:
+                    q = label_names[i]
+            c, mask = sem.locate(q)
+            return c.detach().cpu().numpy().astype(np.float64), f"'{q}': {int(mask.sum())} Gaussians above the relevancy threshold"
+
+    cfg_path = path if path.suffix in (".yml", ".yaml") else (path / "config.yml" if (path / "config.yml").exists() else None)
+    region = training_camera_region(cfg_path) if cfg_path is not None else None
+    return LoadedScene(scene, locate, "checkpoint", str(path), config_path=cfg_path, extra={"splat": st}, start_region=region)
+
+
+def resolve_target(text: str, loaded: LoadedScene, what: str) -> Tuple[np.ndarray, str]:
+    if not isinstance(text, str) or not text.strip():
+        raise InvalidInputError(f"the {what} target is empty: type an object (text) or a point 'x y z'")
+    p = parse_point(text)
+    if p is not None:
+        return p, f"point {np.round(p, 4).tolist()}"
+    if loaded.locate is None:
+        raise InvalidInputError(
+            f"'{text}' is text, but this scene ({loaded.kind}) has no semantics; give the {what} target as 'x y z' "
+            f"or use a cinesplat checkpoint"
+        )
+    return loaded.locate(text)
+
+
+def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
+    """Plan and write outputs; returns a summary dict (paths, per-candidate metrics)."""
+    scfg = SceneConfig(beta=args.beta, camera_radius=args.camera_radius, opacity_floor=args.opacity_floor)
+    out = Path(args.output_dir)
+    t_all = time.perf_counter()
+    with Progress(SpinnerColumn(), TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=console, transient=True) as prog:
+        task = prog.add_task("loading scene", total=5)
+        loaded = load_scene(args.scene, scfg, args.device, args.threshold)
+        prog.update(task, advance=1, description="resolving targets")
+        goal, goal_desc = resolve_target(args.go_to, loaded, "go-to")
+        look, look_desc = resolve_target(args.look_at, loaded, "look-at")
+        start = None
+        if args.start is not None:
+            start = parse_point(args.start)
+            if start is None:
+                raise InvalidInputError(f"--start must be 'x y z', got {args.start!r}")
+        prog.update(task, advance=1, description="preparing (index, occupancy grid)")
+        pcfg = PlannerConfig(
+            grid_resolution=args.grid_resolution, up=tuple(args.up), timing=TimingConfig(max_speed=args.max_speed, fps=args.fps),
+            start_region=loaded.start_region,
+        )
+        planner = Planner(loaded.scene, pcfg)
+        prep = planner.prepare()
+        prog.update(task, advance=1, description=f"planning {args.candidates} candidate(s)")
+        shots = planner.plan(goal, look, start=start, seed=args.seed, n_candidates=args.candidates)
+        prog.update(task, advance=1, description="exact clearance report + plots")
+        out.mkdir(parents=True, exist_ok=True)
+        reports, files = [], []
+        for k, sh in enumerate(shots):
+            rep = safety_report(sh, planner.clearance, max_spacing=0.02, label=f"candidate {k}")
+            reports.append(rep)
+            cp = shot_to_camera_path(sh, fov_deg=args.fov, width=args.width, height=args.height)
+            files.append(write_camera_path(out / f"{args.name}_{k}.json", cp))
+        png_c = plot_clearance(reports, out / f"{args.name}_clearance.png")
+        lo, hi = planner.planning_bounds()
+        png_t = plot_paths_topdown(
+            [sh.positions for sh in shots], out / f"{args.name}_topdown.png",
+            obstacles=loaded.scene.means.detach().cpu().numpy(),
+            targets={"go to": goal, "look at": look},
+            labels=[f"candidate {k}" for k in range(len(shots))],
+        )
+        summary = {
+            "scene": loaded.source,
+            "go_to": {"text": args.go_to, "point": goal.tolist(), "resolved": goal_desc},
+            "look_at": {"text": args.look_at, "point": look.tolist(), "resolved": look_desc},
+            "prepare_ms": prep.timings_ms,
+            "camera_radius": args.camera_radius,
+            "candidates": [
+                {**sh.to_dict(), "camera_path": str(files[k]), "exact_clearance": {kk: v for kk, v in reports[k].items() if kk not in ("times", "clearance")},
+                 "verification": sh.safety}
+                for k, sh in enumerate(shots)
+            ],
+            "clearance_samples": [{"times": r["times"], "clearance": r["clearance"]} for r in reports],
+            "plots": {"clearance": str(png_c), "topdown": str(png_t)},
+            "total_s": time.perf_counter() - t_all,
+        }
+        rpath = out / f"{args.name}_report.json"
+        tmp = rpath.with_suffix(".json.tmp")
+        tmp.write_text(json.dumps(summary, indent=2, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
+        tmp.replace(rpath)
+        summary["report"] = str(rpath)
+        prog.update(task, advance=1)
+
+    table = Table(title=f"cinesplat-plan: go to {goal_desc}, look at {look_desc}")
+    for col in ("cand", "start", "length", "duration s", "min clearance", "look-at err deg", "plan ms", "camera path"):
+        table.add_column(col)
+    for k, sh in enumerate(shots):
+        table.add_row(
+            str(k), str(np.round(sh.start, 3).tolist()), f"{sh.length:.3f}", f"{sh.duration:.2f}",
+            f"{reports[k]['min_clearance']:.4f}", f"{float(np.max(sh.look_at_errors_deg())):.3f}",
+            f"{sh.timings.get('plan_ms', float('nan')):.0f}", str(files[k]),
+        )
+    console.print(table)
+    console.print(f"report: {summary['report']}\nplots: {png_c}, {png_t}")
+    if loaded.config_path is not None:
+        console.print(
+            f"render: ns-render camera-path --load-config {loaded.config_path} --camera-path-filename {files[0]} "
+            f"--output-path renders/{args.name}.mp4"
+        )
+    return summary
+
+
+def entrypoint() -> None:
+    args = tyro.cli(PlanArgs)
+    try:
+        run_plan(args)
+    except PlanningError as e:
+        CONSOLE.print(f"[bold red]cinesplat-plan: {e}")
+        raise SystemExit(2)
+    except (FileNotFoundError, ValueError) as e:  # loaders' user-facing errors (CheckpointError, QueryError, ...)
+        CONSOLE.print(f"[bold red]cinesplat-plan: {e}")
+        raise SystemExit(2)
+
+
+if __name__ == "__main__":
+    entrypoint()

@@ -1,0 +1,60 @@
+"""cinesplat-plan: outputs exist and are valid, text and point targets, specific errors."""
+import json
+
+import numpy as np
+import pytest
+
+from cinenerf_ns.cli.plan import PlanArgs, parse_point, run_plan, _word_match
+from cinenerf_ns.planner.errors import InvalidInputError
+from cinenerf_ns.planner.ply import write_splat_ply
+from cinenerf_ns.planner.procedural import procedural_room
+
+
+def test_parse_point():
+    assert np.allclose(parse_point("1 2 3"), [1, 2, 3])
+    assert np.allclose(parse_point("[0.1, -2e-1, 3.]"), [0.1, -0.2, 3.0])
+    assert parse_point("the red chair") is None
+    assert parse_point("1 2") is None
+    assert parse_point("chair 1 2 3") is None
+
+
+def test_word_match():
+    names = ["red armchair", "floor lamp", "table"]
+    assert _word_match("go to the armchair", names) == 0
+    assert _word_match("lamp", names) == 1
+    assert _word_match("piano", names) is None
+
+
+def test_procedural_text_plan(tmp_path):
+    from nerfstudio.cameras.camera_paths import get_path_from_json
+
+    s = run_plan(PlanArgs(scene="procedural:3000:1", go_to="the armchair", look_at="floor lamp", candidates=2,
+                          output_dir=tmp_path, grid_resolution=64))
+    assert len(s["candidates"]) == 2
+    for c in s["candidates"]:
+        d = json.loads(open(c["camera_path"]).read())
+        cams = get_path_from_json(d)
+        assert cams.camera_to_worlds.shape[0] == len(d["camera_path"])
+        assert c["exact_clearance"]["min_clearance"] >= 0
+    for p in s["plots"].values():
+        assert open(p, "rb").read(8) == b"\x89PNG\r\n\x1a\n"
+    rep = json.loads(open(s["report"]).read())
+    assert rep["go_to"]["resolved"].startswith("object 'armchair'")
+
+
+def test_ply_points_and_errors(tmp_path):
+    room = procedural_room(3000, seed=2)
+    ply = tmp_path / "scene.ply"
+    write_splat_ply(ply, room.means, room.quats, room.log_scales, room.opacity_logits)
+    g = room.objects[0].center
+    lk = room.objects[1].center
+    s = run_plan(PlanArgs(scene=str(ply), go_to=" ".join(map(str, g)), look_at=" ".join(map(str, lk)),
+                          output_dir=tmp_path / "o", grid_resolution=64, start="0 0 0.7"))
+    assert np.allclose(s["candidates"][0]["start"], [0, 0, 0.7])
+    with pytest.raises(InvalidInputError, match="no semantics"):
+        run_plan(PlanArgs(scene=str(ply), go_to="armchair", look_at="0 0 0", output_dir=tmp_path / "x"))
+    with pytest.raises(InvalidInputError, match="empty"):
+        run_plan(PlanArgs(scene=str(ply), go_to="  ", look_at="0 0 0", output_dir=tmp_path / "x"))
+    with pytest.raises(InvalidInputError, match="not found"):
+        run_plan(PlanArgs(scene=str(tmp_path / "nope.ply"), go_to="0 0 0", look_at="0 0 0", output_dir=tmp_path / "x"))
+    assert not (tmp_path / "x").exists()  # nothing half-written on bad input
