@@ -1,5 +1,5 @@
 """CineSplatModel.get_outputs / get_loss_dict end to end on CPU, with gsplat's rasterization replaced by the
-float64 reference (gsplat itself needs CUDA; tests/method/test_gpu.py checks the real kernels against the
+float64 reference (gsplat itself needs CUDA; tests/method/test_model_gpu.py checks the real kernels against the
 same reference). Checks the latent pass wiring: resolution, detached geometry, eval outputs, fused mode."""
 from __future__ import annotations
 

@@ -2,35 +2,10 @@
 cinesplat checkpoint under torch's weights_only default, on a tiny synthetic nerfstudio dataset (CPU)."""
 from __future__ import annotations
 
-import json
-import math
-
-import numpy as np
-import pytest
 import torch
-from PIL import Image
 
 
-def _tiny_dataset(root, n=5, w=32, h=24):
-    (root / "images").mkdir(parents=True)
-    g = np.random.default_rng(0)
-    frames = []
-    for i in range(n):
-        Image.fromarray(g.integers(0, 255, (h, w, 3), dtype=np.uint8)).save(root / "images" / f"frame_{i:03d}.png")
-        a = 2 * math.pi * i / n
-        c2w = np.eye(4)
-        c2w[:3, 3] = [3 * math.cos(a), 3 * math.sin(a), 0.5]
-        z = c2w[:3, 3] / np.linalg.norm(c2w[:3, 3])  # camera looks along -z: z axis points away from the origin
-        x = np.cross([0, 0, 1], z)
-        x /= np.linalg.norm(x)
-        c2w[:3, :3] = np.stack([x, np.cross(z, x), z], 1)
-        frames.append({"file_path": f"images/frame_{i:03d}.png", "transform_matrix": c2w.tolist()})
-    meta = {"fl_x": 30.0, "fl_y": 30.0, "cx": w / 2, "cy": h / 2, "w": w, "h": h, "camera_model": "OPENCV",
-            "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0, "frames": frames}
-    (root / "transforms.json").write_text(json.dumps(meta))
-
-
-def test_eval_setup_loads_cinesplat_checkpoint(tmp_path, tiny_clip_models, monkeypatch):
+def test_eval_setup_loads_cinesplat_checkpoint(tmp_path, tiny_clip_models, tiny_scene):
     import numpy as np
     from nerfstudio.engine.optimizers import Optimizers
     from nerfstudio.utils.eval_utils import eval_setup
@@ -38,7 +13,7 @@ def test_eval_setup_loads_cinesplat_checkpoint(tmp_path, tiny_clip_models, monke
     from cinenerf_ns.method.cinesplat_config import make_cinesplat_config
 
     data = tmp_path / "scene"
-    _tiny_dataset(data)
+    tiny_scene(data)
     cfg = make_cinesplat_config()
     cfg.output_dir = tmp_path / "outputs"
     cfg.experiment_name = "tiny"
