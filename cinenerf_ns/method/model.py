@@ -379,7 +379,8 @@ class CineSplatModel(SplatfactoModel):
         """Per-Gaussian relevancy [N] of the current viewer query, or None (no query / no codec)."""
         if not self._query_text or self.codec is None:
             return None
-        if self._query_relevancy is not None and self._query_relevancy.shape[0] == self.num_points:
+        key = (self.num_points, self.step)  # latents change while training: recompute once per step
+        if self._query_relevancy is not None and getattr(self, "_query_key", None) == key:
             return self._query_relevancy
         try:
             enc = self.text_encoder()
@@ -392,4 +393,5 @@ class CineSplatModel(SplatfactoModel):
         self._query_relevancy = relevancy_fn(
             self.latents.detach(), self.codec, emb[0], emb[1:], temperature=self.config.relevancy_temperature
         )
+        self._query_key = key
         return self._query_relevancy
