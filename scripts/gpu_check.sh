@@ -255,6 +255,8 @@ stage_bench() {
 
 STAGES=("$@")
 [ ${#STAGES[@]} -eq 0 ] && STAGES=(install tests train render viewer labels)
+# a fresh machine (or a new call after the machine was recycled): install first
+if [ ! -f "$SITE/.cinenerf_installed" ] && [[ " ${STAGES[*]} " != *" install "* ]]; then STAGES=(install "${STAGES[@]}"); fi
 log "repo $REPO  out $OUT  fox ${FOX:-<missing>}  stages ${STAGES[*]}"
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader 2>/dev/null | tee -a "$OUT/gpu_check.log"
 status=0
