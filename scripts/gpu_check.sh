@@ -1,7 +1,15 @@
 #!/usr/bin/env bash
 # GPU check for cinenerf_ns on a CUDA machine with no network.
 #
-#   scripts/gpu_check.sh [STAGE...]      stages: install tests train render bench   (default: install tests train render)
+#   scripts/gpu_check.sh [STAGE...]
+#   stages: install tests train render viewer labels bench   (default: install tests train render viewer labels)
+#     install  wheels -> $SITE, dist-info with our entry points, import check
+#     tests    gsplat CUDA compile (timed), then the whole pytest suite incl. GPU tests
+#     train    ns-train cinesplat on a copy of fox, $STEPS steps, random-weight CLIP, no viewer; text query check
+#     render   ns-render camera-path of that checkpoint (rgb + latent images)
+#     viewer   ns-viewer loads that checkpoint (serves for up to 45 s, log checked), stopped by its PID
+#     labels   fox with generated 3-class brightness label masks: ns-train cinesplat --feature-source labels
+#     bench    benchmarks/bench_method.py (cinesplat vs splatfacto etc.; appends to benchmarks/RESULTS.md)
 #
 # Environment:
 #   OUT        where logs, timings and rendered frames go (default ./gpu_check_out)
@@ -85,19 +93,23 @@ print("wrote", di)
 EOF
   $PY - <<'EOF' || return 1
 import importlib, sys
-mods = ["torch", "nerfstudio", "gsplat", "viser", "open_clip", "cvxpy", "osqp", "clarabel", "pytest", "hypothesis", "scipy", "cinenerf_ns.method"]
+core = ["torch", "nerfstudio", "gsplat", "viser", "open_clip", "scipy", "cinenerf_ns.method"]
+extra = ["pytest", "hypothesis", "cvxpy", "osqp", "clarabel", "tensorboard", "tinycudann"]  # tests / planner / optional
 missing = []
-for m in mods:
+for m in core + extra:
     try:
         importlib.import_module(m)
     except Exception as e:
-        missing.append(f"{m} ({type(e).__name__}: {e})")
+        if m in core:
+            missing.append(f"{m} ({type(e).__name__}: {e})")
+        else:
+            print(f"not available (optional for this stage set): {m} ({type(e).__name__})")
 import torch
 print("torch", torch.__version__, "cuda", torch.cuda.is_available(), torch.cuda.get_device_name(0) if torch.cuda.is_available() else "-")
 from importlib.metadata import entry_points
 print("nerfstudio methods from plugins:", sorted(e.name for e in entry_points(group="nerfstudio.method_configs")))
 if missing:
-    print("MISSING:", *missing, sep="\n  ")
+    print("MISSING core packages:", *missing, sep="\n  ")
     sys.exit(1)
 EOF
   touch "$SITE/.cinenerf_installed"
@@ -115,6 +127,7 @@ r,a,_=rasterization(m, torch.tensor([[1.,0,0,0]],device='cuda'), torch.full((1,3
 torch.cuda.synchronize(); print('gsplat first call (compile) %.1fs' % (time.time()-t))
 " || return 1
   echo "gsplat_compile $(( $(date +%s) - t0 )) 0" >> "$OUT/timings.txt"
+  $PY -c "import pytest, hypothesis" || { echo "pytest / hypothesis missing: add their wheels (pytest pluggy iniconfig packaging hypothesis sortedcontainers attrs) to $WHEELS"; return 1; }
   $PY -m pytest -q -ra ${PYTEST_ARGS:-} --junitxml="$OUT/pytest.xml"
 }
 
@@ -135,13 +148,27 @@ stage_train() {
   local cfg="$WORK/outputs/fox/cinesplat/gpu_check/config.yml"
   ls -la "$(dirname "$cfg")/nerfstudio_models" || return 1
   grep -E "feature cache|latent targets|codec" "$OUT/train.log" | head -5
-  $PY - "$cfg" <<'EOF'
-import sys, time
-from pathlib import Path
+  query_check "$cfg" "fox"
+}
+
+query_check() {  # query_check CONFIG TEXT: trainer-free loading + a text query (relevancy stats, timing)
+  $PY - "$1" "$2" <<'EOF'
+import sys, time, torch
 from cinenerf_ns.method.checkpoint import load_splat
+from cinenerf_ns.method.relevancy import QueryError
+from cinenerf_ns.method.semantic_scene import SemanticScene
 st = load_splat(sys.argv[1])
 print("checkpoint", st.path, "gaussians", len(st), "latents", None if st.latents is None else tuple(st.latents.shape),
       "latent std", None if st.latents is None else float(st.latents.std()), "codec", st.codec is not None, "step", st.step)
+s = SemanticScene.from_checkpoint(sys.argv[1], device="cuda")
+rel = s.query(sys.argv[2]); torch.cuda.synchronize()
+t = time.perf_counter(); rel = s.query(sys.argv[2]); torch.cuda.synchronize()
+print(f"query {sys.argv[2]!r}: relevancy min {float(rel.min()):.3f} mean {float(rel.mean()):.3f} max {float(rel.max()):.3f} "
+      f"({1000*(time.perf_counter()-t):.2f} ms for {len(s)} Gaussians)")
+try:
+    c, mask = s.locate(sys.argv[2]); print("locate: centroid", [round(v, 3) for v in c.tolist()], "mask", int(mask.sum()))
+except QueryError as e:
+    print("locate:", e)
 EOF
 }
 
@@ -180,13 +207,64 @@ EOF
   ls "$OUT/render" | head; ls "$OUT/render" | wc -l
 }
 
+stage_viewer() {
+  local cfg="$WORK/outputs/fox/cinesplat/gpu_check/config.yml"
+  [ -f "$cfg" ] || { echo "no trained run at $cfg (run the train stage first)"; return 1; }
+  ns-viewer --load-config "$cfg" --viewer.websocket-port 7123 > "$OUT/viewer_server.log" 2>&1 &
+  local pid=$!
+  local ok=1
+  for _ in $(seq 1 45); do
+    sleep 1
+    kill -0 $pid 2>/dev/null || break
+    if grep -q "Done loading checkpoint" "$OUT/viewer_server.log"; then ok=0; sleep 10; break; fi
+  done
+  kill $pid 2>/dev/null; wait $pid 2>/dev/null
+  tail -n 30 "$OUT/viewer_server.log"
+  grep -q "Traceback" "$OUT/viewer_server.log" && ok=1
+  return $ok
+}
+
+stage_labels() {
+  [ -n "${FOX:-}" ] || { echo "fox scene not found: set FOX=/path/to/fox"; return 1; }
+  local d="$WORK/fox_labels"
+  [ -f "$d/transforms.json" ] || cp -a "$FOX" "$d"
+  # 3 classes by brightness tercile of each image (any integer masks exercise the label pipeline)
+  $PY - "$d" <<'EOF' || return 1
+import json, sys, pathlib
+import numpy as np
+from PIL import Image
+d = pathlib.Path(sys.argv[1]); (d / "labels").mkdir(exist_ok=True)
+for f in sorted((d / "images").glob("*")):
+    out = d / "labels" / (f.stem + ".png")
+    if out.exists():
+        continue
+    g = np.asarray(Image.open(f).convert("L"), dtype=np.float32)
+    q = np.quantile(g, [1 / 3, 2 / 3])
+    Image.fromarray(np.digitize(g, q).astype(np.uint8)).save(out)
+(d / "labels.json").write_text(json.dumps({"0": "dark shadow", "1": "grey wall", "2": "bright light"}))
+print("labels in", d / "labels", len(list((d / "labels").glob("*.png"))))
+EOF
+  rm -rf "$WORK/outputs/fox_labels/cinesplat/gpu_check"
+  local vis=viewer
+  $PY -c "import tensorboard" 2>/dev/null && vis=tensorboard
+  ns-train cinesplat --data "$d" \
+    --output-dir "$WORK/outputs" --experiment-name fox_labels --timestamp gpu_check \
+    --max-num-iterations "${LABEL_STEPS:-500}" --steps-per-save "${LABEL_STEPS:-500}" --steps-per-eval-all-images 100000 \
+    --vis "$vis" --viewer.quit-on-train-completion True \
+    --pipeline.datamanager.feature-source labels --pipeline.datamanager.clip.random-weights True \
+    nerfstudio-data --downscale-factor 4 || return 1
+  query_check "$WORK/outputs/fox_labels/cinesplat/gpu_check/config.yml" "bright light"
+}
+
 stage_bench() {
   [ -n "${FOX:-}" ] || { echo "fox scene not found: set FOX=/path/to/fox"; return 1; }
   $PY benchmarks/bench_method.py --fox "$FOX" --work "$WORK/bench" --clip-random-weights
 }
 
 STAGES=("$@")
-[ ${#STAGES[@]} -eq 0 ] && STAGES=(install tests train render)
+[ ${#STAGES[@]} -eq 0 ] && STAGES=(install tests train render viewer labels)
+# a fresh machine (or a new call after the machine was recycled): install first
+if [ ! -f "$SITE/.cinenerf_installed" ] && [[ " ${STAGES[*]} " != *" install "* ]]; then STAGES=(install "${STAGES[@]}"); fi
 log "repo $REPO  out $OUT  fox ${FOX:-<missing>}  stages ${STAGES[*]}"
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader 2>/dev/null | tee -a "$OUT/gpu_check.log"
 status=0

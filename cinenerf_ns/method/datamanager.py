@@ -17,6 +17,7 @@ Pixels whose id is not in labels.json are ignored by the latent loss.
 
 from __future__ import annotations
 
+from copy import deepcopy
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Literal, Optional, Tuple, Type
@@ -89,6 +90,7 @@ class CineSplatDatamanager(FullImageDatamanager):
         cached = self.cached_train
         sizes = [(int(d["image"].shape[0]), int(d["image"].shape[1])) for d in cached]
         images = [(lambda i=i: cached[i]["image"]) for i in range(len(cached))]
+        label_transform, label_key = self._label_transform()
         try:
             result = prepare_semantic_targets(
                 images=images,
@@ -103,6 +105,8 @@ class CineSplatDatamanager(FullImageDatamanager):
                 labels_json=self.config.labels_json,
                 device=self.device,
                 log=lambda m: CONSOLE.print(m),
+                label_transform=label_transform,
+                label_transform_key=label_key,
             )
         except (ClipWeightsError, LabelDataError) as e:
             # one clear message, no stack trace of a download failure
@@ -121,6 +125,32 @@ class CineSplatDatamanager(FullImageDatamanager):
             f"{tuple(self.latent_targets[0].shape)} ready; codec 1-cos {result.stats['error_after']:.4f} "
             f"(from {result.stats['error_before']:.4f}) in {result.stats['seconds']:.1f}s"
         )
+
+    def _label_transform(self):
+        """Label maps -> the training images' geometry: resize (nearest) to the camera's original size, then
+        undistort + crop exactly like nerfstudio undistorts the images (perspective cameras)."""
+        import numpy as np
+
+        from nerfstudio.cameras.cameras import CameraType
+
+        from cinenerf_ns.method.label_features import resize_labels, undistort_label_map
+
+        cams = deepcopy(self.train_dataparser_outputs.cameras)  # before the datamanager's in-place undistortion
+        cams.rescale_output_resolution(scaling_factor=self.config.camera_res_scale_factor)
+
+        def transform(i: int, ids: torch.Tensor) -> torch.Tensor:
+            cam = cams[i]
+            ids = resize_labels(ids, (int(cam.height.item()), int(cam.width.item())))
+            dist = cam.distortion_params
+            if dist is None or not bool(torch.any(dist != 0)):
+                return ids
+            if cam.camera_type.item() != CameraType.PERSPECTIVE.value:
+                raise SystemExit("cinesplat: label masks with distorted non-perspective cameras are not supported")
+            return undistort_label_map(ids, cam.get_intrinsics_matrices().numpy(), dist.numpy())
+
+        dist = cams.distortion_params
+        key = "none" if dist is None else str(np.round(dist.numpy(), 8).tolist())
+        return transform, key
 
     def next_train(self, step: int) -> Tuple[Cameras, Dict]:
         camera, data = super().next_train(step)

@@ -122,12 +122,13 @@ def compute_label_maps(
     labels_dir: Path,
     labels_json: Path,
     text_encoder: Callable[[Sequence[str]], Tensor],
+    label_transform: Optional[Callable[[int, Tensor], Tensor]] = None,
 ) -> FeatureMaps:
     from cinenerf_ns.method.label_features import embed_label_names, load_label_maps
 
     t0 = time.perf_counter()
     out_sizes = [feature_map_size(h, w, feature_long_side) for h, w in sizes]
-    ids, raw, names = load_label_maps(image_paths, labels_dir, labels_json, out_sizes)
+    ids, raw, names = load_label_maps(image_paths, labels_dir, labels_json, out_sizes, transform=label_transform)
     emb = embed_label_names(names, text_encoder).cpu()
     return FeatureMaps(
         source="labels",
@@ -192,6 +193,8 @@ def prepare_semantic_targets(
     device: torch.device | str = "cpu",
     progress: bool = True,
     log: Callable[[str], None] = print,
+    label_transform: Optional[Callable[[int, Tensor], Tensor]] = None,
+    label_transform_key: str = "",
 ) -> SemanticTargets:
     """Features (cached) -> codec (eq. 2) -> per-image latent targets f_enc(P)."""
     settings: Dict = {"source": source}
@@ -208,10 +211,13 @@ def prepare_semantic_targets(
         settings["feature_long_side"] = clip_config.feature_long_side
         settings["table"] = table_path.read_text() if table_path.is_file() else None
         settings["label_files"] = sorted(_stat_entry(p) for p in label_dir_path.glob("*")) if label_dir_path.is_dir() else []
+        settings["label_transform"] = label_transform_key  # e.g. the cameras' distortion (undistortion changes ids)
 
         def compute() -> FeatureMaps:
             enc = make_text_encoder(clip_config, device)
-            return compute_label_maps(image_paths, image_sizes, clip_config.feature_long_side, label_dir_path, table_path, enc)
+            return compute_label_maps(
+                image_paths, image_sizes, clip_config.feature_long_side, label_dir_path, table_path, enc, label_transform
+            )
 
     else:
         raise ValueError(f"unknown feature_source {source!r} (expected 'clip' or 'labels')")

@@ -5,14 +5,15 @@ Layout (documented in datamanager.py and the README):
     <data>/labels.json                          {"<id>": "<name>", ...}
 Label names are embedded with the same CLIP text tower that answers queries, so a query equal to a label
 name lands exactly on that label's features. Pixels whose id is not in labels.json are invalid (ignored
-by the latent loss).
+by the latent loss). Label maps are aligned with the images on disk (any resolution); when nerfstudio
+undistorts the training images, the datamanager undistorts the label maps the same way (nearest-neighbour).
 """
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Callable, Dict, List, Sequence, Tuple
+from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 import torch
@@ -115,16 +116,48 @@ def load_label_maps(
     labels_dir: Path,
     table_path: Path,
     out_sizes: Sequence[Tuple[int, int]],
+    transform: Optional[Callable[[int, Tensor], Tensor]] = None,
 ) -> Tuple[List[Tensor], List[int], List[str]]:
-    """Read every image's label map, resize to its feature size. Returns (compact id maps, raw ids, names)."""
+    """Read every image's label map, optionally ``transform(i, ids)`` it (the datamanager resizes to the
+    camera and undistorts like the images), resize to its feature size. -> (compact id maps, raw ids, names)."""
     labels_dir = Path(labels_dir)
     if not labels_dir.is_dir():
         raise LabelDataError(f"label folder not found: {labels_dir} (expected one <image_stem>.png per image)")
     table = read_label_table(table_path)
-    maps = [resize_labels(load_label_map(find_label_map(labels_dir, p)), hw) for p, hw in zip(image_paths, out_sizes)]
+    maps = []
+    for i, (p, hw) in enumerate(zip(image_paths, out_sizes)):
+        ids = load_label_map(find_label_map(labels_dir, p))
+        if transform is not None:
+            ids = transform(i, ids)
+        maps.append(resize_labels(ids, hw))
     return compact_ids(maps, table)
 
 
 def embed_label_names(names: Sequence[str], text_encoder: Callable[[Sequence[str]], Tensor]) -> Tensor:
     """[L, D] unit text embeddings of the label names."""
     return F.normalize(text_encoder(list(names)).float(), dim=-1)
+
+
+def undistort_label_map(ids: Tensor, K: np.ndarray, distortion_params: np.ndarray) -> Tensor:
+    """Undistort + crop an id map [H, W] exactly as nerfstudio's FullImageDatamanager undistorts a
+    perspective image (``_undistort_image``: OpenCV order, -0.5 principal-point shift,
+    ``getOptimalNewCameraMatrix(alpha=0)``, ROI crop), but with nearest-neighbour sampling so ids are never
+    blended. Pixels that map outside the source get -1 (ignored by the loss)."""
+    import cv2
+
+    p = np.asarray(distortion_params, dtype=np.float64)
+    if not np.any(p):
+        return ids
+    if p[3] != 0:
+        raise LabelDataError("label undistortion: the 4th Brown parameter (k4) is not supported (as in nerfstudio)")
+    d = np.array([p[0], p[1], p[4], p[5], p[2], p[3], 0, 0], dtype=np.float64)
+    K = np.array(K, dtype=np.float64).copy()
+    K[0, 2] -= 0.5
+    K[1, 2] -= 0.5
+    H, W = ids.shape
+    newK, roi = cv2.getOptimalNewCameraMatrix(K, d, (W, H), 0)
+    map1, map2 = cv2.initUndistortRectifyMap(K, d, None, newK, (W, H), cv2.CV_32FC1)
+    out = cv2.remap(ids.numpy().astype(np.float32), map1, map2, interpolation=cv2.INTER_NEAREST,
+                    borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0)
+    x, y, w, h = roi
+    return torch.from_numpy(np.rint(out[y : y + h, x : x + w]).astype(np.int64))

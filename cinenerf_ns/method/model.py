@@ -248,12 +248,16 @@ class CineSplatModel(SplatfactoModel):
             return {}
         if self.training and self.config.latent_render_mode == "fused" and self._latents_active():
             return self._get_outputs_fused(camera)
+        # camera set-up BEFORE splatfacto's pass: it rescales the camera in place for its downscale factor
+        # and the int width/height do not always round-trip (e.g. 270 -> 67 -> 268)
+        viewmat, K, W, H = self._camera_setup(camera)
+        target_hw = self._latent_target_size(camera)
+        latents_on = self.training and self._latents_active()
         outputs = super().get_outputs(camera)
         if self.training:
-            if self._latents_active():
-                viewmat, K, W, H = self._camera_setup(camera)
+            if latents_on:
                 if self.config.latent_render_resolution == "feature":
-                    h, w = self._latent_target_size(camera)
+                    h, w = target_hw
                     Ks = K.clone()
                     Ks[:, 0, :] *= w / W
                     Ks[:, 1, :] *= h / H
@@ -262,12 +266,11 @@ class CineSplatModel(SplatfactoModel):
                     d = self._get_downscale_factor()
                     Hd, Wd = self.last_size
                     Ks = K.clone()
-                    Ks[:, :2, :] /= d
+                    Ks[:, :2, :] /= d  # splatfacto's convention: pixel scale exactly 1/d, size floor(W/d)
                     lat, _ = self.render_latents(viewmat, Ks, Wd, Hd)
-                outputs["latent"] = lat  # [h, w, 3] (or [H/d, W/d, 3])
+                outputs["latent"] = lat  # [h, w, 3] (or [H/d, W/d, 3], area-pooled to [h, w] in the loss)
             return outputs
         # eval / viewer: latent (visualised) and relevancy images
-        viewmat, K, W, H = self._camera_setup(camera)
         crop_ids = self._crop_ids()
         if crop_ids is not None and crop_ids.sum() == 0:
             outputs["latent"] = torch.zeros(H, W, 3, device=self.device)
@@ -376,7 +379,8 @@ class CineSplatModel(SplatfactoModel):
         """Per-Gaussian relevancy [N] of the current viewer query, or None (no query / no codec)."""
         if not self._query_text or self.codec is None:
             return None
-        if self._query_relevancy is not None and self._query_relevancy.shape[0] == self.num_points:
+        key = (self.num_points, self.step)  # latents change while training: recompute once per step
+        if self._query_relevancy is not None and getattr(self, "_query_key", None) == key:
             return self._query_relevancy
         try:
             enc = self.text_encoder()
@@ -389,4 +393,5 @@ class CineSplatModel(SplatfactoModel):
         self._query_relevancy = relevancy_fn(
             self.latents.detach(), self.codec, emb[0], emb[1:], temperature=self.config.relevancy_temperature
         )
+        self._query_key = key
         return self._query_relevancy

@@ -77,3 +77,29 @@ def test_load_label_maps_folder(tmp_path):
     assert names == ["sofa", "rug"] and ids[0].tolist() == [[0, 1], [1, 1]]
     with pytest.raises(LabelDataError, match="label folder not found"):
         load_label_maps([tmp_path / "x.jpg"], tmp_path / "nolabels", tmp_path / "labels.json", [(2, 2)])
+
+
+def test_undistortion_matches_nerfstudio_image_undistortion():
+    """Label maps go through the same undistortion + crop as nerfstudio's training images (nearest, not linear)."""
+    from nerfstudio.cameras.cameras import Cameras, CameraType
+    from nerfstudio.data.datamanagers.full_images_datamanager import _undistort_image
+
+    from cinenerf_ns.method.label_features import undistort_label_map
+
+    H, W = 48, 64
+    dist = torch.tensor([0.06, -0.08, 0.0, 0.0, -0.001, 0.0002])  # nerfstudio order k1 k2 k3 k4 p1 p2
+    cam = Cameras(camera_to_worlds=torch.eye(4)[:3], fx=50.0, fy=50.0, cx=31.0, cy=25.0, width=W, height=H,
+                  distortion_params=dist, camera_type=CameraType.PERSPECTIVE)
+    yy, xx = torch.meshgrid(torch.arange(H), torch.arange(W), indexing="ij")
+    ids = (yy // 12) * 10 + (xx // 16)  # 4 x 4 blocks
+    img = ids[..., None].repeat(1, 1, 3).float().numpy()
+    K = cam.get_intrinsics_matrices().numpy()
+    _, ref_img, _ = _undistort_image(cam, dist.numpy(), {}, img, K.copy())
+    ours = undistort_label_map(ids, K.copy(), dist.numpy())
+    assert tuple(ours.shape) == ref_img.shape[:2]
+    ref = torch.from_numpy(ref_img[..., 0])
+    interior = (ref - ref.round()).abs() < 1e-3  # linear interpolation inside a block: an exact id
+    assert interior.float().mean() > 0.8
+    assert (ours[interior] == ref[interior].round().long()).float().mean() > 0.99
+    # no distortion: unchanged
+    assert torch.equal(undistort_label_map(ids, K, np.zeros(6)), ids)

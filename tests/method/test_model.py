@@ -109,4 +109,6 @@ def test_viewer_query_element_and_relevancy_without_gpu():
     m.set_query("a")
     rel = m.query_relevancy()
     assert rel.shape == (16,) and ((rel > 0) & (rel < 1)).all()
-    assert m.query_relevancy() is rel  # cached until the query or the point count changes
+    assert m.query_relevancy() is rel  # cached until the query, the point count or the step changes
+    m.step += 1
+    assert m.query_relevancy() is not rel
