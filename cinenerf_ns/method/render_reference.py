@@ -67,7 +67,7 @@ def render_reference(
     tyc = tz * torch.clamp(ty / tz, min=-lim_y_neg, max=lim_y_pos)
     O = torch.zeros_like(tz)
     J = torch.stack([fx / tz, O, -fx * txc / tz**2, O, fy / tz, -fy * tyc / tz**2], -1).reshape(-1, 2, 3)
-    cov2d = J @ covc @ J.transpose(1, 2) + eps2d * torch.eye(2, dtype=d)
+    cov2d = J @ covc @ J.transpose(1, 2) + eps2d * torch.eye(2, dtype=d, device=J.device)
     conic = torch.linalg.inv(cov2d)  # [N, 2, 2]
     m2d = torch.stack([fx * tx / tz + cx, fy * ty / tz + cy], -1)  # [N, 2]
 
@@ -76,7 +76,7 @@ def render_reference(
     idx = torch.nonzero(keep).squeeze(1)[order]
     m2d, conic, op, col = m2d[idx], conic[idx], opacities[idx], colors[idx]
 
-    ys, xs = torch.meshgrid(torch.arange(height, dtype=d), torch.arange(width, dtype=d), indexing="ij")
+    ys, xs = torch.meshgrid(torch.arange(height, dtype=d, device=J.device), torch.arange(width, dtype=d, device=J.device), indexing="ij")
     pix = torch.stack([xs + 0.5, ys + 0.5], -1).reshape(-1, 2)  # [P, 2]
     delta = pix[:, None, :] - m2d[None]  # [P, N, 2]
     sigma = 0.5 * torch.einsum("pni,nij,pnj->pn", delta, conic, delta)
