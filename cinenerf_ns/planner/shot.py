@@ -148,6 +148,45 @@ class Shot:
         """[T-1] chord speed between consecutive frames (units/s)."""
         return np.linalg.norm(np.diff(self.positions, axis=0), axis=1) / np.diff(self.times)
 
+    def resampled(self, fps: float) -> "Shot":
+        """The same motion sampled at another frame rate (same duration, frames j / fps).
+
+        With a trajectory the new frames are exact points of the curve (its own time is interpolated
+        between frames, which only re-times, never moves a point off the curve), so the convex-hull
+        safety guarantee still holds. Without one, positions are linearly interpolated between frames
+        (approximate: a chord between two frames). Rotations are re-aimed at look_at; the per-frame
+        clearance is dropped (it described the old frames) and must be recomputed if needed.
+        """
+        fps = float(fps)
+        if not (fps > 0 and math.isfinite(fps)):
+            raise InvalidInputError(f"fps must be positive, got {fps}.")
+        if math.isclose(fps, float(self.fps), rel_tol=1e-9):
+            return self
+        t0, dur = float(self.times[0]), self.duration
+        n_int = max(1, int(math.ceil(dur * fps - 1e-9)))
+        times = t0 + np.minimum(np.arange(n_int + 1) / fps, dur)  # [T']
+        times[-1] = t0 + dur
+        if np.any(np.diff(times) <= 0):  # duration shorter than one new frame
+            times = np.array([t0, t0 + max(dur, 1.0 / fps)])
+        curve_times = None
+        if self.trajectory is not None and self.curve_times is not None:
+            curve_times = np.interp(times, self.times, self.curve_times)  # [T']
+            pos = self.trajectory.evaluate(curve_times)
+        else:
+            pos = np.stack([np.interp(times, self.times, self.positions[:, k]) for k in range(3)], axis=1)
+        # keep the shot's own roll: interpolate the old right (x) axes, re-aim z exactly at look_at
+        x_old = np.stack([np.interp(times, self.times, self.rotations[:, k, 0]) for k in range(3)], axis=1)
+        back = pos - self.look_at[None]  # [T', 3] camera z points backwards, away from the target
+        z = back / np.maximum(np.linalg.norm(back, axis=1, keepdims=True), 1e-12)
+        x = x_old - (x_old * z).sum(1, keepdims=True) * z
+        x = x / np.maximum(np.linalg.norm(x, axis=1, keepdims=True), 1e-12)
+        rot = np.stack([x, np.cross(z, x), z], axis=2)  # [T', 3, 3] columns x, y, z
+        return Shot(
+            times=times - t0, positions=pos, rotations=rot, look_at=self.look_at, goal=self.goal, start=self.start,
+            trajectory=self.trajectory, corridor=self.corridor, clearance=None, timings=dict(self.timings),
+            fps=fps, curve_times=curve_times, safety=self.safety, goal_target=self.goal_target,
+        )
+
     # ------------------------------------------------------------------ export
     def to_dict(self, include_frames: bool = False) -> dict:
         """JSON-serialisable summary (and the frames themselves with include_frames)."""

@@ -16,6 +16,7 @@ from typing import Any, Dict, List, Optional, Tuple
 import numpy as np
 
 from cinenerf_ns.planner.errors import GoalUnreachableError, InvalidInputError, StartInCollisionError
+from cinenerf_ns.planner.shot import Shot
 
 from .backend import to_numpy
 
@@ -84,19 +85,8 @@ def look_at_rotation(position: np.ndarray, target: np.ndarray, up: np.ndarray = 
     return np.stack([x, y, -f], axis=1)
 
 
-@dataclass
-class StraightShot:
-    """A shot in the layout the panel reads (same field names as ``planner.shot.Shot``)."""
-
-    times: np.ndarray  # [T]
-    positions: np.ndarray  # [T, 3]
-    rotations: np.ndarray  # [T, 3, 3]
-    clearance: np.ndarray  # [T] lower bound of the clearance (bounding spheres)
-    look_at: np.ndarray  # [3]
-    goal: np.ndarray  # [3]
-    start: np.ndarray  # [3]
-    corridor: Any = None
-    timings: Dict[str, float] = field(default_factory=dict)
+# the stand-in returns the planner's own Shot type so export/playback code paths are the real ones
+StraightShot = Shot
 
 
 class StraightLinePlanner:
@@ -231,4 +221,5 @@ class StraightLinePlanner:
         pos = a[None] + s[:, None] * (b - a)[None]
         target = look_at if np.linalg.norm(look_at - b) > 1e-6 else b + (b - a)
         rot = np.stack([look_at_rotation(p, target) for p in pos])
-        return StraightShot(times, pos, rot, self.clearance_lower_bound(pos), look_at, goal, a)
+        return Shot(times=times, positions=pos, rotations=rot, look_at=look_at, goal=goal, start=a,
+                    clearance=self.clearance_lower_bound(pos), fps=float(self.fps))

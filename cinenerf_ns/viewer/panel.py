@@ -520,6 +520,8 @@ class CinePanel:
             if shot is None:
                 raise InvalidInputError("nothing to export: press Plan first")
             cfg = self.config
+            if hasattr(shot, "resampled"):  # ns-render plays frames at the file's own rate: re-time, never relabel
+                shot = shot.resampled(cfg.fps)
             data = self.exporter(shot, cfg.fov_deg, cfg.render_width, cfg.render_height, cfg.fps)
             path = write_json_atomic(Path(cfg.data_dir) / "camera_paths" / f"{name}.json", data)
             command = render_command(cfg.config_path, path, Path(cfg.data_dir).absolute().name, name)

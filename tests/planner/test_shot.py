@@ -96,3 +96,31 @@ def test_bad_shot(kw):
     base.update(kw)
     with pytest.raises(InvalidInputError):
         Shot(**base)
+
+
+@pytest.mark.parametrize("fps", [10.0, 30.0, 60.0])
+def test_resampled_stays_on_curve_and_keeps_roll(fps):
+    shot = make_shot()
+    r = shot.resampled(fps)
+    assert r.fps == fps and r.clearance is None
+    assert r.duration == pytest.approx(shot.duration, abs=1e-12)
+    np.testing.assert_allclose(np.diff(r.times)[:-1], 1 / fps, rtol=1e-9)
+    np.testing.assert_allclose(r.positions[0], shot.start, atol=1e-12)
+    np.testing.assert_allclose(r.positions[-1], shot.goal, atol=1e-9)
+    # every new frame is a point of the Bezier curve at the interpolated curve time
+    np.testing.assert_allclose(r.positions, shot.trajectory.evaluate(r.curve_times), atol=1e-12)
+    assert r.look_at_errors_deg().max() < 1e-6
+    np.testing.assert_allclose(np.einsum("tij,tik->tjk", r.rotations, r.rotations), np.broadcast_to(np.eye(3), r.rotations.shape), atol=1e-9)
+    assert np.linalg.det(r.rotations).min() > 0.999
+    # at times both shots have, the frames agree (roll preserved)
+    common = np.isclose(r.times[:, None], shot.times[None], atol=1e-9)
+    i, j = np.nonzero(common)
+    assert len(i) >= 2
+    np.testing.assert_allclose(r.rotations[i], shot.rotations[j], atol=1e-6)
+
+
+def test_resampled_same_fps_is_identity_and_bad_fps():
+    shot = make_shot()
+    assert shot.resampled(24.0) is shot
+    with pytest.raises(InvalidInputError):
+        shot.resampled(0.0)

@@ -8,7 +8,8 @@ from typing import Any, List, Optional
 import numpy as np
 
 from cinenerf_ns.viewer.backend import NoMatchError, SceneGaussians
-from cinenerf_ns.viewer.demo import StraightShot, look_at_rotation
+from cinenerf_ns.planner.shot import Shot
+from cinenerf_ns.viewer.demo import look_at_rotation
 
 
 class FakeView:
@@ -65,12 +66,12 @@ class FakeView:
         return self.statuses[-1] if self.statuses else ("", "")
 
 
-def line_shot(a, b, look_at, duration=1.0, n=31, clearance=0.05) -> StraightShot:
+def line_shot(a, b, look_at, duration=1.0, n=31, clearance=0.05) -> Shot:
     a, b, look_at = (np.asarray(v, float) for v in (a, b, look_at))
     t = np.linspace(0.0, duration, n)
     pos = a[None] + (t / duration)[:, None] * (b - a)[None]
     rot = np.stack([look_at_rotation(p, look_at) for p in pos])
-    return StraightShot(t, pos, rot, np.full(n, clearance), look_at, b, a)
+    return Shot(times=t, positions=pos, rotations=rot, look_at=look_at, goal=b, start=a, clearance=np.full(n, clearance))
 
 
 class FakeBackend:
