@@ -23,6 +23,12 @@ import torch
 from .errors import GoalUnreachableError, InvalidInputError, StartInCollisionError
 
 _SQ2, _SQ3 = math.sqrt(2.0), math.sqrt(3.0)
+
+
+class SearchBudgetExhausted(GoalUnreachableError):
+    """A* stopped after ``max_expansions`` without reaching the goal (the goal may still be reachable)."""
+
+
 _C1, _C2 = _SQ2 - 1.0, _SQ3 - _SQ2  # octile: a + (sqrt2-1) b + (sqrt3-sqrt2) c for a >= b >= c
 
 
@@ -146,7 +152,7 @@ def astar(
         closed[cur] = 1
         expansions += 1
         if expansions > limit:
-            raise GoalUnreachableError(f"A* gave up after {limit} expansions without reaching the goal {g_}")
+            raise SearchBudgetExhausted(f"A* gave up after {limit} expansions without reaching the goal {g_}")
         gc = g[cur]
         ci, rem = divmod(cur, sx)
         cj, ck = divmod(rem, sy)

@@ -21,7 +21,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .astar import AStarGrid, astar, shortcut
+from .astar import AStarGrid, shortcut
+from .coarse_path import CoarseGrid, voxel_path
 from .collision import points_collide, segments_collide
 from .corridor import CorridorError, build_corridor
 from .distance import clearance
@@ -71,6 +72,10 @@ class PlannerConfig:
     would otherwise blow up the grid) grown by 10%."""
     max_attempts_per_candidate: int = 4
     """Random starts tried per requested candidate before giving up on it."""
+    plan_cpu_threads: Optional[int] = 1
+    """torch intra-op threads while plan() runs on a CPU scene (restored afterwards); None: leave
+    torch's setting alone. A request is thousands of small tensor ops, where thread hand-offs cost
+    more than they save: on a 2-core box shared with other work 1 thread was ~5x faster (median)."""
 
 
 @dataclass
@@ -79,6 +84,7 @@ class PreparedScene:
     grid: OccupancyGrid
     astar_grid: AStarGrid
     timings_ms: dict
+    coarse: Optional[CoarseGrid] = None  # 2x-coarse blocks for hard path searches (coarse_path.py)
 
 
 def _as_point(x: ArrayLike, what: str) -> np.ndarray:
@@ -135,6 +141,7 @@ class Planner:
         t2 = time.perf_counter()
         ag = AStarGrid(grid.numpy())
         _ = ag.labels  # free-space components, used for reachability of goals and starts
+        coarse = CoarseGrid(ag)
         t3 = time.perf_counter()
         if not (~grid.occupied).any():
             raise GoalUnreachableError(
@@ -145,6 +152,7 @@ class Planner:
             index=index,
             grid=grid,
             astar_grid=ag,
+            coarse=coarse,
             timings_ms={"index_ms": 1e3 * (t1 - t0), "grid_ms": 1e3 * (t2 - t1), "components_ms": 1e3 * (t3 - t2)},
         )
         return self.prepared
@@ -158,9 +166,9 @@ class Planner:
         p = torch.as_tensor(np.asarray(points, dtype=np.float64).reshape(-1, 3), device=self.scene.device)
         return clearance(p.to(self.scene.dtype) if self.scene.dtype == torch.float64 else p, self.scene, self._prep().index).detach().cpu().numpy()
 
-    def _free_voxel_near(self, p: np.ndarray, comp: Optional[int]) -> np.ndarray:
+    def _free_voxel_near(self, p: np.ndarray, comp: Optional[int], max_window: int = 16) -> np.ndarray:
         """Voxel [3] near world point p whose centre joins p by a collision-free segment (and lies in
-        free component ``comp`` when given)."""
+        free component ``comp`` when given), searched within ``max_window`` voxels."""
         prep = self._prep()
         grid, labels = prep.grid, prep.astar_grid.labels
         pt = torch.as_tensor(p, dtype=torch.float64, device=grid.device)
@@ -172,7 +180,7 @@ class Planner:
                 return np.array([i, j, k])
         # search growing windows for free voxels, nearest first, whose segment from p is free
         c = np.clip(ijk.cpu().numpy(), 0, shape - 1)
-        for R in (1, 2, 4, 8, 16):
+        for R in (r for r in (1, 2, 4, 8, 16) if r <= max_window):
             a = np.maximum(c - R, 0)
             e = np.minimum(c + R + 1, shape)
             sub = labels[a[0]:e[0], a[1]:e[1], a[2]:e[2]]
@@ -182,11 +190,14 @@ class Planner:
                 continue
             centres = grid.voxel_to_world(torch.as_tensor(cand, device=grid.device))
             order = torch.argsort((centres - pt).norm(dim=-1))[:64]
-            cen = centres[order]
-            coll = segments_collide(pt.expand_as(cen).to(self.scene.dtype), cen.to(self.scene.dtype), self.scene, prep.index)
-            free = torch.nonzero(~coll).squeeze(-1)
-            if free.numel():
-                return cand[int(order[int(free[0])])]
+            for lo_, hi_ in ((0, 8), (8, 64)):  # the nearest few usually succeed: test them alone first
+                cen = centres[order[lo_:hi_]]
+                if cen.shape[0] == 0:
+                    break
+                coll = segments_collide(pt.expand_as(cen).to(self.scene.dtype), cen.to(self.scene.dtype), self.scene, prep.index)
+                free = torch.nonzero(~coll).squeeze(-1)
+                if free.numel():
+                    return cand[int(order[lo_ + int(free[0])])]
         raise GoalUnreachableError(
             f"no free grid voxel can be reached in a straight line from {np.round(p, 4).tolist()}; the point is "
             f"walled in at this grid resolution (raise --grid-resolution)"
@@ -206,16 +217,21 @@ class Planner:
         prep = self._prep()
         grid, labels = prep.grid, prep.astar_grid.labels
         dev = self.scene.device
+        tv = grid.world_to_voxel(torch.as_tensor(target, device=grid.device)).cpu().numpy()  # [3]
+        inside = bool(((tv >= 0) & (tv < np.array(grid.shape))).all())
+        # target in a free pocket of another component (e.g. inside a hollow object): a straight way
+        # out is only looked for next to it; the nearest voxel of ``comp`` (step 2) is the usual answer
+        walled_in = inside and labels[tuple(tv)] > 0 and labels[tuple(tv)] != comp
         try:
             g = closest_safe_point(
                 torch.as_tensor(target, device=dev), self.scene, prep.index, grid, reachable=labels == comp,
                 clearance_fn=self._free_fn,
             )
             g = g.detach().cpu().numpy()
-            return g, self._free_voxel_near(g, comp)
+            return g, self._free_voxel_near(g, comp, max_window=2 if walled_in else 16)
         except GoalUnreachableError:
             pass
-        ijk = grid.nearest_free_voxel(torch.as_tensor(target, device=grid.device), allowed=torch.as_tensor(labels == comp, device=grid.device))
+        ijk = torch.as_tensor(self._nearest_comp_voxel(target, comp), device=grid.device)
         c = grid.voxel_to_world(ijk).to(dev)
         half = torch.as_tensor(np.abs(target - c.cpu().numpy()), device=dev).clamp_min(grid.voxel_size) + grid.voxel_size
         try:
@@ -226,6 +242,28 @@ class Planner:
             x = None
         g = c.cpu().numpy() if x is None else x
         return g, ijk.cpu().numpy()
+
+    def _nearest_comp_voxel(self, target: np.ndarray, comp: int) -> np.ndarray:
+        """Voxel [3] of free component ``comp`` whose centre is nearest to world point ``target``
+        (growing windows; exact: a voxel outside a window of radius R is more than R voxels away)."""
+        prep = self._prep()
+        grid, labels = prep.grid, prep.astar_grid.labels
+        shape = np.array(grid.shape)
+        lo, vs = grid.lo.detach().cpu().double().numpy(), float(grid.voxel_size)
+        c = np.clip(np.floor((target - lo) / vs).astype(np.int64), 0, shape - 1)
+        R = 2
+        while True:
+            a, e = np.maximum(c - R, 0), np.minimum(c + R + 1, shape)
+            covers_all = bool((a == 0).all() and (e == shape).all())
+            cand = np.argwhere(labels[a[0]:e[0], a[1]:e[1], a[2]:e[2]] == comp) + a  # [K, 3]
+            if len(cand):
+                d = np.linalg.norm(lo + (cand + 0.5) * vs - target, axis=1)
+                k = int(np.argmin(d))
+                if d[k] <= R * vs or covers_all:
+                    return cand[k]
+            if covers_all:
+                raise GoalUnreachableError(f"the free-space component {comp} has no voxel")
+            R *= 2
 
     def segments_free(self, p0, p1) -> np.ndarray:
         """bool [P]: segment p0[i] -> p1[i] proven collision-free for the camera ball (conservative).
@@ -270,6 +308,30 @@ class Planner:
 
     # ------------------------------------------------------------------ planning
     def plan(
+        self,
+        goal: ArrayLike,
+        look_at: ArrayLike,
+        start: Optional[ArrayLike] = None,
+        seed: int = 0,
+        n_candidates: int = 1,
+    ) -> list[Shot]:
+        """Plan ``n_candidates`` shots ending as close as safely possible to ``goal`` and always
+        looking at ``look_at``. With ``start`` all candidates start there (n_candidates is then 1);
+        otherwise starts are sampled free and reachable with the seeded generator.
+
+        Raises InvalidInputError, StartInCollisionError, GoalUnreachableError (see messages).
+        Every returned shot's exact clearance along the densely sampled curve is >= 0."""
+        threads, old = self.config.plan_cpu_threads, torch.get_num_threads()
+        swap = threads is not None and self.scene.device.type == "cpu" and int(threads) != old
+        if swap:
+            torch.set_num_threads(int(threads))
+        try:
+            return self._plan_request(goal, look_at, start, seed, n_candidates)
+        finally:
+            if swap:
+                torch.set_num_threads(old)
+
+    def _plan_request(
         self,
         goal: ArrayLike,
         look_at: ArrayLike,
@@ -357,7 +419,7 @@ class Planner:
         t1 = time.perf_counter()
         tm["goal_ms"] = 1e3 * (t1 - t0)
 
-        path = astar(prep.astar_grid, s_ijk, g_ijk)  # [K, 3]
+        path = voxel_path(prep.astar_grid, prep.coarse, s_ijk, g_ijk)  # [K, 3] fine voxel units (float)
         t2 = time.perf_counter()
         tm["astar_ms"] = 1e3 * (t2 - t1)
         centres = grid.voxel_to_world(torch.as_tensor(path, device=grid.device)).cpu().numpy()
