@@ -453,5 +453,5 @@ class Planner:
         shot.safety = report
         shot.goal_target = goal_p
         tm["plan_ms"] = 1e3 * (t7 - t0) + sample_ms
-        shot.timings = tm
+        shot.timings = {**shot.timings, **tm}  # keeps from_trajectory's timing_ms / orientation_ms
         return shot

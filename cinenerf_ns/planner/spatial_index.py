@@ -187,12 +187,36 @@ class GridIndex:
         order = torch.argsort(q, stable=True)
         return q[order], g[order]
 
-    def query_box(self, lo: Tensor, hi: Tensor) -> Tensor:
-        """Ids [K] (ascending) of the ellipsoids whose padded AABB meets the box [lo, hi]."""
+    def query_box(self, lo: Tensor, hi: Tensor, method: str = "auto") -> Tensor:
+        """Ids [K] (ascending) of the ellipsoids whose padded AABB meets the box [lo, hi].
+
+        method: "grid" (bucket lookup), "scan" (one vectorised AABB test over all N boxes: cheaper
+        than the lookup once the box spans so many cells that it would visit >= N/2 entries, e.g. the
+        big boxes of corridor polytopes in dense scenes) or "auto" (picks by that estimate). Both
+        return exactly the same ids (same closed-box test)."""
         lo = torch.as_tensor(lo, device=self.device).double().reshape(1, 3)
         hi = torch.as_tensor(hi, device=self.device).double().reshape(1, 3)
+        if method not in ("auto", "grid", "scan"):
+            raise InvalidInputError(f"query_box method must be 'auto', 'grid' or 'scan', got {method!r}")
+        if method == "auto":
+            method = "scan" if self._estimated_entries(lo[0], hi[0]) >= 0.5 * len(self) else "grid"
+        if method == "scan":
+            hit = (self.lo <= hi).all(-1) & (self.hi >= lo).all(-1)  # [N]
+            if not bool(torch.isfinite(lo).all() and torch.isfinite(hi).all()):
+                raise InvalidInputError("query boxes contain NaN or inf")
+            return torch.nonzero(hit & (hi >= lo).all(-1)).squeeze(-1)
         _, g = self.query_boxes(lo, hi)
         return torch.sort(g).values
+
+    def _estimated_entries(self, lo: Tensor, hi: Tensor) -> float:
+        """Rough number of bucket entries a grid lookup of box [lo, hi] visits (mean entries per
+        cell x cells spanned, per level); only used to choose the query method."""
+        est = 0.0
+        for lv in self.levels:
+            span = (torch.floor((hi - self.origin) / lv.cell) - torch.floor((lo - self.origin) / lv.cell) + 1)
+            span = torch.minimum(span.clamp_min(0), lv.dims.to(span.dtype))
+            est += float(span.prod()) * lv.ids.numel() / max(1, int(lv.dims.prod()))
+        return est
 
     def query_points(self, points: Tensor, radius: Union[float, Tensor] = 0.0) -> Tuple[Tensor, Tensor]:
         """Candidate pairs (pt_idx [K], g_idx [K]), sorted by point: every ellipsoid whose padded AABB

@@ -95,3 +95,21 @@ def test_cuda_matches_cpu():
     a = idx.query_points(pts, 0.1)
     b = idx_c.query_points(pts.cuda(), 0.1)
     assert a[0].tolist() == b[0].cpu().tolist() and a[1].tolist() == b[1].cpu().tolist()
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 300), size=st.floats(0.0, 4.0), huge=st.booleans())
+def test_query_box_scan_grid_and_auto_equal_brute_force(seed, n, size, huge):
+    sc = random_scene(n, seed, rmin=0.005, rmax=0.1)
+    if huge:
+        sc.radii[: max(1, n // 10)] *= 30
+    idx = GridIndex.build(sc)
+    g = torch.Generator().manual_seed(seed)
+    c = torch.rand(3, generator=g, dtype=torch.float64) * 3 - 1.5
+    ext = torch.rand(3, generator=g, dtype=torch.float64) * size
+    lo, hi = c - ext, c + ext
+    want = sorted(gg for _, gg in _brute_pairs(idx, lo[None], hi[None]))
+    for method in ("grid", "scan", "auto"):
+        assert idx.query_box(lo, hi, method=method).tolist() == want
+    with pytest.raises(InvalidInputError):
+        idx.query_box(lo, hi, method="bogus")
