@@ -194,7 +194,9 @@ class Planner:
                 cen = centres[order[lo_:hi_]]
                 if cen.shape[0] == 0:
                     break
-                coll = segments_collide(pt.expand_as(cen).to(self.scene.dtype), cen.to(self.scene.dtype), self.scene, prep.index)
+                # float64 ends (the test runs in float64): rounding them to a float32 scene's dtype
+                # could move a segment by ~1e-7, more than the collision margin covers
+                coll = segments_collide(pt.expand_as(cen), cen, self.scene, prep.index)
                 free = torch.nonzero(~coll).squeeze(-1)
                 if free.numel():
                     return cand[int(order[lo_ + int(free[0])])]
@@ -285,7 +287,7 @@ class Planner:
         half = 0.5 * np.linalg.norm(b - a, axis=1)[owner] / n[owner]
         dev = self.scene.device
         hit = points_collide(
-            torch.as_tensor(mids, device=dev).to(self.scene.dtype), self.scene, prep.index,
+            torch.as_tensor(mids, device=dev), self.scene, prep.index,  # float64: no rounding of the pieces
             radius=torch.as_tensor(r + half, device=dev),
         ).cpu().numpy()
         bad = np.zeros(len(a), dtype=bool)
@@ -296,7 +298,7 @@ class Planner:
         """bool [P]: camera ball at each point proven clear (conservative Cor. 1 test)."""
         prep = self._prep()
         p = torch.as_tensor(np.asarray(points, dtype=np.float64).reshape(-1, 3), device=self.scene.device)
-        return (~points_collide(p.to(self.scene.dtype), self.scene, prep.index)).cpu().numpy()
+        return (~points_collide(p, self.scene, prep.index)).cpu().numpy()  # float64 points
 
     def _free_fn(self, points: Tensor) -> Tensor:
         # goal/start acceptance only needs a proof of freedom: the conservative test is exact enough
