@@ -240,6 +240,51 @@ def _plane_candidates(seeds: np.ndarray, mu: np.ndarray, rot: np.ndarray, axes: 
         w = wb[:, 0] + u[:, None] * d  # [C, 3]
     else:
         w = wb[np.arange(len(mu)), (wb**2 / lam[:, None, :]).sum(-1).argmin(-1)]  # [C, 3]
+    n, off, slack = _planes_at(w, seeds, mu, rot, axes, lam, r, normal, margin)
+    if seeds.shape[0] == 2 and (slack < 0).any():
+        # A segment that grazes a flat ellipsoid can be free while the planes at the metric-closest
+        # point cut it; retry those ellipsoids from other segment points (the Euclidean-closest point
+        # to the centre and the ends) and keep the best slack. Any normal gives a safe plane.
+        bad = np.flatnonzero(slack < 0)
+        db = d[bad]
+        ue = np.clip(-(wb[bad, 0] * db).sum(-1) / np.maximum((db**2).sum(-1), 1e-300), 0.0, 1.0)
+        uc = _segment_closest_u(wb[bad, 0], db, lam[bad])
+        for uu in (uc, ue, np.zeros(len(bad)), np.ones(len(bad))):
+            n2, o2, s2 = _planes_at(wb[bad, 0] + uu[:, None] * db, seeds, mu[bad], rot[bad], axes[bad], lam[bad], r,
+                                    normal, margin)
+            better = s2 > slack[bad]
+            n[bad[better]], off[bad[better]], slack[bad[better]] = n2[better], o2[better], s2[better]
+    return n, off, slack
+
+
+def _segment_closest_u(w0: np.ndarray, dw: np.ndarray, lam: np.ndarray, iters: int = 30) -> np.ndarray:
+    """u in [0, 1] [C] (approximately) minimising the Euclidean distance from w0 + u dw [C, 3] to the
+    axis-aligned ellipsoids with squared semi-axes lam [C, 3] (golden section: the distance to a convex
+    set is convex along a segment). Only a reference point for choosing normals: no safety relies on it."""
+
+    def dist(u):
+        w = w0 + u[:, None] * dw
+        t = _closest_t(w * w, lam)
+        return np.linalg.norm(t[:, None] * w / (lam + t[:, None]), axis=-1)
+
+    g = (math.sqrt(5.0) - 1.0) / 2.0
+    lo, hi = np.zeros(len(w0)), np.ones(len(w0))
+    x1, x2 = hi - g * (hi - lo), lo + g * (hi - lo)
+    f1, f2 = dist(x1), dist(x2)
+    for _ in range(iters):
+        left = f1 <= f2  # minimum in [lo, x2]
+        hi = np.where(left, x2, hi)
+        lo = np.where(left, lo, x1)
+        nx = np.where(left, hi - g * (hi - lo), lo + g * (hi - lo))
+        fn = dist(nx)
+        x1, x2, f1, f2 = (np.where(left, nx, x2), np.where(left, x1, nx), np.where(left, fn, f2), np.where(left, f1, fn))
+    return 0.5 * (lo + hi)
+
+
+def _planes_at(w: np.ndarray, seeds: np.ndarray, mu: np.ndarray, rot: np.ndarray, axes: np.ndarray,
+               lam: np.ndarray, r: float, normal: str, margin: float):
+    """Best-slack safe plane per ellipsoid among the normal rules evaluated at body-frame reference
+    points w [C, 3] -> (n [C, 3], b [C], slack [C])."""
     degenerate = (w**2).sum(-1) < 1e-24  # reference point at the centre: any direction is valid
     w = np.where(degenerate[:, None], np.array([0.0, 0.0, 1e-12]), w)
     w2 = w**2
