@@ -402,6 +402,15 @@ def safe_polytope(
             rot = _np(scene.rotations[ids[sel.to(dev)]])
             axes = _np(scene.radii[ids[sel.to(dev)]])
             mu = mu_all[ch]
+            if prune and planes_n:
+                # already cut off by a kept plane (exact support test): needs no plane of its own, so
+                # skip computing its candidates (same result as deciding it after computing them)
+                kn, kb = np.vstack(planes_n), np.concatenate(planes_b)
+                live = ~(_support_gap(kn, mu, rot, axes, r) >= kb).any(1)
+                ch, mu, rot, axes = ch[live], mu[live], rot[live], axes[live]
+                if ch.size == 0:
+                    queue = rest
+                    continue
             n_c, b_c, slack_c = _plane_candidates(seeds, mu, rot, axes, r, normal, margin)
             if require_seed_inside and (slack_c < 0).any():
                 # no plane of this ellipsoid's family keeps all seeds; it is only fatal if no other
@@ -417,11 +426,7 @@ def safe_polytope(
             # redundancy inside the chunk, vectorised: beyond[i, j] = ellipsoid i lies beyond plane j
             # (exact support test) for the chunk's own planes and for the planes kept so far
             beyond_own = _support_gap(n_c, mu, rot, axes, r) >= b_c  # [C, C]
-            if planes_n:
-                kn, kb = np.vstack(planes_n), np.concatenate(planes_b)
-                dead = (_support_gap(kn, mu, rot, axes, r) >= kb).any(1)  # [C]
-            else:
-                dead = np.zeros(len(ch), dtype=bool)
+            dead = np.zeros(len(ch), dtype=bool)  # those cut off by the planes kept so far were skipped above
             taken = np.zeros(len(ch), dtype=bool)
             for i in np.argsort(slack_c, kind="stable"):  # nearest plane first
                 if dead[i] or beyond_own[i, taken].any():
