@@ -98,7 +98,7 @@ class CoarseGrid:
 
 
 def voxel_path(
-    fine: AStarGrid, coarse: Optional[CoarseGrid], s, g, *, astar_budget: int = 2000, window: int = 6
+    fine: AStarGrid, coarse: Optional[CoarseGrid], s, g, *, astar_budget: int = 800, window: int = 6
 ) -> np.ndarray:
     """Collision-free path float64 [K, 3] (fine voxel index units, s first, g last) between free fine
     voxels s and g: A* with ``astar_budget`` expansions, else the coarse route, else the fine Dijkstra.
