@@ -2,7 +2,8 @@
 
 Pipeline per candidate (each stage timed in ``Shot.timings``):
   start (given, or sampled free in the start's region)  ->  goal = closest safe point to the go-to
-  target in the start's free component  ->  A* on the conservative voxel grid  ->  line-of-sight
+  target in the start's free component  ->  voxel path on the conservative grid (A* with a budget,
+  hard cases on a 2x-coarse grid by compiled Dijkstra, coarse_path.py)  ->  line-of-sight
   shortcut (swept-sphere test)  ->  safe polytope corridor (Prop. 2, exact offsets)  ->  Bezier QP
   (control points inside the polytopes: the whole curve is safe by the convex-hull property)  ->
   timing + look-at orientation  ->  exact clearance along the densely sampled curve (verification).
