@@ -80,3 +80,20 @@ def test_bad_requests(room):
 
 def test_errors_are_planning_errors():
     assert issubclass(StartInCollisionError, PlanningError)
+
+
+def test_shortcut_filter_only_accepts_proven_free_segments(room):
+    """_shortcut_free (grid line of sight, then segments_free) accepts a subset of segments_free, and
+    every accepted segment is free by the exact clearance on dense samples (brute force)."""
+    s, e, pl = room
+    rng = np.random.default_rng(0)
+    lo, hi = pl.prepared.grid.lo.numpy(), pl.prepared.grid.hi.numpy()
+    p0 = rng.uniform(lo, hi, (200, 3))
+    p1 = p0 + rng.normal(size=(200, 3)) * 0.3
+    fast, exact = pl._shortcut_free(p0, p1), pl.segments_free(p0, p1)
+    assert not (fast & ~exact).any()
+    assert fast.any() and (exact & ~fast).any()  # the filter both passes and refuses some here
+    t = np.linspace(0, 1, 200)
+    for i in np.flatnonzero(fast)[:20]:
+        pts = p0[i] + t[:, None] * (p1[i] - p0[i])
+        assert float(clearance(torch.as_tensor(pts), e, pl.prepared.index).min()) > 0
