@@ -198,6 +198,9 @@ def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Opti
 
     cfg_path = path if path.suffix in (".yml", ".yaml") else (path / "config.yml" if (path / "config.yml").exists() else None)
     region = training_camera_region(cfg_path) if cfg_path is not None else None
+    if region is None and st.info.get("start_region"):  # compact exports carry their training cameras' box
+        lo, hi = (np.asarray(v, dtype=np.float64) for v in st.info["start_region"])
+        region = (lo, hi)
     return LoadedScene(scene, locate, "checkpoint", str(path), config_path=cfg_path, extra={"splat": st}, start_region=region)
 
 
