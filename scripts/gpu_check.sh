@@ -268,7 +268,7 @@ stage_bench() {
 
 stage_room() {
   local d="$WORK/room${ROOM_SEED:-0}" steps=${ROOM_STEPS:-5000} name="room${ROOM_SEED:-0}"
-  [ -f "$d/transforms.json" ] || cinesplat-synth --seed "${ROOM_SEED:-0}" --num-views 150 --output "$d" \
+  [ -f "$d/transforms.json" ] || $PY -c "from cinenerf_ns.synthetic.cli import entrypoint; entrypoint()" --seed "${ROOM_SEED:-0}" --num-views 150 --output "$d" \
       --threads "${ROOM_THREADS:-8}" --ply-in-transforms || return 1
   rm -rf "$WORK/outputs/$name/cinesplat/gpu_check"
   ns-train cinesplat --data "$d" \
