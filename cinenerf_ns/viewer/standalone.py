@@ -68,6 +68,7 @@ class LoadedScene:
     obstacles: Optional[EllipsoidScene] = None  # None: built from ``splat`` with the viewer's SceneConfig
     start_region: Optional[Tuple[np.ndarray, np.ndarray]] = None  # (lo [3], hi [3]) of random starts
     semantics: str = "none"  # what answers text queries: "none" | "labels" | "relevancy"
+    object_names: List[str] = dataclasses.field(default_factory=list)  # ground-truth names (procedural / demo)
 
 
 # --------------------------------------------------------------------------------------- loading
@@ -175,7 +176,7 @@ def load_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optio
         return LoadedScene(
             splat, "demo", data_dir or Path("demo_output") / "cinesplat-viewer-demo", None,
             locate=label_locate(d.means, d.labels, d.label_of), default_goto="red box", default_look_at="blue pillar",
-            semantics="labels",
+            semantics="labels", object_names=list(d.labels),
         )
     if source.startswith("procedural"):
         ld = cli.load_scene(source, scfg, device)
@@ -184,7 +185,7 @@ def load_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optio
         return LoadedScene(
             procedural_display(room), source.replace(":", "-"), data_dir or Path("demo_output") / "cinesplat-viewer-procedural",
             None, locate=procedural_locate(room), default_goto=names[0], default_look_at=names[1 % len(names)],
-            obstacles=ld.scene, start_region=ld.start_region, semantics="labels",
+            obstacles=ld.scene, start_region=ld.start_region, semantics="labels", object_names=names,
         )
     path = Path(source)
     if not path.exists():
