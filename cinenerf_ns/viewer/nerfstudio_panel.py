@@ -228,7 +228,14 @@ class SplatModelBackend:
     def plan(self, goal, look_at, start=None, seed: int = 0, n_candidates: int = 1) -> List[Any]:
         scene, planner = self._current("planner")
         if hasattr(planner, "wait_ready"):  # PreparedPlanner: numpy in, float64 planning
-            return list(planner.plan(goal, look_at, start=start, seed=seed, n_candidates=n_candidates))
+            shots = list(planner.plan(goal, look_at, start=start, seed=seed, n_candidates=n_candidates))
+            prep = getattr(planner, "prepare_s", None)
+            if prep is not None and not getattr(planner, "_reported_prepare", False):
+                planner._reported_prepare = True  # the first Plan on a new snapshot also paid prepare()
+                for s in shots:
+                    if isinstance(getattr(s, "timings", None), dict):
+                        s.timings["prepare_ms"] = 1e3 * prep
+            return shots
         t = lambda x: None if x is None else torch.as_tensor(np.asarray(x), dtype=scene.dtype, device=scene.device)  # noqa: E731
         return list(planner.plan(t(goal), t(look_at), start=t(start), seed=seed, n_candidates=n_candidates))
 

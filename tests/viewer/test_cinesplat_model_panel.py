@@ -83,6 +83,7 @@ def test_nerfstudio_viewer_installs_panel_on_cinesplat_model(tmp_path):
         res = panel.request_plan("0 0 0.3", "0 0 0", n_candidates=2).result(120)
         assert res is not None, panel.status
         assert "Planned" in panel.status and "cinenerf_ns planner" in panel.status
+        assert "prepare " in panel.status  # the first Plan on a snapshot reports the one-time prepare()
         for s in res.shots:
             assert s.clearance.min() >= 0 and s.safety["safe"]
         out = panel.export("model-take")
