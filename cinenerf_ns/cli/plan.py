@@ -144,6 +144,27 @@ def _word_match(query: str, names: List[str]) -> Optional[int]:
     return best
 
 
+def procedural_object(room: Any, text: str) -> int:
+    """Index of the procedural room's object a text names (shared words, see _word_match)."""
+    names = [o.name for o in room.objects]
+    i = _word_match(text, names)
+    if i is None:
+        raise InvalidInputError(f"no object matches '{text}' in the procedural room; objects: {', '.join(names)}")
+    return i
+
+
+def label_query(text: str, label_names: List[str]) -> str:
+    """The text a semantic scene is queried with: offline scenes answer their own label names exactly, so a
+    query sharing words with one label is mapped to it (no CLIP weights needed); other text is kept (it goes
+    to the CLIP text tower)."""
+    q = text.strip()
+    if label_names and q.lower() not in [n.lower() for n in label_names]:
+        i = _word_match(q, label_names)
+        if i is not None:
+            q = label_names[i]
+    return q
+
+
 def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Optional[float] = None) -> LoadedScene:
     """Scene file/spec -> obstacles + (optionally) a text locator."""
     if spec.startswith("procedural"):
@@ -157,9 +178,7 @@ def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Opti
         names = [o.name for o in room.objects]
 
         def locate(text: str):
-            i = _word_match(text, names)
-            if i is None:
-                raise InvalidInputError(f"no object matches '{text}' in the procedural room; objects: {', '.join(names)}")
+            i = procedural_object(room, text)
             return room.objects[i].center.astype(np.float64), f"object '{names[i]}' (ground-truth name)"
 
         r = cfg.camera_radius
@@ -186,22 +205,21 @@ def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Opti
         label_names = list(st.info.get("label_names") or [])
 
         def locate(text: str):
-            q = text.strip()
-            # offline scenes answer their own label names exactly; a query sharing words with one label
-            # is mapped to it (no CLIP weights needed). Other text goes to the CLIP text tower.
-            if label_names and q.lower() not in [n.lower() for n in label_names]:
-                i = _word_match(q, label_names)
-                if i is not None:
-                    q = label_names[i]
+            q = label_query(text, label_names)
             c, mask = sem.locate(q)
             return c.detach().cpu().numpy().astype(np.float64), f"'{q}': {int(mask.sum())} Gaussians above the relevancy threshold"
+
+        extra_sem = {"semantic": sem, "label_names": label_names}
+    else:
+        extra_sem = {}
 
     cfg_path = path if path.suffix in (".yml", ".yaml") else (path / "config.yml" if (path / "config.yml").exists() else None)
     region = training_camera_region(cfg_path) if cfg_path is not None else None
     if region is None and st.info.get("start_region"):  # compact exports carry their training cameras' box
         lo, hi = (np.asarray(v, dtype=np.float64) for v in st.info["start_region"])
         region = (lo, hi)
-    return LoadedScene(scene, locate, "checkpoint", str(path), config_path=cfg_path, extra={"splat": st}, start_region=region)
+    return LoadedScene(scene, locate, "checkpoint", str(path), config_path=cfg_path, extra={"splat": st, **extra_sem},
+                       start_region=region)
 
 
 def resolve_target(text: str, loaded: LoadedScene, what: str) -> Tuple[np.ndarray, str]:
