@@ -201,7 +201,8 @@ def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Opti
 
         enc = build_text_encoder(st.info, st.label_embeddings, device=device)
         kw = {} if threshold is None else {"threshold": threshold}
-        sem = SemanticScene(st.means, torch.sigmoid(st.opacities.reshape(-1)), st.latents, st.codec, enc, **kw)
+        sem = SemanticScene(st.means, torch.sigmoid(st.opacities.reshape(-1)), st.latents, st.codec, enc,
+                            label_names=st.info.get("label_names"), **kw)
         label_names = list(st.info.get("label_names") or [])
 
         def locate(text: str):

@@ -261,7 +261,8 @@ def model_semantic_scene(model: Any) -> Callable[[ModelSnapshot], Any]:
             kw = dict(negatives=tuple(cfg.relevancy_negatives), temperature=float(cfg.relevancy_temperature),
                       threshold=float(cfg.relevancy_threshold))
         return SemanticScene(snap.means, torch.sigmoid(snap.opacities), snap.latents, state["codec"],
-                             model.text_encoder(), **kw)
+                             model.text_encoder(), label_names=(getattr(model, "cine_info", None) or {}).get("label_names"),
+                             **kw)
 
     return build
 
