@@ -237,6 +237,16 @@ def resolve_target(text: str, loaded: LoadedScene, what: str) -> Tuple[np.ndarra
     return loaded.locate(text)
 
 
+def _obstacles_near_paths(means: np.ndarray, shots, up: np.ndarray, band: float = 0.1) -> np.ndarray:
+    """Gaussian centres at the cameras' heights (+- band along `up`): a top view of everything would show
+    only floor and ceiling."""
+    up = up / np.linalg.norm(up)
+    h = means @ up
+    ph = np.concatenate([sh.positions @ up for sh in shots]) if shots else h
+    keep = (h >= ph.min() - band) & (h <= ph.max() + band)
+    return means[keep]
+
+
 def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
     """Plan and write outputs; returns a summary dict (paths, per-candidate metrics)."""
     scfg = SceneConfig(beta=args.beta, camera_radius=args.camera_radius, opacity_floor=args.opacity_floor)
@@ -274,7 +284,7 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
         lo, hi = planner.planning_bounds()
         png_t = plot_paths_topdown(
             [sh.positions for sh in shots], out / f"{args.name}_topdown.png",
-            obstacles=loaded.scene.means.detach().cpu().numpy(),
+            obstacles=_obstacles_near_paths(loaded.scene.means.detach().cpu().numpy(), shots, np.asarray(args.up, float)),
             targets={"go to": goal, "look at": look},
             labels=[f"candidate {k}" for k in range(len(shots))],
         )
