@@ -170,6 +170,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--dataparser-transforms", type=Path, default=None, help="default: <dataset>/dataparser_transforms.json")
     ap.add_argument("--starts", type=int, default=3, help="random starts per go-to/look-at pair")
     ap.add_argument("--camera-radius", type=float, default=0.03)
+    ap.add_argument("--safety-margin", type=float, default=0.01, help="planning margin on top of the radius (cinesplat-plan's default)")
     ap.add_argument("--grid-resolution", type=int, default=96)
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--selection-only", action="store_true")
@@ -178,7 +179,8 @@ def main(argv=None) -> dict:
     a = ap.parse_args(argv)
     dpt = a.dataparser_transforms or a.dataset / "dataparser_transforms.json"
     gt = load_ground_truth(a.dataset, dpt)
-    loaded = load_scene(str(a.scene), SceneConfig(camera_radius=a.camera_radius), device=a.device)
+    # the planner plans for radius + margin, exactly as cinesplat-plan does; the truth is scored for the radius
+    loaded = load_scene(str(a.scene), SceneConfig(camera_radius=a.camera_radius + a.safety_margin), device=a.device)
     sel = evaluate_selection(loaded, gt)
     shots, plots, prep_ms = ([], {"paths": {}, "series": {}}, {}) if a.selection_only else evaluate_shots(
         loaded, gt, a.starts, a.camera_radius, a.grid_resolution)
@@ -204,7 +206,7 @@ def main(argv=None) -> dict:
         res = Path(__file__).resolve().parent / "RESULTS.md"
         with open(res, "a") as f:
             f.write(f"\n## eval_room ({date}, {dev})\n\nscene `{a.scene}`, {len(loaded.scene)} Gaussians, {a.starts} starts per pair, "
-                    f"camera radius {a.camera_radius}; details in `{a.out}/eval_room.md`\n\n```\n{json.dumps(summary, indent=1)}\n```\n")
+                    f"camera radius {a.camera_radius} (+ planning margin {a.safety_margin}); details in `{a.out}/eval_room.md`\n\n```\n{json.dumps(summary, indent=1)}\n```\n")
     return summary
 
 

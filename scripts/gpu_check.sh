@@ -276,6 +276,7 @@ stage_room() {
     --max-num-iterations "$steps" --steps-per-save "$steps" --steps-per-eval-all-images 100000 \
     --vis tensorboard --viewer.quit-on-train-completion True \
     --pipeline.datamanager.feature-source labels --pipeline.datamanager.clip.random-weights True \
+    --pipeline.datamanager.clip.feature-long-side "${ROOM_FEATURE_SIDE:-240}" \
     nerfstudio-data || return 1
   local run="$WORK/outputs/$name/cinesplat/gpu_check"
   mkdir -p "$OUT/room"

@@ -69,6 +69,10 @@ class PlanArgs:
     """Render height written into the camera path."""
     camera_radius: float = 0.03
     """Camera body sphere radius, scene units (paper: 0.03)."""
+    safety_margin: float = 0.01
+    """Extra distance (scene units) kept from every ellipsoid on top of camera_radius: a splat only
+    approximates the real surfaces (measured on a synthetic room: the true surface can lie ~0.0005 outside
+    the ellipsoids). Clearances in the report are measured from the camera sphere grown by this margin."""
     beta: float = 2.0
     """Ellipsoid size in sigmas (paper: 2), scaled by each Gaussian's opacity."""
     opacity_floor: float = 0.05
@@ -249,7 +253,9 @@ def _obstacles_near_paths(means: np.ndarray, shots, up: np.ndarray, band: float 
 
 def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
     """Plan and write outputs; returns a summary dict (paths, per-candidate metrics)."""
-    scfg = SceneConfig(beta=args.beta, camera_radius=args.camera_radius, opacity_floor=args.opacity_floor)
+    if not (args.safety_margin >= 0):
+        raise InvalidInputError(f"--safety-margin must be >= 0, got {args.safety_margin}")
+    scfg = SceneConfig(beta=args.beta, camera_radius=args.camera_radius + args.safety_margin, opacity_floor=args.opacity_floor)
     out = Path(args.output_dir)
     t_all = time.perf_counter()
     with Progress(SpinnerColumn(), TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=console, transient=True) as prog:
@@ -294,6 +300,8 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
             "look_at": {"text": args.look_at, "point": look.tolist(), "resolved": look_desc},
             "prepare_ms": prep.timings_ms,
             "camera_radius": args.camera_radius,
+            "safety_margin": args.safety_margin,
+            "clearance_note": "clearances are measured from the camera sphere of radius camera_radius + safety_margin",
             "candidates": [
                 {**sh.to_dict(), "camera_path": str(files[k]), "exact_clearance": {kk: v for kk, v in reports[k].items() if kk not in ("times", "clearance")},
                  "verification": sh.safety}

@@ -227,6 +227,8 @@ class StandaloneConfig:
     """Where camera_paths/ go (default: the run's dataset directory, or the .ply's directory)."""
     camera_radius: float = 0.03
     """Camera body radius in scene units (obstacle model)."""
+    safety_margin: float = 0.01
+    """Extra distance kept from every ellipsoid on top of the camera radius (as cinesplat-plan's --safety-margin)."""
     grid_resolution: int = 96
     """A* voxels along the longest side of the planning region (as cinesplat-plan's --grid-resolution)."""
     max_speed: float = 0.5
@@ -260,7 +262,7 @@ class StandaloneViewer:
 
         t0 = time.perf_counter()
         self.cfg = cfg
-        scfg = SceneConfig(camera_radius=cfg.camera_radius)
+        scfg = SceneConfig(camera_radius=cfg.camera_radius + cfg.safety_margin)
         self.loaded = load_scene(cfg.load_config, cfg.data, scfg, cfg.device)
         sp = self.loaded.splat
         self.obstacles = self.loaded.obstacles
