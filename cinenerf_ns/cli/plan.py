@@ -3,6 +3,11 @@
     cinesplat-plan --scene outputs/room/cinesplat/<run>/config.yml --go-to "armchair" --look-at "floor lamp"
     cinesplat-plan --scene scene.ply --go-to "0.1 0.2 0.3" --look-at "0 0 0.2" --candidates 4
     cinesplat-plan --scene procedural --go-to armchair --look-at "floor lamp"
+    cinesplat-plan --scene procedural --go-to armchair --then-go-to sofa table --look-at "floor lamp" --max-angular-rate 45
+
+With random starts the candidates are planned in one batched call, scored (occlusion of the look-at
+object, framing, clearance, smoothness, duration; planner/scoring.py) and ranked: rank 1 is written as
+``<name>_0.json``, rank 2 as ``<name>_1.json``, ...; the table and the report state every score term.
 
 Targets are "x y z" points (scene units, nerfstudio's normalised coordinates for checkpoints) or text.
 Text needs semantics: a cinesplat checkpoint / compact export (relevancy of the distilled CLIP latents,
@@ -26,6 +31,10 @@ from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeEl
 from rich.table import Table
 
 from cinenerf_ns.planner.camera_path import shot_to_camera_path, write_camera_path
+from cinenerf_ns.planner.candidates import RankedShot, plan_candidates, score_shots
+from cinenerf_ns.planner.dynamics import DynamicLimits, retime_shot
+from cinenerf_ns.planner.multistop import plan_multistop
+from cinenerf_ns.planner.scoring import ScoreConfig
 from cinenerf_ns.planner.errors import InvalidInputError, PlanningError
 from cinenerf_ns.planner.planner import Planner, PlannerConfig
 from cinenerf_ns.planner.safety import plot_clearance, plot_paths_topdown, safety_report
@@ -85,6 +94,20 @@ class PlanArgs:
     """torch device of the scene tensors ('cpu' or 'cuda')."""
     up: Tuple[float, float, float] = (0.0, 0.0, 1.0)
     """World up direction (nerfstudio scenes: +z)."""
+    then_go_to: Tuple[str, ...] = ()
+    """Further stops after --go-to, in order (text or 'x y z' each): one smooth shot through all stops."""
+    then_look_at: Tuple[str, ...] = ()
+    """Look-at of each further stop (one per --then-go-to); empty: every stop looks at --look-at."""
+    max_acceleration: Optional[float] = None
+    """Acceleration limit of the exported frames, units/s^2 (enables dynamic limits; default 0.5 when
+    another limit is set)."""
+    max_angular_rate: Optional[float] = None
+    """Limit on how fast the view direction turns, deg/s (enables dynamic limits; default 60)."""
+    object_radius: Optional[float] = None
+    """Bounding-sphere radius of the look-at object for scoring (framing size; sight lines stop at it so
+    the object does not hide itself). Default: the procedural object's half diagonal, else 0.1."""
+    score: ScoreConfig = field(default_factory=ScoreConfig)
+    """Weights of the shot score (its fov_deg is replaced by --fov)."""
 
 
 @dataclass
@@ -251,6 +274,29 @@ def _obstacles_near_paths(means: np.ndarray, shots, up: np.ndarray, band: float 
     return means[keep]
 
 
+def _object_radius(args: PlanArgs, loaded: LoadedScene) -> float:
+    if args.object_radius is not None:
+        if not (np.isfinite(args.object_radius) and args.object_radius >= 0):
+            raise InvalidInputError(f"--object-radius must be >= 0, got {args.object_radius}")
+        return float(args.object_radius)
+    if loaded.kind == "procedural" and parse_point(args.look_at) is None:
+        objs = loaded.extra["room"].objects
+        i = _word_match(args.look_at, [o.name for o in objs])
+        if i is not None:
+            return float(0.5 * np.linalg.norm(objs[i].size))
+    return 0.1
+
+
+def _limits(args: PlanArgs) -> Optional[DynamicLimits]:
+    if args.max_acceleration is None and args.max_angular_rate is None:
+        return None
+    return DynamicLimits(
+        max_speed=args.max_speed, fps=args.fps,
+        max_acceleration=0.5 if args.max_acceleration is None else args.max_acceleration,
+        max_angular_rate_deg=60.0 if args.max_angular_rate is None else args.max_angular_rate,
+    )
+
+
 def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
     """Plan and write outputs; returns a summary dict (paths, per-candidate metrics)."""
     if not (args.safety_margin >= 0):
@@ -277,12 +323,36 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
         planner = Planner(loaded.scene, pcfg)
         prep = planner.prepare()
         prog.update(task, advance=1, description=f"planning {args.candidates} candidate(s)")
-        shots = planner.plan(goal, look, start=start, seed=args.seed, n_candidates=args.candidates)
+        limits = _limits(args)
+        obj_r = _object_radius(args, loaded)
+        score_cfg = ScoreConfig(**{**args.score.__dict__, "fov_deg": args.fov})
+        multi = None
+        if args.then_go_to:
+            if args.then_look_at and len(args.then_look_at) != len(args.then_go_to):
+                raise InvalidInputError(
+                    f"--then-look-at needs one look-at per --then-go-to ({len(args.then_go_to)}), got {len(args.then_look_at)}"
+                )
+            stops = [goal] + [resolve_target(t, loaded, f"go-to {i + 2}")[0] for i, t in enumerate(args.then_go_to)]
+            looks = [look] + ([resolve_target(t, loaded, f"look-at {i + 2}")[0] for i, t in enumerate(args.then_look_at)]
+                              if args.then_look_at else [look] * len(args.then_go_to))
+            multi = plan_multistop(planner, stops, np.stack(looks), start=start, seed=args.seed, limits=limits)
+            shots = [multi.shot]
+            scores = [None]
+        elif start is not None:
+            shots = planner.plan(goal, look, start=start, seed=args.seed, n_candidates=1)
+            if limits is not None:
+                shots = [retime_shot(sh, limits, up=pcfg.up) for sh in shots]
+            scores = score_shots(planner, shots, look, score_cfg, object_radius=obj_r)
+        else:
+            ranked: List[RankedShot] = plan_candidates(planner, goal, look, k=args.candidates, seed=args.seed,
+                                                       score_config=score_cfg, limits=limits, object_radius=obj_r)
+            shots = [r.shot for r in ranked]
+            scores = [r.score for r in ranked]
         prog.update(task, advance=1, description="exact clearance report + plots")
         out.mkdir(parents=True, exist_ok=True)
         reports, files = [], []
         for k, sh in enumerate(shots):
-            rep = safety_report(sh, planner.clearance, max_spacing=0.02, label=f"candidate {k}")
+            rep = safety_report(sh, planner.clearance, max_spacing=0.02, label=f"rank {k + 1}")
             reports.append(rep)
             cp = shot_to_camera_path(sh, fov_deg=args.fov, width=args.width, height=args.height)
             files.append(write_camera_path(out / f"{args.name}_{k}.json", cp))
@@ -292,7 +362,7 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
             [sh.positions for sh in shots], out / f"{args.name}_topdown.png",
             obstacles=_obstacles_near_paths(loaded.scene.means.detach().cpu().numpy(), shots, np.asarray(args.up, float)),
             targets={"go to": goal, "look at": look},
-            labels=[f"candidate {k}" for k in range(len(shots))],
+            labels=[f"rank {k + 1}" for k in range(len(shots))],
         )
         summary = {
             "scene": loaded.source,
@@ -303,10 +373,15 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
             "safety_margin": args.safety_margin,
             "clearance_note": "clearances are measured from the camera sphere of radius camera_radius + safety_margin",
             "candidates": [
-                {**sh.to_dict(), "camera_path": str(files[k]), "exact_clearance": {kk: v for kk, v in reports[k].items() if kk not in ("times", "clearance")},
+                {**(multi.to_dict() if multi is not None else sh.to_dict()), "rank": k + 1,
+                 "score": None if scores[k] is None else scores[k].to_dict(),
+                 "dynamics": getattr(sh, "dynamics", None) if multi is None else multi.dynamics,
+                 "camera_path": str(files[k]), "exact_clearance": {kk: v for kk, v in reports[k].items() if kk not in ("times", "clearance")},
                  "verification": sh.safety}
                 for k, sh in enumerate(shots)
             ],
+            "object_radius": obj_r,
+            "score_config": score_cfg.__dict__,
             "clearance_samples": [{"times": r["times"], "clearance": r["clearance"]} for r in reports],
             "plots": {"clearance": str(png_c), "topdown": str(png_t)},
             "total_s": time.perf_counter() - t_all,
@@ -319,13 +394,20 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
         prog.update(task, advance=1)
 
     table = Table(title=f"cinesplat-plan: go to {goal_desc}, look at {look_desc}")
-    for col in ("cand", "start", "length", "duration s", "min clearance", "look-at err deg", "plan ms", "camera path"):
+    for col in ("rank", "score", "occluded", "fill", "start", "length", "duration s", "min clearance",
+                "mean clearance", "jerk mean", "turn deg/s", "peak v/a/w", "camera path"):
         table.add_column(col)
     for k, sh in enumerate(shots):
+        sc = scores[k]
+        dyn = getattr(sh, "dynamics", None) if multi is None else multi.dynamics
+        peaks = "-" if not dyn else f"{dyn['peak_speed']:.2f}/{dyn['peak_acceleration']:.2f}/{dyn['peak_angular_rate_deg']:.0f}"
+        t = sc.terms if sc is not None else {}
+        f = lambda key, fmt: "-" if key not in t else format(t[key], fmt)  # noqa: E731
         table.add_row(
-            str(k), str(np.round(sh.start, 3).tolist()), f"{sh.length:.3f}", f"{sh.duration:.2f}",
-            f"{reports[k]['min_clearance']:.4f}", f"{float(np.max(sh.look_at_errors_deg())):.3f}",
-            f"{sh.timings.get('plan_ms', float('nan')):.0f}", str(files[k]),
+            str(k + 1), "-" if sc is None else f"{sc.total:.3f}", f("occluded_fraction", ".2f"), f("framing_fill_mean", ".2f"),
+            str(np.round(sh.start, 3).tolist()), f"{sh.length:.3f}", f"{sh.duration:.2f}",
+            f"{reports[k]['min_clearance']:.4f}", f"{reports[k]['mean_clearance']:.3f}", f("mean_jerk", ".2f"),
+            f("mean_angular_rate_deg", ".1f"), peaks, str(files[k]),
         )
     console.print(table)
     console.print(f"report: {summary['report']}\nplots: {png_c}, {png_t}")
