@@ -17,7 +17,8 @@ but the expensive collision work is done once for all K candidates instead of K 
   verification     dense samples of all K curves in ONE conservative points_free call, exact clearance
                    of the inconclusive samples of all K in one call (same rule as safety.verify_shot)
   scoring          sight lines of all K x scored frames in ONE occlusion call, exact clearance of all
-                   scored frames in ONE call, then score_terms per candidate (scoring.py)
+                   scored frames in ONE call (searched up to ScoreConfig.clearance_cap), then score_terms
+                   per candidate (scoring.py)
 
 Runs on the scene's device (CPU or CUDA tensors); the QP and A* are CPU work in both cases.
 """
@@ -33,6 +34,7 @@ import torch
 
 from .astar import astar
 from .corridor import CorridorError, build_corridor
+from .distance import clearance
 from .dynamics import DynamicLimits, retime_shot
 from .errors import GoalUnreachableError, InvalidInputError, PlanningError, StartInCollisionError, UnsafeTrajectoryError
 from .goal import sample_free_starts
@@ -146,7 +148,9 @@ def score_shots(
     pos = np.concatenate([sh.positions[i] for sh, i in zip(shots, idx)])  # [sum T', 3]
     occ = sight_lines_blocked(pos, targets, planner.scene, prep.index, exclude=exclude,
                               stop_distance=object_radius).cpu().numpy()  # [sum T', S]
-    clr = planner.clearance(pos)
+    cap = None if cfg.clearance_cap is None else cfg.clearance_cap + planner.scene.camera_radius
+    clr = clearance(torch.as_tensor(pos, device=planner.scene.device), planner.scene, prep.index,
+                    max_distance=cap).cpu().numpy()  # [sum T'] exact up to the cap
     out, o = [], 0
     for sh, i in zip(shots, idx):
         n = len(i)

@@ -7,9 +7,11 @@ Terms (each reported raw in ``ShotScore.to_dict()``, and weighted in ``costs``):
                       look-at object / frame height = 2 atan(object_radius / distance) / fov.
   framing_offset      mean angle between the view axis and the direction to the object's centre,
                       in units of the half field of view (0 = centred, 1 = at the frame edge).
-  min_clearance       smallest exact clearance over the frames (camera radius included);
+  min_clearance       smallest exact clearance over the frames (camera radius included; values above
+                      ScoreConfig.clearance_cap count as the cap);
                       cost = relu(clearance_ref - min_clearance) / clearance_ref.
-  mean_clearance      mean exact clearance; cost = relu(clearance_ref - mean) / clearance_ref.
+  mean_clearance      mean exact clearance (reported); cost = mean over frames of
+                      relu(clearance_ref - clearance_t) / clearance_ref (time spent close to obstacles).
   max_jerk, mean_jerk finite-difference jerk of the frame positions (units/s^3); cost = mean_jerk / jerk_ref.
   max_angular_rate_deg, mean_angular_rate_deg   turn rate of the view direction (deg/s);
                       cost = mean_angular_rate / angular_rate_ref.
@@ -48,7 +50,7 @@ class ScoreConfig:
     w_min_clearance: float = 2.0
     """Weight of relu(clearance_ref - min clearance) / clearance_ref."""
     w_mean_clearance: float = 1.0
-    """Weight of relu(clearance_ref - mean clearance) / clearance_ref."""
+    """Weight of the frame mean of relu(clearance_ref - clearance_t) / clearance_ref."""
     w_jerk: float = 0.5
     """Weight of mean jerk / jerk_ref."""
     w_angular_rate: float = 0.5
@@ -69,9 +71,16 @@ class ScoreConfig:
     """Duration scale, seconds."""
     occlusion_frames: int = 64
     """At most this many evenly spaced frames are tested for occlusion (0: all frames)."""
+    clearance_cap: Optional[float] = 0.1
+    """The exact clearance is only searched up to this value; larger clearances count as the cap, so the
+    min/mean clearance terms are those of min(clearance, cap). The costs only depend on values below
+    clearance_ref, so a cap >= clearance_ref leaves the total unchanged while skipping most of the
+    exact-distance work (measured 6x on a 20k scene). None: uncapped exact clearance."""
 
     def validate(self) -> None:
         for k, v in self.__dict__.items():
+            if k == "clearance_cap" and v is None:
+                continue
             if not (isinstance(v, (int, float)) and math.isfinite(v)):
                 raise InvalidInputError(f"ScoreConfig.{k} must be a finite number, got {v!r}.")
             if k.startswith("w_") and v < 0:
@@ -81,6 +90,8 @@ class ScoreConfig:
                 raise InvalidInputError(f"ScoreConfig.{k} must be > 0, got {getattr(self, k)}.")
         if self.fov_deg >= 180:
             raise InvalidInputError(f"ScoreConfig.fov_deg must be < 180, got {self.fov_deg}.")
+        if self.clearance_cap is not None and self.clearance_cap <= 0:
+            raise InvalidInputError(f"ScoreConfig.clearance_cap must be > 0 or None, got {self.clearance_cap}.")
         if self.occlusion_frames < 0:
             raise InvalidInputError("ScoreConfig.occlusion_frames must be >= 0.")
 
@@ -121,6 +132,8 @@ def score_terms(shot, look_at: np.ndarray, occluded: np.ndarray, clearance: np.n
     off = np.arctan2(np.linalg.norm(np.cross(view, to_c), axis=1), (view * to_c).sum(1)) / (0.5 * fov)
     pk = frame_peaks(pos, shot.times, view_vectors(pos, look_at))
     occ = float(np.mean(occluded)) if occluded.size else 0.0
+    if config.clearance_cap is not None:
+        clearance = np.minimum(clearance, config.clearance_cap)
     terms = {
         "occluded_fraction": occ,
         "framing_fill_mean": float(np.mean(fill)),
@@ -140,7 +153,7 @@ def score_terms(shot, look_at: np.ndarray, occluded: np.ndarray, clearance: np.n
         "framing_size": c.w_framing_size * size_err,
         "framing_offset": c.w_framing_offset * terms["framing_offset"],
         "min_clearance": c.w_min_clearance * max(0.0, c.clearance_ref - terms["min_clearance"]) / c.clearance_ref,
-        "mean_clearance": c.w_mean_clearance * max(0.0, c.clearance_ref - terms["mean_clearance"]) / c.clearance_ref,
+        "mean_clearance": c.w_mean_clearance * float(np.mean(np.maximum(0.0, c.clearance_ref - clearance))) / c.clearance_ref,
         "jerk": c.w_jerk * pk.mean_jerk / c.jerk_ref,
         "angular_rate": c.w_angular_rate * pk.mean_angular_rate_deg / c.angular_rate_ref,
         "duration": c.w_duration * terms["duration_s"] / c.duration_ref,
@@ -191,7 +204,8 @@ def score_shot(
     else:
         from .distance import clearance
 
-        clr = clearance(torch.as_tensor(shot.positions, device=scene.device), scene, index).cpu().numpy()
+        cap = None if cfg.clearance_cap is None else cfg.clearance_cap + scene.camera_radius
+        clr = clearance(torch.as_tensor(shot.positions, device=scene.device), scene, index, max_distance=cap).cpu().numpy()
     out = score_terms(shot, look, occ, clr, object_radius, object_center, cfg)
     out.tested_frame_index = idx
     return out

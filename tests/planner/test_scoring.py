@@ -75,12 +75,18 @@ def test_framing_smoothness_duration_and_total(scene):
 
 def test_clearance_terms_use_exact_clearance(scene):
     sh = _line_shot(np.array([0.5, -0.5, 0.5]), np.array([0.5, 0.5, 0.5]), TARGET)
-    sc = score_shot(sh, scene, TARGET, ScoreConfig(), object_radius=TARGET_RADIUS)
+    sc = score_shot(sh, scene, TARGET, ScoreConfig(clearance_cap=None), object_radius=TARGET_RADIUS)
     from cinenerf_ns.planner.distance import clearance
 
     c = clearance(torch.as_tensor(sh.positions), scene).numpy()
     assert math.isclose(sc.terms["min_clearance"], c.min(), rel_tol=1e-9)
     assert math.isclose(sc.terms["mean_clearance"], c.mean(), rel_tol=1e-9)
+    # capped search: terms of min(clearance, cap); the costs are unchanged while cap >= clearance_ref
+    capped = score_shot(sh, scene, TARGET, ScoreConfig(clearance_cap=0.1), object_radius=TARGET_RADIUS)
+    assert c.min() < 0.1 < c.max()
+    assert math.isclose(capped.terms["min_clearance"], c.min(), rel_tol=1e-9)
+    assert math.isclose(capped.terms["mean_clearance"], np.minimum(c, 0.1).mean(), rel_tol=1e-9)
+    assert math.isclose(capped.total, sc.total, rel_tol=1e-12)
 
 
 def test_bad_config(scene):
