@@ -216,54 +216,53 @@ def plan_candidates(
 
     errors: List[str] = []
     goal_cache: Dict[int, Any] = {}
-    plans: List[Dict[str, Any]] = []  # per surviving candidate: start, goal, waypoints
-    for ci, s in enumerate(starts):
-        try:
-            s_ijk = planner._free_voxel_near(s, None)
-            comp = int(labels[tuple(s_ijk)])
-            if comp not in goal_cache:
-                goal_cache[comp] = planner._reachable_goal(goal_p, comp)
-            g, g_ijk = goal_cache[comp]
-            t = lap("goal_ms", t)
-            path = astar(prep.astar_grid, s_ijk, g_ijk)
-            centres = grid.voxel_to_world(torch.as_tensor(path, device=grid.device)).cpu().numpy()
-            plans.append({"cand": ci, "start": s, "goal": g, "way": np.concatenate([s[None], centres, g[None]])})
-            t = lap("astar_ms", t)
-        except (GoalUnreachableError, StartInCollisionError) as e:
-            errors.append(str(e))
-            t = time.perf_counter()
-    ways = batched_shortcut([p["way"] for p in plans], planner.segments_free)
-    for p, w in zip(plans, ways):
-        p["way"] = w
-    t = lap("shortcut_ms", t)
-
     shots: List[Shot] = []
     cand_ids: List[int] = []
-    for p in plans:
-        if len(shots) >= k:
-            break
-        way = p["way"]
-        if np.linalg.norm(way[-1] - way[0]) < 1e-9:
-            errors.append("start already at the goal")
-            continue
-        try:
-            corridor = build_corridor(torch.as_tensor(way, device=planner.scene.device), planner.scene, prep.index,
-                                      box_margin=cfg.box_margin)
-            t = lap("corridor_ms", t)
-            traj = solve_corridor_qp(corridor.constraints(), corridor.waypoints.cpu().numpy(), p["start"], p["goal"],
-                                     cfg.trajectory)
-            t = lap("qp_ms", t)
-        except (GoalUnreachableError, CorridorError, PlanningError) as e:
-            errors.append(str(e))
-            t = time.perf_counter()
-            continue
-        sh = Shot.from_trajectory(traj, look_p, timing=cfg.timing, up=cfg.up, corridor=corridor)
-        if limits is not None:
-            sh = retime_shot(sh, limits, up=cfg.up)
-        sh.goal_target = goal_p
-        shots.append(sh)
-        cand_ids.append(p["cand"])
-        t = lap("timing_ms", t)
+    nxt = 0  # next unused start; spares are only planned to replace failed candidates
+    while len(shots) < k and nxt < len(starts):
+        batch = list(range(nxt, min(len(starts), nxt + k - len(shots))))
+        nxt = batch[-1] + 1
+        plans: List[Dict[str, Any]] = []  # start, goal, waypoints of each candidate of this round
+        for ci in batch:
+            s = starts[ci]
+            try:
+                s_ijk = planner._free_voxel_near(s, None)
+                comp = int(labels[tuple(s_ijk)])
+                if comp not in goal_cache:
+                    goal_cache[comp] = planner._reachable_goal(goal_p, comp)
+                g, g_ijk = goal_cache[comp]
+                t = lap("goal_ms", t)
+                path = astar(prep.astar_grid, s_ijk, g_ijk)
+                centres = grid.voxel_to_world(torch.as_tensor(path, device=grid.device)).cpu().numpy()
+                plans.append({"cand": ci, "start": s, "goal": g, "way": np.concatenate([s[None], centres, g[None]])})
+                t = lap("astar_ms", t)
+            except (GoalUnreachableError, StartInCollisionError) as e:
+                errors.append(str(e))
+                t = time.perf_counter()
+        ways = batched_shortcut([p["way"] for p in plans], planner.segments_free)
+        t = lap("shortcut_ms", t)
+        for p, way in zip(plans, ways):
+            if np.linalg.norm(way[-1] - way[0]) < 1e-9:
+                errors.append("the start is already at the goal")
+                continue
+            try:
+                corridor = build_corridor(torch.as_tensor(way, device=planner.scene.device), planner.scene, prep.index,
+                                          box_margin=cfg.box_margin)
+                t = lap("corridor_ms", t)
+                traj = solve_corridor_qp(corridor.constraints(), corridor.waypoints.cpu().numpy(), p["start"], p["goal"],
+                                         cfg.trajectory)
+                t = lap("qp_ms", t)
+            except (GoalUnreachableError, CorridorError, PlanningError) as e:
+                errors.append(str(e))
+                t = time.perf_counter()
+                continue
+            sh = Shot.from_trajectory(traj, look_p, timing=cfg.timing, up=cfg.up, corridor=corridor)
+            if limits is not None:
+                sh = retime_shot(sh, limits, up=cfg.up)
+            sh.goal_target = goal_p
+            shots.append(sh)
+            cand_ids.append(p["cand"])
+            t = lap("timing_ms", t)
     if not shots:
         raise GoalUnreachableError(
             f"no safe candidate found from {len(starts)} start(s); last reason: {errors[-1] if errors else 'unknown'}"
