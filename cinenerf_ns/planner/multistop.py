@@ -33,7 +33,7 @@ from .bezier import BezierTrajectory
 from .candidates import batched_shortcut
 from .corridor import build_corridor
 from .dynamics import DynamicLimits, dynamics_report, retime
-from .errors import GoalUnreachableError, InvalidInputError, StartInCollisionError, UnsafeTrajectoryError
+from .errors import InvalidInputError, StartInCollisionError, UnsafeTrajectoryError
 from .goal import sample_free_starts
 from .planner import Planner, _as_point
 from .safety import verify_shot
