@@ -84,3 +84,29 @@ def test_bad_input():
         sight_lines_blocked(np.ones((1, 3)), np.zeros(3), sc, exclude=torch.zeros(4, dtype=torch.bool))
     with pytest.raises(InvalidInputError, match="stop_distance"):
         sight_lines_blocked(np.ones((1, 3)), np.zeros(3), sc, stop_distance=-1.0)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), rho=st.floats(0.9, 1.1).filter(lambda x: abs(x - 1) > 1e-6),
+       tpos=st.floats(-0.5, 1.5))
+def test_grazing_lines_match_reference(seed, rho, tpos):
+    """Sight lines built to pass at unit-frame distance rho of one ellipsoid (closest approach at line
+    parameter tpos, possibly beyond an end): the boundary cases where a sloppy test would differ."""
+    rng = np.random.default_rng(seed)
+    sc, means, rot, radii = _random_scene(rng, 6)
+    g = 0
+    d = rng.normal(size=3)
+    d /= np.linalg.norm(d)
+    n = rng.normal(size=3)
+    n -= (n @ d) * d
+    n /= np.linalg.norm(n)
+    # in the unit frame: w(t) = rho n + (t - tpos) d, t in [0, 1]; closest approach rho at t = tpos
+    length = rng.uniform(0.5, 3.0)
+    w0, w1 = rho * n - tpos * length * d, rho * n + (1 - tpos) * length * d
+    to_world = lambda w: means[g] + rot[g] @ (radii[g] * w)  # noqa: E731
+    cam, tgt = to_world(w0), to_world(w1)
+    got = sight_lines_blocked(cam[None], tgt[None], sc, GridIndex.build(sc)).numpy()[0, 0]
+    ref = sight_lines_blocked_reference(cam[None], tgt[None], means, rot, radii)[0, 0]
+    assert got == ref
+    if 0 <= tpos <= 1:  # the closest approach is on the segment: blocked iff rho <= 1 (or another ellipsoid)
+        assert got or rho > 1
