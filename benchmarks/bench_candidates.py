@@ -104,11 +104,17 @@ def main() -> None:
     stage_keys = [k for k in stages[0] if k.endswith("_ms") and k != "total_ms"]
     med_stage = {k: statistics.median(s[k] for s in stages) for k in stage_keys}
     date = dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d")
+    try:
+        import subprocess
+
+        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True).stdout.strip()
+    except OSError:
+        rev = "?"
     lines = [
         f"## bench_candidates {date} — {_device_name(dev)}",
         "",
         f"procedural_room N={args.n_gaussians} (kept {len(scene)}), K={args.k}, grid {args.grid_resolution}, "
-        f"repeats {args.repeats}, prepare {prep_s:.2f} s (not timed below)",
+        f"repeats {args.repeats}, prepare {prep_s:.2f} s (not timed below), commit {rev or '?'}",
         "",
         "| variant | median ms | shots | ms / shot | x batched |",
         "|---|---|---|---|---|",
