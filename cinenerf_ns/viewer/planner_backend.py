@@ -108,7 +108,18 @@ class PreparedPlanner:
         assert self.planner is not None
         pt = lambda x: None if x is None else np.asarray(_numpy(x), dtype=np.float64).reshape(-1)  # noqa: E731
         with self._plan_lock:
-            shots = self.planner.plan(pt(goal), pt(look_at), start=pt(start), seed=int(seed), n_candidates=int(n_candidates))
+            if start is None and int(n_candidates) > 1:
+                # random starts: the batched candidates, ranked (best first) by the documented shot score
+                from cinenerf_ns.planner.candidates import plan_candidates
+
+                ranked = plan_candidates(self.planner, pt(goal), pt(look_at), k=int(n_candidates), seed=int(seed))
+                shots = []
+                for r in ranked:
+                    r.shot.score, r.shot.rank = float(r.score.total), int(r.rank)
+                    r.shot.score_terms = r.score.to_dict()
+                    shots.append(r.shot)
+            else:
+                shots = self.planner.plan(pt(goal), pt(look_at), start=pt(start), seed=int(seed), n_candidates=int(n_candidates))
             for shot in shots:
                 if getattr(shot, "clearance", None) is None:
                     t0 = time.perf_counter()

@@ -76,6 +76,16 @@ def test_shots_are_safe_and_carry_exact_frame_clearance(room):
         assert "frame_clearance_ms" in s.timings and s.safety["safe"]
 
 
+def test_random_start_candidates_come_ranked(room):
+    r, scene, planner, _ = room
+    shots = planner.plan(r.object("armchair").center, r.object("floor lamp").center, seed=1, n_candidates=3)
+    assert len(shots) >= 2
+    assert [s.rank for s in shots] == list(range(1, len(shots) + 1))
+    scores = [s.score for s in shots]
+    assert scores == sorted(scores)  # best (lowest cost) first, as the panel lists them
+    assert all(abs(s.score_terms["total"] - s.score) < 1e-12 for s in shots)
+
+
 def test_torch_inputs_and_errors_pass_through(room):
     r, scene, planner, _ = room
     goal = torch.as_tensor(r.object("table").center)
