@@ -10,6 +10,10 @@
 #     viewer   ns-viewer loads that checkpoint (serves for up to 45 s, log checked), stopped by its PID
 #     labels   fox with generated 3-class brightness label masks: ns-train cinesplat --feature-source labels
 #     bench    benchmarks/bench_method.py (cinesplat vs splatfacto etc.; appends to benchmarks/RESULTS.md)
+#     room     synthetic room (cinesplat-synth, seed $ROOM_SEED) -> ns-train cinesplat with label masks ($ROOM_STEPS
+#              steps) -> compact export + ground-truth files in $OUT/room (the bundled demo scene's recipe)
+#     planner  benchmarks/bench_planner.py and bench_candidates.py on CUDA (1M Gaussians)
+#   render/viewer use RUN_CFG (a run's config.yml) and RUN_DATA (its dataset) when set, else the fox run
 #
 # Environment:
 #   OUT        where logs, timings and rendered frames go (default ./gpu_check_out)
@@ -173,10 +177,11 @@ EOF
 }
 
 stage_render() {
-  local cfg="$WORK/outputs/fox/cinesplat/gpu_check/config.yml"
+  local cfg="${RUN_CFG:-$WORK/outputs/fox/cinesplat/gpu_check/config.yml}"
+  local tr="${RUN_DATA:-$WORK/fox}/transforms.json"
   [ -f "$cfg" ] || { echo "no trained run at $cfg (run the train stage first)"; return 1; }
   # a camera path through 24 of the training poses, in the dataparser's normalised coordinates
-  $PY - "$WORK/fox/transforms.json" "$(dirname "$cfg")/dataparser_transforms.json" "$WORK/camera_path.json" <<'EOF' || return 1
+  $PY - "$tr" "$(dirname "$cfg")/dataparser_transforms.json" "$WORK/camera_path.json" <<'EOF' || return 1
 import json, sys, math
 import numpy as np
 tr, dp, out = sys.argv[1:4]
@@ -208,7 +213,7 @@ EOF
 }
 
 stage_viewer() {
-  local cfg="$WORK/outputs/fox/cinesplat/gpu_check/config.yml"
+  local cfg="${RUN_CFG:-$WORK/outputs/fox/cinesplat/gpu_check/config.yml}"
   [ -f "$cfg" ] || { echo "no trained run at $cfg (run the train stage first)"; return 1; }
   ns-viewer --load-config "$cfg" --viewer.websocket-port 7123 > "$OUT/viewer_server.log" 2>&1 &
   local pid=$!
@@ -259,6 +264,47 @@ EOF
 stage_bench() {
   [ -n "${FOX:-}" ] || { echo "fox scene not found: set FOX=/path/to/fox"; return 1; }
   $PY benchmarks/bench_method.py --fox "$FOX" --work "$WORK/bench" --clip-random-weights
+}
+
+stage_room() {
+  local d="$WORK/room${ROOM_SEED:-0}" steps=${ROOM_STEPS:-5000} name="room${ROOM_SEED:-0}"
+  [ -f "$d/transforms.json" ] || $PY -c "from cinenerf_ns.synthetic.cli import entrypoint; entrypoint()" --seed "${ROOM_SEED:-0}" --num-views 150 --output "$d" \
+      --threads "${ROOM_THREADS:-8}" --ply-in-transforms || return 1
+  rm -rf "$WORK/outputs/$name/cinesplat/gpu_check"
+  ns-train cinesplat --data "$d" \
+    --output-dir "$WORK/outputs" --experiment-name "$name" --timestamp gpu_check \
+    --max-num-iterations "$steps" --steps-per-save "$steps" --steps-per-eval-all-images 100000 \
+    --vis tensorboard --viewer.quit-on-train-completion True \
+    --pipeline.datamanager.feature-source labels --pipeline.datamanager.clip.random-weights True \
+    --pipeline.datamanager.clip.feature-long-side "${ROOM_FEATURE_SIDE:-240}" \
+    nerfstudio-data || return 1
+  local run="$WORK/outputs/$name/cinesplat/gpu_check"
+  mkdir -p "$OUT/room"
+  cp "$d/geometry.json" "$d/labels.json" "$d/transforms.json" "$run/dataparser_transforms.json" "$run/config.yml" "$OUT/room/"
+  $PY - "$run/config.yml" "$OUT/room/$name.pt" <<'EOF' || return 1
+import sys, time
+from cinenerf_ns.method.checkpoint import export_compact, load_splat
+from pathlib import Path
+from cinenerf_ns.cli.plan import training_camera_region
+st = load_splat(sys.argv[1])
+r = training_camera_region(Path(sys.argv[1]))  # where the training cameras were: free space for random starts
+if r is not None:
+    st.info["start_region"] = [r[0].tolist(), r[1].tolist()]
+t = time.perf_counter(); p = export_compact(st, sys.argv[2], half=True)
+print("gaussians", len(st), "step", st.step, "labels", st.info.get("label_names"))
+print(f"compact export {p} {p.stat().st_size/2**20:.2f} MiB in {time.perf_counter()-t:.2f}s")
+EOF
+  # per-object selection vs ground truth (quick look; the full evaluation runs from the compact scene)
+  $PY benchmarks/eval_room.py --scene "$OUT/room/$name.pt" --dataset "$OUT/room" --selection-only \
+      --out "$OUT/room/eval_gpu" --device cuda || true
+}
+
+stage_planner() {
+  $PY benchmarks/bench_planner.py --device cuda --n-gaussians "${PLAN_N:-1000000}" --pairs "${PLAN_PAIRS:-100}" || true
+  if [ -f benchmarks/bench_candidates.py ]; then
+    $PY benchmarks/bench_candidates.py --device cuda --n-gaussians "${PLAN_N:-1000000}" --k 32 || true
+  fi
+  cp benchmarks/RESULTS.md "$OUT/RESULTS.md" 2>/dev/null || true
 }
 
 STAGES=("$@")

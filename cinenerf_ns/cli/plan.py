@@ -3,6 +3,11 @@
     cinesplat-plan --scene outputs/room/cinesplat/<run>/config.yml --go-to "armchair" --look-at "floor lamp"
     cinesplat-plan --scene scene.ply --go-to "0.1 0.2 0.3" --look-at "0 0 0.2" --candidates 4
     cinesplat-plan --scene procedural --go-to armchair --look-at "floor lamp"
+    cinesplat-plan --scene procedural --go-to armchair --then-go-to sofa table --look-at "floor lamp" --max-angular-rate 45
+
+With random starts the candidates are planned in one batched call, scored (occlusion of the look-at
+object, framing, clearance, smoothness, duration; planner/scoring.py) and ranked: rank 1 is written as
+``<name>_0.json``, rank 2 as ``<name>_1.json``, ...; the table and the report state every score term.
 
 Targets are "x y z" points (scene units, nerfstudio's normalised coordinates for checkpoints) or text.
 Text needs semantics: a cinesplat checkpoint / compact export (relevancy of the distilled CLIP latents,
@@ -26,6 +31,10 @@ from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeEl
 from rich.table import Table
 
 from cinenerf_ns.planner.camera_path import shot_to_camera_path, write_camera_path
+from cinenerf_ns.planner.candidates import RankedShot, plan_candidates, score_shots
+from cinenerf_ns.planner.dynamics import DynamicLimits, retime_shot
+from cinenerf_ns.planner.multistop import plan_multistop
+from cinenerf_ns.planner.scoring import ScoreConfig
 from cinenerf_ns.planner.errors import InvalidInputError, PlanningError
 from cinenerf_ns.planner.planner import Planner, PlannerConfig
 from cinenerf_ns.planner.safety import plot_clearance, plot_paths_topdown, safety_report
@@ -69,6 +78,10 @@ class PlanArgs:
     """Render height written into the camera path."""
     camera_radius: float = 0.03
     """Camera body sphere radius, scene units (paper: 0.03)."""
+    safety_margin: float = 0.01
+    """Extra distance (scene units) kept from every ellipsoid on top of camera_radius: a splat only
+    approximates the real surfaces (measured on a synthetic room: the true surface can lie ~0.0005 outside
+    the ellipsoids). Clearances in the report are measured from the camera sphere grown by this margin."""
     beta: float = 2.0
     """Ellipsoid size in sigmas (paper: 2), scaled by each Gaussian's opacity."""
     opacity_floor: float = 0.05
@@ -81,6 +94,20 @@ class PlanArgs:
     """torch device of the scene tensors ('cpu' or 'cuda')."""
     up: Tuple[float, float, float] = (0.0, 0.0, 1.0)
     """World up direction (nerfstudio scenes: +z)."""
+    then_go_to: Tuple[str, ...] = ()
+    """Further stops after --go-to, in order (text or 'x y z' each): one smooth shot through all stops."""
+    then_look_at: Tuple[str, ...] = ()
+    """Look-at of each further stop (one per --then-go-to); empty: every stop looks at --look-at."""
+    max_acceleration: Optional[float] = None
+    """Acceleration limit of the exported frames, units/s^2 (enables dynamic limits; default 0.5 when
+    another limit is set)."""
+    max_angular_rate: Optional[float] = None
+    """Limit on how fast the view direction turns, deg/s (enables dynamic limits; default 60)."""
+    object_radius: Optional[float] = None
+    """Bounding-sphere radius of the look-at object for scoring (framing size; sight lines stop at it so
+    the object does not hide itself). Default: the procedural object's half diagonal, else 0.1."""
+    score: ScoreConfig = field(default_factory=ScoreConfig)
+    """Weights of the shot score (its fov_deg is replaced by --fov)."""
 
 
 @dataclass
@@ -144,6 +171,27 @@ def _word_match(query: str, names: List[str]) -> Optional[int]:
     return best
 
 
+def procedural_object(room: Any, text: str) -> int:
+    """Index of the procedural room's object a text names (shared words, see _word_match)."""
+    names = [o.name for o in room.objects]
+    i = _word_match(text, names)
+    if i is None:
+        raise InvalidInputError(f"no object matches '{text}' in the procedural room; objects: {', '.join(names)}")
+    return i
+
+
+def label_query(text: str, label_names: List[str]) -> str:
+    """The text a semantic scene is queried with: offline scenes answer their own label names exactly, so a
+    query sharing words with one label is mapped to it (no CLIP weights needed); other text is kept (it goes
+    to the CLIP text tower)."""
+    q = text.strip()
+    if label_names and q.lower() not in [n.lower() for n in label_names]:
+        i = _word_match(q, label_names)
+        if i is not None:
+            q = label_names[i]
+    return q
+
+
 def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Optional[float] = None) -> LoadedScene:
     """Scene file/spec -> obstacles + (optionally) a text locator."""
     if spec.startswith("procedural"):
@@ -157,9 +205,7 @@ def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Opti
         names = [o.name for o in room.objects]
 
         def locate(text: str):
-            i = _word_match(text, names)
-            if i is None:
-                raise InvalidInputError(f"no object matches '{text}' in the procedural room; objects: {', '.join(names)}")
+            i = procedural_object(room, text)
             return room.objects[i].center.astype(np.float64), f"object '{names[i]}' (ground-truth name)"
 
         r = cfg.camera_radius
@@ -182,23 +228,26 @@ def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Opti
 
         enc = build_text_encoder(st.info, st.label_embeddings, device=device)
         kw = {} if threshold is None else {"threshold": threshold}
-        sem = SemanticScene(st.means, torch.sigmoid(st.opacities.reshape(-1)), st.latents, st.codec, enc, **kw)
+        sem = SemanticScene(st.means, torch.sigmoid(st.opacities.reshape(-1)), st.latents, st.codec, enc,
+                            label_names=st.info.get("label_names"), **kw)
         label_names = list(st.info.get("label_names") or [])
 
         def locate(text: str):
-            q = text.strip()
-            # offline scenes answer their own label names exactly; a query sharing words with one label
-            # is mapped to it (no CLIP weights needed). Other text goes to the CLIP text tower.
-            if label_names and q.lower() not in [n.lower() for n in label_names]:
-                i = _word_match(q, label_names)
-                if i is not None:
-                    q = label_names[i]
+            q = label_query(text, label_names)
             c, mask = sem.locate(q)
             return c.detach().cpu().numpy().astype(np.float64), f"'{q}': {int(mask.sum())} Gaussians above the relevancy threshold"
 
+        extra_sem = {"semantic": sem, "label_names": label_names}
+    else:
+        extra_sem = {}
+
     cfg_path = path if path.suffix in (".yml", ".yaml") else (path / "config.yml" if (path / "config.yml").exists() else None)
     region = training_camera_region(cfg_path) if cfg_path is not None else None
-    return LoadedScene(scene, locate, "checkpoint", str(path), config_path=cfg_path, extra={"splat": st}, start_region=region)
+    if region is None and st.info.get("start_region"):  # compact exports carry their training cameras' box
+        lo, hi = (np.asarray(v, dtype=np.float64) for v in st.info["start_region"])
+        region = (lo, hi)
+    return LoadedScene(scene, locate, "checkpoint", str(path), config_path=cfg_path, extra={"splat": st, **extra_sem},
+                       start_region=region)
 
 
 def resolve_target(text: str, loaded: LoadedScene, what: str) -> Tuple[np.ndarray, str]:
@@ -215,9 +264,44 @@ def resolve_target(text: str, loaded: LoadedScene, what: str) -> Tuple[np.ndarra
     return loaded.locate(text)
 
 
+def _obstacles_near_paths(means: np.ndarray, shots, up: np.ndarray, band: float = 0.1) -> np.ndarray:
+    """Gaussian centres at the cameras' heights (+- band along `up`): a top view of everything would show
+    only floor and ceiling."""
+    up = up / np.linalg.norm(up)
+    h = means @ up
+    ph = np.concatenate([sh.positions @ up for sh in shots]) if shots else h
+    keep = (h >= ph.min() - band) & (h <= ph.max() + band)
+    return means[keep]
+
+
+def _object_radius(args: PlanArgs, loaded: LoadedScene) -> float:
+    if args.object_radius is not None:
+        if not (np.isfinite(args.object_radius) and args.object_radius >= 0):
+            raise InvalidInputError(f"--object-radius must be >= 0, got {args.object_radius}")
+        return float(args.object_radius)
+    if loaded.kind == "procedural" and parse_point(args.look_at) is None:
+        objs = loaded.extra["room"].objects
+        i = _word_match(args.look_at, [o.name for o in objs])
+        if i is not None:
+            return float(0.5 * np.linalg.norm(objs[i].size))
+    return 0.1
+
+
+def _limits(args: PlanArgs) -> Optional[DynamicLimits]:
+    if args.max_acceleration is None and args.max_angular_rate is None:
+        return None
+    return DynamicLimits(
+        max_speed=args.max_speed, fps=args.fps,
+        max_acceleration=0.5 if args.max_acceleration is None else args.max_acceleration,
+        max_angular_rate_deg=60.0 if args.max_angular_rate is None else args.max_angular_rate,
+    )
+
+
 def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
     """Plan and write outputs; returns a summary dict (paths, per-candidate metrics)."""
-    scfg = SceneConfig(beta=args.beta, camera_radius=args.camera_radius, opacity_floor=args.opacity_floor)
+    if not (args.safety_margin >= 0):
+        raise InvalidInputError(f"--safety-margin must be >= 0, got {args.safety_margin}")
+    scfg = SceneConfig(beta=args.beta, camera_radius=args.camera_radius + args.safety_margin, opacity_floor=args.opacity_floor)
     out = Path(args.output_dir)
     t_all = time.perf_counter()
     with Progress(SpinnerColumn(), TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=console, transient=True) as prog:
@@ -239,12 +323,36 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
         planner = Planner(loaded.scene, pcfg)
         prep = planner.prepare()
         prog.update(task, advance=1, description=f"planning {args.candidates} candidate(s)")
-        shots = planner.plan(goal, look, start=start, seed=args.seed, n_candidates=args.candidates)
+        limits = _limits(args)
+        obj_r = _object_radius(args, loaded)
+        score_cfg = ScoreConfig(**{**args.score.__dict__, "fov_deg": args.fov})
+        multi = None
+        if args.then_go_to:
+            if args.then_look_at and len(args.then_look_at) != len(args.then_go_to):
+                raise InvalidInputError(
+                    f"--then-look-at needs one look-at per --then-go-to ({len(args.then_go_to)}), got {len(args.then_look_at)}"
+                )
+            stops = [goal] + [resolve_target(t, loaded, f"go-to {i + 2}")[0] for i, t in enumerate(args.then_go_to)]
+            looks = [look] + ([resolve_target(t, loaded, f"look-at {i + 2}")[0] for i, t in enumerate(args.then_look_at)]
+                              if args.then_look_at else [look] * len(args.then_go_to))
+            multi = plan_multistop(planner, stops, np.stack(looks), start=start, seed=args.seed, limits=limits)
+            shots = [multi.shot]
+            scores = [None]
+        elif start is not None:
+            shots = planner.plan(goal, look, start=start, seed=args.seed, n_candidates=1)
+            if limits is not None:
+                shots = [retime_shot(sh, limits, up=pcfg.up) for sh in shots]
+            scores = score_shots(planner, shots, look, score_cfg, object_radius=obj_r)
+        else:
+            ranked: List[RankedShot] = plan_candidates(planner, goal, look, k=args.candidates, seed=args.seed,
+                                                       score_config=score_cfg, limits=limits, object_radius=obj_r)
+            shots = [r.shot for r in ranked]
+            scores = [r.score for r in ranked]
         prog.update(task, advance=1, description="exact clearance report + plots")
         out.mkdir(parents=True, exist_ok=True)
         reports, files = [], []
         for k, sh in enumerate(shots):
-            rep = safety_report(sh, planner.clearance, max_spacing=0.02, label=f"candidate {k}")
+            rep = safety_report(sh, planner.clearance, max_spacing=0.02, label=f"rank {k + 1}")
             reports.append(rep)
             cp = shot_to_camera_path(sh, fov_deg=args.fov, width=args.width, height=args.height)
             files.append(write_camera_path(out / f"{args.name}_{k}.json", cp))
@@ -252,9 +360,9 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
         lo, hi = planner.planning_bounds()
         png_t = plot_paths_topdown(
             [sh.positions for sh in shots], out / f"{args.name}_topdown.png",
-            obstacles=loaded.scene.means.detach().cpu().numpy(),
+            obstacles=_obstacles_near_paths(loaded.scene.means.detach().cpu().numpy(), shots, np.asarray(args.up, float)),
             targets={"go to": goal, "look at": look},
-            labels=[f"candidate {k}" for k in range(len(shots))],
+            labels=[f"rank {k + 1}" for k in range(len(shots))],
         )
         summary = {
             "scene": loaded.source,
@@ -262,11 +370,18 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
             "look_at": {"text": args.look_at, "point": look.tolist(), "resolved": look_desc},
             "prepare_ms": prep.timings_ms,
             "camera_radius": args.camera_radius,
+            "safety_margin": args.safety_margin,
+            "clearance_note": "clearances are measured from the camera sphere of radius camera_radius + safety_margin",
             "candidates": [
-                {**sh.to_dict(), "camera_path": str(files[k]), "exact_clearance": {kk: v for kk, v in reports[k].items() if kk not in ("times", "clearance")},
+                {**(multi.to_dict() if multi is not None else sh.to_dict()), "rank": k + 1,
+                 "score": None if scores[k] is None else scores[k].to_dict(),
+                 "dynamics": getattr(sh, "dynamics", None) if multi is None else multi.dynamics,
+                 "camera_path": str(files[k]), "exact_clearance": {kk: v for kk, v in reports[k].items() if kk not in ("times", "clearance")},
                  "verification": sh.safety}
                 for k, sh in enumerate(shots)
             ],
+            "object_radius": obj_r,
+            "score_config": score_cfg.__dict__,
             "clearance_samples": [{"times": r["times"], "clearance": r["clearance"]} for r in reports],
             "plots": {"clearance": str(png_c), "topdown": str(png_t)},
             "total_s": time.perf_counter() - t_all,
@@ -279,13 +394,20 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
         prog.update(task, advance=1)
 
     table = Table(title=f"cinesplat-plan: go to {goal_desc}, look at {look_desc}")
-    for col in ("cand", "start", "length", "duration s", "min clearance", "look-at err deg", "plan ms", "camera path"):
+    for col in ("rank", "score", "occluded", "fill", "start", "length", "duration s", "min clearance",
+                "mean clearance", "jerk mean", "turn deg/s", "peak v/a/w", "camera path"):
         table.add_column(col)
     for k, sh in enumerate(shots):
+        sc = scores[k]
+        dyn = getattr(sh, "dynamics", None) if multi is None else multi.dynamics
+        peaks = "-" if not dyn else f"{dyn['peak_speed']:.2f}/{dyn['peak_acceleration']:.2f}/{dyn['peak_angular_rate_deg']:.0f}"
+        t = sc.terms if sc is not None else {}
+        f = lambda key, fmt: "-" if key not in t else format(t[key], fmt)  # noqa: E731
         table.add_row(
-            str(k), str(np.round(sh.start, 3).tolist()), f"{sh.length:.3f}", f"{sh.duration:.2f}",
-            f"{reports[k]['min_clearance']:.4f}", f"{float(np.max(sh.look_at_errors_deg())):.3f}",
-            f"{sh.timings.get('plan_ms', float('nan')):.0f}", str(files[k]),
+            str(k + 1), "-" if sc is None else f"{sc.total:.3f}", f("occluded_fraction", ".2f"), f("framing_fill_mean", ".2f"),
+            str(np.round(sh.start, 3).tolist()), f"{sh.length:.3f}", f"{sh.duration:.2f}",
+            f"{reports[k]['min_clearance']:.4f}", f"{reports[k]['mean_clearance']:.3f}", f("mean_jerk", ".2f"),
+            f("mean_angular_rate_deg", ".1f"), peaks, str(files[k]),
         )
     console.print(table)
     console.print(f"report: {summary['report']}\nplots: {png_c}, {png_t}")

@@ -167,3 +167,57 @@ def offline_safe_lpips(mode: str = "auto") -> Iterator[None]:
         yield
     finally:
         lpip_mod.LearnedPerceptualImagePatchSimilarity = orig  # type: ignore[assignment]
+
+
+# ------------------------------------------------------------------------------------------------
+# 3. Seed point clouds without open3d.
+# nerfstudio's NerfstudioDataParser reads `ply_file_path` (splatfacto's initial points) with open3d,
+# which has no wheels for Python 3.12 / many machines; the import then crashes the whole run. The
+# patched reader uses plyfile (a project dependency) when open3d is missing and applies exactly the
+# transform nerfstudio applies (homogeneous `@ transform_matrix.T`, then `*= scale_factor`).
+_PLY_PATCHED = False
+
+
+def read_ply_points(path) -> tuple[torch.Tensor, torch.Tensor]:
+    """(xyz [P, 3] float32, rgb [P, 3] uint8) of a point-cloud .ply (ascii or binary); rgb is grey when
+    the file has no colour."""
+    from plyfile import PlyData
+
+    v = PlyData.read(str(path))["vertex"].data
+    xyz = np.stack([np.asarray(v[k], dtype=np.float32) for k in ("x", "y", "z")], axis=1)  # [P, 3]
+    names = v.dtype.names or ()
+    if all(c in names for c in ("red", "green", "blue")):
+        rgb = np.stack([np.asarray(v[c]) for c in ("red", "green", "blue")], axis=1)
+        rgb = (rgb * 255.0).round() if rgb.dtype.kind == "f" and rgb.max() <= 1.0 else rgb
+        rgb = np.clip(rgb, 0, 255).astype(np.uint8)
+    else:
+        rgb = np.full((len(xyz), 3), 128, np.uint8)
+    return torch.from_numpy(xyz), torch.from_numpy(rgb)
+
+
+def patch_ply_loader_without_open3d() -> bool:
+    """Make NerfstudioDataParser read `ply_file_path` with plyfile when open3d is not importable.
+    Returns True when the patch is (already) installed. A no-op for machines with open3d."""
+    global _PLY_PATCHED
+    if _PLY_PATCHED:
+        return True
+    try:
+        from nerfstudio.data.dataparsers.nerfstudio_dataparser import Nerfstudio
+    except Exception:  # nerfstudio not installed: nothing to patch
+        return False
+    orig = Nerfstudio._load_3D_points
+
+    def _load_3D_points(self, ply_file_path, transform_matrix, scale_factor):
+        try:
+            import open3d  # noqa: F401
+        except ImportError:
+            xyz, rgb = read_ply_points(ply_file_path)
+            if len(xyz) == 0:
+                return None
+            xyz = torch.cat((xyz, torch.ones_like(xyz[..., :1])), -1) @ transform_matrix.T
+            return {"points3D_xyz": xyz * scale_factor, "points3D_rgb": rgb}
+        return orig(self, ply_file_path, transform_matrix, scale_factor)
+
+    Nerfstudio._load_3D_points = _load_3D_points
+    _PLY_PATCHED = True
+    return True

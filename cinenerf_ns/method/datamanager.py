@@ -26,10 +26,14 @@ import torch
 
 from cinenerf_ns.method.clip_features import ClipFeatureConfig
 from cinenerf_ns.method.codec import CodecConfig
+from cinenerf_ns.method.compat import patch_ply_loader_without_open3d
 from cinenerf_ns.method.model import META_CODEC_STATE, META_INFO
 from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.data.datamanagers.full_images_datamanager import FullImageDatamanager, FullImageDatamanagerConfig
 from nerfstudio.utils.rich_utils import CONSOLE
+
+# splatfacto's seed points (transforms.json `ply_file_path`) load without open3d (see compat.py)
+patch_ply_loader_without_open3d()
 
 
 @dataclass

@@ -70,6 +70,12 @@ class CineSplatModelConfig(SplatfactoModelConfig):
     """Gaussians with relevancy above this belong to the queried object (viewer mask, locate())."""
     viewer_default_query: str = ""
     """Initial text of the viewer's relevancy query box."""
+    viewer_cine_panel: bool = True
+    """Add the cinematography panel (plan / fly / export collision-free shots) to nerfstudio's viewer
+    (``ns-train cinesplat`` and ``ns-viewer``); it appears only when a viewer runs."""
+    viewer_planner_device: str = "cpu"
+    """Device the panel plans on: the Gaussians are copied there at each Plan ('cpu' keeps planning off the
+    training GPU; 'cuda' is faster for millions of Gaussians)."""
 
 
 class CineSplatModel(SplatfactoModel):
@@ -107,6 +113,13 @@ class CineSplatModel(SplatfactoModel):
         )
         if self.config.viewer_default_query:
             self._query_text = self.config.viewer_default_query
+        if self.config.viewer_cine_panel:
+            # nerfstudio's Viewer finds this ViewerControl on the model (parse_object) and calls its _setup
+            # once the viser server exists; the backend (snapshot under train_lock, real planner, semantics)
+            # is built then, after a checkpoint has been loaded.
+            from cinenerf_ns.viewer.nerfstudio_panel import CinePanelControl, cinesplat_backend
+
+            self.cine_panel = CinePanelControl(lambda: cinesplat_backend(self, device=self.config.viewer_planner_device))
 
     def k_nearest_sklearn(self, x: torch.Tensor, k: int):
         """splatfacto's initial-scale kNN without scikit-learn (not in our dependency set): scipy cKDTree.

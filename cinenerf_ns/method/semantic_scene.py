@@ -89,7 +89,12 @@ class SemanticScene:
         temperature: float = 10.0,
         threshold: float = 0.5,
         min_opacity: float = 0.0,
+        label_names: Optional[Sequence[str]] = None,
     ):
+        """label_names: the scene's own label vocabulary (label-mask training). A query equal to one of
+        them is contrasted against the *other* labels instead of ``negatives``: "floor lamp" must beat
+        "floor", "wall", ... (the generic negatives only say "is it an object at all"), which is what
+        separates objects whose embeddings are close."""
         n = means.shape[0]
         if means.shape != (n, 3) or latents.shape[0] != n or opacities.reshape(-1).shape[0] != n:
             raise ValueError(
@@ -106,6 +111,8 @@ class SemanticScene:
         self.threshold = float(threshold)
         self.min_opacity = float(min_opacity)
         self._neg_emb: Optional[Tensor] = None
+        self.label_names = [str(x) for x in (label_names or [])]
+        self._label_neg: Dict[str, Tensor] = {}
 
     @classmethod
     def from_checkpoint(cls, path: str | Path, device: torch.device | str = "cpu", **kwargs) -> "SemanticScene":
@@ -116,6 +123,7 @@ class SemanticScene:
         if st.latents is None or st.codec is None:
             raise QueryError(f"{path} has no semantic latents (a splatfacto checkpoint?); train it with ns-train cinesplat")
         enc = build_text_encoder(st.info, st.label_embeddings, device=device)
+        kwargs.setdefault("label_names", st.info.get("label_names"))
         return cls(st.means, torch.sigmoid(st.opacities), st.latents, st.codec, enc, **kwargs)
 
     def __len__(self) -> int:
@@ -128,6 +136,12 @@ class SemanticScene:
         if self._neg_emb is None:
             self._neg_emb = self.text_encoder(list(self.negatives)).to(dev)
         q = self.text_encoder([text.strip()])[0].to(dev)
+        key = text.strip().lower()
+        others = [n for n in self.label_names if n.strip().lower() != key]
+        if others and len(others) < len(self.label_names):  # the query is one of the scene's labels
+            if key not in self._label_neg:
+                self._label_neg[key] = self.text_encoder(others).to(dev)
+            return q, self._label_neg[key]
         return q, self._neg_emb
 
     @torch.no_grad()

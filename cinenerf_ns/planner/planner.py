@@ -340,7 +340,21 @@ class Planner:
         return torch.as_tensor(self.points_free(points.detach().cpu().numpy()))
 
     def _main_component(self) -> int:
-        labels = self._prep().astar_grid.labels
+        """The free component random starts come from: the one with the most free voxels inside the
+        start region when one is set (a room's interior, where the capture's cameras were: the shell of
+        free space *outside* the walls inside the planning bounds can be larger), else the largest."""
+        prep = self._prep()
+        labels = prep.astar_grid.labels
+        if self.config.start_region is not None:
+            grid = prep.grid
+            lo, hi = (torch.as_tensor(np.asarray(v, dtype=np.float64), device=grid.device) for v in self.config.start_region)
+            a = grid.world_to_voxel(lo).cpu().numpy().clip(0, np.array(grid.shape) - 1)
+            b = grid.world_to_voxel(hi).cpu().numpy().clip(0, np.array(grid.shape) - 1)
+            sub = labels[a[0] : b[0] + 1, a[1] : b[1] + 1, a[2] : b[2] + 1]
+            counts = np.bincount(sub.ravel(), minlength=int(labels.max()) + 1)
+            counts[0] = 0
+            if counts.max() > 0:
+                return int(np.argmax(counts))
         counts = np.bincount(labels.ravel())
         counts[0] = 0
         return int(np.argmax(counts))

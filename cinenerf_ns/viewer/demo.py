@@ -1,24 +1,14 @@
-"""A small labelled demo scene and a straight-line stand-in planner for the standalone viewer.
-
-The stand-in exists so the viewer can be used and tested before the real planner
-(``cinenerf_ns.planner.planner.Planner``) is wired in; ``standalone.py`` prefers the real one when it
-imports. It is deliberately simple and honest: it only returns a straight segment whose every point
-provably keeps the camera sphere outside every obstacle's *bounding sphere* (a conservative test:
-distance to a Gaussian's bounding sphere <= distance to its ellipsoid), and raises
-``GoalUnreachableError`` otherwise. No corridor, no smoothing beyond an ease-in/ease-out timing.
-"""
+"""A small labelled demo scene for the standalone viewer (``--load-config demo``) and the camera
+look-at rotation used by the viewer's tests. Planning on it uses the real planner."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import Any, Dict, List, Optional, Tuple
+from dataclasses import dataclass
+from typing import List, Tuple
 
 import numpy as np
 
-from cinenerf_ns.planner.errors import GoalUnreachableError, InvalidInputError, StartInCollisionError
-from cinenerf_ns.planner.shot import Shot
-
-from .backend import to_numpy
+from cinenerf_ns.planner.errors import InvalidInputError
 
 UP = np.array([0.0, 0.0, 1.0])
 
@@ -83,143 +73,3 @@ def look_at_rotation(position: np.ndarray, target: np.ndarray, up: np.ndarray = 
     x /= np.linalg.norm(x)
     y = np.cross(x, f)
     return np.stack([x, y, -f], axis=1)
-
-
-# the stand-in returns the planner's own Shot type so export/playback code paths are the real ones
-StraightShot = Shot
-
-
-class StraightLinePlanner:
-    """Stand-in planner over obstacle bounding spheres (see module docstring)."""
-
-    def __init__(
-        self,
-        centers: np.ndarray,  # [N, 3]
-        bound_radii: np.ndarray,  # [N] radius of a sphere containing each obstacle ellipsoid
-        camera_radius: float = 0.03,
-        speed: float = 0.4,
-        fps: int = 30,
-        region: Optional[Tuple[np.ndarray, np.ndarray]] = None,
-    ) -> None:
-        self.centers = to_numpy(centers).reshape(-1, 3)
-        self.bound_radii = to_numpy(bound_radii).reshape(-1)
-        self.camera_radius = float(camera_radius)
-        self.speed, self.fps = float(speed), int(fps)
-        if region is None:
-            lo, hi = self.centers.min(0), self.centers.max(0)
-            pad = 0.15 * (hi - lo)
-            region = (lo - pad, hi + pad)
-        self.region = (np.asarray(region[0], np.float64), np.asarray(region[1], np.float64))
-
-    @classmethod
-    def from_scene(cls, scene: Any, **kw) -> "StraightLinePlanner":
-        """From an ``EllipsoidScene`` (bounding radius = largest semi-axis)."""
-        return cls(to_numpy(scene.means), to_numpy(scene.radii).max(-1), float(scene.camera_radius), **kw)
-
-    def clearance_lower_bound(self, points: np.ndarray) -> np.ndarray:
-        """[P, 3] -> [P]: min_j |p - c_j| - R_j - camera_radius (<= the true clearance).
-
-        Exact value of that minimum through a KD-tree: with d1 the nearest-centre distance, any j
-        with |p - c_j| > d1 + max(R) has |p - c_j| - R_j > d1 >= the nearest centre's term, so only
-        centres within d1 + max(R) can attain the minimum."""
-        pts = np.asarray(points, np.float64).reshape(-1, 3)
-        tree = self._tree()
-        d1, _ = tree.query(pts)
-        r_max = float(self.bound_radii.max()) if len(self.bound_radii) else 0.0
-        out = np.empty(len(pts))
-        for i, (p, near) in enumerate(zip(pts, tree.query_ball_point(pts, d1 + r_max + 1e-12))):
-            near = np.asarray(near, dtype=np.int64)
-            out[i] = (np.linalg.norm(self.centers[near] - p, axis=1) - self.bound_radii[near]).min()
-        return out - self.camera_radius
-
-    def clearance_lower_bound_reference(self, points: np.ndarray) -> np.ndarray:
-        """Brute force over all obstacles (float64), the reference the KD-tree version is tested against."""
-        pts = np.asarray(points, np.float64).reshape(-1, 3)
-        d = np.linalg.norm(pts[:, None, :] - self.centers[None], axis=-1) - self.bound_radii[None]
-        return d.min(1) - self.camera_radius
-
-    def _tree(self):
-        if getattr(self, "_kdtree", None) is None:
-            from scipy.spatial import cKDTree
-
-            self._kdtree = cKDTree(self.centers)
-        return self._kdtree
-
-    def _segment_clear(self, a: np.ndarray, b: np.ndarray) -> Tuple[bool, np.ndarray, np.ndarray]:
-        # Samples spaced h apart with clearance > h/2 cover the whole segment (distance is 1-Lipschitz).
-        length = float(np.linalg.norm(b - a))
-        h = max(self.camera_radius / 2, 1e-3)
-        n = max(int(math.ceil(length / h)), 1) + 1
-        s = np.linspace(0.0, 1.0, n)
-        pts = a[None] + s[:, None] * (b - a)[None]
-        c = self.clearance_lower_bound(pts)
-        return bool(np.all(c > 0.5 * length / (n - 1))), pts, c
-
-    def _approach(self, start: np.ndarray, goal: np.ndarray) -> np.ndarray:
-        """Fly from the start towards the goal (often an object's centre, inside it) and stop at the
-        last sample before the camera would come within 2 camera radii of any obstacle."""
-        length = float(np.linalg.norm(goal - start))
-        h = max(self.camera_radius / 2, 1e-3)
-        n = max(int(math.ceil(length / h)), 1) + 1
-        pts = start[None] + np.linspace(0.0, 1.0, n)[:, None] * (goal - start)[None]
-        blocked = np.nonzero(self.clearance_lower_bound(pts) <= 2 * self.camera_radius)[0]
-        if len(blocked) == 0:
-            return goal
-        return pts[max(int(blocked[0]) - 1, 0)]
-
-    def plan(self, goal, look_at, start=None, seed: int = 0, n_candidates: int = 1) -> List[StraightShot]:
-        goal, look_at = to_numpy(goal).reshape(3), to_numpy(look_at).reshape(3)
-        rng = np.random.default_rng(seed)
-        if start is not None:
-            start = to_numpy(start).reshape(3)
-            if self.clearance_lower_bound(start[None])[0] <= 0:
-                raise StartInCollisionError(f"the start {np.round(start, 3).tolist()} is inside (or too near) the scene")
-            shot = self._try(start, goal, look_at)
-            if shot is None:
-                raise GoalUnreachableError(
-                    "no straight collision-free path from this start to the goal (the stand-in planner only "
-                    "flies straight lines; try a random start)"
-                )
-            return [shot]
-        shots, free_starts = [], 0
-        for _ in range(200 * max(n_candidates, 1)):  # random free starts until enough straight shots
-            p = rng.uniform(*self.region)
-            if self.clearance_lower_bound(p[None])[0] <= 3 * self.camera_radius:
-                continue
-            free_starts += 1
-            shot = self._try(p, goal, look_at)
-            if shot is not None:
-                shots.append(shot)
-                if len(shots) == n_candidates:
-                    break
-            if free_starts >= 60 * max(n_candidates, 1):
-                break
-        if not shots:
-            if free_starts == 0:
-                raise StartInCollisionError("found no free random start in the scene bounds")
-            raise GoalUnreachableError(
-                f"no straight collision-free path to the goal from {free_starts} random starts (the stand-in "
-                "planner only flies straight lines; the real planner goes around obstacles)"
-            )
-        return shots
-
-    def _try(self, s: np.ndarray, goal: np.ndarray, look_at: np.ndarray) -> Optional[StraightShot]:
-        end = self._approach(s, goal)
-        # it must get at least half-way: stopping in front of another object is not "going to" the goal
-        if np.linalg.norm(end - goal) > 0.5 * np.linalg.norm(s - goal) or np.linalg.norm(end - look_at) < 1e-6:
-            return None
-        ok, _, _ = self._segment_clear(s, end)
-        return self._make_shot(s, end, goal, look_at) if ok else None
-
-    def _make_shot(self, a: np.ndarray, b: np.ndarray, goal: np.ndarray, look_at: np.ndarray) -> StraightShot:
-        length = float(np.linalg.norm(b - a))
-        duration = max(1.5 * length / self.speed, 0.5)  # smoothstep peaks at 1.5x the mean speed
-        n = max(int(math.ceil(duration * self.fps)), 1) + 1
-        times = np.linspace(0.0, duration, n)
-        u = times / duration
-        s = u * u * (3 - 2 * u)  # ease in / ease out
-        pos = a[None] + s[:, None] * (b - a)[None]
-        target = look_at if np.linalg.norm(look_at - b) > 1e-6 else b + (b - a)
-        rot = np.stack([look_at_rotation(p, target) for p in pos])
-        return Shot(times=times, positions=pos, rotations=rot, look_at=look_at, goal=goal, start=a,
-                    clearance=self.clearance_lower_bound(pos), fps=float(self.fps))

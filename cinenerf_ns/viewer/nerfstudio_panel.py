@@ -7,13 +7,15 @@ is such a control: the model declares one, and its ``_setup`` adds the panel (a 
 folder under the Control/Render/Export tabs) to ``viewer.viser_server``. ``ns-viewer`` builds the same
 ``Viewer`` on the loaded pipeline, so the panel appears there too.
 
-In the cinesplat model (``populate_modules``)::
+The cinesplat model (``method/model.py``, ``populate_modules``) declares one::
 
-    from cinenerf_ns.viewer.nerfstudio_panel import CinePanelControl, SplatModelBackend
-    self.cine_panel = CinePanelControl(lambda: SplatModelBackend(
-        self, make_planner=lambda scene: Planner(scene, planner_config),   # cinenerf_ns.planner
-        locate_fn=lambda text: self.semantic_scene().locate(text),          # cinenerf_ns.method
-    ))
+    self.cine_panel = CinePanelControl(lambda: cinesplat_backend(self))
+
+:func:`cinesplat_backend` builds a :class:`SplatModelBackend`: each Plan snapshots the model's current
+Gaussians under the viewer's ``train_lock`` (copies, so training goes on while planning runs), builds
+an ``EllipsoidScene`` and the real planner from the snapshot (rebuilt only when the training step or the
+Gaussian count changed), and answers text with a ``SemanticScene`` over the snapshot's latents + the
+model's codec and text encoder (coordinates only when the model has no codec).
 
 Camera moves go straight to every client's viser camera (nerfstudio 1.1.5's ``ViewerControl.set_pose``
 raises NotImplementedError); nerfstudio's render state machine re-renders on the client's echo.
@@ -21,9 +23,11 @@ raises NotImplementedError); nerfstudio's render state machine re-renders on the
 from __future__ import annotations
 
 import contextlib
+import copy
 import threading
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Optional
+from typing import Any, Callable, Dict, List, Optional, Union
 
 import numpy as np
 import torch
@@ -55,7 +59,9 @@ def attach_to_nerfstudio_viewer(
     cfg.data_dir = Path(viewer.datapath)
     cfg.config_path = Path(viewer.log_filename).parent / "config.yml"
     lock = getattr(viewer, "train_lock", None)
-    if lock is not None and not isinstance(backend, LockedBackend):
+    if isinstance(backend, SplatModelBackend):  # snapshots the model under the lock; plans without it
+        backend.lock = lock
+    elif lock is not None and not isinstance(backend, LockedBackend):
         backend = LockedBackend(backend, lock)
     return attach_cine_panel(viewer.viser_server, backend, cfg, exporter, scale=VISER_NERFSTUDIO_SCALE_RATIO)
 
@@ -104,62 +110,163 @@ class LockedBackend:
             return self.inner.plan(goal, look_at, start=start, seed=seed, n_candidates=n_candidates)
 
 
+@dataclass
+class ModelSnapshot:
+    """Copies of a splatfacto-style model's Gaussians at one training step (on the planning device)."""
+
+    version: Any  # what the backend compares to know the model changed (step, N)
+    means: torch.Tensor  # [N, 3]
+    quats: torch.Tensor  # [N, 4] wxyz
+    scales: torch.Tensor  # [N, 3] log
+    opacities: torch.Tensor  # [N] logits
+    colors: Optional[torch.Tensor]  # [N, 3] RGB in [0, 1]
+    latents: Optional[torch.Tensor]  # [N, 3] or None
+
+
 class SplatModelBackend:
     """PanelBackend over a live splatfacto-style model (``means``, ``quats``, ``scales`` (log),
-    ``opacities`` (logits), ``colors`` properties).
+    ``opacities`` (logits), ``colors`` properties; cinesplat models also ``latents`` / ``codec``).
 
-    The obstacle scene and the planner are rebuilt when the model's ``step`` changed since the last
-    plan (training moves and densifies the Gaussians); between steps they are reused, so repeated
-    Plans on a paused or finished run only pay for planning. Planner-like: ``make_planner(scene)``
-    returns an object with ``plan(goal, look_at, start=None, seed=0, n_candidates=1)`` taking torch
-    tensors on the scene's device (``cinenerf_ns.planner.Planner``); ``prepare()`` is called if present."""
+    Reads of the model happen only in :meth:`snapshot`, under ``lock`` (nerfstudio's ``train_lock``,
+    set by :func:`attach_to_nerfstudio_viewer`), and copy the tensors to ``device``; planning and text
+    queries then run on the copy without blocking training. The obstacle scene, the planner and the
+    semantic scene are rebuilt when ``version_fn()`` (default: step and Gaussian count) changed since
+    the last snapshot; otherwise they are reused, so repeated Plans on a paused or finished run only
+    pay for planning.
+
+    ``make_planner(scene)`` returns an object with ``plan(goal, look_at, start=None, seed=0,
+    n_candidates=1)`` (default: :class:`~.planner_backend.PreparedPlanner` with ``planner_config``).
+    ``locate_fn(text)`` overrides the text query; by default a ``SemanticScene`` is built when the model
+    has a codec (``semantic_fn`` can replace that too)."""
 
     def __init__(
         self,
         model: Any,
-        make_planner: Callable[[EllipsoidScene], Any],
+        make_planner: Optional[Callable[[EllipsoidScene], Any]] = None,
         locate_fn: Optional[LocateFn] = None,
         scene_config: Optional[SceneConfig] = None,
         version_fn: Optional[Callable[[], Any]] = None,
+        planner_config: Any = None,
+        device: Union[str, torch.device] = "cpu",
+        lock: Any = None,
+        semantic_fn: Optional[Callable[["ModelSnapshot"], Any]] = None,
     ) -> None:
         self.model = model
-        self.make_planner = make_planner
+        self.planner_config = planner_config
+        self.make_planner = make_planner or self._default_planner
         self.locate_fn = locate_fn
         self.scene_config = scene_config or SceneConfig()
-        self.version_fn = version_fn or (lambda: (getattr(model, "step", 0), int(model.means.shape[0])))
+        self.version_fn = version_fn or (lambda: (int(getattr(model, "step", 0)), int(model.means.shape[0])))
+        self.device = torch.device(device)
+        self.lock = lock
+        self.semantic_fn = semantic_fn if semantic_fn is not None else model_semantic_scene(model)
+        self.planner_name = "cinenerf_ns planner" if make_planner is None else None
+        self.snapshots_taken = 0
         self._cache: Dict[str, Any] = {}
         self._cache_lock = threading.Lock()
 
+    def _default_planner(self, scene: EllipsoidScene):
+        from .planner_backend import PreparedPlanner
+
+        return PreparedPlanner(scene, self.planner_config).start(background=False)
+
+    # ------------------------------------------------------------------ model reads
     @torch.no_grad()
+    def snapshot(self) -> ModelSnapshot:
+        """Copy the model's Gaussians (under ``lock``) to ``device``."""
+        m = self.model
+        with (self.lock if self.lock is not None else contextlib.nullcontext()):
+            version = self.version_fn()
+            cp = lambda x: None if x is None else x.detach().to(self.device, torch.float32, copy=True)  # noqa: E731
+            colors = getattr(m, "colors", None)
+            latents = getattr(m, "latents", None)
+            snap = ModelSnapshot(
+                version=version, means=cp(m.means), quats=cp(m.quats), scales=cp(m.scales),
+                opacities=cp(m.opacities).reshape(-1), colors=None if colors is None else cp(colors).clamp(0, 1),
+                latents=None if latents is None else cp(latents),
+            )
+        self.snapshots_taken += 1
+        return snap
+
     def _current(self, what: str):
-        version = self.version_fn()
         with self._cache_lock:
-            if self._cache.get("version") != version:
-                self._cache = {"version": version}
+            if self._cache.get("version") != self.version_fn() or "snapshot" not in self._cache:
+                snap = self.snapshot()
+                self._cache = {"version": snap.version, "snapshot": snap}
+            snap = self._cache["snapshot"]
             if what not in self._cache:
-                m = self.model
                 if what == "gaussians":
-                    self._cache[what] = SceneGaussians(m.means, m.colors.clamp(0, 1), torch.sigmoid(m.opacities))
+                    self._cache[what] = SceneGaussians(snap.means, snap.colors, torch.sigmoid(snap.opacities))
                 elif what == "planner":
-                    scene = EllipsoidScene.from_splat(
-                        m.means.detach(), m.quats.detach(), m.scales.detach(), m.opacities.detach(), self.scene_config
-                    )
+                    scene = EllipsoidScene.from_splat(snap.means, snap.quats, snap.scales, snap.opacities, self.scene_config)
                     planner = self.make_planner(scene)
-                    if hasattr(planner, "prepare"):
+                    if hasattr(planner, "prepare") and not hasattr(planner, "wait_ready"):
                         planner.prepare()
                     self._cache[what] = (scene, planner)
+                elif what == "semantic":
+                    self._cache[what] = None if self.semantic_fn is None else self.semantic_fn(snap)
             return self._cache[what]
 
+    # ------------------------------------------------------------------ PanelBackend
     def gaussians(self) -> SceneGaussians:
         return self._current("gaussians")
 
     def locate(self, text: str):
         from .backend import FunctionBackend
 
+        locate_fn = self.locate_fn
+        if locate_fn is None:
+            sem = self._current("semantic")
+            if sem is not None:
+                from cinenerf_ns.cli.plan import label_query
+
+                names = list(getattr(self.model, "cine_info", {}).get("label_names") or [])
+                locate_fn = lambda t: sem.locate(label_query(t, names))  # noqa: E731
         # FunctionBackend gives the same empty-text / no-semantics messages as the standalone viewer.
-        return FunctionBackend(self.gaussians(), lambda *a, **k: [], self.locate_fn).locate(text)
+        return FunctionBackend(self.gaussians(), lambda *a, **k: [], locate_fn).locate(text)
 
     def plan(self, goal, look_at, start=None, seed: int = 0, n_candidates: int = 1) -> List[Any]:
         scene, planner = self._current("planner")
-        t = lambda x: None if x is None else torch.as_tensor(np.asarray(x), dtype=scene.dtype, device=scene.device)
+        if hasattr(planner, "wait_ready"):  # PreparedPlanner: numpy in, float64 planning
+            shots = list(planner.plan(goal, look_at, start=start, seed=seed, n_candidates=n_candidates))
+            prep = getattr(planner, "prepare_s", None)
+            if prep is not None and not getattr(planner, "_reported_prepare", False):
+                planner._reported_prepare = True  # the first Plan on a new snapshot also paid prepare()
+                for s in shots:
+                    if isinstance(getattr(s, "timings", None), dict):
+                        s.timings["prepare_ms"] = 1e3 * prep
+            return shots
+        t = lambda x: None if x is None else torch.as_tensor(np.asarray(x), dtype=scene.dtype, device=scene.device)  # noqa: E731
         return list(planner.plan(t(goal), t(look_at), start=t(start), seed=seed, n_candidates=n_candidates))
+
+
+def model_semantic_scene(model: Any) -> Callable[[ModelSnapshot], Any]:
+    """``snapshot -> SemanticScene`` for a cinesplat model (latents + codec + text encoder, relevancy
+    settings from its config); the function returns None when the model has no codec (then text
+    queries ask for coordinates)."""
+    state: Dict[str, Any] = {}
+
+    def build(snap: ModelSnapshot):
+        # checked per snapshot: ns-viewer builds the codec when it loads the checkpoint, after construction
+        if snap.latents is None or getattr(model, "codec", None) is None or not hasattr(model, "text_encoder"):
+            return None
+        from cinenerf_ns.method.semantic_scene import SemanticScene
+
+        if state.get("codec_src") is not model.codec:  # frozen: one copy on the planning device
+            state["codec"] = copy.deepcopy(model.codec).to(snap.means.device).eval()
+            state["codec_src"] = model.codec
+        cfg = getattr(model, "config", None)
+        kw = {}
+        if cfg is not None:
+            kw = dict(negatives=tuple(cfg.relevancy_negatives), temperature=float(cfg.relevancy_temperature),
+                      threshold=float(cfg.relevancy_threshold))
+        return SemanticScene(snap.means, torch.sigmoid(snap.opacities), snap.latents, state["codec"],
+                             model.text_encoder(), label_names=(getattr(model, "cine_info", None) or {}).get("label_names"),
+                             **kw)
+
+    return build
+
+
+def cinesplat_backend(model: Any, device: Union[str, torch.device] = "cpu", planner_config: Any = None) -> SplatModelBackend:
+    """The backend ``CineSplatModel`` installs: real planner + its semantics, planning on ``device``."""
+    return SplatModelBackend(model, planner_config=planner_config, device=device)

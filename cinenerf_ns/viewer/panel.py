@@ -351,7 +351,7 @@ class CinePanel:
         timings = {"query_s": t1 - t0, "plan_s": t2 - t1, "draw_s": t3 - t2, "total_s": t3 - t0}
         self.last_timings = timings
         inner = getattr(shots[0], "timings", None) or {}
-        detail = ", ".join(f"{k} {v:.2f} s" for k, v in inner.items() if isinstance(v, (int, float)))
+        detail = timings_detail(inner)
         by = getattr(self.backend, "planner_name", None)
         self._set_status(
             f"Planned {len(shots)} candidate(s){f' with the {by}' if by else ''} in {timings['total_s']:.2f} s (query {timings['query_s']:.2f} s, "
@@ -564,12 +564,42 @@ def check_shot(shot: Any, what: str = "shot") -> None:
 
 
 def min_clearance(shot: Any) -> Optional[float]:
+    """Smallest clearance the shot reports: per-frame ``clearance`` [T], else ``min_clearance``, else the
+    planner's dense verification (``safety['min_exact_clearance']``, None when every sample was proven free)."""
     c = getattr(shot, "clearance", None)
     if c is not None:
         c = to_numpy(c).reshape(-1)
         return float(c.min()) if c.size else None
     m = getattr(shot, "min_clearance", None)
+    if m is not None:
+        return float(m)
+    safety = getattr(shot, "safety", None)
+    m = safety.get("min_exact_clearance") if isinstance(safety, dict) else None
     return None if m is None else float(m)
+
+
+def shot_score(shot: Any) -> Optional[float]:
+    """The candidate's ranking score when the planner gives one (``shot.score``), else None."""
+    s = getattr(shot, "score", None)
+    try:
+        return None if s is None else float(s)
+    except (TypeError, ValueError):
+        return None
+
+
+def timings_detail(timings: Dict[str, Any]) -> str:
+    """``{'astar_ms': 12.3, 'fit_s': 0.5}`` -> ``'astar 12 ms, fit 0.50 s'`` (the planner reports ms)."""
+    out = []
+    for k, v in timings.items():
+        if not isinstance(v, (int, float)):
+            continue
+        if k.endswith("_ms"):
+            out.append(f"{k[:-3]} {v:.0f} ms")
+        elif k.endswith("_s"):
+            out.append(f"{k[:-2]} {v:.2f} s")
+        else:
+            out.append(f"{k} {v:.3g}")
+    return ", ".join(out)
 
 
 def shot_summary(shot: Any) -> str:
@@ -577,11 +607,16 @@ def shot_summary(shot: Any) -> str:
     pos = to_numpy(shot.positions)
     length = float(np.linalg.norm(np.diff(pos, axis=0), axis=1).sum())
     c = min_clearance(shot)
-    cl = "n/a" if c is None else f"{c:.3f}"
-    return f"{times[-1] - times[0]:.1f} s, {length:.2f} units long, min clearance {cl}"
+    cl = "n/a" if c is None else f"{c:.3g}"
+    score = shot_score(shot)
+    return (f"{times[-1] - times[0]:.1f} s, {length:.2f} units long, min clearance {cl}"
+            f"{'' if score is None else f', score {score:.3g}'}")
 
 
 def candidate_label(i: int, shot: Any) -> str:
+    """Dropdown entry: ``'<n>: <duration> s, clearance <min>[, score <s>]'`` (the panel parses the number)."""
     times = to_numpy(shot.times)
     c = min_clearance(shot)
-    return f"{i + 1}: {times[-1] - times[0]:.1f} s, clearance {'n/a' if c is None else f'{c:.3f}'}"
+    score = shot_score(shot)
+    return (f"{i + 1}: {times[-1] - times[0]:.1f} s, clearance {'n/a' if c is None else f'{c:.3g}'}"
+            f"{'' if score is None else f', score {score:.3g}'}")

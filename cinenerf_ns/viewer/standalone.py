@@ -1,15 +1,18 @@
 """``cinesplat-viewer``: the cinematography panel on a plain viser server, no GPU needed.
 
-The splat is drawn client-side by the browser (viser's Gaussian-splat node); planning runs on CPU.
+The splat is drawn client-side by the browser (viser's Gaussian-splat node); planning runs on the
+``--device`` (CPU by default) with the real planner (``cinenerf_ns.planner.planner.Planner``).
 
-    cinesplat-viewer --load-config outputs/<run>/cinesplat/<ts>/config.yml
+    cinesplat-viewer --load-config outputs/<run>/cinesplat/<ts>/config.yml   # or the run folder / a .ckpt
+    cinesplat-viewer --load-config scene_compact.pt   # a compact export (method.checkpoint.export_compact)
     cinesplat-viewer --load-config scene.ply          # a 3DGS / splatfacto-export .ply
+    cinesplat-viewer --load-config procedural:20000   # generated test room with named objects
     cinesplat-viewer --load-config demo               # built-in labelled demo scene
 
-Targets can always be typed as coordinates "x y z" (scene units). Text queries need a semantic
-``locate`` (trained cinesplat latents + codec + text encoder); the demo scene answers its own object
-names. The planner is ``cinenerf_ns.planner.planner.Planner`` when importable, else the straight-line
-stand-in from :mod:`.demo` (the status line says which one ran).
+Targets can always be typed as coordinates "x y z" (scene units). Text queries need semantics: a
+cinesplat checkpoint / compact export with latents + codec (relevancy, ``method.semantic_scene``), or
+the ground-truth names of the procedural / demo scenes. Scenes are loaded by ``cinesplat-plan``'s
+loader, so the command line and the viewer plan around the same obstacles.
 """
 from __future__ import annotations
 
@@ -17,7 +20,7 @@ import dataclasses
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Dict, Optional, Tuple
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 
@@ -55,13 +58,17 @@ def _t(x):
 
 @dataclass
 class LoadedScene:
-    splat: SplatParams
+    splat: SplatParams  # what the browser draws
     name: str
     data_dir: Path
     config_path: Optional[Path] = None
-    locate: Optional[LocateFn] = None
+    locate: Optional[LocateFn] = None  # text -> (centroid [3], mask [N] over ``splat``); None: coordinates only
     default_goto: str = ""
     default_look_at: str = ""
+    obstacles: Optional[EllipsoidScene] = None  # None: built from ``splat`` with the viewer's SceneConfig
+    start_region: Optional[Tuple[np.ndarray, np.ndarray]] = None  # (lo [3], hi [3]) of random starts
+    semantics: str = "none"  # what answers text queries: "none" | "labels" | "relevancy"
+    object_names: List[str] = dataclasses.field(default_factory=list)  # ground-truth names (procedural / demo)
 
 
 # --------------------------------------------------------------------------------------- loading
@@ -92,35 +99,75 @@ def load_ply(path: Path) -> SplatParams:
     )
 
 
-def load_checkpoint(config_path: Path) -> Tuple[SplatParams, Path]:
-    """Splat parameters of a splatfacto / cinesplat run from its config.yml (newest checkpoint),
-    plus the dataset directory (where the Render tab keeps camera_paths/)."""
-    import torch
+def run_data_dir(config_path: Path) -> Optional[Path]:
+    """The dataset directory of a nerfstudio run's config.yml (where the Render tab keeps camera_paths/)."""
     import yaml
 
-    config = yaml.load(config_path.read_text(), Loader=yaml.Loader)  # nerfstudio's own loader (trusted local file)
-    ckpt_dir = config_path.parent / "nerfstudio_models"
-    if not ckpt_dir.exists():
-        ckpt_dir = Path(config.get_checkpoint_dir())
-    ckpts = sorted(ckpt_dir.glob("step-*.ckpt"), key=lambda p: int(p.stem.split("-")[1]))
-    if not ckpts:
-        raise InvalidInputError(f"no step-*.ckpt checkpoint in {ckpt_dir}")
-    # weights_only=False: nerfstudio checkpoints hold optimizer/scaler state (the user's own file).
-    state = torch.load(ckpts[-1], map_location="cpu", weights_only=False)["pipeline"]
-    state = {k.replace("module.", "", 1) if k.startswith("module.") else k: v for k, v in state.items()}
-    key = lambda n: state[f"_model.gauss_params.{n}"].float().numpy()
-    try:
-        means, quats, scales, opac, dc = key("means"), key("quats"), key("scales"), key("opacities"), key("features_dc")
-    except KeyError as err:
-        raise InvalidInputError(f"{ckpts[-1]} is not a Gaussian-splat checkpoint (missing {err})") from err
-    data = getattr(config, "data", None) or getattr(config.pipeline.datamanager, "data", None) or Path(".")
+    try:  # nerfstudio's own loader (a trusted local file, as ns-viewer reads it)
+        config = yaml.load(config_path.read_text(), Loader=yaml.Loader)
+    except Exception:
+        return None
+    data = getattr(config, "data", None) or getattr(getattr(getattr(config, "pipeline", None), "datamanager", None), "data", None)
+    if data is None:
+        return None
     data = Path(data)
-    data = data.parent if data.is_file() else data
-    colors = np.clip(0.5 + SH_C0 * dc.reshape(-1, 3), 0, 1).astype(np.float32)
-    return SplatParams(means, quats, scales, opac.reshape(-1), colors), data
+    return data.parent if data.is_file() else data
 
 
-def load_scene(source: str, data_dir: Optional[Path] = None) -> LoadedScene:
+def splat_display(st: Any) -> SplatParams:
+    """Display parameters of a checkpoint / compact export (``method.checkpoint.SplatTensors``)."""
+    rgb = st.rgb()
+    n = len(st)
+    colors = np.full((n, 3), 0.7, np.float32) if rgb is None else rgb.detach().cpu().float().numpy()
+    np_ = lambda x: x.detach().cpu().float().numpy()  # noqa: E731
+    return SplatParams(np_(st.means), np_(st.quats), np_(st.scales), np_(st.opacities).reshape(-1), colors)
+
+
+def procedural_display(room: Any) -> SplatParams:
+    """Display parameters of a procedural room: objects in distinct colours, floor and walls grey."""
+    ids = room.object_ids.cpu().numpy()
+    palette = np.array([[0.85, 0.25, 0.2], [0.2, 0.7, 0.3], [0.25, 0.4, 0.9], [0.9, 0.75, 0.2], [0.7, 0.3, 0.8],
+                        [0.2, 0.75, 0.8], [0.95, 0.5, 0.2], [0.5, 0.5, 0.9]], np.float32)
+    colors = np.where(ids[:, None] >= 0, palette[np.maximum(ids, 0) % len(palette)], np.float32(0.6))
+    np_ = lambda x: x.detach().cpu().float().numpy()  # noqa: E731
+    return SplatParams(np_(room.means), np_(room.quats), np_(room.log_scales), np_(room.opacity_logits).reshape(-1),
+                       colors.astype(np.float32))
+
+
+def procedural_locate(room: Any) -> LocateFn:
+    """Ground-truth text query of a procedural room (object names, as ``cinesplat-plan`` answers them)."""
+    from cinenerf_ns.cli.plan import procedural_object
+
+    ids = room.object_ids.cpu().numpy()
+
+    def locate(text: str):
+        i = procedural_object(room, text)
+        return np.asarray(room.objects[i].center, np.float64), ids == i
+
+    return locate
+
+
+def semantic_locate(sem: Any, label_names: List[str]) -> LocateFn:
+    """Text query of a cinesplat scene: relevancy of the distilled latents (``SemanticScene.locate``), with
+    ``cinesplat-plan``'s mapping of words onto the scene's own label names."""
+    from cinenerf_ns.cli.plan import label_query
+
+    def locate(text: str):
+        c, mask = sem.locate(label_query(text, label_names))
+        return to_numpy(c), to_numpy(mask, bool)
+
+    return locate
+
+
+def load_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optional[SceneConfig] = None,
+               device: str = "cpu") -> LoadedScene:
+    """``--load-config`` -> what the viewer draws, plans around and answers text queries with.
+
+    Checkpoints, compact exports and procedural rooms go through ``cinesplat-plan``'s loader (the same
+    obstacles, start regions and text semantics as the command line)."""
+    from cinenerf_ns.cli import plan as cli
+
+    scfg = scene_config or SceneConfig()
     if source == "demo":
         from .demo import demo_scene
 
@@ -129,43 +176,39 @@ def load_scene(source: str, data_dir: Optional[Path] = None) -> LoadedScene:
         return LoadedScene(
             splat, "demo", data_dir or Path("demo_output") / "cinesplat-viewer-demo", None,
             locate=label_locate(d.means, d.labels, d.label_of), default_goto="red box", default_look_at="blue pillar",
+            semantics="labels", object_names=list(d.labels),
+        )
+    if source.startswith("procedural"):
+        ld = cli.load_scene(source, scfg, device)
+        room = ld.extra["room"]
+        names = [o.name for o in room.objects]
+        return LoadedScene(
+            procedural_display(room), source.replace(":", "-"), data_dir or Path("demo_output") / "cinesplat-viewer-procedural",
+            None, locate=procedural_locate(room), default_goto=names[0], default_look_at=names[1 % len(names)],
+            obstacles=ld.scene, start_region=ld.start_region, semantics="labels", object_names=names,
         )
     path = Path(source)
     if not path.exists():
-        raise InvalidInputError(f"--load-config {source}: no such file (give a config.yml, a .ply or 'demo')")
+        raise InvalidInputError(
+            f"--load-config {source}: no such file (give a config.yml, run folder, .ckpt, compact .pt/.npz, a .ply, "
+            f"'procedural[:N[:SEED]]' or 'demo')"
+        )
     if path.suffix.lower() == ".ply":
         return LoadedScene(load_ply(path), path.stem, data_dir or path.parent, None)
-    if path.suffix.lower() in (".yml", ".yaml"):
-        splat, data = load_checkpoint(path)
-        return LoadedScene(splat, data.name, data_dir or data, path.absolute())
-    raise InvalidInputError(f"--load-config {source}: expected a config.yml, a .ply or 'demo'")
-
-
-# --------------------------------------------------------------------------------------- planner
-def make_plan_fn(scene: EllipsoidScene, planner: str = "auto") -> Tuple[PlanFn, str]:
-    """The real planner when importable (``planner='auto'|'real'``), else the straight-line stand-in."""
-    if planner in ("auto", "real"):
-        try:
-            import torch
-
-            from cinenerf_ns.planner.planner import Planner  # type: ignore
-
-            real = Planner(scene)
-            if hasattr(real, "prepare"):
-                real.prepare()
-
-            def plan(goal, look_at, start=None, seed=0, n_candidates=1):
-                t = lambda x: None if x is None else torch.as_tensor(np.asarray(x), dtype=scene.dtype, device=scene.device)
-                return real.plan(t(goal), t(look_at), start=t(start), seed=seed, n_candidates=n_candidates)
-
-            return plan, "cinenerf_ns planner"
-        except ImportError:
-            if planner == "real":
-                raise
-    from .demo import StraightLinePlanner
-
-    stand_in = StraightLinePlanner.from_scene(scene)
-    return stand_in.plan, "straight-line stand-in planner"
+    if not (path.is_dir() or path.suffix.lower() in (".yml", ".yaml", ".ckpt", ".pt", ".npz")):
+        raise InvalidInputError(f"--load-config {source}: expected a config.yml, run folder, .ckpt, compact export, "
+                                f".ply, 'procedural' or 'demo'")
+    ld = cli.load_scene(str(path), scfg, device)
+    st = ld.extra["splat"]
+    cfg_path = None if ld.config_path is None else Path(ld.config_path).absolute()
+    data = run_data_dir(cfg_path) if cfg_path is not None else None
+    name = data.name if data is not None else (path.stem if path.is_file() else path.name)
+    sem = ld.extra.get("semantic")
+    return LoadedScene(
+        splat_display(st), name, data_dir or data or (path if path.is_dir() else path.parent), cfg_path,
+        locate=None if sem is None else semantic_locate(sem, ld.extra.get("label_names") or []),
+        obstacles=ld.scene, start_region=ld.start_region, semantics="none" if sem is None else "relevancy",
+    )
 
 
 # --------------------------------------------------------------------------------------- viewer
@@ -174,17 +217,24 @@ class StandaloneConfig:
     """cinesplat-viewer: plan, watch and export camera paths in the browser, no GPU needed."""
 
     load_config: str = "demo"
-    """A run's config.yml, a Gaussian-splat .ply, or 'demo' (built-in labelled scene)."""
+    """A run's config.yml (or run folder / .ckpt), a compact export (.pt/.npz), a Gaussian-splat .ply,
+    'procedural[:N[:SEED]]' (generated test room with named objects) or 'demo' (built-in labelled scene)."""
     port: int = 7007
     """Port of the viewer (open http://localhost:<port>)."""
     host: str = "0.0.0.0"
     """Interface to listen on (0.0.0.0: all, like ns-viewer)."""
     data: Optional[Path] = None
     """Where camera_paths/ go (default: the run's dataset directory, or the .ply's directory)."""
-    planner: str = "auto"
-    """'auto' (the cinenerf_ns planner if importable, else the straight-line stand-in), 'real', 'straight'."""
     camera_radius: float = 0.03
     """Camera body radius in scene units (obstacle model)."""
+    safety_margin: float = 0.01
+    """Extra distance kept from every ellipsoid on top of the camera radius (as cinesplat-plan's --safety-margin)."""
+    grid_resolution: int = 96
+    """A* voxels along the longest side of the planning region (as cinesplat-plan's --grid-resolution)."""
+    max_speed: float = 0.5
+    """Camera speed cap of planned shots, scene units per second."""
+    device: str = "cpu"
+    """torch device of the obstacle scene and the planner ('cpu' or 'cuda')."""
     n_candidates: int = 3
     """Default number of candidate shots per Plan."""
     max_display_gaussians: int = 1_000_000
@@ -194,30 +244,45 @@ class StandaloneConfig:
 
 
 class StandaloneViewer:
-    """A running standalone viewer (server + panel); ``close()`` stops it."""
+    """A running standalone viewer (server + panel); ``close()`` stops it.
+
+    The real planner prepares on a background thread (the status line shows progress and its time);
+    a Plan pressed meanwhile waits for it. ``plan_fn`` replaces the planner (tests, benchmarks)."""
 
     def __init__(self, cfg: StandaloneConfig, locate: Optional[LocateFn] = None,
                  plan_fn: Optional[PlanFn] = None) -> None:
         import viser
 
+        from cinenerf_ns.planner.planner import PlannerConfig
+        from cinenerf_ns.planner.timing import TimingConfig
+
         from .panel import PanelConfig
+        from .planner_backend import PreparedPlanner
         from .viser_ui import attach_cine_panel
 
         t0 = time.perf_counter()
         self.cfg = cfg
-        self.loaded = load_scene(cfg.load_config, cfg.data)
+        scfg = SceneConfig(camera_radius=cfg.camera_radius + cfg.safety_margin)
+        self.loaded = load_scene(cfg.load_config, cfg.data, scfg, cfg.device)
         sp = self.loaded.splat
-        self.obstacles = EllipsoidScene.from_splat(
-            _t(sp.means).float(), _t(sp.quats_wxyz).float(), _t(sp.log_scales).float(), _t(sp.opacity_logits).float(),
-            SceneConfig(camera_radius=cfg.camera_radius),
-        )
+        self.obstacles = self.loaded.obstacles
+        if self.obstacles is None:
+            self.obstacles = EllipsoidScene.from_splat(
+                _t(sp.means).float(), _t(sp.quats_wxyz).float(), _t(sp.log_scales).float(),
+                _t(sp.opacity_logits).float(), scfg,
+            ).to(cfg.device)
+        self.planner: Optional[PreparedPlanner] = None
         if plan_fn is None:
-            plan_fn, planner_name = make_plan_fn(self.obstacles, cfg.planner)
+            self.planner = PreparedPlanner(self.obstacles, PlannerConfig(
+                grid_resolution=cfg.grid_resolution, start_region=self.loaded.start_region,
+                timing=TimingConfig(max_speed=cfg.max_speed)))
+            plan_fn, planner_name = self.planner.plan, PreparedPlanner.name
         else:
             planner_name = "injected planner"
         self.planner_name = planner_name
         display = sp.display_gaussians()
-        self.backend = FunctionBackend(display, plan_fn, locate or self.loaded.locate, self.loaded.name, planner_name)
+        locate = locate or self.loaded.locate
+        self.backend = FunctionBackend(display, plan_fn, locate, self.loaded.name, planner_name)
         self.server = viser.ViserServer(host=cfg.host, port=cfg.port, verbose=False)
         self.server.scene.set_up_direction("+z")
         self._draw_splat(display)
@@ -236,13 +301,25 @@ class StandaloneViewer:
             client.camera.position = self._home_position
             client.camera.look_at = self._home_target
 
-        self.panel._set_status(
+        if locate is None:
+            text = "Text queries need a trained cinesplat scene (semantic latents + codec); this scene has none: type targets as x y z."
+        elif self.loaded.semantics == "relevancy":
+            text = "Text queries: relevancy of the distilled CLIP latents (or x y z)."
+        else:
+            text = "Text queries: object names (or x y z)."
+        self.loaded_message = (
             f"Loaded '{self.loaded.name}': {len(display)} Gaussians ({len(self.obstacles)} obstacles) in "
-            f"{time.perf_counter() - t0:.1f} s. Planner: {planner_name}"
-            f"{' (cinenerf_ns.planner.planner not importable)' if 'stand-in' in planner_name and cfg.planner == 'auto' else ''}. "
-            f"{'Text queries: object names.' if self.backend._locate_fn else 'Type targets as x y z.'}",
-            "info",
+            f"{time.perf_counter() - t0:.1f} s. Planner: {planner_name}. {text}"
         )
+        self.panel._set_status(self.loaded_message, "info")
+        if self.planner is not None:
+            self.planner.on_status = self._prepare_status
+            self.planner.start(background=True)
+
+    def _prepare_status(self, text: str, level: str) -> None:
+        """Progress of the planner's one-time preparation, shown unless a Plan already owns the status line."""
+        if self.panel.state == self.panel.IDLE or level == "error":
+            self.panel._set_status(f"{text} {self.loaded_message}", "busy" if level == "busy" else "info")
 
     def _draw_splat(self, g: SceneGaussians) -> None:
         n = len(g)
@@ -270,6 +347,9 @@ def main(cfg: StandaloneConfig) -> None:
 
     viewer = StandaloneViewer(cfg)
     Console().print(f"[bold green]cinesplat-viewer[/] running at {viewer.url}  (Ctrl+C to stop)\n{viewer.panel.status}")
+    if viewer.planner is not None:
+        viewer.planner.wait_ready()
+        Console().print(viewer.panel.status)
     try:
         while True:
             time.sleep(1.0)

@@ -58,3 +58,38 @@ def test_ply_points_and_errors(tmp_path):
     with pytest.raises(InvalidInputError, match="not found"):
         run_plan(PlanArgs(scene=str(tmp_path / "nope.ply"), go_to="0 0 0", look_at="0 0 0", output_dir=tmp_path / "x"))
     assert not (tmp_path / "x").exists()  # nothing half-written on bad input
+
+
+def test_ranked_candidates_with_limits_in_table_and_report(tmp_path):
+    from rich.console import Console
+
+    con = Console(record=True, width=250)
+    s = run_plan(PlanArgs(scene="procedural:3000:1", go_to="the armchair", look_at="floor lamp", candidates=3,
+                          output_dir=tmp_path, grid_resolution=64, max_angular_rate=40.0, max_acceleration=0.4),
+                 console=con)
+    cands = s["candidates"]
+    assert [c["rank"] for c in cands] == [1, 2, 3]
+    totals = [c["score"]["total"] for c in cands]
+    assert totals == sorted(totals)
+    for c in cands:
+        assert {"occluded_fraction", "framing_size_error", "min_clearance", "mean_jerk", "duration_s"} <= set(c["score"]["terms"])
+        assert c["dynamics"]["peak_angular_rate_deg"] <= 40.0 and c["dynamics"]["peak_acceleration"] <= 0.4
+        assert c["exact_clearance"]["min_clearance"] >= 0
+    rep = json.loads(open(s["report"]).read())
+    assert rep["candidates"][0]["score"]["costs"]["occlusion"] >= 0
+    assert rep["object_radius"] > 0.1  # the procedural lamp's half diagonal
+    text = con.export_text()
+    assert "rank" in text and "occluded" in text
+
+
+def test_multi_stop(tmp_path):
+    room = procedural_room(3000, seed=1)
+    s = run_plan(PlanArgs(scene="procedural:3000:1", go_to="armchair", then_go_to=("table",), look_at="floor lamp",
+                          then_look_at=("vase",), output_dir=tmp_path, grid_resolution=64, start="0 0 0.8"))
+    c = s["candidates"][0]
+    assert len(c["stops"]) == 2 and c["verification"]["safe"]
+    assert np.allclose(c["stop_look_ats"][1], room.object("vase").center)
+    assert c["max_look_at_error_deg"] < 1e-3
+    with pytest.raises(InvalidInputError, match="then-look-at"):
+        run_plan(PlanArgs(scene="procedural:3000:1", go_to="armchair", then_go_to=("table", "sofa"), look_at="vase",
+                          then_look_at=("vase",), output_dir=tmp_path / "x", grid_resolution=64))

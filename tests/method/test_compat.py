@@ -112,3 +112,33 @@ def test_cached_mode_never_downloads(monkeypatch):
     monkeypatch.setattr(lpip_mod, "LearnedPerceptualImagePatchSimilarity", must_not_be_called)
     monkeypatch.setattr(compat, "lpips_weights_cached", lambda: False)
     assert isinstance(make_lpips("cached"), UnavailableLPIPS)
+
+
+def test_seed_points_load_without_open3d(tmp_path):
+    """transforms.json `ply_file_path` seeds load through plyfile with nerfstudio's exact transform."""
+    pytest.importorskip("nerfstudio")
+    from plyfile import PlyData, PlyElement
+
+    import cinenerf_ns.method.datamanager  # noqa: F401  (installs the patch)
+    from nerfstudio.data.dataparsers.nerfstudio_dataparser import Nerfstudio
+
+    try:
+        import open3d  # noqa: F401
+        pytest.skip("open3d is installed: nerfstudio's own reader is used")
+    except ImportError:
+        pass
+    rng = np.random.default_rng(0)
+    xyz = rng.normal(size=(50, 3)).astype(np.float32)
+    rgb = rng.integers(0, 256, size=(50, 3)).astype(np.uint8)
+    v = np.empty(50, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")])
+    for i, k in enumerate("xyz"):
+        v[k] = xyz[:, i]
+    for i, k in enumerate(("red", "green", "blue")):
+        v[k] = rgb[:, i]
+    path = tmp_path / "pc.ply"
+    PlyData([PlyElement.describe(v, "vertex")]).write(str(path))
+    T = torch.tensor([[0.0, -1.0, 0.0, 0.5], [1.0, 0.0, 0.0, -0.2], [0.0, 0.0, 1.0, 0.1]])
+    out = Nerfstudio._load_3D_points(None, path, T, 0.25)
+    expect = (torch.from_numpy(xyz).double() @ T[:, :3].double().T + T[:, 3].double()) * 0.25
+    torch.testing.assert_close(out["points3D_xyz"].double(), expect, atol=1e-5, rtol=0)
+    assert torch.equal(out["points3D_rgb"], torch.from_numpy(rgb))

@@ -90,3 +90,37 @@ def test_label_table_then_clip_text_tower(tiny_clip_models):
     ref = make_text_encoder(cfg)(["a sofa"])
     out = e(["lamp", "a sofa"])
     assert torch.allclose(out[0], emb[0]) and torch.allclose(out[1], ref[0], atol=1e-6)
+
+
+def test_label_query_is_contrasted_against_the_other_labels():
+    """A label-trained scene: 'b' must beat the other labels, not just the generic negatives."""
+    import torch.nn.functional as F
+
+    from cinenerf_ns.method.semantic_scene import SemanticScene
+
+    torch.manual_seed(0)
+    D = 8
+    emb = F.normalize(torch.randn(4, D), dim=-1)
+    names = ["a", "b", "c", "object"]
+    table = dict(zip(names, emb))
+
+    def enc(texts):
+        return torch.stack([table[t.strip().lower()] for t in texts])
+
+    class IdentityCodec(torch.nn.Module):  # latents ARE the features here (D-dim "latents")
+        def decode(self, z):
+            return F.normalize(z, dim=-1)
+
+    # Gaussians 0-9 carry 'a', 10-19 carry 'b'; generic negative 'object' is far from both
+    lat = torch.cat([emb[0].expand(10, D), emb[1].expand(10, D)])
+    means = torch.randn(20, 3)
+    plain = SemanticScene(means, torch.ones(20), lat, IdentityCodec(), enc, negatives=["object"])
+    labelled = SemanticScene(means, torch.ones(20), lat, IdentityCodec(), enc, negatives=["object"], label_names=["a", "b", "c"])
+    r_plain, r_lab = plain.query("b"), labelled.query("b")
+    # with the other labels as negatives, the 'a' Gaussians fall below 0.5 and the 'b' ones stay above
+    assert (r_lab[:10] < 0.5).all() and (r_lab[10:] > 0.5).all()
+    assert torch.allclose(r_plain, plain.query("b"))
+    _, mask = labelled.locate("b")
+    assert mask[10:].all() and not mask[:10].any()
+    # free text (not a label) keeps the generic negatives
+    assert labelled._embed("object")[1].shape[0] == 1

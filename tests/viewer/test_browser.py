@@ -1,7 +1,8 @@
-"""Real-browser test: the standalone viewer on localhost driven by headless Chromium over the Chrome
-DevTools Protocol. Fills the text boxes, clicks Plan, checks the path node exists and that the
-browser's camera moves over time (positions the browser itself reports back), clicks Export and
-checks the file. Screenshots go to tests/artifacts/."""
+"""Real-browser test: the standalone viewer with the real planner on a small procedural room, on
+localhost, driven by headless Chromium over the Chrome DevTools Protocol. Fills the text boxes with
+object names, clicks Plan, checks the path node exists and that the browser's camera moves over time
+(positions the browser itself reports back), clicks Export and checks the file. Screenshots go to
+$CINENERF_ARTIFACTS when set, else to the test's pytest tmp dir (artifacts/)."""
 from __future__ import annotations
 
 import hashlib
@@ -15,8 +16,6 @@ import numpy as np
 import pytest
 
 from cdp import CHROMIUM
-
-ARTIFACTS = Path(__file__).resolve().parents[1] / "artifacts"
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
@@ -66,7 +65,9 @@ def click(b, text: str) -> None:
 def viewer(tmp_path):
     from cinenerf_ns.viewer.standalone import StandaloneConfig, StandaloneViewer
 
-    v = StandaloneViewer(StandaloneConfig(load_config="demo", port=free_port(), host="127.0.0.1", data=tmp_path / "data"))
+    v = StandaloneViewer(StandaloneConfig(load_config="procedural:3000", port=free_port(), host="127.0.0.1",
+                                          data=tmp_path / "data", grid_resolution=64))
+    assert v.planner.wait_ready(120), v.panel.status
     yield v
     v.close()
 
@@ -82,24 +83,27 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
         reported = []  # camera poses the browser reports back (proves the browser's camera moved)
         client.camera.on_update(lambda cam: reported.append((time.perf_counter(), np.array(cam.position))))
 
-        type_into(b, "Go to", "green ball")
-        type_into(b, "Look at", "red box")
-        assert wait(lambda: viewer.ui.goto.value == "green ball" and viewer.ui.look_at.value == "red box")
+        type_into(b, "Go to", "potted plant")
+        type_into(b, "Look at", "sofa")
+        assert wait(lambda: viewer.ui.goto.value == "potted plant" and viewer.ui.look_at.value == "sofa")
         viewer.panel.config.loop = False
         click(b, "Plan")
         assert wait(lambda: "Planned" in viewer.panel.status, 60), viewer.panel.status
+        assert "with the cinenerf_ns planner" in viewer.panel.status
+        # the candidate dropdown lists duration and min clearance of each candidate
+        assert all(" s, clearance " in o for o in viewer.ui.candidate.options), viewer.ui.candidate.options
         # the path node exists on the server and in the browser's scene tree
         names = [getattr(h, "name", "") for h in viewer.ui._nodes["shot"]]
         assert "/cine/shot/path" in names
         assert b.wait_js("document.body.innerText.includes('Planned')", 20)
         # the browser camera moves over time while the shot plays (autoplay at the shot's real speed)
         n_before = len(reported)
-        ARTIFACTS.mkdir(parents=True, exist_ok=True)
-        (ARTIFACTS / ".gitignore").write_text("*\n")  # test output, never committed
+        artifacts = Path(os.environ.get("CINENERF_ARTIFACTS") or tmp_path / "artifacts")
+        artifacts.mkdir(parents=True, exist_ok=True)
         shots = []
         for i in range(3):
             time.sleep(0.6)
-            shots.append(b.screenshot(ARTIFACTS / f"browser_flight_{i}.png"))
+            shots.append(b.screenshot(artifacts / f"browser_flight_{i}.png"))
         digests = {hashlib.sha1(p.read_bytes()).hexdigest() for p in shots}
         assert len(digests) > 1, "the rendered view did not change while flying"
         shot = viewer.panel.shot
@@ -123,8 +127,8 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
         # bad input from the browser: readable message, viewer keeps running
         type_into(b, "Go to", "the unicorn")
         click(b, "Plan")
-        assert b.wait_js("document.body.innerText.includes('matches no object')", 20)
-        b.screenshot(ARTIFACTS / "browser_final.png")
+        assert b.wait_js("document.body.innerText.includes('no object matches')", 20)
+        b.screenshot(artifacts / "browser_final.png")
     finally:
         b.close()
 

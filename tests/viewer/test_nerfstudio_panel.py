@@ -1,5 +1,7 @@
 """The nerfstudio adapter: nerfstudio's own scraping finds the control on a model and installs the
-panel on the viewer's viser server; the live-model backend snapshots and rebuilds per step."""
+panel on the viewer's viser server; the live-model backend snapshots the Gaussians under the
+train_lock (and plans without it), rebuilds the real planner per step, and the real CineSplatModel
+(built on CPU) carries the control and answers text through its latents + codec."""
 from __future__ import annotations
 
 import socket
@@ -12,8 +14,8 @@ import pytest
 import torch
 from torch import nn
 
-from cinenerf_ns.viewer.demo import StraightLinePlanner
 from cinenerf_ns.viewer.nerfstudio_panel import CinePanelControl, LockedBackend, SplatModelBackend
+from cinenerf_ns.viewer.planner_backend import PreparedPlanner
 from cinenerf_ns.viewer.panel import CinePanel, PanelBackend
 
 
@@ -38,12 +40,36 @@ class TinySplatModel(nn.Module):
 
 
 class Planners:
+    """The real planner, counting how often one is built (= how often the scene was rebuilt)."""
+
     def __init__(self):
         self.built = []
 
     def __call__(self, scene):
         self.built.append(len(scene))
-        return StraightLinePlanner.from_scene(scene)
+        return PreparedPlanner(scene).start(background=False)
+
+
+class RecordingLock:
+    """A lock that records whether it is held when asked."""
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self.acquired = 0
+
+    def __enter__(self):
+        self._lock.acquire()
+        self.acquired += 1
+        return self
+
+    def __exit__(self, *exc):
+        self._lock.release()
+
+    def locked(self):
+        return self._lock.locked()
+
+
+GOAL, LOOK = np.array([0.0, 0.0, 0.5]), np.zeros(3)
 
 
 def locate_first_half(text):
@@ -57,12 +83,12 @@ def test_splat_model_backend_caches_per_step():
     backend = SplatModelBackend(model, planners, locate_fn=locate_first_half)
     assert isinstance(backend, PanelBackend)
     assert len(backend.gaussians()) == 300
-    shots = backend.plan(np.array([0.0, 0.0, 1.5]), np.zeros(3), start=np.array([0.0, 0.0, 3.0]))
-    assert len(shots) == 1 and isinstance(shots[0].positions, np.ndarray)
-    backend.plan(np.array([0.0, 0.0, 1.5]), np.zeros(3), start=np.array([0.0, 0.0, 3.0]))
+    shots = backend.plan(GOAL, LOOK, seed=0)
+    assert len(shots) == 1 and isinstance(shots[0].positions, np.ndarray) and shots[0].clearance.min() >= 0
+    backend.plan(GOAL, LOOK, seed=1)
     assert planners.built == [300]  # reused while the step did not change
     model.step = 10
-    backend.plan(np.array([0.0, 0.0, 1.5]), np.zeros(3), start=np.array([0.0, 0.0, 3.0]))
+    backend.plan(GOAL, LOOK, seed=0)
     assert planners.built == [300, 300]
     c, m = backend.locate("anything")
     assert m.sum() == 150
@@ -71,6 +97,51 @@ def test_splat_model_backend_caches_per_step():
     no_sem = SplatModelBackend(model, planners)
     with pytest.raises(ValueError, match="coordinates"):
         no_sem.locate("the chair")
+
+
+def test_snapshot_is_a_copy_taken_under_the_lock_and_planning_does_not_hold_it():
+    model, lock = TinySplatModel(), RecordingLock()
+    held_during_plan = []
+
+    class Spy:
+        def __init__(self, scene):
+            self.inner = PreparedPlanner(scene).start(background=False)
+
+        def wait_ready(self):
+            return True
+
+        def plan(self, *a, **k):
+            held_during_plan.append(lock.locked())
+            return self.inner.plan(*a, **k)
+
+    backend = SplatModelBackend(model, Spy, lock=lock)
+    shots = backend.plan(GOAL, LOOK)
+    assert lock.acquired == 1 and held_during_plan == [False] and len(shots) == 1
+    snap = backend._current("snapshot")
+    with torch.no_grad():
+        model.means.add_(1.0)  # training moves the Gaussians after the snapshot ...
+    assert torch.equal(snap.means + 1.0, model.means.detach())  # ... the snapshot is a copy
+    assert snap.means.dtype == torch.float32 and snap.opacities.shape == (300,)
+    model.step = 1
+    backend.gaussians()
+    assert lock.acquired == 2  # a new step: a new snapshot, again under the lock
+
+
+def test_attach_gives_the_train_lock_to_the_model_backend(tmp_path):
+    import viser
+
+    from cinenerf_ns.viewer.nerfstudio_panel import attach_to_nerfstudio_viewer
+
+    model, lock = TinySplatModel(), RecordingLock()
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    try:
+        viewer = SimpleNamespace(viser_server=server, datapath=tmp_path, log_filename=tmp_path / "log.txt", train_lock=lock)
+        panel = attach_to_nerfstudio_viewer(viewer, SplatModelBackend(model, Planners()))
+        assert isinstance(panel.backend, SplatModelBackend) and panel.backend.lock is lock
+        assert lock.acquired == 1  # the panel read the Gaussians (scene extent) through a locked snapshot
+        panel.close()
+    finally:
+        server.stop()
 
 
 def test_locked_backend_holds_train_lock():
@@ -113,10 +184,10 @@ def test_control_is_found_by_nerfstudio_and_installs_panel(tmp_path):
         for c in found:  # what Viewer.__init__ does
             c._setup(viewer)
         panel = model.cine_panel.panel
-        assert isinstance(panel, CinePanel) and isinstance(panel.backend, LockedBackend)
+        assert isinstance(panel, CinePanel) and panel.backend.lock is viewer.train_lock
         assert panel.config.data_dir == tmp_path / "data"
         assert panel.config.config_path == tmp_path / "run" / "config.yml"
-        res = panel.request_plan("0 0 1.5", "0 0 0").result(30)
+        res = panel.request_plan("0 0 0.5", "0 0 0").result(60)
         assert res is not None, panel.status
         out = panel.export("from-ns")
         assert out.path == tmp_path / "data" / "camera_paths" / "from-ns.json"
@@ -150,7 +221,7 @@ def test_real_nerfstudio_viewer_installs_panel(tmp_path):
         assert isinstance(panel, CinePanel)
         assert panel.config.data_dir == tmp_path / "data"
         assert panel.config.config_path == tmp_path / "run" / "config.yml"
-        assert panel.request_plan("0 0 1.5", "0 0 0").result(30) is not None, panel.status
+        assert panel.request_plan("0 0 0.5", "0 0 0").result(60) is not None, panel.status
         assert panel.export("ns-take").path == tmp_path / "data" / "camera_paths" / "ns-take.json"
         panel.close()
     finally:

@@ -292,3 +292,29 @@ def test_close_stops_everything(tmp_path):
     time.sleep(0.1)
     assert len(view.cameras) == n
     assert panel.request_plan("chair", "lamp").result(1) is None
+
+
+def test_candidate_labels_show_duration_clearance_and_optional_score(tmp_path):
+    from cinenerf_ns.viewer.panel import candidate_label, min_clearance, timings_detail
+
+    panel, backend, view = make(tmp_path)
+    orig = backend.plan
+
+    def ranked(*a, **k):
+        shots = orig(*a, **k)
+        shots[1].score = 0.25  # a ranked planner (planner/candidates.py) sets .score; the others do not
+        shots[2].clearance = None  # only the planner's dense verification
+        shots[2].safety = {"min_exact_clearance": 0.0123, "safe": True}
+        return shots
+
+    backend.plan = ranked
+    res = panel.request_plan("chair", "lamp", n_candidates=3).result(10)
+    assert res is not None
+    assert view.candidates == ["1: 1.0 s, clearance 0.05", "2: 1.0 s, clearance 1.05, score 0.25",
+                               "3: 1.0 s, clearance 0.0123"]
+    res.shots[2].safety = {"min_exact_clearance": None, "safe": True}  # every sample proven free: no number
+    assert min_clearance(res.shots[2]) is None and candidate_label(2, res.shots[2]).endswith("clearance n/a")
+    panel.select(1)
+    assert "score 0.25" in view.last_status[0]
+    assert timings_detail({"astar_ms": 12.34, "fit_s": 0.5, "n": 3, "note": "x"}) == "astar 12 ms, fit 0.50 s, n 3"
+    panel.close()

@@ -1,4 +1,6 @@
-"""Standalone viewer loading: 3DGS .ply, a run's config.yml + checkpoint, demo; CLI help."""
+"""Standalone viewer: loading (3DGS .ply, a run's config.yml + checkpoint, compact export, procedural,
+demo), the real planner prepared in the background, text queries (names / relevancy) or coordinates
+only with a clear message; CLI help."""
 from __future__ import annotations
 
 import os
@@ -86,18 +88,120 @@ def test_bad_sources(tmp_path):
         load_scene(str(tmp_path / "pts.ply"))
 
 
+def room_splat():
+    from cinenerf_ns.planner.procedural import procedural_room
+    from cinenerf_ns.viewer.standalone import procedural_display
+
+    room = procedural_room(2000, seed=0)
+    sp = procedural_display(room)
+    return room, SimpleNamespace(means=sp.means, quats_wxyz=sp.quats_wxyz, log_scales=sp.log_scales,
+                                 opacity_logits=sp.opacity_logits, colors=sp.colors)
+
+
+def viewer_for(source, tmp_path, **kw) -> StandaloneViewer:
+    return StandaloneViewer(StandaloneConfig(load_config=source, port=free_port(), host="127.0.0.1",
+                                             data=kw.pop("data", None), grid_resolution=48, **kw))
+
+
 def test_standalone_on_ply_plans_with_coordinates(tmp_path):
-    write_3dgs_ply(tmp_path / "scene.ply", demo_scene())
-    v = StandaloneViewer(StandaloneConfig(load_config=str(tmp_path / "scene.ply"), port=free_port(), host="127.0.0.1"))
+    room, sp = room_splat()
+    write_3dgs_ply(tmp_path / "scene.ply", sp)
+    v = viewer_for(str(tmp_path / "scene.ply"), tmp_path)
     try:
-        assert "Type targets as x y z" in v.panel.status
-        assert v.panel.request_plan("the red box", "0 0 0").result(30) is None
-        assert "need a trained cinesplat scene" in v.panel.status
-        assert v.panel.request_plan("0.5 0.45 0.5", "0.5 0.45 0.14").result(60) is not None, v.panel.status
+        assert "this scene has none: type targets as x y z" in v.panel.status
+        assert v.planner is not None and v.planner.wait_ready(60), v.panel.status
+        assert v.panel.request_plan("the armchair", "0 0 0").result(30) is None
+        assert "need a trained cinesplat scene" in v.panel.status and v.panel.status_level == "error"
+        goal = " ".join(f"{x:.3f}" for x in room.object("table").center + [0, 0, 0.3])
+        look = " ".join(f"{x:.3f}" for x in room.object("table").center)
+        assert v.panel.request_plan(goal, look, n_candidates=2).result(60) is not None, v.panel.status
+        assert "with the cinenerf_ns planner" in v.panel.status
         out = v.panel.export("ply-take")
         assert out.path == tmp_path / "camera_paths" / "ply-take.json"
     finally:
         v.close()
+
+
+def test_standalone_procedural_names_progress_and_errors(tmp_path):
+    v = viewer_for("procedural:2000", tmp_path, data=tmp_path / "data")
+    try:
+        assert v.planner.wait_ready(60)
+        assert wait_for(lambda: "Planner ready in" in v.panel.status), v.panel.status  # prepare progress + time
+        assert "Text queries: object names" in v.panel.status
+        res = v.panel.request_plan("armchair", "floor lamp", n_candidates=2).result(60)
+        assert res is not None, v.panel.status
+        room, _ = room_splat()  # the same generated room (same N and seed)
+        k = [o.name for o in room.objects].index("armchair")
+        assert np.array_equal(res.targets[0].mask, room.object_ids.numpy() == k)  # over the drawn Gaussians
+        np.testing.assert_allclose(res.targets[0].point, room.objects[k].center)
+        labels = v.ui.candidate.options
+        assert len(labels) == len(res.shots) and all(" s, clearance " in lab for lab in labels)
+        ok = v.panel.export("take")
+        before = ok.path.read_bytes()
+        # readable errors from the real planner / queries, and the export stays whole
+        assert v.panel.request_plan("the unicorn", "sofa").result(30) is None
+        assert "no object matches 'the unicorn'" in v.panel.status
+        inside = v.loaded.obstacles.means[0].double().numpy()
+        v.panel.view.camera_position = lambda: inside  # as if the browser camera sat inside an obstacle
+        assert v.panel.request_plan("armchair", "sofa", start_from_camera=True).result(60) is None
+        assert "puts the camera inside the scene" in v.panel.status and v.panel.status_level == "error"
+        assert v.panel.shot is res.shots[0]  # the previous plan is kept
+        assert v.panel.export("take").path == ok.path and ok.path.read_bytes() == before
+        assert sorted(p.name for p in ok.path.parent.iterdir()) == ["take.json"]
+    finally:
+        v.close()
+
+
+def test_standalone_compact_scene_answers_text_by_relevancy(tmp_path):
+    from cinenerf_ns.method.checkpoint import SplatTensors, export_compact
+    from cinenerf_ns.method.codec import CodecConfig, FeatureCodec
+
+    room, sp = room_splat()
+    torch.manual_seed(0)
+    codec = FeatureCodec(8, CodecConfig(hidden_dim=8, train_steps=1))
+    ids = room.object_ids
+    latents = torch.zeros(len(ids), 3)
+    latents[ids == 0] = torch.tensor([0.9, -0.5, 0.3])  # the armchair's Gaussians share one code
+    from cinenerf_ns.method.relevancy import DEFAULT_NEGATIVES
+
+    names = ["armchair", *DEFAULT_NEGATIVES]  # offline: the relevancy negatives are labels too (no CLIP weights)
+    with torch.no_grad():  # label embeddings = decoded codes: the armchair's code, the background's for the rest
+        emb = codec.decode(torch.tensor([[0.9, -0.5, 0.3]] + [[0.0, 0.0, 0.0]] * len(DEFAULT_NEGATIVES)))
+    st = SplatTensors(
+        means=torch.as_tensor(sp.means), quats=torch.as_tensor(sp.quats_wxyz), scales=torch.as_tensor(sp.log_scales),
+        opacities=torch.as_tensor(sp.opacity_logits), features_dc=None, latents=latents, codec=codec,
+        codec_state=codec.state_dict(), label_embeddings=emb,
+        info={"feature_dim": 8, "codec_config": vars(CodecConfig(hidden_dim=8, train_steps=1)), "label_names": names,
+              "clip": None},
+    )
+    path = export_compact(st, tmp_path / "scene_compact.pt", half=False)
+    from cinenerf_ns.cli.plan import load_scene as cli_load
+    from cinenerf_ns.planner.scene import SceneConfig
+
+    v = viewer_for(str(path), tmp_path, data=tmp_path / "out")
+    try:
+        assert "relevancy" in v.panel.status and v.loaded.semantics == "relevancy"
+        sem = cli_load(str(path), SceneConfig())
+        c_ref, m_ref = sem.extra["semantic"].locate("armchair")
+        c, m = v.backend.locate("the armchair")  # word -> label name, as cinesplat-plan maps it
+        np.testing.assert_allclose(c, c_ref.numpy(), atol=1e-6)
+        assert np.array_equal(m, m_ref.numpy()) and m.sum() > 0
+        assert v.panel.request_plan("", "armchair").result(30) is None and "'Go to' is empty" in v.panel.status
+        assert v.panel.request_plan("sofa", "armchair").result(30) is None
+        assert "only its label names can be queried" in v.panel.status
+    finally:
+        v.close()
+
+
+def wait_for(pred, timeout=10.0):
+    import time
+
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(0.02)
+    return False
 
 
 def test_cli_help():

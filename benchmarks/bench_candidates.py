@@ -1,0 +1,138 @@
+#!/usr/bin/env python3
+"""K ranked candidates (planned + scored) in one batched call vs K sequential single-candidate plans.
+
+    python benchmarks/bench_candidates.py --device cuda --n-gaussians 1000000 --k 32 [--repeats 5] [--no-record]
+
+Scene: procedural_room(N) (seeded) on --device; go to object 0, look at object 1. One-time work
+(spatial index, occupancy grid) is done once before timing and is not included.
+  batched:    candidates.plan_candidates(planner, goal, look, k, seed)  (planned, verified, scored, ranked)
+  sequential: k x planner.plan(goal, look, seed=i, n_candidates=1) + candidates.score_shots on that one shot
+Each variant runs once untimed (warm-up: CUDA kernels, caches), then --repeats timed runs (CUDA-synchronised);
+the medians and their ratio are printed and appended to benchmarks/RESULTS.md with the date and device.
+Issue 7 target (H100, 1M Gaussians, K = 32): batched <= 150 ms and >= 5x faster than sequential.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from cinenerf_ns.planner.candidates import plan_candidates, score_shots
+from cinenerf_ns.planner.planner import Planner, PlannerConfig
+from cinenerf_ns.planner.procedural import procedural_room
+from cinenerf_ns.planner.scene import EllipsoidScene
+from cinenerf_ns.planner.scoring import ScoreConfig
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _sync(dev: torch.device) -> None:
+    if dev.type == "cuda":
+        torch.cuda.synchronize(dev)
+
+
+def _device_name(dev: torch.device) -> str:
+    if dev.type == "cuda":
+        return torch.cuda.get_device_name(dev)
+    return f"CPU {platform.processor() or platform.machine()} ({torch.get_num_threads()} torch threads)"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
+    ap.add_argument("--n-gaussians", type=int, default=20_000)
+    ap.add_argument("--k", type=int, default=32)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--grid-resolution", type=int, default=96)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--no-record", action="store_true", help="do not append to benchmarks/RESULTS.md")
+    args = ap.parse_args()
+    dev = torch.device(args.device)
+
+    room = procedural_room(args.n_gaussians, seed=args.seed)
+    scene = EllipsoidScene.from_splat(room.means, room.quats, room.log_scales, room.opacity_logits).to(dev)
+    r = scene.camera_radius
+    planner = Planner(scene, PlannerConfig(grid_resolution=args.grid_resolution,
+                                           start_region=(room.free_lo + r, room.free_hi - r)))
+    t0 = time.perf_counter()
+    planner.prepare()
+    _sync(dev)
+    prep_s = time.perf_counter() - t0
+    goal, look = room.objects[0].center, room.objects[1].center
+    obj_r = float(0.5 * np.linalg.norm(room.objects[1].size))
+    cfg = ScoreConfig()
+
+    def batched():
+        tm = {}
+        out = plan_candidates(planner, goal, look, k=args.k, seed=args.seed, score_config=cfg, object_radius=obj_r,
+                              timings=tm)
+        return out, tm
+
+    def sequential():
+        out = []
+        for i in range(args.k):
+            sh = planner.plan(goal, look, seed=args.seed + i, n_candidates=1)
+            out.append((sh[0], score_shots(planner, sh, look, cfg, object_radius=obj_r)[0]))
+        return out
+
+    def timed(fn):
+        _sync(dev)
+        t = time.perf_counter()
+        res = fn()
+        _sync(dev)
+        return 1e3 * (time.perf_counter() - t), res
+
+    timed(batched)
+    timed(sequential)
+    b_ms, s_ms, stages = [], [], []
+    n_b = n_s = 0
+    for _ in range(args.repeats):
+        ms, (res, tm) = timed(batched)
+        b_ms.append(ms)
+        stages.append(tm)
+        n_b = len(res)
+        ms, res = timed(sequential)
+        s_ms.append(ms)
+        n_s = len(res)
+    mb, msq = statistics.median(b_ms), statistics.median(s_ms)
+    stage_keys = [k for k in stages[0] if k.endswith("_ms") and k != "total_ms"]
+    med_stage = {k: statistics.median(s[k] for s in stages) for k in stage_keys}
+    date = dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d")
+    try:
+        import subprocess
+
+        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True).stdout.strip()
+    except OSError:
+        rev = "?"
+    lines = [
+        f"## bench_candidates {date} — {_device_name(dev)}",
+        "",
+        f"procedural_room N={args.n_gaussians} (kept {len(scene)}), K={args.k}, grid {args.grid_resolution}, "
+        f"repeats {args.repeats}, prepare {prep_s:.2f} s (not timed below), commit {rev or '?'}",
+        "",
+        "| variant | median ms | shots | ms / shot | x batched |",
+        "|---|---|---|---|---|",
+        f"| batched plan_candidates | {mb:.1f} | {n_b} | {mb / max(n_b, 1):.1f} | 1.00 |",
+        f"| sequential plan(n_candidates=1) + score | {msq:.1f} | {n_s} | {msq / max(n_s, 1):.1f} | {msq / mb:.2f} |",
+        "",
+        "- batched stage medians (ms, summed over candidates): "
+        + ", ".join(f"{k[:-3]} {v:.1f}" for k, v in med_stage.items()),
+        f"- speed-up sequential / batched: {msq / mb:.2f}x; target on H100 at 1M, K=32: batched <= 150 ms and >= 5x",
+        "",
+    ]
+    table = "\n".join(lines)
+    print(table)
+    if not args.no_record:
+        with open(REPO / "benchmarks" / "RESULTS.md", "a") as f:
+            f.write("\n" + table + "\n")
+        print(f"appended to {REPO / 'benchmarks' / 'RESULTS.md'}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,214 @@
+"""End-to-end evaluation on a trained synthetic room (issue 5, item 2): text -> object -> safe shot.
+
+    python benchmarks/eval_room.py --scene cinenerf_ns/assets/room0.npz --dataset cinenerf_ns/assets/room0_gt
+
+The method and the planner see exactly what a user's run gives them: the trained splat (compact export
+or config.yml) and the text of each label name, loaded through ``cinesplat-plan``'s own ``load_scene``.
+The ground truth (``geometry.json`` + the run's ``dataparser_transforms.json``) is only used afterwards
+to score the results:
+
+* selection: for every object, the Gaussians the text query selects vs the Gaussians on/in the true
+  object (IoU, precision, recall) and the selection centroid's error (fraction of the room size);
+* shots: for go-to/look-at pairs (object i -> look at object i+1) x ``--starts`` random starts:
+  success, TRUE clearance (analytic SDF minus the camera radius) along the whole densely sampled curve
+  plus a certified bound between samples, look-at error at every frame against the planner's target and
+  against the TRUE object centre, final distance to the go-to object's surface, planning latency.
+
+Writes ``eval_room.md`` / ``eval_room.json`` and the plots (true clearance over time, top view of the
+paths through the room) into ``--out`` and appends a summary to benchmarks/RESULTS.md.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import math
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks.eval_synthetic import (  # noqa: E402
+    clearance_along,
+    clearance_lower_bound,
+    distance_to_object,
+    load_ground_truth,
+    look_at_errors_deg,
+    markdown_table,
+    object_names,
+    plot_clearance,
+    plot_topdown,
+    selection_metrics,
+)
+from cinenerf_ns.cli.plan import load_scene  # noqa: E402
+from cinenerf_ns.planner.errors import PlanningError  # noqa: E402
+from cinenerf_ns.planner.planner import Planner, PlannerConfig  # noqa: E402
+from cinenerf_ns.planner.scene import SceneConfig  # noqa: E402
+
+
+def device_name(device: str) -> str:
+    if device.startswith("cuda") and torch.cuda.is_available():
+        return torch.cuda.get_device_name(0)
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return f"{line.split(':', 1)[1].strip()} ({torch.get_num_threads()} threads)"
+    except OSError:
+        pass
+    return platform.processor() or "cpu"
+
+
+def evaluate_selection(loaded, gt) -> list[dict]:
+    sem = loaded.extra.get("semantic")
+    if sem is None:
+        raise SystemExit("the scene has no semantic latents (train it with ns-train cinesplat)")
+    rows = []
+    for name in object_names(gt):
+        t0 = time.perf_counter()
+        try:
+            res = sem.locate_full(name)
+            mask = res.mask
+        except Exception as e:  # noqa: BLE001 (reported per object)
+            rows.append({"object": name, "iou": 0.0, "error": str(e)})
+            continue
+        m = selection_metrics(sem.means.detach().cpu().double(), mask.cpu(), gt, name)
+        # the planner looks at the opacity-weighted centroid (SemanticScene.locate), score that one too
+        c = res.centroid.detach().cpu().double()
+        m["target_error_frac"] = float((c - gt.object_centres()[name]).norm()) / gt.room_size()
+        m["query_ms"] = 1e3 * (time.perf_counter() - t0)
+        rows.append(m)
+    return rows
+
+
+def dense_curve(shot, spacing: float = 0.005) -> tuple[np.ndarray, np.ndarray]:
+    """(times [S], positions [S, 3]) along the shot's whole curve, consecutive samples <= spacing apart."""
+    if shot.trajectory is None or shot.curve_times is None:
+        return shot.times, shot.positions
+    n = max(2, int(math.ceil(shot.length / spacing)) + 1)
+    tau = np.linspace(shot.curve_times[0], shot.curve_times[-1], n)
+    pos = shot.trajectory.evaluate(tau)
+    while np.linalg.norm(np.diff(pos, axis=0), axis=1).max() > spacing and n < 2_000_000:
+        n *= 2
+        tau = np.linspace(shot.curve_times[0], shot.curve_times[-1], n)
+        pos = shot.trajectory.evaluate(tau)
+    times = np.interp(tau, shot.curve_times, shot.times)
+    return times, pos
+
+
+def evaluate_shots(loaded, gt, starts: int, camera_radius: float, grid_resolution: int) -> tuple[list[dict], dict, dict]:
+    planner = Planner(loaded.scene, PlannerConfig(start_region=loaded.start_region, grid_resolution=grid_resolution))
+    prep = planner.prepare()
+    names = object_names(gt)
+    centres = gt.object_centres()
+    rows, paths, series = [], {}, {}
+    for i, goto in enumerate(names):
+        look = names[(i + 1) % len(names)]
+        g, _ = loaded.locate(goto)
+        lk, _ = loaded.locate(look)
+        for seed in range(starts):
+            row = {"go_to": goto, "look_at": look, "seed": seed}
+            t0 = time.perf_counter()
+            try:
+                shot = planner.plan(g, lk, seed=seed, n_candidates=1)[0]
+            except PlanningError as e:
+                row.update(success=False, reason=f"{type(e).__name__}: {e}"[:200], plan_ms=1e3 * (time.perf_counter() - t0))
+                rows.append(row)
+                continue
+            row["plan_ms"] = 1e3 * (time.perf_counter() - t0)
+            t, pos = dense_curve(shot)
+            clr = clearance_along(torch.from_numpy(pos), gt, camera_radius)
+            bound = clearance_lower_bound(torch.from_numpy(pos), clr) if len(pos) > 1 else clr
+            c2w = torch.from_numpy(shot.camera_to_worlds())
+            err_target = shot.look_at_errors_deg()
+            err_true = look_at_errors_deg(c2w, centres[look]).numpy()
+            d = distance_to_object(torch.from_numpy(shot.positions[-1]), gt, goto)
+            row.update(
+                success=bool(clr.min() > 0), true_min_clearance=float(clr.min()), true_clearance_bound=float(bound.min()),
+                samples=len(pos), look_err_target_max_deg=float(err_target.max()), look_err_true_max_deg=float(err_true.max()),
+                final_surface_dist=d["surface"], final_centre_dist=d["centre"], duration_s=shot.duration,
+                length=shot.length, planner_ms=shot.timings.get("plan_ms", float("nan")),
+            )
+            rows.append(row)
+            label = f"{goto} -> {look} #{seed}"
+            paths[label] = torch.from_numpy(shot.positions)
+            series[label] = (torch.from_numpy(t), clr)
+    return rows, {"paths": paths, "series": series}, prep.timings_ms
+
+
+def summarise(sel: list[dict], shots: list[dict], gt) -> dict:
+    ok = [r for r in shots if r.get("success")]
+    planned = [r for r in shots if "true_min_clearance" in r]
+    f = lambda rows, k, fn: float(fn([r[k] for r in rows])) if rows else float("nan")  # noqa: E731
+    return {
+        "objects": len(sel),
+        "iou_min": min(r.get("iou", 0.0) for r in sel), "iou_mean": float(np.mean([r.get("iou", 0.0) for r in sel])),
+        "objects_iou_ge_0.7": sum(r.get("iou", 0.0) >= 0.7 for r in sel),
+        "centroid_err_frac_max": max(r.get("centroid_error_frac", math.inf) for r in sel),
+        "objects_centroid_le_5pct": sum(r.get("centroid_error_frac", math.inf) <= 0.05 for r in sel),
+        "shots": len(shots), "planned": len(planned), "success": len(ok),
+        "success_rate": len(ok) / len(shots) if shots else float("nan"),
+        "planned_with_positive_true_clearance": sum(r["true_min_clearance"] > 0 for r in planned),
+        "true_min_clearance": f(planned, "true_min_clearance", np.min),
+        "look_err_target_max_deg": f(planned, "look_err_target_max_deg", np.max),
+        "look_err_true_median_of_max_deg": f(planned, "look_err_true_max_deg", np.median),
+        "final_surface_dist_median": f(planned, "final_surface_dist", np.median),
+        "plan_ms_median": f(planned, "plan_ms", np.median),
+        "plan_ms_p95": f(planned, "plan_ms", lambda v: np.percentile(v, 95)),
+        "room_size": gt.room_size(),
+    }
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scene", required=True, help="compact export (.npz/.pt) or a run's config.yml")
+    ap.add_argument("--dataset", type=Path, required=True, help="folder with geometry.json + dataparser_transforms.json")
+    ap.add_argument("--dataparser-transforms", type=Path, default=None, help="default: <dataset>/dataparser_transforms.json")
+    ap.add_argument("--starts", type=int, default=3, help="random starts per go-to/look-at pair")
+    ap.add_argument("--camera-radius", type=float, default=0.03)
+    ap.add_argument("--safety-margin", type=float, default=0.01, help="planning margin on top of the radius (cinesplat-plan's default)")
+    ap.add_argument("--grid-resolution", type=int, default=96)
+    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--selection-only", action="store_true")
+    ap.add_argument("--out", type=Path, default=Path("benchmarks/room_eval"))
+    ap.add_argument("--no-record", action="store_true", help="do not append to benchmarks/RESULTS.md")
+    a = ap.parse_args(argv)
+    dpt = a.dataparser_transforms or a.dataset / "dataparser_transforms.json"
+    gt = load_ground_truth(a.dataset, dpt)
+    # the planner plans for radius + margin, exactly as cinesplat-plan does; the truth is scored for the radius
+    loaded = load_scene(str(a.scene), SceneConfig(camera_radius=a.camera_radius + a.safety_margin), device=a.device)
+    sel = evaluate_selection(loaded, gt)
+    shots, plots, prep_ms = ([], {"paths": {}, "series": {}}, {}) if a.selection_only else evaluate_shots(
+        loaded, gt, a.starts, a.camera_radius, a.grid_resolution)
+    summary = summarise(sel, shots, gt)
+    a.out.mkdir(parents=True, exist_ok=True)
+    date, dev = datetime.date.today().isoformat(), device_name(a.device)
+    md = [f"# End-to-end evaluation: {a.scene}", "", f"{date}, {dev}, {len(loaded.scene)} Gaussians, prepare {prep_ms}", "",
+          "## Object selection (text -> Gaussians) vs ground truth", "",
+          markdown_table(sel, ["object", "iou", "precision", "recall", "n_selected", "n_true", "centroid_error_frac", "target_error_frac", "query_ms"]),
+          "", "## Shots (true geometry)", "",
+          markdown_table(shots, ["go_to", "look_at", "seed", "success", "true_min_clearance", "true_clearance_bound",
+                                 "look_err_target_max_deg", "look_err_true_max_deg", "final_surface_dist", "plan_ms", "reason"]),
+          "", "## Summary", "", "```", json.dumps(summary, indent=1), "```"]
+    (a.out / "eval_room.md").write_text("\n".join(md) + "\n")
+    (a.out / "eval_room.json").write_text(json.dumps({"summary": summary, "selection": sel, "shots": shots, "prepare_ms": prep_ms},
+                                                     indent=1, default=float))
+    if plots["paths"]:
+        look_targets = {lbl: gt.object_centres()[lbl.split(" -> ")[1].rsplit(" #", 1)[0]] for lbl in plots["paths"]}
+        plot_topdown(gt, plots["paths"], a.out / "eval_room_topdown.png", look_targets=look_targets)
+        plot_clearance(plots["series"], a.out / "eval_room_clearance.png")
+    print("\n".join(md))
+    if not a.no_record:
+        res = Path(__file__).resolve().parent / "RESULTS.md"
+        with open(res, "a") as f:
+            f.write(f"\n## eval_room ({date}, {dev})\n\nscene `{a.scene}`, {len(loaded.scene)} Gaussians, {a.starts} starts per pair, "
+                    f"camera radius {a.camera_radius} (+ planning margin {a.safety_margin}); details in `{a.out}/eval_room.md`\n\n```\n{json.dumps(summary, indent=1)}\n```\n")
+    return summary
+
+
+if __name__ == "__main__":
+    main()

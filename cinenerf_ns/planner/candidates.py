@@ -1,0 +1,296 @@
+"""K candidate shots for one go-to / look-at, planned in one call with batched stages, scored and ranked.
+
+Same pipeline as Planner._plan_one (same stages, same guarantees: every returned shot is verified safe),
+but the expensive collision work is done once for all K candidates instead of K times:
+
+  stage            batched how
+  start sampling   one sample_free_starts call for K (+ spares) starts
+  goal             one closest-safe-point search per free component (cached), not per candidate
+  A*               per candidate (a sequential graph search on the CPU voxel grid)
+  shortcut         lock-step greedy line-of-sight pruning: each round tests the candidate segments of
+                   ALL candidates in one conservative segments_free call (one call per round instead of
+                   one per kept point per candidate)
+  corridor         the ellipsoid candidates of every segment box of all K paths come from ONE batched
+                   index query (prefetch_index.py, identical answers); the plane cuts themselves are
+                   per polytope (a nearest-first sequential pruning loop)
+  QP               back to back; the constant per-degree matrices (Bernstein Gram, difference operators,
+                   unit Hessians) are cached (trajectory.py lru_cache), only the corridor rows change
+  timing           per candidate (numpy), optionally retimed under DynamicLimits (dynamics.py)
+  verification     dense samples of all K curves in ONE conservative points_free call, exact clearance
+                   of the inconclusive samples of all K in one call (same rule as safety.verify_shot)
+  scoring          sight lines of all K x scored frames in ONE occlusion call, exact clearance of all
+                   scored frames in ONE call (searched up to ScoreConfig.clearance_cap), then score_terms
+                   per candidate (scoring.py)
+
+Runs on the scene's device (CPU or CUDA tensors); the QP and A* are CPU work in both cases.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Any, Dict, List, Optional
+
+import numpy as np
+import torch
+
+from .astar import astar
+from .corridor import CorridorError, build_corridor
+from .distance import clearance
+from .dynamics import DynamicLimits, retime_shot
+from .errors import GoalUnreachableError, InvalidInputError, PlanningError, StartInCollisionError, UnsafeTrajectoryError
+from .goal import sample_free_starts
+from .occlusion import sight_lines_blocked
+from .planner import Planner, _as_point
+from .prefetch_index import corridor_prefetch
+from .safety import _dense_samples
+from .scoring import ScoreConfig, ShotScore, _frames, score_terms
+from .shot import Shot
+from .trajectory import solve_corridor_qp
+
+
+@dataclass
+class RankedShot:
+    """One candidate: its rank (1 = best, lowest score total), the shot and its score."""
+
+    rank: int
+    shot: Shot
+    score: ShotScore
+    candidate: int  # index of the candidate's start among the sampled starts (stable across scorings)
+
+    def to_dict(self, include_frames: bool = False) -> Dict[str, Any]:
+        d = self.shot.to_dict(include_frames)
+        d.update({"rank": self.rank, "candidate": self.candidate, "score": self.score.to_dict()})
+        if getattr(self.shot, "dynamics", None) is not None:
+            d["dynamics"] = self.shot.dynamics
+        if self.shot.safety is not None:
+            d["verification"] = self.shot.safety
+        return d
+
+
+def batched_shortcut(paths: List[np.ndarray], segments_free) -> List[np.ndarray]:
+    """Greedy farthest-visible-point pruning (astar.shortcut's rule) of several polylines [K_i, 3] at once.
+
+    Each round, every unfinished polyline proposes all segments from its current point to its later points
+    (except the next one, always kept: it came from the voxel path); ONE segments_free(p0 [P,3], p1 [P,3])
+    call answers them all; each jumps to its farthest free point."""
+    cur = [0] * len(paths)
+    keep = [[0] for _ in paths]
+    while True:
+        active = [i for i, pts in enumerate(paths) if cur[i] < len(pts) - 1]
+        if not active:
+            break
+        owners, js, p0, p1 = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)], [np.zeros((0, 3))], [np.zeros((0, 3))]
+        for i in active:
+            pts = paths[i]
+            j = np.arange(cur[i] + 2, len(pts))
+            owners.append(np.full(len(j), i))
+            js.append(j)
+            p0.append(np.repeat(pts[cur[i]][None], len(j), 0))
+            p1.append(pts[j])
+        own = np.concatenate(owners)
+        jj = np.concatenate(js)
+        free = np.zeros(0, dtype=bool)
+        if len(own):
+            free = np.asarray(segments_free(np.concatenate(p0), np.concatenate(p1)), dtype=bool).reshape(-1)
+        for i in active:
+            sel = np.flatnonzero((own == i) & free)
+            nxt = int(jj[sel].max()) if sel.size else cur[i] + 1
+            keep[i].append(nxt)
+            cur[i] = nxt
+    return [pts[k] for pts, k in zip(paths, keep)]
+
+
+def batched_verify(planner: Planner, shots: List[Shot]) -> List[Dict[str, Any]]:
+    """safety.verify_shot for several shots with one conservative and one exact call for all of them."""
+    spacing = planner.config.verify_spacing
+    samples = [_dense_samples(sh, None, spacing)[1] for sh in shots]
+    counts = [len(s) for s in samples]
+    pts = np.concatenate(samples)
+    ok = planner.points_free(pts)
+    bad = np.flatnonzero(~ok)
+    exact = np.full(len(pts), np.inf)
+    if bad.size:
+        exact[bad] = planner.clearance(pts[bad])
+    out, o = [], 0
+    for n in counts:
+        e = exact[o : o + n]
+        nb = int((~ok[o : o + n]).sum())
+        mn = float(e.min()) if nb else None
+        out.append({
+            "num_samples": int(n), "max_sample_spacing": float(spacing), "num_inconclusive": nb,
+            "min_exact_clearance": mn, "safe": bool(mn is None or mn >= 0.0),
+            "method": "conservative Cor.1 test on every sample, exact distance where inconclusive (batched over candidates)",
+        })
+        o += n
+    return out
+
+
+def score_shots(
+    planner: Planner,
+    shots: List[Shot],
+    look_at: Any,
+    config: Optional[ScoreConfig] = None,
+    object_radius: float = 0.1,
+    object_center: Optional[Any] = None,
+    object_samples: Optional[Any] = None,
+    exclude: Optional[torch.Tensor] = None,
+) -> List[ShotScore]:
+    """scoring.score_shot for several shots: one occlusion call and one exact-clearance call for all.
+
+    Clearance terms use the scored frames (the same <= config.occlusion_frames frames per shot as the
+    occlusion term); the shots' safety is established separately by the dense verification."""
+    cfg = config or ScoreConfig()
+    cfg.validate()
+    look = _as_point(look_at, "look-at point")
+    if not (math.isfinite(object_radius) and object_radius >= 0):
+        raise InvalidInputError(f"object_radius must be finite and >= 0, got {object_radius}.")
+    prep = planner._prep()
+    targets = look[None] if object_samples is None else np.asarray(object_samples, np.float64).reshape(-1, 3)
+    idx = [_frames(sh.num_frames, cfg.occlusion_frames) for sh in shots]
+    pos = np.concatenate([sh.positions[i] for sh, i in zip(shots, idx)])  # [sum T', 3]
+    occ = sight_lines_blocked(pos, targets, planner.scene, prep.index, exclude=exclude,
+                              stop_distance=object_radius).cpu().numpy()  # [sum T', S]
+    cap = None if cfg.clearance_cap is None else cfg.clearance_cap + planner.scene.camera_radius
+    clr = clearance(torch.as_tensor(pos, device=planner.scene.device), planner.scene, prep.index,
+                    max_distance=cap).cpu().numpy()  # [sum T'] exact up to the cap
+    out, o = [], 0
+    for sh, i in zip(shots, idx):
+        n = len(i)
+        sc = score_terms(sh, look, occ[o : o + n], clr[o : o + n], object_radius, object_center, cfg)
+        sc.tested_frame_index = i
+        out.append(sc)
+        o += n
+    return out
+
+
+def plan_candidates(
+    planner: Planner,
+    goal: Any,
+    look_at: Any,
+    k: int = 16,
+    seed: int = 0,
+    score_config: Optional[ScoreConfig] = None,
+    *,
+    limits: Optional[DynamicLimits] = None,
+    object_radius: float = 0.1,
+    object_center: Optional[Any] = None,
+    object_samples: Optional[Any] = None,
+    exclude: Optional[torch.Tensor] = None,
+    spare_fraction: float = 0.5,
+    timings: Optional[Dict[str, float]] = None,
+) -> List[RankedShot]:
+    """Plan up to ``k`` verified-safe shots from different seeded random starts, all ending as close as
+    safely possible to ``goal`` and looking at ``look_at``; score them (scoring.py) and return them ranked
+    best first (rank 1 = lowest ScoreConfig total).
+
+    limits: retime every shot under DynamicLimits (peaks in ``shot.dynamics``); None: the planner's
+    TimingConfig. object_radius / object_center / object_samples / exclude: the look-at object, see
+    scoring.score_shot. spare_fraction: extra starts sampled to replace candidates that fail (unreachable
+    goal from that start, corridor failure); fewer than k shots come back only if the spares run out.
+    timings: optional dict filled with per-stage milliseconds (summed over candidates) and the total.
+    Raises InvalidInputError (bad input) and GoalUnreachableError (no candidate could be planned)."""
+    if int(k) != k or not 1 <= k <= 256:
+        raise InvalidInputError(f"number of candidates must be an integer in 1..256, got {k}")
+    k = int(k)
+    goal_p = _as_point(goal, "go-to point")
+    look_p = _as_point(look_at, "look-at point")
+    if not (0 <= spare_fraction <= 4):
+        raise InvalidInputError(f"spare_fraction must be in [0, 4], got {spare_fraction}")
+    cfg = planner.config
+    tm: Dict[str, float] = {}
+    t_all = time.perf_counter()
+
+    def lap(name, t0):
+        tm[name] = tm.get(name, 0.0) + 1e3 * (time.perf_counter() - t0)
+        return time.perf_counter()
+
+    t = time.perf_counter()
+    prep = planner._prep()
+    labels = prep.astar_grid.labels
+    grid = prep.grid
+    reach = labels == planner._main_component()
+    n_try = k + int(math.ceil(spare_fraction * k))
+    lo, hi = cfg.start_region or (None, None)
+    starts = sample_free_starts(n_try, planner.scene, prep.index, grid, generator=torch.Generator().manual_seed(int(seed)),
+                                region_lo=lo, region_hi=hi, reachable=reach, clearance_fn=planner._free_fn)
+    starts = starts.detach().cpu().numpy()  # [n_try, 3]
+    t = lap("start_sample_ms", t)
+
+    errors: List[str] = []
+    goal_cache: Dict[int, Any] = {}
+    shots: List[Shot] = []
+    cand_ids: List[int] = []
+    nxt = 0  # next unused start; spares are only planned to replace failed candidates
+    while len(shots) < k and nxt < len(starts):
+        batch = list(range(nxt, min(len(starts), nxt + k - len(shots))))
+        nxt = batch[-1] + 1
+        plans: List[Dict[str, Any]] = []  # start, goal, waypoints of each candidate of this round
+        for ci in batch:
+            s = starts[ci]
+            try:
+                s_ijk = planner._free_voxel_near(s, None)
+                comp = int(labels[tuple(s_ijk)])
+                if comp not in goal_cache:
+                    goal_cache[comp] = planner._reachable_goal(goal_p, comp)
+                g, g_ijk = goal_cache[comp]
+                t = lap("goal_ms", t)
+                path = astar(prep.astar_grid, s_ijk, g_ijk)
+                centres = grid.voxel_to_world(torch.as_tensor(path, device=grid.device)).cpu().numpy()
+                plans.append({"cand": ci, "start": s, "goal": g, "way": np.concatenate([s[None], centres, g[None]])})
+                t = lap("astar_ms", t)
+            except (GoalUnreachableError, StartInCollisionError) as e:
+                errors.append(str(e))
+                t = time.perf_counter()
+        ways = batched_shortcut([p["way"] for p in plans], planner.segments_free)
+        t = lap("shortcut_ms", t)
+        pidx = corridor_prefetch(prep.index, ways, cfg.box_margin, planner.scene.camera_radius)
+        t = lap("corridor_ms", t)
+        for p, way in zip(plans, ways):
+            if np.linalg.norm(way[-1] - way[0]) < 1e-9:
+                errors.append("the start is already at the goal")
+                continue
+            try:
+                corridor = build_corridor(torch.as_tensor(way, device=planner.scene.device), planner.scene, pidx,
+                                          box_margin=cfg.box_margin)
+                t = lap("corridor_ms", t)
+                traj = solve_corridor_qp(corridor.constraints(), corridor.waypoints.cpu().numpy(), p["start"], p["goal"],
+                                         cfg.trajectory)
+                t = lap("qp_ms", t)
+            except (GoalUnreachableError, CorridorError, PlanningError) as e:
+                errors.append(str(e))
+                t = time.perf_counter()
+                continue
+            sh = Shot.from_trajectory(traj, look_p, timing=cfg.timing, up=cfg.up, corridor=corridor)
+            if limits is not None:
+                sh = retime_shot(sh, limits, up=cfg.up)
+            sh.goal_target = goal_p
+            shots.append(sh)
+            cand_ids.append(p["cand"])
+            t = lap("timing_ms", t)
+        tm["corridor_index_misses"] = tm.get("corridor_index_misses", 0.0) + pidx.misses
+    if not shots:
+        raise GoalUnreachableError(
+            f"no safe candidate found from {len(starts)} start(s); last reason: {errors[-1] if errors else 'unknown'}"
+        )
+
+    reports = batched_verify(planner, shots)
+    t = lap("verify_ms", t)
+    for sh, rep in zip(shots, reports):
+        if not rep["safe"]:  # cannot happen if corridor and QP are right; never return such a shot
+            raise UnsafeTrajectoryError(
+                f"verification found exact clearance {rep['min_exact_clearance']:.3g} < 0 on a candidate curve; this "
+                f"is a planner bug, please report it with the scene and seed"
+            )
+        sh.safety = rep
+
+    scores = score_shots(planner, shots, look_p, score_config, object_radius, object_center, object_samples, exclude)
+    t = lap("score_ms", t)
+    tm["total_ms"] = 1e3 * (time.perf_counter() - t_all)
+    tm["num_failed"] = float(len(errors))
+    for sh in shots:
+        sh.timings = {**{f"batch_{kk}": v for kk, v in tm.items()}}
+    order = sorted(range(len(shots)), key=lambda i: (scores[i].total, cand_ids[i]))
+    if timings is not None:
+        timings.update(tm)
+    return [RankedShot(rank=r + 1, shot=shots[i], score=scores[i], candidate=cand_ids[i]) for r, i in enumerate(order)]

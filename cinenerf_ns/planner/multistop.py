@@ -1,0 +1,292 @@
+"""Multi-stop shots: "go to A, then B, then C", one continuous smooth trajectory through the stops.
+
+Choice (documented): ONE QP over the concatenated corridor, the stops as interpolation constraints.
+  1. start (given, or seeded random free start) and, per stop, the closest safe point to the requested
+     go-to that the start's free component reaches (Planner._reachable_goal, as for single shots);
+  2. per leg (start -> stop 1, stop 1 -> stop 2, ...): A*, line-of-sight shortcut (all legs in one
+     batched call), safe polytope corridor (Planner's stages);
+  3. the legs' polytopes and waypoints are concatenated and the corridor QP of trajectory.py is built once;
+     for every interior stop j joining segments k-1 and k, the equality P_{k-1,D} = stop_j is added (the
+     C0..C2 joins then carry the curve through it with continuous velocity and acceleration: the camera
+     flies through the stop, it does not halt) and the two control points at the stop drop their polytope
+     rows (they are pinned; the stop is checked to lie in both polytopes, like start and goal);
+  4. every free control point is checked inside its (unshrunk) polytope, so the whole curve is safe by
+     the convex-hull property; the frames are then verified densely (safety.verify_shot).
+Look-at: each stop has its own look-at (or all share one). On the leg towards stop j the look-at point
+moves from stop j-1's look-at to stop j's along the path, with a C2 "smootherstep" in the arc-length
+fraction of the leg (the first leg keeps stop 1's look-at), so the camera arrives at stop j looking at
+its look-at and the view turns smoothly. Timing: dynamics.retime (speed, acceleration and view angular
+rate limits measured on the exported frames).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, Dict, List, Optional, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+import torch
+
+from .astar import astar
+from .bezier import BezierTrajectory
+from .candidates import batched_shortcut
+from .corridor import build_corridor
+from .dynamics import DynamicLimits, dynamics_report, retime
+from .errors import InvalidInputError, StartInCollisionError, UnsafeTrajectoryError
+from .goal import sample_free_starts
+from .planner import Planner, _as_point
+from .prefetch_index import corridor_prefetch
+from .safety import verify_shot
+from .shot import Shot
+from .timing import arc_length_table
+from .trajectory import (
+    CorridorInfeasibleError,
+    CorridorQP,
+    TrajectoryConfig,
+    TrajectorySolverError,
+    _point_violation,
+    _project_equalities,
+    _solve_clarabel,
+    _solve_osqp,
+    build_corridor_qp,
+)
+
+
+@dataclass
+class MultiStopShot:
+    """A shot through several stops. ``shot.look_at`` is the last stop's look-at; the per-frame look-at
+    points are ``look_at_points`` (Shot.resampled would re-aim every frame at shot.look_at: use the frames
+    as they are, or re-plan with another fps in DynamicLimits)."""
+
+    shot: Shot
+    stops: np.ndarray  # [S, 3] the safe points the curve passes through (closest safe points to the targets)
+    stop_targets: np.ndarray  # [S, 3] the requested go-to points
+    stop_look_ats: np.ndarray  # [S, 3] look-at of each stop
+    stop_curve_times: np.ndarray  # [S] the trajectory's own time at each stop (exactly on the curve)
+    stop_frame_times: np.ndarray  # [S] shot time at which the camera passes each stop
+    look_at_points: np.ndarray  # [T, 3] what each frame looks at
+    dynamics: Dict[str, float] = field(default_factory=dict)
+    timings: Dict[str, float] = field(default_factory=dict)
+
+    def to_dict(self, include_frames: bool = False) -> Dict[str, Any]:
+        d = self.shot.to_dict(include_frames)
+        # the generic look-at error assumes one look-at point; report the one against the per-frame points
+        view = -self.shot.rotations[:, :, 2]
+        to = self.look_at_points - self.shot.positions
+        to = to / np.linalg.norm(to, axis=1, keepdims=True)
+        d["max_look_at_error_deg"] = float(np.degrees(np.arccos(np.clip((view * to).sum(1), -1, 1))).max())
+        d.update({
+            "stops": self.stops.tolist(), "stop_targets": self.stop_targets.tolist(),
+            "stop_look_ats": self.stop_look_ats.tolist(), "stop_frame_times": self.stop_frame_times.tolist(),
+            "dynamics": self.dynamics, "verification": self.shot.safety,
+        })
+        if include_frames:
+            d["frames"]["look_at_points"] = self.look_at_points.tolist()
+        return d
+
+
+def _smootherstep(x: np.ndarray) -> np.ndarray:
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * x * (x * (6 * x - 15) + 10)
+
+
+def _with_stops(qp: CorridorQP, config: TrajectoryConfig, stop_segments: List[int], stops: np.ndarray) -> CorridorQP:
+    """Add P_{k-1,D} = stop equalities and drop the polytope rows of the control points at each stop."""
+    d, m = qp.degree, qp.num_segments
+    npts = d + 1
+    q = config.rest_at_ends
+    pinned = np.zeros((m, npts), dtype=bool)
+    pinned[0, : q + 1] = True
+    pinned[m - 1, d - q :] = True
+    row0 = np.zeros(m, dtype=np.int64)  # first inequality row of each segment
+    acc = 0
+    for k, (a, _) in enumerate(qp.polytopes):
+        row0[k] = acc
+        acc += int((~pinned[k]).sum()) * a.shape[0]
+    drop = []
+    rows_r, rows_c, rhs = [], [], []
+    n = qp.P.shape[0]
+    for j, (k, p) in enumerate(zip(stop_segments, stops)):
+        for seg, i in ((k - 1, d), (k, 0)):
+            a, b = qp.polytopes[seg]
+            tol = 1e-9 * max(1.0, float(np.abs(p).max()))
+            if _point_violation(a, b, p) > tol:
+                raise CorridorInfeasibleError(f"stop {j + 1} {np.round(p, 4).tolist()} lies outside its corridor polytope.")
+            if not pinned[seg, i]:
+                pos = int(np.flatnonzero(~pinned[seg]).tolist().index(i))
+                f = a.shape[0]
+                drop.extend(range(row0[seg] + pos * f, row0[seg] + (pos + 1) * f))
+        base = ((k - 1) * npts + d) * 3
+        for c in range(3):
+            rows_r.append(len(rhs))
+            rows_c.append(base + c)
+            rhs.append(float(p[c]))
+    keep = np.setdiff1d(np.arange(qp.A_in.shape[0]), np.asarray(drop, dtype=np.int64))
+    extra = sp.csc_matrix((np.ones(len(rows_r)), (rows_r, rows_c)), shape=(len(rhs), n))
+    return CorridorQP(
+        P=qp.P, A_eq=sp.vstack([qp.A_eq, extra], format="csc"), b_eq=np.concatenate([qp.b_eq, rhs]),
+        A_in=qp.A_in[keep], b_in=qp.b_in[keep], durations=qp.durations, degree=d, num_segments=m,
+        polytopes=qp.polytopes,
+    )
+
+
+def solve_through_stops(polytopes, waypoints: np.ndarray, start: np.ndarray, goal: np.ndarray,
+                        stop_segments: List[int], stops: np.ndarray, config: TrajectoryConfig) -> BezierTrajectory:
+    """trajectory.solve_corridor_qp plus interpolation constraints: the curve passes exactly through
+    stops [S, 3] at the start of segments stop_segments [S] (same checks: every free control point is
+    verified inside its unshrunk polytope)."""
+    t0 = time.perf_counter()
+    qp = _with_stops(build_corridor_qp(polytopes, waypoints, start, goal, config), config, stop_segments, stops)
+    t1 = time.perf_counter()
+    solve = _solve_clarabel if config.solver == "clarabel" else _solve_osqp
+    x, status, iters, outcome = solve(qp, config)
+    if outcome == "infeasible":
+        raise CorridorInfeasibleError(
+            "no smooth trajectory through the stops fits inside the safe corridor; try fewer stops, a lower "
+            "continuity order or stops with more free space around them"
+        )
+    if outcome == "failed":
+        raise TrajectorySolverError(f"the {config.solver} QP solver did not converge (status {status}).")
+    m, npts = qp.num_segments, qp.degree + 1
+    cps = _project_equalities(x, qp).reshape(m, npts, 3).copy()
+    cps[0, : config.rest_at_ends + 1] = start
+    cps[-1, npts - 1 - config.rest_at_ends :] = goal
+    exact = np.zeros((m, npts), dtype=bool)
+    exact[0, : config.rest_at_ends + 1] = True
+    exact[-1, npts - 1 - config.rest_at_ends :] = True
+    for k, p in zip(stop_segments, stops):
+        cps[k - 1, -1] = p
+        cps[k, 0] = p
+        exact[k - 1, -1] = exact[k, 0] = True
+    worst = -np.inf
+    for k, (a, b) in enumerate(qp.polytopes):
+        free = ~exact[k]
+        if free.any():
+            worst = max(worst, float(np.max(cps[k, free] @ a.T - b)))
+    if worst > 0:
+        raise TrajectorySolverError(f"the {config.solver} solution leaves the corridor by {worst:.2e}.")
+    traj = BezierTrajectory(cps, qp.durations)
+    traj.info = {"solver": config.solver, "status": status, "iterations": int(iters), "build_ms": 1e3 * (t1 - t0),
+                 "solve_ms": 1e3 * (time.perf_counter() - t1), "max_corridor_violation": worst,
+                 "num_variables": int(qp.P.shape[0])}
+    return traj
+
+
+def plan_multistop(
+    planner: Planner,
+    stops: Sequence[Any],
+    look_at: Any,
+    start: Optional[Any] = None,
+    seed: int = 0,
+    limits: Optional[DynamicLimits] = None,
+) -> MultiStopShot:
+    """One smooth verified-safe shot from ``start`` (or a seeded random free start) through the closest
+    safe points to each go-to in ``stops`` [S, 3] (S >= 1), in order. look_at: one point [3] shared by all
+    stops, or one per stop [S, 3]. limits: dynamic limits of the exported frames (default: the planner's
+    max speed / acceleration / fps and 60 deg/s). Raises InvalidInputError, StartInCollisionError,
+    GoalUnreachableError (a stop cannot be reached, or no smooth curve fits)."""
+    targets = [_as_point(s, f"stop {i + 1}") for i, s in enumerate(stops)]
+    if not targets:
+        raise InvalidInputError("a multi-stop shot needs at least one stop.")
+    la = np.asarray(look_at, dtype=np.float64)
+    if la.shape == (3,):
+        looks = np.tile(_as_point(la, "look-at point"), (len(targets), 1))
+    elif la.shape == (len(targets), 3):
+        looks = np.stack([_as_point(p, f"look-at of stop {i + 1}") for i, p in enumerate(la)])
+    else:
+        raise InvalidInputError(f"look_at must be one point [3] or one per stop [{len(targets)}, 3], got shape {la.shape}.")
+    cfg = planner.config
+    if limits is None:
+        limits = DynamicLimits(max_speed=cfg.timing.max_speed, max_acceleration=cfg.timing.max_acceleration or 0.5,
+                               fps=cfg.timing.fps)
+    prep = planner._prep()
+    labels, grid = prep.astar_grid.labels, prep.grid
+    tm: Dict[str, float] = {}
+    t0 = time.perf_counter()
+    if start is not None:
+        s = _as_point(start, "start point")
+        c = float(planner.clearance(s[None])[0])
+        if c < 0:
+            raise StartInCollisionError(
+                f"the start {np.round(s, 4).tolist()} puts the camera inside the scene (clearance {c:.4f}); pick another start"
+            )
+    else:
+        lo, hi = cfg.start_region or (None, None)
+        s = sample_free_starts(1, planner.scene, prep.index, grid, generator=torch.Generator().manual_seed(int(seed)),
+                               region_lo=lo, region_hi=hi, reachable=labels == planner._main_component(),
+                               clearance_fn=planner._free_fn)[0].detach().cpu().numpy()
+    s_ijk = planner._free_voxel_near(s, None)
+    comp = int(labels[tuple(s_ijk)])
+    pts, ijks = [s], [s_ijk]
+    for g in targets:
+        p, ijk = planner._reachable_goal(g, comp)
+        pts.append(np.asarray(p, np.float64))
+        ijks.append(np.asarray(ijk))
+    for i in range(1, len(pts)):
+        if np.linalg.norm(pts[i] - pts[i - 1]) < 1e-9:
+            raise InvalidInputError(f"stop {i} coincides with the point before it; remove the repeated stop.")
+    tm["goal_ms"] = 1e3 * (time.perf_counter() - t0)
+    t1 = time.perf_counter()
+    ways = []
+    for i in range(len(targets)):
+        path = astar(prep.astar_grid, ijks[i], ijks[i + 1])
+        centres = grid.voxel_to_world(torch.as_tensor(path, device=grid.device)).cpu().numpy()
+        ways.append(np.concatenate([pts[i][None], centres, pts[i + 1][None]]))
+    tm["astar_ms"] = 1e3 * (time.perf_counter() - t1)
+    t2 = time.perf_counter()
+    ways = batched_shortcut(ways, planner.segments_free)
+    tm["shortcut_ms"] = 1e3 * (time.perf_counter() - t2)
+    t3 = time.perf_counter()
+    polys, wps, stop_segments = [], [pts[0][None]], []
+    pidx = corridor_prefetch(prep.index, ways, cfg.box_margin, planner.scene.camera_radius)
+    for i, w in enumerate(ways):
+        cor = build_corridor(torch.as_tensor(w, device=planner.scene.device), planner.scene, pidx,
+                             box_margin=cfg.box_margin)
+        if i > 0:
+            stop_segments.append(len(polys))
+        polys.extend(cor.constraints())
+        cw = cor.waypoints.cpu().numpy()
+        cw[0], cw[-1] = pts[i], pts[i + 1]
+        wps.append(cw[1:])
+    tm["corridor_ms"] = 1e3 * (time.perf_counter() - t3)
+    t4 = time.perf_counter()
+    stop_pts = np.stack(pts[1:-1]) if len(pts) > 2 else np.zeros((0, 3))
+    traj = solve_through_stops(polys, np.concatenate(wps), pts[0], pts[-1], stop_segments, stop_pts, cfg.trajectory)
+    tm["qp_ms"] = 1e3 * (time.perf_counter() - t4)
+
+    # arc-length fraction of every stop (curve time of the segment joins)
+    t5 = time.perf_counter()
+    tau_tab, s_tab = arc_length_table(traj)
+    stop_tau = np.concatenate([traj.segment_starts[stop_segments], [traj.total_duration]]) if stop_segments else np.array([traj.total_duration])
+    frac = np.interp(stop_tau, tau_tab, s_tab) / s_tab[-1]  # [S] (last = 1)
+    bounds = np.concatenate([[0.0], frac])
+
+    def look_of(f: np.ndarray) -> np.ndarray:
+        f = np.asarray(f, np.float64)
+        leg = np.clip(np.searchsorted(bounds, f, side="right") - 1, 0, len(targets) - 1)  # [K]
+        x = (f - bounds[leg]) / np.maximum(bounds[leg + 1] - bounds[leg], 1e-12)
+        prev = looks[np.maximum(leg - 1, 0)]
+        w = np.where(leg == 0, 1.0, _smootherstep(x))[:, None]
+        return prev + w * (looks[leg] - prev)
+
+    rf = retime(traj, look_of, limits, up=cfg.up)
+    tm["timing_ms"] = 1e3 * (time.perf_counter() - t5)
+    shot = Shot(times=rf.times, positions=rf.positions, rotations=rf.rotations, look_at=looks[-1], goal=pts[-1],
+                start=pts[0], trajectory=traj, fps=limits.fps, curve_times=rf.curve_times, goal_target=targets[-1])
+    t6 = time.perf_counter()
+    rep = verify_shot(shot, planner.points_free, planner.clearance, max_spacing=cfg.verify_spacing)
+    tm["verify_ms"] = 1e3 * (time.perf_counter() - t6)
+    if not rep["safe"]:
+        raise UnsafeTrajectoryError(
+            f"verification found exact clearance {rep['min_exact_clearance']:.3g} < 0 on the multi-stop curve; this "
+            f"is a planner bug, please report it with the scene and seed"
+        )
+    shot.safety = rep
+    tm["plan_ms"] = 1e3 * (time.perf_counter() - t0)
+    shot.timings = dict(tm)
+    stop_curve = stop_tau
+    stop_frame = np.interp(stop_curve, rf.curve_times, rf.times)
+    return MultiStopShot(shot=shot, stops=np.stack(pts[1:]), stop_targets=np.stack(targets), stop_look_ats=looks,
+                         stop_curve_times=stop_curve, stop_frame_times=stop_frame, look_at_points=rf.look_at_points,
+                         dynamics=dynamics_report(rf, limits), timings=tm)

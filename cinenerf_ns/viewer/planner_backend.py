@@ -1,0 +1,132 @@
+"""The real planner (``cinenerf_ns.planner.planner.Planner``) as the panel's ``plan`` callable.
+
+One :class:`PreparedPlanner` per obstacle scene: ``prepare()`` (spatial index, occupancy grid, free
+components) runs once, optionally on a background thread so the viewer's UI stays responsive; the
+status callback reports progress and the time it took. ``plan`` waits for the preparation, then plans
+and adds the exact clearance of every frame (``Shot.clearance``) so the panel can show each candidate's
+minimum clearance (the planner's own dense verification is kept in ``Shot.safety``).
+
+Planner errors (``GoalUnreachableError``, ``StartInCollisionError``, ``InvalidInputError`` ...) pass
+through unchanged: their messages are written for the user and the panel shows them verbatim.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any, Callable, List, Optional
+
+import numpy as np
+
+from cinenerf_ns.planner.errors import PlanningError
+from cinenerf_ns.planner.planner import Planner, PlannerConfig
+from cinenerf_ns.planner.scene import EllipsoidScene
+
+StatusFn = Callable[[str, str], None]  # (text, level "busy" | "ok" | "error")
+
+
+class PreparedPlanner:
+    """A :class:`Planner` over one scene, prepared once; ``plan`` matches ``backend.PlanFn``."""
+
+    name = "cinenerf_ns planner"
+
+    def __init__(
+        self,
+        scene: EllipsoidScene,
+        config: Optional[PlannerConfig] = None,
+        on_status: Optional[StatusFn] = None,
+    ) -> None:
+        self.scene = scene
+        self.config = config or PlannerConfig()
+        self.on_status = on_status
+        self.planner: Optional[Planner] = None
+        self.prepare_s: Optional[float] = None  # wall time of prepare(), once done
+        self.error: Optional[BaseException] = None  # what prepare() raised, re-raised by plan()
+        self._done = threading.Event()
+        self._started = False
+        self._start_lock = threading.Lock()
+        self._plan_lock = threading.Lock()  # Planner objects are not assumed thread-safe
+        self._thread: Optional[threading.Thread] = None
+
+    # ------------------------------------------------------------------ preparation
+    def start(self, background: bool = True) -> "PreparedPlanner":
+        """Begin ``prepare()`` (once); on a daemon thread when ``background``."""
+        with self._start_lock:
+            if self._started:
+                return self
+            self._started = True
+        if background:
+            self._thread = threading.Thread(target=self._prepare, name="cine-prepare", daemon=True)
+            self._thread.start()
+        else:
+            self._prepare()
+        return self
+
+    def _status(self, text: str, level: str) -> None:
+        if self.on_status is not None:
+            try:
+                self.on_status(text, level)
+            except Exception:  # a broken view must not stop the preparation
+                pass
+
+    def _prepare(self) -> None:
+        t0 = time.perf_counter()
+        self._status(f"Preparing the planner for {len(self.scene)} obstacles (spatial index, occupancy grid)...", "busy")
+        try:
+            planner = Planner(self.scene, self.config)
+            prep = planner.prepare()
+            self.planner = planner
+            self.prepare_s = time.perf_counter() - t0
+            detail = ", ".join(f"{k[:-3]} {v:.0f} ms" for k, v in prep.timings_ms.items())
+            self._status(f"Planner ready in {self.prepare_s:.2f} s ({detail}).", "ok")
+        except BaseException as err:  # kept and re-raised by plan(): the panel shows it
+            self.error = err
+            self.prepare_s = time.perf_counter() - t0
+            self._status(f"The planner could not prepare this scene: {err}", "error")
+        finally:
+            self._done.set()
+
+    def wait_ready(self, timeout: Optional[float] = None) -> bool:
+        """Start (in this thread if not started) and wait until prepare() finished; True when usable."""
+        if not self._started:
+            self.start(background=False)
+        self._done.wait(timeout)
+        return self._done.is_set() and self.planner is not None
+
+    @property
+    def ready(self) -> bool:
+        return self._done.is_set() and self.planner is not None
+
+    # ------------------------------------------------------------------ planning
+    def plan(self, goal: Any, look_at: Any, start: Any = None, seed: int = 0, n_candidates: int = 1) -> List[Any]:
+        """Shots from the real planner (waits for ``prepare``); every shot gets ``clearance`` [T]:
+        the exact clearance (camera radius included) of its frames."""
+        self.wait_ready()
+        if self.error is not None:
+            if isinstance(self.error, PlanningError):
+                raise type(self.error)(str(self.error))
+            raise PlanningError(f"the planner could not prepare this scene: {type(self.error).__name__}: {self.error}")
+        assert self.planner is not None
+        pt = lambda x: None if x is None else np.asarray(_numpy(x), dtype=np.float64).reshape(-1)  # noqa: E731
+        with self._plan_lock:
+            if start is None and int(n_candidates) > 1:
+                # random starts: the batched candidates, ranked (best first) by the documented shot score
+                from cinenerf_ns.planner.candidates import plan_candidates
+
+                ranked = plan_candidates(self.planner, pt(goal), pt(look_at), k=int(n_candidates), seed=int(seed))
+                shots = []
+                for r in ranked:
+                    r.shot.score, r.shot.rank = float(r.score.total), int(r.rank)
+                    r.shot.score_terms = r.score.to_dict()
+                    shots.append(r.shot)
+            else:
+                shots = self.planner.plan(pt(goal), pt(look_at), start=pt(start), seed=int(seed), n_candidates=int(n_candidates))
+            for shot in shots:
+                if getattr(shot, "clearance", None) is None:
+                    t0 = time.perf_counter()
+                    shot.clearance = np.asarray(self.planner.clearance(shot.positions), dtype=np.float64).reshape(-1)
+                    shot.timings["frame_clearance_ms"] = 1e3 * (time.perf_counter() - t0)
+        return list(shots)
+
+
+def _numpy(x: Any) -> Any:
+    return x.detach().cpu().numpy() if hasattr(x, "detach") else x

@@ -1,0 +1,76 @@
+"""Build the bundled demo scene (cinenerf_ns/assets/) from a trained synthetic room.
+
+    python scripts/make_demo_scene.py --scene ROOM.pt|config.yml --dataset GT_DIR --out cinenerf_ns/assets
+
+GT_DIR holds what `scripts/gpu_check.sh room` copies out of the run: transforms.json (training cameras),
+dataparser_transforms.json, geometry.json and labels.json. The scene is written as a compressed compact
+export (SH degree 0, float16 per-Gaussian arrays, float32 means). When it exceeds --max-mb the Gaussians
+of lowest opacity are dropped (they are the least visible; the demo then plans around exactly the scene it
+ships, nothing else). The training cameras' bounding box is stored as info["start_region"] so random
+starts are drawn where the capture was (what cinesplat-plan does with a run's config.yml).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from cinenerf_ns.method.checkpoint import export_compact, load_splat
+
+
+def camera_region(dataset: Path, pad: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
+    dp = json.loads((dataset / "dataparser_transforms.json").read_text())
+    T = np.eye(4)
+    T[:3] = np.asarray(dp["transform"], dtype=np.float64)
+    c = np.array([np.asarray(f["transform_matrix"], dtype=np.float64)[:3, 3]
+                  for f in json.loads((dataset / "transforms.json").read_text())["frames"]])
+    c = ((T[:3, :3] @ c.T).T + T[:3, 3]) * float(dp["scale"])
+    return c.min(0) - pad, c.max(0) + pad
+
+
+def subset(st, keep: torch.Tensor):
+    pick = lambda t: None if t is None else t[keep]  # noqa: E731
+    return replace(st, means=st.means[keep], quats=st.quats[keep], scales=st.scales[keep], opacities=st.opacities[keep],
+                   features_dc=pick(st.features_dc), latents=pick(st.latents))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scene", type=Path, required=True)
+    ap.add_argument("--dataset", type=Path, required=True)
+    ap.add_argument("--out", type=Path, default=Path("cinenerf_ns/assets"))
+    ap.add_argument("--name", default="room0")
+    ap.add_argument("--max-mb", type=float, default=14.5, help="size budget of the scene file (MB = 1e6 bytes)")
+    args = ap.parse_args()
+
+    st = load_splat(args.scene)
+    lo, hi = camera_region(args.dataset)
+    st.info["start_region"] = [lo.tolist(), hi.tolist()]
+    n0 = len(st)
+    out = args.out / f"{args.name}.npz"
+    keep_frac = 1.0
+    while True:
+        order = torch.argsort(st.opacities.float().reshape(-1), descending=True)
+        k = int(round(n0 * keep_frac))
+        sub = subset(st, torch.sort(order[:k]).values) if k < n0 else st
+        sub.info["demo_pruned"] = {"kept": k, "of": n0, "rule": "highest opacity"}
+        export_compact(sub, out, half=True)
+        mb = out.stat().st_size / 1e6
+        print(f"{k} of {n0} Gaussians -> {out} {mb:.2f} MB")
+        if mb <= args.max_mb:
+            break
+        keep_frac *= 0.97 * args.max_mb / mb
+    gt = args.out / f"{args.name}_gt"
+    gt.mkdir(parents=True, exist_ok=True)
+    for f in ("geometry.json", "labels.json", "dataparser_transforms.json"):
+        shutil.copy(args.dataset / f, gt / f)
+    print("ground truth files ->", gt)
+
+
+if __name__ == "__main__":
+    main()
