@@ -34,7 +34,7 @@ from typing import Any, Dict, List, Optional
 import numpy as np
 import torch
 
-from .astar import astar
+from .coarse_path import voxel_path
 from .corridor import CorridorError, build_corridor
 from .distance import clearance
 from .dynamics import DynamicLimits, retime_shot
@@ -235,14 +235,14 @@ def plan_candidates(
                     goal_cache[comp] = planner._reachable_goal(goal_p, comp)
                 g, g_ijk = goal_cache[comp]
                 t = lap("goal_ms", t)
-                path = astar(prep.astar_grid, s_ijk, g_ijk)
+                path = voxel_path(prep.astar_grid, prep.coarse, s_ijk, g_ijk)  # [K, 3] fine voxel units
                 centres = grid.voxel_to_world(torch.as_tensor(path, device=grid.device)).cpu().numpy()
                 plans.append({"cand": ci, "start": s, "goal": g, "way": np.concatenate([s[None], centres, g[None]])})
                 t = lap("astar_ms", t)
             except (GoalUnreachableError, StartInCollisionError) as e:
                 errors.append(str(e))
                 t = time.perf_counter()
-        ways = batched_shortcut([p["way"] for p in plans], planner.segments_free)
+        ways = batched_shortcut([p["way"] for p in plans], planner._shortcut_free)
         t = lap("shortcut_ms", t)
         pidx = corridor_prefetch(prep.index, ways, cfg.box_margin, planner.scene.camera_radius)
         t = lap("corridor_ms", t)

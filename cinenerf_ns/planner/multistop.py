@@ -28,7 +28,7 @@ import numpy as np
 import scipy.sparse as sp
 import torch
 
-from .astar import astar
+from .coarse_path import voxel_path
 from .bezier import BezierTrajectory
 from .candidates import batched_shortcut
 from .corridor import build_corridor
@@ -230,12 +230,12 @@ def plan_multistop(
     t1 = time.perf_counter()
     ways = []
     for i in range(len(targets)):
-        path = astar(prep.astar_grid, ijks[i], ijks[i + 1])
+        path = voxel_path(prep.astar_grid, prep.coarse, ijks[i], ijks[i + 1])  # [K, 3] fine voxel units
         centres = grid.voxel_to_world(torch.as_tensor(path, device=grid.device)).cpu().numpy()
         ways.append(np.concatenate([pts[i][None], centres, pts[i + 1][None]]))
     tm["astar_ms"] = 1e3 * (time.perf_counter() - t1)
     t2 = time.perf_counter()
-    ways = batched_shortcut(ways, planner.segments_free)
+    ways = batched_shortcut(ways, planner._shortcut_free)
     tm["shortcut_ms"] = 1e3 * (time.perf_counter() - t2)
     t3 = time.perf_counter()
     polys, wps, stop_segments = [], [pts[0][None]], []
