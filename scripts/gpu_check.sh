@@ -12,7 +12,8 @@
 #     bench    benchmarks/bench_method.py (cinesplat vs splatfacto etc.; appends to benchmarks/RESULTS.md)
 #     room     synthetic room (cinesplat-synth, seed $ROOM_SEED) -> ns-train cinesplat with label masks ($ROOM_STEPS
 #              steps) -> compact export + ground-truth files in $OUT/room (the bundled demo scene's recipe)
-#     planner  benchmarks/bench_planner.py and bench_candidates.py on CUDA (1M Gaussians)
+#     planner  benchmarks/bench_planner.py, bench_candidates.py, bench_viewer.py on CUDA (1M Gaussians)
+#     demo_render  cinesplat-plan from text on the room run, then stock ns-render of the planned camera path
 #   render/viewer use RUN_CFG (a run's config.yml) and RUN_DATA (its dataset) when set, else the fox run
 #
 # Environment:
@@ -300,11 +301,28 @@ EOF
 }
 
 stage_planner() {
-  $PY benchmarks/bench_planner.py --device cuda --n-gaussians "${PLAN_N:-1000000}" --pairs "${PLAN_PAIRS:-100}" || true
-  if [ -f benchmarks/bench_candidates.py ]; then
-    $PY benchmarks/bench_candidates.py --device cuda --n-gaussians "${PLAN_N:-1000000}" --k 32 || true
+  # planner, candidates and viewer latency on CUDA at ${PLAN_N:-1000000} Gaussians (each capped in time)
+  timeout "${PLAN_CAP:-110}" $PY benchmarks/bench_planner.py --device cuda --n-gaussians "${PLAN_N:-1000000}" --pairs "${PLAN_PAIRS:-100}"
+  timeout "${CAND_CAP:-80}" $PY benchmarks/bench_candidates.py --device cuda --n-gaussians "${PLAN_N:-1000000}" --k 32 --repeats 3
+  timeout "${VIEW_CAP:-50}" $PY benchmarks/bench_viewer.py --device cuda --n-gaussians "${PLAN_N:-1000000}" --repeats 5
+  cp benchmarks/RESULTS.md "$OUT/RESULTS.md"; cp benchmarks/bench_planner_cuda_*.json "$OUT/" 2>/dev/null
+  return 0
+}
+
+stage_demo_render() {
+  # the planner's own camera path (cinesplat-plan from text on the room run) rendered by stock ns-render
+  local cfg="${RUN_CFG:-$WORK/outputs/room${ROOM_SEED:-0}/cinesplat/gpu_check/config.yml}"
+  [ -f "$cfg" ] || { echo "no trained room at $cfg (run the room stage first)"; return 1; }
+  $PY -c "from cinenerf_ns.cli.plan import entrypoint; entrypoint()" --scene "$cfg" --go-to "the red armchair" \
+      --look-at "the floor lamp" --candidates 4 --output-dir "$OUT/demo_render" --name demo --device cuda || return 1
+  if ! command -v ffmpeg > /dev/null; then
+    mkdir -p "$WORK/bin"
+    printf '#!/bin/sh\necho "ffmpeg stub (gpu_check.sh): real ffmpeg is not installed on this machine" >&2\nexit 1\n' > "$WORK/bin/ffmpeg"
+    chmod +x "$WORK/bin/ffmpeg"; export PATH="$WORK/bin:$PATH"
   fi
-  cp benchmarks/RESULTS.md "$OUT/RESULTS.md" 2>/dev/null || true
+  ns-render camera-path --load-config "$cfg" --camera-path-filename "$OUT/demo_render/demo_0.json" \
+    --output-path "$OUT/demo_render/frames" --output-format images --rendered-output-names rgb || return 1
+  echo "rendered frames: $(ls "$OUT/demo_render/frames" | wc -l)"
 }
 
 STAGES=("$@")
