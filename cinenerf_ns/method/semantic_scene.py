@@ -63,6 +63,28 @@ def build_text_encoder(info: Dict, label_embeddings: Optional[Tensor] = None, de
     return encode
 
 
+def smooth_latents(means: Tensor, opacities: Tensor, latents: Tensor, k: int) -> Tensor:
+    """Opacity-weighted mean of each Gaussian's latent over its k nearest Gaussians (itself included).
+
+    Why: distillation supervises only the alpha-blend of many Gaussians per feature pixel, so single
+    Gaussians' latents are noisy although the rendered latent image is right; averaging over spatial
+    neighbours is closer to what the renderer shows (measured on the synthetic room: IoU of the large
+    objects 0.46-0.60 -> 0.65-0.81 at k=32). An approximation: it blurs across object borders by up
+    to the k-neighbourhood's radius. KD-tree on the CPU (scipy): seconds for a few 100k Gaussians.
+    means [N, 3], opacities [N], latents [N, C] -> [N, C] (same device / dtype as latents)."""
+    from scipy.spatial import cKDTree
+
+    n = means.shape[0]
+    k = min(int(k), n)
+    if k <= 1:
+        return latents
+    m = means.detach().float().cpu().numpy()
+    _, idx = cKDTree(m).query(m, k=k, workers=-1)  # [N, k]
+    idx_t = torch.from_numpy(idx).to(latents.device)
+    w = opacities.detach().to(latents.device, latents.dtype).reshape(-1)[idx_t].clamp_min(1e-6)  # [N, k]
+    return (latents.detach()[idx_t] * w[..., None]).sum(1) / w.sum(1, keepdim=True)
+
+
 @dataclass
 class LocateResult:
     centroid: Tensor  # [3] opacity-weighted
@@ -90,6 +112,7 @@ class SemanticScene:
         threshold: float = 0.5,
         min_opacity: float = 0.0,
         label_names: Optional[Sequence[str]] = None,
+        smooth_neighbors: int = 0,
     ):
         """label_names: the scene's own label vocabulary (label-mask training). A query equal to one of
         them is contrasted against the *other* labels instead of ``negatives``: "floor lamp" must beat
@@ -103,7 +126,10 @@ class SemanticScene:
             )
         self.means = means
         self.opacities = opacities.reshape(-1)
+        if smooth_neighbors and smooth_neighbors > 1:
+            latents = smooth_latents(means, opacities.reshape(-1), latents, int(smooth_neighbors))
         self.latents = latents
+        self.smooth_neighbors = int(smooth_neighbors or 0)
         self.codec = codec
         self.text_encoder = text_encoder
         self.negatives = tuple(negatives)

@@ -124,3 +124,19 @@ def test_label_query_is_contrasted_against_the_other_labels():
     assert mask[10:].all() and not mask[:10].any()
     # free text (not a label) keeps the generic negatives
     assert labelled._embed("object")[1].shape[0] == 1
+
+
+def test_smooth_latents_matches_brute_force():
+    from cinenerf_ns.method.semantic_scene import smooth_latents
+
+    g = torch.Generator().manual_seed(0)
+    means = torch.rand(200, 3, generator=g, dtype=torch.float64)
+    op = torch.rand(200, generator=g, dtype=torch.float64)
+    lat = torch.randn(200, 3, generator=g, dtype=torch.float64)
+    out = smooth_latents(means, op, lat, 5)
+    d = torch.cdist(means, means)
+    idx = d.argsort(1)[:, :5]  # brute-force 5 nearest (itself first)
+    w = op[idx]
+    ref = (lat[idx] * w[..., None]).sum(1) / w.sum(1, keepdim=True)
+    torch.testing.assert_close(out, ref, rtol=1e-5, atol=1e-6)
+    assert smooth_latents(means, op, lat, 1) is lat
