@@ -174,7 +174,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--grid-resolution", type=int, default=96)
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--selection-only", action="store_true")
-    ap.add_argument("--semantic-smoothing", type=int, default=0, help="as cinesplat-plan --semantic-smoothing")
+    ap.add_argument("--semantic-smoothing", type=int, default=32, help="as cinesplat-plan --semantic-smoothing (same default)")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/room_eval"))
     ap.add_argument("--no-record", action="store_true", help="do not append to benchmarks/RESULTS.md")
     a = ap.parse_args(argv)

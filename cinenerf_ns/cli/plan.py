@@ -90,9 +90,10 @@ class PlanArgs:
     """A* voxels along the longest side of the planning region."""
     threshold: Optional[float] = None
     """Relevancy threshold of text queries (default: the scene's)."""
-    semantic_smoothing: int = 0
-    """Average each Gaussian's latent over this many nearest Gaussians before text queries (0: off); denoises
-    object selection at a few seconds of CPU per 100k Gaussians (see SemanticScene / smooth_latents)."""
+    semantic_smoothing: int = 32
+    """Average each Gaussian's latent over this many nearest Gaussians before text queries (0: off): denoises
+    object selection (synthetic room: mean IoU 0.28 -> 0.40) for ~2 s of CPU per 400k Gaussians, once per
+    scene load (see SemanticScene / smooth_latents)."""
     device: str = "cpu"
     """torch device of the scene tensors ('cpu' or 'cuda')."""
     up: Tuple[float, float, float] = (0.0, 0.0, 1.0)
@@ -196,7 +197,7 @@ def label_query(text: str, label_names: List[str]) -> str:
 
 
 def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Optional[float] = None,
-               smooth_neighbors: int = 0) -> LoadedScene:
+               smooth_neighbors: int = 32) -> LoadedScene:
     """Scene file/spec -> obstacles + (optionally) a text locator."""
     if spec.startswith("procedural"):
         from cinenerf_ns.planner.procedural import procedural_room
