@@ -35,7 +35,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--scene", type=Path, default=DEMO_SCENE, help="compact scene / config.yml (default: the bundled room)")
     ap.add_argument("--candidates", type=int, default=1)
     a = ap.parse_args(argv)
-    console = Console()
+    console = Console(width=max(Console().width, 150))  # the candidates table has many columns
     args = demo_args(a.output_dir, a.scene, a.candidates)
     console.print(f"[bold]cinenerf_ns demo[/bold]: scene {args.scene}\n  go to: {args.go_to!r}   look at: {args.look_at!r}")
     t0 = time.perf_counter()
