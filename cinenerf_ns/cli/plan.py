@@ -399,22 +399,29 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
         prog.update(task, advance=1)
 
     table = Table(title=f"cinesplat-plan: go to {goal_desc}, look at {look_desc}")
-    for col in ("rank", "score", "occluded", "fill", "start", "length", "duration s", "min clearance",
-                "mean clearance", "jerk mean", "turn deg/s", "peak v/a/w", "camera path"):
-        table.add_column(col)
+    # short headers, no wrapping: the table must stay readable in an 80-column terminal (legend below)
+    wide = console.width >= 140
+    cols = ["#", "score", "occl", "min clr", "len", "dur s", "peak v/a/w", "file"]
+    if wide:
+        cols[3:3] = ["fill", "start", "mean clr", "jerk", "turn"]
+    for col in cols:
+        table.add_column(col, no_wrap=True)
     for k, sh in enumerate(shots):
         sc = scores[k]
         dyn = getattr(sh, "dynamics", None) if multi is None else multi.dynamics
         peaks = "-" if not dyn else f"{dyn['peak_speed']:.2f}/{dyn['peak_acceleration']:.2f}/{dyn['peak_angular_rate_deg']:.0f}"
         t = sc.terms if sc is not None else {}
         f = lambda key, fmt: "-" if key not in t else format(t[key], fmt)  # noqa: E731
-        table.add_row(
-            str(k + 1), "-" if sc is None else f"{sc.total:.3f}", f("occluded_fraction", ".2f"), f("framing_fill_mean", ".2f"),
-            str(np.round(sh.start, 3).tolist()), f"{sh.length:.3f}", f"{sh.duration:.2f}",
-            f"{reports[k]['min_clearance']:.4f}", f"{reports[k]['mean_clearance']:.3f}", f("mean_jerk", ".2f"),
-            f("mean_angular_rate_deg", ".1f"), peaks, str(files[k]),
-        )
+        row = [str(k + 1), "-" if sc is None else f"{sc.total:.3f}", f("occluded_fraction", ".2f"),
+               f"{reports[k]['min_clearance']:.4f}", f"{sh.length:.2f}", f"{sh.duration:.1f}", peaks, Path(files[k]).name]
+        if wide:
+            row[3:3] = [f("framing_fill_mean", ".2f"), ",".join(f"{v:.2f}" for v in sh.start),
+                        f"{reports[k]['mean_clearance']:.3f}", f("mean_jerk", ".1f"), f("mean_angular_rate_deg", ".0f")]
+        table.add_row(*row)
     console.print(table)
+    console.print("score: lower is better (every term in the report); occl: occluded fraction of frames; clr/len in scene "
+                  "units; peak: speed / acceleration / view rotation deg/s" + ("" if wide else " (wider terminal: more columns)")
+                  + f"; files in {out}/")
     console.print(f"report: {summary['report']}\nplots: {png_c}, {png_t}")
     if loaded.config_path is not None:
         console.print(
