@@ -44,7 +44,7 @@ def main(argv=None) -> dict:
     console.print(f"\n[green]done in {time.perf_counter() - t0:.1f} s[/green]. Outputs in {a.output_dir}/:")
     console.print(f"  camera path  {cam}\n  report       {summary['report']}\n"
                   f"  clearance    {summary['plots']['clearance']}\n  top view     {summary['plots']['topdown']}")
-    console.print("\nGo further:")
+    console.print("\nGo further (after `source .venv/bin/activate` when you used make):")
     console.print(f"  watch and re-plan in the browser:  cinesplat-viewer --load-config {args.scene}")
     console.print(f"  the same from the command line:    cinesplat-plan --scene {args.scene} --go-to 'green sofa' "
                   f"--look-at 'bookshelf' --candidates 4")
