@@ -168,7 +168,15 @@ def load_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optio
     from cinenerf_ns.cli import plan as cli
 
     scfg = scene_config or SceneConfig()
-    if source == "demo":
+    if source == "demo":  # the bundled trained room (make demo's scene) when the package ships it
+        from cinenerf_ns.demo import DEMO_SCENE
+
+        if DEMO_SCENE.exists():
+            ls = load_scene(str(DEMO_SCENE), data_dir or Path("demo_output") / "cinesplat-viewer-demo", scene_config, device)
+            ls.default_goto, ls.default_look_at = "red armchair", "floor lamp"
+            return ls
+        source = "demo-tiny"
+    if source == "demo-tiny":
         from .demo import demo_scene
 
         d = demo_scene()
@@ -218,7 +226,8 @@ class StandaloneConfig:
 
     load_config: str = "demo"
     """A run's config.yml (or run folder / .ckpt), a compact export (.pt/.npz), a Gaussian-splat .ply,
-    'procedural[:N[:SEED]]' (generated test room with named objects) or 'demo' (built-in labelled scene)."""
+    'procedural[:N[:SEED]]' (generated test room with named objects), 'demo' (the bundled trained room of
+    `make demo`) or 'demo-tiny' (a tiny built-in labelled scene)."""
     port: int = 7007
     """Port of the viewer (open http://localhost:<port>)."""
     host: str = "0.0.0.0"
