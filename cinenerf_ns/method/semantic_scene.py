@@ -159,15 +159,15 @@ class SemanticScene:
         if not isinstance(text, str) or not text.strip():
             raise QueryError("empty text query: type what the camera should look at, e.g. 'the red chair'")
         dev = self.latents.device
-        if self._neg_emb is None:
-            self._neg_emb = self.text_encoder(list(self.negatives)).to(dev)
         q = self.text_encoder([text.strip()])[0].to(dev)
         key = text.strip().lower()
         others = [n for n in self.label_names if n.strip().lower() != key]
         if others and len(others) < len(self.label_names):  # the query is one of the scene's labels
-            if key not in self._label_neg:
+            if key not in self._label_neg:  # stored label embeddings: no CLIP text tower needed
                 self._label_neg[key] = self.text_encoder(others).to(dev)
             return q, self._label_neg[key]
+        if self._neg_emb is None:  # generic negatives: lazily, they may need the CLIP text tower
+            self._neg_emb = self.text_encoder(list(self.negatives)).to(dev)
         return q, self._neg_emb
 
     @torch.no_grad()

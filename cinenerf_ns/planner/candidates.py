@@ -180,6 +180,30 @@ def plan_candidates(
     spare_fraction: float = 0.5,
     timings: Optional[Dict[str, float]] = None,
 ) -> List[RankedShot]:
+    """Plan up to ``k`` verified-safe shots from different seeded random starts, ranked best first (see
+    ``_plan_candidates``, which holds the full description); runs with the planner's request thread setting."""
+    with planner.request_threads():
+        return _plan_candidates(planner, goal, look_at, k, seed, score_config, limits=limits, object_radius=object_radius,
+                                object_center=object_center, object_samples=object_samples, exclude=exclude,
+                                spare_fraction=spare_fraction, timings=timings)
+
+
+def _plan_candidates(
+    planner: Planner,
+    goal: Any,
+    look_at: Any,
+    k: int = 16,
+    seed: int = 0,
+    score_config: Optional[ScoreConfig] = None,
+    *,
+    limits: Optional[DynamicLimits] = None,
+    object_radius: float = 0.1,
+    object_center: Optional[Any] = None,
+    object_samples: Optional[Any] = None,
+    exclude: Optional[torch.Tensor] = None,
+    spare_fraction: float = 0.5,
+    timings: Optional[Dict[str, float]] = None,
+) -> List[RankedShot]:
     """Plan up to ``k`` verified-safe shots from different seeded random starts, all ending as close as
     safely possible to ``goal`` and looking at ``look_at``; score them (scoring.py) and return them ranked
     best first (rank 1 = lowest ScoreConfig total).

@@ -13,6 +13,7 @@ is reported separately from per-plan cost.
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from dataclasses import dataclass, field
@@ -374,12 +375,19 @@ class Planner:
 
         Raises InvalidInputError, StartInCollisionError, GoalUnreachableError (see messages).
         Every returned shot's exact clearance along the densely sampled curve is >= 0."""
+        with self.request_threads():
+            return self._plan_request(goal, look_at, start, seed, n_candidates)
+
+    @contextlib.contextmanager
+    def request_threads(self):
+        """torch CPU threads = config.plan_cpu_threads while a request runs (restored afterwards): a plan is
+        many small ops, for which extra threads cost more than they give (measured ~5x on a busy 2-core box)."""
         threads, old = self.config.plan_cpu_threads, torch.get_num_threads()
         swap = threads is not None and self.scene.device.type == "cpu" and int(threads) != old
         if swap:
             torch.set_num_threads(int(threads))
         try:
-            return self._plan_request(goal, look_at, start, seed, n_candidates)
+            yield
         finally:
             if swap:
                 torch.set_num_threads(old)
