@@ -8,7 +8,10 @@ import pytest
 import torch
 
 from cinenerf_ns.planner.errors import InvalidInputError
-from cinenerf_ns.viewer.export import camera_path_from_shot, check_export_name, render_command, write_json_atomic
+from cinenerf_ns.planner.shot import Shot
+from cinenerf_ns.viewer.export import check_export_name, default_exporter, render_command, write_json_atomic
+
+camera_path_from_shot = default_exporter()  # what the panel exports with (the planner's camera_path)
 
 from viewer_fakes import line_shot
 
@@ -17,7 +20,7 @@ def test_camera_path_is_read_by_nerfstudio():
     from nerfstudio.cameras.camera_paths import get_path_from_json
 
     shot = line_shot([0, 0, 0.5], [1, 0, 0.5], [2, 1, 0], duration=2.0)
-    data = camera_path_from_shot(shot, fov_deg=60, width=64, height=48, fps=15)
+    data = camera_path_from_shot(shot, 60, 64, 48, 15)
     data = json.loads(json.dumps(data))  # JSON-clean
     cams = get_path_from_json(data)
     assert cams.camera_to_worlds.shape == (31, 3, 4)
@@ -26,8 +29,9 @@ def test_camera_path_is_read_by_nerfstudio():
     assert int(cams.width[0]) == 64 and int(cams.height[0]) == 48
     # Render tab "Load Path": keyframes with 4x4 matrices; the spline lasts the shot's duration
     k = data["keyframes"]
-    assert len(k) == 5 and all(len(f["matrix"]) == 16 for f in k)
-    assert data["default_transition_sec"] * (len(k) - 1) == pytest.approx(2.0)
+    assert len(k) >= 3 and all(len(f["matrix"]) == 16 for f in k)
+    # the keyframe transitions add up to the shot's duration, so the Render tab's spline lasts as long
+    assert sum(f["override_transition_sec"] for f in k[1:]) == pytest.approx(2.0)
     # what the Render tab's "Load Path" reads (nerfstudio/viewer/render_panel.py)
     import viser.transforms as tf
     from nerfstudio.viewer.render_panel import Keyframe
@@ -47,9 +51,10 @@ def test_camera_path_is_read_by_nerfstudio():
 
 
 def test_camera_path_from_torch_shot():
-    shot = line_shot([0, 0, 0.5], [1, 0, 0.5], [2, 1, 0])
-    for f in ("times", "positions", "rotations"):
-        setattr(shot, f, torch.as_tensor(getattr(shot, f), dtype=torch.float32))
+    ref = line_shot([0, 0, 0.5], [1, 0, 0.5], [2, 1, 0])
+    t = lambda a: torch.as_tensor(a, dtype=torch.float32)  # noqa: E731
+    shot = Shot(times=t(ref.times), positions=t(ref.positions), rotations=t(ref.rotations), look_at=t(ref.look_at),
+                goal=t(ref.goal), start=t(ref.start))
     data = camera_path_from_shot(shot, 50, 100, 100, 30)
     assert len(data["camera_path"]) == 31
 
@@ -60,9 +65,9 @@ def test_bad_inputs():
         camera_path_from_shot(shot, 0, 100, 100, 30)
     with pytest.raises(InvalidInputError):
         camera_path_from_shot(shot, 50, 100, 0, 30)
-    shot.times = shot.times[::-1]
-    with pytest.raises(InvalidInputError):
-        camera_path_from_shot(shot, 50, 100, 100, 30)
+    with pytest.raises(InvalidInputError):  # a shot whose times go backwards cannot even be built
+        Shot(times=shot.times[::-1].copy(), positions=shot.positions, rotations=shot.rotations, look_at=shot.look_at,
+             goal=shot.goal, start=shot.start)
 
 
 def test_names():
@@ -75,11 +80,14 @@ def test_names():
 
 def test_write_json_atomic(tmp_path):
     p = tmp_path / "camera_paths" / "a.json"
-    write_json_atomic(p, {"a": 1})
-    assert json.loads(p.read_text()) == {"a": 1}
-    with pytest.raises(ValueError):
-        write_json_atomic(p, {"a": float("inf")})
-    assert json.loads(p.read_text()) == {"a": 1}
+    good = camera_path_from_shot(line_shot([0, 0, 0.5], [1, 0, 0.5], [2, 1, 0]), 50, 100, 100, 30)
+    write_json_atomic(p, good)
+    assert json.loads(p.read_text()) == json.loads(json.dumps(good))
+    bad = json.loads(json.dumps(good))
+    bad["camera_path"][3]["camera_to_world"][0] = float("inf")
+    with pytest.raises((ValueError, InvalidInputError)):
+        write_json_atomic(p, bad)
+    assert json.loads(p.read_text()) == json.loads(json.dumps(good))  # the previous file is untouched
     assert [q.name for q in p.parent.iterdir()] == ["a.json"]
 
 
