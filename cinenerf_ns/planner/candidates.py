@@ -26,6 +26,8 @@ Runs on the scene's device (CPU or CUDA tensors); the QP and A* are CPU work in 
 """
 from __future__ import annotations
 
+import functools
+
 import math
 import time
 from dataclasses import dataclass
@@ -164,31 +166,19 @@ def score_shots(
     return out
 
 
+def _with_request_threads(fn):
+    """Run fn(planner, ...) under the planner's request thread setting (Planner.request_threads)."""
+
+    @functools.wraps(fn)
+    def wrapper(planner: Planner, *args, **kwargs):
+        with planner.request_threads():
+            return fn(planner, *args, **kwargs)
+
+    return wrapper
+
+
+@_with_request_threads
 def plan_candidates(
-    planner: Planner,
-    goal: Any,
-    look_at: Any,
-    k: int = 16,
-    seed: int = 0,
-    score_config: Optional[ScoreConfig] = None,
-    *,
-    limits: Optional[DynamicLimits] = None,
-    object_radius: float = 0.1,
-    object_center: Optional[Any] = None,
-    object_samples: Optional[Any] = None,
-    exclude: Optional[torch.Tensor] = None,
-    spare_fraction: float = 0.5,
-    timings: Optional[Dict[str, float]] = None,
-) -> List[RankedShot]:
-    """Plan up to ``k`` verified-safe shots from different seeded random starts, ranked best first (see
-    ``_plan_candidates``, which holds the full description); runs with the planner's request thread setting."""
-    with planner.request_threads():
-        return _plan_candidates(planner, goal, look_at, k, seed, score_config, limits=limits, object_radius=object_radius,
-                                object_center=object_center, object_samples=object_samples, exclude=exclude,
-                                spare_fraction=spare_fraction, timings=timings)
-
-
-def _plan_candidates(
     planner: Planner,
     goal: Any,
     look_at: Any,
