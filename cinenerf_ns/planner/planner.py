@@ -163,10 +163,13 @@ class Planner:
         return self.prepared if self.prepared is not None else self.prepare()
 
     # ------------------------------------------------------------------ helpers
-    def clearance(self, points: ArrayLike) -> np.ndarray:
-        """Exact clearance [P] (camera radius included) of camera centres [P, 3]."""
+    def clearance(self, points: ArrayLike, cap: Optional[float] = None) -> np.ndarray:
+        """Exact clearance [P] (camera radius included) of camera centres [P, 3]. ``cap``: clearances above it
+        are not searched for and reported as ``cap`` (a lower bound; much cheaper far from everything)."""
         p = torch.as_tensor(np.asarray(points, dtype=np.float64).reshape(-1, 3), device=self.scene.device)
-        return clearance(p.to(self.scene.dtype) if self.scene.dtype == torch.float64 else p, self.scene, self._prep().index).detach().cpu().numpy()
+        p = p.to(self.scene.dtype) if self.scene.dtype == torch.float64 else p
+        md = None if cap is None else float(cap) + float(self.scene.camera_radius)
+        return clearance(p, self.scene, self._prep().index, max_distance=md).detach().cpu().numpy()
 
     def _free_voxel_near(self, p: np.ndarray, comp: Optional[int], max_window: int = 16) -> np.ndarray:
         """Voxel [3] near world point p whose centre joins p by a collision-free segment (and lies in

@@ -97,3 +97,20 @@ def test_shortcut_filter_only_accepts_proven_free_segments(room):
     for i in np.flatnonzero(fast)[:20]:
         pts = p0[i] + t[:, None] * (p1[i] - p0[i])
         assert float(clearance(torch.as_tensor(pts), e, pl.prepared.index).min()) > 0
+
+
+def test_capped_clearance_is_exact_below_the_cap():
+    from cinenerf_ns.planner.planner import Planner, PlannerConfig
+    from cinenerf_ns.planner.procedural import procedural_room
+    from cinenerf_ns.planner.scene import EllipsoidScene, SceneConfig
+
+    r = procedural_room(3000, seed=1)
+    sc = EllipsoidScene.from_splat(r.means, r.quats, r.log_scales, r.opacity_logits, SceneConfig())
+    pl = Planner(sc, PlannerConfig(grid_resolution=32))
+    pl.prepare()
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(r.free_lo, r.free_hi, size=(200, 3))
+    exact = pl.clearance(pts)
+    capped = pl.clearance(pts, cap=0.05)
+    np.testing.assert_allclose(capped, np.minimum(exact, 0.05), rtol=0, atol=1e-9)
+    assert (exact > 0.05).any() and (exact < 0.05).any()  # both regimes are exercised
