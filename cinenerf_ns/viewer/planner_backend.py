@@ -34,7 +34,7 @@ class PreparedPlanner:
         scene: EllipsoidScene,
         config: Optional[PlannerConfig] = None,
         on_status: Optional[StatusFn] = None,
-        clearance_cap: Optional[float] = 0.25,
+        clearance_cap: Optional[float] = 0.05,
     ) -> None:
         """clearance_cap: per-frame clearances shown in the panel are exact up to this (scene units) and
         reported as the cap above it (None: always exact, slow on large scenes)."""
