@@ -67,3 +67,19 @@ def test_yaml_load_of_config_registers_safe_globals(tmp_path):
     assert out.returncode == 0, out.stderr[-2000:]
     assert "FAILED-BEFORE" in out.stdout  # the failure is real on this torch...
     assert "AFTER {'lr': [np.float64(0.5)]}" in out.stdout  # ...and gone after the config import
+
+
+def test_ns_train_help_lists_cinesplat():
+    """The nerfstudio.method_configs entry point is installed: stock `ns-train --help` lists both methods."""
+    import os
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    exe = shutil.which("ns-train") or str(Path(sys.executable).parent / "ns-train")
+    if not Path(exe).exists():
+        pytest.skip("ns-train is not installed in this environment")
+    out = subprocess.run([exe, "--help"], capture_output=True, text=True, timeout=300, env={**os.environ, "COLUMNS": "200"})
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "cinesplat" in out.stdout and "cinesplat-lite" in out.stdout
