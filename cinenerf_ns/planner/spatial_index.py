@@ -267,8 +267,11 @@ class GridIndex:
             lin = (cells[:, 0] * lv.dims[1] + cells[:, 1]) * lv.dims[2] + cells[:, 2]
             start = lv.offsets[lin]
             owner, k = _expand_ranges(lv.offsets[lin + 1] - start)
-            g = lv.ids.index_select(0, start.index_select(0, owner) + k)
-            gb = self.boxes.index_select(0, g)  # [K, 6]
-            hit = (gb[:, :3] <= hi).all(-1) & (gb[:, 3:] >= lo).all(-1)
-            out.append(g[hit])
-        return torch.unique(torch.cat(out))
+            out.append(lv.ids.index_select(0, start.index_select(0, owner) + k))
+        # dedupe (an ellipsoid is listed in every cell its AABB meets): a flag per ellipsoid is cheaper
+        # than sorting the listed entries, which outnumber the ellipsoids
+        listed = torch.zeros(len(self), dtype=torch.bool, device=self.device)  # [N]
+        listed[torch.cat(out)] = True
+        g = torch.nonzero(listed).squeeze(-1)  # [K] ascending
+        gb = self.boxes.index_select(0, g)  # [K, 6]
+        return g[(gb[:, :3] <= hi).all(-1) & (gb[:, 3:] >= lo).all(-1)]
