@@ -253,10 +253,10 @@ class GridIndex:
         for lv in self.levels:
             clo = _cell_of(lo, self.origin, lv.cell, lv.dims)  # [3]
             chi = _cell_of(hi, self.origin, lv.cell, lv.dims)  # [3]
-            span = chi - clo + 1
-            if int(span.prod()) > max_cells:
+            c0, c1 = torch.stack([clo, chi]).tolist()  # one host sync per level: [3], [3]
+            if math.prod(h - l + 1 for l, h in zip(c0, c1)) > max_cells:
                 return self.query_box(lo, hi)
-            ax = [torch.arange(int(clo[i]), int(chi[i]) + 1, device=self.device) for i in range(3)]
+            ax = [torch.arange(c0[i], c1[i] + 1, device=self.device) for i in range(3)]
             cells = torch.stack(torch.meshgrid(*ax, indexing="ij"), -1).reshape(-1, 3)  # [C, 3]
             cmin = self.origin + cells.double() * lv.cell  # [C, 3]
             half = 0.5 * lv.cell * (1 + 1e-7) + 1e-12 * (1 + self.origin.abs().max() + cmin.abs().max(-1, keepdim=True).values)

@@ -27,8 +27,9 @@ def _box_meets_polytope(lo, hi, A, b) -> bool:
 
 
 @settings(**SETTINGS)
-@given(seed=st.integers(0, 2**31 - 1), n_planes=st.integers(0, 6), cell=st.sampled_from([None, 0.03, 0.3]))
-def test_query_box_in_planes_returns_every_aabb_meeting_box_and_planes(seed, n_planes, cell):
+@given(seed=st.integers(0, 2**31 - 1), n_planes=st.integers(0, 6), cell=st.sampled_from([None, 0.03, 0.3]),
+       max_cells=st.sampled_from([4_000_000, 1]))
+def test_query_box_in_planes_returns_every_aabb_meeting_box_and_planes(seed, n_planes, cell, max_cells):
     rng = np.random.default_rng(seed)
     scene = random_scene(rng, 300, amin=0.01, amax=0.08, camera_radius=0.03)
     idx = GridIndex.build(scene, cell_size=cell)
@@ -37,7 +38,8 @@ def test_query_box_in_planes_returns_every_aabb_meeting_box_and_planes(seed, n_p
     n = rng.normal(size=(n_planes, 3))
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     b = n @ c + rng.uniform(-0.1, 0.3, n_planes)  # planes through the box, some cutting off its centre
-    got = set(idx.query_box_in_planes(torch.tensor(lo), torch.tensor(hi), torch.tensor(n), torch.tensor(b)).tolist())
+    got = set(idx.query_box_in_planes(torch.tensor(lo), torch.tensor(hi), torch.tensor(n), torch.tensor(b),
+                                     max_cells=max_cells).tolist())
     glo, ghi = idx.lo.numpy(), idx.hi.numpy()
     meets_box = ((glo <= hi) & (ghi >= lo)).all(1)
     assert got <= set(np.flatnonzero(meets_box).tolist())  # never an ellipsoid outside the box
