@@ -188,23 +188,36 @@ def candidate_ids(scene, index, box_lo: Tensor, box_hi: Tensor) -> Tensor:
     return _candidates(scene, index, box_lo, box_hi)[0]
 
 
-def _candidates(scene, index, box_lo, box_hi, box_rot=None):
+def _candidates(scene, index, box_lo, box_hi, box_rot=None, planes=None, ids=None):
     """(ids [K] on the scene device, means [K, 3] float64 numpy, bounding radii [K] float64 numpy).
-    box_rot [3, 3] (columns = box axes): the box is {x : lo <= box_rot^T x <= hi}."""
+    box_rot [3, 3] (columns = box axes): the box is {x : lo <= box_rot^T x <= hi}.
+    planes: optional (A [F, 3], b [F]) float64 numpy; then only ellipsoids whose inflated body may
+    meet box ∩ {A x <= b} need to be returned (index cells beyond a plane are skipped; needs an index
+    with ``query_box_in_planes`` and ``pad``, else ignored). ids: a precomputed id subset [K] to filter."""
     r = float(scene.camera_radius)
     dev = scene.means.device
     m = scene.means
     lo = torch.as_tensor(box_lo, device=dev).to(m.dtype)
     hi = torch.as_tensor(box_hi, device=dev).to(m.dtype)
     rot = None if box_rot is None else torch.as_tensor(box_rot, device=dev).to(m.dtype)
-    if index is not None:
-        if rot is None:
-            qlo, qhi = lo, hi
-        else:  # world AABB of the oriented box: centre +- |R| half-extents
-            c = rot @ (0.5 * (lo + hi))
-            h = rot.abs() @ (0.5 * (hi - lo))
-            qlo, qhi = c - h, c + h
-        ids = torch.as_tensor(index.query_box(qlo - r, qhi + r), device=dev).long()
+    if index is not None or ids is not None:
+        if ids is None:
+            if rot is None:
+                qlo, qhi = lo, hi
+            else:  # world AABB of the oriented box: centre +- |R| half-extents
+                c = rot @ (0.5 * (lo + hi))
+                h = rot.abs() @ (0.5 * (hi - lo))
+                qlo, qhi = c - h, c + h
+            if planes is not None and hasattr(index, "query_box_in_planes") and hasattr(index, "pad"):
+                # padded AABB (pad p) grown by e = max(r - p, 0) contains the inflated body, so query
+                # the region grown by e: box +- e and planes shifted by e |A_f|_1 (cube of half-width e)
+                e = max(r - float(index.pad), 0.0) * (1 + 1e-9)
+                A_p, b_p = planes
+                ids = index.query_box_in_planes(qlo - e, qhi + e, torch.as_tensor(A_p, device=dev),
+                                                torch.as_tensor(b_p + e * np.abs(A_p).sum(-1), device=dev))
+            else:
+                ids = index.query_box(qlo - r, qhi + r)
+        ids = torch.as_tensor(ids, device=dev).long()
         if ids.numel() == 0:
             return ids, np.zeros((0, 3)), np.zeros(0)
         m = m[ids]
@@ -307,10 +320,32 @@ def _planes_at(w: np.ndarray, seeds: np.ndarray, mu: np.ndarray, rot: np.ndarray
     return nw[best, ar], offs[best, ar], slack[best, ar]
 
 
+def _segment_frame_np(p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
+    """Orthonormal [3, 3] whose first column is the direction p0 -> p1 (p0 != p1)."""
+    u = (p1 - p0) / np.linalg.norm(p1 - p0)
+    helper = np.zeros(3)
+    helper[int(np.argmin(np.abs(u)))] = 1.0
+    v = np.cross(u, helper)
+    v /= np.linalg.norm(v)
+    return np.stack([u, v, np.cross(u, v)], axis=1)
+
+
 def _support_gap(n: np.ndarray, mu: np.ndarray, rot: np.ndarray, axes: np.ndarray, r: float) -> np.ndarray:
     """min over E_c (+) B_r of n_f.x for planes n [F,3] and ellipsoids [C] -> [C, F]."""
     nb = np.einsum("cji,fj->cfi", rot, n)  # R_c^T n_f  [C, F, 3]
     return mu @ n.T - np.linalg.norm(axes[:, None, :] * nb, axis=-1) - r
+
+
+def _cut_by(n: np.ndarray, b: np.ndarray, mu: np.ndarray, amax: np.ndarray, rot: np.ndarray, axes: np.ndarray,
+            r: float, block: int = 65536) -> np.ndarray:
+    """bool [C]: ellipsoid c's inflated body lies entirely beyond one of the planes n [F, 3], b [F]
+    (exact support test; the bounding-sphere test, which implies it, decides most rows cheaply)."""
+    cut = ((mu @ n.T - amax[:, None] - r) >= b).any(1)  # [C] sound: sphere beyond => body beyond
+    todo = np.flatnonzero(~cut)
+    for s in range(0, todo.size, block):
+        j = todo[s:s + block]
+        cut[j] = (_support_gap(n, mu[j], rot[j], axes[j], r) >= b).any(1)
+    return cut
 
 
 # ---------------------------------------------------------------------------------------- main
@@ -327,6 +362,8 @@ def safe_polytope(
     prune: bool = True,
     chunk: int = 32,
     box_rotation: Optional[ArrayLike] = None,
+    two_pass: bool = True,
+    near_fraction: float = 0.5,
 ) -> Polytope:
     """Safe polytope around seed points [S, 3] inside the box [box_lo, box_hi].
 
@@ -343,6 +380,11 @@ def safe_polytope(
     only computed for ellipsoids not already cut off by earlier planes, so far clutter costs ~nothing.
     box_rotation: optional orthonormal [3, 3] whose columns are the box axes; the box is then
     {x : box_lo <= box_rotation^T x <= box_hi} (an oriented box, e.g. aligned with a segment).
+    two_pass: with a grid index (and prune), first decide the ellipsoids near the seeds, then gather
+    only those in index cells not already cut off by the kept planes (far fewer candidates in dense
+    scenes; same safety guarantee). False: gather every ellipsoid meeting the box at once.
+    near_fraction: the first pass looks at ellipsoids within this fraction of the seeds' distance to
+    the box (a box around the seed set / an oriented box around a seed segment).
     """
     dev = scene.means.device
     seeds_t = torch.as_tensor(seed_points, device=dev).to(torch.float64).reshape(-1, 3)  # [S, 3]
@@ -371,10 +413,15 @@ def safe_polytope(
     A_box = np.vstack([axes_t, -axes_t])  # [6, 3]
     b_box = np.concatenate([hi, -lo])
 
-    ids, mu_all, amax = _candidates(scene, index, lo_t, hi_t, rot_t)  # [K] on device, [K,3], [K] host
-    K = int(ids.numel())
-    planes_n, planes_b, planes_id = [], [], []
-    if K:
+    planes_n, planes_b, planes_id = [], [], []  # kept planes; planes_id: scene ids [f] on the device
+    bad = []  # (scene ids [J] cpu, mu, rot, axes, slack) of ellipsoids no plane of their own family cuts off
+
+    def add_planes(ids, mu_all, amax):
+        """Decide candidates ids [K] (means [K, 3], bounding radii [K]): each is either cut off
+        (exact support test) by a kept plane, gets its own plane, or goes to ``bad``."""
+        K = int(ids.numel())
+        if not K:
+            return
         # visiting order: lower bound of the distance from the seed set to the inflated body
         if seeds.shape[0] == 2:
             d = seeds[1] - seeds[0]
@@ -383,10 +430,14 @@ def safe_polytope(
         else:
             dist = np.linalg.norm(mu_all[:, None, :] - seeds[None], axis=-1).min(1)
         key = dist - amax
+        rot_all = _np(scene.rotations[ids])  # [K, 3, 3] one gather, not one per chunk
+        axes_all = _np(scene.radii[ids])  # [K, 3]
         queue = np.arange(K)  # undecided candidates, unordered: only each chunk is sorted
+        if prune and planes_n:
+            # already cut off by a kept plane (exact support test): decided, needs no plane of its own
+            queue = queue[~_cut_by(np.vstack(planes_n), np.concatenate(planes_b), mu_all, amax, rot_all, axes_all, r)]
         ids_cpu = ids.cpu()
         step = chunk if prune else K
-        bad = []
         while queue.size:
             if queue.size > step:
                 # the `step` nearest by the lower bound (O(K) partition instead of a full sort)
@@ -398,68 +449,80 @@ def safe_polytope(
             else:
                 ch, rest = queue, queue[:0]
             ch = ch[np.argsort(key[ch], kind="stable")]
-            sel = torch.as_tensor(ch)
-            rot = _np(scene.rotations[ids[sel.to(dev)]])
-            axes = _np(scene.radii[ids[sel.to(dev)]])
-            mu = mu_all[ch]
-            if prune and planes_n:
-                # already cut off by a kept plane (exact support test): needs no plane of its own, so
-                # skip computing its candidates (same result as deciding it after computing them)
-                kn, kb = np.vstack(planes_n), np.concatenate(planes_b)
-                live = ~(_support_gap(kn, mu, rot, axes, r) >= kb).any(1)
-                ch, mu, rot, axes = ch[live], mu[live], rot[live], axes[live]
-                if ch.size == 0:
-                    queue = rest
-                    continue
+            # (every queued candidate is not cut off by the kept planes: filtered when they were added)
+            rot, axes, mu = rot_all[ch], axes_all[ch], mu_all[ch]
             n_c, b_c, slack_c = _plane_candidates(seeds, mu, rot, axes, r, normal, margin)
             if require_seed_inside and (slack_c < 0).any():
                 # no plane of this ellipsoid's family keeps all seeds; it is only fatal if no other
                 # plane cuts it off either, which is decided once all planes are known
                 neg = slack_c < 0
-                bad.append((ch[neg], mu[neg], rot[neg], axes[neg], slack_c[neg]))
+                bad.append((ids_cpu[torch.as_tensor(ch[neg])], mu[neg], rot[neg], axes[neg], slack_c[neg]))
                 keep_c = ~neg
                 ch, mu, rot, axes = ch[keep_c], mu[keep_c], rot[keep_c], axes[keep_c]
                 n_c, b_c, slack_c = n_c[keep_c], b_c[keep_c], slack_c[keep_c]
             if not prune:
-                planes_n.append(n_c), planes_b.append(b_c), planes_id.append(ch)
+                planes_n.append(n_c), planes_b.append(b_c), planes_id.append(ids[torch.as_tensor(ch).to(dev)])
                 break
             # redundancy inside the chunk, vectorised: beyond[i, j] = ellipsoid i lies beyond plane j
             # (exact support test) for the chunk's own planes and for the planes kept so far
             beyond_own = _support_gap(n_c, mu, rot, axes, r) >= b_c  # [C, C]
-            dead = np.zeros(len(ch), dtype=bool)  # those cut off by the planes kept so far were skipped above
             taken = np.zeros(len(ch), dtype=bool)
             for i in np.argsort(slack_c, kind="stable"):  # nearest plane first
-                if dead[i] or beyond_own[i, taken].any():
+                if beyond_own[i, taken].any():
                     continue  # already cut off by a kept plane: needs no plane of its own
                 taken[i] = True
             if taken.any():
                 nn, nbv = n_c[taken], b_c[taken]
                 planes_n.append(nn)
                 planes_b.append(nbv)
-                planes_id.append(ch[taken])
+                planes_id.append(ids[torch.as_tensor(ch[taken]).to(dev)])
                 if rest.size:
-                    # drop the rest that lie beyond a new plane (bounding sphere: sound, cheap)
-                    gap_lb = mu_all[rest] @ nn.T - amax[rest, None] - r  # [J, F_new]
-                    rest = rest[~(gap_lb >= nbv).any(1)]
+                    # drop the rest that lie beyond a new plane (exact support test, bounding sphere first)
+                    rest = rest[~_cut_by(nn, nbv, mu_all[rest], amax[rest], rot_all[rest], axes_all[rest], r)]
             queue = rest
-        if bad:
-            b_ch, b_mu, b_rot, b_axes, b_slack = (np.concatenate([x[i] for x in bad]) for i in range(5))
-            if planes_n:
-                kn, kb = np.vstack(planes_n), np.concatenate(planes_b)
-                cut = (_support_gap(kn, b_mu, b_rot, b_axes, r) >= kb).any(1)
-                b_ch, b_slack = b_ch[~cut], b_slack[~cut]
-            worst = float(b_slack.min()) if b_slack.size else 0.0
-        if bad and b_ch.size:
-            bad_ids = ids_cpu[torch.as_tensor(b_ch)]
+
+    if index is not None and prune and two_pass and hasattr(index, "query_box_in_planes"):
+        # Pass 1: the ellipsoids near the seeds (a tube of half-width rho around the seed set, rho =
+        # the seeds' distance to the box) give the planes that bound the polytope in practice.
+        # Pass 2: only ellipsoids in index cells that are not entirely beyond one of those planes (or
+        # the box) can still meet the polytope; all others are excluded by planes that are kept, so
+        # the result is as safe as deciding every ellipsoid of the box (see query_box_in_planes).
+        rho = near_fraction * float(torch.minimum(seeds_box - lo_t, hi_t - seeds_box).min().clamp_min(1e-9))
+        if seeds_t.shape[0] == 2:  # oriented box around the segment: [-rho, L + rho] x [-rho, rho]^2
+            frame = _segment_frame_np(seeds[0], seeds[1])  # [3, 3] columns u, v, w
+            proj = seeds @ frame  # [2, 3]
+            t_lo, t_hi = proj.min(0) - rho, proj.max(0) + rho
+        else:
+            frame = np.eye(3)
+            t_lo, t_hi = seeds.min(0) - rho, seeds.max(0) + rho
+        A_near = np.vstack([A_box, frame.T, -frame.T])
+        b_near = np.concatenate([b_box, t_hi, -t_lo])
+        ids0, mu0, am0 = _candidates(scene, index, lo_t, hi_t, rot_t, planes=(A_near, b_near))
+        add_planes(ids0, mu0, am0)
+        ids1, mu1, am1 = _candidates(scene, index, lo_t, hi_t, rot_t,
+                                     planes=(np.vstack([A_box] + planes_n), np.concatenate([b_box] + planes_b)))
+        if ids0.numel() and ids1.numel():
+            new1 = ~torch.isin(ids1, ids0)
+            new1_np = new1.cpu().numpy()
+            ids1, mu1, am1 = ids1[new1], mu1[new1_np], am1[new1_np]
+        add_planes(ids1, mu1, am1)
+    else:
+        add_planes(*_candidates(scene, index, lo_t, hi_t, rot_t))
+    if bad:
+        b_ids, b_mu, b_rot, b_axes, b_slack = (
+            torch.cat([x[0] for x in bad]), *(np.concatenate([x[i] for x in bad]) for i in range(1, 5)))
+        if planes_n:
+            kn, kb = np.vstack(planes_n), np.concatenate(planes_b)
+            cut = ~(_support_gap(kn, b_mu, b_rot, b_axes, r) >= kb).any(1)
+            b_ids, b_slack = b_ids[torch.as_tensor(cut)], b_slack[cut]
+        if b_slack.size:
+            worst = float(b_slack.min())
             raise SeedNotFreeError(
                 f"seed {'segment' if seeds.shape[0] == 2 else 'point(s)'} is within the camera radius {r:g} of "
-                f"{len(bad_ids)} ellipsoid(s) (worst slack {worst:.3g}); no safe polytope contains it",
-                ellipsoid_ids=bad_ids, min_slack=worst,
+                f"{len(b_ids)} ellipsoid(s) (worst slack {worst:.3g}); no safe polytope contains it",
+                ellipsoid_ids=b_ids, min_slack=worst,
             )
     A = np.vstack([A_box] + planes_n)
     b = np.concatenate([b_box] + planes_b)
-    kept = torch.as_tensor(np.concatenate(planes_id) if planes_id else np.zeros(0, np.int64))
-    return Polytope(
-        torch.as_tensor(A, device=dev), torch.as_tensor(b, device=dev), seeds_t,
-        ids[kept.to(dev)] if K else ids,
-    )
+    kept = torch.cat(planes_id) if planes_id else torch.zeros(0, dtype=torch.long, device=dev)  # [F - 6]
+    return Polytope(torch.as_tensor(A, device=dev), torch.as_tensor(b, device=dev), seeds_t, kept)

@@ -230,3 +230,48 @@ class GridIndex:
         if rad.shape != (points.shape[0],) or bool((rad < 0).any()) or not bool(torch.isfinite(rad).all()):
             raise InvalidInputError(f"query radius must be finite, >= 0, scalar or [P]; got shape {tuple(rad.shape)}")
         return self.query_boxes(points - rad[:, None], points + rad[:, None])
+
+    def query_box_in_planes(self, lo: Tensor, hi: Tensor, A: Tensor, b: Tensor, max_cells: int = 4_000_000) -> Tensor:
+        """Ids [K] (ascending) of ellipsoids whose padded AABB meets the box [lo, hi]; every ellipsoid
+        whose padded AABB meets [lo, hi] ∩ {x : A x <= b} is among them (A [F, 3], b [F]).
+
+        Grid cells lying entirely beyond one plane (min over the cell of A_f.x > b_f) are not visited.
+        Sound: a point x of AABB_g ∩ box ∩ P lies in a cell of g's level within the box's cell range
+        that lists g and is not culled (it holds x, and A x <= b). Cells are grown by a relative
+        epsilon before the test, so rounding can only keep a cell. Ellipsoids listed only in culled
+        cells may still be returned (the result is a superset). Falls back to ``query_box`` (no
+        culling) when the box spans more than ``max_cells`` cells of a level."""
+        lo = torch.as_tensor(lo, device=self.device).double().reshape(3)
+        hi = torch.as_tensor(hi, device=self.device).double().reshape(3)
+        A = torch.as_tensor(A, device=self.device).double().reshape(-1, 3)  # [F, 3]
+        b = torch.as_tensor(b, device=self.device).double().reshape(-1)  # [F]
+        if A.shape[0] != b.shape[0]:
+            raise InvalidInputError(f"plane normals [F, 3] and offsets [F] disagree: {tuple(A.shape)} vs {tuple(b.shape)}")
+        if not bool(torch.isfinite(lo).all() & torch.isfinite(hi).all() & torch.isfinite(A).all() & torch.isfinite(b).all()):
+            raise InvalidInputError("query box or planes contain NaN or inf")
+        out = []
+        for lv in self.levels:
+            clo = _cell_of(lo, self.origin, lv.cell, lv.dims)  # [3]
+            chi = _cell_of(hi, self.origin, lv.cell, lv.dims)  # [3]
+            c0, c1 = torch.stack([clo, chi]).tolist()  # one host sync per level: [3], [3]
+            if math.prod(h - l + 1 for l, h in zip(c0, c1)) > max_cells:
+                return self.query_box(lo, hi)
+            ax = [torch.arange(c0[i], c1[i] + 1, device=self.device) for i in range(3)]
+            cells = torch.stack(torch.meshgrid(*ax, indexing="ij"), -1).reshape(-1, 3)  # [C, 3]
+            cmin = self.origin + cells.double() * lv.cell  # [C, 3]
+            half = 0.5 * lv.cell * (1 + 1e-7) + 1e-12 * (1 + self.origin.abs().max() + cmin.abs().max(-1, keepdim=True).values)
+            centre = cmin + 0.5 * lv.cell  # [C, 3]
+            low = centre @ A.T - half * A.abs().sum(-1)  # [C, F] min of A_f.x over the (grown) cell
+            culled = (low > b + 1e-12 * (1 + b.abs())).any(-1)  # [C]
+            cells = cells[~culled]
+            lin = (cells[:, 0] * lv.dims[1] + cells[:, 1]) * lv.dims[2] + cells[:, 2]
+            start = lv.offsets[lin]
+            owner, k = _expand_ranges(lv.offsets[lin + 1] - start)
+            out.append(lv.ids.index_select(0, start.index_select(0, owner) + k))
+        # dedupe (an ellipsoid is listed in every cell its AABB meets): a flag per ellipsoid is cheaper
+        # than sorting the listed entries, which outnumber the ellipsoids
+        listed = torch.zeros(len(self), dtype=torch.bool, device=self.device)  # [N]
+        listed[torch.cat(out)] = True
+        g = torch.nonzero(listed).squeeze(-1)  # [K] ascending
+        gb = self.boxes.index_select(0, g)  # [K, 6]
+        return g[(gb[:, :3] <= hi).all(-1) & (gb[:, 3:] >= lo).all(-1)]
