@@ -10,9 +10,9 @@ but the expensive collision work is done once for all K candidates instead of K 
   shortcut         lock-step greedy line-of-sight pruning: each round tests the candidate segments of
                    ALL candidates in one conservative segments_free call (one call per round instead of
                    one per kept point per candidate)
-  corridor         the ellipsoid candidates of every segment box of all K paths come from ONE batched
-                   index query (prefetch_index.py, identical answers); the plane cuts themselves are
-                   per polytope (a nearest-first sequential pruning loop)
+  corridor         per polytope: two-pass safe_polytope (near ellipsoids first, then only the index cells
+                   not already cut off by kept planes); a batched prefetch of all segment boxes was
+                   replaced by it (the two-pass queries are ~3x cheaper at 1M than any full-box gather)
   QP               back to back; the constant per-degree matrices (Bernstein Gram, difference operators,
                    unit Hessians) are cached (trajectory.py lru_cache), only the corridor rows change
   timing           per candidate (numpy), optionally retimed under DynamicLimits (dynamics.py)
@@ -44,7 +44,6 @@ from .errors import GoalUnreachableError, InvalidInputError, PlanningError, Star
 from .goal import sample_free_starts
 from .occlusion import sight_lines_blocked
 from .planner import Planner, _as_point
-from .prefetch_index import corridor_prefetch
 from .safety import _dense_samples
 from .scoring import ScoreConfig, ShotScore, _frames, score_terms
 from .shot import Shot
@@ -258,14 +257,12 @@ def plan_candidates(
                 t = time.perf_counter()
         ways = batched_shortcut([p["way"] for p in plans], planner._shortcut_free)
         t = lap("shortcut_ms", t)
-        pidx = corridor_prefetch(prep.index, ways, cfg.box_margin, planner.scene.camera_radius)
-        t = lap("corridor_ms", t)
         for p, way in zip(plans, ways):
             if np.linalg.norm(way[-1] - way[0]) < 1e-9:
                 errors.append("the start is already at the goal")
                 continue
             try:
-                corridor = build_corridor(torch.as_tensor(way, device=planner.scene.device), planner.scene, pidx,
+                corridor = build_corridor(torch.as_tensor(way, device=planner.scene.device), planner.scene, prep.index,
                                           box_margin=cfg.box_margin)
                 t = lap("corridor_ms", t)
                 traj = solve_corridor_qp(corridor.constraints(), corridor.waypoints.cpu().numpy(), p["start"], p["goal"],
@@ -282,7 +279,6 @@ def plan_candidates(
             shots.append(sh)
             cand_ids.append(p["cand"])
             t = lap("timing_ms", t)
-        tm["corridor_index_misses"] = tm.get("corridor_index_misses", 0.0) + pidx.misses
     if not shots:
         raise GoalUnreachableError(
             f"no safe candidate found from {len(starts)} start(s); last reason: {errors[-1] if errors else 'unknown'}"

@@ -36,7 +36,6 @@ from .dynamics import DynamicLimits, dynamics_report, retime
 from .errors import InvalidInputError, StartInCollisionError, UnsafeTrajectoryError
 from .goal import sample_free_starts
 from .planner import Planner, _as_point
-from .prefetch_index import corridor_prefetch
 from .safety import verify_shot
 from .shot import Shot
 from .timing import arc_length_table
@@ -239,9 +238,8 @@ def plan_multistop(
     tm["shortcut_ms"] = 1e3 * (time.perf_counter() - t2)
     t3 = time.perf_counter()
     polys, wps, stop_segments = [], [pts[0][None]], []
-    pidx = corridor_prefetch(prep.index, ways, cfg.box_margin, planner.scene.camera_radius)
     for i, w in enumerate(ways):
-        cor = build_corridor(torch.as_tensor(w, device=planner.scene.device), planner.scene, pidx,
+        cor = build_corridor(torch.as_tensor(w, device=planner.scene.device), planner.scene, prep.index,
                              box_margin=cfg.box_margin)
         if i > 0:
             stop_segments.append(len(polys))

@@ -58,7 +58,6 @@ def test_candidates_are_safe_and_aim(planner, ranked):
         assert np.linalg.norm(x.shot.positions[-1] - x.shot.goal) < 1e-9
     for k in ("start_sample_ms", "astar_ms", "shortcut_ms", "corridor_ms", "qp_ms", "verify_ms", "score_ms", "total_ms"):
         assert tm[k] >= 0
-    assert tm["corridor_index_misses"] == 0  # every polytope's candidate query came from the batched prefetch
     d = r[0].to_dict()
     assert d["rank"] == 1 and "terms" in d["score"] and d["verification"]["safe"]
 

@@ -87,6 +87,7 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
         type_into(b, "Look at", "sofa")
         assert wait(lambda: viewer.ui.goto.value == "potted plant" and viewer.ui.look_at.value == "sofa")
         viewer.panel.config.loop = False
+        viewer.panel.config.speed = 0.5  # a longer flight: screenshots must land while it is under way, even on a busy box
         click(b, "Plan")
         assert wait(lambda: "Planned" in viewer.panel.status, 60), viewer.panel.status
         assert "with the cinenerf_ns planner" in viewer.panel.status
@@ -101,8 +102,8 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
         artifacts = Path(os.environ.get("CINENERF_ARTIFACTS") or tmp_path / "artifacts")
         artifacts.mkdir(parents=True, exist_ok=True)
         shots = []
-        for i in range(3):
-            time.sleep(0.6)
+        for i in range(5):
+            time.sleep(0.3)
             shots.append(b.screenshot(artifacts / f"browser_flight_{i}.png"))
         digests = {hashlib.sha1(p.read_bytes()).hexdigest() for p in shots}
         assert len(digests) > 1, "the rendered view did not change while flying"
