@@ -175,6 +175,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--selection-only", action="store_true")
     ap.add_argument("--semantic-smoothing", type=int, default=32, help="as cinesplat-plan --semantic-smoothing (same default)")
+    ap.add_argument("--object-cluster", type=float, default=0.02, help="as cinesplat-plan --object-cluster (same default)")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/room_eval"))
     ap.add_argument("--no-record", action="store_true", help="do not append to benchmarks/RESULTS.md")
     a = ap.parse_args(argv)
@@ -182,7 +183,7 @@ def main(argv=None) -> dict:
     gt = load_ground_truth(a.dataset, dpt)
     # the planner plans for radius + margin, exactly as cinesplat-plan does; the truth is scored for the radius
     loaded = load_scene(str(a.scene), SceneConfig(camera_radius=a.camera_radius + a.safety_margin), device=a.device,
-                        smooth_neighbors=a.semantic_smoothing)
+                        smooth_neighbors=a.semantic_smoothing, object_cluster=a.object_cluster)
     sel = evaluate_selection(loaded, gt)
     shots, plots, prep_ms = ([], {"paths": {}, "series": {}}, {}) if a.selection_only else evaluate_shots(
         loaded, gt, a.starts, a.camera_radius, a.grid_resolution)
@@ -208,7 +209,7 @@ def main(argv=None) -> dict:
         res = Path(__file__).resolve().parent / "RESULTS.md"
         with open(res, "a") as f:
             f.write(f"\n## eval_room ({date}, {dev})\n\nscene `{a.scene}`, {len(loaded.scene)} Gaussians, {a.starts} starts per pair, "
-                    f"camera radius {a.camera_radius} (+ planning margin {a.safety_margin}), semantic smoothing {a.semantic_smoothing}; details in `{a.out}/eval_room.md`\n\n```\n{json.dumps(summary, indent=1)}\n```\n")
+                    f"camera radius {a.camera_radius} (+ planning margin {a.safety_margin}), semantic smoothing {a.semantic_smoothing}, object cluster {a.object_cluster}; details in `{a.out}/eval_room.md`\n\n```\n{json.dumps(summary, indent=1)}\n```\n")
     return summary
 
 

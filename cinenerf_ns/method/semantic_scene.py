@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Dict, Optional, Sequence, Tuple
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor
@@ -85,6 +86,31 @@ def smooth_latents(means: Tensor, opacities: Tensor, latents: Tensor, k: int) ->
     return (latents.detach()[idx_t] * w[..., None]).sum(1) / w.sum(1, keepdim=True)
 
 
+def dominant_cluster(means: Tensor, mask: Tensor, weights: Tensor, voxel: float) -> Tensor:
+    """The part of ``mask`` that forms the heaviest spatial cluster: selected Gaussians are binned in voxels of
+    size ``voxel``, 26-connected occupied voxels form clusters, and the cluster with the largest summed
+    ``weights`` (e.g. relevancy x opacity) is kept. Why: a text query's selection also holds scattered false
+    positives (and several instances of "a chair"); its centroid can then lie in empty space, while the
+    camera needs one object. means [N, 3], mask [N] bool, weights [N] -> mask [N] bool (a subset of mask)."""
+    from scipy import ndimage
+
+    idx = torch.nonzero(mask).reshape(-1)
+    if idx.numel() <= 1:
+        return mask
+    p = means[idx].detach().double().cpu().numpy()  # [K, 3]
+    ijk = np.floor((p - p.min(0)) / float(voxel)).astype(np.int64)
+    occ = np.zeros(tuple(ijk.max(0) + 1), dtype=bool)
+    occ[tuple(ijk.T)] = True
+    lab, n = ndimage.label(occ, structure=np.ones((3, 3, 3), dtype=bool))
+    cl = lab[tuple(ijk.T)]  # [K] cluster id (>= 1) of each selected Gaussian
+    mass = np.bincount(cl, weights=weights[idx].detach().double().cpu().numpy(), minlength=n + 1)
+    mass[0] = -np.inf
+    keep = torch.from_numpy(cl == int(np.argmax(mass))).to(mask.device)
+    out = torch.zeros_like(mask)
+    out[idx[keep]] = True
+    return out
+
+
 @dataclass
 class LocateResult:
     centroid: Tensor  # [3] opacity-weighted
@@ -113,6 +139,7 @@ class SemanticScene:
         min_opacity: float = 0.0,
         label_names: Optional[Sequence[str]] = None,
         smooth_neighbors: int = 0,
+        cluster_fraction: float = 0.0,
     ):
         """label_names: the scene's own label vocabulary (label-mask training). A query equal to one of
         them is contrasted against the *other* labels instead of ``negatives``: "floor lamp" must beat
@@ -136,6 +163,8 @@ class SemanticScene:
         self.temperature = float(temperature)
         self.threshold = float(threshold)
         self.min_opacity = float(min_opacity)
+        self.cluster_fraction = float(cluster_fraction or 0.0)
+        self._cluster_voxel: Optional[float] = None
         self._neg_emb: Optional[Tensor] = None
         self.label_names = [str(x) for x in (label_names or [])]
         self._label_neg: Dict[str, Tensor] = {}
@@ -187,8 +216,20 @@ class SemanticScene:
                 f"nothing in the scene matches '{text.strip()}': highest relevancy {best:.3f} is below the threshold "
                 f"{thr:.2f} (try other words or a lower threshold)"
             )
+        if self.cluster_fraction > 0:
+            mask = dominant_cluster(self.means, mask, rel * self.opacities, self._voxel())
         c, lo, hi = object_centroid_extent(self.means, self.opacities, mask)
         return LocateResult(centroid=c, mask=mask, lo=lo, hi=hi, relevancy=rel)
+
+    def _voxel(self) -> float:
+        """cluster_fraction x the scene's robust extent (1%-99% quantiles of the means, longest side)."""
+        if self._cluster_voxel is None:
+            m = self.means.detach().float()
+            if m.shape[0] > 200_000:  # quantiles of a subsample: the extent does not need every point
+                m = m[torch.randperm(m.shape[0], generator=torch.Generator().manual_seed(0))[:200_000].to(m.device)]
+            q = torch.quantile(m, torch.tensor([0.01, 0.99], device=m.device), dim=0)
+            self._cluster_voxel = max(float((q[1] - q[0]).max()) * self.cluster_fraction, 1e-9)
+        return self._cluster_voxel
 
     def locate(self, text: str, threshold: Optional[float] = None) -> Tuple[Tensor, Tensor]:
         """(opacity-weighted centroid [3], mask [N] bool) of the Gaussians above the relevancy threshold."""

@@ -140,3 +140,52 @@ def test_smooth_latents_matches_brute_force():
     ref = (lat[idx] * w[..., None]).sum(1) / w.sum(1, keepdim=True)
     torch.testing.assert_close(out, ref, rtol=1e-5, atol=1e-6)
     assert smooth_latents(means, op, lat, 1) is lat
+
+
+def test_dominant_cluster_keeps_the_heaviest_connected_group():
+    from cinenerf_ns.method.semantic_scene import dominant_cluster
+
+    g = torch.Generator().manual_seed(0)
+    a = torch.randn(50, 3, generator=g) * 0.01 + torch.tensor([0.0, 0.0, 0.0])  # dense blob, light weights
+    b = torch.randn(20, 3, generator=g) * 0.01 + torch.tensor([1.0, 0.0, 0.0])  # far blob, heavy weights
+    c = torch.tensor([[0.5, 0.5, 0.5]])  # an isolated false positive
+    means = torch.cat([a, b, c])
+    w = torch.cat([torch.full((50,), 0.1), torch.full((20,), 1.0), torch.tensor([5.0])])
+    mask = torch.ones(71, dtype=torch.bool)
+    out = dominant_cluster(means, mask, w, voxel=0.05)
+    # heaviest group: the isolated point weighs 5.0 < 20 x 1.0 of blob b > 50 x 0.1 of blob a
+    assert out[50:70].all() and not out[:50].any() and not out[70]
+    # only ever a subset of the mask; unselected Gaussians never join
+    mask2 = mask.clone(); mask2[55] = False
+    out2 = dominant_cluster(means, mask2, w, voxel=0.05)
+    assert not out2[55] and out2[50:55].all()
+    # a single selected Gaussian is returned as is
+    one = torch.zeros(71, dtype=torch.bool); one[3] = True
+    assert torch.equal(dominant_cluster(means, one, w, voxel=0.05), one)
+
+
+def test_locate_with_clusters_picks_one_instance():
+    import torch.nn.functional as F
+
+    from cinenerf_ns.method.semantic_scene import SemanticScene
+
+    emb = F.normalize(torch.eye(4)[:2], dim=-1)  # 'chair', 'object'
+    table = {"chair": emb[0], "object": emb[1]}
+    enc = lambda texts: torch.stack([table[t] for t in texts])  # noqa: E731
+
+    class IdentityCodec(torch.nn.Module):
+        def decode(self, z):
+            return F.normalize(z, dim=-1)
+
+    g = torch.Generator().manual_seed(1)
+    # two chairs 1 unit apart (30 and 10 Gaussians) and floor Gaussians that are 'object'
+    chairs = torch.cat([torch.randn(30, 3, generator=g) * 0.02, torch.randn(10, 3, generator=g) * 0.02 + torch.tensor([1.0, 0, 0])])
+    floor = torch.rand(60, 3, generator=g) * 2 - 1
+    means = torch.cat([chairs, floor])
+    lat = torch.cat([emb[0].expand(40, 4), emb[1].expand(60, 4)])
+    plain = SemanticScene(means, torch.ones(100), lat, IdentityCodec(), enc, negatives=["object"])
+    clus = SemanticScene(means, torch.ones(100), lat, IdentityCodec(), enc, negatives=["object"], cluster_fraction=0.02)
+    c0, m0 = plain.locate("chair")
+    c1, m1 = clus.locate("chair")
+    assert int(m0.sum()) == 40 and abs(float(c0[0]) - 0.25) < 0.05  # the centroid of both chairs: empty space
+    assert int(m1.sum()) == 30 and float(c1.norm()) < 0.05  # one chair (the heavier one)
