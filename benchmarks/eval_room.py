@@ -106,11 +106,17 @@ def evaluate_shots(loaded, gt, starts: int, camera_radius: float, grid_resolutio
     names = object_names(gt)
     centres = gt.object_centres()
     rows, paths, series = [], {}, {}
+    from rich.progress import Progress
+
+    progress = Progress(transient=True)
+    task = progress.add_task("planning and scoring shots", total=len(names) * starts)
+    progress.start()
     for i, goto in enumerate(names):
         look = names[(i + 1) % len(names)]
         g, _ = loaded.locate(goto)
         lk, _ = loaded.locate(look)
         for seed in range(starts):
+            progress.advance(task)
             row = {"go_to": goto, "look_at": look, "seed": seed}
             t0 = time.perf_counter()
             try:
@@ -137,6 +143,7 @@ def evaluate_shots(loaded, gt, starts: int, camera_radius: float, grid_resolutio
             label = f"{goto} -> {look} #{seed}"
             paths[label] = torch.from_numpy(shot.positions)
             series[label] = (torch.from_numpy(t), clr)
+    progress.stop()
     return rows, {"paths": paths, "series": series}, prep.timings_ms
 
 
