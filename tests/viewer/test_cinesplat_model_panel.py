@@ -95,7 +95,7 @@ def test_nerfstudio_viewer_installs_panel_on_cinesplat_model(tmp_path):
                                 model.latents.detach(), model.codec, model.text_encoder(),
                                 negatives=model.config.relevancy_negatives,
                                 temperature=model.config.relevancy_temperature,
-                                threshold=model.config.relevancy_threshold)
+                                threshold=model.config.relevancy_threshold, cluster_fraction=0.02)
         matched = 0
         for text in ["red chair", "the lamp", "sofa"]:
             query = "lamp" if "lamp" in text else text  # cinesplat-plan's word -> label-name mapping
