@@ -15,32 +15,28 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
-import platform
 import statistics
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from cinenerf_ns.planner.candidates import plan_candidates, score_shots
-from cinenerf_ns.planner.planner import Planner, PlannerConfig
-from cinenerf_ns.planner.procedural import procedural_room
-from cinenerf_ns.planner.scene import EllipsoidScene
-from cinenerf_ns.planner.scoring import ScoreConfig
-
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from benchmarks._results import append_results, device_name  # noqa: E402
+from cinenerf_ns.planner.candidates import plan_candidates, score_shots  # noqa: E402
+from cinenerf_ns.planner.planner import Planner, PlannerConfig  # noqa: E402
+from cinenerf_ns.planner.procedural import procedural_room  # noqa: E402
+from cinenerf_ns.planner.scene import EllipsoidScene  # noqa: E402
+from cinenerf_ns.planner.scoring import ScoreConfig  # noqa: E402
 
 
 def _sync(dev: torch.device) -> None:
     if dev.type == "cuda":
         torch.cuda.synchronize(dev)
-
-
-def _device_name(dev: torch.device) -> str:
-    if dev.type == "cuda":
-        return torch.cuda.get_device_name(dev)
-    return f"CPU {platform.processor() or platform.machine()} ({torch.get_num_threads()} torch threads)"
 
 
 def main() -> None:
@@ -111,7 +107,7 @@ def main() -> None:
     except OSError:
         rev = "?"
     lines = [
-        f"## bench_candidates {date} — {_device_name(dev)}",
+        f"## bench_candidates {date} — {device_name(dev)}",
         "",
         f"procedural_room N={args.n_gaussians} (kept {len(scene)}), K={args.k}, grid {args.grid_resolution}, "
         f"repeats {args.repeats}, prepare {prep_s:.2f} s (not timed below), commit {rev or '?'}",
@@ -129,9 +125,7 @@ def main() -> None:
     table = "\n".join(lines)
     print(table)
     if not args.no_record:
-        with open(REPO / "benchmarks" / "RESULTS.md", "a") as f:
-            f.write("\n" + table + "\n")
-        print(f"appended to {REPO / 'benchmarks' / 'RESULTS.md'}")
+        append_results(table)
 
 
 if __name__ == "__main__":

@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import json
-import platform
 import sys
 import time
 import traceback
@@ -30,22 +29,11 @@ import torch
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from benchmarks._results import append_results, device_name  # noqa: E402
 from cinenerf_ns.planner.distance import clearance  # noqa: E402
 from cinenerf_ns.planner.planner import Planner, PlannerConfig  # noqa: E402
 from cinenerf_ns.planner.procedural import procedural_room  # noqa: E402
 from cinenerf_ns.planner.scene import EllipsoidScene  # noqa: E402
-
-
-def device_name(device: str) -> str:
-    if device.startswith("cuda"):
-        return torch.cuda.get_device_name(torch.device(device))
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "cpu"
 
 
 def main() -> None:
@@ -201,9 +189,7 @@ def main() -> None:
         "| p95 ms | " + " | ".join(f"{p95(k):.1f}" for k in keys) + f" | {p95('wall_total_ms'):.1f} |",
         "",
     ]
-    with open(REPO / "benchmarks" / "RESULTS.md", "a") as f:
-        f.write("\n" + "\n".join(lines) + "\n")
-    print(f"appended to {REPO / 'benchmarks' / 'RESULTS.md'}")
+    append_results("\n".join(lines))
 
 
 if __name__ == "__main__":

@@ -27,10 +27,10 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from benchmarks._results import device_name  # noqa: E402
 from cinenerf_ns.planner.planner import PlannerConfig  # noqa: E402
 from cinenerf_ns.planner.scene import SceneConfig  # noqa: E402
 from cinenerf_ns.viewer.backend import FunctionBackend  # noqa: E402
@@ -45,16 +45,6 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-def device_name(device: str) -> str:
-    if device.startswith("cuda") and torch.cuda.is_available():
-        return torch.cuda.get_device_name(torch.device(device))
-    try:
-        model = [ln.split(":", 1)[1].strip() for ln in open("/proc/cpuinfo") if ln.startswith("model name")][0]
-    except (OSError, IndexError):
-        model = "cpu"
-    return f"CPU {model} ({torch.get_num_threads()} torch threads)"
 
 
 def main() -> None:

@@ -23,7 +23,6 @@ import argparse
 import datetime
 import json
 import math
-import platform
 import sys
 import time
 from pathlib import Path
@@ -33,6 +32,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from benchmarks._results import append_results, device_name  # noqa: E402
 from benchmarks.eval_synthetic import (  # noqa: E402
     clearance_along,
     clearance_lower_bound,
@@ -49,18 +49,6 @@ from cinenerf_ns.cli.plan import load_scene  # noqa: E402
 from cinenerf_ns.planner.errors import PlanningError  # noqa: E402
 from cinenerf_ns.planner.planner import Planner, PlannerConfig  # noqa: E402
 from cinenerf_ns.planner.scene import SceneConfig  # noqa: E402
-
-
-def device_name(device: str) -> str:
-    if device.startswith("cuda") and torch.cuda.is_available():
-        return torch.cuda.get_device_name(0)
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return f"{line.split(':', 1)[1].strip()} ({torch.get_num_threads()} threads)"
-    except OSError:
-        pass
-    return platform.processor() or "cpu"
 
 
 def evaluate_selection(loaded, gt) -> list[dict]:
@@ -213,9 +201,7 @@ def main(argv=None) -> dict:
         plot_clearance(plots["series"], a.out / "eval_room_clearance.png")
     print("\n".join(md))
     if not a.no_record:
-        res = Path(__file__).resolve().parent / "RESULTS.md"
-        with open(res, "a") as f:
-            f.write(f"\n## eval_room ({date}, {dev})\n\nscene `{a.scene}`, {len(loaded.scene)} Gaussians, {a.starts} starts per pair, "
+        append_results(f"\n## eval_room ({date}, {dev})\n\nscene `{a.scene}`, {len(loaded.scene)} Gaussians, {a.starts} starts per pair, "
                     f"camera radius {a.camera_radius} (+ planning margin {a.safety_margin}), semantic smoothing {a.semantic_smoothing}, object cluster {a.object_cluster}; details in `{a.out}/eval_room.md`\n\n```\n{json.dumps(summary, indent=1)}\n```\n")
     return summary
 
