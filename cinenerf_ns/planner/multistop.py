@@ -33,7 +33,7 @@ from .bezier import BezierTrajectory
 from .candidates import batched_shortcut
 from .corridor import build_corridor
 from .dynamics import DynamicLimits, dynamics_report, retime
-from .errors import InvalidInputError, StartInCollisionError, UnsafeTrajectoryError
+from .errors import InvalidInputError, UnsafeTrajectoryError
 from .goal import sample_free_starts
 from .planner import Planner, _as_point
 from .safety import verify_shot
@@ -204,12 +204,7 @@ def plan_multistop(
     tm: Dict[str, float] = {}
     t0 = time.perf_counter()
     if start is not None:
-        s = _as_point(start, "start point")
-        c = float(planner.clearance(s[None])[0])
-        if c < 0:
-            raise StartInCollisionError(
-                f"the start {np.round(s, 4).tolist()} puts the camera inside the scene (clearance {c:.4f}); pick another start"
-            )
+        s = planner.checked_start(start)
     else:
         lo, hi = cfg.start_region or (None, None)
         s = sample_free_starts(1, planner.scene, prep.index, grid, generator=torch.Generator().manual_seed(int(seed)),

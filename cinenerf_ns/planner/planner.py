@@ -14,7 +14,6 @@ is reported separately from per-plan cost.
 from __future__ import annotations
 
 import contextlib
-import math
 import time
 from dataclasses import dataclass, field
 from typing import Optional, Sequence, Union
@@ -395,6 +394,17 @@ class Planner:
             if swap:
                 torch.set_num_threads(old)
 
+    def checked_start(self, start: ArrayLike) -> np.ndarray:
+        """A user-given start [3] as float64, or StartInCollisionError when the camera would be inside the scene."""
+        s = _as_point(start, "start point")
+        c = float(self.clearance(s[None])[0])
+        if c < 0:
+            raise StartInCollisionError(
+                f"the start {np.round(s, 4).tolist()} puts the camera inside the scene (clearance {c:.4f}); "
+                f"pick another start or use a random start"
+            )
+        return s
+
     def _plan_request(
         self,
         goal: ArrayLike,
@@ -403,30 +413,17 @@ class Planner:
         seed: int = 0,
         n_candidates: int = 1,
     ) -> list[Shot]:
-        """Plan ``n_candidates`` shots ending as close as safely possible to ``goal`` and always
-        looking at ``look_at``. With ``start`` all candidates start there (n_candidates is then 1);
-        otherwise starts are sampled free and reachable with the seeded generator.
-
-        Raises InvalidInputError, StartInCollisionError, GoalUnreachableError (see messages).
-        Every returned shot's exact clearance along the densely sampled curve is >= 0."""
+        """The body of :meth:`plan` (which sets the request's thread count)."""
         goal_p = _as_point(goal, "go-to point")
         look_p = _as_point(look_at, "look-at point")
         if int(n_candidates) != n_candidates or n_candidates < 1:
             raise InvalidInputError(f"number of candidates must be a positive integer, got {n_candidates}")
         prep = self._prep()
         labels = prep.astar_grid.labels
-        dev = self.scene.device
         t_req = time.perf_counter()
 
         if start is not None:
-            s = _as_point(start, "start point")
-            c = float(self.clearance(s[None])[0])
-            if c < 0:
-                raise StartInCollisionError(
-                    f"the start {np.round(s, 4).tolist()} puts the camera inside the scene (clearance {c:.4f}); "
-                    f"pick another start or use a random start"
-                )
-            starts = [s]
+            starts = [self.checked_start(start)]
             n_candidates = 1
         else:
             starts = []
