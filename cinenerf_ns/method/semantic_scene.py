@@ -153,9 +153,8 @@ class SemanticScene:
             )
         self.means = means
         self.opacities = opacities.reshape(-1)
-        if smooth_neighbors and smooth_neighbors > 1:
-            latents = smooth_latents(means, opacities.reshape(-1), latents, int(smooth_neighbors))
-        self.latents = latents
+        self._raw_latents = latents
+        self._smoothed: Optional[Tensor] = None
         self.smooth_neighbors = int(smooth_neighbors or 0)
         self.codec = codec
         self.text_encoder = text_encoder
@@ -181,13 +180,23 @@ class SemanticScene:
         kwargs.setdefault("label_names", st.info.get("label_names"))
         return cls(st.means, torch.sigmoid(st.opacities), st.latents, st.codec, enc, **kwargs)
 
+    @property
+    def latents(self) -> Tensor:
+        """[N, C] the latents queries use: smoothed over ``smooth_neighbors`` on first use (not at load: a
+        scene may never be queried by text), else as given."""
+        if self.smooth_neighbors <= 1:
+            return self._raw_latents
+        if self._smoothed is None:
+            self._smoothed = smooth_latents(self.means, self.opacities, self._raw_latents, self.smooth_neighbors)
+        return self._smoothed
+
     def __len__(self) -> int:
         return self.means.shape[0]
 
     def _embed(self, text: str) -> Tuple[Tensor, Tensor]:
         if not isinstance(text, str) or not text.strip():
             raise QueryError("empty text query: type what the camera should look at, e.g. 'the red chair'")
-        dev = self.latents.device
+        dev = self._raw_latents.device
         q = self.text_encoder([text.strip()])[0].to(dev)
         key = text.strip().lower()
         others = [n for n in self.label_names if n.strip().lower() != key]
