@@ -12,25 +12,14 @@ starts are drawn where the capture was (what cinesplat-plan does with a run's co
 from __future__ import annotations
 
 import argparse
-import json
 import shutil
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
 import torch
 
+from cinenerf_ns.cli.plan import camera_region
 from cinenerf_ns.method.checkpoint import export_compact, load_splat
-
-
-def camera_region(dataset: Path, pad: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
-    dp = json.loads((dataset / "dataparser_transforms.json").read_text())
-    T = np.eye(4)
-    T[:3] = np.asarray(dp["transform"], dtype=np.float64)
-    c = np.array([np.asarray(f["transform_matrix"], dtype=np.float64)[:3, 3]
-                  for f in json.loads((dataset / "transforms.json").read_text())["frames"]])
-    c = ((T[:3, :3] @ c.T).T + T[:3, 3]) * float(dp["scale"])
-    return c.min(0) - pad, c.max(0) + pad
 
 
 def subset(st, keep: torch.Tensor):
@@ -49,7 +38,7 @@ def main() -> None:
     args = ap.parse_args()
 
     st = load_splat(args.scene)
-    lo, hi = camera_region(args.dataset)
+    lo, hi = camera_region(args.dataset / "transforms.json", args.dataset / "dataparser_transforms.json")
     st.info["start_region"] = [lo.tolist(), hi.tolist()]
     n0 = len(st)
     out = args.out / f"{args.name}.npz"

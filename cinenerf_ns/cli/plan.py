@@ -134,13 +134,6 @@ def training_camera_region(config_path: Path, pad: float = 0.1) -> Optional[Tupl
     grown by ``pad``: the region random starts are drawn from (a real capture's free space is best known
     where the cameras were). None when the run's data or dataparser transform cannot be read."""
     try:
-        import yaml
-
-        run = config_path.parent
-        dp = json.loads((run / "dataparser_transforms.json").read_text())
-        T = np.eye(4)
-        T[:3] = np.asarray(dp["transform"], dtype=np.float64)
-        scale = float(dp["scale"])
         text = config_path.read_text()
         m = re.search(r"^\s*data: !!python/object/apply:pathlib\.\w+\n((?:\s*- .*\n)+)", text, re.M)
         if m is None:
@@ -148,13 +141,20 @@ def training_camera_region(config_path: Path, pad: float = 0.1) -> Optional[Tupl
         parts = [ln.strip()[2:] for ln in m.group(1).splitlines() if ln.strip().startswith("- ")]
         data = Path(*parts)
         tj = data / "transforms.json" if data.is_dir() else data
-        frames = json.loads(tj.read_text())["frames"]
-        c = np.array([np.asarray(f["transform_matrix"], dtype=np.float64)[:3, 3] for f in frames])
-        c = (T[:3, :3] @ c.T).T + T[:3, 3]
-        c = c * scale
-        return c.min(0) - pad, c.max(0) + pad
-    except (OSError, KeyError, ValueError, ImportError):
+        return camera_region(tj, config_path.parent / "dataparser_transforms.json", pad)
+    except (OSError, KeyError, ValueError):
         return None
+
+
+def camera_region(transforms_json: Path, dataparser_transforms_json: Path, pad: float = 0.1) -> Tuple[np.ndarray, np.ndarray]:
+    """(lo [3], hi [3]): bounding box of the cameras of a nerfstudio transforms.json in the run's normalised
+    coordinates (the dataparser's transform and scale), grown by ``pad``."""
+    dp = json.loads(Path(dataparser_transforms_json).read_text())
+    T = np.asarray(dp["transform"], dtype=np.float64)  # [3, 4]
+    c = np.array([np.asarray(f["transform_matrix"], dtype=np.float64)[:3, 3]
+                  for f in json.loads(Path(transforms_json).read_text())["frames"]])  # [F, 3]
+    c = ((T[:3, :3] @ c.T).T + T[:3, 3]) * float(dp["scale"])
+    return c.min(0) - pad, c.max(0) + pad
 
 
 def parse_point(text: str) -> Optional[np.ndarray]:
