@@ -345,8 +345,18 @@ class Planner:
     def _main_component(self) -> int:
         """The free component random starts come from: the one with the most free voxels inside the
         start region when one is set (a room's interior, where the capture's cameras were: the shell of
-        free space *outside* the walls inside the planning bounds can be larger), else the largest."""
+        free space *outside* the walls inside the planning bounds can be larger), else the largest.
+        Constant per prepared scene: computed once, not per request."""
         prep = self._prep()
+        key = (prep, self.config.start_region)
+        cached = getattr(self, "_main_component_of", None)
+        if cached is not None and cached[0][0] is key[0] and cached[0][1] is key[1]:
+            return cached[1]
+        comp = self._largest_component(prep)
+        self._main_component_of = (key, comp)
+        return comp
+
+    def _largest_component(self, prep: PreparedScene) -> int:
         labels = prep.astar_grid.labels
         if self.config.start_region is not None:
             grid = prep.grid
