@@ -47,6 +47,8 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--grid-resolution", type=int, default=96)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--request-device", default="auto", choices=["auto", "scene"],
+                    help="PlannerConfig.request_device: auto = per-request queries on a CPU mirror of a GPU scene")
     ap.add_argument("--no-record", action="store_true", help="do not append to benchmarks/RESULTS.md")
     args = ap.parse_args()
     dev = torch.device(args.device)
@@ -54,7 +56,7 @@ def main() -> None:
     room = procedural_room(args.n_gaussians, seed=args.seed)
     scene = EllipsoidScene.from_splat(room.means, room.quats, room.log_scales, room.opacity_logits).to(dev)
     r = scene.camera_radius
-    planner = Planner(scene, PlannerConfig(grid_resolution=args.grid_resolution,
+    planner = Planner(scene, PlannerConfig(grid_resolution=args.grid_resolution, request_device=args.request_device,
                                            start_region=(room.free_lo + r, room.free_hi - r)))
     t0 = time.perf_counter()
     planner.prepare()
@@ -110,7 +112,7 @@ def main() -> None:
         f"## bench_candidates {date} — {device_name(dev)}",
         "",
         f"procedural_room N={args.n_gaussians} (kept {len(scene)}), K={args.k}, grid {args.grid_resolution}, "
-        f"repeats {args.repeats}, prepare {prep_s:.2f} s (not timed below), commit {rev or '?'}",
+        f"request_device {args.request_device}, repeats {args.repeats}, prepare {prep_s:.2f} s (not timed below), commit {rev or '?'}",
         "",
         "| variant | median ms | shots | ms / shot | x batched |",
         "|---|---|---|---|---|",

@@ -43,6 +43,8 @@ def main() -> None:
     ap.add_argument("--pairs", type=int, default=100)
     ap.add_argument("--seed", type=int, default=0, help="scene seed and base of the request seeds")
     ap.add_argument("--grid-resolution", type=int, default=None, help="default: PlannerConfig's")
+    ap.add_argument("--request-device", default="auto", choices=["auto", "scene"],
+                    help="PlannerConfig.request_device: auto = per-request queries on a CPU mirror of a GPU scene")
     ap.add_argument("--quick", action="store_true", help="20k Gaussians, 20 requests (smoke run)")
     ap.add_argument("--no-record", action="store_true", help="do not append to benchmarks/RESULTS.md")
     ap.add_argument("--note", default="", help="free text appended to the RESULTS.md line (e.g. 'box loaded')")
@@ -65,7 +67,9 @@ def main() -> None:
     )
     sync()
     build_s = time.perf_counter() - t0
-    cfg = PlannerConfig() if args.grid_resolution is None else PlannerConfig(grid_resolution=args.grid_resolution)
+    cfg = PlannerConfig(request_device=args.request_device)
+    if args.grid_resolution is not None:
+        cfg.grid_resolution = args.grid_resolution
     planner = Planner(scene, cfg)
     if cuda:  # warm-up of kernels/allocator on a tiny prepare, not timed
         Planner(scene.subset(torch.arange(min(len(scene), 2000), device=dev)), cfg).prepare()
@@ -107,10 +111,10 @@ def main() -> None:
             clear_verified.append(rep["min_exact_clearance"])
         # independent exact check of every frame (not timed); distances beyond 0.25 are not searched
         # for (reported as 0.25 - camera radius, a lower bound): only the minimum matters here
-        pts = torch.as_tensor(shot.positions, dtype=torch.float64, device=dev)
+        pts = torch.as_tensor(shot.positions, dtype=torch.float64, device=planner.scene.device)  # request device
         threads = torch.get_num_threads()
         torch.set_num_threads(1 if not cuda else threads)  # small ops: 1 thread is faster on a shared CPU
-        clear_exact.append(float(clearance(pts, scene, prep.index, max_distance=0.25).min()))
+        clear_exact.append(float(clearance(pts, planner.scene, prep.index, max_distance=0.25).min()))
         torch.set_num_threads(threads)
 
     def stat(v):
@@ -174,7 +178,7 @@ def main() -> None:
     keys = [k for k in ("start_sample_ms", "goal_ms", "astar_ms", "shortcut_ms", "corridor_ms", "qp_ms", "timing_ms",
                         "orientation_ms", "verify_ms") if k in stages]
     lines = [
-        f"### bench_planner.py  {result['date']}  {result['device']} ({args.device}, torch threads {result['torch_threads']})"
+        f"### bench_planner.py  {result['date']}  {result['device']} ({args.device}, request_device {args.request_device}, torch threads {result['torch_threads']})"
         + (f"  {args.note}" if args.note else ""),
         "",
         f"procedural_room N={len(scene)} seed {args.seed}, grid_resolution {cfg.grid_resolution} {result['grid_shape']}, "

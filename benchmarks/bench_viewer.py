@@ -53,6 +53,8 @@ def main() -> None:
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--grid-resolution", type=int, default=96)
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--request-device", default="auto", choices=["auto", "scene"],
+                    help="PlannerConfig.request_device: auto = per-request queries on a CPU mirror of a GPU scene")
     ap.add_argument("--n-candidates", type=int, default=1)
     ap.add_argument("--play-seconds", type=float, default=2.0)
     ap.add_argument("--results", type=Path, default=Path(__file__).resolve().parent / "RESULTS.md",
@@ -68,7 +70,8 @@ def main() -> None:
     load_s = time.perf_counter() - t0
     t0 = time.perf_counter()
     planner = PreparedPlanner(loaded.obstacles, PlannerConfig(grid_resolution=args.grid_resolution,
-                                                               start_region=loaded.start_region))
+                                                               start_region=loaded.start_region,
+                                                               request_device=args.request_device))
     planner.start(background=False)
     if planner.error is not None:
         raise SystemExit(f"prepare failed: {planner.error}")
@@ -113,14 +116,16 @@ def main() -> None:
         first_cam.wait(10)
         panel.pause()
         drawn, cam = marks["drawn"] - t_req, marks.get("camera", float("nan")) - t_req
+        st = panel.shot.timings if panel.shot is not None else {}
+        stages = ", ".join(f"{k[:-3]} {v:.0f}" for k, v in st.items() if k.endswith("_ms") and k != "plan_ms")
         print(f"  run {i}: {goto!r} -> look at {look!r}: drawn {drawn:.3f} s, first camera update {cam:.3f} s"
-              f"{' (warm-up)' if i == 0 else ''}")
+              f"{' (warm-up)' if i == 0 else ''}\n    planner stages ms: {stages}")
         if i > 0:
             rows.append((drawn, cam, res.timings["query_s"], res.timings["plan_s"], res.timings["draw_s"]))
 
     dev = device_name(args.device)
     lines = [f"viewer latency, real planner: procedural:{args.n_gaussians} ({len(loaded.obstacles)} obstacles), "
-             f"device {args.device} [{dev}], grid {args.grid_resolution}, {args.n_candidates} candidate(s)",
+             f"device {args.device} [{dev}], request_device {args.request_device}, grid {args.grid_resolution}, {args.n_candidates} candidate(s)",
              f"scene load {load_s:.3f} s; planner prepare (one-time) {prep_s:.3f} s"]
     if rows:
         med = [statistics.median(c) for c in zip(*rows)]

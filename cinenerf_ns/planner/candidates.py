@@ -150,10 +150,13 @@ def score_shots(
     targets = look[None] if object_samples is None else np.asarray(object_samples, np.float64).reshape(-1, 3)
     idx = [_frames(sh.num_frames, cfg.occlusion_frames) for sh in shots]
     pos = np.concatenate([sh.positions[i] for sh, i in zip(shots, idx)])  # [sum T', 3]
-    occ = sight_lines_blocked(pos, targets, planner.scene, prep.index, exclude=exclude,
+    # many frames x many Gaussians: on the scene's own device (a GPU when there is one)
+    scene = planner.batch_scene
+    index = prep.batch_index if prep.batch_index is not None else prep.index
+    occ = sight_lines_blocked(pos, targets, scene, index, exclude=exclude,
                               stop_distance=object_radius).cpu().numpy()  # [sum T', S]
-    cap = None if cfg.clearance_cap is None else cfg.clearance_cap + planner.scene.camera_radius
-    clr = clearance(torch.as_tensor(pos, device=planner.scene.device), planner.scene, prep.index,
+    cap = None if cfg.clearance_cap is None else cfg.clearance_cap + scene.camera_radius
+    clr = clearance(torch.as_tensor(pos, device=scene.device), scene, index,
                     max_distance=cap).cpu().numpy()  # [sum T'] exact up to the cap
     out, o = [], 0
     for sh, i in zip(shots, idx):

@@ -129,7 +129,7 @@ class PreparedPlanner:
                     t0 = time.perf_counter()
                     # exact where it matters (near obstacles); capped far away: the uncapped search
                     # dominated a Plan on large scenes (~2 s at 1M Gaussians on 2 cores)
-                    shot.clearance = np.asarray(self.planner.clearance(shot.positions, cap=self.clearance_cap),
+                    shot.clearance = np.asarray(self.planner.clearance(shot.positions, cap=self.clearance_cap, batch=True),
                                                 dtype=np.float64).reshape(-1)
                     shot.timings["frame_clearance_ms"] = 1e3 * (time.perf_counter() - t0)
         return list(shots)

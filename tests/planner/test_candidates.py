@@ -104,3 +104,19 @@ def test_bad_input(planner):
         plan_candidates(planner, [0, np.nan, 0], TARGET, k=2)
     with pytest.raises(InvalidInputError, match="object_radius"):
         plan_candidates(planner, GO_TO, TARGET, k=2, object_radius=-1)
+
+
+@pytest.mark.gpu
+def test_gpu_scene_candidates_score_on_the_gpu_and_match_cpu(ranked):
+    if not torch.cuda.is_available():
+        pytest.skip("needs CUDA")
+    pl = Planner(walled_target_scene().to("cuda"),
+                 PlannerConfig(grid_resolution=48, start_region=([-0.9, -0.9, 0.1], [0.9, 0.9, 0.9])))
+    pl.prepare()
+    assert pl.scene.device.type == "cpu" and pl.prepared.batch_index.device.type == "cuda"
+    r = plan_candidates(pl, GO_TO, TARGET, k=10, seed=3, object_radius=STOP)
+    cpu, _ = ranked
+    assert len(r) == len(cpu)
+    assert all(x.shot.safety["safe"] for x in r)
+    # same starts (seeded) and the same scores up to float rounding
+    np.testing.assert_allclose(sorted(x.score.total for x in r), sorted(x.score.total for x in cpu), rtol=1e-4, atol=1e-6)

@@ -114,3 +114,36 @@ def test_capped_clearance_is_exact_below_the_cap():
     capped = pl.clearance(pts, cap=0.05)
     np.testing.assert_allclose(capped, np.minimum(exact, 0.05), rtol=0, atol=1e-9)
     assert (exact > 0.05).any() and (exact < 0.05).any()  # both regimes are exercised
+
+
+def test_request_device_is_validated_and_cpu_scenes_are_not_mirrored(room):
+    s, e, pl = room
+    with pytest.raises(InvalidInputError, match="request_device"):
+        Planner(e, PlannerConfig(request_device="gpu"))
+    assert pl.scene is pl.batch_scene  # CPU scene: requests and batched scoring use the same tensors
+    assert pl.prepared.batch_index is pl.prepared.index
+    assert "mirror_ms" in pl.prepared.timings_ms and pl.prepared.timings_ms["mirror_ms"] == 0.0
+
+
+@pytest.mark.gpu
+def test_gpu_scene_requests_run_on_a_cpu_mirror_with_the_same_result():
+    if not torch.cuda.is_available():
+        pytest.skip("needs CUDA")
+    s = procedural_room(4000, seed=1)
+    e = EllipsoidScene.from_splat(s.means, s.quats, s.log_scales, s.opacity_logits).to("cuda")
+    auto = Planner(e, PlannerConfig(grid_resolution=64))
+    on_dev = Planner(e, PlannerConfig(grid_resolution=64, request_device="scene"))
+    auto.prepare()
+    on_dev.prepare()
+    assert auto.scene.device.type == "cpu" and auto.batch_scene.device.type == "cuda"
+    assert auto.prepared.index.device.type == "cpu" and auto.prepared.batch_index.device.type == "cuda"
+    assert on_dev.scene.device.type == "cuda"
+    # the grid is built once on the GPU, so both planners plan on the same occupancy
+    assert torch.equal(auto.prepared.grid.occupied.cpu(), on_dev.prepared.grid.occupied.cpu())
+    goal, look = s.objects[0].center, s.objects[1].center
+    a = auto.plan(goal, look, seed=3)[0]
+    b = on_dev.plan(goal, look, seed=3)[0]
+    assert a.safety["safe"] and b.safety["safe"]
+    assert _exact_min_clearance(e.to("cpu"), auto, a) >= 0
+    np.testing.assert_allclose(a.positions[0], b.positions[0], atol=1e-6)  # same seeded start
+    np.testing.assert_allclose(a.positions[-1], b.positions[-1], atol=1e-3)
