@@ -2,7 +2,7 @@
 """cinesplat benchmark (GPU): training step time and PSNR vs splatfacto, CLIP extraction, codec, relevancy.
 
     python benchmarks/bench_method.py --fox ../shared/data/fox [--steps 2000] [--downscale 2]
-        [--modes splatfacto,cinesplat,cinesplat-image,cinesplat-fused] [--clip-random-weights] [--no-record]
+        [--modes splatfacto,cinesplat,cinesplat-every2,cinesplat-fused,cinesplat-image] [--clip-random-weights] [--no-record]
 
 Training runs in-process with nerfstudio's own pipeline / optimizers / callbacks, the loop of
 ``Trainer.train_iteration`` without eval, saving or viewer. Every mode starts from the same seeds.
@@ -62,6 +62,8 @@ def make_config(mode: str, fox: Path, steps: int, downscale: int, work: Path, ra
             m.latent_render_resolution = "image"
         elif mode == "cinesplat-fused":
             m.latent_render_mode = "fused"
+        elif mode == "cinesplat-every2":
+            m.latent_every = 2
         elif mode != "cinesplat":
             raise ValueError(mode)
     cfg.max_num_iterations = steps
@@ -212,7 +214,7 @@ def main():
     ap.add_argument("--work", type=Path, default=Path("/tmp/cinesplat_bench"))
     ap.add_argument("--steps", type=int, default=2000)
     ap.add_argument("--downscale", type=int, default=2)
-    ap.add_argument("--modes", default="splatfacto,cinesplat,cinesplat-image,cinesplat-fused")
+    ap.add_argument("--modes", default="splatfacto,cinesplat,cinesplat-every2,cinesplat-fused,cinesplat-image")
     ap.add_argument("--clip-random-weights", action="store_true", help="no CLIP weights on this machine: random (same speed)")
     ap.add_argument("--clip-images", type=int, default=50)
     ap.add_argument("--skip", default="", help="comma list of: train,clip,codec,relevancy")

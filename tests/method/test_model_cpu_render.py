@@ -67,14 +67,16 @@ def _camera(w=16, h=12, f=30.0):
     return Cameras(camera_to_worlds=torch.eye(4)[:3][None], fx=f, fy=f, cx=w / 2, cy=h / 2, width=w, height=h, camera_type=CameraType.PERSPECTIVE)
 
 
-def test_training_latent_pass_at_feature_resolution_with_detached_geometry(cpu_gsplat):
+@pytest.mark.parametrize("resolution", ["feature", "image"])  # "image" is the default
+def test_training_latent_pass_with_detached_geometry(cpu_gsplat, resolution):
     from cinenerf_ns.method.feature_grid import feature_map_size
 
-    m = _model()
+    m = _model(latent_render_resolution=resolution)
     m.train()
     m.step = 0
     out = m.get_outputs(_camera())
     assert out["rgb"].shape == (6, 8, 3)  # splatfacto's pass at 1/2 resolution (num_downscales=1)
+    # the feature map here is 8 px long = splatfacto's 1/2 image: both modes render 6 x 8
     assert out["latent"].shape == (*feature_map_size(12, 16, 8), 3) == (6, 8, 3)
     batch = {"image": torch.rand(12, 16, 3), "latent_target": torch.full((6, 8, 3), 0.25)}
     losses = m.get_loss_dict(out, batch)
@@ -147,3 +149,15 @@ def test_eval_outputs_latent_and_relevancy(cpu_gsplat):
     r = out["relevancy"][out["accumulation"] > 0.5]
     assert float(r.min()) >= float(rel_g.min()) - 1e-5 and float(r.max()) <= float(rel_g.max()) + 1e-5
     assert out["latent"].min() >= 0 and out["latent"].max() <= 1
+
+
+def test_image_mode_renders_at_the_feature_map_when_splatfactos_pass_is_smaller(cpu_gsplat):
+    # early in training splatfacto renders at 1/2^k of the image: pooling that to a larger feature map would
+    # upsample, so the latent pass renders at the feature map's own size then
+    m = _model(latent_render_resolution="image")
+    m.cine_info["feature_long_side"] = 16
+    m.train()
+    m.step = 0
+    out = m.get_outputs(_camera())
+    assert out["rgb"].shape == (6, 8, 3)
+    assert out["latent"].shape == (12, 16, 3)
