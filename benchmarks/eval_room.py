@@ -187,7 +187,7 @@ def main(argv=None) -> dict:
     date, dev = datetime.date.today().isoformat(), device_name(a.device)
     md = [f"# End-to-end evaluation: {a.scene}", "", f"{date}, {dev}, {len(loaded.scene)} Gaussians, prepare {prep_ms}", "",
           "## Object selection (text -> Gaussians) vs ground truth", "",
-          markdown_table(sel, ["object", "iou", "precision", "recall", "n_selected", "n_true", "centroid_error_frac", "target_error_frac", "query_ms"]),
+          markdown_table(sel, ["object", "iou", "precision", "recall", "n_selected", "n_true", "centroid_error_frac", "truth_centroid_error_frac", "target_error_frac", "query_ms"]),
           "", "## Shots (true geometry)", "",
           markdown_table(shots, ["go_to", "look_at", "seed", "success", "true_min_clearance", "true_clearance_bound",
                                  "look_err_target_max_deg", "look_err_true_max_deg", "final_surface_dist", "plan_ms", "reason"]),

@@ -78,7 +78,9 @@ def selection_metrics(
     object volume, and the centroid error of the selection to the object's true volume centroid.
 
     ``surface_tol`` defaults to 1% of the room size. ``centroid_error_frac`` = error / room size
-    (largest interior side). Empty selection: IoU 0, centroid error inf."""
+    (largest interior side). Empty selection: IoU 0, centroid error inf. ``truth_centroid_error_frac``: the same
+    error for the object's TRUE Gaussians (the best any selection can score: Gaussians lie on surfaces, so their
+    mean is not the volume centroid; the rest of ``centroid_error_frac`` is the selection's own error)."""
     means = torch.as_tensor(means, dtype=torch.float64).reshape(-1, 3)
     sel = torch.as_tensor(selected).reshape(-1).bool()
     if sel.shape[0] != means.shape[0]:
@@ -89,6 +91,7 @@ def selection_metrics(
     union = int((sel | truth).sum())
     centre = gt.object_centres()[name]
     err = float((means[sel].mean(0) - centre).norm()) if bool(sel.any()) else math.inf
+    err_truth = float((means[truth].mean(0) - centre).norm()) if bool(truth.any()) else math.inf
     return {
         "object": name,
         "iou": inter / union if union else 0.0,
@@ -98,6 +101,7 @@ def selection_metrics(
         "n_true": int(truth.sum()),
         "centroid_error": err,
         "centroid_error_frac": err / gt.room_size(),
+        "truth_centroid_error_frac": err_truth / gt.room_size(),
         "surface_tol": tol,
     }
 

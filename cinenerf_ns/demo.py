@@ -52,7 +52,8 @@ def main(argv=None) -> dict:
                   "optimiser state):\n"
                   "    cinesplat-synth --seed 0 --output data/room0 --ply-in-transforms\n"
                   "    ns-train cinesplat --data data/room0 --pipeline.datamanager.feature-source labels "
-                  "--pipeline.datamanager.clip.random-weights True --max-num-iterations 5000\n"
+                  "--pipeline.datamanager.clip.random-weights True --pipeline.datamanager.clip.feature-long-side 240 "
+                  "--max-num-iterations 5000\n"
                   f"    ns-render camera-path --load-config outputs/room0/cinesplat/<run>/config.yml "
                   f"--camera-path-filename {cam} --output-path renders/demo.mp4")
     return summary
