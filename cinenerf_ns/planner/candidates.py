@@ -38,7 +38,6 @@ import torch
 
 from .coarse_path import voxel_path
 from .corridor import CorridorError, build_corridor
-from .distance import clearance
 from .dynamics import DynamicLimits, retime_shot
 from .errors import GoalUnreachableError, InvalidInputError, PlanningError, StartInCollisionError, UnsafeTrajectoryError
 from .goal import sample_free_starts
@@ -155,9 +154,7 @@ def score_shots(
     index = prep.batch_index if prep.batch_index is not None else prep.index
     occ = sight_lines_blocked(pos, targets, scene, index, exclude=exclude,
                               stop_distance=object_radius).cpu().numpy()  # [sum T', S]
-    cap = None if cfg.clearance_cap is None else cfg.clearance_cap + scene.camera_radius
-    clr = clearance(torch.as_tensor(pos, device=scene.device), scene, index,
-                    max_distance=cap).cpu().numpy()  # [sum T'] exact up to the cap
+    clr = planner.clearance(pos, cap=cfg.clearance_cap, batch=True)  # [sum T'] exact up to the cap
     out, o = [], 0
     for sh, i in zip(shots, idx):
         n = len(i)

@@ -109,6 +109,12 @@ def pair_distance(points: Tensor, scene: EllipsoidScene, pi: Tensor, gi: Tensor)
     return _distance_local(w, scene.radii.index_select(0, gi))
 
 
+FIRST_BOX_FRACTION = 0.25
+"""First search box of clearance(), as a fraction of the index's finest cell: a box of a whole cell gathers
+thousands of point-ellipsoid pairs per point in dense scenes; a quarter cell finds a near surface with
+~10x fewer, and growing it (x1.5 per round) is cheap (200k-Gaussian room, 2041 shot frames: 1.40 s -> 0.65 s)."""
+
+
 def clearance(
     points: Tensor,  # [P, 3]
     scene: EllipsoidScene,
@@ -144,7 +150,7 @@ def clearance(
         # distance from each point to the scene box: no search box smaller than this can hit
         gap = torch.maximum(lo_s - pts, pts - hi_s).clamp_min(0).max(-1).values
         far_r = float((hi_s - lo_s).max()) + 1.0
-        rad = torch.maximum(torch.full((P,), max(index.levels[0].cell, 1e-6), dtype=torch.float64, device=dev), gap)
+        rad = torch.maximum(torch.full((P,), max(FIRST_BOX_FRACTION * index.levels[0].cell, 1e-6), dtype=torch.float64, device=dev), gap)
         todo = torch.arange(P, device=dev)
         while todo.numel():
             pi, gi = index.query_points(pts[todo], rad[todo])
@@ -241,6 +247,16 @@ def _min_over_pairs(
     arg = torch.full((P,), -1, dtype=torch.long, device=dev)
     if pi.numel() == 0:
         return best, arg
+    # sphere pre-prune from the means and radii alone (no rotations gathered): the signed distance lies in
+    # [|p - mu| - a_max, |p - mu| - a_min] (E holds the ball of radius a_min, lies in the ball of a_max)
+    rad0 = scene.radii.index_select(0, gi).double()  # [K, 3]
+    dc = (pts.index_select(0, pi) - scene.means.index_select(0, gi).double()).norm(dim=-1)  # [K]
+    u0 = torch.full((P,), math.inf, dtype=torch.float64, device=dev).scatter_reduce(0, pi, dc - rad0.min(-1).values, "amin")
+    if known_ub is not None:
+        u0 = torch.minimum(u0, known_ub)
+    near = torch.nonzero(dc - rad0.max(-1).values <= u0.index_select(0, pi) + 1e-12).squeeze(-1)
+    if near.numel() < pi.numel():
+        pi, gi = pi.index_select(0, near), gi.index_select(0, near)
     w, rad, dist_c = _pair_geometry(pts, scene, pi, gi)
     lb, ub = _bounds(w, rad, dist_c)
     u_best = torch.full((P,), math.inf, dtype=torch.float64, device=dev).scatter_reduce(0, pi, ub, "amin")

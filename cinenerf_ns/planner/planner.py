@@ -14,6 +14,7 @@ is reported separately from per-plan cost.
 from __future__ import annotations
 
 import contextlib
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Optional, Sequence, Union
@@ -94,6 +95,7 @@ class PreparedScene:
     timings_ms: dict
     coarse: Optional[CoarseGrid] = None  # 2x-coarse blocks for hard path searches (coarse_path.py)
     batch_index: Optional[GridIndex] = None  # the index on the scene's own device (Planner.batch_scene)
+    free_edt: Optional[np.ndarray] = None  # [X+2, Y+2, Z+2] see Planner.clearance_lower_bound (lazy)
 
 
 def _as_point(x: ArrayLike, what: str) -> np.ndarray:
@@ -189,18 +191,52 @@ class Planner:
     # ------------------------------------------------------------------ helpers
     def clearance(self, points: ArrayLike, cap: Optional[float] = None, batch: bool = False) -> np.ndarray:
         """Exact clearance [P] (camera radius included) of camera centres [P, 3]. ``cap``: clearances above it
-        are not searched for and reported as ``cap`` (a lower bound; much cheaper far from everything).
-        ``batch``: many points (e.g. every frame of a shot): run on the scene's own device (a GPU when there
-        is one) instead of the request device."""
+        are not searched for and reported as ``cap`` (a lower bound; much cheaper far from everything: points
+        that the occupancy grid already proves to be >= cap from every obstacle cost no distance query, see
+        clearance_lower_bound). ``batch``: many points (e.g. every frame of a shot): run on the scene's own
+        device (a GPU when there is one) instead of the request device."""
         prep = self._prep()
         scene, index = self.scene, prep.index
         if batch and prep.batch_index is not None:
             scene, index = self.batch_scene, prep.batch_index
-        p = torch.as_tensor(np.asarray(points, dtype=np.float64).reshape(-1, 3), device=scene.device)
-        p = p.to(scene.dtype) if scene.dtype == torch.float64 else p
-        md = None if cap is None else float(cap) + float(scene.camera_radius)
-        with self.request_threads():
-            return clearance(p, scene, index, max_distance=md).detach().cpu().numpy()
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        out = np.empty(len(pts))
+        todo = np.arange(len(pts))
+        if cap is not None:
+            far = self.clearance_lower_bound(pts) >= float(cap)
+            out[far] = float(cap)
+            todo = np.flatnonzero(~far)
+        if todo.size:
+            p = torch.as_tensor(pts[todo], device=scene.device)
+            md = None if cap is None else float(cap) + float(scene.camera_radius)
+            with self.request_threads():
+                out[todo] = clearance(p, scene, index, max_distance=md).detach().cpu().numpy()
+        return out
+
+    def clearance_lower_bound(self, points: ArrayLike) -> np.ndarray:
+        """A lower bound [P] of the clearance of camera centres [P, 3] from the occupancy grid alone (no
+        distance query). Every point of a free voxel keeps the camera ball clear (occupancy.py), so if the
+        ball B(p, D) lies in free voxels, the obstacles are >= D + radius away: clearance(p) >= D. With E the
+        distance from p's voxel centre to the nearest occupied voxel centre (Euclidean distance transform;
+        outside the grid counts as occupied) and h half a voxel diagonal, D = E - 2h (p and the nearest
+        occupied point each lie within h of their voxel centres); max(D, 0) in free voxels (their points are
+        proven clear); -inf (no information) in occupied voxels and outside the grid."""
+        prep = self._prep()
+        grid = prep.grid
+        if prep.free_edt is None:
+            from scipy import ndimage
+
+            free = np.pad(~prep.astar_grid._occ, 1, constant_values=False)  # the ring outside the grid: occupied
+            prep.free_edt = ndimage.distance_transform_edt(free) * float(grid.voxel_size)
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        lo, vs = grid.lo.detach().cpu().double().numpy(), float(grid.voxel_size)
+        ijk = np.floor((pts - lo) / vs).astype(np.int64)
+        inside = ((ijk >= 0) & (ijk < np.array(grid.shape))).all(1)
+        c = np.clip(ijk, 0, np.array(grid.shape) - 1) + 1  # into the padded array
+        e = prep.free_edt[c[:, 0], c[:, 1], c[:, 2]]
+        # (1 + 1e-9): the transform is float64 and the bound must never be optimistic
+        d = e - math.sqrt(3.0) * vs * (1 + 1e-9)
+        return np.where(inside & (e > 0), np.maximum(d, 0.0), -np.inf)
 
     def _free_voxel_near(self, p: np.ndarray, comp: Optional[int], max_window: int = 16) -> np.ndarray:
         """Voxel [3] near world point p whose centre joins p by a collision-free segment (and lies in

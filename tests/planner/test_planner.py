@@ -147,3 +147,30 @@ def test_gpu_scene_requests_run_on_a_cpu_mirror_with_the_same_result():
     assert _exact_min_clearance(e.to("cpu"), auto, a) >= 0
     np.testing.assert_allclose(a.positions[0], b.positions[0], atol=1e-6)  # same seeded start
     np.testing.assert_allclose(a.positions[-1], b.positions[-1], atol=1e-3)
+
+
+def test_grid_clearance_lower_bound_is_never_optimistic_and_capped_clearance_is_exact(room):
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    s, e, pl = room
+    lo, hi = (t.cpu().numpy() for t in pl.planning_bounds())
+    span = hi - lo
+
+    @settings(max_examples=40, deadline=None)
+    @given(st.lists(st.tuples(*[st.floats(-0.1, 1.1)] * 3), min_size=1, max_size=40))
+    def check(fracs):
+        pts = lo + np.asarray(fracs) * span  # inside the grid and a little outside it
+        exact = clearance(torch.as_tensor(pts), e, None).numpy()  # float64 brute force over all ellipsoids
+        lb = pl.clearance_lower_bound(pts)
+        assert (lb <= exact + 1e-12).all()
+        assert ((lb >= 0) | (lb == -np.inf)).all()
+        for cap in (0.05, 0.2):
+            np.testing.assert_allclose(pl.clearance(pts, cap=cap), np.minimum(exact, cap), rtol=0, atol=1e-9)
+
+    check()
+    # the bound does skip work: in this room's open space it proves a large clearance for many points
+    g = np.random.default_rng(0).uniform(lo, hi, size=(2000, 3))
+    lb = pl.clearance_lower_bound(g)
+    assert (lb > 0.05).mean() > 0.1
+    assert (lb <= clearance(torch.as_tensor(g), e, pl.prepared.index).numpy() + 1e-12).all()
