@@ -22,7 +22,8 @@ but the expensive collision work is done once for all K candidates instead of K 
                    scored frames in ONE call (searched up to ScoreConfig.clearance_cap), then score_terms
                    per candidate (scoring.py)
 
-Runs on the scene's device (CPU or CUDA tensors); the QP and A* are CPU work in both cases.
+Planning runs on the planner's request device (a CPU mirror of a GPU scene, PlannerConfig.request_device);
+scoring runs on the scene's own device. The QP and A* are CPU work in all cases.
 """
 from __future__ import annotations
 
