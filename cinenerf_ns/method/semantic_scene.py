@@ -113,17 +113,23 @@ def dominant_cluster(means: Tensor, mask: Tensor, weights: Tensor, voxel: float)
 
 @dataclass
 class LocateResult:
-    centroid: Tensor  # [3] opacity-weighted
+    centroid: Tensor  # [3] the object's centre: the estimated volume centroid, or the surface one (SemanticScene.centre)
     mask: Tensor  # [N] bool
     lo: Tensor  # [3] axis-aligned extent of the masked means
     hi: Tensor  # [3]
     relevancy: Tensor  # [N]
+    surface_centroid: Optional[Tensor] = None  # [3] opacity-weighted mean of the selected Gaussians
+
+
+CENTRES = ("volume", "surface")
 
 
 class SemanticScene:
     """Gaussians (means, activated opacities, latents) + frozen codec + text encoder.
 
-    means [N, 3], opacities [N] in [0, 1] (pass ``torch.sigmoid(logits)``), latents [N, 3].
+    means [N, 3], opacities [N] in [0, 1] (pass ``torch.sigmoid(logits)``), latents [N, 3]; optional
+    log_scales [N, 3] (log sigmas, nerfstudio's ``scales``) and quats [N, 4] wxyz let the volume centre
+    voxelise each Gaussian's extent instead of its mean alone.
     """
 
     def __init__(
@@ -140,18 +146,34 @@ class SemanticScene:
         label_names: Optional[Sequence[str]] = None,
         smooth_neighbors: int = 0,
         cluster_fraction: float = 0.0,
+        log_scales: Optional[Tensor] = None,
+        quats: Optional[Tensor] = None,
+        centre: str = "volume",
+        up: Sequence[float] = (0.0, 0.0, 1.0),
     ):
         """label_names: the scene's own label vocabulary (label-mask training). A query equal to one of
         them is contrasted against the *other* labels instead of ``negatives``: "floor lamp" must beat
         "floor", "wall", ... (the generic negatives only say "is it an object at all"), which is what
-        separates objects whose embeddings are close."""
+        separates objects whose embeddings are close.
+        centre: what ``locate`` returns as the object's position: "volume" (estimated volume centroid, see
+        object_centre.py; default) or "surface" (opacity-weighted mean of the selected Gaussians, which sit on
+        surfaces: off the middle of objects with thin parts). up: world up (the volume estimate's vertical)."""
         n = means.shape[0]
         if means.shape != (n, 3) or latents.shape[0] != n or opacities.reshape(-1).shape[0] != n:
             raise ValueError(
                 f"SemanticScene: inconsistent shapes means {tuple(means.shape)}, opacities {tuple(opacities.shape)}, "
                 f"latents {tuple(latents.shape)}"
             )
+        if centre not in CENTRES:
+            raise ValueError(f"SemanticScene: centre must be one of {CENTRES}, got {centre!r}")
+        for nm, t, d in (("log_scales", log_scales, 3), ("quats", quats, 4)):
+            if t is not None and tuple(t.shape) != (n, d):
+                raise ValueError(f"SemanticScene: {nm} must be [{n}, {d}], got {tuple(t.shape)}")
         self.means = means
+        self.log_scales = log_scales
+        self.quats = quats
+        self.centre = centre
+        self.up = tuple(float(u) for u in up)
         self.opacities = opacities.reshape(-1)
         self._raw_latents = latents
         self._smoothed: Optional[Tensor] = None
@@ -178,6 +200,8 @@ class SemanticScene:
             raise QueryError(f"{path} has no semantic latents (a splatfacto checkpoint?); train it with ns-train cinesplat")
         enc = build_text_encoder(st.info, st.label_embeddings, device=device)
         kwargs.setdefault("label_names", st.info.get("label_names"))
+        kwargs.setdefault("log_scales", st.scales)
+        kwargs.setdefault("quats", st.quats)
         return cls(st.means, torch.sigmoid(st.opacities), st.latents, st.codec, enc, **kwargs)
 
     @property
@@ -228,7 +252,17 @@ class SemanticScene:
         if self.cluster_fraction > 0:
             mask = dominant_cluster(self.means, mask, rel * self.opacities, self._voxel())
         c, lo, hi = object_centroid_extent(self.means, self.opacities, mask)
-        return LocateResult(centroid=c, mask=mask, lo=lo, hi=hi, relevancy=rel)
+        centre = c if self.centre == "surface" else self.volume_centre(mask)
+        return LocateResult(centroid=centre, mask=mask, lo=lo, hi=hi, relevancy=rel, surface_centroid=c)
+
+    def volume_centre(self, mask: Tensor) -> Tensor:
+        """Estimated volume centroid [3] (means' dtype and device) of the Gaussians in ``mask`` [N] bool."""
+        from cinenerf_ns.method.object_centre import volume_centroid
+
+        sc = None if self.log_scales is None else torch.exp(self.log_scales[mask].detach().double())
+        q = None if self.quats is None else self.quats[mask].detach()
+        c = volume_centroid(self.means[mask], sc, q, up=self.up)
+        return torch.as_tensor(c, dtype=self.means.dtype, device=self.means.device)
 
     def _voxel(self) -> float:
         """cluster_fraction x the scene's robust extent (1%-99% quantiles of the means, longest side)."""
@@ -241,6 +275,6 @@ class SemanticScene:
         return self._cluster_voxel
 
     def locate(self, text: str, threshold: Optional[float] = None) -> Tuple[Tensor, Tensor]:
-        """(opacity-weighted centroid [3], mask [N] bool) of the Gaussians above the relevancy threshold."""
+        """(object centre [3] (see ``centre``), mask [N] bool) of the Gaussians above the relevancy threshold."""
         r = self.locate_full(text, threshold)
         return r.centroid, r.mask

@@ -262,7 +262,7 @@ def model_semantic_scene(model: Any) -> Callable[[ModelSnapshot], Any]:
                       threshold=float(cfg.relevancy_threshold))
         return SemanticScene(snap.means, torch.sigmoid(snap.opacities), snap.latents, state["codec"],
                              model.text_encoder(), label_names=(getattr(model, "cine_info", None) or {}).get("label_names"),
-                             cluster_fraction=0.02, **kw)  # one object per query, as cinesplat-plan's --object-cluster
+                             cluster_fraction=0.02, log_scales=snap.scales, quats=snap.quats, **kw)  # one object per query, as cinesplat-plan's --object-cluster
 
     return build
 

@@ -1,6 +1,8 @@
 """SemanticScene.query / locate with a known codec and text encoder; label-table text encoder."""
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 import torch.nn.functional as F
@@ -48,7 +50,7 @@ def test_query_equals_formula():
 
 
 def test_locate_centroid_and_mask():
-    s = _scene(min_opacity=0.05)
+    s = _scene(min_opacity=0.05, centre="surface")
     c, mask = s.locate("red chair")
     assert mask.tolist() == [True] * 4 + [False] * 4  # the faint far Gaussian is dropped by min_opacity
     assert torch.allclose(c, torch.tensor([1.0, 2.1, 0.0]))
@@ -56,7 +58,7 @@ def test_locate_centroid_and_mask():
     assert full.mask.sum() == 3 and torch.allclose(full.lo, torch.tensor([-5.0, 0, 0]))
     assert torch.allclose(full.hi, torch.tensor([-5.0, 1, 1]))
     # without the opacity floor the faint Gaussian joins but barely moves the opacity-weighted centroid
-    c2, m2 = _scene().locate("red chair")
+    c2, m2 = _scene(centre="surface").locate("red chair")
     assert m2.sum() == 5 and (c2 - c).norm() < 0.6
 
 
@@ -189,3 +191,33 @@ def test_locate_with_clusters_picks_one_instance():
     c1, m1 = clus.locate("chair")
     assert int(m0.sum()) == 40 and abs(float(c0[0]) - 0.25) < 0.05  # the centroid of both chairs: empty space
     assert int(m1.sum()) == 30 and float(c1.norm()) < 0.05  # one chair (the heavier one)
+
+
+def test_locate_volume_centre_is_the_default_and_keeps_the_surface_centroid():
+    """Default centre="volume": object_centre.volume_centroid of the selection (here 4 points in a plane: a few
+    voxels), and LocateResult.surface_centroid is the opacity-weighted mean."""
+    from cinenerf_ns.method.object_centre import volume_centroid
+
+    s = _scene(min_opacity=0.05)
+    r = s.locate_full("red chair")
+    assert torch.allclose(r.surface_centroid, torch.tensor([1.0, 2.1, 0.0]))
+    ref = volume_centroid(s.means[r.mask])
+    assert torch.allclose(r.centroid.double(), torch.as_tensor(ref), atol=1e-6)
+
+
+def test_volume_centre_uses_gaussian_extents_and_validates():
+    means = torch.tensor([[1.0, 2, 0], [1.2, 2, 0], [0.8, 2, 0], [1.0, 2.4, 0], [-5, 0, 0], [-5, 1, 0], [-5, 0, 1], [50, 50, 50]])
+    lat = torch.tensor([[1.0, 0, 0]] * 4 + [[0, 1.0, 0]] * 3 + [[1.0, 0, 0]])
+    opac = torch.tensor([1.0] * 7 + [0.01])
+    quats = torch.tensor([[1.0, 0, 0, 0]] * 8)
+    big = torch.full((8, 3), math.log(0.3))
+    s = SemanticScene(means, opac, lat, IdentityCodec(), enc, min_opacity=0.05, log_scales=big, quats=quats)
+    r = s.locate_full("red chair")
+    from cinenerf_ns.method.object_centre import volume_centroid
+
+    ref = volume_centroid(means[r.mask], torch.exp(big[r.mask]), quats[r.mask])
+    assert torch.allclose(r.centroid.double(), torch.as_tensor(ref), atol=1e-6)
+    with pytest.raises(ValueError, match="centre"):
+        SemanticScene(means, opac, lat, IdentityCodec(), enc, centre="middle")
+    with pytest.raises(ValueError, match="log_scales"):
+        SemanticScene(means, opac, lat, IdentityCodec(), enc, log_scales=big[:3])

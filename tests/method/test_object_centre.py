@@ -1,0 +1,148 @@
+"""object_centre.py: the volume-centroid estimate against brute force and analytic volume centroids."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings, strategies as st
+
+from cinenerf_ns.method.object_centre import enclosed_voxels, quats_to_rotmats, up_frame, volume_centroid
+
+
+def _enclosed_reference(occ: np.ndarray) -> np.ndarray:
+    """Brute force: walk from every voxel in the 6 axis directions and look for a surface voxel."""
+    X, Y, Z = occ.shape
+    out = np.zeros_like(occ)
+    for i in range(X):
+        for j in range(Y):
+            for k in range(Z):
+                if occ[i, j, k]:
+                    out[i, j, k] = True
+                    continue
+                xm, xp = occ[:i, j, k].any(), occ[i + 1:, j, k].any()
+                ym, yp = occ[i, :j, k].any(), occ[i, j + 1:, k].any()
+                zm, zp = occ[i, j, :k].any(), occ[i, j, k + 1:].any()
+                out[i, j, k] = xm and xp and ym and yp and (zm or zp)
+    return out
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.floats(0.02, 0.5))
+def test_enclosed_matches_brute_force(seed, density):
+    rng = np.random.default_rng(seed)
+    occ = rng.random((7, 6, 5)) < density
+    np.testing.assert_array_equal(enclosed_voxels(occ), _enclosed_reference(occ))
+
+
+def _box_surface(lo, hi, n_per_unit2, rng, faces=("x-", "x+", "y-", "y+", "z-", "z+")):
+    """Random points [P, 3] on the chosen faces of an axis-aligned box (uniform per area)."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    pts = []
+    for f in faces:
+        ax = "xyz".index(f[0])
+        o = [a for a in range(3) if a != ax]
+        area = (hi[o[0]] - lo[o[0]]) * (hi[o[1]] - lo[o[1]])
+        n = max(8, int(area * n_per_unit2))
+        p = lo + rng.random((n, 3)) * (hi - lo)
+        p[:, ax] = lo[ax] if f[1] == "-" else hi[ax]
+        pts.append(p)
+    return np.concatenate(pts)
+
+
+def _box_volume_centroid(boxes):
+    vol = np.array([np.prod(np.subtract(h, l)) for l, h in boxes])
+    cen = np.array([0.5 * (np.asarray(l) + np.asarray(h)) for l, h in boxes])
+    return (vol[:, None] * cen).sum(0) / vol.sum()
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.sampled_from(["z-", "z+", None]))
+def test_single_box_with_a_missing_vertical_face(seed, missing):
+    """A box seen from everywhere but above or below: the estimate is the box centre (within a voxel)."""
+    rng = np.random.default_rng(seed)
+    lo = rng.uniform(-1, 1, 3)
+    hi = lo + rng.uniform(0.2, 1.0, 3)
+    faces = [f for f in ("x-", "x+", "y-", "y+", "z-", "z+") if f != missing]
+    p = _box_surface(lo, hi, 40_000, rng, faces)
+    c = volume_centroid(p, resolution=48)
+    h = (hi - lo).max() / 48
+    assert np.linalg.norm(c - 0.5 * (lo + hi)) <= 1.5 * h
+
+
+def test_lamp_like_object_volume_not_surface():
+    """A wide shade on a thin pole on a flat base: the surface mean sits far below the volume centroid."""
+    rng = np.random.default_rng(0)
+    base = ((-0.17, -0.17, 0.0), (0.17, 0.17, 0.04))
+    pole = ((-0.02, -0.02, 0.04), (0.02, 0.02, 1.45))
+    shade = ((-0.22, -0.22, 1.45), (0.22, 0.22, 1.77))
+    pts = np.concatenate([
+        _box_surface(*base, 40_000, rng, ("x-", "x+", "y-", "y+", "z+")),  # the floor hides its underside
+        _box_surface(*pole, 40_000, rng, ("x-", "x+", "y-", "y+")),
+        _box_surface(*shade, 40_000, rng, ("x-", "x+", "y-", "y+", "z-")),  # top never seen
+    ])
+    truth = _box_volume_centroid([base, pole, shade])
+    est = volume_centroid(pts, resolution=64)
+    size = 1.77
+    assert np.linalg.norm(pts.mean(0) - truth) > 0.15 * size  # the surface mean is far off
+    assert np.linalg.norm(est - truth) < 0.03 * size
+
+
+def test_open_space_under_a_table_is_not_filled():
+    """Table top + 4 legs: the air below the top is open on the sides, so it stays outside."""
+    rng = np.random.default_rng(1)
+    top = ((0.0, 0.0, 0.70), (1.2, 0.8, 0.75))
+    legs = [((x, y, 0.0), (x + 0.05, y + 0.05, 0.70)) for x in (0.0, 1.15) for y in (0.0, 0.75)]
+    pts = np.concatenate([_box_surface(*top, 40_000, rng)] + [
+        _box_surface(*leg, 40_000, rng, ("x-", "x+", "y-", "y+")) for leg in legs])
+    truth = _box_volume_centroid([top] + legs)
+    est = volume_centroid(pts, resolution=64)
+    filled_box_centre = np.array([0.6, 0.4, 0.375])  # what a "fill the bounding box" rule would give
+    assert np.linalg.norm(est - truth) < 0.03
+    assert np.linalg.norm(est - truth) < 0.2 * np.linalg.norm(filled_box_centre - truth)
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.integers(0, 2**31 - 1))
+def test_rotation_equivariance_with_up(seed):
+    """Rotating the object and its up vector together rotates the estimate (within a voxel or two)."""
+    rng = np.random.default_rng(seed)
+    pts = np.concatenate([
+        _box_surface((-0.3, -0.2, 0.0), (0.3, 0.2, 0.5), 40_000, rng, ("x-", "x+", "y-", "y+", "z+")),
+        _box_surface((-0.05, -0.05, 0.5), (0.05, 0.05, 1.2), 40_000, rng, ("x-", "x+", "y-", "y+", "z+")),
+    ])
+    q = rng.normal(size=4)
+    R = quats_to_rotmats(q[None])[0]
+    base = volume_centroid(pts, resolution=48)
+    rot = volume_centroid(pts @ R.T, up=R @ np.array([0.0, 0.0, 1.0]), resolution=48)
+    assert np.linalg.norm(rot - R @ base) < 2.5 * 1.2 / 48 * np.sqrt(3)
+
+
+def test_gaussian_extents_close_sparse_surfaces():
+    """Few large flat Gaussians covering a box's faces: means alone leave holes, extents seal them."""
+    rng = np.random.default_rng(2)
+    lo, hi = np.array([0.0, 0.0, 0.0]), np.array([1.0, 0.6, 0.4])
+    p = _box_surface(lo, hi, 300, rng, ("x-", "x+", "y-", "y+", "z+"))  # sparse
+    scales = np.full((len(p), 3), 0.06)
+    quats = np.tile([1.0, 0.0, 0.0, 0.0], (len(p), 1))
+    with_ext = volume_centroid(torch.as_tensor(p), torch.as_tensor(scales), torch.as_tensor(quats), resolution=48)
+    assert np.linalg.norm(with_ext - 0.5 * (lo + hi)) < 0.05
+
+
+def test_up_frame_is_orthonormal_with_up_last():
+    for up in ([0, 0, 1], [0, 1, 0], [1, 2, 3], [0, 0, -5]):
+        F = up_frame(up)
+        np.testing.assert_allclose(F.T @ F, np.eye(3), atol=1e-12)
+        np.testing.assert_allclose(F[:, 2], np.asarray(up, float) / np.linalg.norm(up), atol=1e-12)
+
+
+def test_bad_input_is_rejected():
+    with pytest.raises(ValueError, match="at least one"):
+        volume_centroid(np.zeros((0, 3)))
+    with pytest.raises(ValueError, match="NaN"):
+        volume_centroid(np.array([[0.0, 0.0, np.nan]] * 5))
+    with pytest.raises(ValueError, match="up"):
+        volume_centroid(np.random.default_rng(0).random((10, 3)), up=(0, 0, 0))
+    with pytest.raises(ValueError, match="scales"):
+        volume_centroid(np.random.default_rng(0).random((10, 3)), np.ones((3, 3)), np.ones((10, 4)))
+    few = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    np.testing.assert_allclose(volume_centroid(few), few.mean(0))
