@@ -16,7 +16,9 @@ Estimate (approximate; documented in the README):
    one side vertically. Why one vertical side: captures rarely see the top of a tall object or the underside
    of anything, so those faces are often missing. Why both horizontal sides: open-fronted parts (the air
    under a table, an empty shelf) must stay outside.
-3. the centroid of surface + inside voxel centres (uniform weights: volume, not Gaussian count).
+3. the centroid of the filled voxels' centres (weights: volume, not Gaussian count). Voxels on the boundary of the
+   filled set (a face-neighbour outside it) count ``surface_weight`` = 1/2: a boundary voxel is about half inside
+   the object. (Not every voxel a Gaussian touches: splats also put Gaussians inside objects.)
 
 Limits: thin parts (a lamp pole) are thickened to about a voxel, which biases the estimate toward them; an
 object whose horizontal faces are open is under-filled; objects that are not closed on the sides (a hollow
@@ -103,8 +105,9 @@ def solid_voxels(
         axes = radii_frame.copy()  # [K, 3, 3]
         length = np.linalg.norm(axes, axis=1)  # [K, 3] per-axis sigma
         cap = max_extent_voxels * h
-        axes *= (np.minimum(length, cap) / np.maximum(length, 1e-300))[:, None, :]
-        big = np.flatnonzero(np.minimum(length, cap).max(1) > 0.5 * h)  # smaller ones touch ~one voxel
+        keep = np.minimum(length, cap)
+        axes *= (keep / np.maximum(length, 1e-300))[:, None, :]
+        big = np.flatnonzero(keep.max(1) > 0.5 * h)  # smaller ones touch ~one voxel
         if big.size:
             st = _unit_ball_stencil()
             pts = np.concatenate([points_frame, (points_frame[big, None, :] + np.einsum("kij,sj->ksi", axes[big], st)).reshape(-1, 3)])
@@ -116,6 +119,16 @@ def solid_voxels(
     if close > 0:
         occ |= ndimage.binary_closing(occ, iterations=int(close), border_value=0)
     return occ, lo, h, pad
+
+
+def _eroded(solid: np.ndarray) -> np.ndarray:
+    """bool: solid voxels whose 6 face-neighbours are all solid (outside the array counts as empty)."""
+    p = np.pad(solid, 1, constant_values=False)
+    out = p[1:-1, 1:-1, 1:-1].copy()
+    for ax in range(3):
+        for sh in (1, -1):
+            out &= np.roll(p, sh, axis=ax)[1:-1, 1:-1, 1:-1]
+    return out
 
 
 def volume_centroid(
@@ -156,7 +169,8 @@ def volume_centroid(
         axes_f = np.einsum("ji,kjl->kil", F, R * s[:, None, :])  # F^T R diag(s): columns = axes in the frame
     surf, lo, h, pad = solid_voxels(pf, axes_f, int(resolution), int(close), float(max_extent_voxels))
     solid = enclosed_voxels(surf)
+    boundary = solid & ~_eroded(solid)  # solid voxels with an outside face-neighbour: about half inside
     idx = np.argwhere(solid)  # [V, 3]
-    w = np.where(surf[idx[:, 0], idx[:, 1], idx[:, 2]], float(surface_weight), 1.0)
+    w = np.where(boundary[idx[:, 0], idx[:, 1], idx[:, 2]], float(surface_weight), 1.0)
     c_frame = lo + ((idx * w[:, None]).sum(0) / w.sum() - pad + 0.5) * h
     return F @ c_frame
