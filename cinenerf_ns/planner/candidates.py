@@ -24,6 +24,20 @@ but the expensive collision work is done once for all K candidates instead of K 
 
 Planning runs on the planner's request device (a CPU mirror of a GPU scene, PlannerConfig.request_device);
 scoring runs on the scene's own device. The QP and A* are CPU work in all cases.
+
+Worker processes (PlannerConfig.candidate_workers, workers.py): the stages above are Python/numpy work that
+holds the GIL, so with workers > 0 and k > 1 whole candidates (free voxel near the start, goal from a cache
+the parent fills for the main component first, A*, shortcut, corridor, QP, timing / retiming, dense
+verification) run in forked worker processes, one candidate per task, each on one thread. This is
+parallelism over CPU processes, not vectorised batching: the shortcut and verification are then per
+candidate instead of lock-step over all K, which costs more CPU in total but runs on all cores. The parent
+keeps start sampling, the spare rounds, the safety check of every worker's report (UnsafeTrajectoryError
+exactly as in-process), scoring (on the GPU when the scene is there; CUDA is never used in a worker) and
+ranking; results equal the in-process path's (same starts, shots and ranks). The workers are forked after
+prepare() and share the prepared CPU state (the CPU mirror of a GPU scene, index, grids) copy-on-write, so
+they add little memory. Fork only: on macOS / Windows (no 'fork' start method) candidates are planned in
+this process. With workers, ``timings``' stage keys are sums of the workers' wall times (they overlap) and
+``pool_ms`` is the parent's wall time waiting for them.
 """
 from __future__ import annotations
 
@@ -262,7 +276,9 @@ def plan_candidates(
     TimingConfig. object_radius / object_center / object_samples / exclude: the look-at object, see
     scoring.score_shot. spare_fraction: extra starts sampled to replace candidates that fail (unreachable
     goal from that start, corridor failure); fewer than k shots come back only if the spares run out.
-    timings: optional dict filled with per-stage milliseconds (summed over candidates) and the total.
+    timings: optional dict filled with per-stage milliseconds (summed over candidates) and the total; with
+    worker processes (PlannerConfig.candidate_workers, see the module docstring) also pool_ms (wall time of
+    the parallel rounds), pool_start_ms (forking, first request only) and workers (their number).
     Raises InvalidInputError (bad input) and GoalUnreachableError (no candidate could be planned)."""
     if int(k) != k or not 1 <= k <= 256:
         raise InvalidInputError(f"number of candidates must be an integer in 1..256, got {k}")
