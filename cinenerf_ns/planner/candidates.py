@@ -45,6 +45,7 @@ import functools
 
 import math
 import time
+import warnings
 from dataclasses import dataclass
 from typing import Any, Dict, List, Optional
 
@@ -63,6 +64,7 @@ from .safety import _dense_samples
 from .scoring import ScoreConfig, ShotScore, _frames, score_terms
 from .shot import Shot
 from .trajectory import solve_corridor_qp
+from .workers import BrokenProcessPool
 
 
 @dataclass
@@ -280,6 +282,36 @@ def plan_candidates(
     worker processes (PlannerConfig.candidate_workers, see the module docstring) also pool_ms (wall time of
     the parallel rounds), pool_start_ms (forking, first request only) and workers (their number).
     Raises InvalidInputError (bad input) and GoalUnreachableError (no candidate could be planned)."""
+    kw = dict(limits=limits, object_radius=object_radius, object_center=object_center, object_samples=object_samples,
+              exclude=exclude, spare_fraction=spare_fraction, timings=timings)
+    try:
+        return _plan_candidates(planner, goal, look_at, k, seed, score_config, use_workers=True, **kw)
+    except BrokenProcessPool:
+        # a worker died (killed, out of memory): the request is deterministic, so plan it again here
+        planner.close()
+        warnings.warn("a candidate worker process died; this request was planned in-process (the next one forks new "
+                      "workers; set PlannerConfig.candidate_workers=0 to stay in-process)", RuntimeWarning)
+        return _plan_candidates(planner, goal, look_at, k, seed, score_config, use_workers=False, **kw)
+
+
+def _plan_candidates(
+    planner: Planner,
+    goal: Any,
+    look_at: Any,
+    k: int,
+    seed: int,
+    score_config: Optional[ScoreConfig],
+    *,
+    use_workers: bool,
+    limits: Optional[DynamicLimits],
+    object_radius: float,
+    object_center: Optional[Any],
+    object_samples: Optional[Any],
+    exclude: Optional[torch.Tensor],
+    spare_fraction: float,
+    timings: Optional[Dict[str, float]],
+) -> List[RankedShot]:
+    """The body of plan_candidates (use_workers: allow the planner's worker pool)."""
     if int(k) != k or not 1 <= k <= 256:
         raise InvalidInputError(f"number of candidates must be an integer in 1..256, got {k}")
     k = int(k)
@@ -311,7 +343,7 @@ def plan_candidates(
     goal_cache: Dict[int, Any] = {}
     shots: List[Shot] = []
     cand_ids: List[int] = []
-    pool = planner.candidate_pool() if k > 1 else None  # None: every round in this process
+    pool = planner.candidate_pool() if k > 1 and use_workers else None  # None: every round in this process
     if pool is not None:
         t = lap("pool_start_ms", t)  # forking the workers: first request after prepare() only
         tm["workers"] = float(pool.processes)

@@ -19,6 +19,10 @@ Rules for the work sent here (see candidates._plan_candidate_task):
 Results are pickled in the worker with the standard pickler (``pickle.dumps``), not multiprocessing's
 ForkingPickler: torch registers reducers there that move CPU tensors into shared memory and send file
 descriptors, which is slower for small tensors and can run out of descriptors.
+
+A concurrent.futures ProcessPoolExecutor rather than multiprocessing.Pool: when a worker dies (killed, out of
+memory) it raises BrokenProcessPool instead of waiting forever for the lost task; plan_candidates then
+closes the pool and plans the request in this process.
 """
 from __future__ import annotations
 
@@ -26,6 +30,8 @@ import multiprocessing as mp
 import os
 import pickle
 import weakref
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Callable, Iterable, List, Optional
 
 import torch
@@ -76,6 +82,10 @@ def _call(task) -> bytes:
     return pickle.dumps(fn(_PLANNER, *args), protocol=pickle.HIGHEST_PROTOCOL)
 
 
+__all__ = ["BrokenProcessPool", "CandidatePool", "default_workers", "fork_available", "pool_for", "usable_cpus",
+           "validate_workers"]
+
+
 class CandidatePool:
     """``processes`` forked workers serving ``planner`` (as it is at the fork: the caller recreates the pool
     after planner.prepare() runs again). ``map(fn, args_list)`` runs fn(planner, *args) in the workers and
@@ -85,19 +95,23 @@ class CandidatePool:
         if processes < 1:
             raise InvalidInputError(f"a candidate pool needs >= 1 process, got {processes}")
         self.processes = int(processes)
-        # a weak reference in initargs: with fork it is inherited, not pickled, and the pool's handler
-        # threads (which keep initargs to restart dead workers) then do not keep the planner alive
-        self._pool = mp.get_context("fork").Pool(self.processes, initializer=_init_worker,
-                                                 initargs=(weakref.ref(planner),))
+        # a weak reference in initargs: with fork it is inherited, not pickled, and the executor (which keeps
+        # initargs) then does not keep the planner alive
+        self._pool = ProcessPoolExecutor(self.processes, mp_context=mp.get_context("fork"), initializer=_init_worker,
+                                         initargs=(weakref.ref(planner),))
+        # with fork all workers start at the first submit: fork them now, while the planner is as prepared
+        self._pool.submit(int).result()
         # no process left behind: on planner garbage collection or interpreter exit (finalize's atexit)
         self._finalizer = weakref.finalize(planner, CandidatePool._terminate, self._pool)
 
     @staticmethod
-    def _terminate(pool) -> None:
-        pool.terminate()
-        pool.join()
+    def _terminate(pool: ProcessPoolExecutor) -> None:
+        # between requests no task runs (map waits for all); joins the workers
+        pool.shutdown(wait=True, cancel_futures=True)
 
     def map(self, fn: Callable, args_list: Iterable[tuple]) -> List[Any]:
+        """fn(planner, *args) for each args in the workers, results in order. Raises BrokenProcessPool when a
+        worker died, and whatever fn raised."""
         blobs = self._pool.map(_call, [(fn, tuple(a)) for a in args_list], chunksize=1)
         return [pickle.loads(b) for b in blobs]
 

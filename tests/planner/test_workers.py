@@ -198,3 +198,24 @@ def test_no_workers_for_cuda_requests():
     r = plan_candidates(pl, GO_TO, TARGET, k=4, seed=3, object_radius=STOP)  # scoring on the GPU, in the parent
     assert all(x.shot.safety["safe"] for x in r)
     pl.close()
+
+
+def test_a_dead_worker_falls_back_to_this_process(planners):
+    import os
+    import signal
+    import time
+
+    p0, p2 = planners
+    r0 = plan_candidates(p0, GO_TO, TARGET, k=4, seed=7, object_radius=STOP)
+    pool = p2.candidate_pool()
+    victim = mp.active_children()[0]
+    os.kill(victim.pid, signal.SIGKILL)
+    victim.join(5)
+    time.sleep(0.2)  # the executor notices the dead worker and marks the pool broken
+    with pytest.warns(RuntimeWarning, match="worker process died"):
+        r2 = plan_candidates(p2, GO_TO, TARGET, k=4, seed=7, object_radius=STOP)
+    _assert_same(r0, r2)
+    assert pool.closed
+    r2 = plan_candidates(p2, GO_TO, TARGET, k=4, seed=7, object_radius=STOP)  # a fresh pool
+    _assert_same(r0, r2)
+    assert p2.candidate_pool() is not pool
