@@ -1,11 +1,15 @@
 #!/usr/bin/env python3
 """K ranked candidates (planned + scored) in one batched call vs K sequential single-candidate plans.
 
-    python benchmarks/bench_candidates.py --device cuda --n-gaussians 1000000 --k 32 [--repeats 5] [--no-record]
+    python benchmarks/bench_candidates.py --device cuda --n-gaussians 1000000 --k 32 [--repeats 5] [--workers N] [--no-record]
 
 Scene: procedural_room(N) (seeded) on --device; go to object 0, look at object 1. One-time work
 (spatial index, occupancy grid) is done once before timing and is not included.
-  batched:    candidates.plan_candidates(planner, goal, look, k, seed)  (planned, verified, scored, ranked)
+  batched:    candidates.plan_candidates(planner, goal, look, k, seed)  (planned, verified, scored, ranked),
+              all in this process (PlannerConfig.candidate_workers=0)
+  workers:    the same call with candidate_workers=--workers (None/auto: one per usable CPU but one, 0 on
+              < 4 CPUs; the row is then left out): whole candidates in forked worker processes (workers.py),
+              scoring and ranking in this process; the pool is forked in the warm-up run, not timed
   sequential: k x planner.plan(goal, look, seed=i, n_candidates=1) + candidates.score_shots on that one shot
 Each variant runs once untimed (warm-up: CUDA kernels, caches), then --repeats timed runs (CUDA-synchronised);
 the medians and their ratio are printed and appended to benchmarks/RESULTS.md with the date and device.
@@ -15,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
+import functools
 import statistics
 import sys
 import time
@@ -49,6 +54,9 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--request-device", default="auto", choices=["auto", "scene"],
                     help="PlannerConfig.request_device: auto = per-request queries on a CPU mirror of a GPU scene")
+    ap.add_argument("--workers", type=int, default=None,
+                    help="PlannerConfig.candidate_workers of the workers row (default: auto, see workers.py)")
+    ap.add_argument("--note", default="", help="a line added under the table in RESULTS.md (e.g. about the box)")
     ap.add_argument("--no-record", action="store_true", help="do not append to benchmarks/RESULTS.md")
     args = ap.parse_args()
     dev = torch.device(args.device)
@@ -66,11 +74,16 @@ def main() -> None:
     obj_r = float(0.5 * np.linalg.norm(room.objects[1].size))
     cfg = ScoreConfig()
 
-    def batched():
+    def batched(workers=0):
+        planner.config.candidate_workers = workers
         tm = {}
         out = plan_candidates(planner, goal, look, k=args.k, seed=args.seed, score_config=cfg, object_radius=obj_r,
                               timings=tm)
         return out, tm
+
+    planner.config.candidate_workers = args.workers
+    n_workers = planner.candidate_workers()  # auto resolved; 0: no workers row
+    pooled = functools.partial(batched, n_workers)
 
     def sequential():
         out = []
@@ -87,14 +100,21 @@ def main() -> None:
         return 1e3 * (time.perf_counter() - t), res
 
     timed(batched)
+    if n_workers:
+        timed(pooled)  # forks the pool
     timed(sequential)
-    b_ms, s_ms, stages, seq_stages = [], [], [], []
-    n_b = n_s = 0
+    b_ms, s_ms, w_ms, stages, w_stages, seq_stages = [], [], [], [], [], []
+    n_b = n_s = n_w = 0
     for _ in range(args.repeats):
         ms, (res, tm) = timed(batched)
         b_ms.append(ms)
         stages.append(tm)
         n_b = len(res)
+        if n_workers:
+            ms, (res, tm) = timed(pooled)
+            w_ms.append(ms)
+            w_stages.append(tm)
+            n_w = len(res)
         ms, res = timed(sequential)
         s_ms.append(ms)
         n_s = len(res)
@@ -104,6 +124,19 @@ def main() -> None:
     med_stage = {k: statistics.median(s[k] for s in stages) for k in stage_keys}
     # the sequential plans' own stage times (Shot.timings; scoring is not in them)
     med_seq = {k: statistics.median(s[k] for s in seq_stages) for k in stage_keys if k != "score_ms"}
+    planner.close()
+    mw = statistics.median(w_ms) if w_ms else float("nan")
+    w_keys = [k for k in w_stages[0] if k.endswith("_ms") and k != "total_ms"] if w_stages else []
+    med_w = {k: statistics.median(s.get(k, 0.0) for s in w_stages) for k in w_keys}
+    workers_rows = [
+        f"| batched plan_candidates, {n_workers} workers | {mw:.1f} | {n_w} | {mw / max(n_w, 1):.1f} | {mb / mw:.2f} |"
+    ] if n_workers else []
+    workers_notes = [
+        f"- {n_workers}-worker stage medians (ms; per-stage sums of the workers' wall times, which overlap; pool = "
+        f"this process waiting for the workers): " + ", ".join(f"{k[:-3]} {v:.1f}" for k, v in med_w.items()),
+        f"- speed-up sequential / batched with {n_workers} workers: {msq / mw:.2f}x; batched in-process / "
+        f"{n_workers} workers: {mb / mw:.2f}x",
+    ] if n_workers else [f"- no workers row: candidate_workers={args.workers} resolves to 0 on this machine"]
     date = dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d")
     try:
         import subprocess
@@ -120,13 +153,17 @@ def main() -> None:
         "| variant | median ms | shots | ms / shot | x batched |",
         "|---|---|---|---|---|",
         f"| batched plan_candidates | {mb:.1f} | {n_b} | {mb / max(n_b, 1):.1f} | 1.00 |",
+        *workers_rows,
         f"| sequential plan(n_candidates=1) + score | {msq:.1f} | {n_s} | {msq / max(n_s, 1):.1f} | {msq / mb:.2f} |",
         "",
-        "- batched stage medians (ms, summed over candidates): "
+        "- batched (in-process) stage medians (ms, summed over candidates): "
         + ", ".join(f"{k[:-3]} {v:.1f}" for k, v in med_stage.items()),
+        *workers_notes,
         "- sequential stage medians (ms, summed over its plans; different random starts): "
         + ", ".join(f"{k[:-3]} {v:.1f}" for k, v in med_seq.items()),
-        f"- speed-up sequential / batched: {msq / mb:.2f}x; target on H100 at 1M, K=32: batched <= 150 ms and >= 5x",
+        f"- speed-up sequential / batched in-process: {msq / mb:.2f}x; target on H100 at 1M, K=32: batched <= 150 ms "
+        f"and >= 5x",
+        *([f"- note: {args.note}"] if args.note else []),
         "",
     ]
     table = "\n".join(lines)

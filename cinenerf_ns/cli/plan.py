@@ -62,6 +62,9 @@ class PlanArgs:
     """Seed of the random starts (same seed, same starts)."""
     candidates: int = 1
     """Number of shots from different random starts."""
+    workers: Optional[int] = None
+    """Worker processes that plan the candidates in parallel (Linux, fork; see PlannerConfig.candidate_workers).
+    None: one per CPU but one on machines with >= 4 CPUs, else 0 (plan in this process)."""
     output_dir: Path = Path("cinesplat_plans")
     """Where camera paths, the report and the plots go."""
     name: str = "shot"
@@ -336,7 +339,7 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
         prog.update(task, advance=1, description="preparing (index, occupancy grid)")
         pcfg = PlannerConfig(
             grid_resolution=args.grid_resolution, up=tuple(args.up), timing=TimingConfig(max_speed=args.max_speed, fps=args.fps),
-            start_region=loaded.start_region,
+            start_region=loaded.start_region, candidate_workers=args.workers,
         )
         planner = Planner(loaded.scene, pcfg)
         prep = planner.prepare()

@@ -24,6 +24,20 @@ but the expensive collision work is done once for all K candidates instead of K 
 
 Planning runs on the planner's request device (a CPU mirror of a GPU scene, PlannerConfig.request_device);
 scoring runs on the scene's own device. The QP and A* are CPU work in all cases.
+
+Worker processes (PlannerConfig.candidate_workers, workers.py): the stages above are Python/numpy work that
+holds the GIL, so with workers > 0 and k > 1 whole candidates (free voxel near the start, goal from a cache
+the parent fills for the main component first, A*, shortcut, corridor, QP, timing / retiming, dense
+verification) run in forked worker processes, one candidate per task, each on one thread. This is
+parallelism over CPU processes, not vectorised batching: the shortcut and verification are then per
+candidate instead of lock-step over all K, which costs more CPU in total but runs on all cores. The parent
+keeps start sampling, the spare rounds, the safety check of every worker's report (UnsafeTrajectoryError
+exactly as in-process), scoring (on the GPU when the scene is there; CUDA is never used in a worker) and
+ranking; results equal the in-process path's (same starts, shots and ranks). The workers are forked after
+prepare() and share the prepared CPU state (the CPU mirror of a GPU scene, index, grids) copy-on-write, so
+they add little memory. Fork only: on macOS / Windows (no 'fork' start method) candidates are planned in
+this process. With workers, ``timings``' stage keys are sums of the workers' wall times (they overlap) and
+``pool_ms`` is the parent's wall time waiting for them.
 """
 from __future__ import annotations
 
@@ -31,12 +45,14 @@ import functools
 
 import math
 import time
+import warnings
 from dataclasses import dataclass
 from typing import Any, Dict, List, Optional
 
 import numpy as np
 import torch
 
+from .astar import shortcut
 from .coarse_path import voxel_path
 from .corridor import CorridorError, build_corridor
 from .dynamics import DynamicLimits, retime_shot
@@ -48,6 +64,7 @@ from .safety import _dense_samples
 from .scoring import ScoreConfig, ShotScore, _frames, score_terms
 from .shot import Shot
 from .trajectory import solve_corridor_qp
+from .workers import BrokenProcessPool
 
 
 @dataclass
@@ -166,6 +183,65 @@ def score_shots(
     return out
 
 
+def _plan_candidate_task(planner: Planner, config, start: np.ndarray, goal_p: np.ndarray, look_p: np.ndarray,
+                         goal_cache: Dict[int, Any], limits: Optional[DynamicLimits]) -> Dict[str, Any]:
+    """One candidate, whole, in a worker process (workers.py): the in-process rounds' stages for a single
+    start, on the planner's CPU state only (never batch=True / batch_scene: no CUDA after fork).
+
+    Returns {"shot": verified Shot (report in shot.safety) or None, "error": the failure message or None,
+    "timings": per-stage ms, "goal_cache": goals found here for components the parent had not cached}. The
+    failures caught are exactly those the in-process path records and replaces with a spare; anything else
+    propagates to the parent."""
+    planner.config = config  # the request's config (the fork's copy may be older)
+    cfg = config
+    prep = planner._prep()
+    labels, grid = prep.astar_grid.labels, prep.grid
+    tm: Dict[str, float] = {}
+    new_goals: Dict[int, Any] = {}
+
+    def lap(name, t0):
+        tm[name] = tm.get(name, 0.0) + 1e3 * (time.perf_counter() - t0)
+        return time.perf_counter()
+
+    def failed(e) -> Dict[str, Any]:
+        return {"shot": None, "error": str(e), "timings": tm, "goal_cache": new_goals}
+
+    t = time.perf_counter()
+    try:
+        s_ijk = planner._free_voxel_near(start, None)
+        comp = int(labels[tuple(s_ijk)])
+        if comp not in goal_cache:
+            goal_cache[comp] = new_goals[comp] = planner._reachable_goal(goal_p, comp)
+        g, g_ijk = goal_cache[comp]
+        t = lap("goal_ms", t)
+        path = voxel_path(prep.astar_grid, prep.coarse, s_ijk, g_ijk)  # [K, 3] fine voxel units
+        centres = grid.voxel_to_world(torch.as_tensor(path, device=grid.device)).cpu().numpy()
+        way = np.concatenate([start[None], centres, g[None]])
+        t = lap("astar_ms", t)
+    except (GoalUnreachableError, StartInCollisionError) as e:
+        return failed(e)
+    way = shortcut(way, planner._shortcut_free)  # == batched_shortcut on this path alone (tested)
+    t = lap("shortcut_ms", t)
+    if np.linalg.norm(way[-1] - way[0]) < 1e-9:
+        return failed("the start is already at the goal")
+    try:
+        corridor = build_corridor(torch.as_tensor(way, device=planner.scene.device), planner.scene, prep.index,
+                                  box_margin=cfg.box_margin)
+        t = lap("corridor_ms", t)
+        traj = solve_corridor_qp(corridor.constraints(), corridor.waypoints.cpu().numpy(), start, g, cfg.trajectory)
+        t = lap("qp_ms", t)
+    except (GoalUnreachableError, CorridorError, PlanningError) as e:
+        return failed(e)
+    sh = Shot.from_trajectory(traj, look_p, timing=cfg.timing, up=cfg.up, corridor=corridor)
+    if limits is not None:
+        sh = retime_shot(sh, limits, up=cfg.up)
+    sh.goal_target = goal_p
+    t = lap("timing_ms", t)
+    sh.safety = batched_verify(planner, [sh])[0]  # the parent refuses unsafe shots (UnsafeTrajectoryError)
+    lap("verify_ms", t)
+    return {"shot": sh, "error": None, "timings": tm, "goal_cache": new_goals}
+
+
 def _with_request_threads(fn):
     """Run fn(planner, ...) under the planner's request thread setting (Planner.request_threads)."""
 
@@ -202,8 +278,40 @@ def plan_candidates(
     TimingConfig. object_radius / object_center / object_samples / exclude: the look-at object, see
     scoring.score_shot. spare_fraction: extra starts sampled to replace candidates that fail (unreachable
     goal from that start, corridor failure); fewer than k shots come back only if the spares run out.
-    timings: optional dict filled with per-stage milliseconds (summed over candidates) and the total.
+    timings: optional dict filled with per-stage milliseconds (summed over candidates) and the total; with
+    worker processes (PlannerConfig.candidate_workers, see the module docstring) also pool_ms (wall time of
+    the parallel rounds), pool_start_ms (forking, first request only) and workers (their number).
     Raises InvalidInputError (bad input) and GoalUnreachableError (no candidate could be planned)."""
+    kw = dict(limits=limits, object_radius=object_radius, object_center=object_center, object_samples=object_samples,
+              exclude=exclude, spare_fraction=spare_fraction, timings=timings)
+    try:
+        return _plan_candidates(planner, goal, look_at, k, seed, score_config, use_workers=True, **kw)
+    except BrokenProcessPool:
+        # a worker died (killed, out of memory): the request is deterministic, so plan it again here
+        planner.close()
+        warnings.warn("a candidate worker process died; this request was planned in-process (the next one forks new "
+                      "workers; set PlannerConfig.candidate_workers=0 to stay in-process)", RuntimeWarning)
+        return _plan_candidates(planner, goal, look_at, k, seed, score_config, use_workers=False, **kw)
+
+
+def _plan_candidates(
+    planner: Planner,
+    goal: Any,
+    look_at: Any,
+    k: int,
+    seed: int,
+    score_config: Optional[ScoreConfig],
+    *,
+    use_workers: bool,
+    limits: Optional[DynamicLimits],
+    object_radius: float,
+    object_center: Optional[Any],
+    object_samples: Optional[Any],
+    exclude: Optional[torch.Tensor],
+    spare_fraction: float,
+    timings: Optional[Dict[str, float]],
+) -> List[RankedShot]:
+    """The body of plan_candidates (use_workers: allow the planner's worker pool)."""
     if int(k) != k or not 1 <= k <= 256:
         raise InvalidInputError(f"number of candidates must be an integer in 1..256, got {k}")
     k = int(k)
@@ -235,10 +343,36 @@ def plan_candidates(
     goal_cache: Dict[int, Any] = {}
     shots: List[Shot] = []
     cand_ids: List[int] = []
+    pool = planner.candidate_pool() if k > 1 and use_workers else None  # None: every round in this process
+    if pool is not None:
+        t = lap("pool_start_ms", t)  # forking the workers: first request after prepare() only
+        tm["workers"] = float(pool.processes)
+        # the main component's goal once here (inherited by every task) instead of once per worker
+        try:
+            goal_cache[planner._main_component()] = planner._reachable_goal(goal_p, planner._main_component())
+        except GoalUnreachableError:
+            pass  # each candidate then fails with this error in its worker, as in the in-process path
+        t = lap("goal_ms", t)
     nxt = 0  # next unused start; spares are only planned to replace failed candidates
     while len(shots) < k and nxt < len(starts):
         batch = list(range(nxt, min(len(starts), nxt + k - len(shots))))
         nxt = batch[-1] + 1
+        if pool is not None:
+            # whole candidates in the workers; the *_ms stage keys are then sums of the workers' wall times
+            # per stage (they overlap), pool_ms is this process's wall time waiting for the round
+            results = pool.map(_plan_candidate_task,
+                               [(cfg, starts[ci], goal_p, look_p, goal_cache, limits) for ci in batch])
+            for ci, res in zip(batch, results):
+                for name, ms in res["timings"].items():
+                    tm[name] = tm.get(name, 0.0) + ms
+                goal_cache.update(res["goal_cache"])
+                if res["error"] is not None:
+                    errors.append(res["error"])
+                else:
+                    shots.append(res["shot"])
+                    cand_ids.append(ci)
+            t = lap("pool_ms", t)
+            continue
         plans: List[Dict[str, Any]] = []  # start, goal, waypoints of each candidate of this round
         for ci in batch:
             s = starts[ci]
@@ -285,8 +419,11 @@ def plan_candidates(
             f"no safe candidate found from {len(starts)} start(s); last reason: {errors[-1] if errors else 'unknown'}"
         )
 
-    reports = batched_verify(planner, shots)
-    t = lap("verify_ms", t)
+    if pool is not None:
+        reports = [sh.safety for sh in shots]  # verified in the workers (same rule, CPU state)
+    else:
+        reports = batched_verify(planner, shots)
+        t = lap("verify_ms", t)
     for sh, rep in zip(shots, reports):
         if not rep["safe"]:  # cannot happen if corridor and QP are right; never return such a shot
             raise UnsafeTrajectoryError(

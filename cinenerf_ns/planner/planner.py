@@ -44,6 +44,7 @@ from .shot import Shot
 from .spatial_index import GridIndex
 from .timing import TimingConfig
 from .trajectory import TrajectoryConfig, solve_corridor_qp
+from .workers import CandidatePool, default_workers, pool_for, validate_workers
 
 ArrayLike = Union[Tensor, np.ndarray, Sequence[float]]
 
@@ -85,6 +86,13 @@ class PlannerConfig:
     more than they compute (H100 host, 1M Gaussians, median per plan: 388 ms on CUDA tensors, 194 ms with
     the CPU mirror). 'scene': on the scene's device. Batched scoring of many candidates (occlusion, clearance)
     keeps using the scene's device (``Planner.batch_scene``)."""
+    candidate_workers: Optional[int] = None
+    """Worker processes that plan_candidates spreads its candidates over (workers.py: forked after prepare(),
+    sharing the prepared CPU state copy-on-write; each plans whole candidates single-threaded, the parent
+    samples starts, scores and ranks). None: auto, one per usable CPU but one (at most k busy per request)
+    when the 'fork' start method exists (Linux) and there are >= 4 CPUs, else 0. 0: plan in this process.
+    N: N workers. Workers are never used when requests run on a GPU (request_device 'scene' with a CUDA
+    scene): CUDA cannot be used after fork."""
 
 
 @dataclass
@@ -121,7 +129,9 @@ class Planner:
             raise InvalidInputError(f"request_device must be 'auto' or 'scene', got {self.config.request_device!r}")
         self.batch_scene = scene  # the scene on its own device: big batched queries (candidate scoring)
         self.scene = scene  # the scene on the request device (a CPU mirror after prepare() when 'auto' + GPU)
+        validate_workers(self.config.candidate_workers)
         self.prepared: Optional[PreparedScene] = None
+        self._pool: Optional[tuple] = None  # (PreparedScene, processes, CandidatePool), see candidate_pool()
 
     def _mirror_to_cpu(self) -> bool:
         return self.config.request_device == "auto" and self.batch_scene.device.type != "cpu"
@@ -183,6 +193,35 @@ class Planner:
                         "components_ms": 1e3 * (t4 - t3)},
         )
         return self.prepared
+
+    def candidate_workers(self) -> int:
+        """Worker processes plan_candidates uses now: config.candidate_workers resolved (None: auto), 0 when
+        requests run on a non-CPU device (a forked child cannot use CUDA)."""
+        n = self.config.candidate_workers
+        validate_workers(n)
+        n = default_workers() if n is None else int(n)
+        if n:
+            self._prep()  # the request device (self.scene's) is settled by prepare()
+            if self.scene.device.type != "cpu":
+                return 0
+        return n
+
+    def candidate_pool(self) -> Optional[CandidatePool]:
+        """The forked worker pool for candidate_workers() > 0 (None for 0), created on first use and again
+        when prepare() has run since (the workers hold the planner as it was at the fork)."""
+        n = self.candidate_workers()
+        if n == 0:
+            return None
+        self._main_component()  # cached before the fork so that workers inherit it
+        self._pool = pool_for(self, self._prep(), n, self._pool)
+        return self._pool[2]
+
+    def close(self) -> None:
+        """Terminate the candidate worker pool if there is one (also done when the planner is garbage
+        collected and at interpreter exit). The planner stays usable: a later request forks a new pool."""
+        if self._pool is not None:
+            self._pool[2].close()
+            self._pool = None
 
     def _prep(self) -> PreparedScene:
         return self.prepared if self.prepared is not None else self.prepare()

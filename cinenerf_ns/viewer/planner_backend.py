@@ -40,7 +40,10 @@ class PreparedPlanner:
         reported as the cap above it (None: always exact, slow on large scenes)."""
         self.scene = scene
         self.clearance_cap = clearance_cap
-        self.config = config or PlannerConfig()
+        # candidate_workers=0: the viewer runs in a multi-threaded process (viser's server, and during ns-train the
+        # trainer's CUDA threads); forking it for worker processes could deadlock a child on a lock another
+        # thread held at the fork. The CLI (one thread) uses the workers. Pass a config to choose otherwise.
+        self.config = config or PlannerConfig(candidate_workers=0)
         self.on_status = on_status
         self.planner: Optional[Planner] = None
         self.prepare_s: Optional[float] = None  # wall time of prepare(), once done

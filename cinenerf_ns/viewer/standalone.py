@@ -284,7 +284,7 @@ class StandaloneViewer:
         if plan_fn is None:
             self.planner = PreparedPlanner(self.obstacles, PlannerConfig(
                 grid_resolution=cfg.grid_resolution, start_region=self.loaded.start_region,
-                timing=TimingConfig(max_speed=cfg.max_speed)))
+                timing=TimingConfig(max_speed=cfg.max_speed), candidate_workers=0))  # see PreparedPlanner
             plan_fn, planner_name = self.planner.plan, PreparedPlanner.name
         else:
             planner_name = "injected planner"

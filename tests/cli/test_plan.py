@@ -93,3 +93,14 @@ def test_multi_stop(tmp_path):
     with pytest.raises(InvalidInputError, match="then-look-at"):
         run_plan(PlanArgs(scene="procedural:3000:1", go_to="armchair", then_go_to=("table", "sofa"), look_at="vase",
                           then_look_at=("vase",), output_dir=tmp_path / "x", grid_resolution=64))
+
+
+def test_workers_option(tmp_path):
+    """--workers 2 plans the same ranked candidates as in-process; a negative count is a clear error."""
+    kw = dict(scene="procedural:3000:1", go_to="the armchair", look_at="floor lamp", candidates=3, grid_resolution=64)
+    a = run_plan(PlanArgs(output_dir=tmp_path / "a", workers=0, **kw))
+    b = run_plan(PlanArgs(output_dir=tmp_path / "b", workers=2, **kw))
+    assert [c["start"] for c in a["candidates"]] == [c["start"] for c in b["candidates"]]
+    assert [c["score"]["total"] for c in a["candidates"]] == pytest.approx([c["score"]["total"] for c in b["candidates"]])
+    with pytest.raises(InvalidInputError, match="candidate_workers"):
+        run_plan(PlanArgs(output_dir=tmp_path / "c", workers=-1, **kw))

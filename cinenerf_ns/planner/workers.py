@@ -1,0 +1,135 @@
+"""A fork-based process pool that runs per-candidate planning work on a prepared Planner.
+
+Why processes: a request is thousands of small numpy / torch CPU ops in Python, holding the GIL (a thread
+pool gave 1.00x). Candidates are independent, so K of them can run in K processes. This is parallelism over
+CPU processes, not vectorised batching.
+
+Why fork: the workers must see the prepared planner (CPU scene mirror, spatial index, occupancy grid, A*
+grid, free-space labels; hundreds of MB at 1M Gaussians) without pickling it. A forked child shares the
+parent's memory copy-on-write, so the only per-worker memory is the pages a worker writes (Python's reference
+counts touch object headers, not the big tensor / array buffers). Only the 'fork' start method can do this:
+on platforms without it (macOS defaults to spawn, Windows has no fork) ``default_workers`` returns 0 and
+requests run in the calling process.
+
+Rules for the work sent here (see candidates._plan_candidate_task):
+  - CPU tensors only. CUDA cannot be used in a forked child: nothing with ``batch=True``, no ``batch_scene``,
+    no ``batch_index``. The pool is refused (``usable``) when the request device is not the CPU.
+  - one thread per worker (initializer): more would oversubscribe the cores, and OpenMP thread pools started
+    before the fork are not valid in the child.
+Results are pickled in the worker with the standard pickler (``pickle.dumps``), not multiprocessing's
+ForkingPickler: torch registers reducers there that move CPU tensors into shared memory and send file
+descriptors, which is slower for small tensors and can run out of descriptors.
+
+A concurrent.futures ProcessPoolExecutor rather than multiprocessing.Pool: when a worker dies (killed, out of
+memory) it raises BrokenProcessPool instead of waiting forever for the lost task; plan_candidates then
+closes the pool and plans the request in this process.
+"""
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import pickle
+import weakref
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from typing import Any, Callable, Iterable, List, Optional
+
+import torch
+
+from .errors import InvalidInputError
+
+# the planner a worker serves; set in the child by _init_worker (inherited through fork, never pickled)
+_PLANNER: Any = None
+
+
+def fork_available() -> bool:
+    return "fork" in mp.get_all_start_methods()
+
+
+def usable_cpus() -> int:
+    """CPUs this process may run on (the affinity mask in a container / taskset), else os.cpu_count()."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def default_workers() -> int:
+    """Worker processes for PlannerConfig.candidate_workers=None: one per usable CPU but one (the parent
+    keeps sampling, scoring and ranking), when fork exists and there are at least 4 CPUs; else 0."""
+    n = usable_cpus()
+    return n - 1 if fork_available() and n >= 4 else 0
+
+
+def validate_workers(value: Any) -> None:
+    if value is None:
+        return
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise InvalidInputError(f"candidate_workers must be None (auto), 0 (in this process) or a positive integer, "
+                                f"got {value!r}")
+    if value > 0 and not fork_available():
+        raise InvalidInputError("candidate_workers > 0 needs the 'fork' start method (Linux); use None or 0 here")
+
+
+def _init_worker(planner_ref: "weakref.ref") -> None:
+    global _PLANNER
+    torch.set_num_threads(1)
+    _PLANNER = planner_ref()
+
+
+def _call(task) -> bytes:
+    fn, args = task
+    return pickle.dumps(fn(_PLANNER, *args), protocol=pickle.HIGHEST_PROTOCOL)
+
+
+__all__ = ["BrokenProcessPool", "CandidatePool", "default_workers", "fork_available", "pool_for", "usable_cpus",
+           "validate_workers"]
+
+
+class CandidatePool:
+    """``processes`` forked workers serving ``planner`` (as it is at the fork: the caller recreates the pool
+    after planner.prepare() runs again). ``map(fn, args_list)`` runs fn(planner, *args) in the workers and
+    returns the results in order; fn must be a module-level function (pickled by name)."""
+
+    def __init__(self, planner: Any, processes: int):
+        if processes < 1:
+            raise InvalidInputError(f"a candidate pool needs >= 1 process, got {processes}")
+        self.processes = int(processes)
+        # a weak reference in initargs: with fork it is inherited, not pickled, and the executor (which keeps
+        # initargs) then does not keep the planner alive
+        self._pool = ProcessPoolExecutor(self.processes, mp_context=mp.get_context("fork"), initializer=_init_worker,
+                                         initargs=(weakref.ref(planner),))
+        # with fork all workers start at the first submit: fork them now, while the planner is as prepared
+        self._pool.submit(int).result()
+        # no process left behind: on planner garbage collection or interpreter exit (finalize's atexit)
+        self._finalizer = weakref.finalize(planner, CandidatePool._terminate, self._pool)
+
+    @staticmethod
+    def _terminate(pool: ProcessPoolExecutor) -> None:
+        # between requests no task runs (map waits for all); joins the workers
+        pool.shutdown(wait=True, cancel_futures=True)
+
+    def map(self, fn: Callable, args_list: Iterable[tuple]) -> List[Any]:
+        """fn(planner, *args) for each args in the workers, results in order. Raises BrokenProcessPool when a
+        worker died, and whatever fn raised."""
+        blobs = self._pool.map(_call, [(fn, tuple(a)) for a in args_list], chunksize=1)
+        return [pickle.loads(b) for b in blobs]
+
+    @property
+    def closed(self) -> bool:
+        return not self._finalizer.alive
+
+    def close(self) -> None:
+        """Terminate and join the workers (idempotent)."""
+        self._finalizer()
+
+
+def pool_for(planner: Any, prepared: Any, processes: int, current: Optional[tuple]) -> tuple:
+    """(prepared, processes, CandidatePool): ``current`` when it was made for this PreparedScene object and
+    size, else a new pool (the old one closed) forked from the planner as it is now."""
+    if current is not None:
+        prep, n, pool = current
+        if prep is prepared and n == processes and not pool.closed:
+            return current
+        pool.close()
+    return (prepared, processes, CandidatePool(planner, processes))
