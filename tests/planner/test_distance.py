@@ -145,3 +145,43 @@ def test_cuda_clearance_matches_cpu():
     scc = sc.to("cuda")
     b = clearance(pts.cuda(), scc, GridIndex.build(scc))
     torch.testing.assert_close(a, b.cpu(), atol=1e-10, rtol=0)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 100_000), cap=st.sampled_from([0.04, 0.1, 0.5, 3.0]), chunk=st.sampled_from([7, 1024]))
+def test_one_shot_clearance_matches_brute_force(seed, cap, chunk):
+    """strategy='one_shot' (the GPU default with a cap): exact below the cap, the cap above it, the nearest
+    ellipsoid's id where exact and -1 where capped, against the float64 brute force."""
+    sc = random_scene(120, seed, rmin=0.01, rmax=0.15, camera_radius=0.03)
+    g = torch.Generator().manual_seed(seed)
+    pts = (torch.rand(60, 3, generator=g, dtype=F64) * 2 - 1) * 2.0  # inside, near and far outside the scene
+    ref = point_ellipsoid_distance(pts, sc.means, sc.rotations, sc.radii)
+    dmin = ref.min(-1).values
+    want = torch.minimum(dmin, torch.full_like(dmin, cap)) - 0.03
+    got, arg = clearance(pts, sc, GridIndex.build(sc), return_index=True, max_distance=cap, strategy="one_shot",
+                         chunk_points=chunk)
+    torch.testing.assert_close(got, want, atol=1e-12, rtol=0)
+    assert ((arg == -1) == (dmin > cap)).all()
+    ok = arg >= 0
+    torch.testing.assert_close(ref[ok].gather(1, arg[ok][:, None])[:, 0], dmin[ok], atol=1e-12, rtol=0)
+
+
+def test_clearance_strategy_errors():
+    sc = random_scene(20, 1)
+    p = torch.zeros(3, 3, dtype=F64)
+    with pytest.raises(InvalidInputError, match="strategy"):
+        clearance(p, sc, GridIndex.build(sc), strategy="fast")
+    with pytest.raises(InvalidInputError, match="one_shot"):
+        clearance(p, sc, GridIndex.build(sc), strategy="one_shot")  # no cap
+    with pytest.raises(InvalidInputError, match="one_shot"):
+        clearance(p, sc, None, max_distance=0.1, strategy="one_shot")  # no index
+
+
+@pytest.mark.gpu
+def test_cuda_capped_clearance_one_shot_matches_cpu_grow():
+    sc = random_scene(300, 5, camera_radius=0.03)
+    pts = torch.rand(500, 3, dtype=F64) * 3 - 1.5
+    a = clearance(pts, sc, GridIndex.build(sc), max_distance=0.13, strategy="grow")
+    scc = sc.to("cuda")
+    b = clearance(pts.cuda(), scc, GridIndex.build(scc), max_distance=0.13)  # auto: one_shot on CUDA
+    torch.testing.assert_close(a, b.cpu(), atol=1e-10, rtol=0)
