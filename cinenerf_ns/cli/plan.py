@@ -104,7 +104,7 @@ class PlanArgs:
     object_centre: Literal["volume", "surface"] = "volume"
     """Where a text target is: 'volume' (estimated volume centroid of the selected object: surface Gaussians
     voxelised and filled, see cinenerf_ns/method/object_centre.py) or 'surface' (opacity-weighted mean of the
-    selected Gaussians: pulled toward thin parts such as a lamp's pole). Synthetic room: worst object 7.4% -> 3.6%
+    selected Gaussians: pulled toward thin parts such as a lamp's pole). Synthetic room: worst object 7.4% -> 2.9%
     of the room size from the true centre."""
     device: str = "cpu"
     """torch device of the scene tensors ('cpu' or 'cuda')."""
