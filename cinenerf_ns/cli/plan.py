@@ -324,11 +324,14 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
     scfg = SceneConfig(beta=args.beta, camera_radius=args.camera_radius + args.safety_margin, opacity_floor=args.opacity_floor)
     out = Path(args.output_dir)
     t_all = time.perf_counter()
-    with Progress(SpinnerColumn(), TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=console, transient=True) as prog:
+    # auto_refresh=False: no refresh thread. plan_candidates forks worker processes, and a fork while another thread
+    # holds an output lock can hang the child; the bar is redrawn at each stage instead (prog.update(refresh=True)).
+    with Progress(SpinnerColumn(), TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=console,
+                  transient=True, auto_refresh=False) as prog:
         task = prog.add_task("loading scene", total=5)
         loaded = load_scene(args.scene, scfg, args.device, args.threshold, smooth_neighbors=args.semantic_smoothing,
                             object_cluster=args.object_cluster, object_centre=args.object_centre, up=args.up)
-        prog.update(task, advance=1, description="resolving targets")
+        prog.update(task, advance=1, description="resolving targets", refresh=True)
         goal, goal_desc = resolve_target(args.go_to, loaded, "go-to")
         look, look_desc = resolve_target(args.look_at, loaded, "look-at")
         start = None
@@ -336,14 +339,14 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
             start = parse_point(args.start)
             if start is None:
                 raise InvalidInputError(f"--start must be 'x y z', got {args.start!r}")
-        prog.update(task, advance=1, description="preparing (index, occupancy grid)")
+        prog.update(task, advance=1, description="preparing (index, occupancy grid)", refresh=True)
         pcfg = PlannerConfig(
             grid_resolution=args.grid_resolution, up=tuple(args.up), timing=TimingConfig(max_speed=args.max_speed, fps=args.fps),
             start_region=loaded.start_region, candidate_workers=args.workers,
         )
         planner = Planner(loaded.scene, pcfg)
         prep = planner.prepare()
-        prog.update(task, advance=1, description=f"planning {args.candidates} candidate(s)")
+        prog.update(task, advance=1, description=f"planning {args.candidates} candidate(s)", refresh=True)
         limits = _limits(args)
         obj_r = _object_radius(args, loaded)
         score_cfg = ScoreConfig(**{**args.score.__dict__, "fov_deg": args.fov})
@@ -369,7 +372,7 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
                                                        score_config=score_cfg, limits=limits, object_radius=obj_r)
             shots = [r.shot for r in ranked]
             scores = [r.score for r in ranked]
-        prog.update(task, advance=1, description="exact clearance report + plots")
+        prog.update(task, advance=1, description="exact clearance report + plots", refresh=True)
         out.mkdir(parents=True, exist_ok=True)
         reports, files = [], []
         for k, sh in enumerate(shots):
@@ -412,7 +415,7 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
         tmp.write_text(json.dumps(summary, indent=2, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
         tmp.replace(rpath)
         summary["report"] = str(rpath)
-        prog.update(task, advance=1)
+        prog.update(task, advance=1, refresh=True)
 
     table = Table(title=f"cinesplat-plan: go to {goal_desc}, look at {look_desc}")
     # short headers, no wrapping: the table must stay readable in an 80-column terminal (legend below)
