@@ -99,7 +99,7 @@ def evaluate_shots(loaded, gt, starts: int, camera_radius: float, grid_resolutio
     prep = planner.prepare()
     names = object_names(gt)
     centres = gt.object_centres()
-    rows, paths, series = [], {}, {}
+    rows, paths, series, look_frames = [], {}, {}, {}
     from rich.progress import Progress
 
     progress = Progress(transient=True)
@@ -140,8 +140,40 @@ def evaluate_shots(loaded, gt, starts: int, camera_radius: float, grid_resolutio
             label = f"{goto} -> {look} #{seed}"
             paths[label] = torch.from_numpy(shot.positions)
             series[label] = (torch.from_numpy(t), clr)
+            look_frames.setdefault(look, []).append((rng_look, err_true))
     progress.stop()
-    return rows, {"paths": paths, "series": series}, prep.timings_ms
+    return rows, {"paths": paths, "series": series, "look": look_frames}, prep.timings_ms
+
+
+def plot_look_errors(frames: dict, centre_err: dict, png: Path) -> Path:
+    """Per-frame look-at error vs the TRUE centre against the camera's range to that centre, one colour per
+    look-at object; the dashed curve of each object is the error a centre estimate off by e would cause at most,
+    asin(e / range): why close frames miss the 2-degree line."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for i, (name, runs) in enumerate(sorted(frames.items())):
+        col = f"C{i % 10}"
+        r = np.concatenate([x[0] for x in runs])
+        e = np.concatenate([x[1] for x in runs])
+        ax.scatter(r, e, s=4, color=col, alpha=0.5, label=f"{name} (centre off {centre_err.get(name, math.nan):.3f})")
+        err = centre_err.get(name, math.nan)
+        if math.isfinite(err) and err > 0:
+            rr = np.linspace(max(err * 1.01, r.min()), r.max(), 200)
+            ax.plot(rr, np.degrees(np.arcsin(np.clip(err / rr, 0, 1))), color=col, lw=1, ls="--")
+    ax.axhline(2.0, color="r", lw=1, label="2 deg")
+    ax.set_xlabel("camera range to the look-at object's true centre (scene units)")
+    ax.set_ylabel("look-at error vs true centre (deg)")
+    ax.set_yscale("log")
+    ax.set_title("look-at error per frame (dashed: asin(centre error / range))")
+    ax.legend(fontsize=6, loc="upper right")
+    fig.tight_layout()
+    fig.savefig(png, dpi=130)
+    plt.close(fig)
+    return png
 
 
 def summarise(sel: list[dict], shots: list[dict], gt) -> dict:
@@ -220,6 +252,8 @@ def main(argv=None) -> dict:
         look_targets = {lbl: gt.object_centres()[lbl.split(" -> ")[1].rsplit(" #", 1)[0]] for lbl in plots["paths"]}
         plot_topdown(gt, plots["paths"], a.out / "eval_room_topdown.png", look_targets=look_targets)
         plot_clearance(plots["series"], a.out / "eval_room_clearance.png")
+        centre_err = {r["object"]: r.get("centroid_error_frac", math.nan) * gt.room_size() for r in sel}
+        plot_look_errors(plots["look"], centre_err, a.out / "eval_room_lookat.png")
     print("\n".join(md))
     if not a.no_record:
         append_results(f"\n## eval_room ({date}, {dev})\n\nscene `{a.scene}`, {len(loaded.scene)} Gaussians, {a.starts} starts per pair, "
