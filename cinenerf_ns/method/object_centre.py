@@ -87,14 +87,15 @@ def enclosed_voxels(surface: np.ndarray) -> np.ndarray:  # noqa: D401
     return out | enc
 
 
-def solid_voxels(
+def surface_voxels(
     points_frame: np.ndarray,  # [K, 3] Gaussian means in the up frame
     radii_frame: Optional[np.ndarray],  # [K, 3, 3] columns = the Gaussians' 1-sigma axes in the up frame, or None
     resolution: int,
     close: int,
     max_extent_voxels: float,
 ) -> tuple[np.ndarray, np.ndarray, float, int]:
-    """(solid [X, Y, Z] bool, lo [3], voxel size, pad) of a selection; see the module docstring."""
+    """(surface [X, Y, Z] bool: voxels the Gaussians touch, holes closed; lo [3]; voxel size; pad) of a selection
+    (steps 1 of the module docstring; enclosed_voxels does step 2)."""
     from scipy import ndimage
 
     lo, hi = points_frame.min(0), points_frame.max(0)
@@ -167,7 +168,7 @@ def volume_centroid(
         q = np.where(ok[:, None], q, np.array([1.0, 0.0, 0.0, 0.0]))
         R = quats_to_rotmats(q)  # [K, 3, 3] world
         axes_f = np.einsum("ji,kjl->kil", F, R * s[:, None, :])  # F^T R diag(s): columns = axes in the frame
-    surf, lo, h, pad = solid_voxels(pf, axes_f, int(resolution), int(close), float(max_extent_voxels))
+    surf, lo, h, pad = surface_voxels(pf, axes_f, int(resolution), int(close), float(max_extent_voxels))
     solid = enclosed_voxels(surf)
     boundary = solid & ~_eroded(solid)  # solid voxels with an outside face-neighbour: about half inside
     idx = np.argwhere(solid)  # [V, 3]
