@@ -64,7 +64,7 @@ class PlanArgs:
     """Number of shots from different random starts."""
     workers: Optional[int] = None
     """Worker processes that plan the candidates in parallel (Linux, fork; see PlannerConfig.candidate_workers).
-    None: one per CPU but one on machines with >= 4 CPUs, else 0 (plan in this process)."""
+    None: one per CPU on machines with >= 4 CPUs, else 0 (plan in this process)."""
     output_dir: Path = Path("cinesplat_plans")
     """Where camera paths, the report and the plots go."""
     name: str = "shot"

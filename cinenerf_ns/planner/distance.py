@@ -131,8 +131,6 @@ def clearance(
     return_index: bool = False,
     max_distance: Optional[float] = None,
     chunk_pairs: int = 2_000_000,
-    strategy: str = "auto",
-    chunk_points: int = 256,
 ) -> Union[Tensor, Tuple[Tensor, Tensor]]:
     """Exact clearance [P] (float64) = min_j signed_dist(point, E_j) - camera_radius.
 
@@ -143,14 +141,7 @@ def clearance(
     ellipsoids are candidates. ``max_distance``: distances above it are not searched for and are
     reported as max_distance (so the clearance is then max_distance - camera_radius, a lower bound);
     use it to bound the work for points far from everything. ``return_index`` also returns the id [P]
-    of the nearest ellipsoid (-1 where capped).
-
-    strategy: "grow" (the two phases above: few pairs per point, many small rounds; best on the CPU),
-    "one_shot" (needs an index and max_distance: ONE query of every ellipsoid within max_distance of each
-    point, ``chunk_points`` points at a time, then the exact minimum over those pairs: more pairs, but a
-    handful of large launches and no per-round host syncs; best on a GPU, where each growth round of
-    "grow" costs dozens of launches and syncs), "auto" (one_shot on CUDA with max_distance, else grow).
-    Both are exact below max_distance: every ellipsoid closer than it is a candidate."""
+    of the nearest ellipsoid (-1 where capped)."""
     pts = torch.as_tensor(points, device=scene.device)
     if pts.ndim != 2 or pts.shape[-1] != 3:
         raise InvalidInputError(f"points must be [P, 3], got {tuple(pts.shape)}")
@@ -163,24 +154,6 @@ def clearance(
     best = torch.full((P,), math.inf, dtype=torch.float64, device=dev)
     arg = torch.full((P,), -1, dtype=torch.long, device=dev)
     brute = torch.zeros(P, dtype=torch.bool, device=dev)
-    if strategy not in ("auto", "grow", "one_shot"):
-        raise InvalidInputError(f"clearance strategy must be 'auto', 'grow' or 'one_shot', got {strategy!r}")
-    if strategy == "auto":
-        strategy = "one_shot" if (dev.type == "cuda" and index is not None and math.isfinite(cap)) else "grow"
-    if strategy == "one_shot":
-        if index is None or not math.isfinite(cap):
-            raise InvalidInputError("clearance strategy 'one_shot' needs an index and a finite max_distance")
-        # any ellipsoid within cap of a point has its padded AABB in the cube of half-width cap - pad
-        r = max(cap - index.pad, 0.0)
-        for i in range(0, P, max(1, int(chunk_points))):
-            c = slice(i, min(P, i + int(chunk_points)))
-            pc = pts[c]
-            pi, gi = index.query_points(pc, r)
-            d, g_best = _min_over_pairs(pc, scene, pi, gi, pc.shape[0])
-            found = d <= cap  # exact: every closer ellipsoid was a candidate; else the true distance > cap
-            best[c] = torch.where(found, d, torch.full_like(d, cap))
-            arg[c] = torch.where(found, g_best, torch.full_like(g_best, -1))
-        return (best - scene.camera_radius, arg) if return_index else best - scene.camera_radius
     if index is not None and P:
         lo_s, hi_s = index.lo.min(0).values, index.hi.max(0).values
         # distance from each point to the scene box: no search box smaller than this can hit

@@ -89,7 +89,7 @@ class PlannerConfig:
     candidate_workers: Optional[int] = None
     """Worker processes that plan_candidates spreads its candidates over (workers.py: forked after prepare(),
     sharing the prepared CPU state copy-on-write; each plans whole candidates single-threaded, the parent
-    samples starts, scores and ranks). None: auto, one per usable CPU but one (at most k busy per request)
+    samples starts, scores and ranks). None: auto, one per usable CPU (at most k busy per request)
     when the 'fork' start method exists (Linux) and there are >= 4 CPUs, else 0. 0: plan in this process.
     N: N workers. Workers are never used when requests run on a GPU (request_device 'scene' with a CUDA
     scene): CUDA cannot be used after fork."""

@@ -1,7 +1,10 @@
 """distance_fused.py: the one-kernel point-ellipsoid distance against the eager torch reference.
 
 On the CPU the kernel runs in Triton's interpreter (TRITON_INTERPRET=1, a subprocess: the flag is read when the
-kernel is defined); on a GPU it runs compiled."""
+kernel is defined); on a GPU it runs compiled. Tolerance 1e-10 x (1 + |w|): each lane stops on the eager loop's
+own convergence test, while the eager loop keeps refining a converged pair until the whole batch is done, so a
+pair can end a little less refined than in a large eager batch (worst seen over 200k random pairs: 4.7e-11, for
+points 1e-5 from an ellipsoid's centre; a pair alone in an eager batch stops exactly where the kernel does)."""
 from __future__ import annotations
 
 import os
@@ -17,6 +20,7 @@ from cinenerf_ns.planner import distance_fused
 from cinenerf_ns.planner.distance import _distance_local
 
 REPO = Path(__file__).resolve().parents[2]
+TOL = 1e-10
 
 CASES = textwrap.dedent("""
     import torch
@@ -58,7 +62,7 @@ def test_kernel_matches_eager_in_the_triton_interpreter():
     assert res.returncode == 0, res.stderr[-3000:]
     line = [ln for ln in res.stdout.splitlines() if ln.startswith("ERR")][-1].split()
     assert line[3] == "False"  # no NaN
-    assert float(line[1]) <= 1e-12
+    assert float(line[1]) <= TOL
 
 
 @pytest.mark.gpu
@@ -70,7 +74,7 @@ def test_kernel_matches_eager_on_cuda():
     b = _distance_local(w, r, fused=False)
     assert distance_fused.available(w)
     scale = 1.0 + w.norm(dim=-1)
-    assert float(((a - b).abs() / scale).max()) <= 1e-12
+    assert float(((a - b).abs() / scale).max()) <= TOL
     c = _distance_local(w.cpu(), r.cpu())
-    assert float(((a.cpu() - c).abs() / scale.cpu()).max()) <= 1e-12
+    assert float(((a.cpu() - c).abs() / scale.cpu()).max()) <= TOL
     assert distance_fused.distance_local_fused(w[:0], r[:0]).shape == (0,)

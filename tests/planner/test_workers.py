@@ -182,7 +182,7 @@ def test_auto_workers(monkeypatch):
     monkeypatch.setattr(workers, "usable_cpus", lambda: 2)
     assert _planner(None).candidate_workers() == 0  # too few CPUs: in this process
     monkeypatch.setattr(workers, "usable_cpus", lambda: 16)
-    assert _planner(None).candidate_workers() == 15
+    assert _planner(None).candidate_workers() == 16
     monkeypatch.setattr(workers, "fork_available", lambda: False)
     assert _planner(None).candidate_workers() == 0
 
