@@ -138,7 +138,7 @@ def batched_verify(planner: Planner, shots: List[Shot]) -> List[Dict[str, Any]]:
         out.append({
             "num_samples": int(n), "max_sample_spacing": float(spacing), "num_inconclusive": nb,
             "min_exact_clearance": mn, "safe": bool(mn is None or mn >= 0.0),
-            "method": "conservative Cor.1 test on every sample, exact distance where inconclusive (batched over candidates)",
+            "method": "conservative test on every sample (occupancy grid, then Cor.1), exact distance where inconclusive (batched over candidates)",
         })
         o += n
     return out

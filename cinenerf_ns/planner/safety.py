@@ -275,5 +275,6 @@ def verify_shot(
         "num_inconclusive": int(len(bad)),
         "min_exact_clearance": min_exact,
         "safe": bool(min_exact is None or min_exact >= 0.0),
-        "method": "conservative Cor.1 test on every sample, exact distance where inconclusive",
+        "method": "conservative test on every sample (the points_free given: the planner's is the occupancy grid, then "
+                  "Cor.1), exact distance where inconclusive",
     }
