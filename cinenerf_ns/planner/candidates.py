@@ -214,7 +214,7 @@ def _plan_candidate_task(planner: Planner, config, start: np.ndarray, goal_p: np
             goal_cache[comp] = new_goals[comp] = planner._reachable_goal(goal_p, comp)
         g, g_ijk = goal_cache[comp]
         t = lap("goal_ms", t)
-        path = voxel_path(prep.astar_grid, prep.coarse, s_ijk, g_ijk)  # [K, 3] fine voxel units
+        path = voxel_path(prep.astar_grid, prep.coarse, s_ijk, g_ijk, astar_weight=cfg.astar_weight)  # [K, 3] fine voxel units
         centres = grid.voxel_to_world(torch.as_tensor(path, device=grid.device)).cpu().numpy()
         way = np.concatenate([start[None], centres, g[None]])
         t = lap("astar_ms", t)
@@ -383,7 +383,7 @@ def _plan_candidates(
                     goal_cache[comp] = planner._reachable_goal(goal_p, comp)
                 g, g_ijk = goal_cache[comp]
                 t = lap("goal_ms", t)
-                path = voxel_path(prep.astar_grid, prep.coarse, s_ijk, g_ijk)  # [K, 3] fine voxel units
+                path = voxel_path(prep.astar_grid, prep.coarse, s_ijk, g_ijk, astar_weight=cfg.astar_weight)  # [K, 3] fine voxel units
                 centres = grid.voxel_to_world(torch.as_tensor(path, device=grid.device)).cpu().numpy()
                 plans.append({"cand": ci, "start": s, "goal": g, "way": np.concatenate([s[None], centres, g[None]])})
                 t = lap("astar_ms", t)

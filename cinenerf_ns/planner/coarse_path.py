@@ -98,15 +98,18 @@ class CoarseGrid:
 
 
 def voxel_path(
-    fine: AStarGrid, coarse: Optional[CoarseGrid], s, g, *, astar_budget: int = 800, window: int = 6
+    fine: AStarGrid, coarse: Optional[CoarseGrid], s, g, *, astar_budget: int = 800, window: int = 6,
+    astar_weight: float = 1.0,
 ) -> np.ndarray:
     """Collision-free path float64 [K, 3] (fine voxel index units, s first, g last) between free fine
     voxels s and g: A* with ``astar_budget`` expansions, else the coarse route, else the fine Dijkstra.
+    astar_weight: heuristic weight of the A* (1: minimum-cost path; w > 1: cost at most w x minimum, far fewer
+    expansions; see PlannerConfig.astar_weight).
 
     Raises what astar() raises for occupied / disconnected ends (StartInCollisionError,
     GoalUnreachableError)."""
     try:
-        return astar(fine, s, g, max_expansions=astar_budget).astype(np.float64)
+        return astar(fine, s, g, max_expansions=astar_budget, heuristic_weight=astar_weight).astype(np.float64)
     except SearchBudgetExhausted:
         pass
     if coarse is not None:

@@ -224,7 +224,7 @@ def plan_multistop(
     t1 = time.perf_counter()
     ways = []
     for i in range(len(targets)):
-        path = voxel_path(prep.astar_grid, prep.coarse, ijks[i], ijks[i + 1])  # [K, 3] fine voxel units
+        path = voxel_path(prep.astar_grid, prep.coarse, ijks[i], ijks[i + 1], astar_weight=planner.config.astar_weight)  # [K, 3] fine voxel units
         centres = grid.voxel_to_world(torch.as_tensor(path, device=grid.device)).cpu().numpy()
         ways.append(np.concatenate([pts[i][None], centres, pts[i + 1][None]]))
     tm["astar_ms"] = 1e3 * (time.perf_counter() - t1)

@@ -62,6 +62,11 @@ class PlannerConfig:
     training cameras' bounding box for real captures)."""
     up: tuple = (0.0, 0.0, 1.0)
     """World up direction: cameras keep their y axis as close to it as possible."""
+    astar_weight: float = 1.5
+    """Heuristic weight of the initial voxel path's A* (1: minimum-cost path; w > 1: its cost is at most w x the
+    minimum, found with far fewer expansions). The path is only the corridor's seed and is shortcut first, so the
+    smoothness and safety of the shot do not depend on it. CPU 200k, 40 pairs: A* median 23.9 -> 2.5 ms, plan
+    86.7 -> 80.5 ms, same success."""
     box_margin: float = 0.15
     """Each corridor polytope lives in its segment's bounding box grown by this (scene units)."""
     trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
@@ -127,6 +132,9 @@ class Planner:
         self.config = config or PlannerConfig()
         if self.config.request_device not in ("auto", "scene"):
             raise InvalidInputError(f"request_device must be 'auto' or 'scene', got {self.config.request_device!r}")
+        w = self.config.astar_weight
+        if isinstance(w, bool) or not isinstance(w, (int, float)) or not (math.isfinite(w) and w >= 1.0):
+            raise InvalidInputError(f"astar_weight must be a finite number >= 1, got {w!r}")
         self.batch_scene = scene  # the scene on its own device: big batched queries (candidate scoring)
         self.scene = scene  # the scene on the request device (a CPU mirror after prepare() when 'auto' + GPU)
         validate_workers(self.config.candidate_workers)
@@ -616,7 +624,7 @@ class Planner:
         t1 = time.perf_counter()
         tm["goal_ms"] = 1e3 * (t1 - t0)
 
-        path = voxel_path(prep.astar_grid, prep.coarse, s_ijk, g_ijk)  # [K, 3] fine voxel units (float)
+        path = voxel_path(prep.astar_grid, prep.coarse, s_ijk, g_ijk, astar_weight=cfg.astar_weight)  # [K, 3] fine voxel units (float)
         t2 = time.perf_counter()
         tm["astar_ms"] = 1e3 * (t2 - t1)
         centres = grid.voxel_to_world(torch.as_tensor(path, device=grid.device)).cpu().numpy()

@@ -203,3 +203,30 @@ def test_points_free_grid_filter_is_never_optimistic(seed, res):
     assert (exact[free] >= 0).all()
     assert (free | ~grid_free).all()  # grid-free points are reported free
     assert int(grid_free.sum()) > 0.2 * len(pts)  # the filter is exercised
+
+
+def test_astar_weight_config(room, monkeypatch):
+    """Weighted A* (default 1.5) and plain A* (1.0) both give verified-safe shots to the same goal, the configured
+    weight reaches the voxel path search; bad weights are clear errors."""
+    import cinenerf_ns.planner.planner as planner_mod
+
+    seen = []
+    real = planner_mod.voxel_path
+
+    def spy(*a, **kw):
+        seen.append(kw.get("astar_weight"))
+        return real(*a, **kw)
+
+    monkeypatch.setattr(planner_mod, "voxel_path", spy)
+    s, e, pl0 = room
+    goal, look = s.objects[0].center, s.objects[1].center
+    for w in (1.0, 1.5, 3.0):
+        pl = Planner(e, PlannerConfig(grid_resolution=64, astar_weight=w))
+        pl.prepared = pl0.prepared  # same scene, same grid: skip a second prepare
+        shot = pl.plan(goal, look, seed=3)[0]
+        assert shot.safety["safe"]
+        assert seen[-1] == w
+    assert PlannerConfig().astar_weight == 1.5
+    for bad in (0.5, float("nan"), "2", True):
+        with pytest.raises(InvalidInputError, match="astar_weight"):
+            Planner(e, PlannerConfig(astar_weight=bad))
