@@ -206,7 +206,7 @@ def test_points_free_grid_filter_is_never_optimistic(seed, res):
 
 
 def test_astar_weight_config(room, monkeypatch):
-    """Weighted A* (default 1.5) and plain A* (1.0) both give verified-safe shots to the same goal, the configured
+    """Plain A* (1.0, default) and weighted A* (1.5, 3) both give verified-safe shots to the same goal, the configured
     weight reaches the voxel path search; bad weights are clear errors."""
     import cinenerf_ns.planner.planner as planner_mod
 
@@ -226,7 +226,7 @@ def test_astar_weight_config(room, monkeypatch):
         shot = pl.plan(goal, look, seed=3)[0]
         assert shot.safety["safe"]
         assert seen[-1] == w
-    assert PlannerConfig().astar_weight == 1.5
+    assert PlannerConfig().astar_weight == 1.0
     for bad in (0.5, float("nan"), "2", True):
         with pytest.raises(InvalidInputError, match="astar_weight"):
             Planner(e, PlannerConfig(astar_weight=bad))
