@@ -7,7 +7,7 @@ Scene: procedural_room(N) (seeded) on --device; go to object 0, look at object 1
 (spatial index, occupancy grid) is done once before timing and is not included.
   batched:    candidates.plan_candidates(planner, goal, look, k, seed)  (planned, verified, scored, ranked),
               all in this process (PlannerConfig.candidate_workers=0)
-  workers:    the same call with candidate_workers=--workers (None/auto: one per usable CPU but one, 0 on
+  workers:    the same call with candidate_workers=--workers (None/auto: one per usable CPU, 0 on
               < 4 CPUs; the row is then left out): whole candidates in forked worker processes (workers.py),
               scoring and ranking in this process; the pool is forked in the warm-up run, not timed
   sequential: k x planner.plan(goal, look, seed=i, n_candidates=1) + candidates.score_shots on that one shot

@@ -32,6 +32,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from cinenerf_ns.planner.scene import quat_wxyz_to_rotmat
+
 ArrayLike = Union[Tensor, np.ndarray, Sequence]
 
 
@@ -54,17 +56,6 @@ def up_frame(up: ArrayLike = (0.0, 0.0, 1.0)) -> np.ndarray:
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(u, e1)
     return np.stack([e1, e2, u], axis=1)
-
-
-def quats_to_rotmats(quats: np.ndarray) -> np.ndarray:
-    """wxyz quaternions [K, 4] (any norm > 0) -> rotation matrices [K, 3, 3]."""
-    q = quats / np.maximum(np.linalg.norm(quats, axis=-1, keepdims=True), 1e-300)
-    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    return np.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], axis=-1).reshape(-1, 3, 3)
 
 
 def _unit_ball_stencil(n: int = 5) -> np.ndarray:
@@ -166,7 +157,7 @@ def volume_centroid(
         ok = np.isfinite(s).all(1) & np.isfinite(q).all(1) & (np.linalg.norm(q, axis=1) > 0)
         s = np.where(ok[:, None], np.abs(s), 0.0)
         q = np.where(ok[:, None], q, np.array([1.0, 0.0, 0.0, 0.0]))
-        R = quats_to_rotmats(q)  # [K, 3, 3] world
+        R = quat_wxyz_to_rotmat(torch.from_numpy(q)).numpy()  # [K, 3, 3] world
         axes_f = np.einsum("ji,kjl->kil", F, R * s[:, None, :])  # F^T R diag(s): columns = axes in the frame
     surf, lo, h, pad = surface_voxels(pf, axes_f, int(resolution), int(close), float(max_extent_voxels))
     solid = enclosed_voxels(surf)

@@ -183,6 +183,43 @@ def score_shots(
     return out
 
 
+def _candidate_way(planner: Planner, prep, start: np.ndarray, goal_p: np.ndarray, goal_cache: Dict[int, Any],
+                   lap, t: float):
+    """Goal and voxel path of one candidate: (goal [3], polyline [K, 3] start -> goal, t). The goal is found once per
+    free component (goal_cache). Laps goal_ms and astar_ms. Raises GoalUnreachableError / StartInCollisionError."""
+    s_ijk = planner._free_voxel_near(start, None)
+    comp = int(prep.astar_grid.labels[tuple(s_ijk)])
+    if comp not in goal_cache:
+        goal_cache[comp] = planner._reachable_goal(goal_p, comp)
+    g, g_ijk = goal_cache[comp]
+    t = lap("goal_ms", t)
+    path = voxel_path(prep.astar_grid, prep.coarse, s_ijk, g_ijk, astar_weight=planner.config.astar_weight)  # [K, 3]
+    centres = prep.grid.voxel_to_world(torch.as_tensor(path, device=prep.grid.device)).cpu().numpy()
+    return g, np.concatenate([start[None], centres, g[None]]), lap("astar_ms", t)
+
+
+def _candidate_trajectory(planner: Planner, prep, way: np.ndarray, start: np.ndarray, g: np.ndarray, lap, t: float):
+    """Corridor and Bezier QP of one shortcut polyline: (corridor, trajectory, t). Laps corridor_ms and qp_ms.
+    Raises CorridorError / PlanningError."""
+    cfg = planner.config
+    corridor = build_corridor(torch.as_tensor(way, device=planner.scene.device), planner.scene, prep.index,
+                              box_margin=cfg.box_margin)
+    t = lap("corridor_ms", t)
+    traj = solve_corridor_qp(corridor.constraints(), corridor.waypoints.cpu().numpy(), start, g, cfg.trajectory)
+    return corridor, traj, lap("qp_ms", t)
+
+
+def _candidate_shot(planner: Planner, traj, corridor, look_p: np.ndarray, goal_p: np.ndarray,
+                    limits: Optional[DynamicLimits]) -> Shot:
+    """Timing + look-at orientation of a trajectory (retimed under ``limits`` when given)."""
+    cfg = planner.config
+    sh = Shot.from_trajectory(traj, look_p, timing=cfg.timing, up=cfg.up, corridor=corridor)
+    if limits is not None:
+        sh = retime_shot(sh, limits, up=cfg.up)
+    sh.goal_target = goal_p
+    return sh
+
+
 def _plan_candidate_task(planner: Planner, config, start: np.ndarray, goal_p: np.ndarray, look_p: np.ndarray,
                          goal_cache: Dict[int, Any], limits: Optional[DynamicLimits]) -> Dict[str, Any]:
     """One candidate, whole, in a worker process (workers.py): the in-process rounds' stages for a single
@@ -193,53 +230,36 @@ def _plan_candidate_task(planner: Planner, config, start: np.ndarray, goal_p: np
     failures caught are exactly those the in-process path records and replaces with a spare; anything else
     propagates to the parent."""
     planner.config = config  # the request's config (the fork's copy may be older)
-    cfg = config
     prep = planner._prep()
-    labels, grid = prep.astar_grid.labels, prep.grid
     tm: Dict[str, float] = {}
-    new_goals: Dict[int, Any] = {}
+    known = set(goal_cache)
 
     def lap(name, t0):
         tm[name] = tm.get(name, 0.0) + 1e3 * (time.perf_counter() - t0)
         return time.perf_counter()
 
-    def failed(e) -> Dict[str, Any]:
-        return {"shot": None, "error": str(e), "timings": tm, "goal_cache": new_goals}
+    def result(shot, error) -> Dict[str, Any]:
+        new_goals = {c: v for c, v in goal_cache.items() if c not in known}
+        return {"shot": shot, "error": error, "timings": tm, "goal_cache": new_goals}
 
     t = time.perf_counter()
     try:
-        s_ijk = planner._free_voxel_near(start, None)
-        comp = int(labels[tuple(s_ijk)])
-        if comp not in goal_cache:
-            goal_cache[comp] = new_goals[comp] = planner._reachable_goal(goal_p, comp)
-        g, g_ijk = goal_cache[comp]
-        t = lap("goal_ms", t)
-        path = voxel_path(prep.astar_grid, prep.coarse, s_ijk, g_ijk, astar_weight=cfg.astar_weight)  # [K, 3] fine voxel units
-        centres = grid.voxel_to_world(torch.as_tensor(path, device=grid.device)).cpu().numpy()
-        way = np.concatenate([start[None], centres, g[None]])
-        t = lap("astar_ms", t)
+        g, way, t = _candidate_way(planner, prep, start, goal_p, goal_cache, lap, t)
     except (GoalUnreachableError, StartInCollisionError) as e:
-        return failed(e)
+        return result(None, str(e))
     way = shortcut(way, planner._shortcut_free)  # == batched_shortcut on this path alone (tested)
     t = lap("shortcut_ms", t)
     if np.linalg.norm(way[-1] - way[0]) < 1e-9:
-        return failed("the start is already at the goal")
+        return result(None, "the start is already at the goal")
     try:
-        corridor = build_corridor(torch.as_tensor(way, device=planner.scene.device), planner.scene, prep.index,
-                                  box_margin=cfg.box_margin)
-        t = lap("corridor_ms", t)
-        traj = solve_corridor_qp(corridor.constraints(), corridor.waypoints.cpu().numpy(), start, g, cfg.trajectory)
-        t = lap("qp_ms", t)
+        corridor, traj, t = _candidate_trajectory(planner, prep, way, start, g, lap, t)
     except (GoalUnreachableError, CorridorError, PlanningError) as e:
-        return failed(e)
-    sh = Shot.from_trajectory(traj, look_p, timing=cfg.timing, up=cfg.up, corridor=corridor)
-    if limits is not None:
-        sh = retime_shot(sh, limits, up=cfg.up)
-    sh.goal_target = goal_p
+        return result(None, str(e))
+    sh = _candidate_shot(planner, traj, corridor, look_p, goal_p, limits)
     t = lap("timing_ms", t)
     sh.safety = batched_verify(planner, [sh])[0]  # the parent refuses unsafe shots (UnsafeTrajectoryError)
     lap("verify_ms", t)
-    return {"shot": sh, "error": None, "timings": tm, "goal_cache": new_goals}
+    return result(sh, None)
 
 
 def _with_request_threads(fn):
@@ -377,16 +397,8 @@ def _plan_candidates(
         for ci in batch:
             s = starts[ci]
             try:
-                s_ijk = planner._free_voxel_near(s, None)
-                comp = int(labels[tuple(s_ijk)])
-                if comp not in goal_cache:
-                    goal_cache[comp] = planner._reachable_goal(goal_p, comp)
-                g, g_ijk = goal_cache[comp]
-                t = lap("goal_ms", t)
-                path = voxel_path(prep.astar_grid, prep.coarse, s_ijk, g_ijk, astar_weight=cfg.astar_weight)  # [K, 3] fine voxel units
-                centres = grid.voxel_to_world(torch.as_tensor(path, device=grid.device)).cpu().numpy()
-                plans.append({"cand": ci, "start": s, "goal": g, "way": np.concatenate([s[None], centres, g[None]])})
-                t = lap("astar_ms", t)
+                g, way, t = _candidate_way(planner, prep, s, goal_p, goal_cache, lap, t)
+                plans.append({"cand": ci, "start": s, "goal": g, "way": way})
             except (GoalUnreachableError, StartInCollisionError) as e:
                 errors.append(str(e))
                 t = time.perf_counter()
@@ -397,21 +409,12 @@ def _plan_candidates(
                 errors.append("the start is already at the goal")
                 continue
             try:
-                corridor = build_corridor(torch.as_tensor(way, device=planner.scene.device), planner.scene, prep.index,
-                                          box_margin=cfg.box_margin)
-                t = lap("corridor_ms", t)
-                traj = solve_corridor_qp(corridor.constraints(), corridor.waypoints.cpu().numpy(), p["start"], p["goal"],
-                                         cfg.trajectory)
-                t = lap("qp_ms", t)
+                corridor, traj, t = _candidate_trajectory(planner, prep, way, p["start"], p["goal"], lap, t)
             except (GoalUnreachableError, CorridorError, PlanningError) as e:
                 errors.append(str(e))
                 t = time.perf_counter()
                 continue
-            sh = Shot.from_trajectory(traj, look_p, timing=cfg.timing, up=cfg.up, corridor=corridor)
-            if limits is not None:
-                sh = retime_shot(sh, limits, up=cfg.up)
-            sh.goal_target = goal_p
-            shots.append(sh)
+            shots.append(_candidate_shot(planner, traj, corridor, look_p, goal_p, limits))
             cand_ids.append(p["cand"])
             t = lap("timing_ms", t)
     if not shots:

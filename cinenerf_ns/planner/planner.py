@@ -417,9 +417,7 @@ class Planner:
         """bool [P]: every sample (spacing <= half a voxel) of segment p0[i] -> p1[i] farther than one
         voxel from both ends lies in a free voxel of the occupancy grid. Only a cheap pre-filter for
         the shortcut: refusing a segment is always safe (it just keeps the voxel path there)."""
-        prep = self._prep()
-        grid, occ = prep.grid, prep.astar_grid._occ
-        lo, vs = grid.lo.detach().cpu().double().numpy(), float(grid.voxel_size)
+        vs = float(self._prep().grid.voxel_size)
         L = np.linalg.norm(p1 - p0, axis=1)  # [P]
         n = np.maximum(2, np.ceil(L / (0.5 * vs)).astype(np.int64) + 1)  # samples per segment
         owner = np.repeat(np.arange(len(p0)), n)
@@ -427,11 +425,7 @@ class Planner:
         frac = (np.arange(owner.size) - start[owner]) / (n[owner] - 1)  # [S] in [0, 1]
         dist_end = np.minimum(frac, 1 - frac) * L[owner]
         pts = p0[owner] + frac[:, None] * (p1 - p0)[owner]
-        ijk = np.floor((pts - lo) / vs).astype(np.int64)
-        shape = np.array(occ.shape)
-        inside = ((ijk >= 0) & (ijk < shape)).all(1)
-        c = np.clip(ijk, 0, shape - 1)
-        blocked = (~inside | occ[c[:, 0], c[:, 1], c[:, 2]]) & (dist_end > vs)
+        blocked = ~self.in_free_voxel(pts) & (dist_end > vs)
         bad = np.zeros(len(p0), dtype=bool)
         np.logical_or.at(bad, owner, blocked)
         return ~bad

@@ -6,7 +6,8 @@ import pytest
 import torch
 from hypothesis import given, settings, strategies as st
 
-from cinenerf_ns.method.object_centre import enclosed_voxels, quats_to_rotmats, up_frame, volume_centroid
+from cinenerf_ns.method.object_centre import enclosed_voxels, up_frame, volume_centroid
+from cinenerf_ns.planner.scene import quat_wxyz_to_rotmat
 
 
 def _enclosed_reference(occ: np.ndarray) -> np.ndarray:
@@ -111,7 +112,7 @@ def test_rotation_equivariance_with_up(seed):
         _box_surface((-0.05, -0.05, 0.5), (0.05, 0.05, 1.2), 40_000, rng, ("x-", "x+", "y-", "y+", "z+")),
     ])
     q = rng.normal(size=4)
-    R = quats_to_rotmats(q[None])[0]
+    R = quat_wxyz_to_rotmat(torch.from_numpy(q[None]))[0].numpy()
     base = volume_centroid(pts, resolution=48)
     rot = volume_centroid(pts @ R.T, up=R @ np.array([0.0, 0.0, 1.0]), resolution=48)
     assert np.linalg.norm(rot - R @ base) < 2.5 * 1.2 / 48 * np.sqrt(3)

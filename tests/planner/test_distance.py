@@ -145,4 +145,3 @@ def test_cuda_clearance_matches_cpu():
     scc = sc.to("cuda")
     b = clearance(pts.cuda(), scc, GridIndex.build(scc))
     torch.testing.assert_close(a, b.cpu(), atol=1e-10, rtol=0)
-
