@@ -218,6 +218,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--object-cluster", type=float, default=0.02, help="as cinesplat-plan --object-cluster (same default)")
     ap.add_argument("--object-centre", choices=["volume", "surface"], default="volume",
                     help="as cinesplat-plan --object-centre (same default)")
+    ap.add_argument("--keep-support", action="store_true", help="as cinesplat-plan --keep-support (default: dropped)")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/room_eval"))
     ap.add_argument("--no-record", action="store_true", help="do not append to benchmarks/RESULTS.md")
     a = ap.parse_args(argv)
@@ -226,7 +227,7 @@ def main(argv=None) -> dict:
     # the planner plans for radius + margin, exactly as cinesplat-plan does; the truth is scored for the radius
     loaded = load_scene(str(a.scene), SceneConfig(camera_radius=a.camera_radius + a.safety_margin), device=a.device,
                         smooth_neighbors=a.semantic_smoothing, object_cluster=a.object_cluster,
-                        object_centre=a.object_centre)
+                        object_centre=a.object_centre, drop_support=not a.keep_support)
     sel = evaluate_selection(loaded, gt)
     shots, plots, prep_ms = ([], {"paths": {}, "series": {}}, {}) if a.selection_only else evaluate_shots(
         loaded, gt, a.starts, a.camera_radius, a.grid_resolution)
@@ -257,7 +258,7 @@ def main(argv=None) -> dict:
     print("\n".join(md))
     if not a.no_record:
         append_results(f"\n## eval_room ({date}, {dev})\n\nscene `{a.scene}`, {len(loaded.scene)} Gaussians, {a.starts} starts per pair, "
-                    f"camera radius {a.camera_radius} (+ planning margin {a.safety_margin}), semantic smoothing {a.semantic_smoothing}, object cluster {a.object_cluster}, object centre {a.object_centre}; details in `{a.out}/eval_room.md`\n\n```\n{json.dumps(summary, indent=1)}\n```\n")
+                    f"camera radius {a.camera_radius} (+ planning margin {a.safety_margin}), semantic smoothing {a.semantic_smoothing}, object cluster {a.object_cluster}, object centre {a.object_centre}, support layer {'kept' if a.keep_support else 'dropped'}; details in `{a.out}/eval_room.md`\n\n```\n{json.dumps(summary, indent=1)}\n```\n")
     return summary
 
 

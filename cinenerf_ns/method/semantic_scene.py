@@ -150,6 +150,7 @@ class SemanticScene:
         quats: Optional[Tensor] = None,
         centre: str = "volume",
         up: Sequence[float] = (0.0, 0.0, 1.0),
+        drop_support: bool = True,
     ):
         """label_names: the scene's own label vocabulary (label-mask training). A query equal to one of
         them is contrasted against the *other* labels instead of ``negatives``: "floor lamp" must beat
@@ -157,7 +158,9 @@ class SemanticScene:
         separates objects whose embeddings are close.
         centre: what ``locate`` returns as the object's position: "volume" (estimated volume centroid, see
         object_centre.py; default) or "surface" (opacity-weighted mean of the selected Gaussians, which sit on
-        surfaces: off the middle of objects with thin parts). up: world up (the volume estimate's vertical)."""
+        surfaces: off the middle of objects with thin parts). up: world up (the volume estimate's vertical).
+        drop_support: drop the floor / table layer under the selected object from the selection (features bleed
+        across contact; see object_support.py)."""
         n = means.shape[0]
         if means.shape != (n, 3) or latents.shape[0] != n or opacities.reshape(-1).shape[0] != n:
             raise ValueError(
@@ -174,6 +177,7 @@ class SemanticScene:
         self.quats = quats
         self.centre = centre
         self.up = tuple(float(u) for u in up)
+        self.drop_support = bool(drop_support)
         self.opacities = opacities.reshape(-1)
         self._raw_latents = latents
         self._smoothed: Optional[Tensor] = None
@@ -185,7 +189,7 @@ class SemanticScene:
         self.threshold = float(threshold)
         self.min_opacity = float(min_opacity)
         self.cluster_fraction = float(cluster_fraction or 0.0)
-        self._cluster_voxel: Optional[float] = None
+        self._robust_extent: Optional[float] = None
         self._neg_emb: Optional[Tensor] = None
         self.label_names = [str(x) for x in (label_names or [])]
         self._label_neg: Dict[str, Tensor] = {}
@@ -251,6 +255,12 @@ class SemanticScene:
             )
         if self.cluster_fraction > 0:
             mask = dominant_cluster(self.means, mask, rel * self.opacities, self._voxel())
+        if self.drop_support:
+            from cinenerf_ns.method.object_support import drop_support_layer
+
+            # the ring around the footprint: 1/2 to 3/2 of the clustering voxel (2% of the scene's extent by default)
+            v = self._voxel() if self.cluster_fraction > 0 else self._extent() * 0.02
+            mask = drop_support_layer(self.means, mask, up=self.up, inner=0.5 * v, outer=1.5 * v)
         c, lo, hi = object_centroid_extent(self.means, self.opacities, mask)
         centre = c if self.centre == "surface" else self.volume_centre(mask)
         return LocateResult(centroid=centre, mask=mask, lo=lo, hi=hi, relevancy=rel, surface_centroid=c)
@@ -265,14 +275,18 @@ class SemanticScene:
         return torch.as_tensor(c, dtype=self.means.dtype, device=self.means.device)
 
     def _voxel(self) -> float:
-        """cluster_fraction x the scene's robust extent (1%-99% quantiles of the means, longest side)."""
-        if self._cluster_voxel is None:
+        """cluster_fraction x the scene's robust extent."""
+        return max(self._extent() * self.cluster_fraction, 1e-9)
+
+    def _extent(self) -> float:
+        """The scene's robust extent: longest side of the 1%-99% quantile box of the means."""
+        if self._robust_extent is None:
             m = self.means.detach().float()
             if m.shape[0] > 200_000:  # quantiles of a subsample: the extent does not need every point
                 m = m[torch.randperm(m.shape[0], generator=torch.Generator().manual_seed(0))[:200_000].to(m.device)]
             q = torch.quantile(m, torch.tensor([0.01, 0.99], device=m.device), dim=0)
-            self._cluster_voxel = max(float((q[1] - q[0]).max()) * self.cluster_fraction, 1e-9)
-        return self._cluster_voxel
+            self._robust_extent = max(float((q[1] - q[0]).max()), 1e-9)
+        return self._robust_extent
 
     def locate(self, text: str, threshold: Optional[float] = None) -> Tuple[Tensor, Tensor]:
         """(object centre [3] (see ``centre``), mask [N] bool) of the Gaussians above the relevancy threshold."""
