@@ -104,11 +104,11 @@ class PlanArgs:
     object_centre: Literal["volume", "surface"] = "volume"
     """Where a text target is: 'volume' (estimated volume centroid of the selected object: surface Gaussians
     voxelised and filled, see cinenerf_ns/method/object_centre.py) or 'surface' (opacity-weighted mean of the
-    selected Gaussians: pulled toward thin parts such as a lamp's pole). Synthetic room: worst object 7.4% -> 0.7%
+    selected Gaussians: pulled toward thin parts such as a lamp's pole). Synthetic room: worst object 7.4% -> 0.9%
     of the room size from the true centre (with the support-layer rule below)."""
     keep_support: bool = False
     """Keep the floor / table layer under a text target in its selection. By default it is dropped: features bleed
-    across contact, and the floor around a lamp's base pulls its centre down (synthetic room: lamp 2.9% -> 0.7% of
+    across contact, and the floor around a lamp's base pulls its centre down (synthetic room: lamp 2.9% -> 0.9% of
     the room size; see cinenerf_ns/method/object_support.py)."""
     device: str = "cpu"
     """torch device of the scene tensors ('cpu' or 'cuda')."""

@@ -10,11 +10,15 @@ from cinenerf_ns.method.object_centre import enclosed_voxels, neighbour_spacing,
 from cinenerf_ns.planner.scene import quat_wxyz_to_rotmat
 
 
-RAYS = [(1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, -1), (1, -1), (-1, 1)]
+RAYS = [(1, 0), (2, 1), (1, 1), (1, 2), (0, 1), (-1, 2), (-1, 1), (-2, 1),
+        (-1, 0), (-2, -1), (-1, -1), (-1, -2), (0, -1), (1, -2), (1, -1), (2, -1)]
 
 
 def _enclosed_reference(occ: np.ndarray, need: int) -> np.ndarray:
-    """Brute force: walk from every voxel along the 8 horizontal rays, one voxel at a time, and up and down."""
+    """Brute force: from every voxel, walk each of the 16 horizontal rays one lattice step k at a time (the cells
+    floor/ceil(k d / n)) and look for a surface voxel; then up and down."""
+    import math
+
     X, Y, Z = occ.shape
     out = np.zeros_like(occ)
     for i in range(X):
@@ -25,19 +29,24 @@ def _enclosed_reference(occ: np.ndarray, need: int) -> np.ndarray:
                     continue
                 votes = 0
                 for dx, dy in RAYS:
-                    a, b = i + dx, j + dy
-                    while 0 <= a < X and 0 <= b < Y:
-                        if occ[a, b, k]:
-                            votes += 1
+                    n = max(abs(dx), abs(dy))
+                    hit, step = False, 1
+                    while not hit:
+                        fx, fy = step * dx / n, step * dy / n
+                        cells = [(i + x, j + y) for x in {math.floor(fx), math.ceil(fx)} for y in {math.floor(fy), math.ceil(fy)}]
+                        inside = [(a, b) for a, b in cells if 0 <= a < X and 0 <= b < Y]
+                        if not inside:
                             break
-                        a, b = a + dx, b + dy
+                        hit = any(occ[a, b, k] for a, b in inside)
+                        step += 1
+                    votes += hit
                 zm, zp = occ[i, j, :k].any(), occ[i, j, k + 1:].any()
                 out[i, j, k] = votes >= need and (zm or zp)
     return out
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.integers(0, 2**31 - 1), st.floats(0.02, 0.5), st.integers(1, 8), st.integers(1, 11), st.integers(1, 11))
+@given(st.integers(0, 2**31 - 1), st.floats(0.02, 0.5), st.integers(1, 16), st.integers(1, 11), st.integers(1, 11))
 def test_enclosed_matches_brute_force(seed, density, need, nx, ny):
     rng = np.random.default_rng(seed)
     occ = rng.random((nx, ny, 5)) < density
@@ -46,20 +55,33 @@ def test_enclosed_matches_brute_force(seed, density, need, nx, ny):
 
 def test_enclosed_rejects_bad_vote():
     with pytest.raises(ValueError, match="min_horizontal"):
-        enclosed_voxels(np.zeros((3, 3, 3), bool), 9)
+        enclosed_voxels(np.zeros((3, 3, 3), bool), 17)
 
 
 def test_a_hole_in_a_side_wall_does_not_empty_a_column():
     """A closed box (voxel shell) with one missing side-wall voxel: every interior voxel is still filled with the
-    vote, while 'all 4 axis rays' (need 8) leaves the voxels behind the hole empty."""
-    occ = np.zeros((9, 9, 6), bool)
+    default vote (14 of 16 rays), while requiring every ray (16) leaves voxels behind the hole empty."""
+    occ = np.zeros((13, 13, 6), bool)
     occ[0, :, :] = occ[-1, :, :] = occ[:, 0, :] = occ[:, -1, :] = True
     occ[:, :, 0] = True  # the bottom (the top is open, as often in captures)
-    occ[0, 4, 3] = False  # the hole
+    occ[0, 6, 3] = False  # the hole
     inside = np.zeros_like(occ)
     inside[1:-1, 1:-1, 1:] = True
-    assert enclosed_voxels(occ, 6)[inside].all()
-    assert not enclosed_voxels(occ, 8)[inside].all()
+    assert enclosed_voxels(occ)[inside].all()
+    assert not enclosed_voxels(occ, 16)[inside].all()
+
+
+def test_a_wide_pocket_stays_mostly_empty():
+    """A U-shaped wall (an armchair's arms and back around its seat): the pocket's open side is wide, so most pocket
+    voxels let 3+ of the 16 rays out and stay empty (only a strip along the back, where just 1-2 rays find the
+    opening, fills); allowing 4 escapes (12 of 16) fills far more of it."""
+    occ = np.zeros((16, 16, 4), bool)
+    occ[:, 0, :] = True  # the back
+    occ[0, :, :] = occ[-1, :, :] = True  # the arms, open toward +y
+    occ[:, :, 0] = True  # the seat under the pocket
+    pocket = (slice(1, -1), slice(1, None), slice(1, None))
+    assert enclosed_voxels(occ)[pocket].mean() <= 0.25
+    assert enclosed_voxels(occ, 12)[pocket].mean() >= 2 * enclosed_voxels(occ)[pocket].mean()
 
 
 def _box_surface(lo, hi, n_per_unit2, rng, faces=("x-", "x+", "y-", "y+", "z-", "z+")):
@@ -113,6 +135,22 @@ def test_lamp_like_object_volume_not_surface():
     size = 1.77
     assert np.linalg.norm(pts.mean(0) - truth) > 0.15 * size  # the surface mean is far off
     assert np.linalg.norm(est - truth) < 0.03 * size
+
+
+def test_armchair_seat_pocket():
+    """Seat block between two arms and a back (red_armchair's layout): the air above the seat is not the chair. The
+    strip of that pocket along the back still fills (see test_a_wide_pocket_stays_mostly_empty): measured 2.6% of
+    the height off with the default 14 of 16 rays, 3.6% with 12 of 16."""
+    rng = np.random.default_rng(5)
+    seat = ((-0.3, -0.42, 0.0), (0.3, 0.42, 0.42))
+    arms = [((-0.42, -0.42, 0.0), (-0.3, 0.42, 0.64)), ((0.3, -0.42, 0.0), (0.42, 0.42, 0.64))]
+    back = ((-0.42, 0.42, 0.0), (0.42, 0.56, 0.92))
+    boxes = [seat] + arms + [back]
+    pts = np.concatenate([_box_surface(*b, 20_000, rng, ("x-", "x+", "y-", "y+", "z+")) for b in boxes])
+    truth = _box_volume_centroid(boxes)
+    est = volume_centroid(pts, resolution=64)
+    assert np.linalg.norm(est - truth) < 0.035 * 0.92
+    assert np.linalg.norm(est - truth) < np.linalg.norm(volume_centroid(pts, resolution=64, min_horizontal=12) - truth)
 
 
 def test_open_space_under_a_table_is_not_filled():
@@ -193,25 +231,27 @@ def test_gaussians_inside_an_object_do_not_move_its_centre():
 @given(st.integers(0, 2**31 - 1), st.sampled_from(["z-", "z+"]), st.integers(1000, 4000))
 def test_sparsely_covered_box_is_found(seed, missing, density):
     """A box whose faces carry few Gaussians (1000-4000 per unit^2: ~6-15 per side length) and lack the top or the
-    bottom: the voxel follows the Gaussians' spacing, and the estimate stays within 8% of the box size."""
+    bottom: the voxel follows the Gaussians' spacing, and the estimate stays within 12% of the box size (measured
+    worst over 80 such boxes: 9.6%; dense boxes, above: one voxel)."""
     rng = np.random.default_rng(seed)
     lo, hi = np.zeros(3), np.array([0.4, 0.3, 0.5])
     p = _box_surface(lo, hi, density, rng, [f for f in ("x-", "x+", "y-", "y+", "z-", "z+") if f != missing])
-    assert np.linalg.norm(volume_centroid(p) - 0.5 * (lo + hi)) < 0.08 * 0.5
+    assert np.linalg.norm(volume_centroid(p) - 0.5 * (lo + hi)) < 0.12 * 0.5
 
 
 def test_voxels_finer_than_the_spacing_leak():
     """Same sparse boxes at 64 voxels regardless of the spacing (spacing_voxels=0): the walls become sieves and the
-    estimate is worse on average over seeds than with the spacing rule (measured: ~0.08 vs ~0.05 of the size)."""
+    estimate is worse on average over seeds than with the spacing rule (measured over these 20 boxes: 0.073 vs
+    0.060 of the size)."""
     errs = {2.0: [], 0.0: []}
-    for seed in range(6):
+    for seed in range(10):
         for missing in ("z-", "z+"):
             rng = np.random.default_rng(seed)
             lo, hi = np.zeros(3), np.array([0.4, 0.3, 0.5])
             p = _box_surface(lo, hi, 3000, rng, [f for f in ("x-", "x+", "y-", "y+", "z-", "z+") if f != missing])
             for sv in errs:
                 errs[sv].append(np.linalg.norm(volume_centroid(p, spacing_voxels=sv) - 0.5 * (lo + hi)))
-    assert np.mean(errs[2.0]) < 0.8 * np.mean(errs[0.0])
+    assert np.mean(errs[2.0]) < 0.9 * np.mean(errs[0.0])
 
 
 def test_neighbour_spacing_matches_brute_force():
