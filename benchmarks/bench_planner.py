@@ -1,7 +1,7 @@
 """Planner latency per stage (issue 3): prepare() once, then >= 100 seeded plan() requests.
 
 Usage: .venv/bin/python benchmarks/bench_planner.py [--device cpu|cuda] [--n-gaussians 200000]
-       [--pairs 100] [--seed 0] [--grid-resolution 96] [--quick] [--no-record]
+       [--pairs 100] [--seed 0] [--grid-resolution 96] [--corridor-backend auto|cpu|batched] [--quick] [--no-record]
 
 Scene: procedural_room(N) (floor, walls, 6 objects). Request k: go-to = a random object's centre
 (+ seeded jitter inside its box), look-at = another object's centre, start sampled by the planner
@@ -45,6 +45,8 @@ def main() -> None:
     ap.add_argument("--grid-resolution", type=int, default=None, help="default: PlannerConfig's")
     ap.add_argument("--request-device", default="auto", choices=["auto", "scene"],
                     help="PlannerConfig.request_device: auto = per-request queries on a CPU mirror of a GPU scene")
+    ap.add_argument("--corridor-backend", default="auto", choices=["auto", "cpu", "batched"],
+                    help="PlannerConfig.corridor_backend: auto = batched polytopes on a CUDA scene, else host polytopes")
     ap.add_argument("--quick", action="store_true", help="20k Gaussians, 20 requests (smoke run)")
     ap.add_argument("--no-record", action="store_true", help="do not append to benchmarks/RESULTS.md")
     ap.add_argument("--note", default="", help="free text appended to the RESULTS.md line (e.g. 'box loaded')")
@@ -67,7 +69,7 @@ def main() -> None:
     )
     sync()
     build_s = time.perf_counter() - t0
-    cfg = PlannerConfig(request_device=args.request_device)
+    cfg = PlannerConfig(request_device=args.request_device, corridor_backend=args.corridor_backend)
     if args.grid_resolution is not None:
         cfg.grid_resolution = args.grid_resolution
     planner = Planner(scene, cfg)
@@ -132,6 +134,7 @@ def main() -> None:
         "torch_threads": torch.get_num_threads(),
         "n_gaussians": len(scene),
         "grid_resolution": cfg.grid_resolution,
+        "corridor_backend": f"{args.corridor_backend} -> {planner.corridor_backend()}",
         "grid_shape": list(prep.grid.shape),
         "pairs": args.pairs,
         "seed": args.seed,
@@ -178,7 +181,7 @@ def main() -> None:
     keys = [k for k in ("start_sample_ms", "goal_ms", "astar_ms", "shortcut_ms", "corridor_ms", "qp_ms", "timing_ms",
                         "orientation_ms", "verify_ms") if k in stages]
     lines = [
-        f"### bench_planner.py  {result['date']}  {result['device']} ({args.device}, request_device {args.request_device}, torch threads {result['torch_threads']})"
+        f"### bench_planner.py  {result['date']}  {result['device']} ({args.device}, request_device {args.request_device}, corridor_backend {result['corridor_backend']}, torch threads {result['torch_threads']})"
         + (f"  {args.note}" if args.note else ""),
         "",
         f"procedural_room N={len(scene)} seed {args.seed}, grid_resolution {cfg.grid_resolution} {result['grid_shape']}, "
