@@ -198,6 +198,7 @@ def safe_polytopes_batched(
     chunk: int = 32,
     block: int = 1 << 19,
     out_device: Optional[torch.device] = None,
+    stats: Optional[dict] = None,
 ) -> Tuple[List[Optional[Polytope]], Tensor]:
     """Safe polytopes around M seed segments at once -> (polytopes [M], failed bool [M] on the CPU).
 
@@ -211,6 +212,8 @@ def safe_polytopes_batched(
     chunk: pairs per segment whose planes are computed per round (more: fewer rounds, i.e. fewer kernel
     launches and host syncs, but more planes computed that pruning would have made unnecessary).
     block: pairs per pruning block (bounds the memory of a [block, chunk, 3] float64 intermediate).
+    stats: optional dict, filled with ``pairs`` (candidate pairs), ``alive`` (undecided pairs at the start of
+    each round), ``exact_tests`` (pairs that needed the exact support test) and ``retried`` (negative-slack rows).
     """
     dev = scene.means.device
     out_device = dev if out_device is None else torch.device(out_device)
@@ -259,7 +262,10 @@ def safe_polytopes_batched(
     bad_pair = [q[:0]]  # pair indices whose own planes all cut their segment (decided at the end)
     ar_m = torch.arange(M, device=dev)
     alive = torch.arange(q.numel(), device=dev)  # [A] undecided pairs, still sorted by (segment, key)
+    st = stats if stats is not None else {}
+    st.update(pairs=int(q.numel()), alive=[], exact_tests=0, retried=0)
     while alive.numel():
+        st["alive"].append(int(alive.numel()))
         # ---- 3a. the k nearest undecided pairs of every segment: rank inside its segment's run
         qa = q[alive]
         starts = torch.searchsorted(qa, ar_m)  # [M] first undecided pair of each segment
@@ -273,6 +279,7 @@ def safe_polytopes_batched(
         s0, s1 = seg[cq, 0], seg[cq, 1]  # [C, 3]
         n, b, slack = _segment_planes(s0, s1, c_mu, rot, c_ax, r, normal, margin)  # [C, 3], [C], [C]
         neg = torch.nonzero(slack < 0).squeeze(-1)
+        st["retried"] += int(neg.numel())
         if neg.numel():  # rare: the host path's extra reference points for grazing segments
             n2, b2, sl2 = _retry_on_host(neg, s0, s1, c_mu, rot, c_ax, cq, r, normal, margin)
             better = sl2 > slack[neg]
@@ -317,6 +324,7 @@ def safe_polytopes_batched(
             maybe = torch.nonzero(~cut & (proj - amin[j, None] - r >= bb).any(-1)).squeeze(-1)
             if maybe.numel():  # the exact support test only where the sphere test cannot decide
                 jm = j[maybe]
+                st["exact_tests"] += int(jm.numel())
                 rm = scene.rotations.index_select(0, g[jm]).to(torch.float64)
                 cut[maybe] = (_support_gap(nn[maybe], mu[jm], rm, ax[jm], r) >= bb[maybe]).any(-1)
             keep_rest.append(j[~cut])
