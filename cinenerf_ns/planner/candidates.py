@@ -202,8 +202,9 @@ def _candidate_trajectory(planner: Planner, prep, way: np.ndarray, start: np.nda
     """Corridor and Bezier QP of one shortcut polyline: (corridor, trajectory, t). Laps corridor_ms and qp_ms.
     Raises CorridorError / PlanningError."""
     cfg = planner.config
+    # box margin and PlannerConfig.corridor_backend ('cpu' in a worker)
     corridor = build_corridor(torch.as_tensor(way, device=planner.scene.device), planner.scene, prep.index,
-                              box_margin=cfg.box_margin)
+                              **planner.corridor_kwargs())
     t = lap("corridor_ms", t)
     traj = solve_corridor_qp(corridor.constraints(), corridor.waypoints.cpu().numpy(), start, g, cfg.trajectory)
     return corridor, traj, lap("qp_ms", t)

@@ -11,6 +11,12 @@ never safety or feasibility; it is reported (``thin_joints``) and warned about.
 A segment that no polytope can contain (it grazes an obstacle closer than the camera radius: the
 per-ellipsoid planes are tangent to the inflated ellipsoid, so for a segment outside every inflated
 ellipsoid this is rare) is split at its midpoint and retried, up to ``max_split_depth`` times.
+
+``backend="batched"`` builds the polytopes of all segments in one batched torch computation
+(polytope_batched.py; on a GPU scene + index this is one set of big kernels instead of a host loop per
+segment), possibly on another copy of the scene (``batch_scene``/``batch_index``, e.g. the planner's GPU
+scene while requests use a CPU mirror). Segments it flags (no polytope found around them) go through the
+host path above, splitting included, so both backends cover the same segments with the same guarantee.
 """
 from __future__ import annotations
 
@@ -24,6 +30,7 @@ from torch import Tensor
 
 from .errors import InvalidInputError, PlanningError
 from .polytope import Polytope, SeedNotFreeError, chebyshev_center, safe_polytope
+from .polytope_batched import safe_polytopes_batched
 
 
 class CorridorError(PlanningError):
@@ -39,6 +46,7 @@ class Corridor:
     overlap_radius: Tensor = field(default=None)  # [M-1] lower bound of the Chebyshev radius of P_m ∩ P_{m+1}
     thin_joints: list[int] = field(default_factory=list)  # m with overlap_radius[m] < min_overlap
     n_splits: int = 0  # midpoint splits that were needed
+    n_host_segments: int = 0  # backend "batched": segments it flagged, built by the host path instead
 
     def __len__(self) -> int:
         return len(self.polytopes)
@@ -101,6 +109,9 @@ def build_corridor(
     normal: str = "auto",
     exact_overlap: bool = False,
     box: str = "aabb",
+    backend: str = "cpu",
+    batch_scene=None,
+    batch_index=None,
 ) -> Corridor:
     """Corridor of safe polytopes along a polyline of camera centres.
 
@@ -114,6 +125,9 @@ def build_corridor(
     box: "aabb" (segment bounding box + margin, axis-aligned) or "oriented" (box aligned with the
     segment, margin on every side): far fewer candidate ellipsoids for long diagonal segments, so
     faster, but less room for the trajectory away from the segment.
+    backend: "cpu" (one host ``safe_polytope`` per segment) or "batched" (``safe_polytopes_batched`` for
+    all segments at once on ``batch_scene`` / ``batch_index``, default ``scene`` / ``index``, which must
+    hold the same ellipsoids; flagged segments then take the host path with splitting; box "aabb" only).
     Raises InvalidInputError (bad waypoints), CorridorError (a segment cannot be covered).
     """
     dev = scene.means.device
@@ -126,6 +140,10 @@ def build_corridor(
         raise InvalidInputError(f"box must be 'aabb' or 'oriented', got {box!r}")
     if not (box_margin > 0):
         raise InvalidInputError(f"box_margin must be > 0, got {box_margin}")
+    if backend not in ("cpu", "batched"):
+        raise InvalidInputError(f"corridor backend must be 'cpu' or 'batched', got {backend!r}")
+    if backend == "batched" and box != "aabb":
+        raise InvalidInputError("the batched corridor backend supports box='aabb' only")
     keep = torch.ones(w.shape[0], dtype=torch.bool, device=dev)
     keep[1:] = (w[1:] - w[:-1]).norm(dim=-1) > 1e-12
     w = w[keep]
@@ -135,8 +153,24 @@ def build_corridor(
     kw = dict(margin=margin, normal=normal)
     pieces: list = []
     stats = {"splits": 0}
-    for m in range(w.shape[0] - 1):
-        _segment_polytopes(w[m], w[m + 1], scene, index, box_margin, 0, max_split_depth, kw, pieces, stats, m, box)
+    if backend == "batched":
+        bscene = scene if batch_scene is None else batch_scene
+        bindex = index if batch_scene is None and batch_index is None else batch_index
+        bw = w.to(bscene.means.device)
+        segs = torch.stack([bw[:-1], bw[1:]], 1)  # [M, 2, 3]
+        lo = torch.minimum(bw[:-1], bw[1:]) - box_margin  # [M, 3] same boxes as the host path
+        hi = torch.maximum(bw[:-1], bw[1:]) + box_margin
+        polys_b, failed = safe_polytopes_batched(segs, bscene, bindex, lo, hi, margin=margin, normal=normal,
+                                                 out_device=dev)
+        stats["host_segments"] = int(failed.sum())
+        for m in range(w.shape[0] - 1):
+            if polys_b[m] is not None:
+                pieces.append((polys_b[m], w[m], w[m + 1]))
+            else:  # the host path decides this segment (SeedNotFreeError -> split, as with backend "cpu")
+                _segment_polytopes(w[m], w[m + 1], scene, index, box_margin, 0, max_split_depth, kw, pieces, stats, m, box)
+    else:
+        for m in range(w.shape[0] - 1):
+            _segment_polytopes(w[m], w[m + 1], scene, index, box_margin, 0, max_split_depth, kw, pieces, stats, m, box)
     polys = [p for p, _, _ in pieces]
     wps = torch.stack([pieces[0][1]] + [p1 for _, _, p1 in pieces])  # [M+1, 3]
 
@@ -166,4 +200,5 @@ def build_corridor(
         overlap_radius=torch.tensor(radii, dtype=torch.float64),
         thin_joints=thin,
         n_splits=stats["splits"],
+        n_host_segments=stats.get("host_segments", 0),
     )

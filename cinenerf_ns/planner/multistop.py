@@ -235,7 +235,7 @@ def plan_multistop(
     polys, wps, stop_segments = [], [pts[0][None]], []
     for i, w in enumerate(ways):
         cor = build_corridor(torch.as_tensor(w, device=planner.scene.device), planner.scene, prep.index,
-                             box_margin=cfg.box_margin)
+                             **planner.corridor_kwargs())  # box margin, PlannerConfig.corridor_backend
         if i > 0:
             stop_segments.append(len(polys))
         polys.extend(cor.constraints())

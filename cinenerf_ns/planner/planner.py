@@ -44,7 +44,7 @@ from .shot import Shot
 from .spatial_index import GridIndex
 from .timing import TimingConfig
 from .trajectory import TrajectoryConfig, solve_corridor_qp
-from .workers import CandidatePool, default_workers, pool_for, validate_workers
+from .workers import CandidatePool, default_workers, in_worker, pool_for, validate_workers
 
 ArrayLike = Union[Tensor, np.ndarray, Sequence[float]]
 
@@ -92,6 +92,13 @@ class PlannerConfig:
     more than they compute (H100 host, 1M Gaussians, median per plan: 388 ms on CUDA tensors, 194 ms with
     the CPU mirror). 'scene': on the scene's device. Batched scoring of many candidates (occlusion, clearance)
     keeps using the scene's device (``Planner.batch_scene``)."""
+    corridor_backend: str = "auto"
+    """How a request builds its corridor of safe polytopes. 'cpu': one host polytope per segment
+    (polytope.safe_polytope) on the request device's scene. 'batched': all segments' polytopes in one batched
+    torch computation (polytope_batched.py) on the scene's own device (``Planner.batch_scene`` and its index:
+    the GPU copy when the scene is on a GPU, even with request_device 'auto'); segments it cannot cover go
+    through the host path (with splitting). 'auto': 'batched' when the scene is on a CUDA device, else 'cpu'.
+    Candidate worker processes always use 'cpu' (no CUDA after fork). Same safety guarantee either way."""
     candidate_workers: Optional[int] = None
     """Worker processes that plan_candidates spreads its candidates over (workers.py: forked after prepare(),
     sharing the prepared CPU state copy-on-write; each plans whole candidates single-threaded, the parent
@@ -133,6 +140,9 @@ class Planner:
         self.config = config or PlannerConfig()
         if self.config.request_device not in ("auto", "scene"):
             raise InvalidInputError(f"request_device must be 'auto' or 'scene', got {self.config.request_device!r}")
+        if self.config.corridor_backend not in ("auto", "cpu", "batched"):
+            raise InvalidInputError(
+                f"corridor_backend must be 'auto', 'cpu' or 'batched', got {self.config.corridor_backend!r}")
         w = self.config.astar_weight
         if isinstance(w, bool) or not isinstance(w, (int, float)) or not (math.isfinite(w) and w >= 1.0):
             raise InvalidInputError(f"astar_weight must be a finite number >= 1, got {w!r}")
@@ -236,6 +246,27 @@ class Planner:
         return self.prepared if self.prepared is not None else self.prepare()
 
     # ------------------------------------------------------------------ helpers
+    def corridor_backend(self) -> str:
+        """config.corridor_backend resolved for this process: 'batched' or 'cpu' ('auto': batched on a CUDA
+        scene; always 'cpu' inside a forked candidate worker, where CUDA cannot be used)."""
+        b = self.config.corridor_backend
+        if in_worker() or (b == "batched" and self.batch_scene.device.type == "cuda" and torch.cuda._is_in_bad_fork()):
+            return "cpu"
+        if b == "auto":
+            return "batched" if self.batch_scene.device.type == "cuda" else "cpu"
+        return b
+
+    def corridor_kwargs(self) -> dict:
+        """Keyword arguments of build_corridor (after waypoints, scene, index) for this planner's requests: the box
+        margin and the resolved corridor backend (the batched one runs on ``batch_scene`` / its index; the corridor's
+        polytopes end up on the request device)."""
+        prep = self._prep()
+        kw = dict(box_margin=self.config.box_margin)
+        if self.corridor_backend() == "batched":
+            bidx = prep.batch_index if prep.batch_index is not None else prep.index
+            kw.update(backend="batched", batch_scene=self.batch_scene, batch_index=bidx)
+        return kw
+
     def clearance(self, points: ArrayLike, cap: Optional[float] = None, batch: bool = False) -> np.ndarray:
         """Exact clearance [P] (camera radius included) of camera centres [P, 3]. ``cap``: clearances above it
         are not searched for and reported as ``cap`` (a lower bound; much cheaper far from everything: points
@@ -631,7 +662,7 @@ class Planner:
         if np.linalg.norm(way[-1] - way[0]) < 1e-9:
             raise GoalUnreachableError("the start is already at the goal; pick another start")
 
-        corridor = build_corridor(torch.as_tensor(way, device=dev), self.scene, prep.index, box_margin=cfg.box_margin)
+        corridor = build_corridor(torch.as_tensor(way, device=dev), self.scene, prep.index, **self.corridor_kwargs())
         t4 = time.perf_counter()
         tm["corridor_ms"] = 1e3 * (t4 - t3)
         traj = solve_corridor_qp(corridor.constraints(), corridor.waypoints.cpu().numpy(), s, g, cfg.trajectory)

@@ -147,15 +147,27 @@ class GridIndex:
         }
 
     # ------------------------------------------------------------------ queries
-    def query_boxes(self, qlo: Tensor, qhi: Tensor) -> Tuple[Tensor, Tensor]:
+    def query_boxes(self, qlo: Tensor, qhi: Tensor, method: str = "grid") -> Tuple[Tensor, Tensor]:
         """Pairs (box_idx [K], g_idx [K]), sorted by box, of every ellipsoid whose padded AABB meets
-        box q = [qlo[q], qhi[q]] (closed boxes). qlo, qhi: [Q, 3]."""
+        box q = [qlo[q], qhi[q]] (closed boxes). qlo, qhi: [Q, 3].
+
+        method: "grid" (bucket lookup; within a box the ids come in bucket order), "scan" (the closed-box test
+        of every query box against all N boxes, blocked; ids ascending within a box: far fewer kernels and no
+        duplicate entries to filter, so cheaper once the boxes together visit a good fraction of Q x N entries,
+        e.g. the big boxes of a whole path's corridor) or "auto" (scan when the grid lookup's estimated entries
+        reach ``Q * N / 8``). All return the same set of pairs."""
         qlo = torch.as_tensor(qlo, device=self.device).double().reshape(-1, 3)
         qhi = torch.as_tensor(qhi, device=self.device).double().reshape(-1, 3)
         if qlo.shape != qhi.shape:
             raise InvalidInputError(f"query box corners disagree: {tuple(qlo.shape)} vs {tuple(qhi.shape)}")
+        if method not in ("auto", "grid", "scan"):
+            raise InvalidInputError(f"query_boxes method must be 'auto', 'grid' or 'scan', got {method!r}")
         if not (torch.isfinite(qlo).all() and torch.isfinite(qhi).all()):
             raise InvalidInputError("query boxes contain NaN or inf")
+        if method == "auto":
+            method = "scan" if self._estimated_entries_boxes(qlo, qhi) >= qlo.shape[0] * len(self) / 8 else "grid"
+        if method == "scan":
+            return self._scan_boxes(qlo, qhi)
         qbox = torch.cat([qlo, qhi], -1)  # [Q, 6]
         out_q, out_g = [], []
         for lv in self.levels:
@@ -186,6 +198,36 @@ class GridIndex:
         g = torch.cat(out_g)
         order = torch.argsort(q, stable=True)
         return q[order], g[order]
+
+    def _scan_boxes(self, qlo: Tensor, qhi: Tensor, max_elems: int = 1 << 25) -> Tuple[Tensor, Tensor]:
+        """query_boxes by brute force: the same closed-box test against all N padded AABBs, in blocks of
+        boxes so that a block's [B, N] masks stay below ``max_elems`` entries. Sorted by box, then id."""
+        n = len(self)
+        if not hasattr(self, "_cols"):  # per-axis contiguous columns [6, N]: each test reads one column
+            self._cols = self.boxes.T.contiguous()
+        cols = self._cols
+        ok = (qhi >= qlo).all(-1)  # [Q] an inverted box meets nothing (as in the grid lookup)
+        step = max(1, max_elems // max(n, 1))
+        out_q, out_g = [], []
+        for s in range(0, qlo.shape[0], step):
+            lo_b, hi_b = qlo[s:s + step], qhi[s:s + step]  # [B, 3]
+            hit = ok[s:s + step, None].expand(-1, n).clone()  # [B, N]
+            for a in range(3):
+                hit &= cols[a][None, :] <= hi_b[:, a:a + 1]
+                hit &= cols[3 + a][None, :] >= lo_b[:, a:a + 1]
+            qi, gi = torch.nonzero(hit, as_tuple=True)  # row-major: sorted by box, then id
+            out_q.append(qi + s)
+            out_g.append(gi)
+        return torch.cat(out_q), torch.cat(out_g)
+
+    def _estimated_entries_boxes(self, qlo: Tensor, qhi: Tensor) -> float:
+        """Sum over boxes [Q, 3] of _estimated_entries (one host sync)."""
+        est = torch.zeros((), dtype=torch.float64, device=self.device)
+        for lv in self.levels:
+            span = (torch.floor((qhi - self.origin) / lv.cell) - torch.floor((qlo - self.origin) / lv.cell) + 1)
+            span = torch.minimum(span.clamp_min(0), lv.dims.to(span.dtype))  # [Q, 3]
+            est = est + span.prod(-1).sum() * (lv.ids.numel() / max(1, int(lv.dims.prod())))
+        return float(est)
 
     def query_box(self, lo: Tensor, hi: Tensor, method: str = "auto") -> Tensor:
         """Ids [K] (ascending) of the ellipsoids whose padded AABB meets the box [lo, hi].

@@ -42,6 +42,11 @@ from .errors import InvalidInputError
 _PLANNER: Any = None
 
 
+def in_worker() -> bool:
+    """True inside a candidate worker process (forked: no CUDA there)."""
+    return _PLANNER is not None
+
+
 def fork_available() -> bool:
     return "fork" in mp.get_all_start_methods()
 

@@ -116,3 +116,29 @@ def test_query_box_scan_grid_and_auto_equal_brute_force(seed, n, size, huge):
         assert idx.query_box(lo, hi, method=method).tolist() == want
     with pytest.raises(InvalidInputError):
         idx.query_box(lo, hi, method="bogus")
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 300), size=st.floats(0.0, 3.0), q=st.integers(1, 9),
+       huge=st.booleans())
+def test_query_boxes_scan_grid_and_auto_equal_brute_force(seed, n, size, q, huge):
+    sc = random_scene(n, seed, rmin=0.005, rmax=0.1)
+    if huge:
+        sc.radii[: max(1, n // 10)] *= 30
+    idx = GridIndex.build(sc)
+    g = torch.Generator().manual_seed(seed)
+    c = torch.rand(q, 3, generator=g, dtype=torch.float64) * 3 - 1.5
+    ext = torch.rand(q, 3, generator=g, dtype=torch.float64) * size
+    lo, hi = c - ext, c + ext
+    hi[0, 0] = lo[0, 0] - 0.01  # an inverted box meets nothing
+    want = _brute_pairs(idx, lo, hi)
+    want = {(a, b) for a, b in want if a != 0}
+    for method in ("grid", "scan", "auto"):
+        bq, bg = idx.query_boxes(lo, hi, method=method)
+        got = list(zip(bq.tolist(), bg.tolist()))
+        assert len(got) == len(set(got)) and bq.tolist() == sorted(bq.tolist())
+        assert set(got) == want, method
+    sq, sg = idx._scan_boxes(lo, hi, max_elems=max(1, n // 2))  # blocked over boxes: same pairs, same order
+    assert (sq.tolist(), sg.tolist()) == tuple(t.tolist() for t in idx.query_boxes(lo, hi, method="scan"))
+    with pytest.raises(InvalidInputError):
+        idx.query_boxes(lo, hi, method="bogus")
