@@ -35,7 +35,7 @@ from __future__ import annotations
 import functools
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, List, Sequence, Tuple
 
 import numpy as np
@@ -48,6 +48,9 @@ from .errors import GoalUnreachableError, InvalidInputError, PlanningError
 
 class CorridorInfeasibleError(GoalUnreachableError):
     """No trajectory of the requested smoothness fits inside the corridor."""
+
+
+RETRY_TOLERANCE = 1e-6  # Clarabel's tolerance for the one retry after a stalled solve (solve_corridor_qp)
 
 
 class TrajectorySolverError(PlanningError):
@@ -422,6 +425,14 @@ def solve_corridor_qp(polytopes, waypoints, start, goal, config: TrajectoryConfi
     t1 = time.perf_counter()
     solve = _solve_clarabel if config.solver == "clarabel" else _solve_osqp
     x, status, iters, outcome = solve(qp, config)
+    retry_tolerance = None
+    if outcome == "failed" and config.solver == "clarabel" and config.tolerance < RETRY_TOLERANCE:
+        # Why: a very short segment makes the cost ill-conditioned (its 1/d^5 terms), and Clarabel can stall
+        # (InsufficientProgress) short of 1e-8 on a QP that is plainly feasible (5 waypoints in a big box, one
+        # segment 0.04 long). At 1e-6 it converges; the margin (1e-5) absorbs that tolerance, and every control point
+        # is still verified against the true polytopes below.
+        retry_tolerance = RETRY_TOLERANCE
+        x, status, iters, outcome = solve(qp, replace(config, tolerance=RETRY_TOLERANCE))
     t2 = time.perf_counter()
     polys = qp.polytopes
     if outcome == "infeasible":
@@ -466,5 +477,6 @@ def solve_corridor_qp(polytopes, waypoints, start, goal, config: TrajectoryConfi
         "build_ms": 1e3 * (t1 - t0),
         "solve_ms": 1e3 * (t2 - t1),
         "max_corridor_violation": worst,
+        "retry_tolerance": retry_tolerance,  # None, or the looser tolerance a stalled first solve was retried with
     }
     return traj
