@@ -56,6 +56,9 @@ def main() -> None:
                     help="PlannerConfig.request_device: auto = per-request queries on a CPU mirror of a GPU scene")
     ap.add_argument("--workers", type=int, default=None,
                     help="PlannerConfig.candidate_workers of the workers row (default: auto, see workers.py)")
+    ap.add_argument("--corridor-backend", default="auto", choices=["auto", "cpu", "batched"],
+                    help="PlannerConfig.corridor_backend (auto: batched on a CUDA scene, and then the workers' rounds "
+                         "have two phases around one batched corridor call)")
     ap.add_argument("--note", default="", help="a line added under the table in RESULTS.md (e.g. about the box)")
     ap.add_argument("--no-record", action="store_true", help="do not append to benchmarks/RESULTS.md")
     args = ap.parse_args()
@@ -65,7 +68,8 @@ def main() -> None:
     scene = EllipsoidScene.from_splat(room.means, room.quats, room.log_scales, room.opacity_logits).to(dev)
     r = scene.camera_radius
     planner = Planner(scene, PlannerConfig(grid_resolution=args.grid_resolution, request_device=args.request_device,
-                                           start_region=(room.free_lo + r, room.free_hi - r)))
+                                           start_region=(room.free_lo + r, room.free_hi - r),
+                                           corridor_backend=args.corridor_backend))
     t0 = time.perf_counter()
     planner.prepare()
     _sync(dev)
@@ -148,7 +152,8 @@ def main() -> None:
         f"## bench_candidates {date} — {device_name(dev)}",
         "",
         f"procedural_room N={args.n_gaussians} (kept {len(scene)}), K={args.k}, grid {args.grid_resolution}, "
-        f"request_device {args.request_device}, repeats {args.repeats}, prepare {prep_s:.2f} s (not timed below), commit {rev or '?'}",
+        f"request_device {args.request_device}, corridor_backend {args.corridor_backend} -> {planner.corridor_backend()}, "
+        f"repeats {args.repeats}, prepare {prep_s:.2f} s (not timed below), commit {rev or '?'}",
         "",
         "| variant | median ms | shots | ms / shot | x batched |",
         "|---|---|---|---|---|",

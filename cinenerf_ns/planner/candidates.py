@@ -36,7 +36,10 @@ exactly as in-process), scoring (on the GPU when the scene is there; CUDA is nev
 ranking; results equal the in-process path's (same starts, shots and ranks). The workers are forked after
 prepare() and share the prepared CPU state (the CPU mirror of a GPU scene, index, grids) copy-on-write, so
 they add little memory. Fork only: on macOS / Windows (no 'fork' start method) candidates are planned in
-this process. With workers, ``timings``' stage keys are sums of the workers' wall times (they overlap) and
+this process. When this process builds corridors with the batched backend (PlannerConfig.corridor_backend, a
+CUDA scene by default), each round has two phases around ONE batched corridor computation for all its
+candidates (corridor.build_corridors; the workers cannot use CUDA): the workers find the ways (A*, shortcut),
+this process builds every corridor at once, the workers solve the QPs, time and verify. With workers, ``timings``' stage keys are sums of the workers' wall times (they overlap) and
 ``pool_ms`` is the parent's wall time waiting for them.
 """
 from __future__ import annotations
@@ -54,7 +57,7 @@ import torch
 
 from .astar import shortcut
 from .coarse_path import voxel_path
-from .corridor import CorridorError, build_corridor
+from .corridor import CorridorError, build_corridor, build_corridors
 from .dynamics import DynamicLimits, retime_shot
 from .errors import GoalUnreachableError, InvalidInputError, PlanningError, StartInCollisionError, UnsafeTrajectoryError
 from .goal import sample_free_starts
@@ -183,6 +186,32 @@ def score_shots(
     return out
 
 
+def _lapper(tm: Dict[str, float]):
+    """lap(name, t0): adds the ms since t0 to tm[name] and returns now (per-stage timings of a request or task)."""
+
+    def lap(name, t0):
+        tm[name] = tm.get(name, 0.0) + 1e3 * (time.perf_counter() - t0)
+        return time.perf_counter()
+
+    return lap
+
+
+def _merge_task_results(ids: List[int], results: List[Dict[str, Any]], tm: Dict[str, float],
+                        goal_cache: Dict[int, Any], errors: List[str]) -> List[tuple]:
+    """Worker task results -> this request: their stage times added to tm, the goals they found to goal_cache,
+    their failures to errors. Returns [(id, result)] of the tasks that succeeded, in order."""
+    ok = []
+    for i, res in zip(ids, results):
+        for name, ms in res["timings"].items():
+            tm[name] = tm.get(name, 0.0) + ms
+        goal_cache.update(res.get("goal_cache", {}))
+        if res["error"] is not None:
+            errors.append(res["error"])
+        else:
+            ok.append((i, res))
+    return ok
+
+
 def _candidate_way(planner: Planner, prep, start: np.ndarray, goal_p: np.ndarray, goal_cache: Dict[int, Any],
                    lap, t: float):
     """Goal and voxel path of one candidate: (goal [3], polyline [K, 3] start -> goal, t). The goal is found once per
@@ -206,8 +235,13 @@ def _candidate_trajectory(planner: Planner, prep, way: np.ndarray, start: np.nda
     corridor = build_corridor(torch.as_tensor(way, device=planner.scene.device), planner.scene, prep.index,
                               **planner.corridor_kwargs())
     t = lap("corridor_ms", t)
-    traj = solve_corridor_qp(corridor.constraints(), corridor.waypoints.cpu().numpy(), start, g, cfg.trajectory)
-    return corridor, traj, lap("qp_ms", t)
+    return corridor, _candidate_qp(planner, corridor, start, g), lap("qp_ms", t)
+
+
+def _candidate_qp(planner: Planner, corridor, start: np.ndarray, g: np.ndarray):
+    """The Bezier QP of one corridor (raises PlanningError / GoalUnreachableError)."""
+    return solve_corridor_qp(corridor.constraints(), corridor.waypoints.cpu().numpy(), start, g,
+                             planner.config.trajectory)
 
 
 def _candidate_shot(planner: Planner, traj, corridor, look_p: np.ndarray, goal_p: np.ndarray,
@@ -234,10 +268,7 @@ def _plan_candidate_task(planner: Planner, config, start: np.ndarray, goal_p: np
     prep = planner._prep()
     tm: Dict[str, float] = {}
     known = set(goal_cache)
-
-    def lap(name, t0):
-        tm[name] = tm.get(name, 0.0) + 1e3 * (time.perf_counter() - t0)
-        return time.perf_counter()
+    lap = _lapper(tm)
 
     def result(shot, error) -> Dict[str, Any]:
         new_goals = {c: v for c, v in goal_cache.items() if c not in known}
@@ -261,6 +292,54 @@ def _plan_candidate_task(planner: Planner, config, start: np.ndarray, goal_p: np
     sh.safety = batched_verify(planner, [sh])[0]  # the parent refuses unsafe shots (UnsafeTrajectoryError)
     lap("verify_ms", t)
     return result(sh, None)
+
+
+def _candidate_way_task(planner: Planner, config, start: np.ndarray, goal_p: np.ndarray,
+                        goal_cache: Dict[int, Any]) -> Dict[str, Any]:
+    """Phase 1 of a candidate in a worker when the parent builds the corridors (two-phase rounds, see
+    _plan_candidates): goal, voxel path, shortcut. Returns {"goal", "way" [K, 3], "error", "timings",
+    "goal_cache"} (error: the message of a failure the in-process path would record, else None)."""
+    planner.config = config
+    prep = planner._prep()
+    tm: Dict[str, float] = {}
+    known = set(goal_cache)
+    lap = _lapper(tm)
+
+    def result(g, way, error) -> Dict[str, Any]:
+        new_goals = {c: v for c, v in goal_cache.items() if c not in known}
+        return {"goal": g, "way": way, "error": error, "timings": tm, "goal_cache": new_goals}
+
+    t = time.perf_counter()
+    try:
+        g, way, t = _candidate_way(planner, prep, start, goal_p, goal_cache, lap, t)
+    except (GoalUnreachableError, StartInCollisionError) as e:
+        return result(None, None, str(e))
+    way = shortcut(way, planner._shortcut_free)  # == batched_shortcut on this path alone (tested)
+    lap("shortcut_ms", t)
+    if np.linalg.norm(way[-1] - way[0]) < 1e-9:
+        return result(None, None, "the start is already at the goal")
+    return result(g, way, None)
+
+
+def _candidate_finish_task(planner: Planner, config, corridor, start: np.ndarray, g: np.ndarray, look_p: np.ndarray,
+                           goal_p: np.ndarray, limits: Optional[DynamicLimits]) -> Dict[str, Any]:
+    """Phase 2 of a candidate in a worker: the QP in the parent's corridor, timing, dense verification. Returns
+    {"shot" (report in shot.safety) or None, "error", "timings"}."""
+    planner.config = config
+    tm: Dict[str, float] = {}
+    lap = _lapper(tm)
+
+    t = time.perf_counter()
+    try:
+        traj = _candidate_qp(planner, corridor, start, g)
+    except (GoalUnreachableError, PlanningError) as e:
+        return {"shot": None, "error": str(e), "timings": tm}
+    t = lap("qp_ms", t)
+    sh = _candidate_shot(planner, traj, corridor, look_p, goal_p, limits)
+    t = lap("timing_ms", t)
+    sh.safety = batched_verify(planner, [sh])[0]  # the parent refuses unsafe shots (UnsafeTrajectoryError)
+    lap("verify_ms", t)
+    return {"shot": sh, "error": None, "timings": tm}
 
 
 def _with_request_threads(fn):
@@ -343,10 +422,7 @@ def _plan_candidates(
     cfg = planner.config
     tm: Dict[str, float] = {}
     t_all = time.perf_counter()
-
-    def lap(name, t0):
-        tm[name] = tm.get(name, 0.0) + 1e3 * (time.perf_counter() - t0)
-        return time.perf_counter()
+    lap = _lapper(tm)
 
     t = time.perf_counter()
     prep = planner._prep()
@@ -378,20 +454,39 @@ def _plan_candidates(
     while len(shots) < k and nxt < len(starts):
         batch = list(range(nxt, min(len(starts), nxt + k - len(shots))))
         nxt = batch[-1] + 1
+        if pool is not None and planner.corridor_backend() == "batched":
+            # two phases around ONE batched corridor computation for the whole round (this process can use the
+            # GPU, the workers cannot): workers find the ways, this process builds every corridor at once, the
+            # workers solve the QPs and verify. Same shots as in-process with the batched backend.
+            ph1 = pool.map(_candidate_way_task, [(cfg, starts[ci], goal_p, goal_cache) for ci in batch])
+            ways = _merge_task_results(batch, ph1, tm, goal_cache, errors)
+            t = lap("pool_ms", t)
+            if not ways:
+                continue
+            corridors = build_corridors([r["way"] for _, r in ways], planner.scene, prep.index,
+                                        **planner.corridor_kwargs())
+            t = lap("corridor_ms", t)
+            todo = []
+            for (ci, r), c in zip(ways, corridors):
+                if isinstance(c, CorridorError):
+                    errors.append(str(c))
+                else:
+                    todo.append((ci, r, c))
+            ph2 = pool.map(_candidate_finish_task,
+                           [(cfg, c, starts[ci], r["goal"], look_p, goal_p, limits) for ci, r, c in todo])
+            for ci, res in _merge_task_results([ci for ci, _, _ in todo], ph2, tm, goal_cache, errors):
+                shots.append(res["shot"])
+                cand_ids.append(ci)
+            t = lap("pool_ms", t)
+            continue
         if pool is not None:
             # whole candidates in the workers; the *_ms stage keys are then sums of the workers' wall times
             # per stage (they overlap), pool_ms is this process's wall time waiting for the round
             results = pool.map(_plan_candidate_task,
                                [(cfg, starts[ci], goal_p, look_p, goal_cache, limits) for ci in batch])
-            for ci, res in zip(batch, results):
-                for name, ms in res["timings"].items():
-                    tm[name] = tm.get(name, 0.0) + ms
-                goal_cache.update(res["goal_cache"])
-                if res["error"] is not None:
-                    errors.append(res["error"])
-                else:
-                    shots.append(res["shot"])
-                    cand_ids.append(ci)
+            for ci, res in _merge_task_results(batch, results, tm, goal_cache, errors):
+                shots.append(res["shot"])
+                cand_ids.append(ci)
             t = lap("pool_ms", t)
             continue
         plans: List[Dict[str, Any]] = []  # start, goal, waypoints of each candidate of this round

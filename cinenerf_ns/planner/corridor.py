@@ -20,6 +20,7 @@ host path above, splitting included, so both backends cover the same segments wi
 """
 from __future__ import annotations
 
+import inspect
 import warnings
 from dataclasses import dataclass, field
 from typing import Optional
@@ -130,12 +131,54 @@ def build_corridor(
     hold the same ellipsoids; flagged segments then take the host path with splitting; box "aabb" only).
     Raises InvalidInputError (bad waypoints), CorridorError (a segment cannot be covered).
     """
-    dev = scene.means.device
-    w = torch.as_tensor(waypoints, device=dev).to(torch.float64)
-    if w.ndim != 2 or w.shape[-1] != 3 or w.shape[0] < 2:
-        raise InvalidInputError(f"build_corridor needs waypoints [K>=2, 3], got {tuple(w.shape)}")
-    if not torch.isfinite(w).all():
-        raise InvalidInputError("build_corridor: waypoints contain NaN/inf")
+    _check_options(box, box_margin, backend)
+    w = _prepared_waypoints(waypoints, scene.means.device)
+    kw = dict(margin=margin, normal=normal)
+    stats = {"splits": 0}
+    if backend == "batched":
+        batched = _batched_polytopes([w], scene, index, box_margin, margin, normal, batch_scene, batch_index)[0]
+        stats["host_segments"] = sum(p is None for p in batched)
+    else:
+        batched = [None] * (w.shape[0] - 1)
+    pieces = _path_pieces(w, batched, scene, index, box_margin, max_split_depth, kw, stats, box)
+    return _assemble(pieces, stats, min_overlap, exact_overlap)
+
+
+def build_corridors(waypoint_list, scene, index=None, **options) -> list:
+    """build_corridor for several polylines (the candidates of one request): a list, in order, of a Corridor or
+    the CorridorError that path raised. options: build_corridor's keyword arguments (box "aabb" only). With
+    backend "batched" the safe polytopes of ALL their segments come from ONE safe_polytopes_batched call (one GPU
+    computation for the whole request instead of one per candidate; each segment gets the polytope build_corridor
+    would give it alone); flagged segments take the host path with splitting, per path."""
+    defaults = {k: p.default for k, p in inspect.signature(build_corridor).parameters.items()
+                if p.default is not inspect.Parameter.empty and k != "index"}
+    unknown = set(options) - set(defaults)
+    if unknown:
+        raise InvalidInputError(f"build_corridors: unknown options {sorted(unknown)}")
+    o = {**defaults, **options}
+    if o["box"] != "aabb":
+        raise InvalidInputError("build_corridors supports box='aabb' only")
+    _check_options(o["box"], o["box_margin"], o["backend"])
+    ws = [_prepared_waypoints(wp, scene.means.device) for wp in waypoint_list]
+    kw = dict(margin=o["margin"], normal=o["normal"])
+    if o["backend"] == "batched" and ws:
+        batched = _batched_polytopes(ws, scene, index, o["box_margin"], o["margin"], o["normal"], o["batch_scene"],
+                                     o["batch_index"])
+    else:
+        batched = [[None] * (w.shape[0] - 1) for w in ws]
+    out: list = []
+    for w, bp in zip(ws, batched):
+        stats = {"splits": 0, "host_segments": sum(p is None for p in bp) if o["backend"] == "batched" else 0}
+        try:
+            pieces = _path_pieces(w, bp, scene, index, o["box_margin"], o["max_split_depth"], kw, stats, "aabb")
+        except CorridorError as e:
+            out.append(e)
+            continue
+        out.append(_assemble(pieces, stats, o["min_overlap"], o["exact_overlap"]))
+    return out
+
+
+def _check_options(box: str, box_margin: float, backend: str) -> None:
     if box not in ("aabb", "oriented"):
         raise InvalidInputError(f"box must be 'aabb' or 'oriented', got {box!r}")
     if not (box_margin > 0):
@@ -144,33 +187,56 @@ def build_corridor(
         raise InvalidInputError(f"corridor backend must be 'cpu' or 'batched', got {backend!r}")
     if backend == "batched" and box != "aabb":
         raise InvalidInputError("the batched corridor backend supports box='aabb' only")
+
+
+def _prepared_waypoints(waypoints, dev) -> Tensor:
+    """Waypoints [M+1, 3] float64 on dev, repeated consecutive points dropped; InvalidInputError if unusable."""
+    w = torch.as_tensor(waypoints, device=dev).to(torch.float64)
+    if w.ndim != 2 or w.shape[-1] != 3 or w.shape[0] < 2:
+        raise InvalidInputError(f"build_corridor needs waypoints [K>=2, 3], got {tuple(w.shape)}")
+    if not torch.isfinite(w).all():
+        raise InvalidInputError("build_corridor: waypoints contain NaN/inf")
     keep = torch.ones(w.shape[0], dtype=torch.bool, device=dev)
     keep[1:] = (w[1:] - w[:-1]).norm(dim=-1) > 1e-12
     w = w[keep]
     if w.shape[0] < 2:
         raise InvalidInputError("build_corridor: all waypoints coincide (start == goal?)")
+    return w
 
-    kw = dict(margin=margin, normal=normal)
+
+def _batched_polytopes(ws, scene, index, box_margin, margin, normal, batch_scene, batch_index) -> list:
+    """Per path, [Polytope | None] per segment (None: flagged, the host path decides it) from one
+    safe_polytopes_batched call over the segments of every path ws[i] [M_i+1, 3]."""
+    dev = scene.means.device
+    bscene = scene if batch_scene is None else batch_scene
+    bindex = index if batch_scene is None and batch_index is None else batch_index
+    bws = [w.to(bscene.means.device) for w in ws]
+    segs = torch.cat([torch.stack([bw[:-1], bw[1:]], 1) for bw in bws])  # [sum M_i, 2, 3]
+    lo = torch.minimum(segs[:, 0], segs[:, 1]) - box_margin  # [sum M_i, 3] same boxes as the host path
+    hi = torch.maximum(segs[:, 0], segs[:, 1]) + box_margin
+    polys_b, _ = safe_polytopes_batched(segs, bscene, bindex, lo, hi, margin=margin, normal=normal, out_device=dev)
+    out, o = [], 0
+    for w in ws:
+        m = w.shape[0] - 1
+        out.append(list(polys_b[o:o + m]))
+        o += m
+    return out
+
+
+def _path_pieces(w, batched, scene, index, box_margin, max_split_depth, kw, stats, box) -> list:
+    """(polytope, p0, p1) per segment of the path w [M+1, 3]: the batched polytope where there is one, else the
+    host path (SeedNotFreeError -> split, as with backend "cpu")."""
     pieces: list = []
-    stats = {"splits": 0}
-    if backend == "batched":
-        bscene = scene if batch_scene is None else batch_scene
-        bindex = index if batch_scene is None and batch_index is None else batch_index
-        bw = w.to(bscene.means.device)
-        segs = torch.stack([bw[:-1], bw[1:]], 1)  # [M, 2, 3]
-        lo = torch.minimum(bw[:-1], bw[1:]) - box_margin  # [M, 3] same boxes as the host path
-        hi = torch.maximum(bw[:-1], bw[1:]) + box_margin
-        polys_b, failed = safe_polytopes_batched(segs, bscene, bindex, lo, hi, margin=margin, normal=normal,
-                                                 out_device=dev)
-        stats["host_segments"] = int(failed.sum())
-        for m in range(w.shape[0] - 1):
-            if polys_b[m] is not None:
-                pieces.append((polys_b[m], w[m], w[m + 1]))
-            else:  # the host path decides this segment (SeedNotFreeError -> split, as with backend "cpu")
-                _segment_polytopes(w[m], w[m + 1], scene, index, box_margin, 0, max_split_depth, kw, pieces, stats, m, box)
-    else:
-        for m in range(w.shape[0] - 1):
+    for m in range(w.shape[0] - 1):
+        if batched[m] is not None:
+            pieces.append((batched[m], w[m], w[m + 1]))
+        else:
             _segment_polytopes(w[m], w[m + 1], scene, index, box_margin, 0, max_split_depth, kw, pieces, stats, m, box)
+    return pieces
+
+
+def _assemble(pieces, stats, min_overlap: float, exact_overlap: bool) -> Corridor:
+    """The Corridor of a path's pieces, with the junctions' overlap radii (thin ones warned about)."""
     polys = [p for p, _, _ in pieces]
     wps = torch.stack([pieces[0][1]] + [p1 for _, _, p1 in pieces])  # [M+1, 3]
 
@@ -192,7 +258,7 @@ def build_corridor(
         warnings.warn(
             f"corridor: {len(thin)} junction(s) have little room (overlap radius < {min_overlap:g}) at "
             f"waypoints {[m + 1 for m in thin]}; the trajectory may slow down there",
-            stacklevel=2,
+            stacklevel=3,
         )
     return Corridor(
         polytopes=polys,

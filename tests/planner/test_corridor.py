@@ -154,3 +154,49 @@ def test_oriented_boxes_follow_the_segment():
     perp = np.linalg.norm((V - wps[0]) - along[:, None] * u, axis=1)
     assert along.min() >= -0.1 - 1e-9 and along.max() <= np.sqrt(3) + 0.1 + 1e-9
     assert perp.max() <= 0.1 * np.sqrt(2) + 1e-9
+
+
+def test_build_corridors_equals_one_call_per_path():
+    """build_corridors (one batched polytope computation for all paths) gives each path the corridor
+    build_corridor gives it alone, and reports a path that cannot be covered as its CorridorError."""
+    from cinenerf_ns.planner.corridor import build_corridors
+
+    scene, index, ways = _corridor_paths()
+    for backend in ("batched", "cpu"):
+        many = build_corridors(ways, scene, index, box_margin=0.1, backend=backend)
+        for w, c in zip(ways, many):
+            one = build_corridor(w, scene, index, box_margin=0.1, backend=backend)
+            assert len(c) == len(one)
+            for p, q in zip(c.polytopes, one.polytopes):
+                assert torch.equal(p.A, q.A) and torch.equal(p.b, q.b)
+            assert torch.equal(c.waypoints, one.waypoints)
+
+
+def _corridor_paths(n_paths=5):
+    """A cluttered random scene, its grid index, and a few free polylines through it."""
+    from cinenerf_ns.planner.spatial_index import GridIndex
+
+    rng = np.random.default_rng(11)
+    scene = random_scene(rng, 10, amax=0.25, camera_radius=0.03)
+    ways = []
+    while len(ways) < n_paths:
+        w = free_polyline(rng, scene, 4)
+        if w is not None:
+            ways.append(w)
+    return scene, GridIndex.build(scene), ways
+
+
+def test_build_corridors_options_and_errors():
+    """Unknown options and oriented boxes are refused; a blocked path comes back as its CorridorError while the
+    others are built."""
+    from cinenerf_ns.planner.corridor import build_corridors
+
+    scene, index, ways = _corridor_paths(2)
+    with pytest.raises(InvalidInputError, match="unknown"):
+        build_corridors(ways, scene, index, box_margn=0.1)
+    with pytest.raises(InvalidInputError, match="aabb"):
+        build_corridors(ways, scene, index, box="oriented")
+    c = scene.means[0].double().numpy()
+    blocked = np.stack([c - [0.01, 0, 0], c + [0.01, 0, 0]])  # through an ellipsoid's centre
+    out = build_corridors([ways[0], blocked, ways[1]], scene, index, backend="batched")
+    assert isinstance(out[0], Corridor) and isinstance(out[1], CorridorError) and isinstance(out[2], Corridor)

@@ -219,3 +219,28 @@ def test_a_dead_worker_falls_back_to_this_process(planners):
     r2 = plan_candidates(p2, GO_TO, TARGET, k=4, seed=7, object_radius=STOP)  # a fresh pool
     _assert_same(r0, r2)
     assert p2.candidate_pool() is not pool
+
+
+def test_two_phase_rounds_with_the_batched_corridor_give_the_same_shots(monkeypatch):
+    """corridor_backend 'batched' (CPU tensors here; a CUDA scene in production): the workers find the ways, this
+    process builds every corridor of the round in ONE build_corridors call, the workers solve and verify. Same
+    ranked shots as in-process planning with the batched backend (one corridor per candidate)."""
+    calls = []
+    real = candidates.build_corridors
+
+    def spy(ways, *a, **kw):
+        calls.append(len(ways))
+        return real(ways, *a, **kw)
+
+    monkeypatch.setattr(candidates, "build_corridors", spy)
+    p0, p2 = _planner(0, corridor_backend="batched"), _planner(2, corridor_backend="batched")
+    try:
+        t2 = {}
+        r0 = plan_candidates(p0, GO_TO, TARGET, k=8, seed=5, object_radius=STOP)
+        r2 = plan_candidates(p2, GO_TO, TARGET, k=8, seed=5, object_radius=STOP, timings=t2)
+    finally:
+        p2.close()
+    assert len(r0) == 8
+    _assert_same(r0, r2)
+    assert calls and calls[0] == 8  # one call for the whole first round
+    assert t2["corridor_ms"] >= 0 and t2["workers"] == 2
