@@ -104,3 +104,35 @@ def test_workers_option(tmp_path):
     assert [c["score"]["total"] for c in a["candidates"]] == pytest.approx([c["score"]["total"] for c in b["candidates"]])
     with pytest.raises(InvalidInputError, match="candidate_workers"):
         run_plan(PlanArgs(output_dir=tmp_path / "c", workers=-1, **kw))
+
+
+def test_keep_support_reaches_the_locator(monkeypatch, tmp_path):
+    """--keep-support turns the support-layer rule off in the scene's text locator (default: on)."""
+    import cinenerf_ns.cli.plan as plan_mod
+
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def fake_load_scene(*a, **kw):
+        seen.append(kw.get("drop_support"))
+        raise Stop
+
+    monkeypatch.setattr(plan_mod, "load_scene", fake_load_scene)
+    for keep in (False, True):
+        with pytest.raises(Stop):
+            run_plan(PlanArgs(scene="procedural:3000:1", go_to="the armchair", look_at="floor lamp",
+                              output_dir=tmp_path, keep_support=keep))
+    assert seen == [True, False]
+
+
+@pytest.mark.slow
+def test_load_scene_passes_drop_support():
+    from cinenerf_ns.cli.plan import load_scene
+    from cinenerf_ns.demo import DEMO_SCENE
+    from cinenerf_ns.planner.scene import SceneConfig
+
+    for flag in (True, False):
+        sem = load_scene(str(DEMO_SCENE), SceneConfig(), smooth_neighbors=0, drop_support=flag).extra["semantic"]
+        assert sem.drop_support is flag
