@@ -39,8 +39,9 @@ they add little memory. Fork only: on macOS / Windows (no 'fork' start method) c
 this process. When this process builds corridors with the batched backend (PlannerConfig.corridor_backend, a
 CUDA scene by default), each round has two phases around ONE batched corridor computation for all its
 candidates (corridor.build_corridors; the workers cannot use CUDA): the workers find the ways (A*, shortcut),
-this process builds every corridor at once, the workers solve the QPs, time and verify. With workers, ``timings``' stage keys are sums of the workers' wall times (they overlap) and
-``pool_ms`` is the parent's wall time waiting for them.
+this process builds every corridor at once, the workers solve the QPs, time and verify. With workers,
+``timings``' stage keys are sums of the workers' wall times (they overlap) and ``pool_ms`` is the parent's wall
+time waiting for them.
 """
 from __future__ import annotations
 
@@ -264,34 +265,23 @@ def _plan_candidate_task(planner: Planner, config, start: np.ndarray, goal_p: np
     "timings": per-stage ms, "goal_cache": goals found here for components the parent had not cached}. The
     failures caught are exactly those the in-process path records and replaces with a spare; anything else
     propagates to the parent."""
-    planner.config = config  # the request's config (the fork's copy may be older)
-    prep = planner._prep()
-    tm: Dict[str, float] = {}
-    known = set(goal_cache)
-    lap = _lapper(tm)
-
-    def result(shot, error) -> Dict[str, Any]:
-        new_goals = {c: v for c, v in goal_cache.items() if c not in known}
-        return {"shot": shot, "error": error, "timings": tm, "goal_cache": new_goals}
-
+    way = _candidate_way_task(planner, config, start, goal_p, goal_cache)  # sets the request's config
+    out = {"shot": None, "error": way["error"], "timings": way["timings"], "goal_cache": way["goal_cache"]}
+    if way["error"] is not None:
+        return out
     t = time.perf_counter()
-    try:
-        g, way, t = _candidate_way(planner, prep, start, goal_p, goal_cache, lap, t)
-    except (GoalUnreachableError, StartInCollisionError) as e:
-        return result(None, str(e))
-    way = shortcut(way, planner._shortcut_free)  # == batched_shortcut on this path alone (tested)
-    t = lap("shortcut_ms", t)
-    if np.linalg.norm(way[-1] - way[0]) < 1e-9:
-        return result(None, "the start is already at the goal")
-    try:
-        corridor, traj, t = _candidate_trajectory(planner, prep, way, start, g, lap, t)
-    except (GoalUnreachableError, CorridorError, PlanningError) as e:
-        return result(None, str(e))
-    sh = _candidate_shot(planner, traj, corridor, look_p, goal_p, limits)
-    t = lap("timing_ms", t)
-    sh.safety = batched_verify(planner, [sh])[0]  # the parent refuses unsafe shots (UnsafeTrajectoryError)
-    lap("verify_ms", t)
-    return result(sh, None)
+    try:  # the corridor here, in the worker ('cpu' backend: no CUDA after fork)
+        corridor = build_corridor(torch.as_tensor(way["way"], device=planner.scene.device), planner.scene,
+                                  planner._prep().index, **planner.corridor_kwargs())
+    except (GoalUnreachableError, PlanningError) as e:  # CorridorError and the rest, as in-process
+        out["error"] = str(e)
+        return out
+    _lapper(out["timings"])("corridor_ms", t)
+    fin = _candidate_finish_task(planner, config, corridor, start, way["goal"], look_p, goal_p, limits)
+    for name, ms in fin["timings"].items():
+        out["timings"][name] = out["timings"].get(name, 0.0) + ms
+    out.update(shot=fin["shot"], error=fin["error"])
+    return out
 
 
 def _candidate_way_task(planner: Planner, config, start: np.ndarray, goal_p: np.ndarray,
