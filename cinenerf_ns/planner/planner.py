@@ -44,6 +44,8 @@ from .shot import Shot
 from .spatial_index import GridIndex
 from .timing import TimingConfig
 from .trajectory import TrajectoryConfig, solve_corridor_qp
+from .native import search26 as native_search26
+from .voxel_traversal import segments_in_free_voxels
 from .workers import CandidatePool, default_workers, in_worker, pool_for, validate_workers
 
 ArrayLike = Union[Tensor, np.ndarray, Sequence[float]]
@@ -197,6 +199,9 @@ class Planner:
         _ = ag.labels  # free-space components, used for reachability of goals and starts
         coarse = CoarseGrid(ag)
         t4 = time.perf_counter()
+        # compile / load the compiled path search now (cached on disk after the first time), before candidate
+        # worker processes fork: they inherit it instead of each loading it on its first path
+        native_search26()
         if not (~grid.occupied).any():
             raise GoalUnreachableError(
                 "the occupancy grid has no free voxel: the camera radius is too large for this scene, or the "
@@ -422,12 +427,24 @@ class Planner:
     def segments_free(self, p0, p1) -> np.ndarray:
         """bool [P]: segment p0[i] -> p1[i] proven collision-free for the camera ball (conservative).
 
-        Segments are cut into pieces no longer than the camera radius; a piece lies inside the ball of
-        radius r + |piece|/2 around its midpoint, so proving those balls clear (Cor. 1, batched in one
-        call) proves the segment clear. A piece that is not proven clear marks its segment as colliding."""
+        First the occupancy grid: a segment whose every point lies in a free voxel is proven clear with no
+        distance query (voxel_traversal.py: exact voxel walk). The rest are cut into pieces no longer than the
+        camera radius; a piece lies inside the ball of radius r + |piece|/2 around its midpoint, so proving
+        those balls clear (Cor. 1, batched in one call) proves the segment clear. A piece that is not proven
+        clear marks its segment as colliding."""
         prep = self._prep()
         a = np.asarray(p0, dtype=np.float64).reshape(-1, 3)
         b = np.asarray(p1, dtype=np.float64).reshape(-1, 3)
+        grid = prep.grid
+        ok = segments_in_free_voxels(prep.astar_grid._occ, grid.lo.detach().cpu().double().numpy(), float(grid.voxel_size), a, b)
+        rest = np.flatnonzero(~ok)
+        if rest.size:
+            ok[rest] = self._segments_free_by_pieces(a[rest], b[rest])
+        return ok
+
+    def _segments_free_by_pieces(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """segments_free's Corollary-1 proof (pieces no longer than the camera radius), for float64 [P, 3] ends."""
+        prep = self._prep()
         r = self.scene.camera_radius
         piece = max(r, 0.5 * prep.grid.voxel_size)
         n = np.maximum(1, np.ceil(np.linalg.norm(b - a, axis=1) / piece).astype(np.int64))  # [P]

@@ -33,6 +33,19 @@ def grid_graph(occ: np.ndarray):
     return coo_matrix((np.asarray(w, float), (np.asarray(rows, int), np.asarray(cols, int))), shape=(occ.size,) * 2).tocsr()
 
 
+def random_case(seed, shape, density):
+    """(occupancy, start, goal, Dijkstra's cost from start to goal (inf: not connected)) of a random grid, or
+    None when the grid has no free voxel."""
+    rng = np.random.default_rng(seed)
+    occ = rng.random(shape) < density
+    free = np.argwhere(~occ)
+    if len(free) == 0:
+        return None
+    s, g = free[rng.integers(len(free))], free[rng.integers(len(free))]
+    ref = dijkstra(grid_graph(occ), indices=np.ravel_multi_index(tuple(s), shape))[np.ravel_multi_index(tuple(g), shape)]
+    return occ, s, g, ref
+
+
 def check_path(path, occ, s, g):
     assert path.dtype == np.int64 and path.shape[1] == 3
     assert tuple(path[0]) == tuple(s) and tuple(path[-1]) == tuple(g)
@@ -45,14 +58,10 @@ def check_path(path, occ, s, g):
 @given(seed=st.integers(0, 2**31 - 1), shape=st.tuples(st.integers(1, 9), st.integers(1, 9), st.integers(1, 9)),
        density=st.floats(0.0, 0.6))
 def test_astar_is_optimal_vs_dijkstra(seed, shape, density):
-    rng = np.random.default_rng(seed)
-    occ = rng.random(shape) < density
-    free = np.argwhere(~occ)
-    if len(free) == 0:
+    case = random_case(seed, shape, density)
+    if case is None:
         return
-    s, g = free[rng.integers(len(free))], free[rng.integers(len(free))]
-    dist = dijkstra(grid_graph(occ), indices=np.ravel_multi_index(tuple(s), shape))
-    ref = dist[np.ravel_multi_index(tuple(g), shape)]
+    occ, s, g, ref = case
     if not np.isfinite(ref):
         with pytest.raises(GoalUnreachableError):
             astar(occ, s, g)

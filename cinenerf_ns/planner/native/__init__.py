@@ -1,0 +1,127 @@
+"""Optional compiled kernels of the planner (plain C, loaded with ctypes; no Python C API, no build step).
+
+The C source ships with the package and is compiled with the system C compiler (``$CC``, else ``cc``) on first
+use into a per-user cache (``$CINENERF_CACHE`` or ``$XDG_CACHE_HOME/cinenerf_ns`` or ``~/.cache/cinenerf_ns``),
+keyed by a hash of the source, the compiler and the platform, so a changed source is rebuilt and concurrent
+processes never load a half-written library (it is written to a temporary name, then renamed). Everything here
+is an accelerator: when no compiler is found, compiling fails, or ``CINENERF_NATIVE=0`` is set, the loaders return
+None and the callers use their pure-Python code (same results, slower; ``native_status()`` says why).
+
+Why C and not a Python extension: nerfstudio users already have a C compiler (gsplat compiles its CUDA code with
+it), the kernels need no Python objects, and a ctypes library needs no headers or build isolation.
+"""
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import threading
+from pathlib import Path
+from typing import Optional
+
+_HERE = Path(__file__).resolve().parent
+_LOCK = threading.Lock()
+_LIBS: dict[str, Optional[ctypes.CDLL]] = {}
+_STATUS: dict[str, str] = {}
+
+
+def cache_dir() -> Path:
+    """Where compiled libraries are kept (see the module docstring)."""
+    if os.environ.get("CINENERF_CACHE"):
+        return Path(os.environ["CINENERF_CACHE"])
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "cinenerf_ns"
+
+
+def enabled() -> bool:
+    """False when the user turned compiled kernels off (CINENERF_NATIVE=0)."""
+    return os.environ.get("CINENERF_NATIVE", "1").strip().lower() not in ("0", "false", "no", "off")
+
+
+def _compile(name: str) -> Optional[Path]:
+    src = _HERE / f"{name}.c"
+    cc = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
+    if cc is None:
+        _STATUS[name] = "no C compiler found (set CC)"
+        return None
+    key = hashlib.sha256(
+        src.read_bytes() + cc.encode() + platform.machine().encode() + sys.platform.encode()
+    ).hexdigest()[:16]
+    out_dir = cache_dir()
+    lib = out_dir / f"{name}-{key}.so"
+    if lib.exists():
+        return lib
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{name}-", suffix=".so", dir=out_dir)
+        os.close(fd)
+        r = subprocess.run([cc, "-O2", "-shared", "-fPIC", "-o", tmp, str(src), "-lm"], capture_output=True, text=True,
+                           timeout=120)
+        if r.returncode != 0:
+            os.unlink(tmp)
+            _STATUS[name] = f"compiling {src.name} failed: {r.stderr.strip()[:300]}"
+            return None
+        os.replace(tmp, lib)  # atomic: another process sees the old state or the whole library
+    except (OSError, subprocess.SubprocessError) as e:
+        _STATUS[name] = f"compiling {src.name} failed: {e}"
+        return None
+    return lib
+
+
+def load(name: str) -> Optional[ctypes.CDLL]:
+    """The compiled library ``name`` (from ``native/<name>.c``), or None (see native_status)."""
+    with _LOCK:
+        if name in _LIBS:
+            return _LIBS[name]
+        lib = None
+        if not enabled():
+            _STATUS[name] = "turned off (CINENERF_NATIVE=0)"
+        else:
+            path = _compile(name)
+            if path is not None:
+                try:
+                    lib = ctypes.CDLL(str(path))
+                    _STATUS[name] = f"compiled: {path}"
+                except OSError as e:
+                    _STATUS[name] = f"loading {path} failed: {e}"
+        _LIBS[name] = lib
+        return lib
+
+
+def native_status() -> dict:
+    """name -> what happened when it was loaded (compiled path, or why the Python fallback is used)."""
+    return dict(_STATUS)
+
+
+_FUNCS: dict[str, object] = {}
+
+
+def _function(lib_name: str, name: str, argtypes: list, restype):
+    """ctypes function ``name`` of library ``lib_name`` with its signature set (cached), or None."""
+    if name not in _FUNCS:
+        lib = load(lib_name)
+        f = None
+        if lib is not None:
+            f = getattr(lib, name)
+            f.argtypes = argtypes
+            f.restype = restype
+        _FUNCS[name] = f
+    return _FUNCS[name]
+
+
+_I64, _P, _F64 = ctypes.c_int64, ctypes.c_void_p, ctypes.c_double
+
+
+def astar26():
+    """The compiled A* (astar26.c) as a ctypes function, or None."""
+    return _function("astar26", "astar26", [_P, _I64, _I64, _I64, _I64, _I64, _F64, _I64, _P, _I64], _I64)
+
+
+def search26():
+    """The compiled search26 (astar26.c: A* to a goal, or Dijkstra to the nearest marked voxel), or None."""
+    return _function("astar26", "search26", [_P, _I64, _I64, _I64, _I64, _I64, _P, _F64, _I64, _P, _I64], _I64)

@@ -1,0 +1,177 @@
+/* A* on a 26-connected voxel grid: the compiled twin of astar.py's pure-Python search.
+ *
+ * Same graph, costs, heuristic and tie-breaking as astar.py: moves cost 1, sqrt 2, sqrt 3 (voxel units);
+ * the heuristic is the (weighted) 3D octile distance computed with the same operations in the same order;
+ * the open list is a binary heap ordered by (f, h, flat index), the order of Python's tuples; a node is
+ * closed when first popped. So both return the same path (tests check cost against Dijkstra and the paths
+ * against each other).
+ *
+ * search26 also answers "shortest path to the nearest of a set of voxels" (Dijkstra, for coarse_path.py).
+ *
+ * blocked: uint8 [X+2][Y+2][Z+2], C order, the grid padded with a ring of occupied voxels (no bounds checks).
+ * Returns the number of path voxels written to out (flat padded indices, start first), or
+ *   -1 no path (the free component of the start is exhausted), -2 more than max_expansions expansions,
+ *   -3 out_cap too small, -4 out of memory.
+ * Memory: seen/closed flags, g and parent arrays of the padded size, allocated with calloc (zero pages cost
+ * nothing until touched, so a short search touches little).
+ */
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+
+typedef struct {
+    double f, h;
+    int64_t n;
+} item_t;
+
+static int less(const item_t *a, const item_t *b) {
+    if (a->f != b->f) return a->f < b->f;
+    if (a->h != b->h) return a->h < b->h;
+    return a->n < b->n;
+}
+
+static int push(item_t **heap, int64_t *size, int64_t *cap, item_t it) {
+    if (*size == *cap) {
+        int64_t nc = *cap * 2;
+        item_t *nh = (item_t *)realloc(*heap, (size_t)nc * sizeof(item_t));
+        if (!nh) return -1;
+        *heap = nh;
+        *cap = nc;
+    }
+    item_t *hp = *heap;
+    int64_t i = (*size)++;
+    while (i > 0) {
+        int64_t p = (i - 1) >> 1;
+        if (!less(&it, &hp[p])) break;
+        hp[i] = hp[p];
+        i = p;
+    }
+    hp[i] = it;
+    return 0;
+}
+
+static item_t pop(item_t *hp, int64_t *size) {
+    item_t top = hp[0];
+    item_t last = hp[--(*size)];
+    int64_t n = *size, i = 0;
+    for (;;) {
+        int64_t c = 2 * i + 1;
+        if (c >= n) break;
+        if (c + 1 < n && less(&hp[c + 1], &hp[c])) c++;
+        if (!less(&hp[c], &last)) break;
+        hp[i] = hp[c];
+        i = c;
+    }
+    if (n > 0) hp[i] = last;
+    return top;
+}
+
+/* target == NULL: A* from start to goal. target != NULL (uint8, same layout as blocked): Dijkstra (no
+ * heuristic, goal ignored) from start to the nearest voxel whose target byte is set. */
+int64_t search26(const uint8_t *blocked, int64_t PX, int64_t PY, int64_t PZ, int64_t start, int64_t goal,
+                 const uint8_t *target, double weight, int64_t max_expansions, int64_t *out, int64_t out_cap) {
+    const double SQ2 = sqrt(2.0), SQ3 = sqrt(3.0);
+    const double c1 = weight * (SQ2 - 1.0), c2 = weight * (SQ3 - SQ2);
+    const int64_t sy = PZ, sx = PY * PZ, N = PX * PY * PZ;
+    int64_t off[26];
+    double cost[26];
+    int di_[26], dj_[26], dk_[26];
+    int m = 0;
+    for (int di = -1; di <= 1; di++)
+        for (int dj = -1; dj <= 1; dj++)
+            for (int dk = -1; dk <= 1; dk++) {
+                if (!(di || dj || dk)) continue;
+                off[m] = di * sx + dj * sy + dk;
+                cost[m] = sqrt((double)(di * di + dj * dj + dk * dk));
+                di_[m] = di;
+                dj_[m] = dj;
+                dk_[m] = dk;
+                m++;
+            }
+    uint8_t *state = (uint8_t *)calloc((size_t)N, 1); /* 0 unseen, 1 open, 2 closed */
+    double *g = (double *)calloc((size_t)N, sizeof(double));
+    int64_t *parent = (int64_t *)calloc((size_t)N, sizeof(int64_t));
+    int64_t cap = 1024, size = 0;
+    item_t *heap = (item_t *)malloc((size_t)cap * sizeof(item_t));
+    int64_t result = -1;
+    if (!state || !g || !parent || !heap) {
+        result = -4;
+        goto done;
+    }
+    const int64_t gi = goal / sx, gj = (goal % sx) / sy, gk = goal % sy;
+    g[start] = 0.0;
+    parent[start] = -1;
+    state[start] = 1;
+    item_t s0 = {0.0, 0.0, start};
+    if (push(&heap, &size, &cap, s0)) {
+        result = -4;
+        goto done;
+    }
+    int64_t expansions = 0;
+    int found = 0;
+    while (size > 0) {
+        item_t it = pop(heap, &size);
+        int64_t cur = it.n;
+        if (state[cur] == 2) continue;
+        if (target ? target[cur] != 0 : cur == goal) {
+            goal = cur; /* the target reached (unchanged for A*) */
+            found = 1;
+            break;
+        }
+        state[cur] = 2;
+        expansions++;
+        if (max_expansions >= 0 && expansions > max_expansions) {
+            result = -2;
+            goto done;
+        }
+        const double gc = g[cur];
+        const int64_t ci = cur / sx, cj = (cur % sx) / sy, ck = cur % sy;
+        const int64_t dgi = gi - ci, dgj = gj - cj, dgk = gk - ck;
+        for (int q = 0; q < 26; q++) {
+            int64_t n = cur + off[q];
+            if (blocked[n] || state[n] == 2) continue;
+            double ng = gc + cost[q];
+            if (state[n] == 0 || ng < g[n]) {
+                g[n] = ng;
+                parent[n] = cur;
+                state[n] = 1;
+                double a = (double)llabs(dgi - di_[q]), b = (double)llabs(dgj - dj_[q]), e = (double)llabs(dgk - dk_[q]);
+                double hi = a > b ? (a > e ? a : e) : (b > e ? b : e);
+                double lo = a < b ? (a < e ? a : e) : (b < e ? b : e);
+                /* same expression and order as astar.py: wgt*hi + c1*(a+b+e-hi-lo) + c2*lo */
+                double h = target ? 0.0 : weight * hi + c1 * (a + b + e - hi - lo) + c2 * lo;
+                item_t ni = {ng + h, h, n};
+                if (push(&heap, &size, &cap, ni)) {
+                    result = -4;
+                    goto done;
+                }
+            }
+        }
+    }
+    if (!found) {
+        result = -1;
+        goto done;
+    }
+    {
+        int64_t k = 0;
+        for (int64_t f = goal; f != -1; f = parent[f]) k++;
+        if (k > out_cap) {
+            result = -3;
+            goto done;
+        }
+        int64_t i = k - 1;
+        for (int64_t f = goal; f != -1; f = parent[f]) out[i--] = f;
+        result = k;
+    }
+done:
+    free(state);
+    free(g);
+    free(parent);
+    free(heap);
+    return result;
+}
+
+int64_t astar26(const uint8_t *blocked, int64_t PX, int64_t PY, int64_t PZ, int64_t start, int64_t goal,
+                double weight, int64_t max_expansions, int64_t *out, int64_t out_cap) {
+    return search26(blocked, PX, PY, PZ, start, goal, NULL, weight, max_expansions, out, out_cap);
+}

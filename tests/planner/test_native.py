@@ -1,0 +1,152 @@
+"""cinenerf_ns/planner/native: the compiled A* / Dijkstra (astar26.c) against the pure-Python A*, scipy's
+Dijkstra and scikit-image's MCP, and the fallback when no compiled kernel can be had."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from cinenerf_ns.planner import coarse_path, native
+from cinenerf_ns.planner.astar import AStarGrid, SearchBudgetExhausted, astar, path_cost
+from cinenerf_ns.planner.errors import GoalUnreachableError
+from test_astar import check_path, random_case
+
+SETTINGS = dict(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+needs_native = pytest.mark.skipif(native.astar26() is None, reason=f"no compiled A*: {native.native_status()}")
+
+
+@needs_native
+@settings(**SETTINGS)
+@given(seed=st.integers(0, 2**31 - 1), shape=st.tuples(st.integers(1, 10), st.integers(1, 10), st.integers(1, 9)),
+       density=st.floats(0.0, 0.6), weight=st.sampled_from([1.0, 1.5, 3.0]))
+def test_native_astar_is_the_python_astar(seed, shape, density, weight):
+    """Same search, same tie-breaking: the very same path (and Dijkstra's cost at weight 1)."""
+    case = random_case(seed, shape, density)
+    if case is None:
+        return
+    occ, s, g, ref = case
+    G = AStarGrid(occ)
+    for check in (True, False):
+        if not np.isfinite(ref):
+            for backend in ("native", "python"):
+                with pytest.raises(GoalUnreachableError):
+                    astar(G, s, g, backend=backend, check_components=check, heuristic_weight=weight)
+            continue
+        pn = astar(G, s, g, backend="native", check_components=check, heuristic_weight=weight)
+        pp = astar(G, s, g, backend="python", check_components=check, heuristic_weight=weight)
+        check_path(pn, occ, s, g)
+        assert np.array_equal(pn, pp)
+        assert ref - 1e-9 <= path_cost(pn) <= weight * ref + 1e-9
+
+
+@needs_native
+def test_native_budget_is_the_python_budget():
+    occ = np.zeros((20, 20, 20), bool)
+    occ[10, :, :15] = True
+    for budget in (0, 5, 50, 400, 3000):
+        outcomes = []
+        for backend in ("native", "python"):
+            try:
+                outcomes.append(astar(occ, (0, 0, 0), (19, 0, 0), max_expansions=budget, backend=backend).tolist())
+            except SearchBudgetExhausted:
+                outcomes.append("budget")
+        assert outcomes[0] == outcomes[1]
+    assert len(astar(occ, (0, 0, 0), (19, 0, 0), max_expansions=10_000, backend="native")) > 0
+
+
+@needs_native
+def test_native_long_path_on_a_big_grid():
+    """A whole-grid search (a wall with one hole in the far corner) on the planner's grid size."""
+    occ = np.zeros((96, 96, 57), bool)
+    occ[48] = True
+    occ[48, 95, 56] = False
+    p = astar(occ, (0, 0, 0), (95, 0, 0), backend="native")
+    check_path(p, occ, (0, 0, 0), (95, 0, 0))
+    assert [48, 95, 56] in p.tolist()
+    assert path_cost(p) == pytest.approx(path_cost(astar(occ, (0, 0, 0), (95, 0, 0), backend="python")), abs=1e-9)
+
+
+@needs_native
+@settings(**SETTINGS)
+@given(seed=st.integers(0, 2**31 - 1), shape=st.tuples(st.integers(1, 9), st.integers(1, 9), st.integers(1, 8)),
+       density=st.floats(0.0, 0.6), n_ends=st.integers(1, 6))
+def test_nearest_end_path_matches_mcp(seed, shape, density, n_ends):
+    """coarse_path._mcp_path through the compiled Dijkstra: a valid 26-connected path through finite costs to
+    one of the ends, of the same cost as scikit-image's MCP (the tie between equal paths may differ)."""
+    from skimage.graph import MCP_Geometric
+
+    rng = np.random.default_rng(seed)
+    occ = rng.random(shape) < density
+    free = np.argwhere(~occ)
+    if len(free) == 0:
+        return
+    s = free[rng.integers(len(free))]
+    ends = free[rng.integers(len(free), size=n_ends)]
+    costs = np.where(occ, np.inf, 1.0)
+    p = coarse_path._mcp_path(costs, s, ends)
+    mcp = MCP_Geometric(costs, fully_connected=True)
+    cum, _ = mcp.find_costs([tuple(s)], [tuple(e) for e in ends], find_all_ends=False)
+    ref = cum[tuple(ends.T)].min()
+    if not np.isfinite(ref):
+        assert p is None
+        return
+    assert p is not None and tuple(p[0]) == tuple(s)
+    assert any(tuple(p[-1]) == tuple(e) for e in ends)
+    assert not occ[tuple(p.T)].any()
+    assert (np.abs(np.diff(p, axis=0)).max(1) == 1).all() if len(p) > 1 else True
+    assert path_cost(p) == pytest.approx(ref, abs=1e-9)
+
+
+def _run(code: str, **env) -> str:
+    import os
+
+    e = {**os.environ, **env}
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=e, timeout=300)
+    assert r.returncode == 0, r.stderr
+    return r.stdout.strip()
+
+
+PROBE = (
+    "import numpy as np\n"
+    "from cinenerf_ns.planner import native\n"
+    "from cinenerf_ns.planner.astar import astar\n"
+    "from cinenerf_ns.planner.coarse_path import _mcp_path\n"
+    "occ = np.zeros((6, 6, 6), bool); occ[3, :, :5] = True\n"
+    "print(len(astar(occ, (0, 0, 0), (5, 0, 0))), len(_mcp_path(np.where(occ, np.inf, 1.0), (0, 0, 0), np.array([[5, 0, 0]]))))\n"
+    "print(native.astar26() is None, native.native_status().get('astar26'))\n"
+)
+
+
+def test_turned_off_falls_back_to_python(tmp_path):
+    out = _run(PROBE, CINENERF_NATIVE="0", CINENERF_CACHE=str(tmp_path)).splitlines()
+    assert out[1] == "True turned off (CINENERF_NATIVE=0)"
+    assert out[0] == "11 11"  # 5 moves up to the gap at (3, y, 5) (5 z-steps), 5 down to (5, 0, 0): 11 voxels
+    assert not any(tmp_path.iterdir())  # nothing was compiled
+
+
+def test_broken_compiler_falls_back_to_python(tmp_path):
+    out = _run(PROBE, CC="/bin/false", CINENERF_CACHE=str(tmp_path)).splitlines()
+    assert out[1].startswith("True compiling astar26.c failed")
+    assert out[0] == "11 11"
+
+
+@needs_native
+def test_compiles_into_the_cache_once(tmp_path):
+    out = _run(PROBE, CINENERF_CACHE=str(tmp_path)).splitlines()
+    assert out[0] == "11 11" and out[1].startswith("False compiled: ")
+    libs = sorted(p.name for p in tmp_path.iterdir())
+    assert len(libs) == 1 and libs[0].startswith("astar26-") and libs[0].endswith(".so")
+    mtime = next(tmp_path.iterdir()).stat().st_mtime_ns
+    _run(PROBE, CINENERF_CACHE=str(tmp_path))  # a second process loads the cached library
+    assert next(tmp_path.iterdir()).stat().st_mtime_ns == mtime
+
+
+def test_backend_errors():
+    occ = np.zeros((4, 4, 4), bool)
+    with pytest.raises(Exception, match="backend"):
+        astar(occ, (0, 0, 0), (3, 3, 3), backend="fast")
