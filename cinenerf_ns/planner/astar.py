@@ -77,6 +77,12 @@ class AStarGrid:
         i, j, k = ijk
         return (i + 1) * self.sx + (j + 1) * self.sy + (k + 1)
 
+    def unflat_many(self, f: np.ndarray) -> np.ndarray:
+        """Voxels int64 [K, 3] of flat padded indices [K] (vectorised unflat)."""
+        i, rem = np.divmod(np.asarray(f, dtype=np.int64), self.sx)
+        j, k = np.divmod(rem, self.sy)
+        return np.stack([i - 1, j - 1, k - 1], axis=1)
+
     def unflat(self, f: int) -> tuple[int, int, int]:
         i, rem = divmod(f, self.sx)
         j, k = divmod(rem, self.sy)
@@ -213,10 +219,7 @@ def _astar_native(fn, grid: AStarGrid, start: int, goal: int, s, g_, max_expansi
         raise GoalUnreachableError(f"no collision-free voxel path from {s} to {g_}")
     if k < 0:
         raise MemoryError(f"the compiled A* failed (code {k}) on a grid of {grid.shape}")
-    f = out[:k]
-    i, rem = np.divmod(f, grid.sx)
-    j, kk = np.divmod(rem, grid.sy)
-    return np.stack([i - 1, j - 1, kk - 1], axis=1).astype(np.int64)
+    return grid.unflat_many(out[:k])
 
 
 def path_cost(path_ijk: np.ndarray) -> float:

@@ -39,17 +39,19 @@ from .native import search26 as native_search26
 FINE_BUDGET = 800  # fine A* expansions before the coarse route (see voxel_path)
 
 
-def _mcp_path(costs: np.ndarray, start, ends: np.ndarray) -> Optional[np.ndarray]:
+def _mcp_path(costs: np.ndarray, start, ends: np.ndarray, grid: Optional[AStarGrid] = None) -> Optional[np.ndarray]:
     """Shortest 26-connected path int64 [K, 3] from ``start`` to the nearest of ``ends`` [E, 3] over
     voxels with finite cost (compiled Dijkstra, stops at the first end reached); None if none is reached.
     Through native/astar26.c when it loads (skimage's MCP costs ~10 ms of set-up per call, even on 13^3
     voxels), else scikit-image's ``MCP_Geometric``. Same metric (step lengths 1, sqrt 2, sqrt 3); among
-    paths of equal cost the two may pick different ones."""
+    paths of equal cost the two may pick different ones. ``grid``: the same grid prepared (``AStarGrid`` of
+    ~isfinite(costs)), when the caller keeps one."""
     if len(ends) == 0:
         return None
     fn = native_search26()
     if fn is not None:
-        return _native_path(fn, ~np.isfinite(costs), start, np.asarray(ends, dtype=np.int64).reshape(-1, 3))
+        g = grid if grid is not None else AStarGrid(~np.isfinite(costs))
+        return _native_path(fn, g, start, np.asarray(ends, dtype=np.int64).reshape(-1, 3))
     from skimage.graph import MCP_Geometric
 
     mcp = MCP_Geometric(costs, fully_connected=True)
@@ -61,39 +63,29 @@ def _mcp_path(costs: np.ndarray, start, ends: np.ndarray) -> Optional[np.ndarray
     return np.asarray(mcp.traceback(tuple(int(v) for v in ends[k])), dtype=np.int64).reshape(-1, 3)
 
 
-def _native_path(fn, occupied: np.ndarray, start, ends: np.ndarray) -> Optional[np.ndarray]:
+def _native_path(fn, grid: AStarGrid, start, ends: np.ndarray) -> Optional[np.ndarray]:
     """_mcp_path through the compiled search: A* for one end, Dijkstra to the nearest of several."""
-    X, Y, Z = occupied.shape
-    blocked = np.ones((X + 2, Y + 2, Z + 2), dtype=np.uint8)
-    blocked[1:-1, 1:-1, 1:-1] = occupied
-    sy, sx = Z + 2, (Y + 2) * (Z + 2)
-    s = np.asarray(start, dtype=np.int64).reshape(3)
-    if blocked[tuple(s + 1)]:
+    start_f = grid.flat(tuple(int(v) for v in np.asarray(start).reshape(3)))
+    if grid._blocked_np[start_f]:
         return None
-    flat = lambda v: int((v[0] + 1) * sx + (v[1] + 1) * sy + (v[2] + 1))  # noqa: E731
     target = None
-    goal = flat(ends[0])
     if len(ends) > 1:
-        target = np.zeros_like(blocked)
-        target[tuple((ends + 1).T)] = 1
-    out = np.empty(blocked.size, dtype=np.int64)
-    k = int(fn(blocked.ctypes.data, X + 2, Y + 2, Z + 2, flat(s), goal, None if target is None else target.ctypes.data,
-               1.0, -1, out.ctypes.data, out.size))
+        target = np.zeros_like(grid._blocked_np)
+        target[[grid.flat(tuple(e)) for e in ends.tolist()]] = 1
+    out = np.empty(grid._blocked_np.size, dtype=np.int64)
+    k = int(fn(grid._blocked_np.ctypes.data, *grid.padded_shape, start_f, grid.flat(tuple(ends[0].tolist())),
+               None if target is None else target.ctypes.data, 1.0, -1, out.ctypes.data, out.size))
     if k == -1:
         return None
     if k < 0:
-        raise MemoryError(f"the compiled path search failed (code {k}) on a grid of {occupied.shape}")
-    i, rem = np.divmod(out[:k], sx)
-    j, kk = np.divmod(rem, sy)
-    return np.stack([i - 1, j - 1, kk - 1], axis=1).astype(np.int64)
+        raise MemoryError(f"the compiled path search failed (code {k}) on a grid of {grid.shape}")
+    return grid.unflat_many(out[:k])
 
 
 class CoarseGrid:
     """2x2x2 blocks of a fine occupancy grid (see module docstring), prepared once per grid."""
 
     def __init__(self, fine: AStarGrid):
-        from scipy import ndimage
-
         occ = fine._occ  # [X, Y, Z] bool
         X, Y, Z = occ.shape
         X2, Y2, Z2 = (X + 1) // 2, (Y + 1) // 2, (Z + 1) // 2
@@ -103,7 +95,8 @@ class CoarseGrid:
         self.occupied = padded.reshape(X2, 2, Y2, 2, Z2, 2).any(axis=(1, 3, 5))  # [X2, Y2, Z2]
         self.fine_costs = np.where(occ, np.inf, 1.0)  # [X, Y, Z] MCP costs (inf = impassable)
         self.costs = np.where(self.occupied, np.inf, 1.0)  # [X2, Y2, Z2]
-        self.labels, _ = ndimage.label(~self.occupied, structure=np.ones((3, 3, 3), dtype=bool))
+        self.block_grid = AStarGrid(self.occupied)  # padded once for the compiled block search
+        self.labels = self.block_grid.labels  # 26-connected components of free blocks
 
     def _to_free_block(self, v: np.ndarray, window: int) -> Optional[np.ndarray]:
         """Fine path int64 [K, 3] from free fine voxel v to the nearest fine voxel (within ``window``
@@ -130,7 +123,7 @@ class CoarseGrid:
         bs, bg = head[-1] // 2, tail[-1] // 2
         if self.labels[tuple(bs)] != self.labels[tuple(bg)]:
             return None
-        blocks = _mcp_path(self.costs, bs, bg[None])
+        blocks = _mcp_path(self.costs, bs, bg[None], grid=self.block_grid)
         if blocks is None:
             return None
         mid = 2.0 * blocks + 0.5  # block centres in fine units
@@ -138,21 +131,18 @@ class CoarseGrid:
 
 
 def voxel_path(
-    fine: AStarGrid, coarse: Optional[CoarseGrid], s, g, *, astar_budget: Optional[int] = None, window: int = 6,
+    fine: AStarGrid, coarse: Optional[CoarseGrid], s, g, *, astar_budget: int = FINE_BUDGET, window: int = 6,
     astar_weight: float = 1.0,
 ) -> np.ndarray:
     """Collision-free path float64 [K, 3] (fine voxel index units, s first, g last) between free fine
     voxels s and g: A* with ``astar_budget`` expansions, else the coarse route, else the fine Dijkstra.
     astar_weight: heuristic weight of the A* (1: minimum-cost path; w > 1: cost at most w x minimum, far fewer
     expansions; see PlannerConfig.astar_weight).
-    astar_budget: None = no budget when the compiled A* is available (a whole 96 x 96 x 57 grid is searched in
-    tens of ms there, so the minimum-cost fine path is always affordable), else NATIVE_LESS_BUDGET expansions for the
-    pure-Python A* (a flood of 10^5 voxels would take ~1 s there).
+    astar_budget: fine A* expansions before the coarse route, the same with the compiled and the Python A* (the
+    module docstring says why).
 
     Raises what astar() raises for occupied / disconnected ends (StartInCollisionError,
     GoalUnreachableError)."""
-    if astar_budget is None:
-        astar_budget = FINE_BUDGET
     try:
         return astar(fine, s, g, max_expansions=astar_budget, heuristic_weight=astar_weight).astype(np.float64)
     except SearchBudgetExhausted:
