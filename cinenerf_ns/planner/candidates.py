@@ -37,9 +37,12 @@ ranking; results equal the in-process path's (same starts, shots and ranks). The
 prepare() and share the prepared CPU state (the CPU mirror of a GPU scene, index, grids) copy-on-write, so
 they add little memory. Fork only: on macOS / Windows (no 'fork' start method) candidates are planned in
 this process. When this process builds corridors with the batched backend (PlannerConfig.corridor_backend, a
-CUDA scene by default), each round has two phases around ONE batched corridor computation for all its
-candidates (corridor.build_corridors; the workers cannot use CUDA): the workers find the ways (A*, shortcut),
-this process builds every corridor at once, the workers solve the QPs, time and verify. With workers,
+CUDA scene by default) and PlannerConfig.grid_polytopes is off, each round has two phases around ONE batched
+corridor computation for all its candidates (corridor.build_corridors; the workers cannot use CUDA): the workers
+find the ways (A*, shortcut), this process builds every corridor at once, the workers solve the QPs, time and
+verify. With grid polytopes (the default) nearly every segment's polytope comes from the occupancy grid or is the
+goal's (corridor.py), cheap CPU work that the workers do themselves, so whole candidates run in the workers. With
+workers,
 ``timings``' stage keys are sums of the workers' wall times (they overlap) and ``pool_ms`` is the parent's wall
 time waiting for them.
 """
@@ -215,26 +218,27 @@ def _merge_task_results(ids: List[int], results: List[Dict[str, Any]], tm: Dict[
 
 def _candidate_way(planner: Planner, prep, start: np.ndarray, goal_p: np.ndarray, goal_cache: Dict[int, Any],
                    lap, t: float):
-    """Goal and voxel path of one candidate: (goal [3], polyline [K, 3] start -> goal, t). The goal is found once per
-    free component (goal_cache). Laps goal_ms and astar_ms. Raises GoalUnreachableError / StartInCollisionError."""
+    """Goal and voxel path of one candidate: (planner.ReachableGoal, polyline [K, 3] for the shortcut (its
+    way_to_shortcut), t). The goal is found once per free component (goal_cache). Laps goal_ms and astar_ms.
+    Raises GoalUnreachableError / StartInCollisionError."""
     s_ijk = planner._free_voxel_near(start, None)
     comp = int(prep.astar_grid.labels[tuple(s_ijk)])
     if comp not in goal_cache:
         goal_cache[comp] = planner._reachable_goal(goal_p, comp)
-    g, g_ijk = goal_cache[comp]
+    goal = goal_cache[comp]
     t = lap("goal_ms", t)
-    path = voxel_path(prep.astar_grid, prep.coarse, s_ijk, g_ijk, astar_weight=planner.config.astar_weight)  # [K, 3]
+    path = voxel_path(prep.astar_grid, prep.coarse, s_ijk, goal.voxel, astar_weight=planner.config.astar_weight)  # [K, 3]
     centres = prep.grid.voxel_to_world(torch.as_tensor(path, device=prep.grid.device)).cpu().numpy()
-    return g, np.concatenate([start[None], centres, g[None]]), lap("astar_ms", t)
+    return goal, goal.way_to_shortcut(start, centres), lap("astar_ms", t)
 
 
-def _candidate_trajectory(planner: Planner, prep, way: np.ndarray, start: np.ndarray, g: np.ndarray, lap, t: float):
+def _candidate_trajectory(planner: Planner, prep, way: np.ndarray, start: np.ndarray, g: np.ndarray, lap, t: float,
+                          known=()):
     """Corridor and Bezier QP of one shortcut polyline: (corridor, trajectory, t). Laps corridor_ms and qp_ms.
-    Raises CorridorError / PlanningError."""
-    cfg = planner.config
+    known: the goal's polytope (ReachableGoal.known()). Raises CorridorError / PlanningError."""
     # box margin and PlannerConfig.corridor_backend ('cpu' in a worker)
     corridor = build_corridor(torch.as_tensor(way, device=planner.scene.device), planner.scene, prep.index,
-                              **planner.corridor_kwargs())
+                              known=known, **planner.corridor_kwargs())
     t = lap("corridor_ms", t)
     return corridor, _candidate_qp(planner, corridor, start, g), lap("qp_ms", t)
 
@@ -272,7 +276,7 @@ def _plan_candidate_task(planner: Planner, config, start: np.ndarray, goal_p: np
     t = time.perf_counter()
     try:  # the corridor here, in the worker ('cpu' backend: no CUDA after fork)
         corridor = build_corridor(torch.as_tensor(way["way"], device=planner.scene.device), planner.scene,
-                                  planner._prep().index, **planner.corridor_kwargs())
+                                  planner._prep().index, known=way["known"], **planner.corridor_kwargs())
     except (GoalUnreachableError, PlanningError) as e:  # CorridorError and the rest, as in-process
         out["error"] = str(e)
         return out
@@ -287,28 +291,30 @@ def _plan_candidate_task(planner: Planner, config, start: np.ndarray, goal_p: np
 def _candidate_way_task(planner: Planner, config, start: np.ndarray, goal_p: np.ndarray,
                         goal_cache: Dict[int, Any]) -> Dict[str, Any]:
     """Phase 1 of a candidate in a worker when the parent builds the corridors (two-phase rounds, see
-    _plan_candidates): goal, voxel path, shortcut. Returns {"goal", "way" [K, 3], "error", "timings",
-    "goal_cache"} (error: the message of a failure the in-process path would record, else None)."""
+    _plan_candidates): goal, voxel path, shortcut. Returns {"goal", "way" [K, 3], "known" (the goal's polytope, see
+    ReachableGoal), "error", "timings", "goal_cache"} (error: the message of a failure the in-process path would
+    record, else None)."""
     planner.config = config
     prep = planner._prep()
     tm: Dict[str, float] = {}
     known = set(goal_cache)
     lap = _lapper(tm)
 
-    def result(g, way, error) -> Dict[str, Any]:
+    def result(goal, way, error) -> Dict[str, Any]:
         new_goals = {c: v for c, v in goal_cache.items() if c not in known}
-        return {"goal": g, "way": way, "error": error, "timings": tm, "goal_cache": new_goals}
+        return {"goal": None if goal is None else goal.point, "way": way, "known": [] if goal is None else goal.known(),
+                "error": error, "timings": tm, "goal_cache": new_goals}
 
     t = time.perf_counter()
     try:
-        g, way, t = _candidate_way(planner, prep, start, goal_p, goal_cache, lap, t)
+        goal, way, t = _candidate_way(planner, prep, start, goal_p, goal_cache, lap, t)
     except (GoalUnreachableError, StartInCollisionError) as e:
         return result(None, None, str(e))
-    way = shortcut(way, planner._shortcut_free)  # == batched_shortcut on this path alone (tested)
+    way = goal.shortcut_ends(shortcut(way, planner._shortcut_free))  # == batched_shortcut on this path alone (tested)
     lap("shortcut_ms", t)
     if np.linalg.norm(way[-1] - way[0]) < 1e-9:
         return result(None, None, "the start is already at the goal")
-    return result(g, way, None)
+    return result(goal, way, None)
 
 
 def _candidate_finish_task(planner: Planner, config, corridor, start: np.ndarray, g: np.ndarray, look_p: np.ndarray,
@@ -444,7 +450,7 @@ def _plan_candidates(
     while len(shots) < k and nxt < len(starts):
         batch = list(range(nxt, min(len(starts), nxt + k - len(shots))))
         nxt = batch[-1] + 1
-        if pool is not None and planner.corridor_backend() == "batched":
+        if pool is not None and planner.corridor_backend() == "batched" and not cfg.grid_polytopes:
             # two phases around ONE batched corridor computation for the whole round (this process can use the
             # GPU, the workers cannot): workers find the ways, this process builds every corridor at once, the
             # workers solve the QPs and verify. Same shots as in-process with the batched backend.
@@ -453,7 +459,9 @@ def _plan_candidates(
             t = lap("pool_ms", t)
             if not ways:
                 continue
-            corridors = build_corridors([r["way"] for _, r in ways], planner.scene, prep.index,
+            # the goals' polytopes, one per distinct goal (each task returns its own copy of its component's goal)
+            known = list({tuple(r["goal"]): p for _, r in ways for p in r["known"]}.values())
+            corridors = build_corridors([r["way"] for _, r in ways], planner.scene, prep.index, known=known,
                                         **planner.corridor_kwargs())
             t = lap("corridor_ms", t)
             todo = []
@@ -483,19 +491,21 @@ def _plan_candidates(
         for ci in batch:
             s = starts[ci]
             try:
-                g, way, t = _candidate_way(planner, prep, s, goal_p, goal_cache, lap, t)
-                plans.append({"cand": ci, "start": s, "goal": g, "way": way})
+                goal, way, t = _candidate_way(planner, prep, s, goal_p, goal_cache, lap, t)
+                plans.append({"cand": ci, "start": s, "goal": goal.point, "reach": goal, "way": way})
             except (GoalUnreachableError, StartInCollisionError) as e:
                 errors.append(str(e))
                 t = time.perf_counter()
         ways = batched_shortcut([p["way"] for p in plans], planner._shortcut_free)
+        ways = [p["reach"].shortcut_ends(w) for p, w in zip(plans, ways)]
         t = lap("shortcut_ms", t)
         for p, way in zip(plans, ways):
             if np.linalg.norm(way[-1] - way[0]) < 1e-9:
                 errors.append("the start is already at the goal")
                 continue
             try:
-                corridor, traj, t = _candidate_trajectory(planner, prep, way, p["start"], p["goal"], lap, t)
+                corridor, traj, t = _candidate_trajectory(planner, prep, way, p["start"], p["goal"], lap, t,
+                                                          known=p["reach"].known())
             except (GoalUnreachableError, CorridorError, PlanningError) as e:
                 errors.append(str(e))
                 t = time.perf_counter()

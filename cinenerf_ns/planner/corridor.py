@@ -17,6 +17,11 @@ ellipsoid this is rare) is split at its midpoint and retried, up to ``max_split_
 segment), possibly on another copy of the scene (``batch_scene``/``batch_index``, e.g. the planner's GPU
 scene while requests use a CPU mirror). Segments it flags (no polytope found around them) go through the
 host path above, splitting included, so both backends cover the same segments with the same guarantee.
+
+``grid`` (a grid_polytope.VoxelObstacles of the planner's occupancy grid): segments that lie in free voxels get a
+polytope built from the grid's surface voxels instead (grid_polytope.py: same guarantee, no Gaussian query, a
+fraction of the cost, up to about a voxel more conservative); only the other segments (typically the last one,
+ending next to the go-to object) need Prop-2 polytopes from either backend.
 """
 from __future__ import annotations
 
@@ -48,6 +53,8 @@ class Corridor:
     thin_joints: list[int] = field(default_factory=list)  # m with overlap_radius[m] < min_overlap
     n_splits: int = 0  # midpoint splits that were needed
     n_host_segments: int = 0  # backend "batched": segments it flagged, built by the host path instead
+    n_grid_segments: int = 0  # segments whose polytope came from the occupancy grid (grid_polytope.py)
+    n_known_segments: int = 0  # segments that reused a ``known`` polytope (e.g. the goal's)
 
     def __len__(self) -> int:
         return len(self.polytopes)
@@ -113,6 +120,8 @@ def build_corridor(
     backend: str = "cpu",
     batch_scene=None,
     batch_index=None,
+    grid=None,
+    known=(),
 ) -> Corridor:
     """Corridor of safe polytopes along a polyline of camera centres.
 
@@ -129,17 +138,22 @@ def build_corridor(
     backend: "cpu" (one host ``safe_polytope`` per segment) or "batched" (``safe_polytopes_batched`` for
     all segments at once on ``batch_scene`` / ``batch_index``, default ``scene`` / ``index``, which must
     hold the same ellipsoids; flagged segments then take the host path with splitting; box "aabb" only).
+    grid: optional grid_polytope.VoxelObstacles; segments lying in its free voxels get grid polytopes (module
+    docstring), the rest go to the backend.
+    known: safe polytopes (of this scene) built earlier, e.g. the one the goal was projected onto; a segment with
+    both ends inside one of them (checked) takes it as its polytope, before the grid and the backend.
     Raises InvalidInputError (bad waypoints), CorridorError (a segment cannot be covered).
     """
     _check_options(box, box_margin, backend)
     w = _prepared_waypoints(waypoints, scene.means.device)
     kw = dict(margin=margin, normal=normal)
     stats = {"splits": 0}
+    pre = _grid_polytopes([w], grid, box_margin, margin, box, known, stats)[0]
     if backend == "batched":
-        batched = _batched_polytopes([w], scene, index, box_margin, margin, normal, batch_scene, batch_index)[0]
+        batched = _batched_polytopes([w], scene, index, box_margin, margin, normal, batch_scene, batch_index, [pre])[0]
         stats["host_segments"] = sum(p is None for p in batched)
     else:
-        batched = [None] * (w.shape[0] - 1)
+        batched = pre
     pieces = _path_pieces(w, batched, scene, index, box_margin, max_split_depth, kw, stats, box)
     return _assemble(pieces, stats, min_overlap, exact_overlap)
 
@@ -161,14 +175,16 @@ def build_corridors(waypoint_list, scene, index=None, **options) -> list:
     _check_options(o["box"], o["box_margin"], o["backend"])
     ws = [_prepared_waypoints(wp, scene.means.device) for wp in waypoint_list]
     kw = dict(margin=o["margin"], normal=o["normal"])
+    counts = [{} for _ in ws]
+    pre = _grid_polytopes(ws, o["grid"], o["box_margin"], o["margin"], "aabb", o["known"], counts)
     if o["backend"] == "batched" and ws:
         batched = _batched_polytopes(ws, scene, index, o["box_margin"], o["margin"], o["normal"], o["batch_scene"],
-                                     o["batch_index"])
+                                     o["batch_index"], pre)
     else:
-        batched = [[None] * (w.shape[0] - 1) for w in ws]
+        batched = pre
     out: list = []
-    for w, bp in zip(ws, batched):
-        stats = {"splits": 0, "host_segments": sum(p is None for p in bp) if o["backend"] == "batched" else 0}
+    for w, bp, cnt in zip(ws, batched, counts):
+        stats = {"splits": 0, "host_segments": sum(p is None for p in bp) if o["backend"] == "batched" else 0, **cnt}
         try:
             pieces = _path_pieces(w, bp, scene, index, o["box_margin"], o["max_split_depth"], kw, stats, "aabb")
         except CorridorError as e:
@@ -204,28 +220,63 @@ def _prepared_waypoints(waypoints, dev) -> Tensor:
     return w
 
 
-def _batched_polytopes(ws, scene, index, box_margin, margin, normal, batch_scene, batch_index) -> list:
+def _known_polytope(known, a: Tensor, b: Tensor):
+    """The first of the ``known`` polytopes that holds both ends of the segment a -> b (so the whole segment), or None."""
+    for p in known:
+        pa = p if p.A.device == a.device else p.to(a.device)
+        if bool(pa.contains(a)) and bool(pa.contains(b)):
+            return pa
+    return None
+
+
+def _grid_polytopes(ws, grid, box_margin, margin, box, known=(), stats=None) -> list:
+    """Per path, [Polytope | None] per segment: a ``known`` polytope holding the segment, else the grid polytope of
+    a segment that lies in free voxels of ``grid`` (None: neither; the segment needs an exact polytope). stats: a
+    dict (one path) or a list of dicts (one per path) that get the counts ``known_segments`` and ``grid_segments``."""
+    out = []
+    for k, w in enumerate(ws):
+        row = []
+        st = (stats[k] if isinstance(stats, list) else stats) if stats is not None else {}
+        st.setdefault("known_segments", 0)
+        st.setdefault("grid_segments", 0)
+        wn = w.detach().cpu().numpy()
+        for i in range(w.shape[0] - 1):
+            p = _known_polytope(known, w[i], w[i + 1]) if known else None
+            if p is not None:
+                st["known_segments"] += 1
+            elif grid is not None and box == "aabb":
+                p = grid.polytope(wn[i], wn[i + 1], box_margin, margin, device=w.device)
+                st["grid_segments"] += p is not None
+            row.append(p)
+        out.append(row)
+    return out
+
+
+def _batched_polytopes(ws, scene, index, box_margin, margin, normal, batch_scene, batch_index, pre=None) -> list:
     """Per path, [Polytope | None] per segment (None: flagged, the host path decides it) from one
-    safe_polytopes_batched call over the segments of every path ws[i] [M_i+1, 3]."""
+    safe_polytopes_batched call over the segments of every path ws[i] [M_i+1, 3] that have no polytope in ``pre``
+    yet (per path, [Polytope | None] per segment; those given are kept as they are)."""
     dev = scene.means.device
     bscene = scene if batch_scene is None else batch_scene
     bindex = index if batch_scene is None and batch_index is None else batch_index
+    pre = [[None] * (w.shape[0] - 1) for w in ws] if pre is None else pre
+    out = [list(p) for p in pre]
+    todo = [(i, m) for i, p in enumerate(pre) for m, q in enumerate(p) if q is None]
+    if not todo:
+        return out
     bws = [w.to(bscene.means.device) for w in ws]
-    segs = torch.cat([torch.stack([bw[:-1], bw[1:]], 1) for bw in bws])  # [sum M_i, 2, 3]
-    lo = torch.minimum(segs[:, 0], segs[:, 1]) - box_margin  # [sum M_i, 3] same boxes as the host path
+    segs = torch.stack([torch.stack([bws[i][m], bws[i][m + 1]]) for i, m in todo])  # [T, 2, 3]
+    lo = torch.minimum(segs[:, 0], segs[:, 1]) - box_margin  # [T, 3] same boxes as the host path
     hi = torch.maximum(segs[:, 0], segs[:, 1]) + box_margin
     polys_b, _ = safe_polytopes_batched(segs, bscene, bindex, lo, hi, margin=margin, normal=normal, out_device=dev)
-    out, o = [], 0
-    for w in ws:
-        m = w.shape[0] - 1
-        out.append(list(polys_b[o:o + m]))
-        o += m
+    for (i, m), p in zip(todo, polys_b):
+        out[i][m] = p
     return out
 
 
 def _path_pieces(w, batched, scene, index, box_margin, max_split_depth, kw, stats, box) -> list:
-    """(polytope, p0, p1) per segment of the path w [M+1, 3]: the batched polytope where there is one, else the
-    host path (SeedNotFreeError -> split, as with backend "cpu")."""
+    """(polytope, p0, p1) per segment of the path w [M+1, 3]: the polytope already built for it (grid or batched)
+    where there is one, else the host path (SeedNotFreeError -> split, as with backend "cpu")."""
     pieces: list = []
     for m in range(w.shape[0] - 1):
         if batched[m] is not None:
@@ -267,4 +318,6 @@ def _assemble(pieces, stats, min_overlap: float, exact_overlap: bool) -> Corrido
         thin_joints=thin,
         n_splits=stats["splits"],
         n_host_segments=stats.get("host_segments", 0),
+        n_grid_segments=stats.get("grid_segments", 0),
+        n_known_segments=stats.get("known_segments", 0),
     )

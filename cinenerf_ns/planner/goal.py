@@ -93,16 +93,21 @@ def _default_clear(scene, index, margin):
 
 
 # ------------------------------------------------------------------------------------ goal
-def _project_onto_polytope(A: np.ndarray, b: np.ndarray, target: np.ndarray) -> Optional[np.ndarray]:
-    """argmin |x - target|^2 s.t. A x <= b (Clarabel), then pulled exactly inside along the segment to the
-    Chebyshev centre (ratio test) so the returned point satisfies A x <= b in floating point.
+def _project_onto_polytope(A: np.ndarray, b: np.ndarray, target: np.ndarray,
+                           interior: Optional[np.ndarray] = None) -> Optional[np.ndarray]:
+    """argmin |x - target|^2 s.t. A x <= b (Clarabel), then pulled exactly inside along the segment to an
+    interior point (ratio test) so the returned point satisfies A x <= b in floating point. The interior point is
+    ``interior`` when it is strictly inside (e.g. the polytope's seed: no LP needed), else the Chebyshev centre.
     None when the polytope has no interior."""
     import clarabel
     from scipy import sparse
 
-    c, rad = chebyshev_center(A, b)
-    if not (rad > 1e-9):
-        return None
+    if interior is not None and float(np.min(b - A @ np.asarray(interior, dtype=np.float64))) > 1e-9:
+        c = np.asarray(interior, dtype=np.float64)
+    else:
+        c, rad = chebyshev_center(A, b)
+        if not (rad > 1e-9):
+            return None
     P = sparse.csc_matrix(2.0 * np.eye(3))
     q = -2.0 * target
     settings = clarabel.DefaultSettings()

@@ -212,11 +212,12 @@ def plan_multistop(
                                clearance_fn=planner._free_fn)[0].detach().cpu().numpy()
     s_ijk = planner._free_voxel_near(s, None)
     comp = int(labels[tuple(s_ijk)])
-    pts, ijks = [s], [s_ijk]
+    pts, ijks, reached = [s], [s_ijk], [None]
     for g in targets:
-        p, ijk = planner._reachable_goal(g, comp)
-        pts.append(np.asarray(p, np.float64))
-        ijks.append(np.asarray(ijk))
+        goal = planner._reachable_goal(g, comp)
+        pts.append(np.asarray(goal.point, np.float64))
+        ijks.append(np.asarray(goal.voxel))
+        reached.append(goal)
     for i in range(1, len(pts)):
         if np.linalg.norm(pts[i] - pts[i - 1]) < 1e-9:
             raise InvalidInputError(f"stop {i} coincides with the point before it; remove the repeated stop.")
@@ -226,16 +227,22 @@ def plan_multistop(
     for i in range(len(targets)):
         path = voxel_path(prep.astar_grid, prep.coarse, ijks[i], ijks[i + 1], astar_weight=planner.config.astar_weight)  # [K, 3] fine voxel units
         centres = grid.voxel_to_world(torch.as_tensor(path, device=grid.device)).cpu().numpy()
-        ways.append(np.concatenate([pts[i][None], centres, pts[i + 1][None]]))
+        ways.append(np.concatenate([pts[i][None], centres, pts[i + 1][None]]) if i + 1 < len(targets)
+                    else reached[-1].way_to_shortcut(pts[i], centres))
     tm["astar_ms"] = 1e3 * (time.perf_counter() - t1)
     t2 = time.perf_counter()
+    # the last way ends voxel centre -> final stop inside that stop's polytope when it has one (ReachableGoal),
+    # reused below. Not for the intermediate stops: the curve passes through them with continuous derivatives,
+    # and the projection puts a stop on a face of its polytope, which leaves such a junction little room
     ways = batched_shortcut(ways, planner._shortcut_free)
+    ways[-1] = reached[-1].shortcut_ends(ways[-1])
+    known = reached[-1].known()
     tm["shortcut_ms"] = 1e3 * (time.perf_counter() - t2)
     t3 = time.perf_counter()
     polys, wps, stop_segments = [], [pts[0][None]], []
     for i, w in enumerate(ways):
-        cor = build_corridor(torch.as_tensor(w, device=planner.scene.device), planner.scene, prep.index,
-                             **planner.corridor_kwargs())  # box margin, PlannerConfig.corridor_backend
+        cor = build_corridor(torch.as_tensor(w, device=planner.scene.device), planner.scene, prep.index, known=known,
+                             **planner.corridor_kwargs())  # box margin, PlannerConfig.corridor_backend, grid
         if i > 0:
             stop_segments.append(len(polys))
         polys.extend(cor.constraints())

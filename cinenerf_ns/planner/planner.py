@@ -35,6 +35,7 @@ from .errors import (
     StartInCollisionError,
     UnsafeTrajectoryError,
 )
+from .grid_polytope import VoxelObstacles
 from .goal import _project_onto_polytope, closest_safe_point, sample_free_starts
 from .polytope import safe_polytope
 from .occupancy import OccupancyGrid, build_occupancy
@@ -94,6 +95,11 @@ class PlannerConfig:
     more than they compute (H100 host, 1M Gaussians, median per plan: 388 ms on CUDA tensors, 194 ms with
     the CPU mirror). 'scene': on the scene's device. Batched scoring of many candidates (occlusion, clearance)
     keeps using the scene's device (``Planner.batch_scene``)."""
+    grid_polytopes: bool = True
+    """Corridor segments that lie in free voxels of the occupancy grid get polytopes built from the grid's surface
+    voxels (grid_polytope.py: the same safety guarantee without a Gaussian query, far cheaper, up to about one
+    voxel more distance from the scene); the others (usually the last one, next to the go-to object) get exact
+    Prop-2 polytopes from corridor_backend. False: Prop-2 polytopes for every segment (the paper's corridor)."""
     corridor_backend: str = "auto"
     """How a request builds its corridor of safe polytopes. 'cpu': one host polytope per segment
     (polytope.safe_polytope) on the request device's scene. 'batched': all segments' polytopes in one batched
@@ -119,6 +125,36 @@ class PreparedScene:
     coarse: Optional[CoarseGrid] = None  # 2x-coarse blocks for hard path searches (coarse_path.py)
     batch_index: Optional[GridIndex] = None  # the index on the scene's own device (Planner.batch_scene)
     free_edt: Optional[np.ndarray] = None  # [X+2, Y+2, Z+2] see Planner.clearance_lower_bound (lazy)
+    voxels: Optional[VoxelObstacles] = None  # the grid's occupied + surface voxels for grid polytopes
+
+
+@dataclass
+class ReachableGoal:
+    """Where a shot ends: ``point`` [3] (the closest safe point to the go-to target that the component reaches),
+    ``voxel`` [3] (the free voxel the voxel path ends in) and, when the point came from projecting the target onto
+    a safe polytope seeded at that voxel's centre, that ``polytope`` (it holds the centre and the point).
+
+    With a polytope the way ends ... -> voxel centre -> point: the shortcut runs up to the voxel centre only, and
+    the last segment, inside the polytope, needs no corridor polytope of its own (``known()``). Without one the
+    shortcut may join any waypoint to the point, as before."""
+
+    point: np.ndarray
+    voxel: np.ndarray
+    polytope: Optional[object] = None  # polytope.Polytope
+
+    def way_to_shortcut(self, start: np.ndarray, centres: np.ndarray) -> np.ndarray:
+        """The polyline [K, 3] the shortcut prunes: start, the voxel path's centres, and the point unless the last
+        segment is fixed (then the path ends at the goal voxel's centre; shortcut_ends appends the point)."""
+        tail = [] if self.polytope is not None else [self.point[None]]
+        return np.concatenate([start[None], centres] + tail)
+
+    def shortcut_ends(self, way: np.ndarray) -> np.ndarray:
+        """The shortcut polyline completed with the point where way_to_shortcut left it out."""
+        return way if self.polytope is None else np.concatenate([way, self.point[None]])
+
+    def known(self) -> list:
+        """Safe polytopes the corridor may reuse for any segment they contain (build_corridor's ``known``)."""
+        return [] if self.polytope is None else [self.polytope]
 
 
 def _as_point(x: ArrayLike, what: str) -> np.ndarray:
@@ -199,6 +235,8 @@ class Planner:
         _ = ag.labels  # free-space components, used for reachability of goals and starts
         coarse = CoarseGrid(ag)
         t4 = time.perf_counter()
+        voxels = VoxelObstacles.from_occupied(ag._occ, grid.lo.detach().cpu().double().numpy(), grid.voxel_size)
+        t5 = time.perf_counter()
         # compile / load the compiled path search now (cached on disk after the first time), before candidate
         # worker processes fork: they inherit it instead of each loading it on its first path
         native_search26()
@@ -213,8 +251,9 @@ class Planner:
             astar_grid=ag,
             coarse=coarse,
             batch_index=batch_index,
+            voxels=voxels,
             timings_ms={"index_ms": 1e3 * (t1 - t0), "grid_ms": 1e3 * (t2 - t1), "mirror_ms": 1e3 * (t3 - t2) if mirrored else 0.0,
-                        "components_ms": 1e3 * (t4 - t3)},
+                        "components_ms": 1e3 * (t4 - t3), "surface_ms": 1e3 * (t5 - t4)},
         )
         return self.prepared
 
@@ -267,6 +306,8 @@ class Planner:
         polytopes end up on the request device)."""
         prep = self._prep()
         kw = dict(box_margin=self.config.box_margin)
+        if self.config.grid_polytopes:
+            kw["grid"] = prep.voxels
         if self.corridor_backend() == "batched":
             bidx = prep.batch_index if prep.batch_index is not None else prep.index
             kw.update(backend="batched", batch_scene=self.batch_scene, batch_index=bidx)
@@ -360,8 +401,10 @@ class Planner:
             f"walled in at this grid resolution (raise --grid-resolution)"
         )
 
-    def _reachable_goal(self, target: np.ndarray, comp: int) -> tuple[np.ndarray, np.ndarray]:
-        """Closest safe point to ``target`` that the free component ``comp`` reaches, and its voxel.
+    def _reachable_goal(self, target: np.ndarray, comp: int) -> "ReachableGoal":
+        """Closest safe point to ``target`` that the free component ``comp`` reaches, its voxel, and (step 2) the
+        safe polytope it was projected onto, which also holds the voxel's centre: the way's last segment, voxel
+        centre -> goal, lies in it, so the corridor reuses it instead of building one (see ReachableGoal).
 
         1. paper: closest_safe_point (target itself if free, else the projection of the target onto a
            Prop-2 polytope grown at the target, else the nearest free voxel); accepted if a free voxel
@@ -387,7 +430,7 @@ class Planner:
                 clearance_fn=self._free_fn,
             )
             g = g.detach().cpu().numpy()
-            return g, self._free_voxel_near(g, comp, max_window=2 if walled_in else 16)
+            return ReachableGoal(g, self._free_voxel_near(g, comp, max_window=2 if walled_in else 16))
         except GoalUnreachableError:
             pass
         ijk = torch.as_tensor(self._nearest_comp_voxel(target, comp), device=grid.device)
@@ -396,11 +439,12 @@ class Planner:
         try:
             poly = safe_polytope(c[None], self.scene, prep.index, c - half, c + half)
             A, b = poly.to_numpy()
-            x = _project_onto_polytope(A, b, target)
+            x = _project_onto_polytope(A, b, target, interior=c.cpu().numpy())  # the seed: inside
         except PlanningError:
             x = None
-        g = c.cpu().numpy() if x is None else x
-        return g, ijk.cpu().numpy()
+        if x is None:
+            return ReachableGoal(c.cpu().numpy(), ijk.cpu().numpy())
+        return ReachableGoal(x, ijk.cpu().numpy(), poly)
 
     def _nearest_comp_voxel(self, target: np.ndarray, comp: int) -> np.ndarray:
         """Voxel [3] of free component ``comp`` whose centre is nearest to world point ``target``
@@ -480,11 +524,23 @@ class Planner:
 
     def _shortcut_free(self, p0, p1) -> np.ndarray:
         """bool [P] for the shortcut: grid line of sight (cheap filter), then the conservative
-        segments_free test on the survivors (so every accepted segment is proven free)."""
+        segments_free test on the survivors (so every accepted segment is proven free).
+
+        With config.grid_polytopes a segment whose two ends lie in free voxels is accepted only when the
+        segment lies in free voxels too (the exact voxel walk): its corridor polytope then comes from the grid
+        (grid_polytope.py), far cheaper than a Prop-2 one. Only segments with an end outside the free voxels
+        (a goal next to an object, a start the user placed there) may be proven by Corollary-1 pieces."""
         a = np.asarray(p0, dtype=np.float64).reshape(-1, 3)
         b = np.asarray(p1, dtype=np.float64).reshape(-1, 3)
         out = self._grid_sight(a, b)
-        idx = np.flatnonzero(out)
+        if self.config.grid_polytopes:
+            ends_free = self.in_free_voxel(a) & self.in_free_voxel(b)
+            idx = np.flatnonzero(out & ends_free)
+            if idx.size:
+                out[idx] = self._prep().voxels.segments_free(a[idx], b[idx])
+            idx = np.flatnonzero(out & ~ends_free)
+        else:
+            idx = np.flatnonzero(out)
         if idx.size:
             out[idx] = self.segments_free(a[idx], b[idx])
         return out
@@ -663,23 +719,23 @@ class Planner:
         comp = int(labels[tuple(s_ijk)])
         if comp not in goal_cache:
             goal_cache[comp] = self._reachable_goal(goal_p, comp)
-        g, g_ijk = goal_cache[comp]
+        goal = goal_cache[comp]
+        g = goal.point
         t1 = time.perf_counter()
         tm["goal_ms"] = 1e3 * (t1 - t0)
 
-        path = voxel_path(prep.astar_grid, prep.coarse, s_ijk, g_ijk, astar_weight=cfg.astar_weight)  # [K, 3] fine voxel units (float)
+        path = voxel_path(prep.astar_grid, prep.coarse, s_ijk, goal.voxel, astar_weight=cfg.astar_weight)  # [K, 3] fine voxel units (float)
         t2 = time.perf_counter()
         tm["astar_ms"] = 1e3 * (t2 - t1)
         centres = grid.voxel_to_world(torch.as_tensor(path, device=grid.device)).cpu().numpy()
-        way = np.concatenate([s[None], centres, g[None]])
-
-        way = shortcut(way, self._shortcut_free)
+        way = goal.shortcut_ends(shortcut(goal.way_to_shortcut(s, centres), self._shortcut_free))
         t3 = time.perf_counter()
         tm["shortcut_ms"] = 1e3 * (t3 - t2)
         if np.linalg.norm(way[-1] - way[0]) < 1e-9:
             raise GoalUnreachableError("the start is already at the goal; pick another start")
 
-        corridor = build_corridor(torch.as_tensor(way, device=dev), self.scene, prep.index, **self.corridor_kwargs())
+        corridor = build_corridor(torch.as_tensor(way, device=dev), self.scene, prep.index, known=goal.known(),
+                                  **self.corridor_kwargs())
         t4 = time.perf_counter()
         tm["corridor_ms"] = 1e3 * (t4 - t3)
         traj = solve_corridor_qp(corridor.constraints(), corridor.waypoints.cpu().numpy(), s, g, cfg.trajectory)

@@ -233,7 +233,9 @@ def test_two_phase_rounds_with_the_batched_corridor_give_the_same_shots(monkeypa
         return real(ways, *a, **kw)
 
     monkeypatch.setattr(candidates, "build_corridors", spy)
-    p0, p2 = _planner(0, corridor_backend="batched"), _planner(2, corridor_backend="batched")
+    # grid polytopes off: with them (the default) whole candidates run in the workers (next test)
+    kw = dict(corridor_backend="batched", grid_polytopes=False)
+    p0, p2 = _planner(0, **kw), _planner(2, **kw)
     try:
         t2 = {}
         r0 = plan_candidates(p0, GO_TO, TARGET, k=8, seed=5, object_radius=STOP)
@@ -244,3 +246,19 @@ def test_two_phase_rounds_with_the_batched_corridor_give_the_same_shots(monkeypa
     _assert_same(r0, r2)
     assert calls and calls[0] == 8  # one call for the whole first round
     assert t2["corridor_ms"] >= 0 and t2["workers"] == 2
+
+
+def test_grid_polytopes_with_the_batched_backend_plan_whole_candidates_in_the_workers(monkeypatch):
+    """With grid polytopes (the default) the batched backend's two-phase rounds are not used: the workers plan whole
+    candidates (their corridors mostly from the grid and the goal's polytope); same ranked shots as in-process."""
+    calls = []
+    monkeypatch.setattr(candidates, "build_corridors", lambda *a, **kw: calls.append(1))
+    p0, p2 = _planner(0, corridor_backend="batched"), _planner(2, corridor_backend="batched")
+    try:
+        r0 = plan_candidates(p0, GO_TO, TARGET, k=6, seed=7, object_radius=STOP)
+        r2 = plan_candidates(p2, GO_TO, TARGET, k=6, seed=7, object_radius=STOP)
+    finally:
+        p2.close()
+    assert not calls
+    _assert_same(r0, r2)
+    assert sum(r.shot.corridor.n_grid_segments for r in r2) > 0
