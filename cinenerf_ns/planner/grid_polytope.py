@@ -15,10 +15,11 @@ diagonal touches an ellipsoid), so these polytopes keep up to about one voxel mo
 than Prop-2 ones. Segments that are not in free voxels (the last one, ending at a goal right next to an
 object; a shortcut squeezing through a gap) keep the exact Prop-2 polytopes (corridor.py).
 
-Construction (greedy, nearest first, as Prop. 2's): in voxel units voxel v is the cube [v, v + 1]. For each
-surface voxel in the box, the exact closest points q (on S) and p (on the cube) are found (segment_box_closest:
-the squared distance is convex and piecewise quadratic in the segment parameter, so its minimum is at a
-breakpoint or at a stationary point of one piece). The plane with normal n = (p - q) / |p - q| through the
+Construction (greedy, nearest first, as Prop. 2's): in voxel units voxel v is the cube [v, v + 1]. Each time,
+the alive surface cube nearest to S is taken, with the exact closest points q (on S) and p (on the cube)
+(segment_box_closest: the squared distance is convex and piecewise quadratic in the segment parameter, so its
+minimum is at a breakpoint or at a stationary point of one piece; computed lazily, for the cubes at the front
+of an order by a cheap lower bound, which proves the taken cube the nearest). The plane with normal n = (p - q) / |p - q| through the
 cube's nearest corner-side, b = min over the cube of n.y - margin, separates the cube from S (p is the
 projection of q onto the cube, q of p onto S). Cubes entirely beyond an added plane are dropped. S must
 satisfy every plane (checked in floating point: if rounding breaks it, no polytope is returned and the
@@ -104,26 +105,45 @@ def grid_polytope_planes(
     cubes = np.argwhere(surface[a[0]:e[0], a[1]:e[1], a[2]:e[2]]) + a  # [K, 3] every surface cube meeting the box
     if len(cubes):
         v = cubes.astype(np.float64)
-        q, p, dist = segment_box_closest(u0, u1, v)
-        if dist.min() <= margin:
-            return None
-        order = np.argsort(dist, kind="stable")
-        v, q, p, dist = v[order], q[order], p[order], dist[order]
+        # visiting order: a cheap lower bound of each cube's distance to the segment (its centre's distance minus
+        # half a diagonal); exact closest points are computed lazily, only for the cubes near the front of the
+        # order, yet the cube chosen each time is the exact nearest alive one (checked against the next bound)
+        d = u1 - u0
+        dd = float(d @ d)
+        cen = v + 0.5
+        t = np.clip((cen - u0) @ d / dd, 0.0, 1.0) if dd > 0 else np.zeros(len(v))
+        lb = np.linalg.norm(u0 + t[:, None] * d - cen, axis=1) - 0.5 * np.sqrt(3.0)
+        order = np.argsort(lb, kind="stable")
+        v, lb = v[order], lb[order]
+        dist = np.full(len(v), np.nan)
+        q = np.empty((len(v), 3))
+        p = np.empty((len(v), 3))
         alive = np.ones(len(v), dtype=bool)
-        i = 0
         while True:
-            rest = np.flatnonzero(alive[i:])
-            if rest.size == 0:
+            idx = np.flatnonzero(alive)
+            if idx.size == 0:
                 break
-            i += int(rest[0])
-            n = (p[i] - q[i]) / dist[i]  # [3] from the segment toward cube i
-            off = float(n @ v[i] + np.minimum(n, 0.0).sum()) - margin  # min over cube i of n.y, minus the margin
-            if max(float(n @ u0), float(n @ u1)) > off:
+            n = 32
+            while True:
+                ch = idx[:n]
+                need = ch[np.isnan(dist[ch])]
+                if need.size:
+                    q[need], p[need], dist[need] = segment_box_closest(u0, u1, v[need])
+                i = int(ch[np.argmin(dist[ch])])
+                if n >= idx.size or dist[i] <= lb[idx[n]]:
+                    break  # no alive cube beyond the chunk can be nearer
+                n *= 4
+            if dist[i] <= margin:
+                return None
+            n_i = (p[i] - q[i]) / dist[i]  # [3] from the segment toward cube i
+            neg = float(np.minimum(n_i, 0.0).sum())
+            off = float(n_i @ v[i]) + neg - margin  # min over cube i of n.y, minus the margin
+            if max(float(n_i @ u0), float(n_i @ u1)) > off:
                 return None  # rounding: the plane does not hold the whole segment
-            A.append(n[None])
+            A.append(n_i[None])
             b.append(np.array([off]))
             # cubes entirely beyond the plane (their minimum of n.y is >= off) need nothing more
-            alive[i:] &= (v[i:] @ n + np.minimum(n, 0.0).sum()) < off
+            alive[idx] &= (v[idx] @ n_i + neg) < off
     return np.concatenate(A), np.concatenate(b)
 
 
