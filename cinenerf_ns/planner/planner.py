@@ -37,7 +37,7 @@ from .errors import (
 )
 from .grid_polytope import VoxelObstacles
 from .goal import _project_onto_polytope, closest_safe_point, sample_free_starts
-from .polytope import safe_polytope
+from .polytope import Polytope, safe_polytope
 from .occupancy import OccupancyGrid, build_occupancy
 from .safety import verify_shot
 from .scene import EllipsoidScene
@@ -140,7 +140,7 @@ class ReachableGoal:
 
     point: np.ndarray
     voxel: np.ndarray
-    polytope: Optional[object] = None  # polytope.Polytope
+    polytope: Optional[Polytope] = None
 
     def way_to_shortcut(self, start: np.ndarray, centres: np.ndarray) -> np.ndarray:
         """The polyline [K, 3] the shortcut prunes: start, the voxel path's centres, and the point unless the last
