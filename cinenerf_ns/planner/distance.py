@@ -131,6 +131,7 @@ def clearance(
     return_index: bool = False,
     max_distance: Optional[float] = None,
     chunk_pairs: int = 2_000_000,
+    start_radius: Optional[Tensor] = None,
 ) -> Union[Tensor, Tuple[Tensor, Tensor]]:
     """Exact clearance [P] (float64) = min_j signed_dist(point, E_j) - camera_radius.
 
@@ -141,7 +142,10 @@ def clearance(
     ellipsoids are candidates. ``max_distance``: distances above it are not searched for and are
     reported as max_distance (so the clearance is then max_distance - camera_radius, a lower bound);
     use it to bound the work for points far from everything. ``return_index`` also returns the id [P]
-    of the nearest ellipsoid (-1 where capped)."""
+    of the nearest ellipsoid (-1 where capped). ``start_radius`` [P] (optional): the first search box's
+    half-width per point, e.g. an estimate of its distance from the occupancy grid, so that most points find
+    their nearest ellipsoid in the first round instead of after many growing rounds (each a batched index
+    query); any value gives the same exact result, only the number of rounds and pairs changes."""
     pts = torch.as_tensor(points, device=scene.device)
     if pts.ndim != 2 or pts.shape[-1] != 3:
         raise InvalidInputError(f"points must be [P, 3], got {tuple(pts.shape)}")
@@ -160,6 +164,14 @@ def clearance(
         gap = torch.maximum(lo_s - pts, pts - hi_s).clamp_min(0).max(-1).values
         far_r = float((hi_s - lo_s).max()) + 1.0
         rad = torch.maximum(torch.full((P,), max(FIRST_BOX_FRACTION * index.levels[0].cell, 1e-6), dtype=torch.float64, device=dev), gap)
+        if start_radius is not None:
+            sr = torch.as_tensor(start_radius, device=dev).double().reshape(-1)
+            if sr.shape != (P,):
+                raise InvalidInputError(f"start_radius must be [P={P}], got {tuple(sr.shape)}")
+            sr = torch.where(torch.isfinite(sr), sr, torch.zeros_like(sr))
+            if math.isfinite(cap):  # a box beyond the cap is never needed: reach >= cap already caps the point
+                sr = sr.clamp_max(max(cap - float(index.pad), 0.0))
+            rad = torch.maximum(rad, sr)
         todo = torch.arange(P, device=dev)
         while todo.numel():
             pi, gi = index.query_points(pts[todo], rad[todo])

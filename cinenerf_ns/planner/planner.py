@@ -333,9 +333,25 @@ class Planner:
         if todo.size:
             p = torch.as_tensor(pts[todo], device=scene.device)
             md = None if cap is None else float(cap) + float(scene.camera_radius)
+            # capped queries start from the grid's estimate (far fewer search rounds); uncapped ones keep the small
+            # default start: their far points would otherwise gather many more pairs (measured slower on the CPU)
+            start = None if cap is None else torch.as_tensor(self._distance_estimate(pts[todo]), device=scene.device)
             with self.request_threads():
-                out[todo] = clearance(p, scene, index, max_distance=md).detach().cpu().numpy()
+                out[todo] = clearance(p, scene, index, max_distance=md, start_radius=start).detach().cpu().numpy()
         return out
+
+    def _distance_estimate(self, points: np.ndarray) -> np.ndarray:
+        """An estimate [P] of each camera centre's distance to the nearest ellipsoid from the occupancy grid, for
+        the exact clearance's first search box: clearance_lower_bound (which is ~2 half-diagonals below the grid's
+        own estimate) + half a voxel diagonal + the camera radius; 0 where the grid knows nothing. Not a bound in
+        either direction; it only changes how many search rounds and candidate pairs the exact answer takes.
+        Measured (H100 host, 1M Gaussians, 2048 scored frames of 32 candidates, capped at 0.1): 12 index rounds,
+        157 ms from the default start; 3 rounds, 62 ms with this estimate (identical values); 2 rounds but 101 ms
+        with a full diagonal more (bigger boxes, more pairs)."""
+        lb = self.clearance_lower_bound(points)
+        vs = float(self._prep().grid.voxel_size)
+        est = lb + 0.5 * math.sqrt(3.0) * vs + float(self.scene.camera_radius)
+        return np.where(np.isfinite(lb), est, 0.0)
 
     def clearance_lower_bound(self, points: ArrayLike) -> np.ndarray:
         """A lower bound [P] of the clearance of camera centres [P, 3] from the occupancy grid alone (no

@@ -32,6 +32,8 @@ class _Level:
     n_items: int  # ellipsoids stored in this level
 
 
+SORT_DEDUPE_RATIO = 64  # query_box_in_planes sorts its listed entries when they are fewer than N / this, else flags N
+
 def _cell_of(x: Tensor, origin: Tensor, cell: float, dims: Tensor) -> Tensor:
     """Cell coordinates (clamped to the grid) of positions x [..., 3] -> long [..., 3]."""
     c = torch.floor((x - origin) / cell)
@@ -310,10 +312,15 @@ class GridIndex:
             start = lv.offsets[lin]
             owner, k = _expand_ranges(lv.offsets[lin + 1] - start)
             out.append(lv.ids.index_select(0, start.index_select(0, owner) + k))
-        # dedupe (an ellipsoid is listed in every cell its AABB meets): a flag per ellipsoid is cheaper
-        # than sorting the listed entries, which outnumber the ellipsoids
-        listed = torch.zeros(len(self), dtype=torch.bool, device=self.device)  # [N]
-        listed[torch.cat(out)] = True
-        g = torch.nonzero(listed).squeeze(-1)  # [K] ascending
+        # dedupe (an ellipsoid is listed in every cell its AABB meets): a flag per ellipsoid is cheaper than
+        # sorting the listed entries when they are many; a few (a small box in a big scene) are cheaper to sort
+        # than N flags to clear and scan
+        entries = torch.cat(out)
+        if entries.numel() * SORT_DEDUPE_RATIO < len(self):
+            g = torch.unique(entries)  # [K] ascending
+        else:
+            listed = torch.zeros(len(self), dtype=torch.bool, device=self.device)  # [N]
+            listed[entries] = True
+            g = torch.nonzero(listed).squeeze(-1)  # [K] ascending
         gb = self.boxes.index_select(0, g)  # [K, 6]
         return g[(gb[:, :3] <= hi).all(-1) & (gb[:, 3:] >= lo).all(-1)]

@@ -16,9 +16,10 @@ Rules for the work sent here (see candidates._plan_candidate_task):
     no ``batch_index``. The pool is refused (``usable``) when the request device is not the CPU.
   - one thread per worker (initializer): more would oversubscribe the cores, and OpenMP thread pools started
     before the fork are not valid in the child.
-Results are pickled in the worker with the standard pickler (``pickle.dumps``), not multiprocessing's
-ForkingPickler: torch registers reducers there that move CPU tensors into shared memory and send file
-descriptors, which is slower for small tensors and can run out of descriptors.
+Tasks and results are pickled with the standard pickler (``pickle.dumps``: bytes cross the process boundary),
+not multiprocessing's ForkingPickler: torch registers reducers there that move CPU tensors into shared memory and
+send file descriptors, which is slower for small tensors (a task's goal carries its polytope's tensors) and can
+run out of descriptors.
 
 A concurrent.futures ProcessPoolExecutor rather than multiprocessing.Pool: when a worker dies (killed, out of
 memory) it raises BrokenProcessPool instead of waiting forever for the lost task; plan_candidates then
@@ -83,8 +84,8 @@ def _init_worker(planner_ref: "weakref.ref") -> None:
     _PLANNER = planner_ref()
 
 
-def _call(task) -> bytes:
-    fn, args = task
+def _call(task: bytes) -> bytes:
+    fn, args = pickle.loads(task)
     return pickle.dumps(fn(_PLANNER, *args), protocol=pickle.HIGHEST_PROTOCOL)
 
 
@@ -118,7 +119,8 @@ class CandidatePool:
     def map(self, fn: Callable, args_list: Iterable[tuple]) -> List[Any]:
         """fn(planner, *args) for each args in the workers, results in order. Raises BrokenProcessPool when a
         worker died, and whatever fn raised."""
-        blobs = self._pool.map(_call, [(fn, tuple(a)) for a in args_list], chunksize=1)
+        tasks = [pickle.dumps((fn, tuple(a)), protocol=pickle.HIGHEST_PROTOCOL) for a in args_list]
+        blobs = self._pool.map(_call, tasks, chunksize=1)
         return [pickle.loads(b) for b in blobs]
 
     @property

@@ -137,6 +137,48 @@ def test_clearance_max_distance_cap():
         torch.testing.assert_close(clearance(pts, sc, None, max_distance=cap), want, atol=1e-12, rtol=0)
 
 
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 100_000), cap=st.sampled_from([None, 0.05, 0.3]),
+       start=st.sampled_from(["zero", "small", "large", "huge", "mixed"]))
+def test_clearance_start_radius_changes_nothing(seed, cap, start):
+    """Any first search box (start_radius, e.g. the planner's grid estimate) gives the brute-force answer."""
+    sc = random_scene(120, seed, rmin=0.01, rmax=0.15, camera_radius=0.03)
+    g = torch.Generator().manual_seed(seed)
+    pts = (torch.rand(60, 3, generator=g, dtype=F64) * 2 - 1) * 2.5
+    want = point_ellipsoid_distance(pts, sc.means, sc.rotations, sc.radii).min(-1).values
+    if cap is not None:
+        want = want.clamp_max(cap)
+    want = want - 0.03
+    sr = {"zero": torch.zeros(60, dtype=F64), "small": torch.full((60,), 0.01, dtype=F64),
+          "large": torch.full((60,), 0.5, dtype=F64), "huge": torch.full((60,), 50.0, dtype=F64),
+          "mixed": torch.rand(60, generator=g, dtype=F64) * 0.8}[start]
+    sr[::7] = float("inf")  # non-finite entries fall back to the default start
+    got, arg = clearance(pts, sc, GridIndex.build(sc), return_index=True, max_distance=cap, start_radius=sr)
+    torch.testing.assert_close(got, want, atol=1e-12, rtol=0)
+    with pytest.raises(InvalidInputError):
+        clearance(pts, sc, GridIndex.build(sc), start_radius=sr[:5])
+
+
+def test_planner_capped_clearance_with_the_grid_estimate_is_exact():
+    from cinenerf_ns.planner.planner import Planner, PlannerConfig
+    from cinenerf_ns.planner.procedural import procedural_room
+    from cinenerf_ns.planner.scene import EllipsoidScene
+
+    r = procedural_room(4000, seed=3)
+    sc = EllipsoidScene.from_splat(r.means, r.quats, r.log_scales, r.opacity_logits)
+    pl = Planner(sc, PlannerConfig(grid_resolution=32))
+    prep = pl.prepare()
+    g = torch.Generator().manual_seed(0)
+    lo, hi = prep.grid.lo, prep.grid.hi
+    pts = lo + torch.rand(300, 3, generator=g, dtype=F64) * (hi - lo)
+    est = pl._distance_estimate(pts.numpy())
+    assert (est > 0).any() and (est == 0).any()  # free voxels get an estimate, occupied ones the default
+    exact = clearance(pts, sc, prep.index)
+    for cap in (0.05, 0.2):
+        got = torch.as_tensor(pl.clearance(pts.numpy(), cap=cap))
+        torch.testing.assert_close(got, exact.clamp_max(cap), atol=1e-12, rtol=0)
+
+
 @pytest.mark.gpu
 def test_cuda_clearance_matches_cpu():
     sc = random_scene(100, 4, camera_radius=0.03)

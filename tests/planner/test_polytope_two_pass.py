@@ -28,8 +28,18 @@ def _box_meets_polytope(lo, hi, A, b) -> bool:
 
 @settings(**SETTINGS)
 @given(seed=st.integers(0, 2**31 - 1), n_planes=st.integers(0, 6), cell=st.sampled_from([None, 0.03, 0.3]),
-       max_cells=st.sampled_from([4_000_000, 1]))
-def test_query_box_in_planes_returns_every_aabb_meeting_box_and_planes(seed, n_planes, cell, max_cells):
+       max_cells=st.sampled_from([4_000_000, 1]), dedupe=st.sampled_from([0, 10**9]))
+def test_query_box_in_planes_returns_every_aabb_meeting_box_and_planes(seed, n_planes, cell, max_cells, dedupe):
+    import cinenerf_ns.planner.spatial_index as si
+
+    old, si.SORT_DEDUPE_RATIO = si.SORT_DEDUPE_RATIO, dedupe  # 0: flags over N; huge: sort the entries
+    try:
+        _check_query_box_in_planes(seed, n_planes, cell, max_cells)
+    finally:
+        si.SORT_DEDUPE_RATIO = old
+
+
+def _check_query_box_in_planes(seed, n_planes, cell, max_cells):
     rng = np.random.default_rng(seed)
     scene = random_scene(rng, 300, amin=0.01, amax=0.08, camera_radius=0.03)
     idx = GridIndex.build(scene, cell_size=cell)
