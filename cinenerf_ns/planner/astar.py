@@ -270,3 +270,36 @@ def shortcut(
         keep.append(best)
         i = best
     return pts[keep]
+
+
+def batched_shortcut(paths: list, segments_free) -> list:
+    """Greedy farthest-visible-point pruning (astar.shortcut's rule) of several polylines [K_i, 3] at once.
+
+    Each round, every unfinished polyline proposes all segments from its current point to its later points
+    (except the next one, always kept: it came from the voxel path); ONE segments_free(p0 [P,3], p1 [P,3])
+    call answers them all; each jumps to its farthest free point."""
+    cur = [0] * len(paths)
+    keep = [[0] for _ in paths]
+    while True:
+        active = [i for i, pts in enumerate(paths) if cur[i] < len(pts) - 1]
+        if not active:
+            break
+        owners, js, p0, p1 = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)], [np.zeros((0, 3))], [np.zeros((0, 3))]
+        for i in active:
+            pts = paths[i]
+            j = np.arange(cur[i] + 2, len(pts))
+            owners.append(np.full(len(j), i))
+            js.append(j)
+            p0.append(np.repeat(pts[cur[i]][None], len(j), 0))
+            p1.append(pts[j])
+        own = np.concatenate(owners)
+        jj = np.concatenate(js)
+        free = np.zeros(0, dtype=bool)
+        if len(own):
+            free = np.asarray(segments_free(np.concatenate(p0), np.concatenate(p1)), dtype=bool).reshape(-1)
+        for i in active:
+            sel = np.flatnonzero((own == i) & free)
+            nxt = int(jj[sel].max()) if sel.size else cur[i] + 1
+            keep[i].append(nxt)
+            cur[i] = nxt
+    return [pts[k] for pts, k in zip(paths, keep)]

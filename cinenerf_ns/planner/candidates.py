@@ -37,7 +37,7 @@ ranking; results equal the in-process path's (same starts, shots and ranks). The
 prepare() and share the prepared CPU state (the CPU mirror of a GPU scene, index, grids) copy-on-write, so
 they add little memory. Fork only: on macOS / Windows (no 'fork' start method) candidates are planned in
 this process. When this process builds corridors with the batched backend (PlannerConfig.corridor_backend, a
-CUDA scene by default) and PlannerConfig.grid_polytopes is off, each round has two phases around ONE batched
+CUDA scene by default) and grid polytopes are off (Planner.use_grid_polytopes), each round has two phases around ONE batched
 corridor computation for all its candidates (corridor.build_corridors; the workers cannot use CUDA): the workers
 find the ways (A*, shortcut), this process builds every corridor at once, the workers solve the QPs, time and
 verify. With grid polytopes (the default) nearly every segment's polytope comes from the occupancy grid or is the
@@ -59,7 +59,7 @@ from typing import Any, Dict, List, Optional
 import numpy as np
 import torch
 
-from .astar import shortcut
+from .astar import batched_shortcut  # noqa: F401 (re-exported: part of the candidates API)
 from .coarse_path import voxel_path
 from .corridor import CorridorError, build_corridor, build_corridors
 from .dynamics import DynamicLimits, retime_shot
@@ -91,39 +91,6 @@ class RankedShot:
         if self.shot.safety is not None:
             d["verification"] = self.shot.safety
         return d
-
-
-def batched_shortcut(paths: List[np.ndarray], segments_free) -> List[np.ndarray]:
-    """Greedy farthest-visible-point pruning (astar.shortcut's rule) of several polylines [K_i, 3] at once.
-
-    Each round, every unfinished polyline proposes all segments from its current point to its later points
-    (except the next one, always kept: it came from the voxel path); ONE segments_free(p0 [P,3], p1 [P,3])
-    call answers them all; each jumps to its farthest free point."""
-    cur = [0] * len(paths)
-    keep = [[0] for _ in paths]
-    while True:
-        active = [i for i, pts in enumerate(paths) if cur[i] < len(pts) - 1]
-        if not active:
-            break
-        owners, js, p0, p1 = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)], [np.zeros((0, 3))], [np.zeros((0, 3))]
-        for i in active:
-            pts = paths[i]
-            j = np.arange(cur[i] + 2, len(pts))
-            owners.append(np.full(len(j), i))
-            js.append(j)
-            p0.append(np.repeat(pts[cur[i]][None], len(j), 0))
-            p1.append(pts[j])
-        own = np.concatenate(owners)
-        jj = np.concatenate(js)
-        free = np.zeros(0, dtype=bool)
-        if len(own):
-            free = np.asarray(segments_free(np.concatenate(p0), np.concatenate(p1)), dtype=bool).reshape(-1)
-        for i in active:
-            sel = np.flatnonzero((own == i) & free)
-            nxt = int(jj[sel].max()) if sel.size else cur[i] + 1
-            keep[i].append(nxt)
-            cur[i] = nxt
-    return [pts[k] for pts, k in zip(paths, keep)]
 
 
 def batched_verify(planner: Planner, shots: List[Shot]) -> List[Dict[str, Any]]:
@@ -310,7 +277,7 @@ def _candidate_way_task(planner: Planner, config, start: np.ndarray, goal_p: np.
         goal, way, t = _candidate_way(planner, prep, start, goal_p, goal_cache, lap, t)
     except (GoalUnreachableError, StartInCollisionError) as e:
         return result(None, None, str(e))
-    way = goal.shortcut_ends(shortcut(way, planner._shortcut_free))  # == batched_shortcut on this path alone (tested)
+    way = goal.shortcut_ends(planner.shortcut_way(way))  # == shortcut_ways on this path alone (tested)
     lap("shortcut_ms", t)
     if np.linalg.norm(way[-1] - way[0]) < 1e-9:
         return result(None, None, "the start is already at the goal")
@@ -450,7 +417,7 @@ def _plan_candidates(
     while len(shots) < k and nxt < len(starts):
         batch = list(range(nxt, min(len(starts), nxt + k - len(shots))))
         nxt = batch[-1] + 1
-        if pool is not None and planner.corridor_backend() == "batched" and not cfg.grid_polytopes:
+        if pool is not None and planner.corridor_backend() == "batched" and not planner.use_grid_polytopes():
             # two phases around ONE batched corridor computation for the whole round (this process can use the
             # GPU, the workers cannot): workers find the ways, this process builds every corridor at once, the
             # workers solve the QPs and verify. Same shots as in-process with the batched backend.
@@ -496,7 +463,7 @@ def _plan_candidates(
             except (GoalUnreachableError, StartInCollisionError) as e:
                 errors.append(str(e))
                 t = time.perf_counter()
-        ways = batched_shortcut([p["way"] for p in plans], planner._shortcut_free)
+        ways = planner.shortcut_ways([p["way"] for p in plans])
         ways = [p["reach"].shortcut_ends(w) for p, w in zip(plans, ways)]
         t = lap("shortcut_ms", t)
         for p, way in zip(plans, ways):

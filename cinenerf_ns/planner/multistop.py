@@ -30,7 +30,6 @@ import torch
 
 from .coarse_path import voxel_path
 from .bezier import BezierTrajectory
-from .candidates import batched_shortcut
 from .corridor import build_corridor
 from .dynamics import DynamicLimits, dynamics_report, retime
 from .errors import InvalidInputError, UnsafeTrajectoryError
@@ -234,7 +233,7 @@ def plan_multistop(
     # the last way ends voxel centre -> final stop inside that stop's polytope when it has one (ReachableGoal),
     # reused below. Not for the intermediate stops: the curve passes through them with continuous derivatives,
     # and the projection puts a stop on a face of its polytope, which leaves such a junction little room
-    ways = batched_shortcut(ways, planner._shortcut_free)
+    ways = planner.shortcut_ways(ways)
     ways[-1] = reached[-1].shortcut_ends(ways[-1])
     known = reached[-1].known()
     tm["shortcut_ms"] = 1e3 * (time.perf_counter() - t2)

@@ -210,7 +210,7 @@ def test_grid_polytopes_of_a_planned_shot_are_safe_for_the_ellipsoids(seed):
 
     room = procedural_room(6000, seed=seed)
     sc = EllipsoidScene.from_splat(room.means, room.quats, room.log_scales, room.opacity_logits)
-    pl = Planner(sc, PlannerConfig(grid_resolution=40))
+    pl = Planner(sc, PlannerConfig(grid_resolution=40, grid_polytopes=True))  # 'auto' is off for voxels this coarse
     prep = pl.prepare()
     objs = room.objects
     shots = [pl.plan(objs[i].center, objs[(i + 1) % len(objs)].center, seed=seed * 10 + i)[0] for i in range(3)]
@@ -249,3 +249,22 @@ def test_known_polytope_is_reused_only_where_it_holds_the_segment():
     assert cor.polytopes[0] is not P  # far -> c leaves P: built on its own
     cor0 = build_corridor(torch.stack([far, c, inside]), sc, idx, box_margin=0.1)
     assert cor0.n_known_segments == 0
+
+
+def test_auto_resolves_by_voxel_size_against_the_camera_radius():
+    from cinenerf_ns.planner.planner import GRID_POLYTOPE_MAX_VOXEL, Planner, PlannerConfig
+    from cinenerf_ns.planner.errors import InvalidInputError
+    from cinenerf_ns.planner.procedural import procedural_room
+    from cinenerf_ns.planner.scene import EllipsoidScene
+
+    room = procedural_room(3000, seed=0)
+    sc = EllipsoidScene.from_splat(room.means, room.quats, room.log_scales, room.opacity_logits)
+    for res in (24, 96):
+        pl = Planner(sc, PlannerConfig(grid_resolution=res))
+        vs = pl.prepare().grid.voxel_size
+        assert pl.use_grid_polytopes() == (vs <= GRID_POLYTOPE_MAX_VOXEL * sc.camera_radius)
+        assert ("grid" in pl.corridor_kwargs()) == pl.use_grid_polytopes()
+    assert Planner(sc, PlannerConfig(grid_resolution=24, grid_polytopes=True)).use_grid_polytopes()
+    assert not Planner(sc, PlannerConfig(grid_resolution=96, grid_polytopes=False)).use_grid_polytopes()
+    with pytest.raises(InvalidInputError):
+        Planner(sc, PlannerConfig(grid_polytopes="yes"))

@@ -5,6 +5,7 @@ from hypothesis import given, settings, strategies as st
 import pytest
 import torch
 
+from cinenerf_ns.planner.astar import shortcut
 from cinenerf_ns.planner.distance import clearance
 from cinenerf_ns.planner.errors import InvalidInputError, PlanningError, StartInCollisionError
 from cinenerf_ns.planner.planner import Planner, PlannerConfig
@@ -230,3 +231,62 @@ def test_astar_weight_config(room, monkeypatch):
     for bad in (0.5, float("nan"), "2", True):
         with pytest.raises(InvalidInputError, match="astar_weight"):
             Planner(e, PlannerConfig(astar_weight=bad))
+
+
+def _random_voxel_paths(pl, rng, n):
+    """Polylines of free voxel centres (random walks over 26-neighbours, as a voxel path looks)."""
+    grid, occ = pl.prepared.grid, pl.prepared.astar_grid._occ
+    free = np.argwhere(~occ)
+    steps = np.array([d for d in np.ndindex(3, 3, 3) if d != (1, 1, 1)]) - 1
+    out = []
+    for _ in range(n):
+        v = free[rng.integers(len(free))]
+        path = [v]
+        for _ in range(rng.integers(2, 25)):
+            nxt = path[-1] + steps[rng.integers(len(steps))]
+            if ((nxt >= 0) & (nxt < occ.shape)).all() and not occ[tuple(nxt)]:
+                path.append(nxt)
+        out.append(grid.voxel_to_world(torch.as_tensor(np.array(path))).numpy())
+    return out
+
+
+@pytest.fixture
+def grid_room(room):
+    """The room planner with grid polytopes forced on (its voxels are too coarse for 'auto')."""
+    s, e, pl = room
+    old = pl.config.grid_polytopes
+    pl.config.grid_polytopes = True
+    yield s, e, pl
+    pl.config.grid_polytopes = old
+
+
+def test_shortcut_ways_equals_shortcut_way_per_path_and_choose_way_takes_the_cheaper(grid_room):
+    s, e, pl = grid_room
+    rng = np.random.default_rng(4)
+    paths = [p for p in _random_voxel_paths(pl, rng, 12) if len(p) >= 2]
+    got = pl.shortcut_ways(paths)
+    for p, g in zip(paths, got):
+        assert np.array_equal(g, pl.shortcut_way(p))
+    # choose_way: segments + OFF_GRID_SEGMENT_COST x off-grid segments, the cheaper wins
+    from cinenerf_ns.planner.planner import OFF_GRID_SEGMENT_COST
+
+    for p in paths:
+        a = pl.shortcut_way(p)
+        b = shortcut(p, pl._shortcut_free_any)
+        cost = lambda w: (len(w) - 1) + OFF_GRID_SEGMENT_COST * pl.segments_off_grid(w)  # noqa: E731
+        c = pl.choose_way(a, b)
+        assert cost(c) == min(cost(a), cost(b))
+    assert pl.choose_way(paths[0], None) is paths[0]
+
+
+def test_grid_rule_shortcut_keeps_interior_segments_in_free_voxels(grid_room):
+    s, e, pl = grid_room
+    rng = np.random.default_rng(5)
+    for p in _random_voxel_paths(pl, rng, 10):
+        g = shortcut(p, pl._shortcut_free)
+        vox = pl.prepared.voxels
+        # a segment the shortcut made (not a consecutive pair of the input) lies in free voxels
+        idx = [int(np.flatnonzero((p == q).all(1))[0]) for q in g]
+        for i in range(len(g) - 1):
+            if idx[i + 1] - idx[i] > 1:
+                assert vox.segments_free(g[i][None], g[i + 1][None])[0]

@@ -253,7 +253,8 @@ def test_grid_polytopes_with_the_batched_backend_plan_whole_candidates_in_the_wo
     candidates (their corridors mostly from the grid and the goal's polytope); same ranked shots as in-process."""
     calls = []
     monkeypatch.setattr(candidates, "build_corridors", lambda *a, **kw: calls.append(1))
-    p0, p2 = _planner(0, corridor_backend="batched"), _planner(2, corridor_backend="batched")
+    kw = dict(corridor_backend="batched", grid_polytopes=True)
+    p0, p2 = _planner(0, **kw), _planner(2, **kw)
     try:
         r0 = plan_candidates(p0, GO_TO, TARGET, k=6, seed=7, object_radius=STOP)
         r2 = plan_candidates(p2, GO_TO, TARGET, k=6, seed=7, object_radius=STOP)
