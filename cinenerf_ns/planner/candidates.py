@@ -32,7 +32,8 @@ verification) run in forked worker processes, one candidate per task, each on on
 parallelism over CPU processes, not vectorised batching: the shortcut and verification are then per
 candidate instead of lock-step over all K, which costs more CPU in total but runs on all cores. The parent
 keeps start sampling, the spare rounds, the safety check of every worker's report (UnsafeTrajectoryError
-exactly as in-process), scoring (on the GPU when the scene is there; CUDA is never used in a worker) and
+exactly as in-process), scoring (on the GPU when the scene is there; CUDA is never used in a worker; shots
+that come back early are scored in chunks while the other workers still run, EARLY_SCORE_MIN) and
 ranking; results equal the in-process path's (same starts, shots and ranks). The workers are forked after
 prepare() and share the prepared CPU state (the CPU mirror of a GPU scene, index, grids) copy-on-write, so
 they add little memory. Fork only: on macOS / Windows (no 'fork' start method) candidates are planned in
@@ -165,6 +166,11 @@ def _lapper(tm: Dict[str, float]):
         return time.perf_counter()
 
     return lap
+
+
+EARLY_SCORE_MIN = 4
+"""Worker rounds score finished shots in chunks of max(this, k // 4) while other workers still run (a huge value:
+score everything after the round)."""
 
 
 def _merge_task_results(ids: List[int], results: List[Dict[str, Any]], tm: Dict[str, float],
@@ -413,6 +419,7 @@ def _plan_candidates(
         except GoalUnreachableError:
             pass  # each candidate then fails with this error in its worker, as in the in-process path
         t = lap("goal_ms", t)
+    early_scores: Dict[int, Any] = {}  # candidate id -> ShotScore of shots scored while workers still ran
     nxt = 0  # next unused start; spares are only planned to replace failed candidates
     while len(shots) < k and nxt < len(starts):
         batch = list(range(nxt, min(len(starts), nxt + k - len(shots))))
@@ -446,9 +453,25 @@ def _plan_candidates(
             continue
         if pool is not None:
             # whole candidates in the workers; the *_ms stage keys are then sums of the workers' wall times
-            # per stage (they overlap), pool_ms is this process's wall time waiting for the round
-            results = pool.map(_plan_candidate_task,
-                               [(cfg, starts[ci], goal_p, look_p, goal_cache, limits) for ci in batch])
+            # per stage (they overlap), pool_ms is this process's wall time waiting for the round (scoring
+            # excluded). Shots that come back early are scored while the other workers still run (scores are per
+            # shot, so chunks give the same scores as one call); score_ms sums these calls.
+            results: List[Any] = [None] * len(batch)
+            ready: List[int] = []  # positions in batch of finished, successful tasks not scored yet
+            chunk = max(EARLY_SCORE_MIN, k // 4)
+            for done, (i, res) in enumerate(pool.imap_unordered(
+                    _plan_candidate_task, [(cfg, starts[ci], goal_p, look_p, goal_cache, limits) for ci in batch]), 1):
+                results[i] = res
+                if res["error"] is None:
+                    ready.append(i)
+                if len(ready) >= chunk and done < len(batch):
+                    t_s = time.perf_counter()
+                    sc = score_shots(planner, [results[j]["shot"] for j in ready], look_p, score_config,
+                                     object_radius, object_center, object_samples, exclude)
+                    early_scores.update({batch[j]: x for j, x in zip(ready, sc)})
+                    ready = []
+                    lap("score_ms", t_s)
+                    t += time.perf_counter() - t_s  # not pool time
             for ci, res in _merge_task_results(batch, results, tm, goal_cache, errors):
                 shots.append(res["shot"])
                 cand_ids.append(ci)
@@ -498,7 +521,11 @@ def _plan_candidates(
             )
         sh.safety = rep
 
-    scores = score_shots(planner, shots, look_p, score_config, object_radius, object_center, object_samples, exclude)
+    late = [i for i, ci in enumerate(cand_ids) if ci not in early_scores]
+    late_scores = score_shots(planner, [shots[i] for i in late], look_p, score_config, object_radius, object_center,
+                              object_samples, exclude) if late else []
+    by_pos = dict(zip(late, late_scores))
+    scores = [early_scores[ci] if ci in early_scores else by_pos[i] for i, ci in enumerate(cand_ids)]
     t = lap("score_ms", t)
     tm["total_ms"] = 1e3 * (time.perf_counter() - t_all)
     tm["num_failed"] = float(len(errors))

@@ -31,9 +31,9 @@ import multiprocessing as mp
 import os
 import pickle
 import weakref
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
-from typing import Any, Callable, Iterable, List, Optional
+from typing import Any, Callable, Iterable, Iterator, List, Optional
 
 import torch
 
@@ -122,6 +122,14 @@ class CandidatePool:
         tasks = [pickle.dumps((fn, tuple(a)), protocol=pickle.HIGHEST_PROTOCOL) for a in args_list]
         blobs = self._pool.map(_call, tasks, chunksize=1)
         return [pickle.loads(b) for b in blobs]
+
+    def imap_unordered(self, fn: Callable, args_list: Iterable[tuple]) -> Iterator[tuple]:
+        """(i, fn(planner, *args_list[i])) for each task, in the order they finish (the caller can use early results
+        while the others run). Raises BrokenProcessPool when a worker died, and whatever fn raised."""
+        futures = {self._pool.submit(_call, pickle.dumps((fn, tuple(a)), protocol=pickle.HIGHEST_PROTOCOL)): i
+                   for i, a in enumerate(args_list)}
+        for f in as_completed(futures):
+            yield futures[f], pickle.loads(f.result())
 
     @property
     def closed(self) -> bool:

@@ -51,11 +51,16 @@ def _assert_same(r0, r1):
         assert len(x.shot.corridor) == len(y.shot.corridor)
 
 
-def test_workers_give_the_same_ranked_shots(planners):
+def test_workers_give_the_same_ranked_shots(planners, monkeypatch):
     p0, p2 = planners
     t0, t2 = {}, {}
     r0 = plan_candidates(p0, GO_TO, TARGET, k=10, seed=3, object_radius=STOP, timings=t0)
+    calls = []
+    real = candidates.score_shots
+    monkeypatch.setattr(candidates, "score_shots", lambda pl, shots, *a: calls.append(len(shots)) or real(pl, shots, *a))
     r2 = plan_candidates(p2, GO_TO, TARGET, k=10, seed=3, object_radius=STOP, timings=t2)
+    # shots that came back early were scored while the other workers ran (chunks of max(4, k // 4)), the rest after
+    assert len(calls) >= 2 and sum(calls) == 10 and calls[0] == 4
     assert len(r0) == 10
     _assert_same(r0, r2)
     assert all(x.shot.safety["safe"] for x in r2)
@@ -263,3 +268,13 @@ def test_grid_polytopes_with_the_batched_backend_plan_whole_candidates_in_the_wo
     assert not calls
     _assert_same(r0, r2)
     assert sum(r.shot.corridor.n_grid_segments for r in r2) > 0
+
+
+def test_imap_unordered_returns_every_result_with_its_index():
+    pl = _planner(2)
+    try:
+        pool = pl.candidate_pool()
+        got = dict(pool.imap_unordered(isinstance, [(int,), (Planner,), (str,), (Planner,)]))
+        assert got == {0: False, 1: True, 2: False, 3: True}
+    finally:
+        pl.close()
