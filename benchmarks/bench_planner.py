@@ -48,7 +48,8 @@ def main() -> None:
     ap.add_argument("--corridor-backend", default="auto", choices=["auto", "cpu", "batched"],
                     help="PlannerConfig.corridor_backend: auto = batched polytopes on a CUDA scene, else host polytopes")
     ap.add_argument("--quick", action="store_true", help="20k Gaussians, 20 requests (smoke run)")
-    ap.add_argument("--no-record", action="store_true", help="do not append to benchmarks/RESULTS.md")
+    ap.add_argument("--no-record", action="store_true",
+                    help="do not append to benchmarks/RESULTS.md nor write benchmarks/bench_planner_<device>_<N>.json")
     ap.add_argument("--note", default="", help="free text appended to the RESULTS.md line (e.g. 'box loaded')")
     args = ap.parse_args()
     if args.quick:
@@ -174,11 +175,11 @@ def main() -> None:
         f"min exact frame clearance {result['min_exact_frame_clearance']}, verified exact (inconclusive samples only) "
         f"{result['min_verified_exact_clearance']}, shots with inconclusive samples {result['shots_with_inconclusive_samples']}"
     )
+    if args.no_record:  # a trial run: neither the committed JSON nor RESULTS.md changes
+        return
     out = REPO / "benchmarks" / f"bench_planner_{dev.type}_{len(scene)}.json"
     out.write_text(json.dumps(result, indent=1))
     print(f"wrote {out}")
-    if args.no_record:
-        return
     med = lambda k: stages[k]["median"] if stages.get(k) else float("nan")  # noqa: E731
     p95 = lambda k: stages[k]["p95"] if stages.get(k) else float("nan")  # noqa: E731
     keys = [k for k in ("start_sample_ms", "goal_ms", "astar_ms", "shortcut_ms", "corridor_ms", "qp_ms", "timing_ms",
