@@ -135,6 +135,9 @@ GRID_POLYTOPE_MAX_VOXEL = 2.0
 """PlannerConfig.grid_polytopes 'auto': grid polytopes when voxel_size <= this x camera_radius. Measured at 0.85 (the
 procedural room, a win) and 4.1 (the fox capture, a loss); the threshold between them is a guess."""
 
+CLASSIC_SHORTCUT_AFTER = 1
+"""shortcut_way also runs the classic shortcut when the grid rule's leaves more than this many segments off the grid."""
+
 OFF_GRID_SEGMENT_COST = 8.0
 """choose_way: what a corridor segment off the grid costs, in grid segments (a Prop-2 polytope ~10-20 ms at 1M
 Gaussians against ~1.5 ms for a grid polytope, H100 host and CPU box)."""
@@ -597,7 +600,7 @@ class Planner:
         """The shortcut of one polyline [K, 3]: with grid polytopes, the grid rule's, unless it leaves more than one
         segment off the grid; then also the classic shortcut, and the cheaper of the two (choose_way)."""
         a = shortcut(way, self._shortcut_free)
-        if not self.use_grid_polytopes() or self.segments_off_grid(a) <= 1:
+        if not self.use_grid_polytopes() or self.segments_off_grid(a) <= CLASSIC_SHORTCUT_AFTER:
             return a
         return self.choose_way(a, shortcut(way, self._shortcut_free_any))
 
@@ -606,7 +609,7 @@ class Planner:
         a = batched_shortcut(ways, self._shortcut_free)
         if not self.use_grid_polytopes():
             return a
-        redo = [i for i, w in enumerate(a) if self.segments_off_grid(w) > 1]
+        redo = [i for i, w in enumerate(a) if self.segments_off_grid(w) > CLASSIC_SHORTCUT_AFTER]
         if redo:
             b = batched_shortcut([ways[i] for i in redo], self._shortcut_free_any)
             for i, w in zip(redo, b):
