@@ -482,7 +482,7 @@ def _plan_candidates(
             s = starts[ci]
             try:
                 goal, way, t = _candidate_way(planner, prep, s, goal_p, goal_cache, lap, t)
-                plans.append({"cand": ci, "start": s, "goal": goal.point, "reach": goal, "way": way})
+                plans.append({"cand": ci, "start": s, "reach": goal, "way": way})
             except (GoalUnreachableError, StartInCollisionError) as e:
                 errors.append(str(e))
                 t = time.perf_counter()
@@ -494,7 +494,7 @@ def _plan_candidates(
                 errors.append("the start is already at the goal")
                 continue
             try:
-                corridor, traj, t = _candidate_trajectory(planner, prep, way, p["start"], p["goal"], lap, t,
+                corridor, traj, t = _candidate_trajectory(planner, prep, way, p["start"], p["reach"].point, lap, t,
                                                           known=p["reach"].known())
             except (GoalUnreachableError, CorridorError, PlanningError) as e:
                 errors.append(str(e))

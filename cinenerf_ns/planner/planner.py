@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .astar import AStarGrid, batched_shortcut, shortcut
+from .astar import AStarGrid, batched_shortcut
 from .coarse_path import CoarseGrid, voxel_path
 from .collision import points_collide, segments_collide
 from .corridor import CorridorError, build_corridor
@@ -46,7 +46,6 @@ from .spatial_index import GridIndex
 from .timing import TimingConfig
 from .trajectory import TrajectoryConfig, solve_corridor_qp
 from .native import search26 as native_search26
-from .voxel_traversal import segments_in_free_voxels
 from .workers import CandidatePool, default_workers, in_worker, pool_for, validate_workers
 
 ArrayLike = Union[Tensor, np.ndarray, Sequence[float]]
@@ -520,8 +519,7 @@ class Planner:
         prep = self._prep()
         a = np.asarray(p0, dtype=np.float64).reshape(-1, 3)
         b = np.asarray(p1, dtype=np.float64).reshape(-1, 3)
-        grid = prep.grid
-        ok = segments_in_free_voxels(prep.astar_grid._occ, grid.lo.detach().cpu().double().numpy(), float(grid.voxel_size), a, b)
+        ok = prep.voxels.segments_free(a, b)
         rest = np.flatnonzero(~ok)
         if rest.size:
             ok[rest] = self._segments_free_by_pieces(a[rest], b[rest])
@@ -597,15 +595,14 @@ class Planner:
         return any_way if cost(any_way) < cost(grid_way) else grid_way
 
     def shortcut_way(self, way: np.ndarray) -> np.ndarray:
-        """The shortcut of one polyline [K, 3]: with grid polytopes, the grid rule's, unless it leaves more than one
-        segment off the grid; then also the classic shortcut, and the cheaper of the two (choose_way)."""
-        a = shortcut(way, self._shortcut_free)
-        if not self.use_grid_polytopes() or self.segments_off_grid(a) <= CLASSIC_SHORTCUT_AFTER:
-            return a
-        return self.choose_way(a, shortcut(way, self._shortcut_free_any))
+        """The shortcut of one polyline [K, 3]: with grid polytopes, the grid rule's, unless it leaves more than
+        CLASSIC_SHORTCUT_AFTER segments off the grid; then also the classic shortcut, and the cheaper of the two
+        (choose_way)."""
+        return self.shortcut_ways([way])[0]
 
     def shortcut_ways(self, ways: list) -> list:
-        """shortcut_way for several polylines, each rule as one lock-step batched_shortcut."""
+        """shortcut_way for several polylines, each rule as one lock-step batched_shortcut (the same result as
+        astar.shortcut path by path)."""
         a = batched_shortcut(ways, self._shortcut_free)
         if not self.use_grid_polytopes():
             return a

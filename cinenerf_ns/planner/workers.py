@@ -84,6 +84,11 @@ def _init_worker(planner_ref: "weakref.ref") -> None:
     _PLANNER = planner_ref()
 
 
+def _task(fn: Callable, args: tuple) -> bytes:
+    """A task as bytes (standard pickler, see the module docstring), for _call in a worker."""
+    return pickle.dumps((fn, tuple(args)), protocol=pickle.HIGHEST_PROTOCOL)
+
+
 def _call(task: bytes) -> bytes:
     fn, args = pickle.loads(task)
     return pickle.dumps(fn(_PLANNER, *args), protocol=pickle.HIGHEST_PROTOCOL)
@@ -119,15 +124,13 @@ class CandidatePool:
     def map(self, fn: Callable, args_list: Iterable[tuple]) -> List[Any]:
         """fn(planner, *args) for each args in the workers, results in order. Raises BrokenProcessPool when a
         worker died, and whatever fn raised."""
-        tasks = [pickle.dumps((fn, tuple(a)), protocol=pickle.HIGHEST_PROTOCOL) for a in args_list]
-        blobs = self._pool.map(_call, tasks, chunksize=1)
+        blobs = self._pool.map(_call, [_task(fn, a) for a in args_list], chunksize=1)
         return [pickle.loads(b) for b in blobs]
 
     def imap_unordered(self, fn: Callable, args_list: Iterable[tuple]) -> Iterator[tuple]:
         """(i, fn(planner, *args_list[i])) for each task, in the order they finish (the caller can use early results
         while the others run). Raises BrokenProcessPool when a worker died, and whatever fn raised."""
-        futures = {self._pool.submit(_call, pickle.dumps((fn, tuple(a)), protocol=pickle.HIGHEST_PROTOCOL)): i
-                   for i, a in enumerate(args_list)}
+        futures = {self._pool.submit(_call, _task(fn, a)): i for i, a in enumerate(args_list)}
         for f in as_completed(futures):
             yield futures[f], pickle.loads(f.result())
 
