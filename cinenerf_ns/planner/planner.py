@@ -38,6 +38,7 @@ from .errors import (
 from .grid_polytope import VoxelObstacles
 from .goal import _project_onto_polytope, closest_safe_point, sample_free_starts
 from .polytope import Polytope, safe_polytope
+from .polytope import prepare_native as prepare_native_polytope
 from .occupancy import OccupancyGrid, build_occupancy
 from .safety import verify_shot
 from .scene import EllipsoidScene
@@ -253,9 +254,11 @@ class Planner:
         t4 = time.perf_counter()
         voxels = VoxelObstacles.from_occupied(ag._occ, grid.lo.detach().cpu().double().numpy(), grid.voxel_size)
         t5 = time.perf_counter()
-        # compile / load the compiled path search now (cached on disk after the first time), before candidate
-        # worker processes fork: they inherit it instead of each loading it on its first path
+        # compile / load the compiled path search and polytope now (cached on disk after the first time), before
+        # candidate worker processes fork: they inherit them instead of each loading them on first use
         native_search26()
+        prepare_native_polytope(self.scene, index)
+        t6 = time.perf_counter()
         if not (~grid.occupied).any():
             raise GoalUnreachableError(
                 "the occupancy grid has no free voxel: the camera radius is too large for this scene, or the "
@@ -269,7 +272,7 @@ class Planner:
             batch_index=batch_index,
             voxels=voxels,
             timings_ms={"index_ms": 1e3 * (t1 - t0), "grid_ms": 1e3 * (t2 - t1), "mirror_ms": 1e3 * (t3 - t2) if mirrored else 0.0,
-                        "components_ms": 1e3 * (t4 - t3), "surface_ms": 1e3 * (t5 - t4)},
+                        "components_ms": 1e3 * (t4 - t3), "surface_ms": 1e3 * (t5 - t4), "native_ms": 1e3 * (t6 - t5)},
         )
         return self.prepared
 

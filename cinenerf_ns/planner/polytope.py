@@ -348,6 +348,119 @@ def _cut_by(n: np.ndarray, b: np.ndarray, mu: np.ndarray, amax: np.ndarray, rot:
     return cut
 
 
+# ---------------------------------------------------------------------------------------- compiled path
+NATIVE_STATS: dict = {}  # the last compiled call's counts (candidates, index entries visited, planes): for benchmarks
+_NORMAL_CODE = {"auto": 0, "prop2": 1, "mahalanobis": 2, "closest": 3}
+
+
+def _native_polytope_fn(scene, index, seeds: np.ndarray, prune: bool):
+    """native.safe_polytope_c() when the compiled path applies to this call (see safe_polytope's backend), else None."""
+    if not prune or seeds.shape[0] not in (1, 2) or index is None or not hasattr(index, "levels"):
+        return None
+    if scene.means.device.type != "cpu" or index.device.type != "cpu" or scene.means.dtype not in (torch.float32, torch.float64):
+        return None
+    from .native import safe_polytope_c
+
+    return safe_polytope_c()
+
+
+def prepare_native(scene, index) -> bool:
+    """Load the compiled polytope and build the arrays it reads for this scene and index (once; otherwise the first
+    safe_polytope call does it). False when the compiled path does not apply or did not load."""
+    if _native_polytope_fn(scene, index, np.zeros((1, 3)), True) is None:
+        return False
+    _native_arrays(scene, index)
+    return True
+
+
+def _round_f32(x: np.ndarray, down: bool) -> np.ndarray:
+    """float64 x as float32, rounded toward -inf (down) or +inf (so the float32 value bounds x)."""
+    y = x.astype(np.float32)
+    if down:
+        return np.where(y.astype(np.float64) > x, np.nextafter(y, np.float32(-np.inf)), y)
+    return np.where(y.astype(np.float64) < x, np.nextafter(y, np.float32(np.inf)), y)
+
+
+def _native_arrays(scene, index) -> dict:
+    """Contiguous CPU arrays and ctypes pointer tables the compiled polytope reads (built once per scene/index pair,
+    kept on the index so the memory they point into stays alive)."""
+    import ctypes
+
+    cache = getattr(index, "_native_polytope_arrays", None)
+    if cache is not None and cache["scene"] is scene:
+        return cache
+    dt = scene.means.dtype
+    keep = {
+        "means": scene.means.detach().contiguous(),
+        "rots": scene.rotations.detach().to(dt).contiguous(),
+        "radii": scene.radii.detach().to(dt).contiguous(),
+    }
+    # one float32 row per ellipsoid for the gather (polytope.c's header): padded AABB lo rounded down, hi rounded
+    # up, mean, largest semi-axis rounded up (rounding only widens the tests that read them)
+    boxes = index.boxes.detach().double().cpu().numpy()  # [N, 6]
+    pack = np.zeros((len(index), 12), dtype=np.float32)
+    pack[:, :3] = _round_f32(boxes[:, :3], down=True)
+    pack[:, 3:6] = _round_f32(boxes[:, 3:], down=False)
+    pack[:, 6:9] = scene.means.detach().cpu().numpy()
+    pack[:, 9] = _round_f32(scene.radii.detach().double().max(-1).values.cpu().numpy(), down=False)
+    keep["pack"] = pack
+    keep["origin"] = index.origin.double().contiguous()
+    keep["cells"] = np.array([lv.cell for lv in index.levels], dtype=np.float64)
+    keep["dims"] = np.ascontiguousarray(np.stack([lv.dims.cpu().numpy() for lv in index.levels]).astype(np.int64))
+    keep["offsets_t"] = [lv.offsets.long().contiguous() for lv in index.levels]
+    keep["ids_t"] = [lv.ids.long().contiguous() for lv in index.levels]
+    L = len(index.levels)
+    keep["offsets"] = (ctypes.c_void_p * L)(*[t.data_ptr() for t in keep["offsets_t"]])
+    keep["ids"] = (ctypes.c_void_p * L)(*[t.data_ptr() for t in keep["ids_t"]])
+    keep["scene"] = scene
+    index._native_polytope_arrays = keep
+    return keep
+
+
+def _native_polytope(fn, scene, index, seeds, seeds_t, lo, hi, rot, A_box, b_box, r, margin, normal,
+                     require_seed_inside, near_fraction) -> Polytope:
+    """safe_polytope through native/polytope.c (float64 numpy seeds [S, 3], box lo/hi [3], rot [3, 3] or None)."""
+    import ctypes
+
+    arr = _native_arrays(scene, index)
+    dev = scene.means.device
+    f32 = int(arr["means"].dtype == torch.float32)
+    sd = np.ascontiguousarray(seeds, dtype=np.float64)
+    lo_c, hi_c = np.ascontiguousarray(lo, dtype=np.float64), np.ascontiguousarray(hi, dtype=np.float64)
+    rot_c = None if rot is None else np.ascontiguousarray(rot, dtype=np.float64)
+    info = np.zeros(4, dtype=np.int64)
+    cap = 512
+    while True:
+        n = np.empty((cap, 3)), np.empty(cap), np.empty(cap, dtype=np.int64), np.empty(cap, dtype=np.int64), np.empty(cap)
+        F = int(fn(
+            arr["means"].data_ptr(), arr["rots"].data_ptr(), arr["radii"].data_ptr(), arr["pack"].ctypes.data, f32,
+            arr["origin"].data_ptr(), len(arr["cells"]), arr["cells"].ctypes.data,
+            arr["dims"].ctypes.data, ctypes.cast(arr["offsets"], ctypes.c_void_p), ctypes.cast(arr["ids"], ctypes.c_void_p),
+            float(index.pad), sd.ctypes.data, sd.shape[0], lo_c.ctypes.data, hi_c.ctypes.data,
+            None if rot_c is None else rot_c.ctypes.data, r, float(margin), _NORMAL_CODE[normal],
+            int(bool(require_seed_inside)), float(near_fraction), cap, *(a.ctypes.data for a in n), info.ctypes.data))
+        if F == -2:
+            cap = int(info[2]) + 1
+            continue
+        if F < 0:
+            raise MemoryError(f"the compiled safe polytope failed (code {F})")
+        break
+    n_planes, b_planes, ids_planes, bad_ids, bad_slack = n
+    NATIVE_STATS.update(candidates=int(info[1]), entries=int(info[3]), planes=F)
+    nbad = int(info[0])
+    if nbad:
+        worst = float(bad_slack[:nbad].min())
+        raise SeedNotFreeError(
+            f"seed {'segment' if seeds.shape[0] == 2 else 'point(s)'} is within the camera radius {r:g} of "
+            f"{nbad} ellipsoid(s) (worst slack {worst:.3g}); no safe polytope contains it",
+            ellipsoid_ids=torch.as_tensor(bad_ids[:nbad].copy(), device=dev), min_slack=worst,
+        )
+    A = np.vstack([A_box, n_planes[:F]])
+    b = np.concatenate([b_box, b_planes[:F]])
+    kept = torch.as_tensor(ids_planes[:F].copy(), device=dev)
+    return Polytope(torch.as_tensor(A, device=dev), torch.as_tensor(b, device=dev), seeds_t, kept)
+
+
 # ---------------------------------------------------------------------------------------- main
 def safe_polytope(
     seed_points: ArrayLike,
@@ -364,6 +477,7 @@ def safe_polytope(
     box_rotation: Optional[ArrayLike] = None,
     two_pass: bool = True,
     near_fraction: float = 0.5,
+    backend: str = "auto",
 ) -> Polytope:
     """Safe polytope around seed points [S, 3] inside the box [box_lo, box_hi].
 
@@ -385,6 +499,11 @@ def safe_polytope(
     scenes; same safety guarantee). False: gather every ellipsoid meeting the box at once.
     near_fraction: the first pass looks at ellipsoids within this fraction of the seeds' distance to
     the box (a box around the seed set / an oriented box around a seed segment).
+    backend: "auto" (the compiled path, native/polytope.c, when it loads and applies: a CPU scene, a GridIndex
+    on the CPU, prune, one or two seeds; else Python), "native" (error if it does not apply) or "python". Both
+    give safe polytopes holding the seeds with the same normal rules and exact offsets; the compiled one visits
+    ellipsoids in buckets of ~16 by distance instead of chunks of ``chunk``, so its planes can differ a little
+    (native/polytope.c's header); two_pass and near_fraction apply to both.
     """
     dev = scene.means.device
     seeds_t = torch.as_tensor(seed_points, device=dev).to(torch.float64).reshape(-1, 3)  # [S, 3]
@@ -406,12 +525,26 @@ def safe_polytope(
         raise InvalidInputError("seed points must lie inside the polytope box")
     if normal not in ("auto", "prop2", "closest", "mahalanobis"):
         raise InvalidInputError(f"unknown normal rule {normal!r}")
+    if backend not in ("auto", "native", "python"):
+        raise InvalidInputError(f"safe_polytope backend must be 'auto', 'native' or 'python', got {backend!r}")
     r = float(scene.camera_radius)
     seeds = _np(seeds_t)
     lo, hi = _np(lo_t), _np(hi_t)
     axes_t = np.eye(3) if rot_t is None else _np(rot_t).T  # rows = box axes
     A_box = np.vstack([axes_t, -axes_t])  # [6, 3]
     b_box = np.concatenate([hi, -lo])
+    if backend != "python":
+        fn = _native_polytope_fn(scene, index, seeds, prune)
+        if fn is not None:
+            return _native_polytope(fn, scene, index, seeds, seeds_t, lo, hi, None if rot_t is None else _np(rot_t),
+                                    A_box, b_box, r, margin, normal, require_seed_inside,
+                                    near_fraction if two_pass else 0.0)
+        if backend == "native":
+            from .native import native_status
+
+            raise RuntimeError(
+                "the compiled safe polytope does not apply here (it needs a CPU scene, a GridIndex on the CPU, prune "
+                f"and one or two seeds) or did not load: {native_status().get('polytope', 'not loaded')}")
 
     planes_n, planes_b, planes_id = [], [], []  # kept planes; planes_id: scene ids [f] on the device
     bad = []  # (scene ids [J] cpu, mu, rot, axes, slack) of ellipsoids no plane of their own family cuts off

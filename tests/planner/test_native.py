@@ -129,6 +129,32 @@ def test_turned_off_falls_back_to_python(tmp_path):
     assert not any(tmp_path.iterdir())  # nothing was compiled
 
 
+POLY_PROBE = (
+    "import numpy as np, torch\n"
+    "from cinenerf_ns.planner import native\n"
+    "from cinenerf_ns.planner.polytope import safe_polytope\n"
+    "from cinenerf_ns.planner.scene import EllipsoidScene\n"
+    "from cinenerf_ns.planner.spatial_index import GridIndex\n"
+    "s = EllipsoidScene(torch.tensor([[0.3, 0, 0]]).double(), torch.eye(3)[None].double(), torch.full((1, 3), 0.1).double(),\n"
+    "                   torch.ones(1).double(), 0.03)\n"
+    "P = safe_polytope(np.zeros((1, 3)), s, GridIndex.build(s), -np.ones(3), np.ones(3))\n"
+    "print(P.num_faces, round(float(P.b[6]), 6))\n"
+    "print(native.safe_polytope_c() is None, native.native_status().get('polytope'))\n"
+    "print(native.astar26() is None)\n"
+)
+
+
+def test_one_library_turned_off_falls_back_to_python(tmp_path):
+    """CINENERF_NATIVE_OFF=polytope: the polytope takes the Python path (same plane here), A* stays compiled."""
+    out = _run(POLY_PROBE, CINENERF_NATIVE_OFF="polytope", CINENERF_CACHE=str(tmp_path)).splitlines()
+    assert out[0] == "7 0.169999"  # one plane x <= 0.3 - 0.1 - 0.03 - 1e-6 (margin)
+    assert out[1] == "True turned off (CINENERF_NATIVE_OFF)"
+    if native.astar26() is not None:
+        assert out[2] == "False"
+        on = _run(POLY_PROBE, CINENERF_CACHE=str(tmp_path)).splitlines()
+        assert on[0] == out[0] and on[1].startswith("False compiled: ")
+
+
 def test_broken_compiler_falls_back_to_python(tmp_path):
     out = _run(PROBE, CC="/bin/false", CINENERF_CACHE=str(tmp_path)).splitlines()
     assert out[1].startswith("True compiling astar26.c failed")

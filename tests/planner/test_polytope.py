@@ -270,11 +270,12 @@ def test_oriented_box_polytope(seed, n, use_index):
 
 
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(seed=st.integers(0, 2**31 - 1), flat=st.sampled_from([1e-3, 0.02, 1.0]))
-def test_free_segment_near_one_flat_ellipsoid_always_gets_a_polytope(seed, flat):
+@given(seed=st.integers(0, 2**31 - 1), flat=st.sampled_from([1e-3, 0.02, 1.0]), compiled=st.booleans())
+def test_free_segment_near_one_flat_ellipsoid_always_gets_a_polytope(seed, flat, compiled):
     """Completeness vs brute force: a segment whose exact clearance to a single (possibly very flat)
     ellipsoid is positive must be contained in a safe polytope (a separating tangent plane exists);
-    planes chosen at the metric-closest point alone used to cut such grazing segments."""
+    planes chosen at the metric-closest point alone used to cut such grazing segments. compiled: through
+    native/polytope.c (with a grid index), where it loads."""
     rng = np.random.default_rng(seed)
     radii = rng.uniform(0.05, 0.3, size=(1, 3))
     radii[0, 2] *= flat
@@ -288,6 +289,15 @@ def test_free_segment_near_one_flat_ellipsoid_always_gets_a_polytope(seed, flat)
     if c.min() - spacing / 2 <= 1e-4:  # not provably free by the brute-force Lipschitz bound
         return
     seg = torch.as_tensor(np.stack([p0, p1]))
-    P = safe_polytope(seg, scene, None, seg.min(0).values - 0.1, seg.max(0).values + 0.1)
+    index = None
+    if compiled:
+        from cinenerf_ns.planner.native import safe_polytope_c
+        from cinenerf_ns.planner.spatial_index import GridIndex
+
+        if safe_polytope_c() is None:
+            return
+        index = GridIndex.build(scene)
+    P = safe_polytope(seg, scene, index, seg.min(0).values - 0.1, seg.max(0).values + 0.1,
+                      backend="native" if compiled else "python")
     assert bool(P.contains(seg).all())
     assert np.all(polytope_min_distance(*P.to_numpy(), scene) >= scene.camera_radius - 1e-7)

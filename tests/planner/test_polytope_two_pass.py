@@ -59,8 +59,10 @@ def _check_query_box_in_planes(seed, n_planes, cell, max_cells):
 
 
 @settings(**SETTINGS)
-@given(seed=st.integers(0, 2**31 - 1), n_seeds=st.sampled_from([1, 2]), frac=st.sampled_from([0.1, 0.5, 1.0]))
-def test_two_pass_polytope_excludes_every_inflated_ellipsoid(seed, n_seeds, frac):
+@given(seed=st.integers(0, 2**31 - 1), n_seeds=st.sampled_from([1, 2]), frac=st.sampled_from([0.1, 0.5, 1.0]),
+       backend=st.sampled_from(["python", "auto"]))
+def test_two_pass_polytope_excludes_every_inflated_ellipsoid(seed, n_seeds, frac, backend):
+    """Both paths: Python and (auto) the compiled one where it loads."""
     rng = np.random.default_rng(seed)
     scene = random_scene(rng, 250, amin=0.01, amax=0.1, camera_radius=0.03)
     idx = GridIndex.build(scene)
@@ -69,7 +71,7 @@ def test_two_pass_polytope_excludes_every_inflated_ellipsoid(seed, n_seeds, frac
         seeds[1] = seeds[0] + rng.normal(size=3) * 0.2
     lo, hi = seeds.min(0) - 0.25, seeds.max(0) + 0.25
     try:
-        P = safe_polytope(seeds, scene, idx, lo, hi, two_pass=True, near_fraction=frac)
+        P = safe_polytope(seeds, scene, idx, lo, hi, two_pass=True, near_fraction=frac, backend=backend)
     except SeedNotFreeError:
         assume(False)
     A, b = P.to_numpy()

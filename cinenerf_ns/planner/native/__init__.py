@@ -6,6 +6,7 @@ keyed by a hash of the source, the compiler and the platform, so a changed sourc
 processes never load a half-written library (it is written to a temporary name, then renamed). Everything here
 is an accelerator: when no compiler is found, compiling fails, or ``CINENERF_NATIVE=0`` is set, the loaders return
 None and the callers use their pure-Python code (same results, slower; ``native_status()`` says why).
+``CINENERF_NATIVE_OFF=polytope,astar26`` turns off only the libraries named (for A/B benchmarks).
 
 Why C and not a Python extension: nerfstudio users already have a C compiler (gsplat compiles its CUDA code with
 it), the kernels need no Python objects, and a ctypes library needs no headers or build isolation.
@@ -79,8 +80,11 @@ def load(name: str) -> Optional[ctypes.CDLL]:
         if name in _LIBS:
             return _LIBS[name]
         lib = None
+        off = {x.strip() for x in os.environ.get("CINENERF_NATIVE_OFF", "").split(",") if x.strip()}
         if not enabled():
             _STATUS[name] = "turned off (CINENERF_NATIVE=0)"
+        elif name in off:
+            _STATUS[name] = "turned off (CINENERF_NATIVE_OFF)"
         else:
             path = _compile(name)
             if path is not None:
@@ -125,3 +129,18 @@ def astar26():
 def search26():
     """The compiled search26 (astar26.c: A* to a goal, or Dijkstra to the nearest marked voxel), or None."""
     return _function("astar26", "search26", [_P, _I64, _I64, _I64, _I64, _I64, _P, _F64, _I64, _P, _I64], _I64)
+
+
+_I32 = ctypes.c_int32
+
+
+def safe_polytope_c():
+    """The compiled safe polytope of a point or segment seed (polytope.c: cn_safe_polytope), or None."""
+    return _function(
+        "polytope", "cn_safe_polytope",
+        [_P, _P, _P, _P, _I32,  # scene: means, rotations, radii, packed rows [N, 12] float32, float32 flag
+         _P, _I32, _P, _P, _P, _P, _F64,  # index: origin, levels, cells, dims, offsets*, ids*, pad
+         _P, _I32, _P, _P, _P,  # seeds, count, box lo, hi, rotation (or NULL)
+         _F64, _F64, _I32, _I32, _F64,  # camera radius, margin, normal rule, seed must be inside, near fraction
+         _I64, _P, _P, _P, _P, _P, _P],  # cap, planes n, b, ids, bad ids, bad slacks, info
+        _I64)

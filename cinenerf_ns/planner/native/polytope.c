@@ -1,0 +1,625 @@
+/* Safe polytope of a point or segment seed (paper Prop. 2; polytope.py holds the rules and the proofs), compiled.
+
+   One call does what polytope.safe_polytope's Python path does in ~100 numpy/torch calls: gather the ellipsoids
+   whose padded AABB meets the (possibly oriented) box from the grid index (spatial_index.GridIndex's CSR levels),
+   keep those whose bounding sphere, inflated by the camera radius, reaches the box, then visit them nearest first
+   (by a lower bound of the distance from the seed to the inflated body) and give each one that no kept plane
+   already cuts off (exact support test) its own plane: the best-slack one of the normal rules at the seed's
+   reference point, with the exact offset n.mu - ||diag(a) R^T n|| - r - margin. Any unit normal gives a safe
+   plane with that offset (polytope.py's module docstring), so safety never depends on this file's normals or on
+   its order of visit; only the free space kept does.
+
+   Differences from the Python path (both are safe; tests compare them):
+   - order: ellipsoids are bucketed by the distance lower bound (~16 per bucket; Python: chunks of the 32 nearest),
+     and each bucket's planes are taken nearest plane first, as in a Python chunk; the kept planes can differ a
+     little;
+   - no two-pass culling of index cells: every ellipsoid of the box is gathered (cheap here).
+
+   Index dedupe: an ellipsoid is listed in every cell of its level that its padded AABB meets. Its copy in a
+   visited cell is skipped when, along some axis, the cell is not the first of the query's range, the previous
+   cell along that axis is not culled (second pass), and the AABB reaches clearly below the cell's lower face:
+   then the index also lists it in that previous cell, which the query visits too. Following those steps back ends at a copy that is kept, so
+   nothing is ever dropped (at worst a copy within the band is visited twice: a duplicate is cut off by its own
+   plane). The band is 1e-6 x (cell + |face|), far wider than the float32 rounding of the packed AABB.
+
+   Memory: the index lists each ellipsoid in several cells in no spatial order, so the gather is bound by cache
+   misses. It reads one packed float32 row per ellipsoid ([N, 12]: padded AABB lo rounded down, hi rounded up,
+   mean, max semi-axis rounded up, 2 unused; built once by polytope._native_arrays), one cache line instead of
+   three arrays. Rounding only ever widens these tests; planes and exact tests use the scene's own values (float32
+   or float64 scene arrays, f32 flag), computed in float64. */
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+static inline double ld(const void *p, int64_t i, int f32) {
+    return f32 ? (double)((const float *)p)[i] : ((const double *)p)[i];
+}
+
+typedef struct {
+    int64_t id;
+    double key, mu[3], amax;  /* exact mean; amax >= the largest semi-axis */
+} Cand;
+
+/* ---------------------------------------------------------------- per-ellipsoid kernels (polytope.py) */
+static double k_sphere(const double w2[3], const double lam[3], double kappa, double s) {
+    double v = 0.0;
+    for (int i = 0; i < 3; i++) v += w2[i] * s * (1.0 - s) / (kappa + s * (lam[i] - kappa));
+    return v;
+}
+
+/* _argmax_k: 64-sample grid on (0, 1), then 6 golden-section steps in the best bracket */
+static double argmax_k(const double w2[3], const double lam[3], double kappa) {
+    const int T = 64;
+    int best = 0;
+    double bv = -INFINITY;
+    for (int j = 0; j < T; j++) {
+        double s = (double)(j + 1) / (double)(T + 1);
+        double v = k_sphere(w2, lam, kappa, s);
+        if (v > bv) { bv = v; best = j; }
+    }
+    double step = 1.0 / (double)(T + 1);
+    double gb = (double)(best + 1) / (double)(T + 1);
+    double lo = fmax(gb - step, 1e-9), hi = fmin(gb + step, 1.0 - 1e-9);
+    const double g = (sqrt(5.0) - 1.0) / 2.0;
+    for (int it = 0; it < 6; it++) {
+        double m1 = hi - g * (hi - lo), m2 = lo + g * (hi - lo);
+        if (k_sphere(w2, lam, kappa, m1) > k_sphere(w2, lam, kappa, m2)) hi = m2; else lo = m1;
+    }
+    return 0.5 * (lo + hi);
+}
+
+/* _closest_t: t >= 0 with sum lam w^2 / (lam + t)^2 = 1 (Newton from a lower bound; 10 steps) */
+static double closest_t(const double w2[3], const double lam[3]) {
+    double c[3], lmin = lam[0], lmax = lam[0], ws = 0.0;
+    for (int i = 0; i < 3; i++) {
+        c[i] = lam[i] * w2[i];
+        lmin = fmin(lmin, lam[i]);
+        lmax = fmax(lmax, lam[i]);
+        ws += w2[i];
+    }
+    double t = fmax(sqrt(lmin * ws) - lmax, 0.0);
+    for (int it = 0; it < 10; it++) {
+        double S = 0.0, Sd = 0.0;
+        for (int i = 0; i < 3; i++) {
+            double den = lam[i] + t, q = c[i] / (den * den);
+            S += q;
+            Sd += q / den;
+        }
+        double phi = 1.0 / sqrt(fmax(S, 1e-300));
+        double dphi = phi * phi * phi * Sd;
+        if (phi < 1.0 && isfinite(phi) && isfinite(dphi)) t += (1.0 - phi) / fmax(dphi, 1e-300);
+    }
+    return t;
+}
+
+/* Euclidean distance from body point w to the ellipsoid with squared semi-axes lam (outside points) */
+static double ell_dist(const double w[3], const double lam[3]) {
+    double w2[3] = {w[0] * w[0], w[1] * w[1], w[2] * w[2]};
+    double t = closest_t(w2, lam), d = 0.0;
+    for (int i = 0; i < 3; i++) {
+        double e = t * w[i] / (lam[i] + t);
+        d += e * e;
+    }
+    return sqrt(d);
+}
+
+/* _segment_closest_u: golden section (30 steps) on u in [0, 1] of ell_dist(w0 + u dw) */
+static double segment_closest_u(const double w0[3], const double dw[3], const double lam[3]) {
+    const double g = (sqrt(5.0) - 1.0) / 2.0;
+    double lo = 0.0, hi = 1.0, w[3];
+#define DIST_AT(u) (w[0] = w0[0] + (u) * dw[0], w[1] = w0[1] + (u) * dw[1], w[2] = w0[2] + (u) * dw[2], ell_dist(w, lam))
+    double x1 = hi - g * (hi - lo), x2 = lo + g * (hi - lo);
+    double f1 = DIST_AT(x1), f2 = DIST_AT(x2);
+    for (int it = 0; it < 30; it++) {
+        if (f1 <= f2) {  /* minimum in [lo, x2] */
+            hi = x2;
+            double nx = hi - g * (hi - lo), fn = DIST_AT(nx);
+            x2 = x1; f2 = f1; x1 = nx; f1 = fn;
+        } else {
+            lo = x1;
+            double nx = lo + g * (hi - lo), fn = DIST_AT(nx);
+            x1 = x2; f1 = f2; x2 = nx; f2 = fn;
+        }
+    }
+#undef DIST_AT
+    return 0.5 * (lo + hi);
+}
+
+typedef struct {
+    double mu[3], R[9], a[3], lam[3];  /* R row-major: R[3 i + j], columns = body axes */
+} Ell;
+
+/* _planes_at: best-slack plane among the normal rules at body reference point w -> n (world), offset, slack */
+static double planes_at(const double w_in[3], const Ell *E, const double *seeds, int S, double r, int mode,
+                        double margin, double n_out[3], double *off_out) {
+    double w[3] = {w_in[0], w_in[1], w_in[2]};
+    if (w[0] * w[0] + w[1] * w[1] + w[2] * w[2] < 1e-24) { w[0] = 0.0; w[1] = 0.0; w[2] = 1e-12; }
+    double w2[3] = {w[0] * w[0], w[1] * w[1], w[2] * w[2]};
+    double cands[3][3];
+    int nc = 0;
+    double kappa = r * r;
+    if (mode == 0 || mode == 1) {  /* prop2 */
+        double s = argmax_k(w2, E->lam, kappa);
+        for (int i = 0; i < 3; i++) cands[nc][i] = -(s * (1.0 - s) / (kappa + s * (E->lam[i] - kappa))) * w[i];
+        nc++;
+    }
+    if (mode == 0 || mode == 2) {  /* mahalanobis */
+        for (int i = 0; i < 3; i++) cands[nc][i] = -w[i] / E->lam[i];
+        nc++;
+    }
+    if (mode == 0 || mode == 3) {  /* closest */
+        double t = closest_t(w2, E->lam);
+        for (int i = 0; i < 3; i++) cands[nc][i] = -w[i] / (E->lam[i] + t);
+        nc++;
+    }
+    double best = -INFINITY;
+    for (int c = 0; c < nc; c++) {
+        double *nb = cands[c];
+        double nn = fmax(sqrt(nb[0] * nb[0] + nb[1] * nb[1] + nb[2] * nb[2]), 1e-300);
+        double u[3] = {nb[0] / nn, nb[1] / nn, nb[2] / nn};
+        double nw[3], an = 0.0;
+        for (int i = 0; i < 3; i++) nw[i] = E->R[3 * i] * u[0] + E->R[3 * i + 1] * u[1] + E->R[3 * i + 2] * u[2];
+        for (int i = 0; i < 3; i++) an += (E->a[i] * u[i]) * (E->a[i] * u[i]);
+        double off = nw[0] * E->mu[0] + nw[1] * E->mu[1] + nw[2] * E->mu[2] - sqrt(an) - r - margin;
+        double smax = -INFINITY;
+        for (int s = 0; s < S; s++) {
+            double p = nw[0] * seeds[3 * s] + nw[1] * seeds[3 * s + 1] + nw[2] * seeds[3 * s + 2];
+            if (p > smax) smax = p;
+        }
+        double slack = off - smax;
+        if (slack > best) {  /* strict: ties keep the earlier rule, like numpy's argmax */
+            best = slack;
+            n_out[0] = nw[0]; n_out[1] = nw[1]; n_out[2] = nw[2];
+            *off_out = off;
+        }
+    }
+    return best;
+}
+
+/* _plane_candidates for one ellipsoid: plane at the metric-closest seed point, retried from other segment points
+   when it cuts the segment (see polytope.py) */
+static double plane_for(const Ell *E, const double *seeds, int S, double r, int mode, double margin, double n[3],
+                        double *off) {
+    double wb[2][3];
+    for (int s = 0; s < S; s++) {
+        double d[3] = {seeds[3 * s] - E->mu[0], seeds[3 * s + 1] - E->mu[1], seeds[3 * s + 2] - E->mu[2]};
+        for (int i = 0; i < 3; i++) wb[s][i] = E->R[i] * d[0] + E->R[3 + i] * d[1] + E->R[6 + i] * d[2];  /* R^T d */
+    }
+    double w[3];
+    if (S == 2) {
+        double d[3], den = 0.0, num = 0.0;
+        for (int i = 0; i < 3; i++) {
+            d[i] = wb[1][i] - wb[0][i];
+            den += d[i] * d[i] / E->lam[i];
+            num += wb[0][i] * d[i] / E->lam[i];
+        }
+        double u = den > 0 ? fmin(fmax(-num / fmax(den, 1e-300), 0.0), 1.0) : 0.0;
+        for (int i = 0; i < 3; i++) w[i] = wb[0][i] + u * d[i];
+        double slack = planes_at(w, E, seeds, S, r, mode, margin, n, off);
+        if (slack >= 0) return slack;
+        double dd = 0.0, de = 0.0;
+        for (int i = 0; i < 3; i++) { dd += d[i] * d[i]; de += wb[0][i] * d[i]; }
+        double ue = fmin(fmax(-de / fmax(dd, 1e-300), 0.0), 1.0);
+        double uc = segment_closest_u(wb[0], d, E->lam);
+        double us[4] = {uc, ue, 0.0, 1.0};
+        for (int k = 0; k < 4; k++) {
+            double w2[3], n2[3], o2;
+            for (int i = 0; i < 3; i++) w2[i] = wb[0][i] + us[k] * d[i];
+            double s2 = planes_at(w2, E, seeds, S, r, mode, margin, n2, &o2);
+            if (s2 > slack) {
+                slack = s2;
+                n[0] = n2[0]; n[1] = n2[1]; n[2] = n2[2];
+                *off = o2;
+            }
+        }
+        return slack;
+    }
+    return planes_at(wb[0], E, seeds, S, r, mode, margin, n, off);
+}
+
+static void load_ell(Ell *E, int64_t g, const double mu[3], const void *rots, const void *radii, int f32) {
+    for (int i = 0; i < 3; i++) {
+        E->mu[i] = mu[i];
+        E->a[i] = ld(radii, 3 * g + i, f32);
+        E->lam[i] = E->a[i] * E->a[i];
+    }
+    for (int i = 0; i < 9; i++) E->R[i] = ld(rots, 9 * g + i, f32);
+}
+
+/* min over the inflated body of n.x (exact support function, polytope._support_gap) */
+static double support_gap(const double n[3], const Ell *E, double r) {
+    double an = 0.0;
+    for (int i = 0; i < 3; i++) {
+        double nb = E->R[i] * n[0] + E->R[3 + i] * n[1] + E->R[6 + i] * n[2];
+        an += (E->a[i] * nb) * (E->a[i] * nb);
+    }
+    return n[0] * E->mu[0] + n[1] * E->mu[1] + n[2] * E->mu[2] - sqrt(an) - r;
+}
+
+/* bounding sphere (centre mu, radius amax >= every semi-axis, inflated by r) beyond one of planes [from, F) */
+static int sphere_cut_by(const double *pn, const double *pb, int64_t from, int64_t F, const double mu[3], double amax,
+                         double r) {
+    for (int64_t f = from; f < F; f++) {
+        const double *n = pn + 3 * f;
+        if (n[0] * mu[0] + n[1] * mu[1] + n[2] * mu[2] - amax - r >= pb[f]) return 1;
+    }
+    return 0;
+}
+
+/* the inflated body beyond one of planes [from, F) (exact support test, polytope._cut_by's second step) */
+static int exact_cut_by(const double *pn, const double *pb, int64_t from, int64_t F, const Ell *E, double r) {
+    for (int64_t f = from; f < F; f++) {
+        if (support_gap(pn + 3 * f, E, r) >= pb[f]) return 1;
+    }
+    return 0;
+}
+
+typedef struct {
+    int64_t id, c;  /* c: row in sorted[] */
+    double slack, off, n[3];
+} Plane;
+
+static int cmp_plane(const void *x, const void *y) {
+    const Plane *a = (const Plane *)x, *b = (const Plane *)y;
+    if (a->slack != b->slack) return (a->slack > b->slack) - (a->slack < b->slack);
+    return (a->id > b->id) - (a->id < b->id);  /* deterministic ties */
+}
+
+typedef struct {
+    /* scene */
+    const void *means, *rots, *radii;
+    const float *pack;
+    int f32;
+    /* index */
+    const double *origin, *cells;
+    const int64_t *dims;
+    const int64_t *const *offsets, *const *ids;
+    int n_levels;
+    /* request */
+    const double *seeds, *box_lo, *box_hi;
+    int S, mode, require_inside;
+    double Rb[9], r, margin, e;
+    /* state */
+    Cand *cand;
+    int64_t K, kcap;
+    double *pn, *pb;  /* kept planes [F, 3], [F] */
+    int64_t *pid, F, pcap;
+    int64_t *bid, nbad, bcap;
+    double *bsl;
+    Plane *chunk;
+    int64_t ccap;
+    int64_t visited;
+} State;
+
+/* min over the axis-aligned cell [lo, lo + size]^3 (grown a little) of n.x > b + shift for some plane f < F: every
+   point of the cell is outside that halfspace (planes shifted by shift_f = e |n_f|_1, as in query_box_in_planes) */
+static int cell_culled(const double lo[3], double size, const double *pn, const double *pb, int64_t F, double e) {
+    double half = 0.5 * size * (1.0 + 1e-7) + 1e-12 * (1.0 + fmax(fabs(lo[0]), fmax(fabs(lo[1]), fabs(lo[2]))));
+    double c[3] = {lo[0] + 0.5 * size, lo[1] + 0.5 * size, lo[2] + 0.5 * size};
+    for (int64_t f = 0; f < F; f++) {
+        const double *n = pn + 3 * f;
+        double l1 = fabs(n[0]) + fabs(n[1]) + fabs(n[2]);
+        double low = n[0] * c[0] + n[1] * c[1] + n[2] * c[2] - half * l1;
+        if (low > pb[f] + e * l1 + 1e-12 * (1.0 + fabs(pb[f]))) return 1;
+    }
+    return 0;
+}
+
+static inline int pack_meets(const float *pk, const double lo[3], const double hi[3]) {
+    return !(pk[0] > hi[0] || pk[1] > hi[1] || pk[2] > hi[2] || pk[3] < lo[0] || pk[4] < lo[1] || pk[5] < lo[2]);
+}
+
+/* Appends to st->cand every ellipsoid whose packed AABB meets [qlo, qhi] and whose inflated bounding sphere reaches
+   the box, skipping those whose AABB meets [skip_lo, skip_hi] (already gathered) and the cells that one of the
+   planes (cull_n, cull_b: [n_cull]) culls (see cell_culled and spatial_index.query_box_in_planes for why that
+   loses nothing that can meet the polytope). */
+static int gather(State *st, const double qlo[3], const double qhi[3], const double *skip_lo, const double *skip_hi,
+                  const double *cull_n, const double *cull_b, int64_t n_cull) {
+    const double *sd0 = st->seeds, *sd1 = st->seeds + 3 * (st->S - 1);
+    double sdir[3] = {sd1[0] - sd0[0], sd1[1] - sd0[1], sd1[2] - sd0[2]};
+    double sdd = fmax(sdir[0] * sdir[0] + sdir[1] * sdir[1] + sdir[2] * sdir[2], 1e-300);
+    const double *Rb = st->Rb;
+    for (int L = 0; L < st->n_levels; L++) {
+        double cell = st->cells[L];
+        const int64_t *dm = st->dims + 3 * L;
+        int64_t clo[3], chi[3];
+        for (int i = 0; i < 3; i++) {
+            double a = floor((qlo[i] - st->origin[i]) / cell), b = floor((qhi[i] - st->origin[i]) / cell);
+            clo[i] = (int64_t)fmin(fmax(a, 0.0), (double)(dm[i] - 1));
+            chi[i] = (int64_t)fmin(fmax(b, 0.0), (double)(dm[i] - 1));
+        }
+        const int64_t *off = st->offsets[L], *lid = st->ids[L];
+        /* culled cells of the range, decided first: the dedupe below must know whether a neighbour is visited */
+        int64_t nx = chi[0] - clo[0] + 1, ny = chi[1] - clo[1] + 1, nz = chi[2] - clo[2] + 1;
+        unsigned char *culled = NULL;
+        if (n_cull && nx * ny * nz <= 4000000) {
+            culled = (unsigned char *)malloc((size_t)(nx * ny * nz));
+            if (!culled) return -1;
+            for (int64_t x = 0; x < nx; x++)
+                for (int64_t y = 0; y < ny; y++)
+                    for (int64_t z = 0; z < nz; z++) {
+                        double lo[3] = {st->origin[0] + (clo[0] + x) * cell, st->origin[1] + (clo[1] + y) * cell,
+                                        st->origin[2] + (clo[2] + z) * cell};
+                        culled[(x * ny + y) * nz + z] = (unsigned char)cell_culled(lo, cell, cull_n, cull_b, n_cull, st->e);
+                    }
+        }
+#define CULLED(x, y, z) (culled && culled[(((x) - clo[0]) * ny + ((y) - clo[1])) * nz + ((z) - clo[2])])
+        for (int64_t x = clo[0]; x <= chi[0]; x++)
+            for (int64_t y = clo[1]; y <= chi[1]; y++)
+                for (int64_t z = clo[2]; z <= chi[2]; z++) {
+                    int64_t cell_at[3] = {x, y, z};
+                    if (CULLED(x, y, z)) continue;
+                    int64_t lin = (x * dm[1] + y) * dm[2] + z;
+                    for (int64_t k = off[lin]; k < off[lin + 1]; k++) {
+                        int64_t g = lid[k];
+                        st->visited++;
+                        /* one cache line: lo[3] (rounded down), hi[3] (up), mu[3], amax (up) */
+                        const float *pk = st->pack + 12 * g;
+                        if (!pack_meets(pk, qlo, qhi)) continue;
+                        /* a copy is skipped only for one in the previous cell along an axis that is visited too */
+                        int dup = 0;
+                        for (int i = 0; i < 3 && !dup; i++) {
+                            if (cell_at[i] > clo[i]) {
+                                double face = st->origin[i] + (double)cell_at[i] * cell;
+                                if ((double)pk[i] < face - 1e-6 * (cell + fabs(face)) &&
+                                    !CULLED(x - (i == 0), y - (i == 1), z - (i == 2)))
+                                    dup = 1;
+                            }
+                        }
+                        if (dup) continue;
+                        if (skip_lo && pack_meets(pk, skip_lo, skip_hi)) continue;
+                        /* bounding sphere (radius amax, inflated by r) reaches the box (box coordinates) */
+                        double m[3] = {pk[6], pk[7], pk[8]};
+                        double am = pk[9], gap2 = 0.0, mabs = 0.0;
+                        for (int i = 0; i < 3; i++) {
+                            double mb = Rb[i] * m[0] + Rb[3 + i] * m[1] + Rb[6 + i] * m[2];
+                            double cl = fmin(fmax(mb, st->box_lo[i]), st->box_hi[i]);
+                            gap2 += (mb - cl) * (mb - cl);
+                            mabs = fmax(mabs, fabs(m[i]));
+                        }
+                        if (sqrt(gap2) > am + st->r + 1e-6 * (1.0 + mabs)) continue;
+                        if (!st->f32) {  /* float64 scene: the packed mean is rounded; decisions below use the exact one */
+                            for (int i = 0; i < 3; i++) m[i] = ((const double *)st->means)[3 * g + i];
+                        }
+                        /* visiting key: lower bound of the distance from the seed set to the inflated body */
+                        double u = 0.0;
+                        if (st->S == 2)
+                            u = fmin(fmax(((m[0] - sd0[0]) * sdir[0] + (m[1] - sd0[1]) * sdir[1] +
+                                           (m[2] - sd0[2]) * sdir[2]) / sdd, 0.0), 1.0);
+                        double dx = sd0[0] + u * sdir[0] - m[0], dy = sd0[1] + u * sdir[1] - m[1],
+                               dz = sd0[2] + u * sdir[2] - m[2];
+                        if (st->K == st->kcap) {
+                            Cand *nc = (Cand *)realloc(st->cand, 2 * st->kcap * sizeof(Cand));
+                            if (!nc) { free(culled); return -1; }
+                            st->cand = nc;
+                            st->kcap *= 2;
+                        }
+                        Cand *cd = st->cand + st->K++;
+                        cd->id = g;
+                        cd->key = sqrt(dx * dx + dy * dy + dz * dz) - am;
+                        cd->mu[0] = m[0]; cd->mu[1] = m[1]; cd->mu[2] = m[2];
+                        cd->amax = am;
+                    }
+                }
+#undef CULLED
+        free(culled);
+    }
+    return 0;
+}
+
+/* Decides the gathered candidates st->cand[0, K) nearest first: each is cut off by a kept plane, gets its own plane,
+   or (seed not inside its plane) goes to the bad list. Empties st->cand. */
+static int decide(State *st) {
+    int64_t K = st->K;
+    if (!K) return 0;
+    /* nearest first without a full sort: bucket by key (~16 per bucket), then order each bucket's planes */
+    int64_t nbins = K < 64 ? 1 : (K / 16 < 1024 ? K / 16 : 1024);
+    double kmin = INFINITY, kmax = -INFINITY;
+    for (int64_t i = 0; i < K; i++) { kmin = fmin(kmin, st->cand[i].key); kmax = fmax(kmax, st->cand[i].key); }
+    double scale = kmax > kmin ? (double)nbins / (kmax - kmin) : 0.0;
+    int64_t *start = (int64_t *)calloc(nbins + 2, sizeof(int64_t));
+    Cand *sorted = (Cand *)malloc(K * sizeof(Cand));
+    if (!start || !sorted) { free(start); free(sorted); return -1; }
+    for (int64_t i = 0; i < K; i++) {
+        int64_t b = (int64_t)((st->cand[i].key - kmin) * scale);
+        b = b >= nbins ? nbins - 1 : (b < 0 ? 0 : b);
+        start[b + 1]++;
+    }
+    for (int64_t b = 0; b < nbins; b++) start[b + 1] += start[b];
+    /* place: reuse start[] shifted (start[b] = first slot of bucket b; after placing, start[b] = end of b) */
+    for (int64_t i = 0; i < K; i++) {
+        int64_t b = (int64_t)((st->cand[i].key - kmin) * scale);
+        b = b >= nbins ? nbins - 1 : (b < 0 ? 0 : b);
+        sorted[start[b]++] = st->cand[i];
+    }
+    /* now start[b] = end of bucket b = begin of bucket b + 1 */
+    int rc = 0;
+    int64_t begin = 0;
+    for (int64_t b = 0; b < nbins; b++) {
+        int64_t end = start[b], n = 0, F0 = st->F;
+        for (int64_t i = begin; i < end; i++) {
+            const Cand *cd = sorted + i;
+            if (sphere_cut_by(st->pn, st->pb, 0, st->F, cd->mu, cd->amax, st->r)) continue;
+            Ell E;
+            load_ell(&E, cd->id, cd->mu, st->rots, st->radii, st->f32);
+            if (exact_cut_by(st->pn, st->pb, 0, st->F, &E, st->r)) continue;
+            double nrm[3], off;
+            double slack = plane_for(&E, st->seeds, st->S, st->r, st->mode, st->margin, nrm, &off);
+            if (st->require_inside && !(slack >= 0)) {
+                if (st->nbad == st->bcap) {
+                    int64_t nc = st->bcap * 2;
+                    int64_t *a = (int64_t *)realloc(st->bid, nc * sizeof(int64_t));
+                    if (!a) { rc = -1; goto out; }
+                    st->bid = a;
+                    double *bb = (double *)realloc(st->bsl, nc * sizeof(double));
+                    if (!bb) { rc = -1; goto out; }
+                    st->bsl = bb;
+                    st->bcap = nc;
+                }
+                st->bid[st->nbad] = cd->id;
+                st->bsl[st->nbad] = slack;
+                st->nbad++;
+                continue;
+            }
+            if (n == st->ccap) {
+                Plane *a = (Plane *)realloc(st->chunk, 2 * st->ccap * sizeof(Plane));
+                if (!a) { rc = -1; goto out; }
+                st->chunk = a;
+                st->ccap *= 2;
+            }
+            Plane *pl = st->chunk + n++;
+            pl->id = cd->id;
+            pl->c = i;
+            pl->slack = slack;
+            pl->off = off;
+            pl->n[0] = nrm[0]; pl->n[1] = nrm[1]; pl->n[2] = nrm[2];
+        }
+        if (n > 1) qsort(st->chunk, n, sizeof(Plane), cmp_plane);
+        for (int64_t j = 0; j < n; j++) {
+            const Plane *pl = st->chunk + j;
+            const Cand *cd = sorted + pl->c;
+            if (st->F > F0) {
+                if (sphere_cut_by(st->pn, st->pb, F0, st->F, cd->mu, cd->amax, st->r)) continue;
+                Ell E;
+                load_ell(&E, cd->id, cd->mu, st->rots, st->radii, st->f32);
+                if (exact_cut_by(st->pn, st->pb, F0, st->F, &E, st->r)) continue;
+            }
+            if (st->F == st->pcap) {
+                int64_t nc = st->pcap * 2;
+                double *a1 = (double *)realloc(st->pn, nc * 3 * sizeof(double));
+                if (!a1) { rc = -1; goto out; }
+                st->pn = a1;
+                double *a2 = (double *)realloc(st->pb, nc * sizeof(double));
+                if (!a2) { rc = -1; goto out; }
+                st->pb = a2;
+                int64_t *a3 = (int64_t *)realloc(st->pid, nc * sizeof(int64_t));
+                if (!a3) { rc = -1; goto out; }
+                st->pid = a3;
+                st->pcap = nc;
+            }
+            st->pn[3 * st->F] = pl->n[0]; st->pn[3 * st->F + 1] = pl->n[1]; st->pn[3 * st->F + 2] = pl->n[2];
+            st->pb[st->F] = pl->off;
+            st->pid[st->F] = pl->id;
+            st->F++;
+        }
+        begin = end;
+    }
+out:
+    free(start);
+    free(sorted);
+    st->K = 0;
+    return rc;
+}
+
+/* Returns the number of planes F (>= 0), or a negative status: -1 out of memory, -2 an output buffer of ``cap``
+   rows is too small (info[2] = rows needed). info (out, int64[4]): n bad ellipsoids, n candidates decided, rows
+   needed, index entries visited. box_rot: NULL or a row-major [3, 3] whose columns are the box axes (the box is
+   lo <= R^T x <= hi). mode: 0 auto, 1 prop2, 2 mahalanobis, 3 closest. near_fraction: the first pass gathers the
+   ellipsoids near the seeds (their bounding box grown by near_fraction x the seeds' smallest distance to the box's
+   faces), the second pass every other one of the box in index cells that no plane kept by then culls (<= 0: one
+   pass). */
+int64_t cn_safe_polytope(
+    const void *means, const void *rots, const void *radii, const float *pack, int32_t f32,
+    const double *origin, int32_t n_levels, const double *cells, const int64_t *dims,
+    const int64_t *const *offsets, const int64_t *const *ids, double pad,
+    const double *seeds, int32_t S, const double *box_lo, const double *box_hi, const double *box_rot,
+    double r, double margin, int32_t mode, int32_t require_inside, double near_fraction,
+    int64_t cap, double *out_n, double *out_b, int64_t *out_id, int64_t *bad_id, double *bad_slack, int64_t *info) {
+    info[0] = info[1] = info[2] = info[3] = 0;
+    State st;
+    memset(&st, 0, sizeof st);
+    st.means = means; st.rots = rots; st.radii = radii; st.pack = pack; st.f32 = f32;
+    st.origin = origin; st.cells = cells; st.dims = dims; st.offsets = offsets; st.ids = ids; st.n_levels = n_levels;
+    st.seeds = seeds; st.S = S; st.box_lo = box_lo; st.box_hi = box_hi; st.mode = mode;
+    st.require_inside = require_inside; st.r = r; st.margin = margin;
+    double I[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+    memcpy(st.Rb, box_rot ? box_rot : I, sizeof st.Rb);
+    const double *Rb = st.Rb;
+    /* world AABB of the box, grown by e = max(r - pad, 0): the padded AABB grown by e holds the inflated body */
+    double bc[3], bh[3], qlo[3], qhi[3];
+    for (int i = 0; i < 3; i++) { bc[i] = 0.5 * (box_lo[i] + box_hi[i]); bh[i] = 0.5 * (box_hi[i] - box_lo[i]); }
+    st.e = fmax(r - pad, 0.0) * (1.0 + 1e-9);
+    for (int i = 0; i < 3; i++) {
+        double c = Rb[3 * i] * bc[0] + Rb[3 * i + 1] * bc[1] + Rb[3 * i + 2] * bc[2];
+        double h = fabs(Rb[3 * i]) * bh[0] + fabs(Rb[3 * i + 1]) * bh[1] + fabs(Rb[3 * i + 2]) * bh[2];
+        qlo[i] = c - h - st.e;
+        qhi[i] = c + h + st.e;
+    }
+    /* the box's own 6 planes (world normals = +-box axes) cull cells outside an oriented box */
+    double box_n[6 * 3], box_b[6];
+    for (int a = 0; a < 3; a++) {
+        for (int i = 0; i < 3; i++) { box_n[3 * a + i] = Rb[3 * i + a]; box_n[3 * (a + 3) + i] = -Rb[3 * i + a]; }
+        box_b[a] = box_hi[a];
+        box_b[a + 3] = -box_lo[a];
+    }
+    st.kcap = 1024; st.pcap = 256; st.bcap = 64; st.ccap = 64;
+    st.cand = (Cand *)malloc(st.kcap * sizeof(Cand));
+    st.pn = (double *)malloc(st.pcap * 3 * sizeof(double));
+    st.pb = (double *)malloc(st.pcap * sizeof(double));
+    st.pid = (int64_t *)malloc(st.pcap * sizeof(int64_t));
+    st.bid = (int64_t *)malloc(st.bcap * sizeof(int64_t));
+    st.bsl = (double *)malloc(st.bcap * sizeof(double));
+    st.chunk = (Plane *)malloc(st.ccap * sizeof(Plane));
+    int64_t status = -1, decided = 0;
+    double *cull_n = NULL, *cull_b = NULL;
+    if (!st.cand || !st.pn || !st.pb || !st.pid || !st.bid || !st.bsl || !st.chunk) goto done;
+    /* pass 1: near the seeds */
+    double rho = INFINITY, nlo[3], nhi[3];
+    for (int s = 0; s < S; s++)
+        for (int i = 0; i < 3; i++) {
+            double p = Rb[i] * seeds[3 * s] + Rb[3 + i] * seeds[3 * s + 1] + Rb[6 + i] * seeds[3 * s + 2];
+            rho = fmin(rho, fmin(p - box_lo[i], box_hi[i] - p));
+        }
+    int two = near_fraction > 0 && isfinite(rho) && rho > 0;
+    if (two) {
+        rho *= near_fraction;
+        for (int i = 0; i < 3; i++) {
+            nlo[i] = fmin(seeds[i], seeds[3 * (S - 1) + i]) - rho;
+            nhi[i] = fmax(seeds[i], seeds[3 * (S - 1) + i]) + rho;
+            nlo[i] = fmax(nlo[i], qlo[i]);
+            nhi[i] = fmin(nhi[i], qhi[i]);
+        }
+        if (gather(&st, nlo, nhi, NULL, NULL, NULL, NULL, 0)) goto done;
+        decided += st.K;
+        if (decide(&st)) goto done;
+    }
+    /* pass 2 (or the only pass): the rest of the box, in cells not culled by the box's planes or the kept ones */
+    cull_n = (double *)malloc((6 + st.F) * 3 * sizeof(double));
+    cull_b = (double *)malloc((6 + st.F) * sizeof(double));
+    if (!cull_n || !cull_b) goto done;
+    memcpy(cull_n, box_n, sizeof box_n);
+    memcpy(cull_b, box_b, sizeof box_b);
+    memcpy(cull_n + 18, st.pn, 3 * st.F * sizeof(double));
+    memcpy(cull_b + 6, st.pb, st.F * sizeof(double));
+    if (gather(&st, qlo, qhi, two ? nlo : NULL, two ? nhi : NULL, cull_n, cull_b, 6 + st.F)) goto done;
+    decided += st.K;
+    if (decide(&st)) goto done;
+    /* a bad ellipsoid (no plane of its own keeps the seeds) is fatal only if no kept plane cuts it off */
+    {
+        int64_t nb2 = 0;
+        for (int64_t i = 0; i < st.nbad; i++) {
+            Ell E;
+            int64_t g = st.bid[i];
+            double bm[3] = {ld(means, 3 * g, f32), ld(means, 3 * g + 1, f32), ld(means, 3 * g + 2, f32)};
+            load_ell(&E, g, bm, rots, radii, f32);
+            if (!exact_cut_by(st.pn, st.pb, 0, st.F, &E, r)) { st.bid[nb2] = g; st.bsl[nb2] = st.bsl[i]; nb2++; }
+        }
+        st.nbad = nb2;
+    }
+    info[0] = st.nbad;
+    info[1] = decided;
+    info[2] = st.F > st.nbad ? st.F : st.nbad;
+    info[3] = st.visited;
+    if (st.F > cap || st.nbad > cap) { status = -2; goto done; }
+    memcpy(out_n, st.pn, 3 * st.F * sizeof(double));
+    memcpy(out_b, st.pb, st.F * sizeof(double));
+    memcpy(out_id, st.pid, st.F * sizeof(int64_t));
+    memcpy(bad_id, st.bid, st.nbad * sizeof(int64_t));
+    memcpy(bad_slack, st.bsl, st.nbad * sizeof(double));
+    status = st.F;
+done:
+    free(st.cand); free(st.pn); free(st.pb); free(st.pid); free(st.bid); free(st.bsl); free(st.chunk);
+    free(cull_n); free(cull_b);
+    return status;
+}
