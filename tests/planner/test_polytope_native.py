@@ -164,3 +164,40 @@ def test_native_segment_tangent_to_elongated_ellipsoid():
     P = safe_polytope(seg, scene, GridIndex.build(scene), seg.min(0) - 0.2, seg.max(0) + 0.2, backend="native")
     assert bool(P.contains(seg).all())
 
+
+
+@settings(**SETTINGS)
+@given(seed=st.integers(0, 2**31 - 1), dtype=st.sampled_from([torch.float32, torch.float64]),
+       cell=st.sampled_from([None, 0.04, 0.25]), pad=st.sampled_from([None, 0.0]), per_point=st.booleans())
+def test_native_points_collide_is_conservative_and_matches_python(seed, dtype, cell, pad, per_point):
+    """cn_points_collide: never "free" when the exact clearance (float64 brute force) is negative, and the same
+    answer as the Python points_collide (same pair rule) away from the 1e-6 decision margin."""
+    from cinenerf_ns.planner.collision import points_collide
+
+    rng = np.random.default_rng(seed)
+    scene = random_scene(rng, 200, amin=0.005, amax=0.12, camera_radius=0.03).to(dtype=dtype)
+    idx = GridIndex.build(scene, cell_size=cell, pad=pad)
+    pts = rng.uniform(-1.1, 1.1, (400, 3))
+    rad = torch.as_tensor(rng.uniform(0.0, 0.08, len(pts))) if per_point else None
+    hit_n = points_collide(torch.as_tensor(pts), scene, idx, radius=rad, backend="native").numpy()
+    hit_p = points_collide(torch.as_tensor(pts), scene, idx, radius=rad, backend="python").numpy()
+    s64 = scene.to(dtype=torch.float64)
+    from _corridor_refs import point_ellipsoid_distance
+
+    r = (np.full(len(pts), s64.camera_radius) if rad is None else rad.numpy())
+    exact = point_ellipsoid_distance(pts, s64).min(1) - r  # [P]
+    assert hit_n[exact < 0].all()  # conservative
+    clear = np.abs(exact) > 1e-4
+    assert (hit_n[clear] == hit_p[clear]).all()
+    assert (~hit_n).sum() > 0 and hit_n.sum() > 0  # both answers occur in these scenes
+
+
+def test_native_points_collide_refusals():
+    from cinenerf_ns.planner.collision import points_collide
+
+    rng = np.random.default_rng(0)
+    scene = random_scene(rng, 20, amin=0.01, amax=0.05, camera_radius=0.03)
+    with pytest.raises(InvalidInputError, match="backend"):
+        points_collide(torch.zeros(1, 3), scene, GridIndex.build(scene), backend="fast")
+    with pytest.raises(RuntimeError, match="does not apply"):
+        points_collide(torch.zeros(1, 3), scene, None, backend="native")

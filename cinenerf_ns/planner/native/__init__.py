@@ -144,3 +144,13 @@ def safe_polytope_c():
          _F64, _F64, _I32, _I32, _F64,  # camera radius, margin, normal rule, seed must be inside, near fraction
          _I64, _P, _P, _P, _P, _P, _P],  # cap, planes n, b, ids, bad ids, bad slacks, info
         _I64)
+
+
+def points_collide_c():
+    """The compiled Corollary-1 point test (polytope.c: cn_points_collide), or None."""
+    return _function(
+        "polytope", "cn_points_collide",
+        [_P, _P, _P, _P, _I32,  # scene: means, rotations, radii, packed rows [N, 12] float32, float32 flag
+         _P, _I32, _P, _P, _P, _P, _F64,  # index: origin, levels, cells, dims, offsets*, ids*, pad
+         _P, _P, _I64, _F64, _P],  # points [P, 3], radii [P], P, margin, hit [P] uint8 (out)
+        _I64)

@@ -623,3 +623,111 @@ done:
     free(cull_n); free(cull_b);
     return status;
 }
+
+/* ------------------------------------------------------------------ point tests (collision.points_collide) */
+/* Corollary 1: K(s) = sum_i w_i^2 s (1 - s) / (s r^2 + (1 - s) a_i^2) */
+static double k_cor1(const double w[3], const double a[3], double r2, double s) {
+    double v = 0.0;
+    for (int i = 0; i < 3; i++) v += s * (1.0 - s) * w[i] * w[i] / (s * r2 + (1.0 - s) * a[i] * a[i]);
+    return v;
+}
+
+static double sigmoid(double u) { return 1.0 / (1.0 + exp(-u)); }
+
+/* collision.maximize_concave for Corollary 1: 17 samples of u = logit(s) on [-16, 16], then 24 golden-section
+   steps in the best bracket; returns the best TRUE value of K seen (a lower bound of the maximum) */
+static double max_k_cor1(const double w[3], const double a[3], double r) {
+    const double UMAX = 16.0, G = (sqrt(5.0) - 1.0) / 2.0;
+    const int NG = 17;
+    double r2 = r * r, best_k = -INFINITY, best_u = 0.0;
+    for (int j = 0; j < NG; j++) {
+        double u = -UMAX + 2.0 * UMAX * (double)j / (double)(NG - 1);
+        double k = k_cor1(w, a, r2, sigmoid(u));
+        if (isnan(k)) k = -INFINITY;
+        if (k > best_k) { best_k = k; best_u = u; }
+    }
+    double step = 2.0 * UMAX / (double)(NG - 1), lo = best_u - step, hi = best_u + step;
+    double x1 = hi - G * (hi - lo), x2 = lo + G * (hi - lo);
+    double f1 = k_cor1(w, a, r2, sigmoid(x1)), f2 = k_cor1(w, a, r2, sigmoid(x2));
+    for (int it = 0; it < 24; it++) {
+        if (f1 >= f2) {
+            hi = x2;
+            double nx = hi - G * (hi - lo), fn = k_cor1(w, a, r2, sigmoid(nx));
+            x2 = x1; f2 = f1; x1 = nx; f1 = fn;
+        } else {
+            lo = x1;
+            double nx = lo + G * (hi - lo), fn = k_cor1(w, a, r2, sigmoid(nx));
+            x1 = x2; f1 = f2; x2 = nx; f2 = fn;
+        }
+        if (f1 > best_k) best_k = f1;
+        if (f2 > best_k) best_k = f2;
+    }
+    return best_k;
+}
+
+/* 1 unless the ball (centre p, radius r) is proven clear of the ellipsoid (collision.points_collide's pair rule:
+   sure collisions first, then one K evaluation at the support-direction s, then the full maximisation) */
+static int pair_collides(const double p[3], double r, const Ell *E, double margin) {
+    double d[3] = {p[0] - E->mu[0], p[1] - E->mu[1], p[2] - E->mu[2]}, w[3];
+    for (int i = 0; i < 3; i++) w[i] = E->R[i] * d[0] + E->R[3 + i] * d[1] + E->R[6 + i] * d[2];
+    double m2 = 0.0, wn2 = 0.0;
+    for (int i = 0; i < 3; i++) { m2 += (w[i] / E->a[i]) * (w[i] / E->a[i]); wn2 += w[i] * w[i]; }
+    double m = sqrt(m2), wn = sqrt(wn2);
+    if (m <= 1.0 || wn * (1.0 - 1.0 / fmax(m, 1e-300)) <= r) return 1;  /* inside, or the radial point within r */
+    double h2 = 0.0, nn = fmax(wn, 1e-300);
+    for (int i = 0; i < 3; i++) h2 += (E->a[i] * w[i] / nn) * (E->a[i] * w[i] / nn);
+    double h = sqrt(h2), s0 = fmin(fmax(h / (h + r), 1e-12), 1.0 - 1e-12);
+    if (k_cor1(w, E->a, r * r, s0) > 1.0 + margin) return 0;
+    return !(max_k_cor1(w, E->a, r) > 1.0 + margin);
+}
+
+/* hit[p] = 1 unless the camera ball of radius rad[p] at point p is proven clear of every ellipsoid (candidates: the
+   index entries whose padded AABB meets the cube of half-width max(rad - pad, 0) around p, as
+   GridIndex.query_points). Returns 0, or -1 on bad input. */
+int64_t cn_points_collide(
+    const void *means, const void *rots, const void *radii, const float *pack, int32_t f32,
+    const double *origin, int32_t n_levels, const double *cells, const int64_t *dims,
+    const int64_t *const *offsets, const int64_t *const *ids, double pad,
+    const double *points, const double *rad, int64_t P, double margin, uint8_t *hit) {
+    for (int64_t q = 0; q < P; q++) {
+        const double *p = points + 3 * q;
+        double half = fmax(rad[q] - pad, 0.0), qlo[3], qhi[3];
+        for (int i = 0; i < 3; i++) { qlo[i] = p[i] - half; qhi[i] = p[i] + half; }
+        int collides = 0;
+        for (int L = 0; L < n_levels && !collides; L++) {
+            double cell = cells[L];
+            const int64_t *dm = dims + 3 * L;
+            int64_t clo[3], chi[3];
+            for (int i = 0; i < 3; i++) {
+                double a = floor((qlo[i] - origin[i]) / cell), b = floor((qhi[i] - origin[i]) / cell);
+                clo[i] = (int64_t)fmin(fmax(a, 0.0), (double)(dm[i] - 1));
+                chi[i] = (int64_t)fmin(fmax(b, 0.0), (double)(dm[i] - 1));
+            }
+            const int64_t *off = offsets[L], *lid = ids[L];
+            for (int64_t x = clo[0]; x <= chi[0] && !collides; x++)
+                for (int64_t y = clo[1]; y <= chi[1] && !collides; y++)
+                    for (int64_t z = clo[2]; z <= chi[2] && !collides; z++) {
+                        int64_t cell_at[3] = {x, y, z}, lin = (x * dm[1] + y) * dm[2] + z;
+                        for (int64_t k = off[lin]; k < off[lin + 1]; k++) {
+                            int64_t g = lid[k];
+                            const float *pk = pack + 12 * g;
+                            if (!pack_meets(pk, qlo, qhi)) continue;
+                            int dup = 0;  /* the copy in the previous cell along an axis is visited (gather) */
+                            for (int i = 0; i < 3 && !dup; i++) {
+                                if (cell_at[i] > clo[i]) {
+                                    double face = origin[i] + (double)cell_at[i] * cell;
+                                    if ((double)pk[i] < face - 1e-6 * (cell + fabs(face))) dup = 1;
+                                }
+                            }
+                            if (dup) continue;
+                            Ell E;
+                            double mu[3] = {ld(means, 3 * g, f32), ld(means, 3 * g + 1, f32), ld(means, 3 * g + 2, f32)};
+                            load_ell(&E, g, mu, rots, radii, f32);
+                            if (pair_collides(p, rad[q], &E, margin)) { collides = 1; break; }
+                        }
+                    }
+        }
+        hit[q] = (uint8_t)collides;
+    }
+    return 0;
+}
