@@ -46,6 +46,7 @@ from .shot import Shot
 from .spatial_index import GridIndex
 from .timing import TimingConfig
 from .trajectory import TrajectoryConfig, solve_corridor_qp
+from .native import grid_polytope_c as native_grid_polytope
 from .native import search26 as native_search26
 from .workers import CandidatePool, default_workers, in_worker, pool_for, validate_workers
 
@@ -257,6 +258,7 @@ class Planner:
         # compile / load the compiled path search and polytope now (cached on disk after the first time), before
         # candidate worker processes fork: they inherit them instead of each loading them on first use
         native_search26()
+        native_grid_polytope()
         prepare_native_polytope(self.scene, index)
         t6 = time.perf_counter()
         if not (~grid.occupied).any():

@@ -110,8 +110,10 @@ def _extent(A, b, axis, sgn) -> float:
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(st.integers(0, 10_000), st.sampled_from([0.1, 0.25, 0.4]))
-def test_grid_polytope_holds_the_segment_and_meets_no_occupied_voxel(seed, fill):
+@given(st.integers(0, 10_000), st.sampled_from([0.1, 0.25, 0.4]), st.sampled_from(["python", "auto"]))
+def test_grid_polytope_holds_the_segment_and_meets_no_occupied_voxel(seed, fill, backend):
+    """Both the Python construction and (auto) the compiled one (native/gridpoly.c), which must give the same
+    planes."""
     case = _random_case(seed, fill)
     if case is None:
         return
@@ -119,7 +121,14 @@ def test_grid_polytope_holds_the_segment_and_meets_no_occupied_voxel(seed, fill)
     if not segments_in_free_voxels(occ, np.zeros(3), 1.0, a[None], c[None])[0]:
         return  # callers only ask for segments the voxel walk proves to lie in free voxels
     planes = grid_polytope_planes(surface_voxels(occ), a, c, np.minimum(a, c) - margin_box,
-                                  np.maximum(a, c) + margin_box, 1e-9)
+                                  np.maximum(a, c) + margin_box, 1e-9, backend=backend)
+    ref = grid_polytope_planes(surface_voxels(occ), a, c, np.minimum(a, c) - margin_box,
+                               np.maximum(a, c) + margin_box, 1e-9, backend="python")
+    assert (planes is None) == (ref is None)
+    if planes is not None:
+        assert planes[0].shape == ref[0].shape
+        np.testing.assert_allclose(planes[0], ref[0], atol=1e-12)
+        np.testing.assert_allclose(planes[1], ref[1], atol=1e-12)
     if planes is None:  # allowed only when the segment comes within the margin of a surface cube
         _, _, dist = segment_box_closest(a, c, np.argwhere(surface_voxels(occ)).astype(float))
         assert dist.min() <= 1e-9

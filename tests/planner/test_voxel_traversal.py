@@ -87,8 +87,10 @@ def point_in_free_voxel(p, occ, tol=1e-9):
 
 
 @settings(**SETTINGS)
-@given(seed=st.integers(0, 2**31 - 1), density=st.floats(0.0, 0.4), snap=st.booleans())
-def test_grid_proof_is_never_optimistic_and_tight(seed, density, snap):
+@given(seed=st.integers(0, 2**31 - 1), density=st.floats(0.0, 0.4), snap=st.booleans(),
+       backend=st.sampled_from(["python", "auto"]))
+def test_grid_proof_is_never_optimistic_and_tight(seed, density, snap, backend):
+    """Both the Python walk and (auto) the compiled one (native/gridpoly.c) where it loads."""
     rng = np.random.default_rng(seed)
     occ = rng.random((7, 6, 5)) < density
     lo, vs = np.array([-0.3, 0.2, 1.0]), 0.25
@@ -99,7 +101,8 @@ def test_grid_proof_is_never_optimistic_and_tight(seed, density, snap):
         u0 = np.round(u0 * 2) / 2
         u1 = np.round(u1 * 2) / 2
     p0, p1 = lo + vs * u0, lo + vs * u1
-    got = segments_in_free_voxels(occ, lo, vs, p0, p1)
+    got = segments_in_free_voxels(occ, lo, vs, p0, p1, backend=backend)
+    assert (got == segments_in_free_voxels(occ, lo, vs, p0, p1, backend="python")).all()  # the same probes
     for i in range(P):
         ref_vox = exact_voxels(u0[i], u1[i])
         free_ref = all(all(0 <= v[k] < occ.shape[k] for k in range(3)) and not occ[v] for v in ref_vox)

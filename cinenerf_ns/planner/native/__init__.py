@@ -154,3 +154,13 @@ def points_collide_c():
          _P, _I32, _P, _P, _P, _P, _F64,  # index: origin, levels, cells, dims, offsets*, ids*, pad
          _P, _P, _I64, _F64, _P],  # points [P, 3], radii [P], P, margin, hit [P] uint8 (out)
         _I64)
+
+
+def segments_free_c():
+    """The compiled voxel walk (gridpoly.c: cn_segments_free), or None."""
+    return _function("gridpoly", "cn_segments_free", [_P, _P, _P, _F64, _P, _P, _I64, _F64, _P], _I64)
+
+
+def grid_polytope_c():
+    """The compiled grid polytope planes (gridpoly.c: cn_grid_polytope), or None."""
+    return _function("gridpoly", "cn_grid_polytope", [_P, _P, _P, _P, _P, _P, _F64, _I64, _P, _P], _I64)

@@ -1,0 +1,225 @@
+/* The occupancy grid's segment proofs and polytopes (voxel_traversal.py, grid_polytope.py), compiled.
+
+   cn_segments_free: voxel_traversal.segments_in_free_voxels for many segments (the same probes: the midpoint of
+   every piece between consecutive face crossings, each claiming every voxel within EPS of it), stopping at a
+   segment's first occupied probe voxel. cn_grid_polytope: grid_polytope.grid_polytope_planes (greedy, nearest
+   surface cube first with exact segment-to-cube closest points; cubes entirely beyond a kept plane dropped).
+   The proofs of safety are in those modules' docstrings; this file only repeats their arithmetic in C. */
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+static int cmp_double(const void *x, const void *y) {
+    double a = *(const double *)x, b = *(const double *)y;
+    return (a > b) - (a < b);
+}
+
+/* 1 when every probe voxel of the segment u0 -> u1 (voxel units) is inside the grid and free */
+static int segment_free(const uint8_t *occ, const int64_t *shape, const double u0[3], const double u1[3], double eps,
+                        double **buf, int64_t *cap) {
+    double d[3], lo[3], hi[3], first[3];
+    int64_t count[3], m = 0;
+    for (int a = 0; a < 3; a++) {
+        d[a] = u1[a] - u0[a];
+        lo[a] = fmin(u0[a], u1[a]);
+        hi[a] = fmax(u0[a], u1[a]);
+        first[a] = floor(lo[a]) + 1.0;
+        double c = ceil(hi[a]) - first[a];
+        count[a] = c > 0 ? (int64_t)c : 0;
+        m += count[a];
+    }
+    if (m + 2 > *cap) {
+        int64_t nc = 2 * (m + 2);
+        double *nb = (double *)realloc(*buf, nc * sizeof(double));
+        if (!nb) return -1;
+        *buf = nb;
+        *cap = nc;
+    }
+    double *t = *buf;
+    int64_t n = 0;
+    t[n++] = 0.0;
+    for (int a = 0; a < 3; a++)
+        for (int64_t j = 0; j < count[a]; j++) t[n++] = fmin(fmax((first[a] + (double)j - u0[a]) / d[a], 0.0), 1.0);
+    t[n++] = 1.0;
+    qsort(t, n, sizeof(double), cmp_double);
+    for (int64_t j = 0; j + 1 < n; j++) {
+        double tm = 0.5 * (t[j] + t[j + 1]);
+        int64_t va[3], vb[3];
+        for (int a = 0; a < 3; a++) {
+            double u = u0[a] + tm * d[a];
+            va[a] = (int64_t)floor(u - eps);
+            vb[a] = (int64_t)floor(u + eps);
+        }
+        for (int c = 0; c < 8; c++) {
+            int64_t v[3] = {c & 4 ? vb[0] : va[0], c & 2 ? vb[1] : va[1], c & 1 ? vb[2] : va[2]};
+            if (v[0] < 0 || v[1] < 0 || v[2] < 0 || v[0] >= shape[0] || v[1] >= shape[1] || v[2] >= shape[2]) return 0;
+            if (occ[(v[0] * shape[1] + v[1]) * shape[2] + v[2]]) return 0;
+        }
+    }
+    return 1;
+}
+
+/* out[i] = 1 when segment p0[i] -> p1[i] (world, [P, 3]) lies in free voxels of occ ([X, Y, Z] uint8, voxel v spans
+   lo + vs [v, v + 1]). Returns 0, or -1 out of memory. */
+int64_t cn_segments_free(const uint8_t *occ, const int64_t *shape, const double *lo, double vs, const double *p0,
+                         const double *p1, int64_t P, double eps, uint8_t *out) {
+    int64_t cap = 64;
+    double *buf = (double *)malloc(cap * sizeof(double));
+    if (!buf) return -1;
+    for (int64_t i = 0; i < P; i++) {
+        double u0[3], u1[3];
+        for (int a = 0; a < 3; a++) {
+            u0[a] = (p0[3 * i + a] - lo[a]) / vs;
+            u1[a] = (p1[3 * i + a] - lo[a]) / vs;
+        }
+        int r = segment_free(occ, shape, u0, u1, eps, &buf, &cap);
+        if (r < 0) { free(buf); return -1; }
+        out[i] = (uint8_t)r;
+    }
+    free(buf);
+    return 0;
+}
+
+/* grid_polytope.segment_box_closest for one cube [v, v + 1]: closest points q (segment), p (cube), distance */
+static double seg_cube_closest(const double u0[3], const double d[3], const double v[3], double q[3], double p[3]) {
+    double T[8];
+    int n = 0;
+    T[n++] = 0.0;
+    T[n++] = 1.0;
+    for (int a = 0; a < 3; a++) {
+        for (int s = 0; s < 2; s++) {
+            double tb = (v[a] + (double)s - u0[a]) / d[a];
+            T[n++] = isfinite(tb) ? fmin(fmax(tb, 0.0), 1.0) : 0.0;
+        }
+    }
+    qsort(T, 8, sizeof(double), cmp_double);
+    double cand[15];
+    int nc = 0;
+    for (int j = 0; j < 8; j++) cand[nc++] = T[j];
+    for (int j = 0; j < 7; j++) {
+        double mid = 0.5 * (T[j] + T[j + 1]), c[3], dd[3], den = 0.0, num = 0.0;
+        for (int a = 0; a < 3; a++) {
+            double qm = u0[a] + mid * d[a];
+            int active = qm < v[a] || qm > v[a] + 1.0;
+            double bnd = qm < v[a] ? v[a] : v[a] + 1.0;
+            c[a] = active ? u0[a] - bnd : 0.0;
+            dd[a] = active ? d[a] : 0.0;
+            den += dd[a] * dd[a];
+            num += c[a] * dd[a];
+        }
+        double ts = den > 0 ? -num / den : mid;
+        cand[nc++] = fmin(fmax(ts, T[j]), T[j + 1]);
+    }
+    double best = INFINITY;
+    for (int k = 0; k < nc; k++) {
+        double qq[3], pp[3], f = 0.0;
+        for (int a = 0; a < 3; a++) {
+            qq[a] = u0[a] + cand[k] * d[a];
+            pp[a] = fmin(fmax(qq[a], v[a]), v[a] + 1.0);
+            f += (qq[a] - pp[a]) * (qq[a] - pp[a]);
+        }
+        if (f < best) {  /* first minimum, like numpy's argmin */
+            best = f;
+            memcpy(q, qq, sizeof qq);
+            memcpy(p, pp, sizeof pp);
+        }
+    }
+    return sqrt(best);
+}
+
+typedef struct {
+    double lb, v[3];
+    int64_t order;  /* position in the scan: ties keep the scan order (numpy's stable argsort) */
+} Cube;
+
+static int cmp_cube(const void *x, const void *y) {
+    const Cube *a = (const Cube *)x, *b = (const Cube *)y;
+    if (a->lb != b->lb) return (a->lb > b->lb) - (a->lb < b->lb);
+    return (a->order > b->order) - (a->order < b->order);
+}
+
+/* grid_polytope_planes: writes the planes after the box's 6 (n [F, 3], b [F], voxel units) and returns F (the
+   count after the box's), -3 for None (segment within margin of a surface cube, or rounding broke a plane; the
+   caller must build a Prop-2 polytope), -2 when more than cap planes are needed, -1 out of memory.
+   blo/bhi: the box, already clipped to the grid and holding the segment (checked by the caller). */
+int64_t cn_grid_polytope(const uint8_t *surface, const int64_t *shape, const double *u0, const double *u1,
+                         const double *blo, const double *bhi, double margin, int64_t cap, double *out_n,
+                         double *out_b) {
+    int64_t a0[3], e0[3];
+    for (int i = 0; i < 3; i++) {
+        int64_t a = (int64_t)ceil(blo[i]) - 1, e = (int64_t)floor(bhi[i]) + 1;
+        a0[i] = a > 0 ? a : 0;
+        e0[i] = e < shape[i] ? e : shape[i];
+    }
+    double d[3] = {u1[0] - u0[0], u1[1] - u0[1], u1[2] - u0[2]};
+    double dd = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+    int64_t K = 0, kcap = 256;
+    Cube *cubes = (Cube *)malloc(kcap * sizeof(Cube));
+    if (!cubes) return -1;
+    for (int64_t x = a0[0]; x < e0[0]; x++)
+        for (int64_t y = a0[1]; y < e0[1]; y++)
+            for (int64_t z = a0[2]; z < e0[2]; z++) {
+                if (!surface[(x * shape[1] + y) * shape[2] + z]) continue;
+                if (K == kcap) {
+                    Cube *nc = (Cube *)realloc(cubes, 2 * kcap * sizeof(Cube));
+                    if (!nc) { free(cubes); return -1; }
+                    cubes = nc;
+                    kcap *= 2;
+                }
+                Cube *c = cubes + K;
+                c->v[0] = (double)x; c->v[1] = (double)y; c->v[2] = (double)z;
+                double cen[3] = {c->v[0] + 0.5, c->v[1] + 0.5, c->v[2] + 0.5}, t = 0.0, dist2 = 0.0;
+                if (dd > 0)
+                    t = fmin(fmax(((cen[0] - u0[0]) * d[0] + (cen[1] - u0[1]) * d[1] + (cen[2] - u0[2]) * d[2]) / dd, 0.0),
+                             1.0);
+                for (int i = 0; i < 3; i++) {
+                    double r = u0[i] + t * d[i] - cen[i];
+                    dist2 += r * r;
+                }
+                c->lb = sqrt(dist2) - 0.5 * sqrt(3.0);
+                c->order = K;
+                K++;
+            }
+    qsort(cubes, K, sizeof(Cube), cmp_cube);
+    double *dist = (double *)malloc((K ? K : 1) * sizeof(double));
+    double *qs = (double *)malloc((K ? K : 1) * 3 * sizeof(double)), *ps = (double *)malloc((K ? K : 1) * 3 * sizeof(double));
+    uint8_t *alive = (uint8_t *)malloc(K ? K : 1);
+    int64_t F = 0, status;
+    if (!dist || !qs || !ps || !alive) { status = -1; goto done; }
+    for (int64_t i = 0; i < K; i++) { dist[i] = NAN; alive[i] = 1; }
+    for (;;) {
+        /* the nearest alive cube, exactly: lower bounds in ascending order stop the scan */
+        int64_t best = -1;
+        for (int64_t i = 0; i < K; i++) {
+            if (!alive[i]) continue;
+            if (best >= 0 && dist[best] <= cubes[i].lb) break;
+            if (isnan(dist[i])) dist[i] = seg_cube_closest(u0, d, cubes[i].v, qs + 3 * i, ps + 3 * i);
+            if (best < 0 || dist[i] < dist[best]) best = i;
+        }
+        if (best < 0) break;
+        if (dist[best] <= margin) { status = -3; goto done; }
+        double n[3], neg = 0.0, nv = 0.0;
+        for (int a = 0; a < 3; a++) {
+            n[a] = (ps[3 * best + a] - qs[3 * best + a]) / dist[best];
+            neg += fmin(n[a], 0.0);
+            nv += n[a] * cubes[best].v[a];
+        }
+        double off = nv + neg - margin;  /* min over the cube of n.y, minus the margin */
+        double s0 = n[0] * u0[0] + n[1] * u0[1] + n[2] * u0[2], s1 = n[0] * u1[0] + n[1] * u1[1] + n[2] * u1[2];
+        if (fmax(s0, s1) > off) { status = -3; goto done; }
+        if (F == cap) { status = -2; goto done; }
+        memcpy(out_n + 3 * F, n, sizeof n);
+        out_b[F] = off;
+        F++;
+        for (int64_t i = 0; i < K; i++) {
+            if (!alive[i]) continue;
+            const double *v = cubes[i].v;
+            if (v[0] * n[0] + v[1] * n[1] + v[2] * n[2] + neg >= off) alive[i] = 0;
+        }
+    }
+    status = F;
+done:
+    free(cubes); free(dist); free(qs); free(ps); free(alive);
+    return status;
+}
