@@ -226,33 +226,16 @@ def pairs_free(w: Tensor, radii: Tensor, r: Tensor, margin: float = DEFAULT_MARG
     return free
 
 
-def _native_points_fn(scene: EllipsoidScene, index):
-    """native.points_collide_c() when the compiled point test applies (CPU scene, GridIndex on the CPU), else None."""
-    if index is None or not hasattr(index, "levels") or scene.means.device.type != "cpu" or index.device.type != "cpu":
-        return None
-    if scene.means.dtype not in (torch.float32, torch.float64):
-        return None
-    from .native import points_collide_c
-
-    return points_collide_c()
-
-
 def _native_points_collide(fn, scene: EllipsoidScene, index, pts: Tensor, rad: Tensor, margin: float) -> Tensor:
     """points_collide through native/polytope.c (float64 CPU points [P, 3], radii [P])."""
-    import ctypes
-
     import numpy as np
 
     from .polytope import _native_arrays
 
-    arr = _native_arrays(scene, index)
     p = np.ascontiguousarray(pts.cpu().numpy(), dtype=np.float64)
     rr = np.ascontiguousarray(rad.cpu().numpy(), dtype=np.float64)
     hit = np.zeros(p.shape[0], dtype=np.uint8)
-    fn(arr["means"].data_ptr(), arr["rots"].data_ptr(), arr["radii"].data_ptr(), arr["pack"].ctypes.data,
-       int(arr["means"].dtype == torch.float32), arr["origin"].data_ptr(), len(arr["cells"]), arr["cells"].ctypes.data,
-       arr["dims"].ctypes.data, ctypes.cast(arr["offsets"], ctypes.c_void_p), ctypes.cast(arr["ids"], ctypes.c_void_p),
-       float(index.pad), p.ctypes.data, rr.ctypes.data, p.shape[0], float(margin), hit.ctypes.data)
+    fn(*_native_arrays(scene, index)["args"], p.ctypes.data, rr.ctypes.data, p.shape[0], float(margin), hit.ctypes.data)
     return torch.from_numpy(hit.astype(bool)).to(pts.device)
 
 
@@ -270,23 +253,19 @@ def points_collide(
     backend: "auto" (the compiled test, native/polytope.c's cn_points_collide, for a CPU scene with a GridIndex
     on the CPU when it loads; the same pair rule below, one point at a time, stopping at its first collision),
     "native" (error if it does not apply) or "python"."""
-    if backend not in ("auto", "native", "python"):
-        raise InvalidInputError(f"points_collide backend must be 'auto', 'native' or 'python', got {backend!r}")
+    from .native import choose, points_collide_c
+    from .polytope import native_applies
+
+    fn = choose(backend, points_collide_c, "polytope", "point test", applies=native_applies(scene, index),
+                needs="a CPU scene and a GridIndex on the CPU")
     pts = _as_points(points, scene.device)
     P = pts.shape[0]
     rad = torch.as_tensor(scene.camera_radius if radius is None else radius, device=pts.device).double()
     rad = rad.expand(P) if rad.ndim == 0 else rad
     if rad.shape != (P,):
         raise InvalidInputError(f"radius must be a scalar or [P]={P}, got {tuple(rad.shape)}")
-    if backend != "python":
-        fn = _native_points_fn(scene, index)
-        if fn is not None:
-            return _native_points_collide(fn, scene, index, pts, rad, margin)
-        if backend == "native":
-            from .native import native_status
-
-            raise RuntimeError("the compiled point test does not apply here (it needs a CPU scene and a GridIndex on "
-                               f"the CPU) or did not load: {native_status().get('polytope', 'not loaded')}")
+    if fn is not None:
+        return _native_points_collide(fn, scene, index, pts, rad, margin)
     pi, gi = candidate_pairs(pts, scene, index, rad)
     hit = torch.zeros(P, dtype=torch.bool, device=pts.device)
     if pi.numel():

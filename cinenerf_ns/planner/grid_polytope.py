@@ -94,8 +94,9 @@ def grid_polytope_planes(
     the segment comes within ``margin`` (voxel units) of a surface cube or rounding breaks a plane.
     backend: "auto" (native/gridpoly.c's cn_grid_polytope, the same construction, when it loads), "native" or
     "python"."""
-    if backend not in ("auto", "native", "python"):
-        raise ValueError(f"grid_polytope_planes backend must be 'auto', 'native' or 'python', got {backend!r}")
+    from .native import choose, grid_polytope_c
+
+    fn = choose(backend, grid_polytope_c, "gridpoly", "grid polytope")
     shape = np.array(surface.shape)
     blo = np.clip(np.asarray(box_lo, dtype=np.float64), 0.0, shape.astype(np.float64))
     bhi = np.clip(np.asarray(box_hi, dtype=np.float64), 0.0, shape.astype(np.float64))
@@ -106,29 +107,23 @@ def grid_polytope_planes(
         return None
     A = [np.eye(3), -np.eye(3)]
     b = [bhi, -blo]
-    if backend != "python":
-        from .native import grid_polytope_c, native_status
-
-        fn = grid_polytope_c()
-        if fn is None and backend == "native":
-            raise RuntimeError(f"the compiled grid polytope did not load: {native_status().get('gridpoly', 'not loaded')}")
-        if fn is not None:
-            srf = np.ascontiguousarray(surface, dtype=bool)
-            shp = shape.astype(np.int64)
-            cap = 256
-            while True:
-                n_out, b_out = np.empty((cap, 3)), np.empty(cap)
-                F = int(fn(srf.ctypes.data, shp.ctypes.data, u0.ctypes.data, u1.ctypes.data, blo.ctypes.data,
-                           bhi.ctypes.data, float(margin), cap, n_out.ctypes.data, b_out.ctypes.data))
-                if F == -2:
-                    cap *= 4
-                    continue
-                break
-            if F == -3:
-                return None
-            if F < 0:
-                raise MemoryError("the compiled grid polytope ran out of memory")
-            return np.concatenate(A + [n_out[:F]]), np.concatenate(b + [b_out[:F]])
+    if fn is not None:
+        srf = np.ascontiguousarray(surface, dtype=bool)
+        shp = shape.astype(np.int64)
+        cap = 256
+        while True:
+            n_out, b_out = np.empty((cap, 3)), np.empty(cap)
+            F = int(fn(srf.ctypes.data, shp.ctypes.data, u0.ctypes.data, u1.ctypes.data, blo.ctypes.data,
+                       bhi.ctypes.data, float(margin), cap, n_out.ctypes.data, b_out.ctypes.data))
+            if F == -2:
+                cap *= 4
+                continue
+            break
+        if F == -3:
+            return None
+        if F < 0:
+            raise MemoryError("the compiled grid polytope ran out of memory")
+        return np.concatenate(A + [n_out[:F]]), np.concatenate(b + [b_out[:F]])
     # every cube meeting the CLOSED box, also one that only touches a face of it
     a = np.maximum(np.ceil(blo).astype(np.int64) - 1, 0)
     e = np.minimum(np.floor(bhi).astype(np.int64) + 1, shape)

@@ -349,25 +349,22 @@ def _cut_by(n: np.ndarray, b: np.ndarray, mu: np.ndarray, amax: np.ndarray, rot:
 
 
 # ---------------------------------------------------------------------------------------- compiled path
-NATIVE_STATS: dict = {}  # the last compiled call's counts (candidates, index entries visited, planes): for benchmarks
 _NORMAL_CODE = {"auto": 0, "prop2": 1, "mahalanobis": 2, "closest": 3}
 
 
-def _native_polytope_fn(scene, index, seeds: np.ndarray, prune: bool):
-    """native.safe_polytope_c() when the compiled path applies to this call (see safe_polytope's backend), else None."""
-    if not prune or seeds.shape[0] not in (1, 2) or index is None or not hasattr(index, "levels"):
-        return None
-    if scene.means.device.type != "cpu" or index.device.type != "cpu" or scene.means.dtype not in (torch.float32, torch.float64):
-        return None
-    from .native import safe_polytope_c
-
-    return safe_polytope_c()
+def native_applies(scene, index) -> bool:
+    """The compiled polytope and point test can run on this scene and index: a CPU scene (float32 or float64) and a
+    GridIndex on the CPU."""
+    return (index is not None and hasattr(index, "levels") and scene.means.device.type == "cpu"
+            and index.device.type == "cpu" and scene.means.dtype in (torch.float32, torch.float64))
 
 
 def prepare_native(scene, index) -> bool:
     """Load the compiled polytope and build the arrays it reads for this scene and index (once; otherwise the first
     safe_polytope call does it). False when the compiled path does not apply or did not load."""
-    if _native_polytope_fn(scene, index, np.zeros((1, 3)), True) is None:
+    from .native import safe_polytope_c
+
+    if not native_applies(scene, index) or safe_polytope_c() is None:
         return False
     _native_arrays(scene, index)
     return True
@@ -413,6 +410,12 @@ def _native_arrays(scene, index) -> dict:
     keep["offsets"] = (ctypes.c_void_p * L)(*[t.data_ptr() for t in keep["offsets_t"]])
     keep["ids"] = (ctypes.c_void_p * L)(*[t.data_ptr() for t in keep["ids_t"]])
     keep["scene"] = scene
+    # the scene and index arguments every compiled call starts with (see native/polytope.c)
+    keep["args"] = (
+        keep["means"].data_ptr(), keep["rots"].data_ptr(), keep["radii"].data_ptr(), pack.ctypes.data,
+        int(dt == torch.float32), keep["origin"].data_ptr(), L, keep["cells"].ctypes.data, keep["dims"].ctypes.data,
+        ctypes.cast(keep["offsets"], ctypes.c_void_p), ctypes.cast(keep["ids"], ctypes.c_void_p), float(index.pad),
+    )
     index._native_polytope_arrays = keep
     return keep
 
@@ -420,11 +423,8 @@ def _native_arrays(scene, index) -> dict:
 def _native_polytope(fn, scene, index, seeds, seeds_t, lo, hi, rot, A_box, b_box, r, margin, normal,
                      require_seed_inside, near_fraction) -> Polytope:
     """safe_polytope through native/polytope.c (float64 numpy seeds [S, 3], box lo/hi [3], rot [3, 3] or None)."""
-    import ctypes
-
     arr = _native_arrays(scene, index)
     dev = scene.means.device
-    f32 = int(arr["means"].dtype == torch.float32)
     sd = np.ascontiguousarray(seeds, dtype=np.float64)
     lo_c, hi_c = np.ascontiguousarray(lo, dtype=np.float64), np.ascontiguousarray(hi, dtype=np.float64)
     rot_c = None if rot is None else np.ascontiguousarray(rot, dtype=np.float64)
@@ -433,10 +433,7 @@ def _native_polytope(fn, scene, index, seeds, seeds_t, lo, hi, rot, A_box, b_box
     while True:
         n = np.empty((cap, 3)), np.empty(cap), np.empty(cap, dtype=np.int64), np.empty(cap, dtype=np.int64), np.empty(cap)
         F = int(fn(
-            arr["means"].data_ptr(), arr["rots"].data_ptr(), arr["radii"].data_ptr(), arr["pack"].ctypes.data, f32,
-            arr["origin"].data_ptr(), len(arr["cells"]), arr["cells"].ctypes.data,
-            arr["dims"].ctypes.data, ctypes.cast(arr["offsets"], ctypes.c_void_p), ctypes.cast(arr["ids"], ctypes.c_void_p),
-            float(index.pad), sd.ctypes.data, sd.shape[0], lo_c.ctypes.data, hi_c.ctypes.data,
+            *arr["args"], sd.ctypes.data, sd.shape[0], lo_c.ctypes.data, hi_c.ctypes.data,
             None if rot_c is None else rot_c.ctypes.data, r, float(margin), _NORMAL_CODE[normal],
             int(bool(require_seed_inside)), float(near_fraction), cap, *(a.ctypes.data for a in n), info.ctypes.data))
         if F == -2:
@@ -446,7 +443,6 @@ def _native_polytope(fn, scene, index, seeds, seeds_t, lo, hi, rot, A_box, b_box
             raise MemoryError(f"the compiled safe polytope failed (code {F})")
         break
     n_planes, b_planes, ids_planes, bad_ids, bad_slack = n
-    NATIVE_STATS.update(candidates=int(info[1]), entries=int(info[3]), planes=F)
     nbad = int(info[0])
     if nbad:
         worst = float(bad_slack[:nbad].min())
@@ -525,26 +521,20 @@ def safe_polytope(
         raise InvalidInputError("seed points must lie inside the polytope box")
     if normal not in ("auto", "prop2", "closest", "mahalanobis"):
         raise InvalidInputError(f"unknown normal rule {normal!r}")
-    if backend not in ("auto", "native", "python"):
-        raise InvalidInputError(f"safe_polytope backend must be 'auto', 'native' or 'python', got {backend!r}")
+    from .native import choose, safe_polytope_c
+
+    fn = choose(backend, safe_polytope_c, "polytope", "safe polytope",
+                applies=prune and seeds_t.shape[0] in (1, 2) and native_applies(scene, index),
+                needs="a CPU scene, a GridIndex on the CPU, prune and one or two seeds")
     r = float(scene.camera_radius)
     seeds = _np(seeds_t)
     lo, hi = _np(lo_t), _np(hi_t)
     axes_t = np.eye(3) if rot_t is None else _np(rot_t).T  # rows = box axes
     A_box = np.vstack([axes_t, -axes_t])  # [6, 3]
     b_box = np.concatenate([hi, -lo])
-    if backend != "python":
-        fn = _native_polytope_fn(scene, index, seeds, prune)
-        if fn is not None:
-            return _native_polytope(fn, scene, index, seeds, seeds_t, lo, hi, None if rot_t is None else _np(rot_t),
-                                    A_box, b_box, r, margin, normal, require_seed_inside,
-                                    near_fraction if two_pass else 0.0)
-        if backend == "native":
-            from .native import native_status
-
-            raise RuntimeError(
-                "the compiled safe polytope does not apply here (it needs a CPU scene, a GridIndex on the CPU, prune "
-                f"and one or two seeds) or did not load: {native_status().get('polytope', 'not loaded')}")
+    if fn is not None:
+        return _native_polytope(fn, scene, index, seeds, seeds_t, lo, hi, None if rot_t is None else _np(rot_t),
+                                A_box, b_box, r, margin, normal, require_seed_inside, near_fraction if two_pass else 0.0)
 
     planes_n, planes_b, planes_id = [], [], []  # kept planes; planes_id: scene ids [f] on the device
     bad = []  # (scene ids [J] cpu, mu, rot, axes, slack) of ellipsoids no plane of their own family cuts off

@@ -87,25 +87,20 @@ def segments_in_free_voxels(occupied: np.ndarray, lo: np.ndarray, voxel_size: fl
     b = np.asarray(p1, dtype=np.float64).reshape(-1, 3)
     lo = np.asarray(lo, dtype=np.float64).reshape(3)
     out = np.zeros(a.shape[0], dtype=bool)
-    if backend not in ("auto", "native", "python"):
-        raise ValueError(f"segments_in_free_voxels backend must be 'auto', 'native' or 'python', got {backend!r}")
+    from .native import choose, segments_free_c
+
+    fn = choose(backend, segments_free_c, "gridpoly", "voxel walk")
     if a.shape[0] == 0:
         return out
-    if backend != "python":
-        from .native import native_status, segments_free_c
-
-        fn = segments_free_c()
-        if fn is None and backend == "native":
-            raise RuntimeError(f"the compiled voxel walk did not load: {native_status().get('gridpoly', 'not loaded')}")
-        if fn is not None:
-            occ = np.ascontiguousarray(occupied, dtype=bool)
-            shape = np.asarray(occ.shape, dtype=np.int64)
-            a, b = np.ascontiguousarray(a), np.ascontiguousarray(b)
-            res = np.zeros(a.shape[0], dtype=np.uint8)
-            if fn(occ.ctypes.data, shape.ctypes.data, lo.ctypes.data, float(voxel_size), a.ctypes.data, b.ctypes.data,
-                  a.shape[0], EPS, res.ctypes.data) != 0:
-                raise MemoryError("the compiled voxel walk ran out of memory")
-            return res.astype(bool)
+    if fn is not None:
+        occ = np.ascontiguousarray(occupied, dtype=bool)
+        shape = np.asarray(occ.shape, dtype=np.int64)
+        a, b = np.ascontiguousarray(a), np.ascontiguousarray(b)
+        res = np.zeros(a.shape[0], dtype=np.uint8)
+        if fn(occ.ctypes.data, shape.ctypes.data, lo.ctypes.data, float(voxel_size), a.ctypes.data, b.ctypes.data,
+              a.shape[0], EPS, res.ctypes.data) != 0:
+            raise MemoryError("the compiled voxel walk ran out of memory")
+        return res.astype(bool)
     owner, vox = segment_voxels((a - lo) / voxel_size, (b - lo) / voxel_size)
     shape = np.asarray(occupied.shape)
     inside = ((vox >= 0) & (vox < shape)).all(1)

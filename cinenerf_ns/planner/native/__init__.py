@@ -25,6 +25,8 @@ import threading
 from pathlib import Path
 from typing import Optional
 
+from ..errors import InvalidInputError
+
 _HERE = Path(__file__).resolve().parent
 _LOCK = threading.Lock()
 _LIBS: dict[str, Optional[ctypes.CDLL]] = {}
@@ -95,6 +97,20 @@ def load(name: str) -> Optional[ctypes.CDLL]:
                     _STATUS[name] = f"loading {path} failed: {e}"
         _LIBS[name] = lib
         return lib
+
+
+def choose(backend: str, loader, lib: str, what: str, applies: bool = True, needs: str = ""):
+    """The compiled function a caller with a ``backend`` argument ("auto" | "native" | "python") should use: ``loader()``
+    when it applies and loads, else None (the Python path). Raises InvalidInputError for an unknown backend and
+    RuntimeError when "native" was asked for and cannot be had (``needs``: what the compiled path needs)."""
+    if backend not in ("auto", "native", "python"):
+        raise InvalidInputError(f"{what} backend must be 'auto', 'native' or 'python', got {backend!r}")
+    fn = loader() if backend != "python" and applies else None
+    if fn is None and backend == "native":
+        if not applies:
+            raise RuntimeError(f"the compiled {what} does not apply here (it needs {needs})")
+        raise RuntimeError(f"the compiled {what} did not load: {native_status().get(lib, 'not loaded')}")
+    return fn
 
 
 def native_status() -> dict:

@@ -266,6 +266,31 @@ static int cmp_plane(const void *x, const void *y) {
     return (a->id > b->id) - (a->id < b->id);  /* deterministic ties */
 }
 
+/* realloc *p to n elements of elem bytes; 0 on success, -1 (p unchanged) when out of memory */
+static int grow(void **p, int64_t n, size_t elem) {
+    void *q = realloc(*p, (size_t)n * elem);
+    if (!q) return -1;
+    *p = q;
+    return 0;
+}
+
+/* cells [clo, chi] (clamped to the level's grid) that the box [qlo, qhi] meets, as GridIndex's _cell_of */
+static void cell_range(const double qlo[3], const double qhi[3], const double *origin, double cell, const int64_t *dm,
+                       int64_t clo[3], int64_t chi[3]) {
+    for (int i = 0; i < 3; i++) {
+        double a = floor((qlo[i] - origin[i]) / cell), b = floor((qhi[i] - origin[i]) / cell);
+        clo[i] = (int64_t)fmin(fmax(a, 0.0), (double)(dm[i] - 1));
+        chi[i] = (int64_t)fmin(fmax(b, 0.0), (double)(dm[i] - 1));
+    }
+}
+
+/* the dedupe rule of the header: the packed AABB reaches clearly below the lower face (axis i) of cell index ``at``,
+   so the index also lists this ellipsoid in the previous cell along that axis */
+static inline int below_face(const float *pk, int i, int64_t at, const double *origin, double cell) {
+    double face = origin[i] + (double)at * cell;
+    return (double)pk[i] < face - 1e-6 * (cell + fabs(face));
+}
+
 typedef struct {
     /* scene */
     const void *means, *rots, *radii;
@@ -324,11 +349,7 @@ static int gather(State *st, const double qlo[3], const double qhi[3], const dou
         double cell = st->cells[L];
         const int64_t *dm = st->dims + 3 * L;
         int64_t clo[3], chi[3];
-        for (int i = 0; i < 3; i++) {
-            double a = floor((qlo[i] - st->origin[i]) / cell), b = floor((qhi[i] - st->origin[i]) / cell);
-            clo[i] = (int64_t)fmin(fmax(a, 0.0), (double)(dm[i] - 1));
-            chi[i] = (int64_t)fmin(fmax(b, 0.0), (double)(dm[i] - 1));
-        }
+        cell_range(qlo, qhi, st->origin, cell, dm, clo, chi);
         const int64_t *off = st->offsets[L], *lid = st->ids[L];
         /* culled cells of the range, decided first: the dedupe below must know whether a neighbour is visited */
         int64_t nx = chi[0] - clo[0] + 1, ny = chi[1] - clo[1] + 1, nz = chi[2] - clo[2] + 1;
@@ -359,14 +380,9 @@ static int gather(State *st, const double qlo[3], const double qhi[3], const dou
                         if (!pack_meets(pk, qlo, qhi)) continue;
                         /* a copy is skipped only for one in the previous cell along an axis that is visited too */
                         int dup = 0;
-                        for (int i = 0; i < 3 && !dup; i++) {
-                            if (cell_at[i] > clo[i]) {
-                                double face = st->origin[i] + (double)cell_at[i] * cell;
-                                if ((double)pk[i] < face - 1e-6 * (cell + fabs(face)) &&
-                                    !CULLED(x - (i == 0), y - (i == 1), z - (i == 2)))
-                                    dup = 1;
-                            }
-                        }
+                        for (int i = 0; i < 3 && !dup; i++)
+                            dup = cell_at[i] > clo[i] && below_face(pk, i, cell_at[i], st->origin, cell) &&
+                                  !CULLED(x - (i == 0), y - (i == 1), z - (i == 2));
                         if (dup) continue;
                         if (skip_lo && pack_meets(pk, skip_lo, skip_hi)) continue;
                         /* bounding sphere (radius amax, inflated by r) reaches the box (box coordinates) */
@@ -390,9 +406,7 @@ static int gather(State *st, const double qlo[3], const double qhi[3], const dou
                         double dx = sd0[0] + u * sdir[0] - m[0], dy = sd0[1] + u * sdir[1] - m[1],
                                dz = sd0[2] + u * sdir[2] - m[2];
                         if (st->K == st->kcap) {
-                            Cand *nc = (Cand *)realloc(st->cand, 2 * st->kcap * sizeof(Cand));
-                            if (!nc) { free(culled); return -1; }
-                            st->cand = nc;
+                            if (grow((void **)&st->cand, 2 * st->kcap, sizeof(Cand))) { free(culled); return -1; }
                             st->kcap *= 2;
                         }
                         Cand *cd = st->cand + st->K++;
@@ -448,14 +462,9 @@ static int decide(State *st) {
             double slack = plane_for(&E, st->seeds, st->S, st->r, st->mode, st->margin, nrm, &off);
             if (st->require_inside && !(slack >= 0)) {
                 if (st->nbad == st->bcap) {
-                    int64_t nc = st->bcap * 2;
-                    int64_t *a = (int64_t *)realloc(st->bid, nc * sizeof(int64_t));
-                    if (!a) { rc = -1; goto out; }
-                    st->bid = a;
-                    double *bb = (double *)realloc(st->bsl, nc * sizeof(double));
-                    if (!bb) { rc = -1; goto out; }
-                    st->bsl = bb;
-                    st->bcap = nc;
+                    if (grow((void **)&st->bid, 2 * st->bcap, sizeof(int64_t)) ||
+                        grow((void **)&st->bsl, 2 * st->bcap, sizeof(double))) { rc = -1; goto out; }
+                    st->bcap *= 2;
                 }
                 st->bid[st->nbad] = cd->id;
                 st->bsl[st->nbad] = slack;
@@ -463,9 +472,7 @@ static int decide(State *st) {
                 continue;
             }
             if (n == st->ccap) {
-                Plane *a = (Plane *)realloc(st->chunk, 2 * st->ccap * sizeof(Plane));
-                if (!a) { rc = -1; goto out; }
-                st->chunk = a;
+                if (grow((void **)&st->chunk, 2 * st->ccap, sizeof(Plane))) { rc = -1; goto out; }
                 st->ccap *= 2;
             }
             Plane *pl = st->chunk + n++;
@@ -486,17 +493,10 @@ static int decide(State *st) {
                 if (exact_cut_by(st->pn, st->pb, F0, st->F, &E, st->r)) continue;
             }
             if (st->F == st->pcap) {
-                int64_t nc = st->pcap * 2;
-                double *a1 = (double *)realloc(st->pn, nc * 3 * sizeof(double));
-                if (!a1) { rc = -1; goto out; }
-                st->pn = a1;
-                double *a2 = (double *)realloc(st->pb, nc * sizeof(double));
-                if (!a2) { rc = -1; goto out; }
-                st->pb = a2;
-                int64_t *a3 = (int64_t *)realloc(st->pid, nc * sizeof(int64_t));
-                if (!a3) { rc = -1; goto out; }
-                st->pid = a3;
-                st->pcap = nc;
+                if (grow((void **)&st->pn, 2 * st->pcap, 3 * sizeof(double)) ||
+                    grow((void **)&st->pb, 2 * st->pcap, sizeof(double)) ||
+                    grow((void **)&st->pid, 2 * st->pcap, sizeof(int64_t))) { rc = -1; goto out; }
+                st->pcap *= 2;
             }
             st->pn[3 * st->F] = pl->n[0]; st->pn[3 * st->F + 1] = pl->n[1]; st->pn[3 * st->F + 2] = pl->n[2];
             st->pb[st->F] = pl->off;
@@ -698,11 +698,7 @@ int64_t cn_points_collide(
             double cell = cells[L];
             const int64_t *dm = dims + 3 * L;
             int64_t clo[3], chi[3];
-            for (int i = 0; i < 3; i++) {
-                double a = floor((qlo[i] - origin[i]) / cell), b = floor((qhi[i] - origin[i]) / cell);
-                clo[i] = (int64_t)fmin(fmax(a, 0.0), (double)(dm[i] - 1));
-                chi[i] = (int64_t)fmin(fmax(b, 0.0), (double)(dm[i] - 1));
-            }
+            cell_range(qlo, qhi, origin, cell, dm, clo, chi);
             const int64_t *off = offsets[L], *lid = ids[L];
             for (int64_t x = clo[0]; x <= chi[0] && !collides; x++)
                 for (int64_t y = clo[1]; y <= chi[1] && !collides; y++)
@@ -712,13 +708,9 @@ int64_t cn_points_collide(
                             int64_t g = lid[k];
                             const float *pk = pack + 12 * g;
                             if (!pack_meets(pk, qlo, qhi)) continue;
-                            int dup = 0;  /* the copy in the previous cell along an axis is visited (gather) */
-                            for (int i = 0; i < 3 && !dup; i++) {
-                                if (cell_at[i] > clo[i]) {
-                                    double face = origin[i] + (double)cell_at[i] * cell;
-                                    if ((double)pk[i] < face - 1e-6 * (cell + fabs(face))) dup = 1;
-                                }
-                            }
+                            int dup = 0;  /* every cell of the range is visited here (no culling) */
+                            for (int i = 0; i < 3 && !dup; i++)
+                                dup = cell_at[i] > clo[i] && below_face(pk, i, cell_at[i], origin, cell);
                             if (dup) continue;
                             Ell E;
                             double mu[3] = {ld(means, 3 * g, f32), ld(means, 3 * g + 1, f32), ld(means, 3 * g + 2, f32)};
