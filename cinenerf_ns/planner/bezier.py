@@ -110,6 +110,9 @@ class BezierTrajectory:
         self.durations = dur
         self._starts = np.concatenate([[0.0], np.cumsum(dur)[:-1]])  # [M] start time of each segment
         self.info: dict = {}  # how the curve was made (solver status, timings); filled by the QP
+        # derivative control points per order: the timing calls derivative() ~10x per shot. A curve is treated as
+        # immutable; the cache is keyed on the arrays' identity so replacing them (not editing in place) is safe.
+        self._dcp: dict = {}
 
     # ------------------------------------------------------------------ properties
     @property
@@ -160,10 +163,19 @@ class BezierTrajectory:
         if order < 0:
             raise InvalidInputError(f"derivative order must be >= 0, got {order}.")
         seg, u = self.segment_of(t)
-        pts = derivative_control_points(self.control_points, self.durations, order)  # [M, n+1, 3]
+        pts = self._derivative_points(order)  # [M, n+1, 3]
         basis = bernstein_basis(pts.shape[1] - 1, u)  # [T, n+1]
         out = np.einsum("tj,tjc->tc", basis, pts[seg])  # [T, 3]
         return _like(out, t)
+
+    def _derivative_points(self, order: int) -> np.ndarray:
+        """derivative_control_points(order) [M, D+1-order, 3], cached (see __post_init__)."""
+        hit = self._dcp.get(order)
+        if hit is None or hit[0] is not self.control_points or hit[1] is not self.durations:
+            hit = (self.control_points, self.durations,
+                   derivative_control_points(self.control_points, self.durations, order))
+            self._dcp[order] = hit
+        return hit[2]
 
     def sample(self, n: int, as_torch: bool = False):
         """n times evenly spaced over [0, total_duration] (ends included) and the positions there.

@@ -157,13 +157,13 @@ def retime(traj: BezierTrajectory, look_at: LookAt, limits: Optional[DynamicLimi
     arc-length fraction in [0, 1] (array [K]) to look-at points [K, 3] (multi-stop shots)."""
     lim = limits or DynamicLimits()
     lim.validate()
-    tau_tab, s_tab = arc_length_table(traj)
+    tau_tab, s_tab, v_tab = arc_length_table(traj, with_speed=True)
     length = float(s_tab[-1])
     if length <= 1e-12:
         raise InvalidInputError("the trajectory does not move (zero length); nothing to retime.")
     K = max(200, int(math.ceil(length * lim.grid_per_unit)))
     s = np.linspace(0.0, length, K + 1)  # [K+1]
-    tau = invert_arc_length(traj, tau_tab, s_tab, s)
+    tau = invert_arc_length(traj, tau_tab, s_tab, s, v_tab)
     tau[-1] = traj.total_duration
     look = _look_at_of(look_at, s / length)
     sc = {"speed": 1.0, "acceleration": 1.0, "angular": 1.0}
@@ -184,7 +184,7 @@ def retime(traj: BezierTrajectory, look_at: LookAt, limits: Optional[DynamicLimi
         times = np.arange(n_int + 1) / lim.fps
         s_f = np.interp(times / slow, t_grid, s)  # t(s) is monotone; piecewise-linear inverse
         s_f[-1] = length
-        tau_f = invert_arc_length(traj, tau_tab, s_tab, s_f)
+        tau_f = invert_arc_length(traj, tau_tab, s_tab, s_f, v_tab)
         tau_f[-1] = traj.total_duration
         pos = traj.evaluate(tau_f)
         look_f = _look_at_of(look_at, s_f / length)

@@ -104,7 +104,7 @@ def _with_stops(qp: CorridorQP, config: TrajectoryConfig, stop_segments: List[in
         acc += int((~pinned[k]).sum()) * a.shape[0]
     drop = []
     rows_r, rows_c, rhs = [], [], []
-    n = qp.P.shape[0]
+    n = qp.n
     for j, (k, p) in enumerate(zip(stop_segments, stops)):
         for seg, i in ((k - 1, d), (k, 0)):
             a, b = qp.polytopes[seg]
@@ -122,7 +122,7 @@ def _with_stops(qp: CorridorQP, config: TrajectoryConfig, stop_segments: List[in
             rhs.append(float(p[c]))
     keep = np.setdiff1d(np.arange(qp.A_in.shape[0]), np.asarray(drop, dtype=np.int64))
     extra = sp.csc_matrix((np.ones(len(rows_r)), (rows_r, rows_c)), shape=(len(rhs), n))
-    return CorridorQP(
+    return CorridorQP.from_matrices(
         P=qp.P, A_eq=sp.vstack([qp.A_eq, extra], format="csc"), b_eq=np.concatenate([qp.b_eq, rhs]),
         A_in=qp.A_in[keep], b_in=qp.b_in[keep], durations=qp.durations, degree=d, num_segments=m,
         polytopes=qp.polytopes,
@@ -167,7 +167,7 @@ def solve_through_stops(polytopes, waypoints: np.ndarray, start: np.ndarray, goa
     traj = BezierTrajectory(cps, qp.durations)
     traj.info = {"solver": config.solver, "status": status, "iterations": int(iters), "build_ms": 1e3 * (t1 - t0),
                  "solve_ms": 1e3 * (time.perf_counter() - t1), "max_corridor_violation": worst,
-                 "num_variables": int(qp.P.shape[0])}
+                 "num_variables": qp.n}
     return traj
 
 

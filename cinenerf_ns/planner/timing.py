@@ -69,8 +69,9 @@ class TimedPath:
     fps: float
 
 
-def arc_length_table(traj: BezierTrajectory, samples_per_segment: int = 64):
-    """(tau [K], s [K]): cumulative arc length at a dense grid of curve times (monotone, s[0] = 0)."""
+def arc_length_table(traj: BezierTrajectory, samples_per_segment: int = 64, with_speed: bool = False):
+    """(tau [K], s [K]): cumulative arc length at a dense grid of curve times (monotone, s[0] = 0).
+    with_speed: also the speed |p'(tau)| [K] at the grid times (same derivative evaluation; for invert_arc_length)."""
     nodes, weights = _GL5
     taus = []
     for k in range(traj.num_segments):
@@ -81,31 +82,60 @@ def arc_length_table(traj: BezierTrajectory, samples_per_segment: int = 64):
     half = 0.5 * (b - a)  # [K-1]
     q = (0.5 * (a + b))[:, None] + half[:, None] * nodes[None, :]  # [K-1, 5] quadrature points
     # evaluate each quadrature point inside the segment its interval belongs to (no join ambiguity)
-    speed = np.linalg.norm(traj.derivative(q.ravel(), 1), axis=1).reshape(q.shape)  # [K-1, 5]
+    pts = np.concatenate([q.ravel(), tau]) if with_speed else q.ravel()
+    sp = np.linalg.norm(traj.derivative(pts, 1), axis=1)
+    speed = sp[: q.size].reshape(q.shape)  # [K-1, 5]
     ds = half * (speed @ weights)  # [K-1]
-    return tau, np.concatenate([[0.0], np.cumsum(ds)])
+    s = np.concatenate([[0.0], np.cumsum(ds)])
+    return (tau, s, sp[q.size:]) if with_speed else (tau, s)
 
 
-def invert_arc_length(traj: BezierTrajectory, tau_tab: np.ndarray, s_tab: np.ndarray, s: np.ndarray) -> np.ndarray:
+def _hermite_guess(tau_tab: np.ndarray, s_tab: np.ndarray, v_tab: np.ndarray, i: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """tau [T] where the cubic Hermite model of s(tau) on table interval i [T] (values s_tab, slopes v_tab) reaches s [T].
+
+    Why: the curve rests at its ends (speed 0), where s(tau) is quadratic and a linear table guess sends Newton on
+    S(tau) into slow, linear convergence (4 steps left frame 1 ~1e-4 s of curve time off). The cubic has the right
+    shape there; a few Newton steps on it (cheap [T] arithmetic, no curve evaluation) give a start that the real
+    Newton finishes in one or two steps."""
+    t0, h = tau_tab[i], tau_tab[i + 1] - tau_tab[i]
+    s0, s1 = s_tab[i], s_tab[i + 1]
+    m0, m1 = v_tab[i] * h, v_tab[i + 1] * h  # slopes in the unit parameter u
+    ds = s1 - s0
+    u = np.clip(np.where(ds > 0, (s - s0) / np.where(ds > 0, ds, 1.0), 0.0), 0.0, 1.0)
+    # H(u) = s0 + m0 u + (3 ds - 2 m0 - m1) u^2 + (m0 + m1 - 2 ds) u^3
+    c2, c3 = 3 * ds - 2 * m0 - m1, m0 + m1 - 2 * ds
+    for _ in range(6):
+        f = s0 + u * (m0 + u * (c2 + u * c3)) - s
+        df = m0 + u * (2 * c2 + 3 * u * c3)
+        u = np.clip(u - np.where(df > 1e-300, f / np.where(df > 1e-300, df, 1.0), 0.0), 0.0, 1.0)
+    return t0 + u * h
+
+
+def invert_arc_length(traj: BezierTrajectory, tau_tab: np.ndarray, s_tab: np.ndarray, s: np.ndarray,
+                      v_tab: "np.ndarray | None" = None) -> np.ndarray:
     """Curve times tau [T] with arc length s [T]: table bracket, then safeguarded Newton steps.
 
-    Linear interpolation of the table alone is off by ~0.1% in local speed where |p'| varies fast;
-    Newton on S(tau) = s_tab[i] + integral_{tau_i}^{tau} |p'| (5-point Gauss-Legendre) brings it to ~1e-12.
+    Start: the cubic Hermite model of the table interval when the table's speeds v_tab [K] are given
+    (arc_length_table(..., with_speed=True)), else linear interpolation (off by ~0.1% in local speed where
+    |p'| varies fast, and converging slowly where the curve rests). Newton on
+    S(tau) = s_tab[i] + integral_{tau_i}^{tau} |p'| (5-point Gauss-Legendre) brings it to ~1e-12.
     """
     nodes, weights = _GL5
     i = np.clip(np.searchsorted(s_tab, s, side="right") - 1, 0, len(s_tab) - 2)  # [T] bracket
     lo, hi = tau_tab[i], tau_tab[i + 1]
-    tau = np.interp(s, s_tab, tau_tab)
+    tau = np.interp(s, s_tab, tau_tab) if v_tab is None else np.clip(_hermite_guess(tau_tab, s_tab, v_tab, i, s), lo, hi)
     tol = 1e-11 * max(1.0, traj.total_duration)
-    for _ in range(4):
+    n = tau.shape[0]
+    for _ in range(8):
         half = 0.5 * (tau - lo)
         q = (lo + half)[:, None] + half[:, None] * nodes[None, :]  # [T, 5]
-        speed_q = np.linalg.norm(traj.derivative(q.ravel(), 1), axis=1).reshape(q.shape)
+        # one derivative evaluation for the quadrature points and tau itself
+        sq = np.linalg.norm(traj.derivative(np.concatenate([q.ravel(), tau]), 1), axis=1)  # [5T + T]
+        speed_q, speed = sq[: 5 * n].reshape(q.shape), sq[5 * n:]
         s_here = s_tab[i] + half * (speed_q @ weights)
-        speed = np.linalg.norm(traj.derivative(tau, 1), axis=1)
         step = np.where(speed > 1e-12, (s_here - s) / np.maximum(speed, 1e-12), 0.0)
         tau = np.clip(tau - step, lo, hi)
-        if np.abs(step).max() <= tol:  # quadratic convergence: usually 2 steps
+        if np.abs(step).max() <= tol:  # quadratic convergence from the Hermite start: usually 2 steps
             break
     return tau
 
@@ -157,7 +187,7 @@ def time_parametrize(traj: BezierTrajectory, config: TimingConfig = None) -> Tim
     """Sample traj at config.fps with speed <= max_speed (see the module docstring)."""
     cfg = config or TimingConfig()
     cfg.validate()
-    tau_tab, s_tab = arc_length_table(traj, cfg.table_samples_per_segment)
+    tau_tab, s_tab, v_tab = arc_length_table(traj, cfg.table_samples_per_segment, with_speed=True)
     length = float(s_tab[-1])
     if length <= 1e-12 * max(1.0, float(np.abs(traj.control_points).max())):
         # start == goal and the curve does not move: one still frame pair, 1/fps apart
@@ -172,7 +202,7 @@ def time_parametrize(traj: BezierTrajectory, config: TimingConfig = None) -> Tim
     s = s_of_t(times / slow)  # [T]
     s[-1] = length
     speed = v_of_t(times / slow) / slow
-    tau = invert_arc_length(traj, tau_tab, s_tab, s)
+    tau = invert_arc_length(traj, tau_tab, s_tab, s, v_tab)
     tau[-1] = traj.total_duration
     pos = traj.evaluate(tau)
     return TimedPath(times, pos, tau, s, speed, length, float(times[-1]), cfg.fps)

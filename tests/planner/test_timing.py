@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from cinenerf_ns.planner.bezier import BezierTrajectory
 from cinenerf_ns.planner.errors import InvalidInputError
-from cinenerf_ns.planner.timing import TimingConfig, arc_length_table, time_parametrize
+from cinenerf_ns.planner.timing import TimingConfig, arc_length_table, invert_arc_length, time_parametrize
 
 
 def random_curve(seed: int, m: int = 3) -> BezierTrajectory:
@@ -34,6 +34,51 @@ def test_arc_length_table_matches_polyline(seed):
     tau, s = arc_length_table(traj)
     assert np.all(np.diff(s) >= 0) and s[0] == 0 and tau[-1] == traj.total_duration
     assert s[-1] == pytest.approx(brute_length(traj), rel=1e-8)
+
+
+def resting_curve(seed: int, m: int = 3) -> BezierTrajectory:
+    """A curve that starts and ends at rest (first/last two control points equal), like every planned shot."""
+    traj = random_curve(seed, m)
+    cps = traj.control_points.copy()
+    cps[0, 1], cps[-1, -2] = cps[0, 0], cps[-1, -1]
+    return BezierTrajectory(cps, traj.durations)
+
+
+def exact_arc_length(traj: BezierTrajectory, tau: np.ndarray) -> np.ndarray:
+    """Arc length at curve times tau [T] from a 16x finer table plus a Gauss-Legendre piece (reference)."""
+    t_tab, s_tab = arc_length_table(traj, 1024)
+    nodes, weights = np.polynomial.legendre.leggauss(10)
+    i = np.clip(np.searchsorted(t_tab, tau, side="right") - 1, 0, len(t_tab) - 2)
+    half = 0.5 * (tau - t_tab[i])
+    q = (t_tab[i] + half)[:, None] + half[:, None] * nodes[None, :]
+    speed = np.linalg.norm(traj.derivative(q.ravel(), 1), axis=1).reshape(q.shape)
+    return s_tab[i] + half * (speed @ weights)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_frames_sit_at_their_arc_length_also_where_the_curve_rests(seed):
+    """Every frame's curve time has the arc length the speed profile asks for, to ~1e-12, including the frames next
+    to the ends where the curve is at rest (s(tau) quadratic there: Newton from a linear guess converged slowly and
+    its 4-step cap left frame 1 ~1e-4 s of curve time off before the Hermite start)."""
+    traj = resting_curve(seed)
+    path = time_parametrize(traj, TimingConfig(max_speed=0.7, max_acceleration=0.4, fps=30))
+    err = np.abs(exact_arc_length(traj, path.curve_times) - path.arc_length)
+    assert err.max() <= 1e-10 * max(1.0, path.length)
+    # the same inversion with and without the table's speeds (linear start, more Newton steps) agree where the
+    # curve moves; the Hermite start is what makes the rest frames exact
+    t_tab, s_tab, v_tab = arc_length_table(traj, with_speed=True)
+    s = path.arc_length[2:-2]
+    np.testing.assert_allclose(invert_arc_length(traj, t_tab, s_tab, s, v_tab), invert_arc_length(traj, t_tab, s_tab, s),
+                               atol=1e-6)
+
+
+def test_arc_length_table_speeds_are_the_curve_speed():
+    traj = random_curve(7)
+    tau, s, v = arc_length_table(traj, with_speed=True)
+    np.testing.assert_allclose(v, np.linalg.norm(traj.derivative(tau, 1), axis=1), rtol=0, atol=1e-12)
+    t2, s2 = arc_length_table(traj)
+    np.testing.assert_array_equal(t2, tau)
+    np.testing.assert_allclose(s2, s, rtol=0, atol=1e-12)
 
 
 @settings(max_examples=30, deadline=None)
