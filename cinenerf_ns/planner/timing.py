@@ -83,11 +83,11 @@ def arc_length_table(traj: BezierTrajectory, samples_per_segment: int = 64, with
     q = (0.5 * (a + b))[:, None] + half[:, None] * nodes[None, :]  # [K-1, 5] quadrature points
     # evaluate each quadrature point inside the segment its interval belongs to (no join ambiguity)
     pts = np.concatenate([q.ravel(), tau]) if with_speed else q.ravel()
-    sp = np.linalg.norm(traj.derivative(pts, 1), axis=1)
-    speed = sp[: q.size].reshape(q.shape)  # [K-1, 5]
+    speed_all = np.linalg.norm(traj.derivative(pts, 1), axis=1)
+    speed = speed_all[: q.size].reshape(q.shape)  # [K-1, 5]
     ds = half * (speed @ weights)  # [K-1]
     s = np.concatenate([[0.0], np.cumsum(ds)])
-    return (tau, s, sp[q.size:]) if with_speed else (tau, s)
+    return (tau, s, speed_all[q.size:]) if with_speed else (tau, s)
 
 
 def _hermite_guess(tau_tab: np.ndarray, s_tab: np.ndarray, v_tab: np.ndarray, i: np.ndarray, s: np.ndarray) -> np.ndarray:

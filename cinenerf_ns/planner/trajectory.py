@@ -226,7 +226,8 @@ class CorridorQP:
     """The assembled QP: minimise 1/2 x^T P x subject to A_eq x = b_eq, A_in x <= b_in.
 
     Stored in the forms the default path uses, so a plan pays for no conversion it does not need (scipy's
-    generic COO/stack/triu conversions were ~2 ms of a ~3.5 ms QP stage, CPU box, 2026-11-24): ``P_upper`` (the upper
+    COO/stack/triu conversions, five per QP before, were ~2 ms of a ~3.5 ms QP stage, CPU box, 2026-11-24; now one
+    COO conversion for the stacked A): ``P_upper`` (the upper
     triangle of P, what Clarabel reads), ``A`` (equalities stacked over inequalities) and ``eq_dense`` (A_eq as a
     dense array: the post-solve equality projection is a small dense solve). ``P``, ``A_eq`` and ``A_in`` are built
     from these on first use (OSQP, multi-stop, tests)."""
@@ -308,15 +309,6 @@ def _upper_block_pattern(npts: int) -> Tuple[np.ndarray, np.ndarray, np.ndarray,
                 jj.append(j)
             ptr.append(len(rows))
     return np.array(rows), np.array(ii), np.array(jj), np.array(ptr)
-
-
-def _csc_from_triplets(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, shape: Tuple[int, int]) -> sp.csc_matrix:
-    """CSC from COO triplets without duplicates: one integer sort and a bincount (scipy's generic COO path checks
-    and sums duplicates, several times slower on these small matrices)."""
-    order = np.argsort(cols * shape[0] + rows, kind="stable")
-    indptr = np.zeros(shape[1] + 1, dtype=np.int64)
-    np.cumsum(np.bincount(cols, minlength=shape[1]), out=indptr[1:])
-    return sp.csc_matrix((vals[order], rows[order], indptr), shape=shape)
 
 
 def build_corridor_qp(polytopes, waypoints, start, goal, config: TrajectoryConfig) -> CorridorQP:
@@ -420,9 +412,9 @@ def build_corridor_qp(polytopes, waypoints, start, goal, config: TrajectoryConfi
         b_in.append(np.tile(b_shrunk, nf))
         row0 += nf * f
     # (no inequality row when every control point is pinned: one segment, 2(q+1) = D+1, the straight line)
-    A = _csc_from_triplets(
-        np.concatenate([eq_rows] + blocks_r).astype(np.int64), np.concatenate([eq_cols] + blocks_c).astype(np.int64),
-        np.concatenate([eq_vals] + blocks_v), (row0, n),
+    A = sp.csc_matrix(
+        (np.concatenate([eq_vals] + blocks_v), (np.concatenate([eq_rows] + blocks_r), np.concatenate([eq_cols] + blocks_c))),
+        shape=(row0, n),
     )
     return CorridorQP(P_upper, A, np.concatenate([b_eq] + b_in), 3 * n_eq_pts, eq_dense, durations, d, m, polys)
 
