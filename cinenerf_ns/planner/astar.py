@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import heapq
 import math
+import threading
 from typing import Callable, Optional, Sequence, Union
 
 import numpy as np
@@ -27,6 +28,8 @@ import torch
 from .errors import GoalUnreachableError, InvalidInputError, StartInCollisionError
 from .native import astar26 as native_astar26
 from .native import native_status
+from .native import search26 as native_search26
+from .native import search26_ws as native_search26_ws
 
 _SQ2, _SQ3 = math.sqrt(2.0), math.sqrt(3.0)
 
@@ -36,6 +39,28 @@ class SearchBudgetExhausted(GoalUnreachableError):
 
 
 _C1, _C2 = _SQ2 - 1.0, _SQ3 - _SQ2  # octile: a + (sqrt2-1) b + (sqrt3-sqrt2) c for a >= b >= c
+
+
+# grids with fewer padded voxels search with per-call arrays (a 13^3 window: calloc is cheaper than keeping one)
+WORKSPACE_MIN_VOXELS = 32_768
+
+
+class _SearchWorkspace:
+    """The compiled search's per-voxel arrays, kept between calls (native/astar26.c, search26_ws): a voxel's
+    stamp tells whether this call has seen it, so nothing is cleared per call."""
+
+    def __init__(self, n: int):
+        self.stamp = np.zeros(n, dtype=np.uint32)  # [N]
+        self.g = np.empty(n, dtype=np.float64)  # [N] read only where this call's stamp is set
+        self.parent = np.empty(n, dtype=np.int64)  # [N]
+        self.out = np.empty(n, dtype=np.int64)  # [N] the path (a path never visits a voxel twice)
+        self.gen = 1
+
+    def advance(self) -> None:
+        self.gen += 1
+        if self.gen >= 2**31 - 1:  # stamps are uint32 (2 gen + 1): start over from cleared stamps
+            self.stamp[:] = 0
+            self.gen = 1
 
 
 class AStarGrid:
@@ -63,6 +88,27 @@ class AStarGrid:
                         self.neighbours.append((di * self.sx + dj * self.sy + dk, cost, di, dj, dk))
         self._occ = occ
         self._labels: Optional[np.ndarray] = None
+        self._local = threading.local()  # one search workspace per thread (viewer callbacks run in threads)
+
+    def native_search(self, start: int, goal: int, target: Optional[np.ndarray] = None, weight: float = 1.0,
+                      limit: int = -1) -> tuple[int, np.ndarray]:
+        """One compiled search (native/astar26.c) between flat padded indices: A* to ``goal``, or with ``target``
+        (uint8, the padded layout) Dijkstra to the nearest marked voxel. -> (k, out): k >= 0 path voxels
+        out[:k] (flat, start first; valid until this thread's next search on this grid), else the C status.
+        Needs the compiled library (callers check native.search26())."""
+        tgt = None if target is None else target.ctypes.data
+        args = (self._blocked_np.ctypes.data, *self.padded_shape, int(start), int(goal), tgt, float(weight), int(limit))
+        ws_fn = native_search26_ws() if self._blocked_np.size >= WORKSPACE_MIN_VOXELS else None
+        if ws_fn is None:
+            out = np.empty(self._blocked_np.size, dtype=np.int64)
+            return int(native_search26()(*args, out.ctypes.data, out.size)), out
+        ws = getattr(self._local, "ws", None)
+        if ws is None:
+            ws = self._local.ws = _SearchWorkspace(self._blocked_np.size)
+        k = int(ws_fn(*args, ws.out.ctypes.data, ws.out.size, ws.stamp.ctypes.data, ws.gen, ws.g.ctypes.data,
+                      ws.parent.ctypes.data))
+        ws.advance()
+        return k, ws.out
 
     @property
     def labels(self) -> np.ndarray:
@@ -148,7 +194,7 @@ def astar(
     if backend == "native" and fn is None:
         raise RuntimeError(f"the compiled A* is not available: {native_status().get('astar26', 'not loaded')}")
     if fn is not None:
-        return _astar_native(fn, grid, start, goal, s, g_, max_expansions, float(heuristic_weight))
+        return _astar_native(grid, start, goal, s, g_, max_expansions, float(heuristic_weight))
 
     closed = bytearray(blocked)  # occupied or closed: one lookup per neighbour
     gi, gj, gk = g_
@@ -207,12 +253,10 @@ def astar(
     return np.asarray(path[::-1], dtype=np.int64)
 
 
-def _astar_native(fn, grid: AStarGrid, start: int, goal: int, s, g_, max_expansions, weight: float) -> np.ndarray:
+def _astar_native(grid: AStarGrid, start: int, goal: int, s, g_, max_expansions, weight: float) -> np.ndarray:
     """astar() through native/astar26.c (same search; see the module docstring)."""
-    PX, PY, PZ = grid.padded_shape
-    out = np.empty(grid._blocked_np.size, dtype=np.int64)  # a path never visits a voxel twice
     limit = -1 if max_expansions is None else int(max_expansions)
-    k = int(fn(grid._blocked_np.ctypes.data, PX, PY, PZ, start, goal, weight, limit, out.ctypes.data, out.size))
+    k, out = grid.native_search(start, goal, None, weight, limit)
     if k == -2:
         raise SearchBudgetExhausted(f"A* gave up after {limit} expansions without reaching the goal {g_}")
     if k == -1:

@@ -51,7 +51,7 @@ def _mcp_path(costs: np.ndarray, start, ends: np.ndarray, grid: Optional[AStarGr
     fn = native_search26()
     if fn is not None:
         g = grid if grid is not None else AStarGrid(~np.isfinite(costs))
-        return _native_path(fn, g, start, np.asarray(ends, dtype=np.int64).reshape(-1, 3))
+        return _native_path(g, start, np.asarray(ends, dtype=np.int64).reshape(-1, 3))
     from skimage.graph import MCP_Geometric
 
     mcp = MCP_Geometric(costs, fully_connected=True)
@@ -63,7 +63,7 @@ def _mcp_path(costs: np.ndarray, start, ends: np.ndarray, grid: Optional[AStarGr
     return np.asarray(mcp.traceback(tuple(int(v) for v in ends[k])), dtype=np.int64).reshape(-1, 3)
 
 
-def _native_path(fn, grid: AStarGrid, start, ends: np.ndarray) -> Optional[np.ndarray]:
+def _native_path(grid: AStarGrid, start, ends: np.ndarray) -> Optional[np.ndarray]:
     """_mcp_path through the compiled search: A* for one end, Dijkstra to the nearest of several."""
     start_f = grid.flat(tuple(int(v) for v in np.asarray(start).reshape(3)))
     if grid._blocked_np[start_f]:
@@ -72,9 +72,7 @@ def _native_path(fn, grid: AStarGrid, start, ends: np.ndarray) -> Optional[np.nd
     if len(ends) > 1:
         target = np.zeros_like(grid._blocked_np)
         target[[grid.flat(tuple(e)) for e in ends.tolist()]] = 1
-    out = np.empty(grid._blocked_np.size, dtype=np.int64)
-    k = int(fn(grid._blocked_np.ctypes.data, *grid.padded_shape, start_f, grid.flat(tuple(ends[0].tolist())),
-               None if target is None else target.ctypes.data, 1.0, -1, out.ctypes.data, out.size))
+    k, out = grid.native_search(start_f, grid.flat(tuple(ends[0].tolist())), target)
     if k == -1:
         return None
     if k < 0:

@@ -2,8 +2,8 @@
 
 closest_safe_point (paper Sec. IV-C): the go-to target (e.g. an object's centroid) is usually inside
 the object. We grow a Prop-2 safe polytope around the target (it may exclude the target itself) and
-project the target onto it (a 3-variable QP, Clarabel); every point of that polytope is safe, so the
-projection is a safe goal as close to the target as that polytope allows. When the polytope is empty
+project the target onto it (a 3-variable QP: an active-set method, Clarabel as fallback); every point
+of that polytope is safe, so the projection is a safe goal as close to the target as that polytope allows. When the polytope is empty
 (target deep inside clutter) we fall back to the nearest free voxel of the occupancy grid that holds
 no Gaussian mean, verified with an exact point clearance test.
 
@@ -93,34 +93,95 @@ def _default_clear(scene, index, margin):
 
 
 # ------------------------------------------------------------------------------------ goal
+def project_active_set(A: np.ndarray, b: np.ndarray, target: np.ndarray, x0: np.ndarray,
+                       max_iter: int = 60) -> Optional[np.ndarray]:
+    """argmin_x |x - target|^2 s.t. A x <= b (A [F, 3], b [F]) by the primal active-set method (Nocedal &
+    Wright, Alg. 16.3, Hessian I) from the feasible point x0 [3] -> x [3], or None when it does not
+    finish in ``max_iter`` steps (degenerate vertices can cycle; the caller then uses a QP solver).
+
+    Why not a QP solver: in 3 variables the working set holds at most 3 independent faces, so each step is a
+    3x3 solve, and the whole projection is a few steps of ~10 us where Clarabel's set-up and interior-point
+    iterations cost ~1 ms per goal. Exact up to rounding (the multipliers prove optimality); rounding can leave
+    A x - b at ~1e-16, which the caller removes.
+    """
+    A = np.asarray(A, dtype=np.float64)  # [F, 3]
+    b = np.asarray(b, dtype=np.float64)  # [F]
+    t = np.asarray(target, dtype=np.float64).reshape(3)
+    x = np.asarray(x0, dtype=np.float64).reshape(3).copy()
+    scale = 1.0 + float(np.abs(t).max()) + float(np.abs(x).max())
+    row_norm = np.sqrt(np.einsum("fi,fi->f", A, A))  # [F]
+    slack = b - A @ x  # [F]
+    W: list[int] = []  # working set: independent faces held with equality
+    for _ in range(max_iter):
+        r = t - x  # [3]
+        if len(W) == 1:
+            m = A[W[0]]
+            lam = np.array([float(m @ r) / float(m @ m)])
+            p = r - lam[0] * m
+        elif W:
+            M = A[W]  # [k, 3]
+            lam = np.linalg.solve(M @ M.T, M @ r)  # [k]  the multipliers when the step below vanishes
+            p = r - M.T @ lam if len(W) < 3 else np.zeros(3)  # 3 independent faces: a vertex
+        else:
+            p, lam = r, None
+        if float(np.abs(p).max()) <= 1e-13 * scale:
+            if lam is None or float(lam.min()) >= -1e-12 * scale:
+                return x  # KKT: x - t + M^T lam = 0 with lam >= 0
+            W.pop(int(np.argmin(lam)))  # a face that pulls the wrong way leaves the working set
+            continue
+        Ap = A @ p  # [F]
+        block = Ap > 1e-14 * float(np.sqrt(p @ p)) * row_norm
+        block[W] = False
+        alpha, j = 1.0, -1
+        ids = np.flatnonzero(block)
+        if len(ids):
+            ratio = np.maximum(slack[ids], 0.0) / Ap[ids]
+            k = int(np.argmin(ratio))
+            if ratio[k] < 1.0:
+                alpha, j = float(ratio[k]), int(ids[k])
+        x = x + alpha * p
+        slack = slack - alpha * Ap
+        if j >= 0:
+            W.append(j)
+    return None
+
+
 def _project_onto_polytope(A: np.ndarray, b: np.ndarray, target: np.ndarray,
                            interior: Optional[np.ndarray] = None) -> Optional[np.ndarray]:
-    """argmin |x - target|^2 s.t. A x <= b (Clarabel), then pulled exactly inside along the segment to an
-    interior point (ratio test) so the returned point satisfies A x <= b in floating point. The interior point is
-    ``interior`` when it is strictly inside (e.g. the polytope's seed: no LP needed), else the Chebyshev centre.
-    None when the polytope has no interior."""
-    import clarabel
-    from scipy import sparse
-
+    """argmin |x - target|^2 s.t. A x <= b (``project_active_set`` from an interior point; Clarabel when that does
+    not finish), then pulled exactly inside along the segment to the interior point (ratio test) so the returned
+    point satisfies A x <= b in floating point. The interior point is ``interior`` when it is strictly inside (e.g.
+    the polytope's seed: no LP needed), else the Chebyshev centre. None when the polytope has no interior."""
     if interior is not None and float(np.min(b - A @ np.asarray(interior, dtype=np.float64))) > 1e-9:
         c = np.asarray(interior, dtype=np.float64)
     else:
         c, rad = chebyshev_center(A, b)
         if not (rad > 1e-9):
             return None
-    P = sparse.csc_matrix(2.0 * np.eye(3))
-    q = -2.0 * target
-    settings = clarabel.DefaultSettings()
-    settings.verbose = False
-    solver = clarabel.DefaultSolver(P, q, sparse.csc_matrix(A), b, [clarabel.NonnegativeConeT(len(b))], settings)
-    sol = solver.solve()
-    x = np.asarray(sol.x, dtype=np.float64) if str(sol.status) in ("Solved", "AlmostSolved") else c.copy()
+    target = np.asarray(target, dtype=np.float64)
+    x = project_active_set(A, b, target, c)
+    if x is None:
+        x = _project_clarabel(A, b, target, c)
     viol = A @ x - b
     if (viol > 0).any():
         ax, ac = A @ x, A @ c
         alpha = np.max(np.where(viol > 0, viol / np.maximum(ax - ac, 1e-300), 0.0))
         x = x + min(1.0, alpha * (1 + 1e-9) + 1e-12) * (c - x)
     return x if (A @ x <= b).all() else None
+
+
+def _project_clarabel(A: np.ndarray, b: np.ndarray, target: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """argmin |x - target|^2 s.t. A x <= b with Clarabel (``c`` when it does not solve)."""
+    import clarabel
+    from scipy import sparse
+
+    P = sparse.csc_matrix(2.0 * np.eye(3))
+    q = -2.0 * target
+    settings = clarabel.DefaultSettings()
+    settings.verbose = False
+    solver = clarabel.DefaultSolver(P, q, sparse.csc_matrix(A), b, [clarabel.NonnegativeConeT(len(b))], settings)
+    sol = solver.solve()
+    return np.asarray(sol.x, dtype=np.float64) if str(sol.status) in ("Solved", "AlmostSolved") else c.copy()
 
 
 def closest_safe_point(

@@ -386,26 +386,37 @@ def _native_arrays(scene, index) -> dict:
     cache = getattr(index, "_native_polytope_arrays", None)
     if cache is not None and cache["scene"] is scene:
         return cache
+    from .spatial_index import morton_order
+
     dt = scene.means.dtype
+    # The compiled code reads the ellipsoids in spatial (Morton) order: its ids are positions in that order, and
+    # "perm" maps them back to scene ids (native position -> scene id). A query visits one region, whose rows are
+    # then close in memory: the goal's polytope at 1M Gaussians took 1.78 -> 0.98 ms median (CPU box, warm cache)
+    # against the scene's own order, in which neighbours are scattered over the whole array.
+    perm = morton_order(scene.means)  # [N]
+    inv = np.empty_like(perm)
+    inv[perm] = np.arange(len(perm), dtype=np.int64)
+    perm_t = torch.from_numpy(perm)
     keep = {
-        "means": scene.means.detach().contiguous(),
-        "rots": scene.rotations.detach().to(dt).contiguous(),
-        "radii": scene.radii.detach().to(dt).contiguous(),
+        "perm": perm,
+        "means": scene.means.detach()[perm_t].contiguous(),
+        "rots": scene.rotations.detach().to(dt)[perm_t].contiguous(),
+        "radii": scene.radii.detach().to(dt)[perm_t].contiguous(),
     }
     # one float32 row per ellipsoid for the gather (polytope.c's header): padded AABB lo rounded down, hi rounded
     # up, mean, largest semi-axis rounded up (rounding only widens the tests that read them)
-    boxes = index.boxes.detach().double().cpu().numpy()  # [N, 6]
+    boxes = index.boxes.detach().double().cpu().numpy()[perm]  # [N, 6]
     pack = np.zeros((len(index), 12), dtype=np.float32)
     pack[:, :3] = _round_f32(boxes[:, :3], down=True)
     pack[:, 3:6] = _round_f32(boxes[:, 3:], down=False)
-    pack[:, 6:9] = scene.means.detach().cpu().numpy()
-    pack[:, 9] = _round_f32(scene.radii.detach().double().max(-1).values.cpu().numpy(), down=False)
+    pack[:, 6:9] = keep["means"].cpu().numpy()
+    pack[:, 9] = _round_f32(keep["radii"].double().max(-1).values.cpu().numpy(), down=False)
     keep["pack"] = pack
     keep["origin"] = index.origin.double().contiguous()
     keep["cells"] = np.array([lv.cell for lv in index.levels], dtype=np.float64)
     keep["dims"] = np.ascontiguousarray(np.stack([lv.dims.cpu().numpy() for lv in index.levels]).astype(np.int64))
     keep["offsets_t"] = [lv.offsets.long().contiguous() for lv in index.levels]
-    keep["ids_t"] = [lv.ids.long().contiguous() for lv in index.levels]
+    keep["ids_t"] = [torch.from_numpy(inv[lv.ids.long().cpu().numpy()]) for lv in index.levels]  # native positions
     L = len(index.levels)
     keep["offsets"] = (ctypes.c_void_p * L)(*[t.data_ptr() for t in keep["offsets_t"]])
     keep["ids"] = (ctypes.c_void_p * L)(*[t.data_ptr() for t in keep["ids_t"]])
@@ -444,16 +455,17 @@ def _native_polytope(fn, scene, index, seeds, seeds_t, lo, hi, rot, A_box, b_box
         break
     n_planes, b_planes, ids_planes, bad_ids, bad_slack = n
     nbad = int(info[0])
+    perm = arr["perm"]  # the compiled ids are positions in spatial order
     if nbad:
         worst = float(bad_slack[:nbad].min())
         raise SeedNotFreeError(
             f"seed {'segment' if seeds.shape[0] == 2 else 'point(s)'} is within the camera radius {r:g} of "
             f"{nbad} ellipsoid(s) (worst slack {worst:.3g}); no safe polytope contains it",
-            ellipsoid_ids=torch.as_tensor(bad_ids[:nbad].copy(), device=dev), min_slack=worst,
+            ellipsoid_ids=torch.as_tensor(perm[bad_ids[:nbad]], device=dev), min_slack=worst,
         )
     A = np.vstack([A_box, n_planes[:F]])
     b = np.concatenate([b_box, b_planes[:F]])
-    kept = torch.as_tensor(ids_planes[:F].copy(), device=dev)
+    kept = torch.as_tensor(perm[ids_planes[:F]], device=dev)
     return Polytope(torch.as_tensor(A, device=dev), torch.as_tensor(b, device=dev), seeds_t, kept)
 
 

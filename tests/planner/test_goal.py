@@ -14,8 +14,11 @@ from hypothesis import strategies as st
 from cinenerf_ns.planner.errors import GoalUnreachableError, InvalidInputError, StartInCollisionError
 from cinenerf_ns.planner.goal import (
     NoFreeStartError,
+    _project_clarabel,
+    _project_onto_polytope,
     closest_safe_point,
     points_clearance_lower,
+    project_active_set,
     sample_free_starts,
 )
 
@@ -46,6 +49,81 @@ def conservative_grid(scene, lo=-1.0, res=16, size=2.0) -> Grid:
         cl = clearance(centres, scene)
     occ = cl < 0.5 * vs * np.sqrt(3)
     return Grid(occ.reshape(res, res, res), torch.full((3,), lo, dtype=torch.float64), vs)
+
+
+def projection_reference(A: np.ndarray, b: np.ndarray, t: np.ndarray) -> float:
+    """Exact (brute force, float64) distance from t to {x : A x <= b}: the projection lies in the relative interior
+    of some face, i.e. it is t's projection onto the affine hull of 0 (t itself), 1, 2 or 3 independent planes; the
+    answer is the nearest of those points that is feasible."""
+    from itertools import combinations
+
+    best = 0.0 if (A @ t <= b + 1e-12).all() else np.inf
+    for k in (1, 2, 3):
+        for S in combinations(range(len(b)), k):
+            M = A[list(S)]
+            if np.linalg.matrix_rank(M, tol=1e-9) < k:
+                continue
+            x = t - M.T @ np.linalg.solve(M @ M.T, M @ t - b[list(S)])
+            if (A @ x <= b + 1e-9).all():
+                best = min(best, float(np.linalg.norm(x - t)))
+    return best
+
+
+def random_polytope(rng, n_planes: int):
+    """A [F, 3], b [F] of a bounded polytope holding the ball of radius 0.05 around c [3]: random unit normals at
+    random offsets from c, plus a box; some planes repeated or through one vertex (degenerate cases)."""
+    c = rng.normal(size=3)
+    n = rng.normal(size=(n_planes, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    off = rng.uniform(0.05, 1.0, n_planes)
+    if n_planes >= 4 and rng.random() < 0.3:  # a pyramid apex: 4 planes through the point c + v
+        v = 0.5 * rng.normal(size=3)
+        n[:4] = v / np.linalg.norm(v) + 0.3 * rng.normal(size=(4, 3))
+        n[:4] /= np.linalg.norm(n[:4], axis=1, keepdims=True)
+        off[:4] = n[:4] @ v
+        keep = off[:4] > 0.05  # c stays strictly inside
+        n, off = np.vstack([n[:4][keep], n[4:]]), np.concatenate([off[:4][keep], off[4:]])
+    if len(n) and rng.random() < 0.3:  # a repeated plane
+        n, off = np.vstack([n, n[:1]]), np.concatenate([off, off[:1]])
+    box = np.vstack([np.eye(3), -np.eye(3)])
+    A = np.vstack([n, box])
+    b = np.concatenate([off + n @ c, np.full(6, 1.5) + box @ c])
+    return A, b, c
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**31 - 1), n_planes=st.integers(0, 12), far=st.floats(0.0, 4.0))
+def test_active_set_projection_is_the_exact_projection(seed, n_planes, far):
+    rng = np.random.default_rng(seed)
+    A, b, c = random_polytope(rng, n_planes)
+    t = c + far * rng.normal(size=3)
+    ref = projection_reference(A, b, t)
+    x = project_active_set(A, b, t, c)
+    assert x is not None
+    assert (A @ x - b).max() <= 1e-12 * (1 + np.abs(b).max())
+    assert np.linalg.norm(x - t) == pytest.approx(ref, abs=1e-9)
+    # the projection onto a convex set is unique: Clarabel finds the same point (to its tolerance)
+    assert np.linalg.norm(x - _project_clarabel(A, b, t, c)) < 1e-5
+    # the wrapper returns a point exactly inside, within rounding of the projection
+    y = _project_onto_polytope(A, b, t, interior=c)
+    assert (A @ y <= b).all() and np.linalg.norm(y - x) < 1e-9
+
+
+def test_projection_falls_back_to_clarabel_when_the_active_set_does_not_finish():
+    rng = np.random.default_rng(0)
+    A, b, c = random_polytope(rng, 10)
+    t = c + 3.0 * np.ones(3)
+    assert project_active_set(A, b, t, c, max_iter=0) is None
+    y = _project_onto_polytope(A, b, t, interior=c)
+    import cinenerf_ns.planner.goal as goal_mod
+
+    real = goal_mod.project_active_set
+    try:
+        goal_mod.project_active_set = lambda *a, **k: None
+        z = _project_onto_polytope(A, b, t, interior=c)
+    finally:
+        goal_mod.project_active_set = real
+    assert (A @ z <= b).all() and np.linalg.norm(z - y) < 1e-5
 
 
 def test_free_target_is_returned_unchanged():

@@ -60,6 +60,48 @@ def test_native_budget_is_the_python_budget():
 
 
 @needs_native
+def test_kept_workspace_gives_the_fresh_search_every_time():
+    """Large grids search with a workspace kept between calls (astar26.c: search26_ws); stamps left by earlier
+    searches (found, exhausted, Dijkstra to a set) must not change any later one: the same path as a fresh grid's
+    Python A*, also across the generation wrap-around."""
+    from cinenerf_ns.planner.astar import WORKSPACE_MIN_VOXELS
+    from cinenerf_ns.planner.coarse_path import _mcp_path
+
+    rng = np.random.default_rng(3)
+    occ = rng.random((34, 33, 30)) < 0.3
+    G = AStarGrid(occ)
+    assert G._blocked_np.size >= WORKSPACE_MIN_VOXELS  # the kept-workspace path is the one under test
+    lab = G.labels
+    free = np.argwhere(~occ)
+    for it in range(40):
+        s, g = free[rng.integers(len(free))], free[rng.integers(len(free))]
+        if it == 20:  # this search uses the last generation; the next ones start over from cleared stamps
+            G._local.ws.gen = 2**31 - 2
+            same = free[lab[tuple(free.T)] == lab[tuple(s)]]
+            g = same[np.argmax(np.abs(same - s).sum(1))]  # a long search that is sure to run
+        budget = [None, 30][it % 2] if it != 20 else None
+        outcomes = []
+        for grid, backend in ((G, "native"), (AStarGrid(occ), "python")):
+            try:
+                outcomes.append(astar(grid, s, g, max_expansions=budget, backend=backend).tolist())
+            except SearchBudgetExhausted:
+                outcomes.append("budget")
+            except GoalUnreachableError:
+                outcomes.append("unreachable")
+        assert outcomes[0] == outcomes[1], it
+        if it == 20:
+            assert G._local.ws.gen == 1 and not G._local.ws.stamp.any()
+        ends = free[rng.integers(len(free), size=3)]
+        ends = ends[lab[tuple(ends.T)] == lab[tuple(s)]]
+        if len(ends):  # Dijkstra to the nearest end: a minimum-cost path, as without a kept workspace
+            p = _mcp_path(np.where(occ, np.inf, 1.0), s, ends, grid=G)
+            check_path(p, occ, s, p[-1])
+            assert any((p[-1] == e).all() for e in ends)
+            best = min(path_cost(astar(AStarGrid(occ), s, e, backend="python")) for e in ends)
+            assert path_cost(p) == pytest.approx(best, abs=1e-9)
+
+
+@needs_native
 def test_native_long_path_on_a_big_grid():
     """A whole-grid search (a wall with one hole in the far corner) on the planner's grid size."""
     occ = np.zeros((96, 96, 57), bool)

@@ -147,6 +147,12 @@ def search26():
     return _function("astar26", "search26", [_P, _I64, _I64, _I64, _I64, _I64, _P, _F64, _I64, _P, _I64], _I64)
 
 
+def search26_ws():
+    """search26 with the caller's workspace (astar26.c: search26_ws; astar.AStarGrid keeps it), or None."""
+    return _function("astar26", "search26_ws",
+                     [_P, _I64, _I64, _I64, _I64, _I64, _P, _F64, _I64, _P, _I64, _P, _I64, _P, _P], _I64)
+
+
 _I32 = ctypes.c_int32
 
 

@@ -12,8 +12,7 @@
    Differences from the Python path (both are safe; tests compare them):
    - order: ellipsoids are bucketed by the distance lower bound (~16 per bucket; Python: chunks of the 32 nearest),
      and each bucket's planes are taken nearest plane first, as in a Python chunk; the kept planes can differ a
-     little;
-   - no two-pass culling of index cells: every ellipsoid of the box is gathered (cheap here).
+     little.
 
    Index dedupe: an ellipsoid is listed in every cell of its level that its padded AABB meets. Its copy in a
    visited cell is skipped when, along some axis, the cell is not the first of the query's range, the previous
@@ -22,10 +21,12 @@
    nothing is ever dropped (at worst a copy within the band is visited twice: a duplicate is cut off by its own
    plane). The band is 1e-6 x (cell + |face|), far wider than the float32 rounding of the packed AABB.
 
-   Memory: the index lists each ellipsoid in several cells in no spatial order, so the gather is bound by cache
-   misses. It reads one packed float32 row per ellipsoid ([N, 12]: padded AABB lo rounded down, hi rounded up,
-   mean, max semi-axis rounded up, 2 unused; built once by polytope._native_arrays), one cache line instead of
-   three arrays. Rounding only ever widens these tests; planes and exact tests use the scene's own values (float32
+   Memory: the index lists each ellipsoid in several cells, so the gather is bound by cache misses. It reads one
+   packed float32 row per ellipsoid ([N, 12]: padded AABB lo rounded down, hi rounded up, mean, max semi-axis
+   rounded up, 2 unused), one cache line instead of three arrays. polytope._native_arrays stores these rows and the
+   means, rotations and radii in spatial (Morton) order and gives the index ids as positions in that order, so the
+   rows of one cell's ellipsoids lie close together; the ids this file returns are such positions (the caller maps
+   them back to scene ids). Rounding only ever widens these tests; planes and exact tests use the scene's own values (float32
    or float64 scene arrays, f32 flag), computed in float64. */
 #include <math.h>
 #include <stdint.h>
