@@ -123,6 +123,10 @@ class AStarGrid:
         i, j, k = ijk
         return (i + 1) * self.sx + (j + 1) * self.sy + (k + 1)
 
+    def flat_many(self, ijk: np.ndarray) -> np.ndarray:
+        """Flat padded indices int64 [K] of voxels [K, 3] (vectorised flat)."""
+        return (np.asarray(ijk, dtype=np.int64).reshape(-1, 3) + 1) @ np.array([self.sx, self.sy, 1], dtype=np.int64)
+
     def unflat_many(self, f: np.ndarray) -> np.ndarray:
         """Voxels int64 [K, 3] of flat padded indices [K] (vectorised unflat)."""
         i, rem = np.divmod(np.asarray(f, dtype=np.int64), self.sx)

@@ -71,7 +71,7 @@ def _native_path(grid: AStarGrid, start, ends: np.ndarray) -> Optional[np.ndarra
     target = None
     if len(ends) > 1:
         target = np.zeros_like(grid._blocked_np)
-        target[[grid.flat(tuple(e)) for e in ends.tolist()]] = 1
+        target[grid.flat_many(ends)] = 1
     k, out = grid.native_search(start_f, grid.flat(tuple(ends[0].tolist())), target)
     if k == -1:
         return None

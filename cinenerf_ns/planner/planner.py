@@ -183,6 +183,8 @@ def _as_point(x: ArrayLike, what: str) -> np.ndarray:
     return p
 
 
+GOAL_FIRST_BOX_VOXELS = 2.0  # half-width of the goal's first polytope box (Planner._reachable_goal, step 2)
+
 class Planner:
     """Plans camera shots through one scene. ``prepare()`` once, then ``plan()`` many times."""
 
@@ -480,13 +482,26 @@ class Planner:
             pass
         ijk = torch.as_tensor(self._nearest_comp_voxel(target, comp), device=grid.device)
         c = grid.voxel_to_world(ijk).to(dev)
-        half = torch.as_tensor(np.abs(target - c.cpu().numpy()), device=dev).clamp_min(grid.voxel_size) + grid.voxel_size
-        try:
-            poly = safe_polytope(c[None], self.scene, prep.index, c - half, c + half)
-            A, b = poly.to_numpy()
-            x = _project_onto_polytope(A, b, target, interior=c.cpu().numpy())  # the seed: inside
-        except PlanningError:
-            x = None
+        c_np = c.cpu().numpy()
+        vs = float(grid.voxel_size)
+        full = np.maximum(np.abs(target - c_np), vs) + vs  # [3] half-widths of the box that reaches the target
+        # First a box of GOAL_FIRST_BOX_VOXELS voxels around c: the goal is usually within a voxel or two of it (c is
+        # the free voxel nearest to the target), and a smaller box gathers fewer ellipsoids (measured at 1M: 1.78 ->
+        # 1.37 ms median per goal, the same goals for all 100 requests of bench_planner). Only when the projection
+        # ends on a face of that box, where the larger box could let it go further, is the polytope built again in
+        # the full box. Every plane is safe either way; the full box's extra planes can only cut more.
+        x = poly = None
+        for half in (np.minimum(full, GOAL_FIRST_BOX_VOXELS * vs), full):
+            try:
+                h = torch.as_tensor(half, device=dev)
+                poly = safe_polytope(c[None], self.scene, prep.index, c - h, c + h)
+                A, b = poly.to_numpy()
+                x = _project_onto_polytope(A, b, target, interior=c_np)  # the seed: inside
+            except PlanningError:
+                x = None
+            on_face = x is not None and bool((np.abs(np.abs(x - c_np) - half) <= 1e-9 * (1 + np.abs(x).max())).any())
+            if x is None or not on_face or (half >= full).all():
+                break
         if x is None:
             return ReachableGoal(c.cpu().numpy(), ijk.cpu().numpy())
         return ReachableGoal(x, ijk.cpu().numpy(), poly)
@@ -537,7 +552,7 @@ class Planner:
         piece = max(r, 0.5 * prep.grid.voxel_size)
         n = np.maximum(1, np.ceil(np.linalg.norm(b - a, axis=1) / piece).astype(np.int64))  # [P]
         owner = np.repeat(np.arange(len(a)), n)
-        frac = np.concatenate([(np.arange(k) + 0.5) / k for k in n])
+        frac = (np.arange(len(owner)) - (np.cumsum(n) - n)[owner] + 0.5) / n[owner]  # (k + 1/2) / n per piece
         mids = a[owner] + frac[:, None] * (b - a)[owner]
         half = 0.5 * np.linalg.norm(b - a, axis=1)[owner] / n[owner]
         dev = self.scene.device

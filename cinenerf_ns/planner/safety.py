@@ -71,8 +71,8 @@ def _dense_samples(shot_or_positions: Any, times: Optional[Any], max_spacing: fl
     else:
         approx_len = chord
     sub = np.maximum(1, np.ceil(approx_len / max_spacing).astype(np.int64))  # pieces per interval
-    frac = np.concatenate([np.arange(n) / n for n in sub])  # [S-1]
-    idx = np.repeat(np.arange(len(f_pos) - 1), sub)
+    idx = np.repeat(np.arange(len(f_pos) - 1), sub)  # [S-1] the interval of each piece
+    frac = (np.arange(len(idx)) - (np.cumsum(sub) - sub)[idx]) / sub[idx]  # [S-1] k / n within its interval
     t = np.concatenate([f_times[idx] + frac * np.diff(f_times)[idx], f_times[-1:]])
     if curve:
         ctau = np.concatenate([tau[idx] + frac * np.diff(tau)[idx], tau[-1:]])

@@ -102,8 +102,11 @@ def test_active_set_projection_is_the_exact_projection(seed, n_planes, far):
     assert x is not None
     assert (A @ x - b).max() <= 1e-12 * (1 + np.abs(b).max())
     assert np.linalg.norm(x - t) == pytest.approx(ref, abs=1e-9)
-    # the projection onto a convex set is unique: Clarabel finds the same point (to its tolerance)
-    assert np.linalg.norm(x - _project_clarabel(A, b, t, c)) < 1e-5
+    # the projection onto a convex set is unique: Clarabel finds about the same point (its tolerances leave
+    # ~1e-5 of position error: 2.7e-5 seen on the H100 host), never a closer one
+    xc = _project_clarabel(A, b, t, c)
+    assert np.linalg.norm(x - xc) < 1e-3
+    assert np.linalg.norm(x - t) <= np.linalg.norm(xc - t) + 1e-9
     # the wrapper returns a point exactly inside, within rounding of the projection
     y = _project_onto_polytope(A, b, t, interior=c)
     assert (A @ y <= b).all() and np.linalg.norm(y - x) < 1e-9

@@ -290,3 +290,40 @@ def test_grid_rule_shortcut_keeps_interior_segments_in_free_voxels(grid_room):
         for i in range(len(g) - 1):
             if idx[i + 1] - idx[i] > 1:
                 assert vox.segments_free(g[i][None], g[i + 1][None])[0]
+
+
+@pytest.mark.parametrize("first_box", [2.0, 0.25])
+def test_goal_from_the_small_box_is_as_close_as_from_the_full_box(room, monkeypatch, first_box):
+    """Planner._reachable_goal builds the goal polytope in a box of GOAL_FIRST_BOX_VOXELS voxels first and in the
+    full box only when the projection ends on that box's face. Against the full box alone (the reference, built
+    here): never farther from the target, and safe. With a tiny first box (0.25 voxel) the second pass runs and the
+    goal is the reference's."""
+    import cinenerf_ns.planner.planner as planner_mod
+    from cinenerf_ns.planner.goal import _project_onto_polytope
+    from cinenerf_ns.planner.polytope import safe_polytope
+
+    s, e, pl = room
+    monkeypatch.setattr(planner_mod, "GOAL_FIRST_BOX_VOXELS", first_box)
+    grid = pl.prepared.grid
+    vs = float(grid.voxel_size)
+    comp = pl._main_component()
+    rng = np.random.default_rng(0)
+    n_second = 0
+    for o in s.objects:
+        for _ in range(3):
+            target = o.center + rng.uniform(-0.25, 0.25, 3) * o.size
+            goal = pl._reachable_goal(target, comp)
+            if goal.polytope is None:  # step 1 answered (target free and reachable) or no polytope
+                continue
+            c = grid.voxel_to_world(torch.as_tensor(goal.voxel)).double()
+            full = np.maximum(np.abs(target - c.numpy()), vs) + vs
+            P = safe_polytope(c[None], e, pl.prepared.index, c - torch.as_tensor(full), c + torch.as_tensor(full))
+            A, b = P.to_numpy()
+            ref = _project_onto_polytope(A, b, target, interior=c.numpy())
+            assert np.linalg.norm(goal.point - target) <= np.linalg.norm(ref - target) + 1e-9
+            assert float(clearance(torch.as_tensor(goal.point)[None], e, pl.prepared.index)[0]) >= 0
+            if first_box < 1:
+                n_second += 1
+                np.testing.assert_allclose(goal.point, ref, atol=1e-9)
+    if first_box < 1:
+        assert n_second > 0
