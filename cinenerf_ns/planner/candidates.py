@@ -32,9 +32,12 @@ verification) run in forked worker processes, one candidate per task, each on on
 parallelism over CPU processes, not vectorised batching: the shortcut and verification are then per
 candidate instead of lock-step over all K, which costs more CPU in total but runs on all cores. The parent
 keeps start sampling, the spare rounds, the safety check of every worker's report (UnsafeTrajectoryError
-exactly as in-process), scoring (on the GPU when the scene is there; CUDA is never used in a worker; shots
-that come back early are scored in chunks while the other workers still run, EARLY_SCORE_MIN) and
-ranking; results equal the in-process path's (same starts, shots and ranks). The workers are forked after
+exactly as in-process), scoring and ranking. Scoring: by default (PlannerConfig.worker_scoring) each worker also
+computes its shot's score inputs (sight lines and capped exact clearance of the scored frames, score_parts on the
+CPU copy with the compiled searches of native/polytope.c) and this process only combines them; otherwise this
+process scores (on the GPU when the scene is there; CUDA is never used in a worker; shots that come back early
+are scored in chunks while the other workers still run, EARLY_SCORE_MIN). Results equal the in-process path's
+(same starts, shots and ranks; on a GPU scene the score terms agree to rounding, the two searches being exact). The workers are forked after
 prepare() and share the prepared CPU state (the CPU mirror of a GPU scene, index, grids) copy-on-write, so
 they add little memory. Fork only: on macOS / Windows (no 'fork' start method) candidates are planned in
 this process. When this process builds corridors with the batched backend (PlannerConfig.corridor_backend, a
@@ -136,26 +139,49 @@ def score_shots(
     cfg = config or ScoreConfig()
     cfg.validate()
     look = _as_point(look_at, "look-at point")
+    parts = score_parts(planner, shots, look, cfg, object_radius, object_samples, exclude, batch=True)
+    return [score_from_parts(sh, part, look, cfg, object_radius, object_center) for sh, part in zip(shots, parts)]
+
+
+def score_parts(planner: Planner, shots: List[Shot], look: np.ndarray, cfg: ScoreConfig, object_radius: float,
+                object_samples: Optional[Any], exclude: Optional[torch.Tensor], batch: bool) -> List[tuple]:
+    """The expensive per-frame inputs of each shot's score, one occlusion call and one exact-clearance call for all
+    shots: [(tested frame indices [T'], occluded [T', S] bool, clearance [T'] exact up to the cap)].
+
+    batch: on the scene's own device (a GPU when there is one: many frames x many Gaussians); False: on the request
+    device (the CPU copy of a GPU scene), where the compiled sight-line and capped-distance searches apply
+    (native/polytope.c): what the candidate worker processes use, since they cannot use CUDA. Both are exact: the
+    clearances agree to ~1e-13, the occlusion flags except for sight lines that graze an ellipsoid within rounding."""
     if not (math.isfinite(object_radius) and object_radius >= 0):
         raise InvalidInputError(f"object_radius must be finite and >= 0, got {object_radius}.")
     prep = planner._prep()
     targets = look[None] if object_samples is None else np.asarray(object_samples, np.float64).reshape(-1, 3)
     idx = [_frames(sh.num_frames, cfg.occlusion_frames) for sh in shots]
     pos = np.concatenate([sh.positions[i] for sh, i in zip(shots, idx)])  # [sum T', 3]
-    # many frames x many Gaussians: on the scene's own device (a GPU when there is one)
-    scene = planner.batch_scene
-    index = prep.batch_index if prep.batch_index is not None else prep.index
+    scene, index = planner.scene, prep.index
+    if batch:
+        scene = planner.batch_scene
+        index = prep.batch_index if prep.batch_index is not None else prep.index
+    if exclude is not None:
+        exclude = torch.as_tensor(exclude, device=scene.device)
     occ = sight_lines_blocked(pos, targets, scene, index, exclude=exclude,
                               stop_distance=object_radius).cpu().numpy()  # [sum T', S]
-    clr = planner.clearance(pos, cap=cfg.clearance_cap, batch=True)  # [sum T'] exact up to the cap
+    clr = planner.clearance(pos, cap=cfg.clearance_cap, batch=batch)  # [sum T'] exact up to the cap
     out, o = [], 0
-    for sh, i in zip(shots, idx):
+    for i in idx:
         n = len(i)
-        sc = score_terms(sh, look, occ[o : o + n], clr[o : o + n], object_radius, object_center, cfg)
-        sc.tested_frame_index = i
-        out.append(sc)
+        out.append((i, occ[o : o + n], clr[o : o + n]))
         o += n
     return out
+
+
+def score_from_parts(shot: Shot, part: tuple, look: np.ndarray, cfg: ScoreConfig, object_radius: float,
+                     object_center: Optional[Any]) -> ShotScore:
+    """A shot's ShotScore from its score_parts entry (scoring.score_terms; cheap)."""
+    i, occ, clr = part
+    sc = score_terms(shot, look, occ, clr, object_radius, object_center, cfg)
+    sc.tested_frame_index = i
+    return sc
 
 
 def _lapper(tm: Dict[str, float]):
@@ -234,14 +260,16 @@ def _candidate_shot(planner: Planner, traj, corridor, look_p: np.ndarray, goal_p
 
 
 def _plan_candidate_task(planner: Planner, config, start: np.ndarray, goal_p: np.ndarray, look_p: np.ndarray,
-                         goal_cache: Dict[int, Any], limits: Optional[DynamicLimits]) -> Dict[str, Any]:
+                         goal_cache: Dict[int, Any], limits: Optional[DynamicLimits],
+                         score: Optional[tuple] = None) -> Dict[str, Any]:
     """One candidate, whole, in a worker process (workers.py): the in-process rounds' stages for a single
     start, on the planner's CPU state only (never batch=True / batch_scene: no CUDA after fork).
 
     Returns {"shot": verified Shot (report in shot.safety) or None, "error": the failure message or None,
-    "timings": per-stage ms, "goal_cache": goals found here for components the parent had not cached}. The
-    failures caught are exactly those the in-process path records and replaces with a spare; anything else
-    propagates to the parent."""
+    "timings": per-stage ms, "goal_cache": goals found here for components the parent had not cached,
+    "score_parts": the shot's score_parts entry (on the CPU copy) when ``score`` = (ScoreConfig, object_radius,
+    object_samples, exclude) is given, else None}. The failures caught are exactly those the in-process path
+    records and replaces with a spare; anything else propagates to the parent."""
     way = _candidate_way_task(planner, config, start, goal_p, goal_cache)  # sets the request's config
     out = {"shot": None, "error": way["error"], "timings": way["timings"], "goal_cache": way["goal_cache"]}
     if way["error"] is not None:
@@ -257,7 +285,13 @@ def _plan_candidate_task(planner: Planner, config, start: np.ndarray, goal_p: np
     fin = _candidate_finish_task(planner, config, corridor, start, way["goal"], look_p, goal_p, limits)
     for name, ms in fin["timings"].items():
         out["timings"][name] = out["timings"].get(name, 0.0) + ms
-    out.update(shot=fin["shot"], error=fin["error"])
+    out.update(shot=fin["shot"], error=fin["error"], score_parts=None)
+    if score is not None and fin["shot"] is not None and fin["shot"].safety["safe"]:
+        t = time.perf_counter()
+        cfg, object_radius, object_samples, exclude = score
+        out["score_parts"] = score_parts(planner, [fin["shot"]], look_p, cfg, object_radius, object_samples, exclude,
+                                         batch=False)[0]
+        _lapper(out["timings"])("score_ms", t)
     return out
 
 
@@ -454,14 +488,29 @@ def _plan_candidates(
         if pool is not None:
             # whole candidates in the workers; the *_ms stage keys are then sums of the workers' wall times
             # per stage (they overlap), pool_ms is this process's wall time waiting for the round (scoring
-            # excluded). Shots that come back early are scored while the other workers still run (scores are per
-            # shot, so chunks give the same scores as one call); score_ms sums these calls.
+            # excluded). With worker_scoring each worker also computes its shot's score inputs (score_parts on the
+            # CPU copy, compiled searches) and this process only combines them; otherwise shots that come back
+            # early are scored here while the other workers still run (scores are per shot, so chunks give the
+            # same scores as one call); score_ms sums these calls.
             results: List[Any] = [None] * len(batch)
             ready: List[int] = []  # positions in batch of finished, successful tasks not scored yet
             chunk = max(EARLY_SCORE_MIN, k // 4)
+            score_cfg = score_config or ScoreConfig()
+            score_cfg.validate()
+            in_workers = cfg.worker_scoring
+            score_args = (score_cfg, object_radius, object_samples,
+                          None if exclude is None else torch.as_tensor(exclude).cpu()) if in_workers else None
             for done, (i, res) in enumerate(pool.imap_unordered(
-                    _plan_candidate_task, [(cfg, starts[ci], goal_p, look_p, goal_cache, limits) for ci in batch]), 1):
+                    _plan_candidate_task,
+                    [(cfg, starts[ci], goal_p, look_p, goal_cache, limits, score_args) for ci in batch]), 1):
                 results[i] = res
+                if res["error"] is None and res.get("score_parts") is not None:
+                    t_s = time.perf_counter()
+                    early_scores[batch[i]] = score_from_parts(res["shot"], res["score_parts"], look_p, score_cfg,
+                                                              object_radius, object_center)
+                    lap("score_ms", t_s)
+                    t += time.perf_counter() - t_s  # not pool time
+                    continue
                 if res["error"] is None:
                     ready.append(i)
                 if len(ready) >= chunk and done < len(batch):

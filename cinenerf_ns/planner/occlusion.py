@@ -69,6 +69,23 @@ def _local(x: Tensor, scene: EllipsoidScene, g: Tensor, translate: bool) -> Tens
     return (d[:, :, None] * rot).sum(-2) / rad
 
 
+def _native_blocked(fn, a: Tensor, b: Tensor, scene: EllipsoidScene, index, piece_len: float,
+                    exclude: Optional[Tensor]) -> Tensor:
+    """bool [L]: segment a[l] -> b[l] meets an ellipsoid (not excluded), through native/polytope.c."""
+    from .polytope import _native_arrays
+
+    arr = _native_arrays(scene, index)
+    p0 = np.ascontiguousarray(a.cpu().numpy(), dtype=np.float64)
+    p1 = np.ascontiguousarray(b.cpu().numpy(), dtype=np.float64)
+    skip = None
+    if exclude is not None:  # the compiled code's ids are positions in Morton order (_native_arrays' "perm")
+        skip = np.ascontiguousarray(exclude.cpu().numpy()[arr["perm"]], dtype=np.uint8)
+    out = np.zeros(p0.shape[0], dtype=np.uint8)
+    fn(*arr["args"], p0.ctypes.data, p1.ctypes.data, p0.shape[0], float(piece_len),
+       None if skip is None else skip.ctypes.data, out.ctypes.data)
+    return torch.from_numpy(out.astype(bool)).to(a.device)
+
+
 def sight_lines_blocked(
     cameras: Any,  # [T, 3]
     targets: Any,  # [S, 3] or [3]
@@ -77,12 +94,16 @@ def sight_lines_blocked(
     exclude: Optional[Tensor] = None,  # [N] bool
     stop_distance: float = 0.0,
     chunk_pieces: int = 200_000,
+    backend: str = "auto",
 ) -> Tensor:
     """bool [T, S]: True where the sight line camera t -> target s passes through an ellipsoid.
 
     index: the scene's GridIndex (built here if None: pass the planner's to reuse it).
     exclude: Gaussians that never occlude. stop_distance: the line stops this far before the target
-    (scene units; lines shorter than it are never blocked). Runs on the scene's device."""
+    (scene units; lines shorter than it are never blocked). Runs on the scene's device.
+    backend: "auto" (a CPU scene with a GridIndex on the CPU: the compiled test, native/polytope.c's
+    cn_segments_blocked: the same pieces and the same piece test, one line at a time, stopping at its first hit),
+    "native" (error if it does not apply) or "python"."""
     dev = scene.device
     cam = _as_points(cameras, "camera positions", dev)  # [T, 3]
     tgt = _as_points(targets, "target points", dev)  # [S, 3]
@@ -105,6 +126,15 @@ def sight_lines_blocked(
     if live.numel() == 0:
         return blocked.reshape(T, S)
     piece_len = max(float(index.levels[0].cell), 1e-6)
+    from .native import choose, segments_blocked_c
+    from .polytope import native_applies
+
+    fn = choose(backend, segments_blocked_c, "polytope", "sight-line test", applies=native_applies(scene, index),
+                needs="a CPU scene and a GridIndex on the CPU")
+    if fn is not None:
+        blocked[live] = _native_blocked(fn, p[live], p[live] + t_end[live, None] * (q - p)[live], scene, index,
+                                        piece_len, exclude)
+        return blocked.reshape(T, S)
     n_pieces = torch.clamp(torch.ceil(length[live] * t_end[live] / piece_len), min=1).long()  # [L']
     ends = torch.cumsum(n_pieces, 0)
     total = int(ends[-1])

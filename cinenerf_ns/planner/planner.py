@@ -118,6 +118,11 @@ class PlannerConfig:
     when the 'fork' start method exists (Linux) and there are >= 4 CPUs, else 0. 0: plan in this process.
     N: N workers. Workers are never used when requests run on a GPU (request_device 'scene' with a CUDA
     scene): CUDA cannot be used after fork."""
+    worker_scoring: bool = True
+    """With candidate workers: each worker also computes its shot's score inputs (sight lines and exact clearance of
+    the scored frames, on the CPU copy with the compiled searches) and the parent only combines them. False: the
+    parent scores the shots (on the GPU when the scene is there) while the workers run. Same score terms (the
+    clearances agree to ~1e-13; occlusion flags can differ only for sight lines grazing an ellipsoid)."""
 
 
 @dataclass

@@ -422,6 +422,7 @@ def _native_arrays(scene, index) -> dict:
     pack[:, 3:6] = _round_f32(boxes[:, 3:], down=False)
     pack[:, 6:9] = keep["means"].cpu().numpy()
     pack[:, 9] = _round_f32(keep["radii"].double().max(-1).values.cpu().numpy(), down=False)
+    pack[:, 10] = _round_f32(keep["radii"].double().min(-1).values.cpu().numpy(), down=True)  # distance upper bounds
     keep["pack"] = pack
     keep["origin"] = index.origin.double().contiguous()
     keep["cells"] = np.array([lv.cell for lv in index.levels], dtype=np.float64)

@@ -187,3 +187,29 @@ def test_cuda_clearance_matches_cpu():
     scc = sc.to("cuda")
     b = clearance(pts.cuda(), scc, GridIndex.build(scc))
     torch.testing.assert_close(a, b.cpu(), atol=1e-10, rtol=0)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 100_000), cap=st.sampled_from([0.02, 0.1, 0.4, 3.0]), dtype=st.sampled_from([F64, torch.float32]),
+       spread=st.sampled_from([0.5, 1.5, 4.0]))
+def test_compiled_capped_clearance_is_the_brute_force_one(seed, cap, dtype, spread):
+    """clearance's compiled path (native/polytope.c: cn_points_distance; a finite max_distance, a CPU GridIndex)
+    against the dense float64 reference, the torch path, and points inside ellipsoids (measured by the torch path
+    instead), on float64 and float32 scenes."""
+    from cinenerf_ns.planner import native
+
+    if native.points_distance_c() is None:
+        pytest.skip(f"no compiled polytope library: {native.native_status()}")
+    sc = random_scene(150, seed, rmin=0.01, rmax=0.2, camera_radius=0.03).to(dtype=dtype)
+    g = torch.Generator().manual_seed(seed)
+    pts = (torch.rand(90, 3, generator=g, dtype=F64) * 2 - 1) * spread
+    pts[:5] = sc.means[:5].double()  # centres: inside
+    s64 = sc.to(dtype=F64)
+    want = point_ellipsoid_distance(pts, s64.means, s64.rotations, s64.radii).min(-1).values.clamp_max(cap) - 0.03
+    idx = GridIndex.build(sc)
+    got = clearance(pts, sc, idx, max_distance=cap, backend="native")
+    torch.testing.assert_close(got, want, atol=1e-12, rtol=0)
+    torch.testing.assert_close(got, clearance(pts, sc, idx, max_distance=cap, backend="python"), atol=1e-12, rtol=0)
+    assert (got[:5] < -0.03).all()
+    with pytest.raises(RuntimeError, match="does not apply"):
+        clearance(pts, sc, idx, backend="native")  # no cap: the compiled search does not apply

@@ -5,10 +5,14 @@ import pytest
 import torch
 from hypothesis import given, settings, strategies as st
 
+from cinenerf_ns.planner import native
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.occlusion import sight_lines_blocked, sight_lines_blocked_reference
 from cinenerf_ns.planner.scene import EllipsoidScene, quat_wxyz_to_rotmat
 from cinenerf_ns.planner.spatial_index import GridIndex
+
+# the compiled test (native/polytope.c: cn_segments_blocked) and the torch path, both against the reference
+BACKENDS = ["python"] + (["native"] if native.segments_blocked_c() is not None else [])
 
 
 def _random_scene(rng, n):
@@ -45,8 +49,6 @@ def test_matches_brute_force_reference(seed, n, stop, use_mask):
     cam = rng.uniform(-1.5, 1.5, (7, 3))
     tgt = rng.uniform(-1, 1, (3, 3))
     mask = rng.random(n) < 0.3 if use_mask else None
-    got = sight_lines_blocked(cam, tgt, sc, GridIndex.build(sc), exclude=None if mask is None else torch.as_tensor(mask),
-                              stop_distance=stop).numpy()
     ref = sight_lines_blocked_reference(cam, tgt, means, rot, radii, exclude=mask, stop_distance=stop)
     m_eff = means if mask is None else means[~mask]
     if len(m_eff):
@@ -54,7 +56,11 @@ def test_matches_brute_force_reference(seed, n, stop, use_mask):
         clear_cut = _tangency_gap(cam, tgt, m_eff, r_eff, a_eff, stop) > 1e-9
     else:
         clear_cut = np.ones_like(ref)
-    assert np.array_equal(got[clear_cut], ref[clear_cut])
+    idx = GridIndex.build(sc)
+    for backend in BACKENDS:
+        got = sight_lines_blocked(cam, tgt, sc, idx, exclude=None if mask is None else torch.as_tensor(mask),
+                                  stop_distance=stop, backend=backend).numpy()
+        assert np.array_equal(got[clear_cut], ref[clear_cut]), backend
 
 
 def test_wall_blocks_and_mask_or_stop_distance_unblocks():
@@ -65,12 +71,16 @@ def test_wall_blocks_and_mask_or_stop_distance_unblocks():
                         torch.ones(2, dtype=torch.float64))
     cams = np.array([[-1.0, 0, 0], [-1.0, 2.0, 0]])  # behind the wall / beside it
     tgt = np.array([1.0, 0, 0])  # centre of the second ellipsoid (the "object")
-    b = sight_lines_blocked(cams, tgt, sc).numpy()[:, 0]
-    assert b.tolist() == [True, True]  # the object's own ellipsoid blocks its centre from everywhere
-    b = sight_lines_blocked(cams, tgt, sc, exclude=torch.tensor([False, True])).numpy()[:, 0]
-    assert b.tolist() == [True, False]
-    b = sight_lines_blocked(cams, tgt, sc, stop_distance=0.25).numpy()[:, 0]
-    assert b.tolist() == [True, False]
+    idx = GridIndex.build(sc)
+    for backend in BACKENDS:
+        b = sight_lines_blocked(cams, tgt, sc, idx, backend=backend).numpy()[:, 0]
+        assert b.tolist() == [True, True]  # the object's own ellipsoid blocks its centre from everywhere
+        for first in (True, False):  # whichever of the two the compiled code's spatial order puts first
+            mask = torch.tensor([not first, first])
+            b = sight_lines_blocked(cams, tgt, sc, idx, exclude=mask, backend=backend).numpy()[:, 0]
+            assert b.tolist() == ([True, False] if first else [True, True]), (backend, first)
+        b = sight_lines_blocked(cams, tgt, sc, idx, stop_distance=0.25, backend=backend).numpy()[:, 0]
+        assert b.tolist() == [True, False]
 
 
 def test_bad_input():
@@ -105,8 +115,10 @@ def test_grazing_lines_match_reference(seed, rho, tpos):
     w0, w1 = rho * n - tpos * length * d, rho * n + (1 - tpos) * length * d
     to_world = lambda w: means[g] + rot[g] @ (radii[g] * w)  # noqa: E731
     cam, tgt = to_world(w0), to_world(w1)
-    got = sight_lines_blocked(cam[None], tgt[None], sc, GridIndex.build(sc)).numpy()[0, 0]
     ref = sight_lines_blocked_reference(cam[None], tgt[None], means, rot, radii)[0, 0]
-    assert got == ref
+    idx = GridIndex.build(sc)
+    for backend in BACKENDS:
+        got = sight_lines_blocked(cam[None], tgt[None], sc, idx, backend=backend).numpy()[0, 0]
+        assert got == ref, backend
     if 0 <= tpos <= 1:  # the closest approach is on the segment: blocked iff rho <= 1 (or another ellipsoid)
         assert got or rho > 1

@@ -51,16 +51,20 @@ def _assert_same(r0, r1):
         assert len(x.shot.corridor) == len(y.shot.corridor)
 
 
-def test_workers_give_the_same_ranked_shots(planners, monkeypatch):
+@pytest.mark.parametrize("worker_scoring", [True, False])
+def test_workers_give_the_same_ranked_shots(planners, monkeypatch, worker_scoring):
     p0, p2 = planners
+    p2.config.worker_scoring = worker_scoring
     t0, t2 = {}, {}
     r0 = plan_candidates(p0, GO_TO, TARGET, k=10, seed=3, object_radius=STOP, timings=t0)
     calls = []
     real = candidates.score_shots
     monkeypatch.setattr(candidates, "score_shots", lambda pl, shots, *a: calls.append(len(shots)) or real(pl, shots, *a))
     r2 = plan_candidates(p2, GO_TO, TARGET, k=10, seed=3, object_radius=STOP, timings=t2)
-    # shots that came back early were scored while the other workers ran (chunks of max(4, k // 4)), the rest after
-    assert len(calls) >= 2 and sum(calls) == 10 and calls[0] == 4
+    if worker_scoring:  # the workers computed every shot's score inputs: nothing is scored here
+        assert calls == []
+    else:  # shots that came back early were scored while the other workers ran (chunks of max(4, k // 4)), the rest after
+        assert len(calls) >= 2 and sum(calls) == 10 and calls[0] == 4
     assert len(r0) == 10
     _assert_same(r0, r2)
     assert all(x.shot.safety["safe"] for x in r2)
@@ -200,8 +204,13 @@ def test_no_workers_for_cuda_requests():
     assert pl.candidate_workers() == 0 and pl.candidate_pool() is None
     pl = _planner(2, scene=walled_target_scene().to("cuda"))  # auto: requests on the CPU mirror
     assert pl.candidate_workers() == 2
-    r = plan_candidates(pl, GO_TO, TARGET, k=4, seed=3, object_radius=STOP)  # scoring on the GPU, in the parent
+    r = plan_candidates(pl, GO_TO, TARGET, k=4, seed=3, object_radius=STOP)  # score inputs in the workers (CPU)
     assert all(x.shot.safety["safe"] for x in r)
+    pl.config.worker_scoring = False
+    r2 = plan_candidates(pl, GO_TO, TARGET, k=4, seed=3, object_radius=STOP)  # scoring on the GPU, in the parent
+    assert [x.candidate for x in r] == [x.candidate for x in r2]
+    for x, y in zip(r, r2):  # exact both ways: the capped clearances agree to rounding
+        assert x.score.total == pytest.approx(y.score.total, rel=1e-9, abs=1e-9)
     pl.close()
 
 
@@ -276,5 +285,28 @@ def test_imap_unordered_returns_every_result_with_its_index():
         pool = pl.candidate_pool()
         got = dict(pool.imap_unordered(isinstance, [(int,), (Planner,), (str,), (Planner,)]))
         assert got == {0: False, 1: True, 2: False, 3: True}
+    finally:
+        pl.close()
+
+
+def _lazy_modules_loaded(planner) -> list:
+    import sys
+
+    return [m in sys.modules for m in ("scipy.optimize", "scipy.optimize._linprog_highs", "scipy.linalg")]
+
+
+def test_workers_inherit_the_lazily_imported_libraries(monkeypatch):
+    """The pool loads scipy.optimize (HiGHS) etc. before it forks, so no worker pays the import in a request."""
+    from cinenerf_ns.planner import workers
+
+    calls = []
+    real = workers._preload
+    monkeypatch.setattr(workers, "_preload", lambda: calls.append(len(mp.active_children())) or real())
+    pl = _planner(2)
+    try:
+        before = len(mp.active_children())
+        pool = pl.candidate_pool()
+        assert calls == [before]  # once, before the workers were forked
+        assert pool.map(_lazy_modules_loaded, [(), ()]) == [[True, True, True]] * 2
     finally:
         pl.close()

@@ -178,6 +178,24 @@ def points_collide_c():
         _I64)
 
 
+def points_distance_c():
+    """The compiled capped exact point distance (polytope.c: cn_points_distance), or None."""
+    return _function(
+        "polytope", "cn_points_distance",
+        [_P, _P, _P, _P, _I32, _P, _I32, _P, _P, _P, _P, _F64,  # scene and index (as above)
+         _P, _I64, _F64, _P],  # points [P, 3], P, max distance, out [P]
+        _I64)
+
+
+def segments_blocked_c():
+    """The compiled sight-line test (polytope.c: cn_segments_blocked), or None."""
+    return _function(
+        "polytope", "cn_segments_blocked",
+        [_P, _P, _P, _P, _I32, _P, _I32, _P, _P, _P, _P, _F64,  # scene and index (as above)
+         _P, _P, _I64, _F64, _P, _P],  # p0 [L, 3], p1 [L, 3], L, piece length, skip [N] uint8 or NULL, out [L]
+        _I64)
+
+
 def segments_free_c():
     """The compiled voxel walk (gridpoly.c: cn_segments_free), or None."""
     return _function("gridpoly", "cn_segments_free", [_P, _P, _P, _F64, _P, _P, _I64, _F64, _P], _I64)

@@ -23,7 +23,7 @@
 
    Memory: the index lists each ellipsoid in several cells, so the gather is bound by cache misses. It reads one
    packed float32 row per ellipsoid ([N, 12]: padded AABB lo rounded down, hi rounded up, mean, max semi-axis
-   rounded up, 2 unused), one cache line instead of three arrays. polytope._native_arrays stores these rows and the
+   rounded up, min semi-axis rounded down, 1 unused), one cache line instead of three arrays. polytope._native_arrays stores these rows and the
    means, rotations and radii in spatial (Morton) order and gives the index ids as positions in that order, so the
    rows of one cell's ellipsoids lie close together; the ids this file returns are such positions (the caller maps
    them back to scene ids). Rounding only ever widens these tests; planes and exact tests use the scene's own values (float32
@@ -721,6 +721,216 @@ int64_t cn_points_collide(
                     }
         }
         hit[q] = (uint8_t)collides;
+    }
+    return 0;
+}
+
+/* ---------------------------------------------------------------- exact distances and sight lines (scoring) */
+
+/* F(t) = sum c_i / (lam_i + t)^2 - 1 with c_i = lam_i w_i^2 (its root t > 0 gives the closest surface point of an
+   outside body point w: x_i = lam_i w_i / (lam_i + t)); F is convex and decreasing on t > -min lam. */
+static double f_closest(const double c[3], const double lam[3], double t, double *df) {
+    double s = 0.0, ds = 0.0;
+    for (int i = 0; i < 3; i++) {
+        double den = lam[i] + t, q = c[i] / (den * den);
+        s += q;
+        ds -= 2.0 * q / den;
+    }
+    *df = ds;
+    return s - 1.0;
+}
+
+/* Exact Euclidean distance from an OUTSIDE body point w (sum w^2 / lam > 1) to the ellipsoid with squared semi-axes
+   lam: Newton from a lower bound of the root (monotone on a convex decreasing function), safeguarded by bisection
+   against an upper bound, to relative 1e-15, as distance._distance_local does in Eberly's scaled variables. */
+static double ell_dist_exact(const double w[3], const double lam[3]) {
+    double c[3], lo = 0.0, sum = 0.0, df;
+    for (int i = 0; i < 3; i++) {
+        c[i] = lam[i] * w[i] * w[i];
+        sum += c[i];
+        lo = fmax(lo, sqrt(c[i]) - lam[i]);  /* term i alone is >= 1 up to here */
+    }
+    double hi = fmax(sqrt(sum), lo);  /* sum c_i / t^2 <= 1 there */
+    for (int it = 0; it < 200; it++) {
+        double g = f_closest(c, lam, lo, &df);
+        double newton = lo - g / df;
+        double mid = 0.5 * (lo + hi), dm;
+        double lo2 = lo, hi2 = hi;
+        if (f_closest(c, lam, mid, &dm) > 0) lo2 = mid; else hi2 = mid;
+        if (isfinite(newton) && newton > lo2 && newton < hi2) {
+            if (f_closest(c, lam, newton, &dm) >= 0) lo2 = newton; else hi2 = newton;
+        }
+        int done = (hi2 - lo2) <= 1e-15 * (1.0 + fabs(hi2)) || fabs(newton - lo) <= 1e-15 * (1.0 + fabs(lo));
+        lo = lo2;
+        hi = hi2;
+        if (done) break;
+    }
+    double d = 0.0;
+    for (int i = 0; i < 3; i++) {
+        double e = lo * w[i] / (lam[i] + lo);
+        d += e * e;
+    }
+    return sqrt(d);
+}
+
+/* out[p] = min(max_d, min over ellipsoids of the Euclidean distance from point p to the ellipsoid) for points
+   outside every ellipsoid; NaN where p is inside (or on) one (the caller measures those another way).
+   Candidates: an ellipsoid closer than a bound B of the answer has its padded AABB meeting the cube of half-width
+   h = max(B - pad, 0) around p (as GridIndex.query_points), so it is listed in a cell meeting that cube. Cells are
+   visited in Chebyshev rings around p's cell, nearest first; ring k (k >= 1) lies at least (k - 1) cells from p,
+   so the search stops at the first ring beyond h. B starts at max_d and only shrinks: each ring is read twice, first
+   for the cheap upper bounds |p - mu| - min semi-axis (the ball of that radius lies inside the ellipsoid), then for
+   the exact distance of every entry whose bounding-sphere lower bound |p - mu| - max semi-axis is below B. The
+   packed mean and radii are float32, rounded outward by the slack below; the answer is the smallest EXACT distance
+   (or max_d). Copies of one ellipsoid in several cells are simply measured again. */
+int64_t cn_points_distance(
+    const void *means, const void *rots, const void *radii, const float *pack, int32_t f32,
+    const double *origin, int32_t n_levels, const double *cells, const int64_t *dims,
+    const int64_t *const *offsets, const int64_t *const *ids, double pad,
+    const double *points, int64_t P, double max_d, double *out) {
+    if (!(max_d >= 0) || !isfinite(max_d)) return -1;
+    for (int64_t q = 0; q < P; q++) {
+        const double *p = points + 3 * q;
+        double best = max_d, bound = max_d;  /* best: smallest exact distance (or max_d); bound >= the answer */
+        int inside = 0;
+        for (int L = 0; L < n_levels && !inside; L++) {
+            double cell = cells[L];
+            const int64_t *dm = dims + 3 * L;
+            const int64_t *off = offsets[L], *lid = ids[L];
+            int64_t c0[3];
+            for (int i = 0; i < 3; i++) c0[i] = (int64_t)floor((p[i] - origin[i]) / cell);
+            for (int64_t k = 0; !inside; k++) {
+                double h = fmax(bound - pad, 0.0);
+                if (k >= 1 && (double)(k - 1) * cell > h * (1.0 + 1e-12) + 1e-12) break;  /* ring beyond the cube */
+                double qlo[3], qhi[3];
+                int64_t clo[3], chi[3];
+                for (int i = 0; i < 3; i++) { qlo[i] = p[i] - h; qhi[i] = p[i] + h; }
+                cell_range(qlo, qhi, origin, cell, dm, clo, chi);
+                for (int pass = 0; pass < 2 && !inside; pass++) {
+                    for (int64_t x = c0[0] - k; x <= c0[0] + k && !inside; x++) {
+                        if (x < clo[0] || x > chi[0]) continue;
+                        for (int64_t y = c0[1] - k; y <= c0[1] + k && !inside; y++) {
+                            if (y < clo[1] || y > chi[1]) continue;
+                            for (int64_t z = c0[2] - k; z <= c0[2] + k && !inside; z++) {
+                                if (z < clo[2] || z > chi[2]) continue;
+                                int64_t ax = llabs(x - c0[0]), ay = llabs(y - c0[1]), az = llabs(z - c0[2]);
+                                if ((ax > ay ? (ax > az ? ax : az) : (ay > az ? ay : az)) != k) continue;  /* inner */
+                                int64_t lin = (x * dm[1] + y) * dm[2] + z;
+                                for (int64_t kk = off[lin]; kk < off[lin + 1]; kk++) {
+                                    int64_t g = lid[kk];
+                                    const float *pk = pack + 12 * g;
+                                    if (!pack_meets(pk, qlo, qhi)) continue;
+                                    double dx = p[0] - pk[6], dy = p[1] - pk[7], dz = p[2] - pk[8];
+                                    double slack = 1e-6 * (1.0 + fmax(fabs(pk[6]), fmax(fabs(pk[7]), fabs(pk[8]))));
+                                    double dc = sqrt(dx * dx + dy * dy + dz * dz);
+                                    if (pass == 0) {  /* upper bound: shrink the bound (and the cube) early */
+                                        double ub = dc - pk[10] + slack;
+                                        if (ub < bound) {
+                                            bound = fmax(ub, 0.0);
+                                            h = fmax(bound - pad, 0.0);
+                                            for (int i = 0; i < 3; i++) { qlo[i] = p[i] - h; qhi[i] = p[i] + h; }
+                                        }
+                                        continue;
+                                    }
+                                    if (dc - pk[9] - slack >= bound) continue;  /* not closer than the bound */
+                                    Ell E;
+                                    double mu[3] = {ld(means, 3 * g, f32), ld(means, 3 * g + 1, f32), ld(means, 3 * g + 2, f32)};
+                                    load_ell(&E, g, mu, rots, radii, f32);
+                                    double w[3], m2 = 0.0;
+                                    for (int i = 0; i < 3; i++) {
+                                        w[i] = E.R[i] * (p[0] - mu[0]) + E.R[3 + i] * (p[1] - mu[1]) + E.R[6 + i] * (p[2] - mu[2]);
+                                        m2 += w[i] * w[i] / E.lam[i];
+                                    }
+                                    if (!(m2 > 1.0)) { inside = 1; break; }
+                                    double d = ell_dist_exact(w, E.lam);
+                                    if (d < best) best = d;
+                                    if (d < bound) {
+                                        bound = d;
+                                        h = fmax(bound - pad, 0.0);
+                                        for (int i = 0; i < 3; i++) { qlo[i] = p[i] - h; qhi[i] = p[i] + h; }
+                                    }
+                                }
+                            }
+                        }
+                    }
+                }
+                /* every cell of the cube's range is within Chebyshev distance dmax of p's cell: no farther ring */
+                cell_range(qlo, qhi, origin, cell, dm, clo, chi);
+                int64_t dmax = 0;
+                for (int i = 0; i < 3; i++) {
+                    int64_t a = llabs(c0[i] - clo[i]), b = llabs(c0[i] - chi[i]);
+                    dmax = a > dmax ? a : dmax;
+                    dmax = b > dmax ? b : dmax;
+                }
+                if (k >= dmax) break;
+            }
+        }
+        out[q] = inside ? NAN : best;
+    }
+    return 0;
+}
+
+/* blocked[l] = 1 when the segment from p0[l] to p1[l] meets an ellipsoid (the unit ball of diag(1/a) R^T (x - mu)),
+   ellipsoids with skip[id] set excepted (skip: NULL or uint8 [N] in this file's id order). As
+   occlusion.sight_lines_blocked: the segment is cut into pieces no longer than piece_len; each piece's candidates are
+   the index entries whose padded AABB meets the piece's box; a piece meets an ellipsoid when the closest point of
+   the piece to its centre, in the ellipsoid's unit coordinates, is within 1. A line stops at its first hit. */
+int64_t cn_segments_blocked(
+    const void *means, const void *rots, const void *radii, const float *pack, int32_t f32,
+    const double *origin, int32_t n_levels, const double *cells, const int64_t *dims,
+    const int64_t *const *offsets, const int64_t *const *ids, double pad,
+    const double *p0, const double *p1, int64_t Lines, double piece_len, const uint8_t *skip, uint8_t *blocked) {
+    (void)pad;
+    if (!(piece_len > 0) || !isfinite(piece_len)) return -1;
+    for (int64_t l = 0; l < Lines; l++) {
+        const double *a0 = p0 + 3 * l, *a1 = p1 + 3 * l;
+        double d[3] = {a1[0] - a0[0], a1[1] - a0[1], a1[2] - a0[2]};
+        double len = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+        int64_t n = (int64_t)ceil(len / piece_len);
+        if (n < 1) n = 1;
+        int hit = 0;
+        for (int64_t k = 0; k < n && !hit; k++) {
+            double t0 = (double)k / (double)n, t1 = (double)(k + 1) / (double)n, qlo[3], qhi[3];
+            for (int i = 0; i < 3; i++) {
+                double u = a0[i] + t0 * d[i], v = a0[i] + t1 * d[i];
+                qlo[i] = fmin(u, v);
+                qhi[i] = fmax(u, v);
+            }
+            for (int L = 0; L < n_levels && !hit; L++) {
+                double cell = cells[L];
+                const int64_t *dm = dims + 3 * L;
+                int64_t clo[3], chi[3];
+                cell_range(qlo, qhi, origin, cell, dm, clo, chi);
+                const int64_t *off = offsets[L], *lid = ids[L];
+                for (int64_t x = clo[0]; x <= chi[0] && !hit; x++)
+                    for (int64_t y = clo[1]; y <= chi[1] && !hit; y++)
+                        for (int64_t z = clo[2]; z <= chi[2] && !hit; z++) {
+                            int64_t lin = (x * dm[1] + y) * dm[2] + z;
+                            for (int64_t kk = off[lin]; kk < off[lin + 1]; kk++) {
+                                int64_t g = lid[kk];
+                                if (skip && skip[g]) continue;
+                                const float *pk = pack + 12 * g;
+                                if (!pack_meets(pk, qlo, qhi)) continue;
+                                Ell E;
+                                double mu[3] = {ld(means, 3 * g, f32), ld(means, 3 * g + 1, f32), ld(means, 3 * g + 2, f32)};
+                                load_ell(&E, g, mu, rots, radii, f32);
+                                double u[3], v[3], uv = 0.0, vv = 0.0;
+                                for (int i = 0; i < 3; i++) {
+                                    u[i] = (E.R[i] * (a0[0] - mu[0]) + E.R[3 + i] * (a0[1] - mu[1]) + E.R[6 + i] * (a0[2] - mu[2])) / E.a[i];
+                                    v[i] = (E.R[i] * d[0] + E.R[3 + i] * d[1] + E.R[6 + i] * d[2]) / E.a[i];
+                                    uv += u[i] * v[i];
+                                    vv += v[i] * v[i];
+                                }
+                                double t = vv > 0 ? -uv / fmax(vv, 1e-300) : t0;
+                                t = fmin(fmax(t, t0), t1);
+                                double m = 0.0;
+                                for (int i = 0; i < 3; i++) { double c = u[i] + t * v[i]; m += c * c; }
+                                if (m <= 1.0) { hit = 1; break; }
+                            }
+                        }
+            }
+        }
+        blocked[l] = (uint8_t)hit;
     }
     return 0;
 }
