@@ -682,6 +682,53 @@ static int pair_collides(const double p[3], double r, const Ell *E, double margi
     return !(max_k_cor1(w, E->a, r) > 1.0 + margin);
 }
 
+/* Calls visit(ctx, g) for the index entries (ids g) of the cells meeting the box [qlo, qhi] whose packed AABB meets
+   the box (with dedupe: each ellipsoid once, by the header's rule, all cells of the range being visited), until
+   visit returns nonzero; returns 1 then, else 0. */
+typedef int (*entry_fn)(void *ctx, int64_t g);
+static int for_each_in_box(const float *pack, const double *origin, int32_t n_levels, const double *cells,
+                           const int64_t *dims, const int64_t *const *offsets, const int64_t *const *ids,
+                           const double qlo[3], const double qhi[3], int dedupe, entry_fn visit, void *ctx) {
+    for (int L = 0; L < n_levels; L++) {
+        double cell = cells[L];
+        const int64_t *dm = dims + 3 * L;
+        int64_t clo[3], chi[3];
+        cell_range(qlo, qhi, origin, cell, dm, clo, chi);
+        const int64_t *off = offsets[L], *lid = ids[L];
+        for (int64_t x = clo[0]; x <= chi[0]; x++)
+            for (int64_t y = clo[1]; y <= chi[1]; y++)
+                for (int64_t z = clo[2]; z <= chi[2]; z++) {
+                    int64_t cell_at[3] = {x, y, z}, lin = (x * dm[1] + y) * dm[2] + z;
+                    for (int64_t k = off[lin]; k < off[lin + 1]; k++) {
+                        int64_t g = lid[k];
+                        const float *pk = pack + 12 * g;
+                        if (!pack_meets(pk, qlo, qhi)) continue;
+                        int dup = 0;
+                        for (int i = 0; i < 3 && dedupe && !dup; i++)
+                            dup = cell_at[i] > clo[i] && below_face(pk, i, cell_at[i], origin, cell);
+                        if (dup) continue;
+                        if (visit(ctx, g)) return 1;
+                    }
+                }
+    }
+    return 0;
+}
+
+typedef struct {
+    const void *means, *rots, *radii;
+    int f32;
+    const double *p;
+    double rad, margin;
+} PointCtx;
+
+static int point_hits(void *ctx, int64_t g) {
+    const PointCtx *c = (const PointCtx *)ctx;
+    Ell E;
+    double mu[3] = {ld(c->means, 3 * g, c->f32), ld(c->means, 3 * g + 1, c->f32), ld(c->means, 3 * g + 2, c->f32)};
+    load_ell(&E, g, mu, c->rots, c->radii, c->f32);
+    return pair_collides(c->p, c->rad, &E, c->margin);
+}
+
 /* hit[p] = 1 unless the camera ball of radius rad[p] at point p is proven clear of every ellipsoid (candidates: the
    index entries whose padded AABB meets the cube of half-width max(rad - pad, 0) around p, as
    GridIndex.query_points). Returns 0, or -1 on bad input. */
@@ -694,32 +741,8 @@ int64_t cn_points_collide(
         const double *p = points + 3 * q;
         double half = fmax(rad[q] - pad, 0.0), qlo[3], qhi[3];
         for (int i = 0; i < 3; i++) { qlo[i] = p[i] - half; qhi[i] = p[i] + half; }
-        int collides = 0;
-        for (int L = 0; L < n_levels && !collides; L++) {
-            double cell = cells[L];
-            const int64_t *dm = dims + 3 * L;
-            int64_t clo[3], chi[3];
-            cell_range(qlo, qhi, origin, cell, dm, clo, chi);
-            const int64_t *off = offsets[L], *lid = ids[L];
-            for (int64_t x = clo[0]; x <= chi[0] && !collides; x++)
-                for (int64_t y = clo[1]; y <= chi[1] && !collides; y++)
-                    for (int64_t z = clo[2]; z <= chi[2] && !collides; z++) {
-                        int64_t cell_at[3] = {x, y, z}, lin = (x * dm[1] + y) * dm[2] + z;
-                        for (int64_t k = off[lin]; k < off[lin + 1]; k++) {
-                            int64_t g = lid[k];
-                            const float *pk = pack + 12 * g;
-                            if (!pack_meets(pk, qlo, qhi)) continue;
-                            int dup = 0;  /* every cell of the range is visited here (no culling) */
-                            for (int i = 0; i < 3 && !dup; i++)
-                                dup = cell_at[i] > clo[i] && below_face(pk, i, cell_at[i], origin, cell);
-                            if (dup) continue;
-                            Ell E;
-                            double mu[3] = {ld(means, 3 * g, f32), ld(means, 3 * g + 1, f32), ld(means, 3 * g + 2, f32)};
-                            load_ell(&E, g, mu, rots, radii, f32);
-                            if (pair_collides(p, rad[q], &E, margin)) { collides = 1; break; }
-                        }
-                    }
-        }
+        PointCtx c = {means, rots, radii, f32, p, rad[q], margin};
+        int collides = for_each_in_box(pack, origin, n_levels, cells, dims, offsets, ids, qlo, qhi, 1, point_hits, &c);
         hit[q] = (uint8_t)collides;
     }
     return 0;
@@ -870,6 +893,37 @@ int64_t cn_points_distance(
     return 0;
 }
 
+typedef struct {
+    const void *means, *rots, *radii;
+    int f32;
+    const uint8_t *skip;
+    const double *a0, *d;
+    double t0, t1;
+} SightCtx;
+
+/* the piece a0 + t d, t in [t0, t1], meets ellipsoid g: its closest point to the centre, in the ellipsoid's unit
+   coordinates, is within 1 */
+static int sight_hits(void *ctx, int64_t g) {
+    const SightCtx *c = (const SightCtx *)ctx;
+    if (c->skip && c->skip[g]) return 0;
+    Ell E;
+    double mu[3] = {ld(c->means, 3 * g, c->f32), ld(c->means, 3 * g + 1, c->f32), ld(c->means, 3 * g + 2, c->f32)};
+    load_ell(&E, g, mu, c->rots, c->radii, c->f32);
+    const double *a0 = c->a0, *d = c->d;
+    double u[3], v[3], uv = 0.0, vv = 0.0;
+    for (int i = 0; i < 3; i++) {
+        u[i] = (E.R[i] * (a0[0] - mu[0]) + E.R[3 + i] * (a0[1] - mu[1]) + E.R[6 + i] * (a0[2] - mu[2])) / E.a[i];
+        v[i] = (E.R[i] * d[0] + E.R[3 + i] * d[1] + E.R[6 + i] * d[2]) / E.a[i];
+        uv += u[i] * v[i];
+        vv += v[i] * v[i];
+    }
+    double t = vv > 0 ? -uv / fmax(vv, 1e-300) : c->t0;
+    t = fmin(fmax(t, c->t0), c->t1);
+    double m = 0.0;
+    for (int i = 0; i < 3; i++) { double w = u[i] + t * v[i]; m += w * w; }
+    return m <= 1.0;
+}
+
 /* blocked[l] = 1 when the segment from p0[l] to p1[l] meets an ellipsoid (the unit ball of diag(1/a) R^T (x - mu)),
    ellipsoids with skip[id] set excepted (skip: NULL or uint8 [N] in this file's id order). As
    occlusion.sight_lines_blocked: the segment is cut into pieces no longer than piece_len; each piece's candidates are
@@ -896,39 +950,8 @@ int64_t cn_segments_blocked(
                 qlo[i] = fmin(u, v);
                 qhi[i] = fmax(u, v);
             }
-            for (int L = 0; L < n_levels && !hit; L++) {
-                double cell = cells[L];
-                const int64_t *dm = dims + 3 * L;
-                int64_t clo[3], chi[3];
-                cell_range(qlo, qhi, origin, cell, dm, clo, chi);
-                const int64_t *off = offsets[L], *lid = ids[L];
-                for (int64_t x = clo[0]; x <= chi[0] && !hit; x++)
-                    for (int64_t y = clo[1]; y <= chi[1] && !hit; y++)
-                        for (int64_t z = clo[2]; z <= chi[2] && !hit; z++) {
-                            int64_t lin = (x * dm[1] + y) * dm[2] + z;
-                            for (int64_t kk = off[lin]; kk < off[lin + 1]; kk++) {
-                                int64_t g = lid[kk];
-                                if (skip && skip[g]) continue;
-                                const float *pk = pack + 12 * g;
-                                if (!pack_meets(pk, qlo, qhi)) continue;
-                                Ell E;
-                                double mu[3] = {ld(means, 3 * g, f32), ld(means, 3 * g + 1, f32), ld(means, 3 * g + 2, f32)};
-                                load_ell(&E, g, mu, rots, radii, f32);
-                                double u[3], v[3], uv = 0.0, vv = 0.0;
-                                for (int i = 0; i < 3; i++) {
-                                    u[i] = (E.R[i] * (a0[0] - mu[0]) + E.R[3 + i] * (a0[1] - mu[1]) + E.R[6 + i] * (a0[2] - mu[2])) / E.a[i];
-                                    v[i] = (E.R[i] * d[0] + E.R[3 + i] * d[1] + E.R[6 + i] * d[2]) / E.a[i];
-                                    uv += u[i] * v[i];
-                                    vv += v[i] * v[i];
-                                }
-                                double t = vv > 0 ? -uv / fmax(vv, 1e-300) : t0;
-                                t = fmin(fmax(t, t0), t1);
-                                double m = 0.0;
-                                for (int i = 0; i < 3; i++) { double c = u[i] + t * v[i]; m += c * c; }
-                                if (m <= 1.0) { hit = 1; break; }
-                            }
-                        }
-            }
+            SightCtx c = {means, rots, radii, f32, skip, a0, d, t0, t1};
+            hit = for_each_in_box(pack, origin, n_levels, cells, dims, offsets, ids, qlo, qhi, 1, sight_hits, &c);
         }
         blocked[l] = (uint8_t)hit;
     }
