@@ -37,9 +37,9 @@ computes its shot's score inputs (sight lines and capped exact clearance of the 
 CPU copy with the compiled searches of native/polytope.c) and this process only combines them; otherwise this
 process scores (on the GPU when the scene is there; CUDA is never used in a worker; shots that come back early
 are scored in chunks while the other workers still run, EARLY_SCORE_MIN). Results equal the in-process path's
-(same starts, shots and ranks; on a GPU scene the score terms agree to rounding, the two searches being exact). The workers are forked after
-prepare() and share the prepared CPU state (the CPU mirror of a GPU scene, index, grids) copy-on-write, so
-they add little memory. Fork only: on macOS / Windows (no 'fork' start method) candidates are planned in
+(same starts, shots and ranks; on a GPU scene the score terms agree to rounding, the two searches being exact).
+The workers are forked after prepare() and share the prepared CPU state (the CPU mirror of a GPU scene, index,
+grids) copy-on-write, so they add little memory. Fork only: on macOS / Windows (no 'fork' start method) candidates are planned in
 this process. When this process builds corridors with the batched backend (PlannerConfig.corridor_backend, a
 CUDA scene by default) and grid polytopes are off (Planner.use_grid_polytopes), each round has two phases around ONE batched
 corridor computation for all its candidates (corridor.build_corridors; the workers cannot use CUDA): the workers
@@ -422,6 +422,8 @@ def _plan_candidates(
     look_p = _as_point(look_at, "look-at point")
     if not (0 <= spare_fraction <= 4):
         raise InvalidInputError(f"spare_fraction must be in [0, 4], got {spare_fraction}")
+    if not (math.isfinite(object_radius) and object_radius >= 0):  # before any planning (scoring needs it)
+        raise InvalidInputError(f"object_radius must be finite and >= 0, got {object_radius}.")
     cfg = planner.config
     tm: Dict[str, float] = {}
     t_all = time.perf_counter()

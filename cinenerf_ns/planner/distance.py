@@ -179,7 +179,8 @@ def clearance(
         d = _native_capped_distance(fn, pts, scene, index, float(max_distance))  # [P]
         inside = torch.nonzero(torch.isnan(d)).squeeze(-1)
         if inside.numel():
-            d[inside] = clearance(pts[inside], scene, index, max_distance=max_distance, backend="python") + scene.camera_radius
+            inner = clearance(pts[inside], scene, index, max_distance=max_distance, backend="python")
+            d[inside] = inner + scene.camera_radius
         return d - scene.camera_radius
     P = pts.shape[0]
     dev = pts.device
