@@ -38,6 +38,7 @@ from .errors import (
 from .grid_polytope import VoxelObstacles
 from .goal import _project_onto_polytope, closest_safe_point, sample_free_starts
 from .polytope import Polytope, safe_polytope
+from .ranges import group_ranks
 from .polytope import prepare_native as prepare_native_polytope
 from .occupancy import OccupancyGrid, build_occupancy
 from .safety import verify_shot
@@ -189,6 +190,7 @@ def _as_point(x: ArrayLike, what: str) -> np.ndarray:
 
 
 GOAL_FIRST_BOX_VOXELS = 2.0  # half-width of the goal's first polytope box (Planner._reachable_goal, step 2)
+
 
 class Planner:
     """Plans camera shots through one scene. ``prepare()`` once, then ``plan()`` many times."""
@@ -508,7 +510,7 @@ class Planner:
             if x is None or not on_face or (half >= full).all():
                 break
         if x is None:
-            return ReachableGoal(c.cpu().numpy(), ijk.cpu().numpy())
+            return ReachableGoal(c_np, ijk.cpu().numpy())
         return ReachableGoal(x, ijk.cpu().numpy(), poly)
 
     def _nearest_comp_voxel(self, target: np.ndarray, comp: int) -> np.ndarray:
@@ -556,8 +558,8 @@ class Planner:
         r = self.scene.camera_radius
         piece = max(r, 0.5 * prep.grid.voxel_size)
         n = np.maximum(1, np.ceil(np.linalg.norm(b - a, axis=1) / piece).astype(np.int64))  # [P]
-        owner = np.repeat(np.arange(len(a)), n)
-        frac = (np.arange(len(owner)) - (np.cumsum(n) - n)[owner] + 0.5) / n[owner]  # (k + 1/2) / n per piece
+        owner, k = group_ranks(n)
+        frac = (k + 0.5) / n[owner]  # (k + 1/2) / n per piece
         mids = a[owner] + frac[:, None] * (b - a)[owner]
         half = 0.5 * np.linalg.norm(b - a, axis=1)[owner] / n[owner]
         dev = self.scene.device
@@ -576,9 +578,8 @@ class Planner:
         vs = float(self._prep().grid.voxel_size)
         L = np.linalg.norm(p1 - p0, axis=1)  # [P]
         n = np.maximum(2, np.ceil(L / (0.5 * vs)).astype(np.int64) + 1)  # samples per segment
-        owner = np.repeat(np.arange(len(p0)), n)
-        start = np.cumsum(n) - n
-        frac = (np.arange(owner.size) - start[owner]) / (n[owner] - 1)  # [S] in [0, 1]
+        owner, k = group_ranks(n)
+        frac = k / (n[owner] - 1)  # [S] in [0, 1]
         dist_end = np.minimum(frac, 1 - frac) * L[owner]
         pts = p0[owner] + frac[:, None] * (p1 - p0)[owner]
         blocked = ~self.in_free_voxel(pts) & (dist_end > vs)

@@ -48,6 +48,7 @@ import torch
 from torch import Tensor
 
 from .errors import InvalidInputError, PlanningError
+from .ranges import group_ranks
 
 ArrayLike = Union[Tensor, np.ndarray, Sequence[float]]
 
@@ -384,7 +385,7 @@ def _positions_by_cell(level, inv: np.ndarray) -> Tensor:
     the goal's polytope took 0.98 ms with sorted cells against 2.5 ms with the positions left in scene-id order."""
     pos = inv[level.ids.long().cpu().numpy()]  # [M]
     off = level.offsets.long().cpu().numpy()
-    cell = np.repeat(np.arange(len(off) - 1, dtype=np.int64), np.diff(off))  # [M] ascending (CSR)
+    cell, _ = group_ranks(np.diff(off))  # [M] each entry's cell, ascending (CSR)
     n = max(len(inv), 1)
     return torch.from_numpy(np.sort(cell * n + pos) - cell * n)  # one sort of (cell, position) keys
 

@@ -23,6 +23,7 @@ import numpy as np
 
 from .bezier import _to_numpy
 from .errors import InvalidInputError
+from .ranges import group_ranks
 from .shot import Shot
 
 DEFAULT_THRESHOLDS = (0.0, 0.01, 0.03, 0.05)
@@ -71,8 +72,8 @@ def _dense_samples(shot_or_positions: Any, times: Optional[Any], max_spacing: fl
     else:
         approx_len = chord
     sub = np.maximum(1, np.ceil(approx_len / max_spacing).astype(np.int64))  # pieces per interval
-    idx = np.repeat(np.arange(len(f_pos) - 1), sub)  # [S-1] the interval of each piece
-    frac = (np.arange(len(idx)) - (np.cumsum(sub) - sub)[idx]) / sub[idx]  # [S-1] k / n within its interval
+    idx, k = group_ranks(sub)  # [S-1] the interval of each piece and its rank there
+    frac = k / sub[idx]  # [S-1] k / n within its interval
     t = np.concatenate([f_times[idx] + frac * np.diff(f_times)[idx], f_times[-1:]])
     if curve:
         ctau = np.concatenate([tau[idx] + frac * np.diff(tau)[idx], tau[-1:]])

@@ -34,6 +34,7 @@ class _Level:
 
 SORT_DEDUPE_RATIO = 64  # query_box_in_planes sorts its listed entries when they are fewer than N / this, else flags N
 
+
 def _spread_bits_21(v):
     """uint64 numpy [N] holding 21-bit integers -> the same bits moved to every third position (bit i -> 3 i)."""
     import numpy as np
@@ -56,7 +57,8 @@ def morton_order(points) -> "np.ndarray":
         return np.zeros(0, dtype=np.int64)
     lo, hi = p.min(0), p.max(0)
     q = ((p - lo) / np.maximum(hi - lo, 1e-300) * float(2**21 - 1)).astype(np.uint64)  # [N, 3] in [0, 2^21)
-    code = _spread_bits_21(q[:, 0]) | (_spread_bits_21(q[:, 1]) << np.uint64(1)) | (_spread_bits_21(q[:, 2]) << np.uint64(2))
+    code = _spread_bits_21(q[:, 0]) | (_spread_bits_21(q[:, 1]) << np.uint64(1))
+    code |= _spread_bits_21(q[:, 2]) << np.uint64(2)
     return np.argsort(code, kind="stable").astype(np.int64)
 
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .ranges import group_ranks
 
 EPS = 1e-9  # voxel units: a point this close to a voxel counts as touching it (see the module docstring)
 
@@ -51,18 +52,15 @@ def segment_voxels(u0: np.ndarray, u1: np.ndarray, eps: float = EPS) -> tuple[np
         c = count[:, a]
         if not c.any():
             continue
-        owner = np.repeat(np.arange(P), c)
-        start = np.cumsum(c) - c
-        k = first[owner, a] + (np.arange(owner.size) - start[owner])  # the integer planes  [C]
-        pos = col[owner] + (np.arange(owner.size) - start[owner])
+        owner, rank = group_ranks(c)
+        k = first[owner, a] + rank  # the integer planes  [C]
+        pos = col[owner] + rank
         t[owner, pos] = np.clip((k - u0[owner, a]) / d[owner, a], 0.0, 1.0)
         col += c
     t[np.arange(P), col] = 1.0
     t.sort(axis=1)
     n_piece = m + 1  # pieces between 0, the crossings and 1
-    owner = np.repeat(np.arange(P), n_piece)
-    start = np.cumsum(n_piece) - n_piece
-    j = np.arange(owner.size) - start[owner]
+    owner, j = group_ranks(n_piece)
     tm = 0.5 * (t[owner, j] + t[owner, j + 1])  # piece midpoints  [R]
     probe_owner = owner
     u = u0[owner] + tm[:, None] * d[owner]  # [R, 3]

@@ -154,14 +154,16 @@ def search26_ws():
 
 
 _I32 = ctypes.c_int32
+# the scene and index arguments every polytope.c entry point starts with (polytope._native_arrays' "args")
+_SCENE_INDEX = [_P, _P, _P, _P, _I32,  # scene: means, rotations, radii, packed rows [N, 12] float32, float32 flag
+                _P, _I32, _P, _P, _P, _P, _F64]  # index: origin, levels, cells, dims, offsets*, ids*, pad
 
 
 def safe_polytope_c():
     """The compiled safe polytope of a point or segment seed (polytope.c: cn_safe_polytope), or None."""
     return _function(
         "polytope", "cn_safe_polytope",
-        [_P, _P, _P, _P, _I32,  # scene: means, rotations, radii, packed rows [N, 12] float32, float32 flag
-         _P, _I32, _P, _P, _P, _P, _F64,  # index: origin, levels, cells, dims, offsets*, ids*, pad
+        [*_SCENE_INDEX,
          _P, _I32, _P, _P, _P,  # seeds, count, box lo, hi, rotation (or NULL)
          _F64, _F64, _I32, _I32, _F64,  # camera radius, margin, normal rule, seed must be inside, near fraction
          _I64, _P, _P, _P, _P, _P, _P],  # cap, planes n, b, ids, bad ids, bad slacks, info
@@ -172,8 +174,7 @@ def points_collide_c():
     """The compiled Corollary-1 point test (polytope.c: cn_points_collide), or None."""
     return _function(
         "polytope", "cn_points_collide",
-        [_P, _P, _P, _P, _I32,  # scene: means, rotations, radii, packed rows [N, 12] float32, float32 flag
-         _P, _I32, _P, _P, _P, _P, _F64,  # index: origin, levels, cells, dims, offsets*, ids*, pad
+        [*_SCENE_INDEX,
          _P, _P, _I64, _F64, _P],  # points [P, 3], radii [P], P, margin, hit [P] uint8 (out)
         _I64)
 
@@ -182,7 +183,7 @@ def points_distance_c():
     """The compiled capped exact point distance (polytope.c: cn_points_distance), or None."""
     return _function(
         "polytope", "cn_points_distance",
-        [_P, _P, _P, _P, _I32, _P, _I32, _P, _P, _P, _P, _F64,  # scene and index (as above)
+        [*_SCENE_INDEX,
          _P, _I64, _F64, _P],  # points [P, 3], P, max distance, out [P]
         _I64)
 
@@ -191,7 +192,7 @@ def segments_blocked_c():
     """The compiled sight-line test (polytope.c: cn_segments_blocked), or None."""
     return _function(
         "polytope", "cn_segments_blocked",
-        [_P, _P, _P, _P, _I32, _P, _I32, _P, _P, _P, _P, _F64,  # scene and index (as above)
+        [*_SCENE_INDEX,
          _P, _P, _I64, _F64, _P, _P],  # p0 [L, 3], p1 [L, 3], L, piece length, skip [N] uint8 or NULL, out [L]
         _I64)
 
