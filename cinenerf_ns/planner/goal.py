@@ -3,9 +3,9 @@
 closest_safe_point (paper Sec. IV-C): the go-to target (e.g. an object's centroid) is usually inside
 the object. We grow a Prop-2 safe polytope around the target (it may exclude the target itself) and
 project the target onto it (a 3-variable QP: an active-set method, Clarabel as fallback); every point
-of that polytope is safe, so the projection is a safe goal as close to the target as that polytope allows. When the polytope is empty
-(target deep inside clutter) we fall back to the nearest free voxel of the occupancy grid that holds
-no Gaussian mean, verified with an exact point clearance test.
+of that polytope is safe, so the projection is a safe goal as close to the target as that polytope
+allows. When the polytope is empty (target deep inside clutter) we fall back to the nearest free voxel
+of the occupancy grid that holds no Gaussian mean, verified with an exact point clearance test.
 
 sample_free_starts: seeded rejection sampling of camera centres in a region, pre-filtered by the
 grid's free voxels and accepted only after an exact clearance test.
@@ -134,6 +134,12 @@ def project_active_set(A: np.ndarray, b: np.ndarray, target: np.ndarray, x0: np.
         block[W] = False
         alpha, j = 1.0, -1
         ids = np.flatnonzero(block)
+        if len(ids) and W:
+            # a face whose normal lies in the span of the working set's (a repeated plane, or three planes through
+            # one line) has A p = 0 in exact arithmetic; rounding must not let it block and make the set dependent
+            M = A[W]  # [k, 3]
+            off_span = A[ids] - (A[ids] @ M.T) @ np.linalg.solve(M @ M.T, M)  # [c, 3]
+            ids = ids[np.sqrt(np.einsum("ci,ci->c", off_span, off_span)) > 1e-9 * row_norm[ids]]
         if len(ids):
             ratio = np.maximum(slack[ids], 0.0) / Ap[ids]
             k = int(np.argmin(ratio))
@@ -159,7 +165,10 @@ def _project_onto_polytope(A: np.ndarray, b: np.ndarray, target: np.ndarray,
         if not (rad > 1e-9):
             return None
     target = np.asarray(target, dtype=np.float64)
-    x = project_active_set(A, b, target, c)
+    try:
+        x = project_active_set(A, b, target, c)
+    except np.linalg.LinAlgError:  # a working set that rounding made singular: the QP solver instead
+        x = None
     if x is None:
         x = _project_clarabel(A, b, target, c)
     viol = A @ x - b
