@@ -47,6 +47,8 @@ def main() -> None:
                     help="PlannerConfig.request_device: auto = per-request queries on a CPU mirror of a GPU scene")
     ap.add_argument("--corridor-backend", default="auto", choices=["auto", "cpu", "batched"],
                     help="PlannerConfig.corridor_backend: auto = batched polytopes on a CUDA scene, else host polytopes")
+    ap.add_argument("--start-look-distance", type=float, default=None,
+                    help="PlannerConfig.start_look_distance (default: PlannerConfig's; 0: uniform random starts)")
     ap.add_argument("--quick", action="store_true", help="20k Gaussians, 20 requests (smoke run)")
     ap.add_argument("--no-record", action="store_true",
                     help="do not append to benchmarks/RESULTS.md nor write benchmarks/bench_planner_<device>_<N>.json")
@@ -73,6 +75,8 @@ def main() -> None:
     cfg = PlannerConfig(request_device=args.request_device, corridor_backend=args.corridor_backend)
     if args.grid_resolution is not None:
         cfg.grid_resolution = args.grid_resolution
+    if args.start_look_distance is not None:
+        cfg.start_look_distance = args.start_look_distance
     planner = Planner(scene, cfg)
     if cuda:  # warm-up of kernels/allocator on a tiny prepare, not timed
         Planner(scene.subset(torch.arange(min(len(scene), 2000), device=dev)), cfg).prepare()

@@ -94,8 +94,10 @@ def dense_curve(shot, spacing: float = 0.005) -> tuple[np.ndarray, np.ndarray]:
     return times, pos
 
 
-def evaluate_shots(loaded, gt, starts: int, camera_radius: float, grid_resolution: int) -> tuple[list[dict], dict, dict]:
-    planner = Planner(loaded.scene, PlannerConfig(start_region=loaded.start_region, grid_resolution=grid_resolution))
+def evaluate_shots(loaded, gt, starts: int, camera_radius: float, grid_resolution: int,
+                   start_look_distance: float = PlannerConfig.start_look_distance) -> tuple[list[dict], dict, dict]:
+    planner = Planner(loaded.scene, PlannerConfig(start_region=loaded.start_region, grid_resolution=grid_resolution,
+                                                  start_look_distance=start_look_distance))
     prep = planner.prepare()
     names = object_names(gt)
     centres = gt.object_centres()
@@ -213,6 +215,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--safety-margin", type=float, default=0.01, help="planning margin on top of the radius (cinesplat-plan's default)")
     ap.add_argument("--grid-resolution", type=int, default=96)
     ap.add_argument("--device", default="cpu")
+    ap.add_argument("--start-look-distance", type=float, default=PlannerConfig.start_look_distance,
+                    help="PlannerConfig.start_look_distance (same default): random starts at least this fraction of the "
+                         "start region's longest side from the look-at point; 0: uniform starts (the paper's)")
     ap.add_argument("--selection-only", action="store_true")
     ap.add_argument("--semantic-smoothing", type=int, default=32, help="as cinesplat-plan --semantic-smoothing (same default)")
     ap.add_argument("--object-cluster", type=float, default=0.02, help="as cinesplat-plan --object-cluster (same default)")
@@ -230,7 +235,7 @@ def main(argv=None) -> dict:
                         object_centre=a.object_centre, drop_support=not a.keep_support)
     sel = evaluate_selection(loaded, gt)
     shots, plots, prep_ms = ([], {"paths": {}, "series": {}}, {}) if a.selection_only else evaluate_shots(
-        loaded, gt, a.starts, a.camera_radius, a.grid_resolution)
+        loaded, gt, a.starts, a.camera_radius, a.grid_resolution, a.start_look_distance)
     summary = summarise(sel, shots, gt)
     a.out.mkdir(parents=True, exist_ok=True)
     date, dev = datetime.date.today().isoformat(), device_name(a.device)
@@ -257,8 +262,8 @@ def main(argv=None) -> dict:
         plot_look_errors(plots["look"], centre_err, a.out / "eval_room_lookat.png")
     print("\n".join(md))
     if not a.no_record:
-        append_results(f"\n## eval_room ({date}, {dev})\n\nscene `{a.scene}`, {len(loaded.scene)} Gaussians, {a.starts} starts per pair, "
-                    f"camera radius {a.camera_radius} (+ planning margin {a.safety_margin}), semantic smoothing {a.semantic_smoothing}, object cluster {a.object_cluster}, object centre {a.object_centre}, support layer {'kept' if a.keep_support else 'dropped'}; details in `{a.out}/eval_room.md`\n\n```\n{json.dumps(summary, indent=1)}\n```\n")
+        append_results(f"\n## eval_room ({date}, {dev})\n\nscene `{a.scene}`, {len(loaded.scene)} Gaussians, {a.starts} starts per pair "
+                    f"(start look distance {a.start_look_distance}), camera radius {a.camera_radius} (+ planning margin {a.safety_margin}), semantic smoothing {a.semantic_smoothing}, object cluster {a.object_cluster}, object centre {a.object_centre}, support layer {'kept' if a.keep_support else 'dropped'}; details in `{a.out}/eval_room.md`\n\n```\n{json.dumps(summary, indent=1)}\n```\n")
     return summary
 
 

@@ -60,6 +60,10 @@ class PlanArgs:
     """Start point 'x y z'; default: random collision-free starts (seeded)."""
     seed: int = 0
     """Seed of the random starts (same seed, same starts)."""
+    start_look_distance: float = PlannerConfig.start_look_distance
+    """Random starts keep at least this fraction of the start region's longest side from the look-at point when the
+    region allows (an opening frame that shows the subject; the aim is less sensitive to the estimated centre's
+    error). 0: uniform random starts. Ignored with --start."""
     candidates: int = 1
     """Number of shots from different random starts."""
     workers: Optional[int] = None
@@ -351,7 +355,7 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
         pcfg = PlannerConfig(
             grid_resolution=args.grid_resolution, up=tuple(args.up), timing=TimingConfig(max_speed=args.max_speed, fps=args.fps),
             start_region=loaded.start_region, candidate_workers=args.workers,
-            grid_polytopes={"auto": "auto", "on": True, "off": False}[args.grid_polytopes],
+            start_look_distance=args.start_look_distance, grid_polytopes={"auto": "auto", "on": True, "off": False}[args.grid_polytopes],
         )
         planner = Planner(loaded.scene, pcfg)
         prep = planner.prepare()

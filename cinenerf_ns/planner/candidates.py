@@ -437,7 +437,8 @@ def _plan_candidates(
     n_try = k + int(math.ceil(spare_fraction * k))
     lo, hi = cfg.start_region or (None, None)
     starts = sample_free_starts(n_try, planner.scene, prep.index, grid, generator=torch.Generator().manual_seed(int(seed)),
-                                region_lo=lo, region_hi=hi, reachable=reach, clearance_fn=planner._free_fn)
+                                region_lo=lo, region_hi=hi, reachable=reach, clearance_fn=planner._free_fn,
+                                away_from=look_p, away_fraction=cfg.start_look_distance)
     starts = starts.detach().cpu().numpy()  # [n_try, 3]
     t = lap("start_sample_ms", t)
 

@@ -17,7 +17,7 @@ is the cube lo + [i, i+1) * voxel_size with centre lo + (i + 0.5) * voxel_size.
 from __future__ import annotations
 
 import math
-from typing import Callable, Optional, Union
+from typing import Callable, Optional, Sequence, Union
 
 import numpy as np
 import torch
@@ -303,6 +303,8 @@ def sample_free_starts(
     margin: float = 1e-6,
     reachable: Optional[np.ndarray] = None,
     clearance_fn: Optional[Callable[[Tensor], Tensor]] = None,
+    away_from: Optional[Union[Tensor, np.ndarray, Sequence[float]]] = None,
+    away_fraction: float = 0.0,
 ) -> Tensor:
     """n collision-free camera centres [n, 3] float64, uniformly sampled in the region (seeded).
 
@@ -311,10 +313,17 @@ def sample_free_starts(
     before the exact clearance test. ``generator``: a torch.Generator (CPU) or an int seed; the same
     seed gives the same starts. Raises NoFreeStartError (a StartInCollisionError) after ``max_tries``
     batches without n free points.
+
+    ``away_from`` [3] (e.g. the look-at point) with ``away_fraction`` > 0: samples closer to it than
+    away_fraction x the region's longest side are rejected too (before the clearance test). Preferred, not
+    required: when ``max_tries`` batches give fewer than n such starts, the missing ones are drawn again
+    without this rule (same generator), so it never makes a request fail.
     """
     if int(n) != n or n < 1:
         raise InvalidInputError(f"number of starts must be a positive integer, got {n}")
     n = int(n)
+    if not (math.isfinite(float(away_fraction)) and 0.0 <= float(away_fraction) < 1.0):
+        raise InvalidInputError(f"away_fraction must be in [0, 1), got {away_fraction}")
     dev = scene.means.device
     gen = generator if isinstance(generator, torch.Generator) else torch.Generator().manual_seed(int(generator or 0))
     occ = None
@@ -334,24 +343,34 @@ def sample_free_starts(
         raise InvalidInputError(f"start region is empty: lo={lo.tolist()} hi={hi.tolist()} (after clipping to the grid)")
     clear = clearance_fn or _default_clear(scene, index, margin)
     batch = batch or max(4 * n, 32)
+    away = None
+    if away_from is not None and float(away_fraction) > 0:
+        away = torch.as_tensor(np.asarray(away_from, dtype=np.float64)).reshape(3)
+        if not torch.isfinite(away).all():
+            raise InvalidInputError(f"away_from must be a finite 3-vector, got {away.tolist()}")
+        away_d = float(away_fraction) * float((hi - lo).max())
     found = []
     tried = 0
-    for _ in range(max_tries):
-        x = lo + torch.rand(batch, 3, generator=gen, dtype=torch.float64) * (hi - lo)  # [B, 3]
-        tried += batch
-        if occ is not None:
-            v = _world_to_voxel(grid, x).numpy()
-            inside = ((v >= 0) & (v < np.asarray(occ.shape))).all(1)
-            vcl = np.clip(v, 0, np.asarray(occ.shape) - 1)
-            keep = inside & ~occ[vcl[:, 0], vcl[:, 1], vcl[:, 2]]
-            x = x[torch.as_tensor(keep)]
-        if x.shape[0] == 0:
-            continue
-        x = x[: max(2 * (n - len(found)), 8)]  # bound the exact checks per batch
-        ok = torch.as_tensor(clear(x.to(dev))).reshape(-1).cpu()
-        found.extend(x[ok])
-        if len(found) >= n:
-            return torch.stack(found[:n]).to(dev)
+    rounds = [True, False] if away is not None else [False]
+    for use_away in rounds:
+        for _ in range(max_tries):
+            x = lo + torch.rand(batch, 3, generator=gen, dtype=torch.float64) * (hi - lo)  # [B, 3]
+            tried += batch
+            if use_away:
+                x = x[(x - away).norm(dim=1) >= away_d]
+            if occ is not None:
+                v = _world_to_voxel(grid, x).numpy()
+                inside = ((v >= 0) & (v < np.asarray(occ.shape))).all(1)
+                vcl = np.clip(v, 0, np.asarray(occ.shape) - 1)
+                keep = inside & ~occ[vcl[:, 0], vcl[:, 1], vcl[:, 2]]
+                x = x[torch.as_tensor(keep)]
+            if x.shape[0] == 0:
+                continue
+            x = x[: max(2 * (n - len(found)), 8)]  # bound the exact checks per batch
+            ok = torch.as_tensor(clear(x.to(dev))).reshape(-1).cpu()
+            found.extend(x[ok])
+            if len(found) >= n:
+                return torch.stack(found[:n]).to(dev)
     raise NoFreeStartError(
         f"found only {len(found)} of {n} collision-free start positions after {tried} random samples in the "
         f"region lo={lo.tolist()} hi={hi.tolist()}; widen the region or lower the camera radius"

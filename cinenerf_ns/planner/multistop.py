@@ -208,7 +208,8 @@ def plan_multistop(
         lo, hi = cfg.start_region or (None, None)
         s = sample_free_starts(1, planner.scene, prep.index, grid, generator=torch.Generator().manual_seed(int(seed)),
                                region_lo=lo, region_hi=hi, reachable=labels == planner._main_component(),
-                               clearance_fn=planner._free_fn)[0].detach().cpu().numpy()
+                               clearance_fn=planner._free_fn, away_from=looks[0],
+                               away_fraction=cfg.start_look_distance)[0].detach().cpu().numpy()
     s_ijk = planner._free_voxel_near(s, None)
     comp = int(labels[tuple(s_ijk)])
     pts, ijks, reached = [s], [s_ijk], [None]

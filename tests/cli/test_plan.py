@@ -136,3 +136,15 @@ def test_load_scene_passes_drop_support():
     for flag in (True, False):
         sem = load_scene(str(DEMO_SCENE), SceneConfig(), smooth_neighbors=0, drop_support=flag).extra["semantic"]
         assert sem.drop_support is flag
+
+
+def test_start_look_distance_option(tmp_path):
+    """--start-look-distance reaches the planner: 0 gives the uniform starts, a bad fraction a clear error."""
+    kw = dict(scene="procedural:3000:1", go_to="the armchair", look_at="floor lamp", candidates=3, grid_resolution=64,
+              workers=0)
+    a = run_plan(PlanArgs(output_dir=tmp_path / "a", **kw))
+    b = run_plan(PlanArgs(output_dir=tmp_path / "b", start_look_distance=0.0, **kw))
+    assert [c["start"] for c in a["candidates"]] != [c["start"] for c in b["candidates"]]
+    with pytest.raises(InvalidInputError, match="start_look_distance"):
+        run_plan(PlanArgs(output_dir=tmp_path / "c", start_look_distance=1.0, **kw))
+    assert not (tmp_path / "c").exists()

@@ -47,6 +47,13 @@ def test_open_side_ranks_first(ranked):
     assert occ[open_side].mean() < occ[~open_side].mean()
 
 
+def test_random_starts_keep_away_from_the_look_at(planner, ranked):
+    r, _ = ranked
+    side = 1.8  # the fixture's start region's longest side
+    d = np.array([np.linalg.norm(x.shot.start - TARGET) for x in r])
+    assert d.min() >= planner.config.start_look_distance * side - 1e-12
+
+
 def test_candidates_are_safe_and_aim(planner, ranked):
     r, tm = ranked
     assert len(r) == 10

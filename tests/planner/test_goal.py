@@ -280,3 +280,39 @@ def test_sample_free_starts_errors():
         sample_free_starts(0, scene)
     with pytest.raises(InvalidInputError):
         sample_free_starts(2, scene, None, None, 0, [1.0] * 3, [0.0] * 3)
+
+
+def test_sample_free_starts_away_from_keeps_the_distance_and_falls_back():
+    rng = np.random.default_rng(1)
+    scene = random_scene(rng, 10, amax=0.3, camera_radius=0.03)
+    grid = conservative_grid(scene, res=8)
+    lo, hi = [-0.8, -0.8, -0.5], [0.8, 0.8, 0.5]
+    look = np.array([0.5, -0.4, 0.1])
+    plain = sample_free_starts(40, scene, None, grid, generator=3, region_lo=lo, region_hi=hi)
+    away = sample_free_starts(40, scene, None, grid, generator=3, region_lo=lo, region_hi=hi,
+                              away_from=look, away_fraction=0.4)
+    d_min = 0.4 * 1.6  # fraction x the region's longest side
+    assert (np.linalg.norm(plain.numpy() - look, axis=1) < d_min).any()  # the rule has something to reject
+    assert (np.linalg.norm(away.numpy() - look, axis=1) >= d_min).all()
+    assert clearance(away.numpy(), scene).min() >= 0
+    again = sample_free_starts(40, scene, None, grid, generator=3, region_lo=lo, region_hi=hi,
+                               away_from=look, away_fraction=0.4)
+    assert torch.equal(away, again)
+    # 0 (or no point) leaves the sampling exactly as it was
+    zero = sample_free_starts(40, scene, None, grid, generator=3, region_lo=lo, region_hi=hi, away_from=look, away_fraction=0.0)
+    assert torch.equal(zero, plain)
+    # nowhere far enough (a small region around the point): still n free starts, drawn without the rule
+    p = plain[0].numpy()  # a free start: the region around it has free starts, none 0.9 x 0.04 from p
+    small = sample_free_starts(5, scene, None, grid, generator=3, region_lo=p - 0.02, region_hi=p + 0.02,
+                               away_from=p, away_fraction=0.9, max_tries=4)
+    assert small.shape == (5, 3) and clearance(small.numpy(), scene).min() >= 0
+    assert (np.abs(small.numpy() - p) <= 0.02 + 1e-12).all()
+
+
+def test_sample_free_starts_away_from_bad_input():
+    scene = make_scene([[0.0, 0, 0]], np.eye(3)[None], [[0.1, 0.1, 0.1]], 0.03)
+    for bad in (-0.1, 1.0, float("nan")):
+        with pytest.raises(InvalidInputError, match="away_fraction"):
+            sample_free_starts(2, scene, None, None, 0, [-1.0] * 3, [1.0] * 3, away_from=[0.5, 0, 0], away_fraction=bad)
+    with pytest.raises(InvalidInputError, match="away_from"):
+        sample_free_starts(2, scene, None, None, 0, [-1.0] * 3, [1.0] * 3, away_from=[np.inf, 0, 0], away_fraction=0.2)

@@ -61,6 +61,12 @@ def test_shared_look_at_single_stop_and_seeded_start(planner):
     assert np.allclose(a.shot.start, b.shot.start)
     assert np.allclose(a.shot.positions[-1], STOPS[0], atol=1e-9)
     assert np.max(a.shot.look_at_errors_deg()) < 1e-4
+    # the random start keeps PlannerConfig.start_look_distance x the region's longest side from the (first) look-at
+    g = planner.prepared.grid
+    side = float(g.voxel_size * max(g.shape))
+    for seed in range(4):
+        s = plan_multistop(planner, STOPS[:2], LOOKS[:2], seed=seed).shot.start
+        assert np.linalg.norm(s - LOOKS[0]) >= planner.config.start_look_distance * side - 1e-12
 
 
 def test_bad_input(planner):

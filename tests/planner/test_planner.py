@@ -66,6 +66,28 @@ def test_given_start(room):
     assert np.allclose(sh.positions[0], start, atol=1e-6)
 
 
+def test_random_starts_keep_away_from_the_look_at(room, monkeypatch):
+    s, e, pl = room
+    g = pl.prepared.grid
+    side = float(g.voxel_size * max(g.shape))  # the start region: the grid's extent (start_region None)
+    goal, look = s.objects[0].center, s.objects[1].center
+    far = pl.plan(goal, look, seed=0, n_candidates=4)
+    d_far = np.array([np.linalg.norm(x.start - look) for x in far])
+    assert PlannerConfig().start_look_distance == pl.config.start_look_distance > 0
+    assert (d_far >= pl.config.start_look_distance * side - 1e-12).all()
+    monkeypatch.setattr(pl.config, "start_look_distance", 0.0)  # the paper's uniform starts
+    near = pl.plan(goal, look, seed=0, n_candidates=4)
+    d_near = np.array([np.linalg.norm(x.start - look) for x in near])
+    assert (d_near < PlannerConfig().start_look_distance * side).any()  # the rule had starts to move
+    # a given start is never moved, whatever the rule
+    monkeypatch.setattr(pl.config, "start_look_distance", 0.9)
+    start = np.array([0.0, 0.0, 0.7])
+    assert np.allclose(pl.plan(goal, start + [0.01, 0, 0], start=start)[0].positions[0], start, atol=1e-6)
+    for bad in (1.0, -0.1, float("nan"), True):
+        with pytest.raises(InvalidInputError, match="start_look_distance"):
+            Planner(e, PlannerConfig(start_look_distance=bad))
+
+
 def test_bad_requests(room):
     s, e, pl = room
     g, l = s.objects[0].center, s.objects[1].center
