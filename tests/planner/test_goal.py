@@ -316,3 +316,21 @@ def test_sample_free_starts_away_from_bad_input():
             sample_free_starts(2, scene, None, None, 0, [-1.0] * 3, [1.0] * 3, away_from=[0.5, 0, 0], away_fraction=bad)
     with pytest.raises(InvalidInputError, match="away_from"):
         sample_free_starts(2, scene, None, None, 0, [-1.0] * 3, [1.0] * 3, away_from=[np.inf, 0, 0], away_fraction=0.2)
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    point=st.tuples(*[st.floats(-1.0, 1.0)] * 3),
+    fraction=st.floats(0.0, 0.5),
+    seed=st.integers(0, 2**16),
+)
+def test_sample_free_starts_away_from_property(point, fraction, seed):
+    """Far starts exist whenever fraction <= 0.5 (a ball of radius side/2 leaves >= 47% of a cube): every start
+    keeps the distance, is free (exact float64 clearance), and lies in the region."""
+    scene = make_scene([[0.7, 0.7, 0.7]], np.eye(3)[None], [[0.1, 0.1, 0.1]], 0.03)
+    grid = conservative_grid(scene, res=8)  # spans [-1, 1]^3: the region is the whole cube
+    lo, hi = np.array([-1.0, -1.0, -1.0]), np.array([1.0, 1.0, 1.0])
+    s = sample_free_starts(6, scene, None, grid, seed, lo, hi, away_from=point, away_fraction=fraction).numpy()
+    assert (np.linalg.norm(s - np.asarray(point), axis=1) >= fraction * 2.0 - 1e-12).all()
+    assert clearance(s, scene).min() >= 0
+    assert ((s >= lo) & (s <= hi)).all()
