@@ -68,7 +68,6 @@ from .coarse_path import voxel_path
 from .corridor import CorridorError, build_corridor, build_corridors
 from .dynamics import DynamicLimits, retime_shot
 from .errors import GoalUnreachableError, InvalidInputError, PlanningError, StartInCollisionError, UnsafeTrajectoryError
-from .goal import sample_free_starts
 from .occlusion import sight_lines_blocked
 from .planner import Planner, _as_point
 from .safety import _dense_samples
@@ -431,14 +430,8 @@ def _plan_candidates(
 
     t = time.perf_counter()
     prep = planner._prep()
-    labels = prep.astar_grid.labels
-    grid = prep.grid
-    reach = labels == planner._main_component()
     n_try = k + int(math.ceil(spare_fraction * k))
-    lo, hi = cfg.start_region or (None, None)
-    starts = sample_free_starts(n_try, planner.scene, prep.index, grid, generator=torch.Generator().manual_seed(int(seed)),
-                                region_lo=lo, region_hi=hi, reachable=reach, clearance_fn=planner._free_fn,
-                                away_from=look_p, away_fraction=cfg.start_look_distance)
+    starts = planner.random_starts(n_try, torch.Generator().manual_seed(int(seed)), look_p)
     starts = starts.detach().cpu().numpy()  # [n_try, 3]
     t = lap("start_sample_ms", t)
 

@@ -33,7 +33,6 @@ from .bezier import BezierTrajectory
 from .corridor import build_corridor
 from .dynamics import DynamicLimits, dynamics_report, retime
 from .errors import InvalidInputError, UnsafeTrajectoryError
-from .goal import sample_free_starts
 from .planner import Planner, _as_point
 from .safety import verify_shot
 from .shot import Shot
@@ -205,11 +204,7 @@ def plan_multistop(
     if start is not None:
         s = planner.checked_start(start)
     else:
-        lo, hi = cfg.start_region or (None, None)
-        s = sample_free_starts(1, planner.scene, prep.index, grid, generator=torch.Generator().manual_seed(int(seed)),
-                               region_lo=lo, region_hi=hi, reachable=labels == planner._main_component(),
-                               clearance_fn=planner._free_fn, away_from=looks[0],
-                               away_fraction=cfg.start_look_distance)[0].detach().cpu().numpy()
+        s = planner.random_starts(1, torch.Generator().manual_seed(int(seed)), looks[0])[0].detach().cpu().numpy()
     s_ijk = planner._free_voxel_near(s, None)
     comp = int(labels[tuple(s_ijk)])
     pts, ijks, reached = [s], [s_ijk], [None]

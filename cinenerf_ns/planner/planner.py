@@ -758,6 +758,18 @@ class Planner:
             if swap:
                 torch.set_num_threads(old)
 
+    def random_starts(self, n: int, generator: torch.Generator, look_at: np.ndarray) -> Tensor:
+        """n random collision-free starts [n, 3] (goal.sample_free_starts) as every request draws them: in
+        config.start_region, in the main free component, config.start_look_distance away from ``look_at`` [3] where
+        the region allows."""
+        prep = self._prep()
+        lo, hi = self.config.start_region or (None, None)
+        return sample_free_starts(
+            n, self.scene, prep.index, prep.grid, generator=generator, region_lo=lo, region_hi=hi,
+            reachable=prep.astar_grid.labels == self._main_component(), clearance_fn=self._free_fn,
+            away_from=look_at, away_fraction=self.config.start_look_distance,
+        )
+
     def checked_start(self, start: ArrayLike) -> np.ndarray:
         """A user-given start [3] as float64, or StartInCollisionError when the camera would be inside the scene."""
         s = _as_point(start, "start point")
@@ -782,8 +794,7 @@ class Planner:
         look_p = _as_point(look_at, "look-at point")
         if int(n_candidates) != n_candidates or n_candidates < 1:
             raise InvalidInputError(f"number of candidates must be a positive integer, got {n_candidates}")
-        prep = self._prep()
-        labels = prep.astar_grid.labels
+        self._prep()  # prepare on first use, before the request clock starts
         t_req = time.perf_counter()
 
         if start is not None:
@@ -791,8 +802,6 @@ class Planner:
             n_candidates = 1
         else:
             starts = []
-        comp_main = self._main_component()
-        reach = labels == comp_main
         gen = torch.Generator().manual_seed(int(seed))
         shots: list[Shot] = []
         errors: list[str] = []
@@ -802,13 +811,9 @@ class Planner:
         pending = list(starts)
         while len(shots) < n_candidates and attempts < max_attempts:
             if not pending:
-                lo, hi = self.config.start_region or (None, None)
                 k = n_candidates - len(shots)
                 t0 = time.perf_counter()
-                pts = sample_free_starts(
-                    k, self.scene, prep.index, prep.grid, generator=gen, region_lo=lo, region_hi=hi, reachable=reach,
-                    clearance_fn=self._free_fn, away_from=look_p, away_fraction=self.config.start_look_distance,
-                )
+                pts = self.random_starts(k, gen, look_p)
                 sample_ms = 1e3 * (time.perf_counter() - t0) / k
                 pending = [(p.cpu().numpy(), sample_ms) for p in pts]
             item = pending.pop(0)
