@@ -46,6 +46,7 @@ from benchmarks.eval_synthetic import (  # noqa: E402
     selection_metrics,
 )
 from cinenerf_ns.cli.plan import load_scene  # noqa: E402
+from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY  # noqa: E402
 from cinenerf_ns.planner.errors import PlanningError  # noqa: E402
 from cinenerf_ns.planner.planner import Planner, PlannerConfig  # noqa: E402
 from cinenerf_ns.planner.scene import SceneConfig  # noqa: E402
@@ -74,6 +75,7 @@ def evaluate_selection(loaded, gt) -> list[dict]:
         if res.surface_centroid is not None:
             sc = res.surface_centroid.detach().cpu().double()
             m["surface_centroid_error_frac"] = float((sc - gt.object_centres()[name]).norm()) / gt.room_size()
+        m["n_core"] = int(res.core.sum()) if res.core is not None else m.get("n_selected")
         m["query_ms"] = 1e3 * (time.perf_counter() - t0)
         rows.append(m)
     return rows
@@ -205,6 +207,17 @@ def summarise(sel: list[dict], shots: list[dict], gt) -> dict:
     }
 
 
+def unit_fraction(text: str) -> float:
+    """argparse type of --centre-relevancy: a number in [0, 1)."""
+    try:
+        v = float(text)
+    except ValueError:
+        v = math.nan
+    if not 0.0 <= v < 1.0:
+        raise argparse.ArgumentTypeError(f"--centre-relevancy must be a number in [0, 1), got {text!r}")
+    return v
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", required=True, help="compact export (.npz/.pt) or a run's config.yml")
@@ -224,6 +237,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--object-centre", choices=["volume", "surface"], default="volume",
                     help="as cinesplat-plan --object-centre (same default)")
     ap.add_argument("--keep-support", action="store_true", help="as cinesplat-plan --keep-support (default: dropped)")
+    ap.add_argument("--centre-relevancy", type=unit_fraction, default=CENTRE_RELEVANCY,
+                    help="as cinesplat-plan --centre-relevancy (same default): the centre from the selected Gaussians "
+                         "above this relevancy; 0: from the whole selection")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/room_eval"))
     ap.add_argument("--no-record", action="store_true", help="do not append to benchmarks/RESULTS.md")
     a = ap.parse_args(argv)
@@ -232,7 +248,8 @@ def main(argv=None) -> dict:
     # the planner plans for radius + margin, exactly as cinesplat-plan does; the truth is scored for the radius
     loaded = load_scene(str(a.scene), SceneConfig(camera_radius=a.camera_radius + a.safety_margin), device=a.device,
                         smooth_neighbors=a.semantic_smoothing, object_cluster=a.object_cluster,
-                        object_centre=a.object_centre, drop_support=not a.keep_support)
+                        object_centre=a.object_centre, drop_support=not a.keep_support,
+                        centre_relevancy=a.centre_relevancy)
     sel = evaluate_selection(loaded, gt)
     shots, plots, prep_ms = ([], {"paths": {}, "series": {}}, {}) if a.selection_only else evaluate_shots(
         loaded, gt, a.starts, a.camera_radius, a.grid_resolution, a.start_look_distance)
@@ -241,11 +258,12 @@ def main(argv=None) -> dict:
     date, dev = datetime.date.today().isoformat(), device_name(a.device)
     md = [f"# End-to-end evaluation: {a.scene}", "", f"{date}, {dev}, {len(loaded.scene)} Gaussians, prepare {prep_ms}", "",
           "## Object selection (text -> Gaussians) vs ground truth", "",
-          markdown_table(sel, ["object", "iou", "precision", "recall", "n_selected", "n_true", "centroid_error_frac",
+          markdown_table(sel, ["object", "iou", "precision", "recall", "n_selected", "n_core", "n_true", "centroid_error_frac",
                               "surface_centroid_error_frac", "selection_mean_error_frac", "truth_centroid_error_frac", "query_ms"]),
           "", "centroid_error_frac: the object centre the method returns (the planner's look-at target; "
-          f"--object-centre {a.object_centre}) to the true volume centroid, / room size. surface_centroid: the opacity-weighted "
-          "mean of the selection; selection_mean: its plain mean; truth_centroid: the plain mean of the object's TRUE Gaussians.",
+          f"--object-centre {a.object_centre}, estimated from the n_core selected Gaussians above relevancy {a.centre_relevancy:g}) "
+          "to the true volume centroid, / room size. surface_centroid: the opacity-weighted mean of that core; selection_mean: "
+          "the plain mean of the whole selection; truth_centroid: the plain mean of the object's TRUE Gaussians.",
           "", "## Shots (true geometry)", "",
           markdown_table(shots, ["go_to", "look_at", "seed", "success", "true_min_clearance", "true_clearance_bound",
                                  "look_err_target_max_deg", "look_err_true_max_deg", "look_err_true_median_deg",
@@ -263,7 +281,7 @@ def main(argv=None) -> dict:
     print("\n".join(md))
     if not a.no_record:
         append_results(f"\n## eval_room ({date}, {dev})\n\nscene `{a.scene}`, {len(loaded.scene)} Gaussians, {a.starts} starts per pair "
-                    f"(start look distance {a.start_look_distance}), camera radius {a.camera_radius} (+ planning margin {a.safety_margin}), semantic smoothing {a.semantic_smoothing}, object cluster {a.object_cluster}, object centre {a.object_centre}, support layer {'kept' if a.keep_support else 'dropped'}; details in `{a.out}/eval_room.md`\n\n```\n{json.dumps(summary, indent=1)}\n```\n")
+                    f"(start look distance {a.start_look_distance}), camera radius {a.camera_radius} (+ planning margin {a.safety_margin}), semantic smoothing {a.semantic_smoothing}, object cluster {a.object_cluster}, object centre {a.object_centre} (centre relevancy {a.centre_relevancy:g}), support layer {'kept' if a.keep_support else 'dropped'}; details in `{a.out}/eval_room.md`\n\n```\n{json.dumps(summary, indent=1)}\n```\n")
     return summary
 
 

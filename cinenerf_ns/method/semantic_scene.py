@@ -19,6 +19,7 @@ from torch import Tensor
 from cinenerf_ns.method.relevancy import (
     DEFAULT_NEGATIVES,
     QueryError,
+    centre_core,
     object_centroid_extent,
     relevancy as relevancy_fn,
     relevancy_mask,
@@ -118,10 +119,14 @@ class LocateResult:
     lo: Tensor  # [3] axis-aligned extent of the masked means
     hi: Tensor  # [3]
     relevancy: Tensor  # [N]
-    surface_centroid: Optional[Tensor] = None  # [3] opacity-weighted mean of the selected Gaussians
+    surface_centroid: Optional[Tensor] = None  # [3] opacity-weighted mean of the core's Gaussians
+    core: Optional[Tensor] = None  # [N] bool, the part of mask the centre was estimated from (relevancy.centre_core)
 
 
 CENTRES = ("volume", "surface")
+# Relevancy above which a selected Gaussian counts toward the object's centre (SemanticScene.centre_relevancy). Chosen
+# on the two trained synthetic rooms (seeds 0 and 1; sweep 0.5-0.9 in benchmarks/RESULTS.md), not on a held-out one.
+CENTRE_RELEVANCY = 0.65
 
 
 class SemanticScene:
@@ -151,6 +156,7 @@ class SemanticScene:
         centre: str = "volume",
         up: Sequence[float] = (0.0, 0.0, 1.0),
         drop_support: bool = True,
+        centre_relevancy: float = CENTRE_RELEVANCY,
     ):
         """label_names: the scene's own label vocabulary (label-mask training). A query equal to one of
         them is contrasted against the *other* labels instead of ``negatives``: "floor lamp" must beat
@@ -160,7 +166,11 @@ class SemanticScene:
         object_centre.py; default) or "surface" (opacity-weighted mean of the selected Gaussians, which sit on
         surfaces: off the middle of objects with thin parts). up: world up (the volume estimate's vertical).
         drop_support: drop the floor / table layer under the selected object from the selection (features bleed
-        across contact; see object_support.py)."""
+        across contact; see object_support.py).
+        centre_relevancy: the centre (either kind) is estimated from the selected Gaussians with relevancy above this
+        (the confident core, relevancy.centre_core; the whole selection when the core is under a quarter of it or
+        under 4 Gaussians). The selection itself (mask, extent) keeps ``threshold``. At or below the selection
+        threshold the rule is off."""
         n = means.shape[0]
         if means.shape != (n, 3) or latents.shape[0] != n or opacities.reshape(-1).shape[0] != n:
             raise ValueError(
@@ -169,6 +179,15 @@ class SemanticScene:
             )
         if centre not in CENTRES:
             raise ValueError(f"SemanticScene: centre must be one of {CENTRES}, got {centre!r}")
+        try:
+            cr = float(centre_relevancy)
+        except (TypeError, ValueError):
+            cr = float("nan")
+        if not 0.0 <= cr < 1.0:
+            raise ValueError(
+                f"SemanticScene: centre_relevancy must be a number in [0, 1) (relevancies lie in (0, 1); at or below the "
+                f"selection threshold the confident-core rule is off), got {centre_relevancy!r}"
+            )
         for nm, t, d in (("log_scales", log_scales, 3), ("quats", quats, 4)):
             if t is not None and tuple(t.shape) != (n, d):
                 raise ValueError(f"SemanticScene: {nm} must be [{n}, {d}], got {tuple(t.shape)}")
@@ -178,6 +197,7 @@ class SemanticScene:
         self.centre = centre
         self.up = tuple(float(u) for u in up)
         self.drop_support = bool(drop_support)
+        self.centre_relevancy = cr
         self.opacities = opacities.reshape(-1)
         self._raw_latents = latents
         self._smoothed: Optional[Tensor] = None
@@ -261,9 +281,11 @@ class SemanticScene:
             # the ring around the footprint: 1/2 to 3/2 of the clustering voxel (2% of the scene's extent by default)
             v = self._voxel() if self.cluster_fraction > 0 else self._extent() * 0.02
             mask = drop_support_layer(self.means, mask, up=self.up, inner=0.5 * v, outer=1.5 * v)
-        c, lo, hi = object_centroid_extent(self.means, self.opacities, mask)
-        centre = c if self.centre == "surface" else self.volume_centre(mask)
-        return LocateResult(centroid=centre, mask=mask, lo=lo, hi=hi, relevancy=rel, surface_centroid=c)
+        _, lo, hi = object_centroid_extent(self.means, self.opacities, mask)  # the extent: the whole selection
+        core = centre_core(rel, mask, self.centre_relevancy, thr)  # the centre: its confident core
+        c, _, _ = object_centroid_extent(self.means, self.opacities, core)
+        centre = c if self.centre == "surface" else self.volume_centre(core)
+        return LocateResult(centroid=centre, mask=mask, lo=lo, hi=hi, relevancy=rel, surface_centroid=c, core=core)
 
     def volume_centre(self, mask: Tensor) -> Tensor:
         """Estimated volume centroid [3] (means' dtype and device) of the Gaussians in ``mask`` [N] bool."""

@@ -106,25 +106,34 @@ def test_workers_option(tmp_path):
         run_plan(PlanArgs(output_dir=tmp_path / "c", workers=-1, **kw))
 
 
-def test_keep_support_reaches_the_locator(monkeypatch, tmp_path):
-    """--keep-support turns the support-layer rule off in the scene's text locator (default: on)."""
+class _StopAtLoad(Exception):
+    pass
+
+
+def _load_scene_kwargs(monkeypatch, key: str, **plan_kw) -> list:
+    """run_plan(PlanArgs(**plan_kw)) up to its load_scene call, which is stubbed: returns [the kwarg `key` it got]
+    (empty when run_plan stopped before loading). Other exceptions propagate."""
     import cinenerf_ns.cli.plan as plan_mod
 
     seen = []
 
-    class Stop(Exception):
-        pass
-
     def fake_load_scene(*a, **kw):
-        seen.append(kw.get("drop_support"))
-        raise Stop
+        seen.append(kw.get(key))
+        raise _StopAtLoad
 
     monkeypatch.setattr(plan_mod, "load_scene", fake_load_scene)
-    for keep in (False, True):
-        with pytest.raises(Stop):
-            run_plan(PlanArgs(scene="procedural:3000:1", go_to="the armchair", look_at="floor lamp",
-                              output_dir=tmp_path, keep_support=keep))
-    assert seen == [True, False]
+    kw = dict(scene="procedural:3000:1", go_to="the armchair", look_at="floor lamp", **plan_kw)
+    try:
+        run_plan(PlanArgs(**kw))
+    except _StopAtLoad:
+        pass
+    return seen
+
+
+def test_keep_support_reaches_the_locator(monkeypatch, tmp_path):
+    """--keep-support turns the support-layer rule off in the scene's text locator (default: on)."""
+    seen = [_load_scene_kwargs(monkeypatch, "drop_support", output_dir=tmp_path, keep_support=keep) for keep in (False, True)]
+    assert seen == [[True], [False]]
 
 
 @pytest.mark.slow
@@ -136,6 +145,40 @@ def test_load_scene_passes_drop_support():
     for flag in (True, False):
         sem = load_scene(str(DEMO_SCENE), SceneConfig(), smooth_neighbors=0, drop_support=flag).extra["semantic"]
         assert sem.drop_support is flag
+
+
+def test_centre_relevancy_reaches_the_locator(monkeypatch, tmp_path):
+    """--centre-relevancy is passed to load_scene (default CENTRE_RELEVANCY); a bad value is a clear error raised
+    before anything is loaded or written."""
+    from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY
+
+    assert _load_scene_kwargs(monkeypatch, "centre_relevancy", output_dir=tmp_path / "a") == [CENTRE_RELEVANCY]
+    assert _load_scene_kwargs(monkeypatch, "centre_relevancy", output_dir=tmp_path / "b", centre_relevancy=0.8) == [0.8]
+    for k, bad in enumerate([1.0, -0.2, float("nan")]):
+        with pytest.raises(InvalidInputError, match="--centre-relevancy"):
+            _load_scene_kwargs(monkeypatch, "centre_relevancy", output_dir=tmp_path / f"bad{k}", centre_relevancy=bad)
+        assert not (tmp_path / f"bad{k}").exists()
+
+
+@pytest.mark.slow
+def test_load_scene_passes_centre_relevancy():
+    """load_scene hands centre_relevancy to the bundled scene's SemanticScene, and the locator's description says how
+    many Gaussians the centre came from."""
+    import torch
+
+    from cinenerf_ns.cli.plan import label_query, load_scene
+    from cinenerf_ns.demo import DEMO_SCENE
+    from cinenerf_ns.planner.scene import SceneConfig
+
+    for v in (0.0, 0.7):
+        ld = load_scene(str(DEMO_SCENE), SceneConfig(), smooth_neighbors=0, centre_relevancy=v)
+        sem = ld.extra["semantic"]
+        assert sem.centre_relevancy == v
+        point, desc = ld.locate("armchair")
+        r = sem.locate_full(label_query("armchair", ld.extra["label_names"]))
+        np.testing.assert_allclose(point, r.centroid.double().numpy())
+        assert ("centre from the" in desc) == (int(r.core.sum()) < int(r.mask.sum()))
+        assert (v == 0.0) == torch.equal(r.core, r.mask)
 
 
 def test_start_look_distance_option(tmp_path):

@@ -10,7 +10,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cinenerf_ns.method.relevancy import (
+    CORE_MIN_COUNT,
+    CORE_MIN_FRACTION,
     QueryError,
+    centre_core,
     object_centroid_extent,
     relevancy,
     relevancy_from_features,
@@ -115,3 +118,41 @@ def test_fast_path_equals_decode_path():
     fast = relevancy(lat, codec, q, negs, temperature=10.0, chunk=64)
     slow = relevancy(lat, codec, q, negs, temperature=10.0, fast=False)
     assert torch.allclose(fast, slow, atol=1e-5)
+
+
+def _core_by_definition(rel, mask, t, sel_t, min_fraction, min_count):
+    """centre_core written out element by element (plain Python floats and bools)."""
+    sel = [bool(m) for m in mask]
+    if t <= sel_t:
+        return sel
+    core = [m and r > t for m, r in zip(sel, rel)]
+    k, n = sum(core), sum(sel)
+    return sel if (k < min_count or k < min_fraction * n) else core
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(st.tuples(st.floats(0.0, 1.0), st.booleans()), min_size=0, max_size=60),
+    st.floats(0.0, 0.99),
+    st.floats(0.0, 0.99),
+    st.sampled_from([0.0, 0.1, CORE_MIN_FRACTION, 0.9]),
+    st.sampled_from([0, 1, CORE_MIN_COUNT, 10]),
+)
+def test_centre_core_matches_its_definition(items, t, sel_t, min_fraction, min_count):
+    rel = torch.tensor([r for r, _ in items], dtype=torch.float64)
+    mask = torch.tensor([m for _, m in items], dtype=torch.bool)
+    out = centre_core(rel, mask, t, sel_t, min_fraction=min_fraction, min_count=min_count)
+    ref = _core_by_definition(rel.tolist(), mask.tolist(), t, sel_t, min_fraction, min_count)
+    assert out.dtype == torch.bool and out.tolist() == ref
+    assert not (out & ~mask).any()  # a subset of the selection, always
+
+
+def test_centre_core_keeps_the_confident_part_or_falls_back():
+    rel = torch.tensor([0.9, 0.8, 0.7, 0.66, 0.6, 0.55, 0.52, 0.3])
+    mask = rel > 0.5
+    assert centre_core(rel, mask, 0.65, 0.5).tolist() == [True] * 4 + [False] * 4
+    assert torch.equal(centre_core(rel, mask, 0.5, 0.5), mask)  # at the selection threshold: off
+    assert torch.equal(centre_core(rel, mask, 0.0, 0.5), mask)
+    assert torch.equal(centre_core(rel, mask, 0.85, 0.5), mask)  # one Gaussian: under CORE_MIN_COUNT
+    many = torch.cat([rel[:4], torch.full((13,), 0.55)])  # 4 of 17 above 0.65: under a quarter
+    assert torch.equal(centre_core(many, many > 0.5, 0.65, 0.5), many > 0.5)

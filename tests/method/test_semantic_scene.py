@@ -245,3 +245,62 @@ def test_locate_drops_the_floor_under_the_object():
     assert m_on[3000:].sum() <= 0.1 * near.sum() and m_on[:3000].float().mean() > 0.97
     v = on._voxel()
     assert torch.equal(m_on, drop_support_layer(means, m_off, inner=0.5 * v, outer=1.5 * v))
+
+
+WEAK_CHAIR = [1.0 + 0.95 * 0.3, 0.95 * 0.3, 0.95 * 0.9]  # between "red chair" and the negatives: relevancy ~0.55
+
+
+def _cored_scene(n_core=300, n_weak=60, **kw):
+    """A 'chair' blob at the origin (strong latents) with weakly labelled Gaussians 0.5 to its +x side (e.g. a wall
+    the chair shows through), and a 'tree' blob far away."""
+    g = torch.Generator().manual_seed(0)
+    core = torch.randn(n_core, 3, generator=g) * 0.05
+    weak = torch.randn(n_weak, 3, generator=g) * 0.05 + torch.tensor([0.5, 0.0, 0.0])
+    tree = torch.randn(100, 3, generator=g) * 0.05 + torch.tensor([-3.0, 0.0, 0.0])
+    means = torch.cat([core, weak, tree])
+    lat = torch.cat([torch.tensor([[1.0, 0, 0]]).expand(n_core, 3), torch.tensor([WEAK_CHAIR]).expand(n_weak, 3),
+                     torch.tensor([[0.0, 1.0, 0]]).expand(100, 3)])
+    opac = torch.rand(len(means), generator=g) * 0.5 + 0.5
+    return SemanticScene(means, opac, lat, IdentityCodec(), enc, drop_support=False, **kw)
+
+
+@pytest.mark.parametrize("centre", ["surface", "volume"])
+def test_centre_comes_from_the_confident_core_and_the_selection_is_unchanged(centre):
+    """centre_relevancy (default 0.65): the centre is estimated from the selected Gaussians above it; the mask and
+    the extent are those of the whole selection (threshold 0.5); 0 restores the whole-selection centre."""
+    from cinenerf_ns.method.object_centre import volume_centroid
+    from cinenerf_ns.method.relevancy import object_centroid_extent
+
+    on = _cored_scene(centre=centre)
+    off = _cored_scene(centre=centre, centre_relevancy=0.0)
+    assert on.centre_relevancy == 0.65
+    r, r0 = on.locate_full("red chair"), off.locate_full("red chair")
+    weak = r.relevancy[300:360]
+    assert ((weak > 0.5) & (weak < 0.65)).all()  # the premise: the side Gaussians are selected, weakly
+    assert torch.equal(r.mask, r0.mask) and r.mask[:360].all() and not r.mask[360:].any()
+    assert torch.equal(r.lo, r0.lo) and torch.equal(r.hi, r0.hi) and float(r.hi[0]) > 0.4  # extent reaches the side
+    assert r.core[:300].all() and not r.core[300:].any() and torch.equal(r0.core, r0.mask)
+    if centre == "surface":
+        ref, _, _ = object_centroid_extent(on.means, on.opacities, r.core)
+        ref0, _, _ = object_centroid_extent(on.means, on.opacities, r.mask)
+    else:
+        ref = torch.as_tensor(volume_centroid(on.means[r.core]), dtype=torch.float32)
+        ref0 = torch.as_tensor(volume_centroid(on.means[r.mask]), dtype=torch.float32)
+    assert torch.allclose(r.centroid, ref, atol=1e-6) and torch.allclose(r0.centroid, ref0, atol=1e-6)
+    assert float(r.centroid.norm()) < 0.03 < float(r0.centroid[0])  # the side Gaussians pulled the old centre to +x
+    assert torch.allclose(r.surface_centroid, object_centroid_extent(on.means, on.opacities, r.core)[0])
+
+
+def test_centre_core_falls_back_to_the_selection_when_it_is_small():
+    """A core under a quarter of the selection is not trusted: the centre comes from the whole selection."""
+    s = _cored_scene(n_core=50, n_weak=400, centre="surface")
+    r = s.locate_full("red chair")
+    assert int(r.mask.sum()) == 450 and torch.equal(r.core, r.mask)
+    assert torch.equal(r.centroid, _cored_scene(n_core=50, n_weak=400, centre="surface", centre_relevancy=0.0)
+                       .locate_full("red chair").centroid)
+
+
+@pytest.mark.parametrize("bad", [1.0, -0.1, float("nan"), float("inf"), "high", None])
+def test_centre_relevancy_is_validated(bad):
+    with pytest.raises(ValueError, match="centre_relevancy"):
+        _cored_scene(centre_relevancy=bad)
