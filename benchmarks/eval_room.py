@@ -10,7 +10,8 @@ to score the results:
 * selection: for every object, the Gaussians the text query selects vs the Gaussians on/in the true
   object (IoU, precision, recall) and the selection centroid's error (fraction of the room size);
 * shots: for go-to/look-at pairs (object i -> look at object i+1) x ``--starts`` random starts:
-  success, TRUE clearance (analytic SDF minus the camera radius) along the whole densely sampled curve
+  success (positive TRUE clearance and every sample inside the room's interior: outside the walls the SDF is
+  positive too), TRUE clearance (analytic SDF minus the camera radius) along the whole densely sampled curve
   plus a certified bound between samples, look-at error at every frame against the planner's target and
   against the TRUE object centre, final distance to the go-to object's surface, planning latency.
 
@@ -126,6 +127,8 @@ def evaluate_shots(loaded, gt, starts: int, camera_radius: float, grid_resolutio
             row["plan_ms"] = 1e3 * (time.perf_counter() - t0)
             t, pos = dense_curve(shot)
             clr = clearance_along(torch.from_numpy(pos), gt, camera_radius)
+            # outside the walls / under the floor the SDF is positive too, but no camera of this room belongs there
+            outside = int((~gt.inside_room(torch.from_numpy(pos))).sum())
             bound = clearance_lower_bound(torch.from_numpy(pos), clr) if len(pos) > 1 else clr
             c2w = torch.from_numpy(shot.camera_to_worlds())
             err_target = shot.look_at_errors_deg()
@@ -133,7 +136,8 @@ def evaluate_shots(loaded, gt, starts: int, camera_radius: float, grid_resolutio
             rng_look = np.linalg.norm(shot.positions - centres[look].numpy(), axis=1)  # [T] camera -> true centre
             d = distance_to_object(torch.from_numpy(shot.positions[-1]), gt, goto)
             row.update(
-                success=bool(clr.min() > 0), true_min_clearance=float(clr.min()), true_clearance_bound=float(bound.min()),
+                success=bool(clr.min() > 0 and outside == 0), true_min_clearance=float(clr.min()),
+                true_clearance_bound=float(bound.min()), outside_room_samples=outside,
                 samples=len(pos), look_err_target_max_deg=float(err_target.max()), look_err_true_max_deg=float(err_true.max()),
                 look_err_true_median_deg=float(np.median(err_true)), frames=int(len(err_true)),
                 frames_look_err_true_le_2deg=int((err_true <= 2.0).sum()), min_range_to_look=float(rng_look.min()),
@@ -193,6 +197,7 @@ def summarise(sel: list[dict], shots: list[dict], gt) -> dict:
         "shots": len(shots), "planned": len(planned), "success": len(ok),
         "success_rate": len(ok) / len(shots) if shots else float("nan"),
         "planned_with_positive_true_clearance": sum(r["true_min_clearance"] > 0 for r in planned),
+        "planned_inside_room": sum(r["outside_room_samples"] == 0 for r in planned),
         "true_min_clearance": f(planned, "true_min_clearance", np.min),
         "look_err_target_max_deg": f(planned, "look_err_target_max_deg", np.max),
         "look_err_true_median_of_max_deg": f(planned, "look_err_true_max_deg", np.median),
@@ -265,7 +270,7 @@ def main(argv=None) -> dict:
           "to the true volume centroid, / room size. surface_centroid: the opacity-weighted mean of that core; selection_mean: "
           "the plain mean of the whole selection; truth_centroid: the plain mean of the object's TRUE Gaussians.",
           "", "## Shots (true geometry)", "",
-          markdown_table(shots, ["go_to", "look_at", "seed", "success", "true_min_clearance", "true_clearance_bound",
+          markdown_table(shots, ["go_to", "look_at", "seed", "success", "true_min_clearance", "true_clearance_bound", "outside_room_samples",
                                  "look_err_target_max_deg", "look_err_true_max_deg", "look_err_true_median_deg",
                                  "frames_look_err_true_le_2deg", "frames", "min_range_to_look", "final_surface_dist", "plan_ms", "reason"]),
           "", "## Summary", "", "```", json.dumps(summary, indent=1), "```"]

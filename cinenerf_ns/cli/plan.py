@@ -162,10 +162,12 @@ def training_camera_region(config_path: Path, pad: float = 0.1) -> Optional[Tupl
     where the cameras were). None when the run's data or dataparser transform cannot be read."""
     try:
         text = config_path.read_text()
-        m = re.search(r"^\s*data: !!python/object/apply:pathlib\.\w+\n((?:\s*- .*\n)+)", text, re.M)
+        # ns-train --data writes the path once with a YAML anchor ("data: &id003 !!python/..."; the datamanager's
+        # "data: *id003" refers to it); Python 3.13 pickles pathlib._local.PosixPath
+        m = re.search(r"^([ ]*)data: (?:&\S+ )?!!python/object/apply:pathlib\.[\w.]+\n((?:\1- .*\n)+)", text, re.M)
         if m is None:
             return None
-        parts = [ln.strip()[2:] for ln in m.group(1).splitlines() if ln.strip().startswith("- ")]
+        parts = [ln.strip()[2:] for ln in m.group(2).splitlines() if ln.strip().startswith("- ")]
         data = Path(*parts)
         tj = data / "transforms.json" if data.is_dir() else data
         return camera_region(tj, config_path.parent / "dataparser_transforms.json", pad)

@@ -54,6 +54,26 @@ from .workers import CandidatePool, default_workers, in_worker, pool_for, valida
 ArrayLike = Union[Tensor, np.ndarray, Sequence[float]]
 
 
+ENCLOSED_COMPONENT_FRACTION = 0.2  # an enclosed free component this large is taken for the capture's room
+
+
+def preferred_component(labels: np.ndarray, counts: np.ndarray) -> int:
+    """Free component random starts come from when no start region is known. labels [X, Y, Z] (0 occupied), counts
+    [K+1] free voxels per label (counts[0] = 0). A component that touches the grid's faces is the space around the
+    scene; the largest one that does not (a closed room's interior) is preferred when it holds at least
+    ENCLOSED_COMPONENT_FRACTION of all free voxels: a room captured from inside is enclosed by its walls, floor and
+    ceiling, and the shell between them and the padded planning box can hold more voxels than the room (synthetic
+    room 2: starts outside the walls, shots under the floor). Smaller enclosed pockets (inside hollow objects) are
+    never preferred; an open scene has no large enclosed component and keeps the largest."""
+    faces = [labels[0], labels[-1], labels[:, 0], labels[:, -1], labels[:, :, 0], labels[:, :, -1]]
+    touching = np.unique(np.concatenate([f.ravel() for f in faces]))
+    enclosed = counts.copy()
+    enclosed[touching[touching < len(enclosed)]] = 0
+    if enclosed.max() > 0 and enclosed.max() >= ENCLOSED_COMPONENT_FRACTION * counts.sum():
+        return int(np.argmax(enclosed))
+    return int(np.argmax(counts))
+
+
 @dataclass
 class PlannerConfig:
     """Everything the planner needs besides the scene and the request."""
@@ -64,7 +84,9 @@ class PlannerConfig:
     """(lo[3], hi[3]) planning region in scene units; None: the scene bounds (robust, see prepare())."""
     start_region: Optional[tuple] = None
     """(lo[3], hi[3]) where random starts are drawn; None: the planning bounds (e.g. pass the
-    training cameras' bounding box for real captures)."""
+    training cameras' bounding box for real captures). Without it, starts come from the largest free component that
+    does not touch the planning box when it holds >= ENCLOSED_COMPONENT_FRACTION of the free voxels (a closed room's
+    interior: the shell between its walls and the padded box can be larger), else from the largest."""
     start_look_distance: float = 0.25
     """Random starts (none given) are drawn at least this fraction of the start region's longest side away from the
     look-at point, when the region has such free starts (else anywhere: it never fails a request). Why: a random
@@ -698,7 +720,8 @@ class Planner:
     def _main_component(self) -> int:
         """The free component random starts come from: the one with the most free voxels inside the
         start region when one is set (a room's interior, where the capture's cameras were: the shell of
-        free space *outside* the walls inside the planning bounds can be larger), else the largest.
+        free space *outside* the walls inside the planning bounds can be larger), else preferred_component's choice
+        (a large enclosed component, else the largest).
         Constant per prepared scene: computed once, not per request."""
         prep = self._prep()
         key = (prep, self.config.start_region)
@@ -710,7 +733,7 @@ class Planner:
         return comp
 
     def _largest_component(self, prep: PreparedScene) -> int:
-        labels = prep.astar_grid.labels
+        labels = prep.astar_grid.labels  # [X, Y, Z] 0: occupied, k >= 1: free component k
         if self.config.start_region is not None:
             grid = prep.grid
             lo, hi = (torch.as_tensor(np.asarray(v, dtype=np.float64), device=grid.device) for v in self.config.start_region)
@@ -723,7 +746,7 @@ class Planner:
                 return int(np.argmax(counts))
         counts = np.bincount(labels.ravel())
         counts[0] = 0
-        return int(np.argmax(counts))
+        return preferred_component(labels, counts)
 
     # ------------------------------------------------------------------ planning
     def plan(

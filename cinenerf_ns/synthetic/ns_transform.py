@@ -117,5 +117,13 @@ class GroundTruthNS:
         """(object name, closed xy polygon [K,2]) per part, in nerfstudio coordinates, for top-down plots."""
         return [(name, self.tf.points_to_ns(poly)[:, :2]) for name, poly in self.room.part_outlines(n_circle)]
 
+    def inside_room(self, points_ns: Tensor) -> Tensor:
+        """bool [...]: points [...,3] (nerfstudio coordinates) inside the room's interior box. Outside the walls,
+        floor and ceiling slabs the SDF is positive too, but no camera of a capture of this room could be there."""
+        p = self.tf.points_from_ns(points_ns)
+        lo = torch.as_tensor(self.room.interior_lo, dtype=torch.float64)
+        hi = torch.as_tensor(self.room.interior_hi, dtype=torch.float64)
+        return ((p >= lo) & (p <= hi)).all(-1)
+
     def interior_outline_xy(self) -> "torch.Tensor":
         return self.tf.points_to_ns(self.room.interior_outline())[:, :2]

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import dataclasses
 import threading
 from dataclasses import dataclass
 from pathlib import Path
@@ -61,9 +62,30 @@ def attach_to_nerfstudio_viewer(
     lock = getattr(viewer, "train_lock", None)
     if isinstance(backend, SplatModelBackend):  # snapshots the model under the lock; plans without it
         backend.lock = lock
+        region = train_camera_region(viewer)
+        if region is not None and getattr(backend.planner_config, "start_region", None) is None:
+            from cinenerf_ns.planner.planner import PlannerConfig
+
+            base = backend.planner_config or PlannerConfig(candidate_workers=0)  # PreparedPlanner's default
+            if isinstance(base, PlannerConfig):
+                backend.planner_config = dataclasses.replace(base, start_region=region)
     elif lock is not None and not isinstance(backend, LockedBackend):
         backend = LockedBackend(backend, lock)
     return attach_cine_panel(viewer.viser_server, backend, cfg, exporter, scale=VISER_NERFSTUDIO_SCALE_RATIO)
+
+
+def train_camera_region(viewer: Any, pad: float = 0.1) -> Optional[tuple]:
+    """(lo [3], hi [3]): the training cameras' box (the pipeline's normalised coordinates) grown by ``pad``, or None
+    when the viewer's pipeline has no training cameras. Random starts come from there, as cinesplat-plan's do (a room's
+    interior: without it they can land in the free space outside its walls)."""
+    try:
+        c2w = viewer.pipeline.datamanager.train_dataset.cameras.camera_to_worlds  # [F, 3, 4]
+        t = c2w[..., :3, 3].detach().double().cpu().numpy().reshape(-1, 3)  # [F, 3]
+    except AttributeError:
+        return None
+    if t.shape[0] == 0 or not np.isfinite(t).all():
+        return None
+    return t.min(0) - pad, t.max(0) + pad
 
 
 class CinePanelControl(_ViewerControl):  # type: ignore[misc]

@@ -20,6 +20,7 @@ def test_eval_room_shots_are_safe_against_the_true_geometry(tmp_path):
     assert s["planned"] >= 7
     # the safety claim, checked against the analytic room (camera radius included), not the splat
     assert s["planned_with_positive_true_clearance"] == s["planned"]
+    assert s["planned_inside_room"] == s["planned"]  # starts from the training cameras' box: inside the walls
     assert s["look_err_target_max_deg"] < 1e-6
     rep = json.loads((tmp_path / "eval_room.json").read_text())
     assert len(rep["selection"]) == 8 and all("iou" in r for r in rep["selection"])

@@ -191,3 +191,50 @@ def test_start_look_distance_option(tmp_path):
     with pytest.raises(InvalidInputError, match="start_look_distance"):
         run_plan(PlanArgs(output_dir=tmp_path / "c", start_look_distance=1.0, **kw))
     assert not (tmp_path / "c").exists()
+
+
+@pytest.mark.parametrize("shared_data", [True, False])
+def test_training_camera_region_reads_ns_train_configs(tmp_path, shared_data):
+    """The start region of a run comes from the config.yml nerfstudio writes. `ns-train --data X` sets the
+    datamanager's data to the same Path, so yaml.dump writes it once with an anchor ("data: &id001 !!python/...")
+    and refers to it later: both forms must give the cameras' box (this was silently None for every ns-train run)."""
+    import copy
+
+    import yaml
+
+    from cinenerf_ns.cli.plan import camera_region, training_camera_region
+    from cinenerf_ns.method.cinesplat_config import cinesplat
+
+    data = tmp_path / "my data" / "room"
+    data.mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    frames = []
+    for c in rng.uniform(-2, 2, size=(7, 3)):
+        m = np.eye(4)
+        m[:3, 3] = c
+        frames.append({"file_path": "images/x.png", "transform_matrix": m.tolist()})
+    (data / "transforms.json").write_text(json.dumps({"frames": frames}))
+    run = tmp_path / "outputs" / "room" / "cinesplat" / "run"
+    run.mkdir(parents=True)
+    dp = {"transform": [[0, -1, 0, 0.3], [1, 0, 0, -0.2], [0, 0, 1, 0.1]], "scale": 0.4}
+    (run / "dataparser_transforms.json").write_text(json.dumps(dp))
+    cfg = copy.deepcopy(cinesplat.config)
+    cfg.data = data
+    if shared_data:  # what nerfstudio's train.py does with --data
+        cfg.pipeline.datamanager.data = cfg.data
+    text = yaml.dump(cfg)
+    assert ("data: &id" in text) == shared_data  # the premise: the anchor form is what ns-train writes
+    (run / "config.yml").write_text(text)
+    got = training_camera_region(run / "config.yml")
+    assert got is not None
+    want = camera_region(data / "transforms.json", run / "dataparser_transforms.json")
+    np.testing.assert_allclose(got[0], want[0])
+    np.testing.assert_allclose(got[1], want[1])
+    # the box is the cameras' box in the run's normalised frame, grown by the pad
+    T = np.asarray(dp["transform"], dtype=float)
+    cams = np.array([f["transform_matrix"] for f in frames])[:, :3, 3]
+    norm = (cams @ T[:, :3].T + T[:, 3]) * dp["scale"]
+    np.testing.assert_allclose(got[0], norm.min(0) - 0.1)
+    np.testing.assert_allclose(got[1], norm.max(0) + 0.1)
+    (data / "transforms.json").unlink()  # data gone: no region, no crash
+    assert training_camera_region(run / "config.yml") is None

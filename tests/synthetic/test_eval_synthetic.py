@@ -156,3 +156,16 @@ def test_topdown_in_ns_frame(gt_ns, tmp_path):
     assert ev.markdown_table([]) == "(no rows)\n"
     t = ev.markdown_table([{"a": 1, "b": 0.5, "c": "x", "d": torch.zeros(3)}])
     assert t.splitlines()[0] == "| a | b | c |"
+
+
+def test_inside_room_separates_the_interior_from_the_free_space_outside_the_slabs(room, gt_ns):
+    """Beyond a wall slab the SDF is positive again (free space outside the building), so a positive true clearance
+    alone cannot tell a camera inside the room from one outside it: inside_room can (eval_room's success needs both)."""
+    g = torch.Generator().manual_seed(1)
+    lo, hi = room.interior_lo.double(), room.interior_hi.double()
+    p = lo - 1.0 + torch.rand(4000, 3, generator=g, dtype=torch.float64) * (hi - lo + 2.0)  # the room and around it
+    ref = torch.tensor([all(lo[k] <= q[k] <= hi[k] for k in range(3)) for q in p.tolist()])
+    assert torch.equal(gt_ns.inside_room(gt_ns.tf.points_to_ns(p)), ref)
+    assert ref.any() and (~ref).any()
+    out = torch.tensor([[hi[0] + 0.5, 0.0, 1.0]], dtype=torch.float64)  # 0.3 m beyond the 0.2 m wall slab
+    assert float(gt_ns.sdf(gt_ns.tf.points_to_ns(out))[0]) > 0 and not bool(gt_ns.inside_room(gt_ns.tf.points_to_ns(out))[0])

@@ -144,6 +144,35 @@ def test_attach_gives_the_train_lock_to_the_model_backend(tmp_path):
         server.stop()
 
 
+def test_attach_gives_the_model_backend_the_training_cameras_as_start_region(tmp_path):
+    """In ns-train / ns-viewer the panel's random starts come from the training cameras' box (+ 0.1), as cinesplat-plan's
+    do; a backend whose planner config already has a region keeps it, and a viewer without cameras sets none."""
+    import viser
+
+    from cinenerf_ns.planner.planner import PlannerConfig
+    from cinenerf_ns.viewer.nerfstudio_panel import attach_to_nerfstudio_viewer
+
+    t = torch.tensor([[0.1, -0.2, 0.3], [0.5, 0.4, -0.1], [-0.3, 0.0, 0.2]])
+    c2w = torch.cat([torch.eye(3).expand(3, 3, 3), t[:, :, None]], dim=-1)  # [3, 3, 4]
+    cams = SimpleNamespace(camera_to_worlds=c2w)
+    pipeline = SimpleNamespace(datamanager=SimpleNamespace(train_dataset=SimpleNamespace(cameras=cams)))
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    try:
+        got = []
+        for pipe, cfg in ((pipeline, None), (pipeline, PlannerConfig(start_region=([0, 0, 0], [1, 1, 1]))), (None, None)):
+            viewer = SimpleNamespace(viser_server=server, datapath=tmp_path, log_filename=tmp_path / "log.txt",
+                                     train_lock=RecordingLock(), **({} if pipe is None else {"pipeline": pipe}))
+            backend = SplatModelBackend(TinySplatModel(), Planners(), planner_config=cfg)
+            panel = attach_to_nerfstudio_viewer(viewer, backend)
+            got.append(None if backend.planner_config is None else backend.planner_config.start_region)
+            panel.close()
+        np.testing.assert_allclose(got[0][0], t.double().numpy().min(0) - 0.1)
+        np.testing.assert_allclose(got[0][1], t.double().numpy().max(0) + 0.1)
+        assert got[1] == ([0, 0, 0], [1, 1, 1]) and got[2] is None
+    finally:
+        server.stop()
+
+
 def test_locked_backend_holds_train_lock():
     lock = threading.Lock()
     seen = []
