@@ -120,17 +120,25 @@ EOF
   touch "$SITE/.cinenerf_installed"
 }
 
-stage_tests() {
-  # first touch of gsplat compiles its CUDA kernels: do it visibly, timed on its own
-  local t0=$(date +%s)
-  $PY -c "
+gsplat_compile() {
+  # first touch of gsplat compiles its CUDA kernels (~80 s). Under a lock: two stages that start it at once on a
+  # fresh machine (two rooms in parallel) share torch's build folder, and one deletes it under the other.
+  local lock=""
+  command -v flock > /dev/null && lock="flock /tmp/cinenerf_gsplat_build.lock"
+  $lock $PY -c "
 import torch, time
 from gsplat.rendering import rasterization
 t=time.time()
 m=torch.zeros(1,3,device='cuda'); m[0,2]=2
 r,a,_=rasterization(m, torch.tensor([[1.,0,0,0]],device='cuda'), torch.full((1,3),.1,device='cuda'), torch.ones(1,device='cuda'), torch.ones(1,3,device='cuda'), torch.eye(4,device='cuda')[None], torch.tensor([[[10.,0,4],[0,10,4],[0,0,1]]],device='cuda'), 8, 8)
 torch.cuda.synchronize(); print('gsplat first call (compile) %.1fs' % (time.time()-t))
-" || return 1
+"
+}
+
+stage_tests() {
+  # first touch of gsplat compiles its CUDA kernels: do it visibly, timed on its own
+  local t0=$(date +%s)
+  gsplat_compile || return 1
   echo "gsplat_compile $(( $(date +%s) - t0 )) 0" >> "$OUT/timings.txt"
   $PY -c "import pytest, hypothesis" || { echo "pytest / hypothesis missing: add their wheels (pytest pluggy iniconfig packaging hypothesis sortedcontainers attrs) to $WHEELS"; return 1; }
   $PY -m pytest -q -ra ${PYTEST_ARGS:-} --junitxml="$OUT/pytest.xml"
@@ -274,6 +282,7 @@ stage_room() {
   [ -f "$d/transforms.json" ] || $PY -c "from cinenerf_ns.synthetic.cli import entrypoint; entrypoint()" --seed "${ROOM_SEED:-0}" --num-views 150 --output "$d" \
       --threads "${ROOM_THREADS:-8}" --ply-in-transforms || return 1
   rm -rf "$WORK/outputs/$name/cinesplat/gpu_check"
+  gsplat_compile || return 1  # seed 3 failed here once, compiled by two rooms at once (2026-11-25)
   ns-train cinesplat --data "$d" \
     --output-dir "$WORK/outputs" --experiment-name "$name" --timestamp gpu_check \
     --max-num-iterations "$steps" --steps-per-save "$steps" --steps-per-eval-all-images 100000 \
