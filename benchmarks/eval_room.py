@@ -245,6 +245,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--centre-relevancy", type=unit_fraction, default=CENTRE_RELEVANCY,
                     help="as cinesplat-plan --centre-relevancy (same default): the centre from the selected Gaussians "
                          "above this relevancy; 0: from the whole selection")
+    ap.add_argument("--no-unseen-fill", action="store_true",
+                    help="as cinesplat-plan --no-unseen-fill: the volume centre ignores the training cameras")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/room_eval"))
     ap.add_argument("--no-record", action="store_true", help="do not append to benchmarks/RESULTS.md")
     a = ap.parse_args(argv)
@@ -254,7 +256,10 @@ def main(argv=None) -> dict:
     loaded = load_scene(str(a.scene), SceneConfig(camera_radius=a.camera_radius + a.safety_margin), device=a.device,
                         smooth_neighbors=a.semantic_smoothing, object_cluster=a.object_cluster,
                         object_centre=a.object_centre, drop_support=not a.keep_support,
-                        centre_relevancy=a.centre_relevancy)
+                        centre_relevancy=a.centre_relevancy, unseen_fill=not a.no_unseen_fill)
+    sem = loaded.extra.get("semantic")
+    n_cams = 0 if sem is None or sem.camera_centres is None else len(sem.camera_centres)
+    unseen = f"unseen parts filled ({n_cams} training cameras)" if n_cams else "no unseen fill (no training cameras)"
     sel = evaluate_selection(loaded, gt)
     shots, plots, prep_ms = ([], {"paths": {}, "series": {}}, {}) if a.selection_only else evaluate_shots(
         loaded, gt, a.starts, a.camera_radius, a.grid_resolution, a.start_look_distance)
@@ -266,7 +271,7 @@ def main(argv=None) -> dict:
           markdown_table(sel, ["object", "iou", "precision", "recall", "n_selected", "n_core", "n_true", "centroid_error_frac",
                               "surface_centroid_error_frac", "selection_mean_error_frac", "truth_centroid_error_frac", "query_ms"]),
           "", "centroid_error_frac: the object centre the method returns (the planner's look-at target; "
-          f"--object-centre {a.object_centre}, estimated from the n_core selected Gaussians above relevancy {a.centre_relevancy:g}) "
+          f"--object-centre {a.object_centre}, estimated from the n_core selected Gaussians above relevancy {a.centre_relevancy:g}; {unseen}) "
           "to the true volume centroid, / room size. surface_centroid: the opacity-weighted mean of that core; selection_mean: "
           "the plain mean of the whole selection; truth_centroid: the plain mean of the object's TRUE Gaussians.",
           "", "## Shots (true geometry)", "",
@@ -286,7 +291,7 @@ def main(argv=None) -> dict:
     print("\n".join(md))
     if not a.no_record:
         append_results(f"\n## eval_room ({date}, {dev})\n\nscene `{a.scene}`, {len(loaded.scene)} Gaussians, {a.starts} starts per pair "
-                    f"(start look distance {a.start_look_distance}), camera radius {a.camera_radius} (+ planning margin {a.safety_margin}), semantic smoothing {a.semantic_smoothing}, object cluster {a.object_cluster}, object centre {a.object_centre} (centre relevancy {a.centre_relevancy:g}), support layer {'kept' if a.keep_support else 'dropped'}; details in `{a.out}/eval_room.md`\n\n```\n{json.dumps(summary, indent=1)}\n```\n")
+                    f"(start look distance {a.start_look_distance}), camera radius {a.camera_radius} (+ planning margin {a.safety_margin}), semantic smoothing {a.semantic_smoothing}, object cluster {a.object_cluster}, object centre {a.object_centre} (centre relevancy {a.centre_relevancy:g}; {unseen}), support layer {'kept' if a.keep_support else 'dropped'}; details in `{a.out}/eval_room.md`\n\n```\n{json.dumps(summary, indent=1)}\n```\n")
     return summary
 
 

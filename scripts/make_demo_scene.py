@@ -6,8 +6,9 @@ GT_DIR holds what `scripts/gpu_check.sh room` copies out of the run: transforms.
 dataparser_transforms.json, geometry.json and labels.json. The scene is written as a compressed compact
 export (SH degree 0, float16 per-Gaussian arrays, float32 means). When it exceeds --max-mb the Gaussians
 of lowest opacity are dropped (they are the least visible; the demo then plans around exactly the scene it
-ships, nothing else). The training cameras' bounding box is stored as info["start_region"] so random
-starts are drawn where the capture was (what cinesplat-plan does with a run's config.yml).
+ships, nothing else). The training cameras' centres are stored as info["camera_centres"] and their bounding box as
+info["start_region"]: random starts are drawn where the capture was, and an object's volume centre fills what no
+camera saw (what cinesplat-plan does with a run's config.yml).
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ from pathlib import Path
 
 import torch
 
-from cinenerf_ns.cli.plan import camera_region
+from cinenerf_ns.method.training_cameras import camera_box, camera_centres
 from cinenerf_ns.method.checkpoint import export_compact, load_splat
 
 
@@ -38,8 +39,10 @@ def main() -> None:
     args = ap.parse_args()
 
     st = load_splat(args.scene)
-    lo, hi = camera_region(args.dataset / "transforms.json", args.dataset / "dataparser_transforms.json")
+    cams = camera_centres(args.dataset / "transforms.json", args.dataset / "dataparser_transforms.json")
+    lo, hi = camera_box(cams)
     st.info["start_region"] = [lo.tolist(), hi.tolist()]
+    st.info["camera_centres"] = cams.tolist()  # the volume centre fills what no camera saw
     n0 = len(st)
     out = args.out / f"{args.name}.npz"
     keep_frac = 1.0

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Dict, Optional, Sequence, Tuple
+from typing import Callable, Dict, Optional, Sequence, Tuple, Union
 
 import numpy as np
 import torch
@@ -158,6 +158,7 @@ class SemanticScene:
         up: Sequence[float] = (0.0, 0.0, 1.0),
         drop_support: bool = True,
         centre_relevancy: float = CENTRE_RELEVANCY,
+        camera_centres: Optional[Union[Tensor, np.ndarray]] = None,
     ):
         """label_names: the scene's own label vocabulary (label-mask training). A query equal to one of
         them is contrasted against the *other* labels instead of ``negatives``: "floor lamp" must beat
@@ -171,7 +172,10 @@ class SemanticScene:
         centre_relevancy: the centre (either kind) is estimated from the selected Gaussians with relevancy above this
         (the confident core, relevancy.centre_core; the whole selection when the core is under a quarter of it or
         under 4 Gaussians). The selection itself (mask, extent) keeps ``threshold``. At or below the selection
-        threshold the rule is off."""
+        threshold the rule is off.
+        camera_centres: [C, 3] the training cameras' centres (the means' coordinates). The volume centre then also
+        fills the part of the object that no training camera sees (object_centre.hidden_voxels: the unseen backs
+        that a capture leaves thin); None: the ray vote alone."""
         n = means.shape[0]
         if means.shape != (n, 3) or latents.shape[0] != n or opacities.reshape(-1).shape[0] != n:
             raise ValueError(
@@ -192,6 +196,14 @@ class SemanticScene:
         for nm, t, d in (("log_scales", log_scales, 3), ("quats", quats, 4)):
             if t is not None and tuple(t.shape) != (n, d):
                 raise ValueError(f"SemanticScene: {nm} must be [{n}, {d}], got {tuple(t.shape)}")
+        cams = None
+        if camera_centres is not None:
+            cams = np.asarray(camera_centres.detach().cpu() if isinstance(camera_centres, Tensor) else camera_centres,
+                              dtype=np.float64).reshape(-1, 3)
+            if not np.isfinite(cams).all():
+                raise ValueError("SemanticScene: camera_centres contain NaN/inf")
+            cams = cams if len(cams) else None
+        self.camera_centres: Optional[np.ndarray] = cams  # [C, 3] float64
         self.means = means
         self.log_scales = log_scales
         self.quats = quats
@@ -217,7 +229,8 @@ class SemanticScene:
 
     @classmethod
     def from_checkpoint(cls, path: str | Path, device: torch.device | str = "cpu", **kwargs) -> "SemanticScene":
-        """From a cinesplat config.yml / run folder / .ckpt / compact export (see checkpoint.py)."""
+        """From a cinesplat config.yml / run folder / .ckpt / compact export (see checkpoint.py); the training cameras
+        (``camera_centres``) from the run's dataset or the export's info unless given."""
         from cinenerf_ns.method.checkpoint import load_splat
 
         st = load_splat(path, device=device)
@@ -227,6 +240,13 @@ class SemanticScene:
         kwargs.setdefault("label_names", st.info.get("label_names"))
         kwargs.setdefault("log_scales", st.scales)
         kwargs.setdefault("quats", st.quats)
+        if "camera_centres" not in kwargs:  # the run's training cameras, else what a compact export carries
+            from cinenerf_ns.method.training_cameras import info_camera_centres, training_camera_centres
+
+            p = Path(path)
+            cfg = p if p.suffix in (".yml", ".yaml") else (p / "config.yml" if (p / "config.yml").is_file() else None)
+            cams = training_camera_centres(cfg) if cfg is not None else None
+            kwargs["camera_centres"] = cams if cams is not None else info_camera_centres(st.info)
         return cls(st.means, torch.sigmoid(st.opacities), st.latents, st.codec, enc, **kwargs)
 
     @property
@@ -294,7 +314,7 @@ class SemanticScene:
 
         sc = None if self.log_scales is None else torch.exp(self.log_scales[mask].detach().double())
         q = None if self.quats is None else self.quats[mask].detach()
-        c = volume_centroid(self.means[mask], sc, q, up=self.up)
+        c = volume_centroid(self.means[mask], sc, q, up=self.up, cameras=self.camera_centres)
         return torch.as_tensor(c, dtype=self.means.dtype, device=self.means.device)
 
     def _voxel(self) -> float:

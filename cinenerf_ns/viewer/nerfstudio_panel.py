@@ -62,6 +62,7 @@ def attach_to_nerfstudio_viewer(
     lock = getattr(viewer, "train_lock", None)
     if isinstance(backend, SplatModelBackend):  # snapshots the model under the lock; plans without it
         backend.lock = lock
+        backend.camera_centres = train_camera_centres(viewer)  # the volume centre fills what no camera saw
         region = train_camera_region(viewer)
         if region is not None and getattr(backend.planner_config, "start_region", None) is None:
             from cinenerf_ns.planner.planner import PlannerConfig
@@ -74,10 +75,9 @@ def attach_to_nerfstudio_viewer(
     return attach_cine_panel(viewer.viser_server, backend, cfg, exporter, scale=VISER_NERFSTUDIO_SCALE_RATIO)
 
 
-def train_camera_region(viewer: Any, pad: float = 0.1) -> Optional[tuple]:
-    """(lo [3], hi [3]): the training cameras' box (the pipeline's normalised coordinates) grown by ``pad``, or None
-    when the viewer's pipeline has no training cameras. Random starts come from there, as cinesplat-plan's do (a room's
-    interior: without it they can land in the free space outside its walls)."""
+def train_camera_centres(viewer: Any) -> Optional[np.ndarray]:
+    """[F, 3] float64: the training cameras' centres (the pipeline's normalised coordinates), or None when the viewer's
+    pipeline has no training cameras."""
     try:
         c2w = viewer.pipeline.datamanager.train_dataset.cameras.camera_to_worlds  # [F, 3, 4]
         t = c2w[..., :3, 3].detach().double().cpu().numpy().reshape(-1, 3)  # [F, 3]
@@ -85,7 +85,15 @@ def train_camera_region(viewer: Any, pad: float = 0.1) -> Optional[tuple]:
         return None
     if t.shape[0] == 0 or not np.isfinite(t).all():
         return None
-    return t.min(0) - pad, t.max(0) + pad
+    return t
+
+
+def train_camera_region(viewer: Any, pad: float = 0.1) -> Optional[tuple]:
+    """(lo [3], hi [3]): the training cameras' box (the pipeline's normalised coordinates) grown by ``pad``, or None
+    when the viewer's pipeline has no training cameras. Random starts come from there, as cinesplat-plan's do (a room's
+    interior: without it they can land in the free space outside its walls)."""
+    t = train_camera_centres(viewer)
+    return None if t is None else (t.min(0) - pad, t.max(0) + pad)
 
 
 class CinePanelControl(_ViewerControl):  # type: ignore[misc]
@@ -181,7 +189,8 @@ class SplatModelBackend:
         self.version_fn = version_fn or (lambda: (int(getattr(model, "step", 0)), int(model.means.shape[0])))
         self.device = torch.device(device)
         self.lock = lock
-        self.semantic_fn = semantic_fn if semantic_fn is not None else model_semantic_scene(model)
+        self.camera_centres: Optional[np.ndarray] = None  # [F, 3] the training cameras (set when the panel installs)
+        self.semantic_fn = semantic_fn if semantic_fn is not None else model_semantic_scene(model, lambda: self.camera_centres)
         self.planner_name = "cinenerf_ns planner" if make_planner is None else None
         self.snapshots_taken = 0
         self._cache: Dict[str, Any] = {}
@@ -262,10 +271,12 @@ class SplatModelBackend:
         return list(planner.plan(t(goal), t(look_at), start=t(start), seed=seed, n_candidates=n_candidates))
 
 
-def model_semantic_scene(model: Any) -> Callable[[ModelSnapshot], Any]:
+def model_semantic_scene(model: Any, camera_centres: Optional[Callable[[], Optional[np.ndarray]]] = None
+                         ) -> Callable[[ModelSnapshot], Any]:
     """``snapshot -> SemanticScene`` for a cinesplat model (latents + codec + text encoder, relevancy
     settings from its config); the function returns None when the model has no codec (then text
-    queries ask for coordinates)."""
+    queries ask for coordinates). ``camera_centres``: returns the training cameras' centres [F, 3] (or None), read
+    per snapshot: the volume centre then fills what no camera saw."""
     state: Dict[str, Any] = {}
 
     def build(snap: ModelSnapshot):
@@ -284,7 +295,8 @@ def model_semantic_scene(model: Any) -> Callable[[ModelSnapshot], Any]:
                       threshold=float(cfg.relevancy_threshold))
         return SemanticScene(snap.means, torch.sigmoid(snap.opacities), snap.latents, state["codec"],
                              model.text_encoder(), label_names=(getattr(model, "cine_info", None) or {}).get("label_names"),
-                             cluster_fraction=0.02, log_scales=snap.scales, quats=snap.quats, **kw)  # one object per query, as cinesplat-plan's --object-cluster
+                             cluster_fraction=0.02, log_scales=snap.scales, quats=snap.quats,
+                             camera_centres=None if camera_centres is None else camera_centres(), **kw)  # one object per query, as cinesplat-plan's --object-cluster
 
     return build
 

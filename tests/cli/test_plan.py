@@ -181,6 +181,30 @@ def test_load_scene_passes_centre_relevancy():
         assert (v == 0.0) == torch.equal(r.core, r.mask)
 
 
+def test_no_unseen_fill_reaches_the_locator(monkeypatch, tmp_path):
+    """--no-unseen-fill turns the volume centre's camera fill off (default: on)."""
+    seen = [_load_scene_kwargs(monkeypatch, "unseen_fill", output_dir=tmp_path / str(f), no_unseen_fill=f) for f in (False, True)]
+    assert seen == [[True], [False]]
+
+
+@pytest.mark.slow
+def test_load_scene_gives_the_bundled_scene_its_training_cameras():
+    """The bundled export carries its 150 training cameras (info["camera_centres"]): load_scene hands them to the
+    SemanticScene (unless unseen_fill=False) and draws random starts from their box (+0.1)."""
+    from cinenerf_ns.cli.plan import load_scene
+    from cinenerf_ns.demo import DEMO_SCENE
+    from cinenerf_ns.planner.scene import SceneConfig
+
+    ld = load_scene(str(DEMO_SCENE), SceneConfig(), smooth_neighbors=0)
+    cams = ld.extra["semantic"].camera_centres
+    assert cams is not None and cams.shape == (150, 3)
+    np.testing.assert_allclose(ld.start_region[0], cams.min(0) - 0.1)
+    np.testing.assert_allclose(ld.start_region[1], cams.max(0) + 0.1)
+    off = load_scene(str(DEMO_SCENE), SceneConfig(), smooth_neighbors=0, unseen_fill=False)
+    assert off.extra["semantic"].camera_centres is None
+    np.testing.assert_allclose(off.start_region[0], ld.start_region[0])  # the start region does not depend on it
+
+
 def test_start_look_distance_option(tmp_path):
     """--start-look-distance reaches the planner: 0 gives the uniform starts, a bad fraction a clear error."""
     kw = dict(scene="procedural:3000:1", go_to="the armchair", look_at="floor lamp", candidates=3, grid_resolution=64,

@@ -304,3 +304,30 @@ def test_centre_core_falls_back_to_the_selection_when_it_is_small():
 def test_centre_relevancy_is_validated(bad):
     with pytest.raises(ValueError, match="centre_relevancy"):
         _cored_scene(centre_relevancy=bad)
+
+
+def test_camera_centres_reach_the_volume_centre_and_are_validated():
+    """camera_centres: stored as float64 [C, 3] and passed to volume_centroid (the unseen fill); NaN is an error; an
+    empty array is the same as none."""
+    import numpy as np
+
+    from cinenerf_ns.method.object_centre import volume_centroid
+
+    rng = np.random.default_rng(0)
+    g = np.stack(np.meshgrid(*[np.linspace(0, 1, 12)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    box = g[(g == 0).any(1) | (g == 1).any(1)]  # the surface of a unit cube: 12 x 12 points a face
+    box = box[box[:, 1] < 1]  # its back (y = 1) never seen
+    means = torch.as_tensor(np.concatenate([box, rng.uniform(-4, -3, (5, 3))]), dtype=torch.float32)
+    lat = torch.tensor([[1.0, 0, 0]] * len(box) + [[0, 1.0, 0]] * 5)
+    opac = torch.ones(len(means))
+    cams = np.array([[0.5, -3.0, 0.6], [2.0, -2.0, 1.5], [-1.0, -2.5, 1.0]])
+    s = SemanticScene(means, opac, lat, IdentityCodec(), enc, camera_centres=torch.as_tensor(cams))
+    assert s.camera_centres.dtype == np.float64 and s.camera_centres.shape == (3, 3)
+    r = s.locate_full("red chair")
+    want = volume_centroid(means[r.core], cameras=cams)
+    np.testing.assert_allclose(r.centroid.double().numpy(), want, atol=1e-6)
+    plain = SemanticScene(means, opac, lat, IdentityCodec(), enc).locate_full("red chair").centroid
+    assert not torch.allclose(plain, r.centroid)  # the cameras changed the estimate (they fill the unseen back)
+    assert SemanticScene(means, opac, lat, IdentityCodec(), enc, camera_centres=np.zeros((0, 3))).camera_centres is None
+    with pytest.raises(ValueError, match="camera_centres"):
+        SemanticScene(means, opac, lat, IdentityCodec(), enc, camera_centres=[[0.0, float("nan"), 1.0]])

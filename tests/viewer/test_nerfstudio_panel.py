@@ -158,14 +158,18 @@ def test_attach_gives_the_model_backend_the_training_cameras_as_start_region(tmp
     pipeline = SimpleNamespace(datamanager=SimpleNamespace(train_dataset=SimpleNamespace(cameras=cams)))
     server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
     try:
-        got = []
+        got, cams_seen = [], []
         for pipe, cfg in ((pipeline, None), (pipeline, PlannerConfig(start_region=([0, 0, 0], [1, 1, 1]))), (None, None)):
             viewer = SimpleNamespace(viser_server=server, datapath=tmp_path, log_filename=tmp_path / "log.txt",
                                      train_lock=RecordingLock(), **({} if pipe is None else {"pipeline": pipe}))
             backend = SplatModelBackend(TinySplatModel(), Planners(), planner_config=cfg)
             panel = attach_to_nerfstudio_viewer(viewer, backend)
             got.append(None if backend.planner_config is None else backend.planner_config.start_region)
+            cams_seen.append(backend.camera_centres)
             panel.close()
+        # the semantic scene's unseen fill gets the cameras themselves
+        np.testing.assert_allclose(cams_seen[0], t.double().numpy())
+        assert cams_seen[2] is None
         np.testing.assert_allclose(got[0][0], t.double().numpy().min(0) - 0.1)
         np.testing.assert_allclose(got[0][1], t.double().numpy().max(0) + 0.1)
         assert got[1] == ([0, 0, 0], [1, 1, 1]) and got[2] is None
@@ -255,3 +259,27 @@ def test_real_nerfstudio_viewer_installs_panel(tmp_path):
         panel.close()
     finally:
         viewer.viser_server.stop()
+
+
+def test_model_semantic_scene_gets_the_training_cameras():
+    """The ns-viewer panel's SemanticScene (model_semantic_scene) carries the training cameras the panel read, so its
+    volume centres fill what no camera saw as cinesplat-plan's do; without cameras it has none; no codec: no scene."""
+    from cinenerf_ns.viewer.nerfstudio_panel import ModelSnapshot, model_semantic_scene
+
+    class Codec(torch.nn.Module):
+        def decode(self, latents):
+            return latents
+
+    n = 6
+    model = SimpleNamespace(codec=Codec(), text_encoder=lambda: (lambda texts: torch.ones(len(texts), 3)),
+                            cine_info={"label_names": ["a"]})
+    snap = ModelSnapshot(version=(0, n), means=torch.rand(n, 3), quats=torch.tensor([[1.0, 0, 0, 0]] * n),
+                         scales=torch.zeros(n, 3), opacities=torch.zeros(n), colors=None, latents=torch.rand(n, 3))
+    cams = np.array([[0.0, 0.0, 1.0], [1.0, 2.0, 3.0]])
+    box = {"c": cams}
+    build = model_semantic_scene(model, lambda: box["c"])
+    np.testing.assert_array_equal(build(snap).camera_centres, cams)
+    box["c"] = None  # read per snapshot
+    assert build(snap).camera_centres is None
+    assert model_semantic_scene(model)(snap).camera_centres is None
+    assert model_semantic_scene(SimpleNamespace(codec=None))(snap) is None

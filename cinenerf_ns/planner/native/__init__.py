@@ -205,3 +205,8 @@ def segments_free_c():
 def grid_polytope_c():
     """The compiled grid polytope planes (gridpoly.c: cn_grid_polytope), or None."""
     return _function("gridpoly", "cn_grid_polytope", [_P, _P, _P, _P, _P, _P, _F64, _I64, _P, _P], _I64)
+
+
+def hidden_voxels_c():
+    """The compiled sampled sight lines (voxelrays.c: cn_hidden_voxels; method/object_centre.hidden_voxels), or None."""
+    return _function("voxelrays", "cn_hidden_voxels", [_P, _I64, _I64, _I64, _P, _I64, _P, _I64, _F64, _P], _I64)

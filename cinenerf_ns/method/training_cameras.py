@@ -1,0 +1,70 @@
+"""Where a run's training cameras were, in the run's normalised coordinates (what the splat lives in).
+
+Two consumers: random starts are drawn inside the cameras' box (a captured room's interior; outside its walls the
+free space is real but no shot belongs there), and the volume centre of an object fills what no camera saw
+(object_centre.hidden_voxels). Read from the run's config.yml (its data path -> transforms.json, plus the run's
+dataparser_transforms.json) or from a compact export's ``info["camera_centres"]``. No nerfstudio import: the
+config is read as text.
+"""
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Any, Mapping, Optional, Tuple
+
+import numpy as np
+
+
+def camera_centres(transforms_json: Path, dataparser_transforms_json: Path) -> np.ndarray:
+    """[F, 3] float64: the centres of a nerfstudio transforms.json's frames in the run's normalised coordinates
+    (the dataparser's transform [3, 4], then its scale)."""
+    dp = json.loads(Path(dataparser_transforms_json).read_text())
+    T = np.asarray(dp["transform"], dtype=np.float64)  # [3, 4]
+    c = np.array([np.asarray(f["transform_matrix"], dtype=np.float64)[:3, 3]
+                  for f in json.loads(Path(transforms_json).read_text())["frames"]]).reshape(-1, 3)  # [F, 3]
+    return ((T[:3, :3] @ c.T).T + T[:3, 3]) * float(dp["scale"])
+
+
+def run_data_path(config_path: Path) -> Optional[Path]:
+    """The data path a nerfstudio config.yml was trained on, or None when the config names none."""
+    text = Path(config_path).read_text()
+    # ns-train --data writes the path once with a YAML anchor ("data: &id003 !!python/..."; the datamanager's
+    # "data: *id003" refers to it); Python 3.13 pickles pathlib._local.PosixPath
+    m = re.search(r"^([ ]*)data: (?:&\S+ )?!!python/object/apply:pathlib\.[\w.]+\n((?:\1- .*\n)+)", text, re.M)
+    if m is None:
+        return None
+    parts = [ln.strip()[2:] for ln in m.group(2).splitlines() if ln.strip().startswith("- ")]
+    return Path(*parts)
+
+
+def training_camera_centres(config_path: Path) -> Optional[np.ndarray]:
+    """[F, 3] the training cameras' centres of a nerfstudio run (config.yml), or None when its data or
+    dataparser transform cannot be read (a run whose dataset moved)."""
+    try:
+        data = run_data_path(Path(config_path))
+        if data is None:
+            return None
+        tj = data / "transforms.json" if data.is_dir() else data
+        c = camera_centres(tj, Path(config_path).parent / "dataparser_transforms.json")
+    except (OSError, KeyError, ValueError, TypeError):
+        return None
+    return c if len(c) and np.isfinite(c).all() else None
+
+
+def info_camera_centres(info: Mapping[str, Any]) -> Optional[np.ndarray]:
+    """[F, 3] a compact export's ``info["camera_centres"]``, or None when absent or malformed."""
+    v = info.get("camera_centres") if info else None
+    if v is None:
+        return None
+    try:
+        c = np.asarray(v, dtype=np.float64).reshape(-1, 3)
+    except (TypeError, ValueError):
+        return None
+    return c if len(c) and np.isfinite(c).all() else None
+
+
+def camera_box(centres: np.ndarray, pad: float = 0.1) -> Tuple[np.ndarray, np.ndarray]:
+    """(lo [3], hi [3]): the centres' bounding box grown by ``pad``."""
+    c = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
+    return c.min(0) - pad, c.max(0) + pad

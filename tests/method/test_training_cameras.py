@@ -1,0 +1,103 @@
+"""training_cameras.py: camera centres from a transforms.json + dataparser transform, a config.yml, or an export's info."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from cinenerf_ns.method.training_cameras import (
+    camera_box,
+    camera_centres,
+    info_camera_centres,
+    run_data_path,
+    training_camera_centres,
+)
+
+
+def _write(tmp_path, centres, transform, scale):
+    frames = []
+    for c in centres:
+        m = np.eye(4)
+        m[:3, 3] = c
+        frames.append({"file_path": "images/x.png", "transform_matrix": m.tolist()})
+    (tmp_path / "transforms.json").write_text(json.dumps({"frames": frames}))
+    (tmp_path / "dataparser_transforms.json").write_text(json.dumps({"transform": np.asarray(transform).tolist(),
+                                                                     "scale": scale}))
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(1, 9), st.floats(0.05, 5.0))
+def test_camera_centres_apply_the_dataparser_transform_then_its_scale(tmp_path_factory, seed, n, scale):
+    """Against the definition, one camera at a time: scale * (R c + t), with a random rotation R and translation t."""
+    tmp = tmp_path_factory.mktemp("cams")
+    rng = np.random.default_rng(seed)
+    c = rng.uniform(-3, 3, (n, 3))
+    R, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    t = rng.uniform(-1, 1, 3)
+    _write(tmp, c, np.concatenate([R, t[:, None]], 1), scale)
+    got = camera_centres(tmp / "transforms.json", tmp / "dataparser_transforms.json")
+    want = np.array([scale * (R @ ci + t) for ci in c])
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+    lo, hi = camera_box(got, pad=0.25)
+    np.testing.assert_allclose(lo, want.min(0) - 0.25)
+    np.testing.assert_allclose(hi, want.max(0) + 0.25)
+
+
+def test_info_camera_centres_reads_only_well_formed_lists():
+    assert info_camera_centres({}) is None
+    assert info_camera_centres({"camera_centres": []}) is None
+    assert info_camera_centres({"camera_centres": [[0, 1]]}) is None  # not [F, 3]
+    assert info_camera_centres({"camera_centres": [[0, float("nan"), 1]]}) is None
+    assert info_camera_centres({"camera_centres": "x"}) is None
+    np.testing.assert_array_equal(info_camera_centres({"camera_centres": [[0, 1, 2], [3, 4, 5]]}), [[0, 1, 2], [3, 4, 5]])
+
+
+def test_training_camera_centres_without_data_is_none(tmp_path):
+    """A config that names no data, or whose data is gone: None (the caller plans without), never an exception."""
+    assert training_camera_centres(tmp_path / "missing.yml") is None
+    (tmp_path / "config.yml").write_text("method_name: cinesplat\n")
+    assert run_data_path(tmp_path / "config.yml") is None
+    assert training_camera_centres(tmp_path / "config.yml") is None
+    (tmp_path / "config.yml").write_text(
+        "data: !!python/object/apply:pathlib.PosixPath\n- /\n- nowhere\n- room\nmethod_name: cinesplat\n")
+    assert str(run_data_path(tmp_path / "config.yml")) == "/nowhere/room"
+    assert training_camera_centres(tmp_path / "config.yml") is None
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".pt"])
+def test_add_camera_centres_script_keeps_the_arrays(tmp_path, suffix):
+    """scripts/add_camera_centres.py stores info["camera_centres"] and the box (start_region) in a compact export and
+    leaves every array as it was (no re-quantisation); load_compact then reads them."""
+    import importlib.util
+    from pathlib import Path
+
+    import torch
+
+    from cinenerf_ns.method.checkpoint import SplatTensors, export_compact, load_compact
+
+    spec = importlib.util.spec_from_file_location("acc", Path(__file__).resolve().parents[2] / "scripts" / "add_camera_centres.py")
+    acc = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(acc)
+    rng = np.random.default_rng(1)
+    n = 50
+    st_ = SplatTensors(means=torch.as_tensor(rng.normal(size=(n, 3)), dtype=torch.float32),
+                       quats=torch.as_tensor(rng.normal(size=(n, 4)), dtype=torch.float32),
+                       scales=torch.as_tensor(rng.normal(size=(n, 3)), dtype=torch.float32),
+                       opacities=torch.as_tensor(rng.normal(size=n), dtype=torch.float32), info={"label_names": ["a"]})
+    path = export_compact(st_, tmp_path / f"s{suffix}")
+    before = load_compact(path)
+    _write(tmp_path, rng.uniform(-2, 2, (6, 3)), np.concatenate([np.eye(3), np.zeros((3, 1))], 1), 0.5)
+    acc.main(["--scene", str(path), "--transforms", str(tmp_path / "transforms.json"),
+              "--dataparser-transforms", str(tmp_path / "dataparser_transforms.json")])
+    after = load_compact(path)
+    for k in ("means", "quats", "scales", "opacities"):
+        assert torch.equal(getattr(before, k), getattr(after, k)), k
+    want = camera_centres(tmp_path / "transforms.json", tmp_path / "dataparser_transforms.json")
+    np.testing.assert_allclose(info_camera_centres(after.info), want)
+    np.testing.assert_allclose(after.info["start_region"][0], want.min(0) - 0.1)
+    assert after.info["label_names"] == ["a"]
+    with pytest.raises(SystemExit, match="not found"):
+        acc.main(["--scene", str(tmp_path / "none.pt"), "--transforms", str(tmp_path / "transforms.json"),
+                  "--dataparser-transforms", str(tmp_path / "dataparser_transforms.json")])
