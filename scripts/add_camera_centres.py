@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from cinenerf_ns.method.training_cameras import camera_box, camera_centres
+from cinenerf_ns.method.training_cameras import camera_centres, camera_info
 
 
 def add_camera_centres(scene: Path, centres: np.ndarray) -> dict:
@@ -24,13 +24,12 @@ def add_camera_centres(scene: Path, centres: np.ndarray) -> dict:
     c = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
     if len(c) == 0 or not np.isfinite(c).all():
         raise SystemExit(f"no finite camera centres to store ({len(c)} given)")
-    lo, hi = camera_box(c)
     tmp = scene.with_name(scene.name + ".tmp")
     if scene.suffix == ".npz":
         with np.load(scene, allow_pickle=False) as z:
             flat = {k: z[k] for k in z.files}
         info = json.loads(str(flat["info_json"]))
-        info.update(camera_centres=c.tolist(), start_region=[lo.tolist(), hi.tolist()])
+        info.update(camera_info(c))
         flat["info_json"] = np.array(json.dumps(info))
         with open(tmp, "wb") as f:
             np.savez_compressed(f, **flat)
@@ -39,7 +38,7 @@ def add_camera_centres(scene: Path, centres: np.ndarray) -> dict:
         if not isinstance(blob, dict) or blob.get("format") != "cinesplat-compact":
             raise SystemExit(f"{scene} is not a cinesplat compact export")
         info = json.loads(blob["info_json"])
-        info.update(camera_centres=c.tolist(), start_region=[lo.tolist(), hi.tolist()])
+        info.update(camera_info(c))
         blob["info_json"] = json.dumps(info)
         torch.save(blob, tmp)
     tmp.replace(scene)

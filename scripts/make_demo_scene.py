@@ -19,7 +19,7 @@ from pathlib import Path
 
 import torch
 
-from cinenerf_ns.method.training_cameras import camera_box, camera_centres
+from cinenerf_ns.method.training_cameras import camera_centres, camera_info
 from cinenerf_ns.method.checkpoint import export_compact, load_splat
 
 
@@ -39,10 +39,8 @@ def main() -> None:
     args = ap.parse_args()
 
     st = load_splat(args.scene)
-    cams = camera_centres(args.dataset / "transforms.json", args.dataset / "dataparser_transforms.json")
-    lo, hi = camera_box(cams)
-    st.info["start_region"] = [lo.tolist(), hi.tolist()]
-    st.info["camera_centres"] = cams.tolist()  # the volume centre fills what no camera saw
+    # start region and the cameras the volume centre fills what they did not see with
+    st.info.update(camera_info(camera_centres(args.dataset / "transforms.json", args.dataset / "dataparser_transforms.json")))
     n0 = len(st)
     out = args.out / f"{args.name}.npz"
     keep_frac = 1.0

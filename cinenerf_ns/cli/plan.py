@@ -31,7 +31,7 @@ from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeEl
 from rich.table import Table
 
 from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY
-from cinenerf_ns.method.training_cameras import camera_box, camera_centres, info_camera_centres, training_camera_centres
+from cinenerf_ns.method.training_cameras import camera_box, run_config_path, scene_camera_centres
 from cinenerf_ns.planner.camera_path import shot_to_camera_path, write_camera_path
 from cinenerf_ns.planner.candidates import RankedShot, plan_candidates, score_shots
 from cinenerf_ns.planner.dynamics import DynamicLimits, retime_shot
@@ -164,20 +164,6 @@ class LoadedScene:
     start_region: Optional[Tuple[np.ndarray, np.ndarray]] = None  # where random starts are drawn
 
 
-def training_camera_region(config_path: Path, pad: float = 0.1) -> Optional[Tuple[np.ndarray, np.ndarray]]:
-    """Bounding box (in the run's normalised coordinates) of the training cameras of a nerfstudio run,
-    grown by ``pad``: the region random starts are drawn from (a real capture's free space is best known
-    where the cameras were). None when the run's data or dataparser transform cannot be read."""
-    c = training_camera_centres(config_path)
-    return None if c is None else camera_box(c, pad)
-
-
-def camera_region(transforms_json: Path, dataparser_transforms_json: Path, pad: float = 0.1) -> Tuple[np.ndarray, np.ndarray]:
-    """(lo [3], hi [3]): bounding box of the cameras of a nerfstudio transforms.json in the run's normalised
-    coordinates (the dataparser's transform and scale), grown by ``pad``."""
-    return camera_box(camera_centres(transforms_json, dataparser_transforms_json), pad)
-
-
 def parse_point(text: str) -> Optional[np.ndarray]:
     """'x y z' / 'x, y, z' / '[x, y, z]' -> [3]; None when the text is not three numbers."""
     nums = re.findall(_NUM, text)
@@ -254,11 +240,8 @@ def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Opti
 
     st = load_compact(path, device=device) if _is_compact(path) else load_splat(path, device=device)
     scene = EllipsoidScene.from_splat(st.means, st.quats, st.scales, st.opacities, cfg)
-    cfg_path = path if path.suffix in (".yml", ".yaml") else (path / "config.yml" if (path / "config.yml").exists() else None)
-    # the training cameras: from the run's dataset, else what a compact export carries
-    cams = training_camera_centres(cfg_path) if cfg_path is not None else None
-    if cams is None:
-        cams = info_camera_centres(st.info)
+    cfg_path = run_config_path(path)
+    cams = scene_camera_centres(cfg_path, st.info)  # the run's training cameras, else what a compact export carries
     locate = None
     if st.latents is not None and st.codec is not None:
         from cinenerf_ns.method.semantic_scene import SemanticScene, build_text_encoder

@@ -49,6 +49,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from cinenerf_ns.planner.native import choose, hidden_voxels_c
 from cinenerf_ns.planner.scene import quat_wxyz_to_rotmat
 
 ArrayLike = Union[Tensor, np.ndarray, Sequence]
@@ -152,7 +153,6 @@ def hidden_voxels(
     "native" (it or RuntimeError) or "python" (numpy: voxels are tested camera by camera and dropped once one
     camera sees them, so most of the cost is the truly hidden voxels' rays, each ending at its first surface voxel;
     benchmarks/bench_hidden_voxels.py, bundled room, 150 cameras: 0.1-2.1 s per object in numpy, 3-191 ms compiled)."""
-    from cinenerf_ns.planner.native import choose, hidden_voxels_c
     surf = np.asarray(surface, dtype=bool)
     cams = np.asarray(cameras, dtype=np.float64).reshape(-1, 3)
     if surf.ndim != 3 or np.shape(candidates) != surf.shape:
@@ -160,7 +160,6 @@ def hidden_voxels(
     if not (step > 0 and np.isfinite(cams).all()):
         raise ValueError("hidden_voxels: step must be > 0 and the cameras finite")
     fn = choose(backend, hidden_voxels_c, "voxelrays", "sight-line test")
-    shape = np.asarray(surf.shape)
     idx = np.argwhere(np.asarray(candidates, dtype=bool) & ~surf)  # [V, 3]
     if fn is not None:
         occ = np.ascontiguousarray(surf, dtype=np.uint8)
@@ -174,6 +173,7 @@ def hidden_voxels(
         out = np.zeros(surf.shape, dtype=bool)
         out[tuple(ii[flag.astype(bool)].T)] = True
         return out
+    shape = np.asarray(surf.shape)
     hidden = np.ones(len(idx), dtype=bool)  # [V] no camera has seen it yet
     if len(cams) == 0:
         hidden[:] = False  # nothing is known to be hidden without a camera

@@ -241,12 +241,9 @@ class SemanticScene:
         kwargs.setdefault("log_scales", st.scales)
         kwargs.setdefault("quats", st.quats)
         if "camera_centres" not in kwargs:  # the run's training cameras, else what a compact export carries
-            from cinenerf_ns.method.training_cameras import info_camera_centres, training_camera_centres
+            from cinenerf_ns.method.training_cameras import run_config_path, scene_camera_centres
 
-            p = Path(path)
-            cfg = p if p.suffix in (".yml", ".yaml") else (p / "config.yml" if (p / "config.yml").is_file() else None)
-            cams = training_camera_centres(cfg) if cfg is not None else None
-            kwargs["camera_centres"] = cams if cams is not None else info_camera_centres(st.info)
+            kwargs["camera_centres"] = scene_camera_centres(run_config_path(Path(path)), st.info)
         return cls(st.means, torch.sigmoid(st.opacities), st.latents, st.codec, enc, **kwargs)
 
     @property

@@ -64,6 +64,30 @@ def info_camera_centres(info: Mapping[str, Any]) -> Optional[np.ndarray]:
     return c if len(c) and np.isfinite(c).all() else None
 
 
+def run_config_path(path: Path) -> Optional[Path]:
+    """The nerfstudio config.yml a scene path stands for (the file itself, or a run folder's), or None (a checkpoint
+    file, a compact export, a .ply)."""
+    p = Path(path)
+    if p.suffix in (".yml", ".yaml"):
+        return p
+    return p / "config.yml" if (p / "config.yml").is_file() else None
+
+
+def scene_camera_centres(config_path: Optional[Path], info: Mapping[str, Any]) -> Optional[np.ndarray]:
+    """[F, 3] a loaded scene's training cameras: the run's (config.yml -> its dataset), else what a compact export
+    carries in ``info``; None when neither is there."""
+    cams = training_camera_centres(config_path) if config_path is not None else None
+    return cams if cams is not None else info_camera_centres(info)
+
+
+def camera_info(centres: np.ndarray) -> dict:
+    """What a compact export stores of its training cameras: ``camera_centres`` [F, 3] and their box grown by 0.1,
+    ``start_region`` (where random starts are drawn), as JSON-ready lists."""
+    c = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
+    lo, hi = camera_box(c)
+    return {"camera_centres": c.tolist(), "start_region": [lo.tolist(), hi.tolist()]}
+
+
 def camera_box(centres: np.ndarray, pad: float = 0.1) -> Tuple[np.ndarray, np.ndarray]:
     """(lo [3], hi [3]): the centres' bounding box grown by ``pad``."""
     c = np.asarray(centres, dtype=np.float64).reshape(-1, 3)

@@ -33,6 +33,7 @@ from typing import Any, Callable, Dict, List, Optional, Union
 import numpy as np
 import torch
 
+from cinenerf_ns.method.training_cameras import camera_box
 from cinenerf_ns.planner.scene import EllipsoidScene, SceneConfig
 
 from .backend import LocateFn, SceneGaussians
@@ -62,8 +63,8 @@ def attach_to_nerfstudio_viewer(
     lock = getattr(viewer, "train_lock", None)
     if isinstance(backend, SplatModelBackend):  # snapshots the model under the lock; plans without it
         backend.lock = lock
-        backend.camera_centres = train_camera_centres(viewer)  # the volume centre fills what no camera saw
-        region = train_camera_region(viewer)
+        cams = backend.camera_centres = train_camera_centres(viewer)  # the volume centre fills what no camera saw
+        region = None if cams is None else camera_box(cams)
         if region is not None and getattr(backend.planner_config, "start_region", None) is None:
             from cinenerf_ns.planner.planner import PlannerConfig
 
@@ -86,14 +87,6 @@ def train_camera_centres(viewer: Any) -> Optional[np.ndarray]:
     if t.shape[0] == 0 or not np.isfinite(t).all():
         return None
     return t
-
-
-def train_camera_region(viewer: Any, pad: float = 0.1) -> Optional[tuple]:
-    """(lo [3], hi [3]): the training cameras' box (the pipeline's normalised coordinates) grown by ``pad``, or None
-    when the viewer's pipeline has no training cameras. Random starts come from there, as cinesplat-plan's do (a room's
-    interior: without it they can land in the free space outside its walls)."""
-    t = train_camera_centres(viewer)
-    return None if t is None else (t.min(0) - pad, t.max(0) + pad)
 
 
 class CinePanelControl(_ViewerControl):  # type: ignore[misc]

@@ -218,7 +218,7 @@ def test_start_look_distance_option(tmp_path):
 
 
 @pytest.mark.parametrize("shared_data", [True, False])
-def test_training_camera_region_reads_ns_train_configs(tmp_path, shared_data):
+def test_training_cameras_read_ns_train_configs(tmp_path, shared_data):
     """The start region of a run comes from the config.yml nerfstudio writes. `ns-train --data X` sets the
     datamanager's data to the same Path, so yaml.dump writes it once with an anchor ("data: &id001 !!python/...")
     and refers to it later: both forms must give the cameras' box (this was silently None for every ns-train run)."""
@@ -226,7 +226,7 @@ def test_training_camera_region_reads_ns_train_configs(tmp_path, shared_data):
 
     import yaml
 
-    from cinenerf_ns.cli.plan import camera_region, training_camera_region
+    from cinenerf_ns.method.training_cameras import camera_box, camera_centres, training_camera_centres
     from cinenerf_ns.method.cinesplat_config import cinesplat
 
     data = tmp_path / "my data" / "room"
@@ -249,9 +249,10 @@ def test_training_camera_region_reads_ns_train_configs(tmp_path, shared_data):
     text = yaml.dump(cfg)
     assert ("data: &id" in text) == shared_data  # the premise: the anchor form is what ns-train writes
     (run / "config.yml").write_text(text)
-    got = training_camera_region(run / "config.yml")
-    assert got is not None
-    want = camera_region(data / "transforms.json", run / "dataparser_transforms.json")
+    c = training_camera_centres(run / "config.yml")
+    assert c is not None
+    got = camera_box(c)
+    want = camera_box(camera_centres(data / "transforms.json", run / "dataparser_transforms.json"))
     np.testing.assert_allclose(got[0], want[0])
     np.testing.assert_allclose(got[1], want[1])
     # the box is the cameras' box in the run's normalised frame, grown by the pad
@@ -261,4 +262,4 @@ def test_training_camera_region_reads_ns_train_configs(tmp_path, shared_data):
     np.testing.assert_allclose(got[0], norm.min(0) - 0.1)
     np.testing.assert_allclose(got[1], norm.max(0) + 0.1)
     (data / "transforms.json").unlink()  # data gone: no region, no crash
-    assert training_camera_region(run / "config.yml") is None
+    assert training_camera_centres(run / "config.yml") is None
