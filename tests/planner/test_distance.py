@@ -213,3 +213,25 @@ def test_compiled_capped_clearance_is_the_brute_force_one(seed, cap, dtype, spre
     assert (got[:5] < -0.03).all()
     with pytest.raises(RuntimeError, match="does not apply"):
         clearance(pts, sc, idx, backend="native")  # no cap: the compiled search does not apply
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 100_000), skew=st.floats(-3e-7, 3e-7), tiny=st.sampled_from([1e-4, 1e-3]),
+       indexed=st.booleans())
+def test_clearance_finite_next_to_a_tiny_ellipsoid_with_a_float32_rotation(seed, skew, tiny, indexed):
+    """A float32 rotation is orthonormal only to ~1e-7: the local-frame lower bound and the world-frame upper bound of
+    a tiny ellipsoid then differ by more than an absolute 1e-12, which once pruned every pair and gave inf (fox
+    capture). The clearance is finite and equals the brute-force distance."""
+    from cinenerf_ns.planner.scene import EllipsoidScene
+
+    g = torch.Generator().manual_seed(seed)
+    n = 5
+    means = torch.rand(n, 3, generator=g, dtype=F64) * 0.2
+    rot = quat_wxyz_to_rotmat(torch.randn(n, 4, generator=g, dtype=F64)) * (1 + skew)  # slightly non-orthonormal
+    radii = torch.full((n, 3), tiny, dtype=F64)
+    sc = EllipsoidScene(means, rot, radii, torch.ones(n, dtype=F64), camera_radius=0.0)
+    pts = torch.rand(20, 3, generator=g, dtype=F64) * 2 - 0.9
+    want = point_ellipsoid_distance(pts, means, rot, radii).min(-1).values
+    got = clearance(pts, sc, GridIndex.build(sc) if indexed else None, backend="python")
+    assert torch.isfinite(got).all()
+    torch.testing.assert_close(got, want, atol=1e-9, rtol=0)
