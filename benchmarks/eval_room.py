@@ -46,7 +46,7 @@ from benchmarks.eval_synthetic import (  # noqa: E402
     plot_topdown,
     selection_metrics,
 )
-from cinenerf_ns.cli.plan import load_scene  # noqa: E402
+from cinenerf_ns.scenes import load_scene  # noqa: E402
 from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY  # noqa: E402
 from cinenerf_ns.planner.errors import PlanningError  # noqa: E402
 from cinenerf_ns.planner.planner import Planner, PlannerConfig  # noqa: E402

@@ -17,21 +17,19 @@ nerfstudio camera-path JSON (``ns-render camera-path``), plus a safety report JS
 from __future__ import annotations
 
 import json
-import re
+
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Literal, Optional, Tuple
+from typing import Any, Dict, List, Literal, Optional, Tuple
 
 import numpy as np
-import torch
 import tyro
 from rich.console import Console
 from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY
-from cinenerf_ns.method.training_cameras import camera_box, run_config_path, scene_camera_centres
 from cinenerf_ns.planner.camera_path import shot_to_camera_path, write_camera_path
 from cinenerf_ns.planner.candidates import RankedShot, plan_candidates, score_shots
 from cinenerf_ns.planner.dynamics import DynamicLimits, retime_shot
@@ -40,11 +38,11 @@ from cinenerf_ns.planner.scoring import ScoreConfig
 from cinenerf_ns.planner.errors import InvalidInputError, PlanningError
 from cinenerf_ns.planner.planner import Planner, PlannerConfig
 from cinenerf_ns.planner.safety import plot_clearance, plot_paths_topdown, safety_report
-from cinenerf_ns.planner.scene import EllipsoidScene, SceneConfig
+from cinenerf_ns.planner.scene import SceneConfig
 from cinenerf_ns.planner.timing import TimingConfig
+from cinenerf_ns.scenes import LoadedScene, _word_match, load_scene, parse_point, resolve_target
 
 CONSOLE = Console()
-_NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 
 
 @dataclass
@@ -151,141 +149,6 @@ class PlanArgs:
     the object does not hide itself). Default: the procedural object's half diagonal, else 0.1."""
     score: ScoreConfig = field(default_factory=ScoreConfig)
     """Weights of the shot score (its fov_deg is replaced by --fov)."""
-
-
-@dataclass
-class LoadedScene:
-    scene: EllipsoidScene
-    locate: Optional[Callable[[str], Tuple[np.ndarray, str]]]  # text -> (point [3], description)
-    kind: str
-    source: str
-    config_path: Optional[Path] = None
-    extra: Dict[str, Any] = field(default_factory=dict)
-    start_region: Optional[Tuple[np.ndarray, np.ndarray]] = None  # where random starts are drawn
-
-
-def parse_point(text: str) -> Optional[np.ndarray]:
-    """'x y z' / 'x, y, z' / '[x, y, z]' -> [3]; None when the text is not three numbers."""
-    nums = re.findall(_NUM, text)
-    rest = re.sub(_NUM, "", text)
-    if len(nums) == 3 and not re.search(r"[A-Za-z]", rest):
-        return np.array([float(n) for n in nums])
-    return None
-
-
-def _word_match(query: str, names: List[str]) -> Optional[int]:
-    """Index of the name sharing the most words with the query (ties: shortest name); None if none."""
-    stop = {"the", "a", "an", "to", "at", "of", "go", "look"}
-    q = {w for w in re.findall(r"[a-z]+", query.lower()) if w not in stop}
-    best, best_k = None, (0, 0)
-    for i, n in enumerate(names):
-        w = set(re.findall(r"[a-z]+", n.lower()))
-        k = (len(q & w), -len(w))
-        if k[0] > 0 and k > best_k:
-            best, best_k = i, k
-    return best
-
-
-def procedural_object(room: Any, text: str) -> int:
-    """Index of the procedural room's object a text names (shared words, see _word_match)."""
-    names = [o.name for o in room.objects]
-    i = _word_match(text, names)
-    if i is None:
-        raise InvalidInputError(f"no object matches '{text}' in the procedural room; objects: {', '.join(names)}")
-    return i
-
-
-def label_query(text: str, label_names: List[str]) -> str:
-    """The text a semantic scene is queried with: offline scenes answer their own label names exactly, so a
-    query sharing words with one label is mapped to it (no CLIP weights needed); other text is kept (it goes
-    to the CLIP text tower)."""
-    q = text.strip()
-    if label_names and q.lower() not in [n.lower() for n in label_names]:
-        i = _word_match(q, label_names)
-        if i is not None:
-            q = label_names[i]
-    return q
-
-
-def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Optional[float] = None,
-               smooth_neighbors: int = 32, object_cluster: float = 0.02, object_centre: str = "volume",
-               up: Tuple[float, float, float] = (0.0, 0.0, 1.0), drop_support: bool = True,
-               centre_relevancy: float = CENTRE_RELEVANCY, unseen_fill: bool = True) -> LoadedScene:
-    """Scene file/spec -> obstacles + (optionally) a text locator."""
-    if spec.startswith("procedural"):
-        from cinenerf_ns.planner.procedural import procedural_room
-
-        parts = spec.split(":")
-        n = int(parts[1]) if len(parts) > 1 and parts[1] else 20_000
-        seed = int(parts[2]) if len(parts) > 2 else 0
-        room = procedural_room(n, seed=seed)
-        scene = EllipsoidScene.from_splat(room.means, room.quats, room.log_scales, room.opacity_logits, cfg).to(device)
-        names = [o.name for o in room.objects]
-
-        def locate(text: str):
-            i = procedural_object(room, text)
-            return room.objects[i].center.astype(np.float64), f"object '{names[i]}' (ground-truth name)"
-
-        r = cfg.camera_radius
-        return LoadedScene(scene, locate, "procedural", spec, extra={"room": room},
-                           start_region=(room.free_lo + r, room.free_hi - r))
-    path = Path(spec)
-    if not path.exists():
-        raise InvalidInputError(f"scene not found: {spec} (give a config.yml, run folder, .ckpt, compact .pt or .ply)")
-    if path.suffix.lower() == ".ply":
-        return LoadedScene(EllipsoidScene.from_ply(path, cfg).to(device), None, "ply", str(path))
-    # checkpoints and compact exports go through the method's loader (no trainer is built)
-    from cinenerf_ns.method.checkpoint import load_compact, load_splat
-    from cinenerf_ns.method.checkpoint import _is_compact  # noqa: WPS450 (one loader, two formats)
-
-    st = load_compact(path, device=device) if _is_compact(path) else load_splat(path, device=device)
-    scene = EllipsoidScene.from_splat(st.means, st.quats, st.scales, st.opacities, cfg)
-    cfg_path = run_config_path(path)
-    cams = scene_camera_centres(cfg_path, st.info)  # the run's training cameras, else what a compact export carries
-    locate = None
-    if st.latents is not None and st.codec is not None:
-        from cinenerf_ns.method.semantic_scene import SemanticScene, build_text_encoder
-
-        enc = build_text_encoder(st.info, st.label_embeddings, device=device)
-        kw = {} if threshold is None else {"threshold": threshold}
-        sem = SemanticScene(st.means, torch.sigmoid(st.opacities.reshape(-1)), st.latents, st.codec, enc,
-                            label_names=st.info.get("label_names"), smooth_neighbors=smooth_neighbors,
-                            cluster_fraction=object_cluster, log_scales=st.scales, quats=st.quats,
-                            centre=object_centre, up=up, drop_support=drop_support,
-                            centre_relevancy=centre_relevancy, camera_centres=cams if unseen_fill else None, **kw)
-        label_names = list(st.info.get("label_names") or [])
-
-        def locate(text: str):
-            q = label_query(text, label_names)
-            r = sem.locate_full(q)
-            n, k = int(r.mask.sum()), int(r.core.sum())
-            core = "" if k == n else f", centre from the {k} above {sem.centre_relevancy:g}"
-            return r.centroid.detach().cpu().numpy().astype(np.float64), f"'{q}': {n} Gaussians above the relevancy threshold{core}"
-
-        extra_sem = {"semantic": sem, "label_names": label_names}
-    else:
-        extra_sem = {}
-
-    region = camera_box(cams) if cams is not None else None
-    if region is None and st.info.get("start_region"):  # compact exports carry their training cameras' box
-        lo, hi = (np.asarray(v, dtype=np.float64) for v in st.info["start_region"])
-        region = (lo, hi)
-    return LoadedScene(scene, locate, "checkpoint", str(path), config_path=cfg_path, extra={"splat": st, **extra_sem},
-                       start_region=region)
-
-
-def resolve_target(text: str, loaded: LoadedScene, what: str) -> Tuple[np.ndarray, str]:
-    if not isinstance(text, str) or not text.strip():
-        raise InvalidInputError(f"the {what} target is empty: type an object (text) or a point 'x y z'")
-    p = parse_point(text)
-    if p is not None:
-        return p, f"point {np.round(p, 4).tolist()}"
-    if loaded.locate is None:
-        raise InvalidInputError(
-            f"'{text}' is text, but this scene ({loaded.kind}) has no semantics; give the {what} target as 'x y z' "
-            f"or use a cinesplat checkpoint"
-        )
-    return loaded.locate(text)
 
 
 def _obstacles_near_paths(means: np.ndarray, shots, up: np.ndarray, band: float = 0.1) -> np.ndarray:

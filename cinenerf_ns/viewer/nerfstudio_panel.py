@@ -242,7 +242,7 @@ class SplatModelBackend:
         if locate_fn is None:
             sem = self._current("semantic")
             if sem is not None:
-                from cinenerf_ns.cli.plan import label_query
+                from cinenerf_ns.scenes import label_query
 
                 names = list(getattr(self.model, "cine_info", {}).get("label_names") or [])
                 locate_fn = lambda t: sem.locate(label_query(t, names))  # noqa: E731

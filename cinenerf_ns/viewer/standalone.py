@@ -20,7 +20,7 @@ import dataclasses
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Optional, Tuple
+from typing import Any, List, Optional, Tuple
 
 import numpy as np
 
@@ -136,7 +136,7 @@ def procedural_display(room: Any) -> SplatParams:
 
 def procedural_locate(room: Any) -> LocateFn:
     """Ground-truth text query of a procedural room (object names, as ``cinesplat-plan`` answers them)."""
-    from cinenerf_ns.cli.plan import procedural_object
+    from cinenerf_ns.scenes import procedural_object
 
     ids = room.object_ids.cpu().numpy()
 
@@ -150,7 +150,7 @@ def procedural_locate(room: Any) -> LocateFn:
 def semantic_locate(sem: Any, label_names: List[str]) -> LocateFn:
     """Text query of a cinesplat scene: relevancy of the distilled latents (``SemanticScene.locate``), with
     ``cinesplat-plan``'s mapping of words onto the scene's own label names."""
-    from cinenerf_ns.cli.plan import label_query
+    from cinenerf_ns.scenes import label_query
 
     def locate(text: str):
         c, mask = sem.locate(label_query(text, label_names))
@@ -165,7 +165,7 @@ def load_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optio
 
     Checkpoints, compact exports and procedural rooms go through ``cinesplat-plan``'s loader (the same
     obstacles, start regions and text semantics as the command line)."""
-    from cinenerf_ns.cli import plan as cli
+    from cinenerf_ns import scenes as cli
 
     scfg = scene_config or SceneConfig()
     if source == "demo":  # the bundled trained room (make demo's scene) when the package ships it

@@ -4,7 +4,8 @@ import json
 import numpy as np
 import pytest
 
-from cinenerf_ns.cli.plan import PlanArgs, parse_point, run_plan, _word_match
+from cinenerf_ns.cli.plan import PlanArgs, run_plan
+from cinenerf_ns.scenes import _word_match, parse_point
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.ply import write_splat_ply
 from cinenerf_ns.planner.procedural import procedural_room
@@ -138,7 +139,7 @@ def test_keep_support_reaches_the_locator(monkeypatch, tmp_path):
 
 @pytest.mark.slow
 def test_load_scene_passes_drop_support():
-    from cinenerf_ns.cli.plan import load_scene
+    from cinenerf_ns.scenes import load_scene
     from cinenerf_ns.demo import DEMO_SCENE
     from cinenerf_ns.planner.scene import SceneConfig
 
@@ -166,7 +167,7 @@ def test_load_scene_passes_centre_relevancy():
     many Gaussians the centre came from."""
     import torch
 
-    from cinenerf_ns.cli.plan import label_query, load_scene
+    from cinenerf_ns.scenes import label_query, load_scene
     from cinenerf_ns.demo import DEMO_SCENE
     from cinenerf_ns.planner.scene import SceneConfig
 
@@ -191,7 +192,7 @@ def test_no_unseen_fill_reaches_the_locator(monkeypatch, tmp_path):
 def test_load_scene_gives_the_bundled_scene_its_training_cameras():
     """The bundled export carries its 150 training cameras (info["camera_centres"]): load_scene hands them to the
     SemanticScene (unless unseen_fill=False) and draws random starts from their box (+0.1)."""
-    from cinenerf_ns.cli.plan import load_scene
+    from cinenerf_ns.scenes import load_scene
     from cinenerf_ns.demo import DEMO_SCENE
     from cinenerf_ns.planner.scene import SceneConfig
 
