@@ -15,7 +15,6 @@ from cinenerf_ns.method.training_cameras import camera_box, run_config_path, sce
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.scene import EllipsoidScene, SceneConfig
 
-_NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 
 
 @dataclass
@@ -30,25 +29,40 @@ class LoadedScene:
 
 
 def parse_point(text: str) -> Optional[np.ndarray]:
-    """'x y z' / 'x, y, z' / '[x, y, z]' -> [3]; None when the text is not three numbers."""
-    nums = re.findall(_NUM, text)
-    rest = re.sub(_NUM, "", text)
-    if len(nums) == 3 and not re.search(r"[A-Za-z]", rest):
-        return np.array([float(n) for n in nums])
-    return None
+    """'x y z' / 'x, y, z' / '[x, y, z]' -> [3] (non-finite values such as 'nan' kept, for the caller to refuse);
+    None when the text is not three numbers."""
+    tokens = [t for t in re.split(r"[\s,;\[\]()]+", text.strip()) if t]
+    if len(tokens) != 3:
+        return None
+    try:
+        return np.array([float(t) for t in tokens])
+    except ValueError:
+        return None
+
+
+_STOP_WORDS = {"the", "a", "an", "to", "at", "of", "go", "look", "on", "in"}
 
 
 def _word_match(query: str, names: List[str]) -> Optional[int]:
-    """Index of the name sharing the most words with the query (ties: shortest name); None if none."""
-    stop = {"the", "a", "an", "to", "at", "of", "go", "look"}
-    q = {w for w in re.findall(r"[a-z]+", query.lower()) if w not in stop}
-    best, best_k = None, (0, 0)
+    """Index of the name that holds every word of the query (each query word equal to or inside one of the name's
+    words: 'lamp' -> 'floor lamp', 'chair' -> 'red armchair'); ties: the shortest name. None when no name holds them
+    all: 'purple elephant' names no 'purple stool' (a shared adjective is not a match)."""
+    q = {w for w in re.findall(r"[a-z]+", query.lower()) if w not in _STOP_WORDS}
+    if not q:
+        return None
+    best, best_len = None, None
     for i, n in enumerate(names):
-        w = set(re.findall(r"[a-z]+", n.lower()))
-        k = (len(q & w), -len(w))
-        if k[0] > 0 and k > best_k:
-            best, best_k = i, k
+        words = re.findall(r"[a-z]+", n.lower())
+        if all(any(qw in w for w in words) for qw in q) and (best_len is None or len(words) < best_len):
+            best, best_len = i, len(words)
     return best
+
+
+def free_text(info: Dict[str, Any]) -> bool:
+    """Whether free text means anything to a scene: its CLIP text tower has real weights. Scenes trained with random
+    weights (tests, offline runs) or without a CLIP spec answer only their own label names."""
+    clip = info.get("clip") or {}
+    return bool(clip) and not clip.get("random_weights", False)
 
 
 def procedural_object(room: Any, text: str) -> int:
@@ -60,16 +74,26 @@ def procedural_object(room: Any, text: str) -> int:
     return i
 
 
-def label_query(text: str, label_names: List[str]) -> str:
-    """The text a semantic scene is queried with: offline scenes answer their own label names exactly, so a
-    query sharing words with one label is mapped to it (no CLIP weights needed); other text is kept (it goes
-    to the CLIP text tower)."""
+def label_query(text: str, label_names: List[str], free: bool = True) -> str:
+    """The text a semantic scene is queried with: a query naming one of the scene's labels (every word in it, see
+    _word_match) is mapped to that label (its stored embedding needs no CLIP weights); other text goes to the CLIP
+    text tower when ``free`` (free_text), else InvalidInputError listing what the scene can answer."""
     q = text.strip()
-    if label_names and q.lower() not in [n.lower() for n in label_names]:
-        i = _word_match(q, label_names)
-        if i is not None:
-            q = label_names[i]
-    return q
+    lower = [n.lower() for n in label_names]
+    if q.lower() in lower:
+        return label_names[lower.index(q.lower())]
+    i = _word_match(q, label_names) if label_names else None
+    if i is not None:
+        return label_names[i]
+    if free:
+        return q
+    if label_names:
+        raise InvalidInputError(
+            f"nothing in the scene matches '{q}': this scene answers only its own object names (it was trained "
+            f"without real CLIP weights): {', '.join(label_names)}; or give a point 'x y z'")
+    raise InvalidInputError(
+        f"'{q}' cannot be looked up: this scene has no object names and its CLIP features come from random weights, "
+        f"so text means nothing to it; give the target as a point 'x y z'")
 
 
 def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Optional[float] = None,
@@ -89,7 +113,9 @@ def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Opti
 
         def locate(text: str):
             i = procedural_object(room, text)
-            return room.objects[i].center.astype(np.float64), f"object '{names[i]}' (ground-truth name)"
+            c = room.objects[i].center.astype(np.float64)
+            return c, (f"'{text.strip()}' -> object '{names[i]}' (ground-truth name), centre "
+                       f"({', '.join(f'{v:.3f}' for v in c)})")
 
         r = cfg.camera_radius
         return LoadedScene(scene, locate, "procedural", spec, extra={"room": room},
@@ -119,15 +145,26 @@ def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Opti
                             centre=object_centre, up=up, drop_support=drop_support,
                             centre_relevancy=centre_relevancy, camera_centres=cams if unseen_fill else None, **kw)
         label_names = list(st.info.get("label_names") or [])
+        free = free_text(st.info)
 
-        def locate(text: str):
-            q = label_query(text, label_names)
+        def match(text: str) -> Dict[str, Any]:
+            q = label_query(text, label_names, free)
             r = sem.locate_full(q)
             n, k = int(r.mask.sum()), int(r.core.sum())
+            c = r.centroid.detach().cpu().numpy().astype(np.float64)
+            best = float(r.relevancy.max())
+            picked = "" if q == text.strip() else f" -> label '{q}'"
             core = "" if k == n else f", centre from the {k} above {sem.centre_relevancy:g}"
-            return r.centroid.detach().cpu().numpy().astype(np.float64), f"'{q}': {n} Gaussians above the relevancy threshold{core}"
+            desc = (f"'{text.strip()}'{picked}: {n} Gaussians above relevancy {sem.threshold:g} (best {best:.3f}){core}, "
+                    f"centre ({', '.join(f'{v:.3f}' for v in c)})")
+            return {"text": text.strip(), "query": q, "label": q if q in label_names else None, "gaussians": n,
+                    "core_gaussians": k, "best_relevancy": best, "centre": c.tolist(), "description": desc, "point": c}
 
-        extra_sem = {"semantic": sem, "label_names": label_names}
+        def locate(text: str):
+            m = match(text)
+            return m["point"], m["description"]
+
+        extra_sem = {"semantic": sem, "label_names": label_names, "match": match, "free_text": free}
     else:
         extra_sem = {}
 
@@ -140,14 +177,27 @@ def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Opti
 
 
 def resolve_target(text: str, loaded: LoadedScene, what: str) -> Tuple[np.ndarray, str]:
+    """A target's text -> (point [3], what it matched, in words); see resolve_match for the structured form."""
+    m = resolve_match(text, loaded, what)
+    return m["point"], m["description"]
+
+
+def resolve_match(text: str, loaded: LoadedScene, what: str) -> Dict[str, Any]:
+    """A target's text -> {"point" [3], "description", and for text: "query", "label", "gaussians", "best_relevancy",
+    "centre"}. InvalidInputError for empty text, text on a scene without semantics, text that matches nothing."""
     if not isinstance(text, str) or not text.strip():
         raise InvalidInputError(f"the {what} target is empty: type an object (text) or a point 'x y z'")
     p = parse_point(text)
     if p is not None:
-        return p, f"point {np.round(p, 4).tolist()}"
+        if not np.all(np.isfinite(p)):
+            raise InvalidInputError(f"the {what} point {text!r} is not finite: give three finite numbers 'x y z'")
+        return {"text": text.strip(), "point": p, "description": f"point {np.round(p, 4).tolist()}"}
     if loaded.locate is None:
         raise InvalidInputError(
             f"'{text}' is text, but this scene ({loaded.kind}) has no semantics; give the {what} target as 'x y z' "
             f"or use a cinesplat checkpoint"
         )
-    return loaded.locate(text)
+    if "match" in loaded.extra:
+        return loaded.extra["match"](text)
+    point, desc = loaded.locate(text)
+    return {"text": text.strip(), "point": point, "description": desc}

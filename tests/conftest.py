@@ -8,6 +8,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 FOX = Path(os.environ.get("CINENERF_FOX", REPO.parent / "shared" / "data" / "fox"))
+FOX_SPLAT = REPO.parent / "shared" / "data" / "fox_cinesplat" / "fox3000.npz"  # the fox capture, trained (cinesplat)
 
 
 def _cuda() -> bool:
@@ -32,3 +33,11 @@ def pytest_collection_modifyitems(config, items):
 @pytest.fixture(scope="session")
 def fox_dir() -> Path:
     return FOX
+
+
+@pytest.fixture(scope="session")
+def fox_splat() -> Path:
+    """../shared/data/fox_cinesplat/fox3000.npz, a real capture's compact export (skips when it is absent)."""
+    if not FOX_SPLAT.exists():
+        pytest.skip(f"real-capture splat not found at {FOX_SPLAT} (../shared/data beside the checkout)")
+    return FOX_SPLAT

@@ -5,19 +5,19 @@
     cinesplat-plan --scene procedural --go-to armchair --look-at "floor lamp"
     cinesplat-plan --scene procedural --go-to armchair --then-go-to sofa table --look-at "floor lamp" --max-angular-rate 45
 
-With random starts the candidates are planned in one batched call, scored (occlusion of the look-at
-object, framing, clearance, smoothness, duration; planner/scoring.py) and ranked: rank 1 is written as
-``<name>_0.json``, rank 2 as ``<name>_1.json``, ...; the table and the report state every score term.
+With random starts the candidates are planned, scored (occlusion of the look-at object, framing, clearance,
+smoothness, duration; planner/scoring.py) and ranked: rank 1 is written as ``<name>_0.json``, rank 2 as
+``<name>_1.json``, ...; the table and the report state every score term.
 
-Targets are "x y z" points (scene units, nerfstudio's normalised coordinates for checkpoints) or text.
-Text needs semantics: a cinesplat checkpoint / compact export (relevancy of the distilled CLIP latents,
-eq. 4) or the procedural test scene (its ground-truth object names). Writes, per candidate, a
-nerfstudio camera-path JSON (``ns-render camera-path``), plus a safety report JSON and PNG plots.
+Targets are "x y z" points (scene units, nerfstudio's normalised coordinates for checkpoints) or text. Every option
+is checked before the scene is loaded; errors go to stderr with exit status 2 and leave no file behind. The outputs
+(camera paths, report, plots) appear together at the end or not at all.
 """
 from __future__ import annotations
 
 import json
-
+import math
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,19 +30,21 @@ from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeEl
 from rich.table import Table
 
 from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY
+from cinenerf_ns.output_set import OutputSet, check_name, check_writable
 from cinenerf_ns.planner.camera_path import shot_to_camera_path, write_camera_path
 from cinenerf_ns.planner.candidates import RankedShot, plan_candidates, score_shots
 from cinenerf_ns.planner.dynamics import DynamicLimits, retime_shot
-from cinenerf_ns.planner.multistop import plan_multistop
-from cinenerf_ns.planner.scoring import ScoreConfig
 from cinenerf_ns.planner.errors import InvalidInputError, PlanningError
-from cinenerf_ns.planner.planner import Planner, PlannerConfig
-from cinenerf_ns.planner.safety import plot_clearance, plot_paths_topdown, safety_report
+from cinenerf_ns.planner.multistop import plan_multistop
+from cinenerf_ns.planner.planner import GRID_RESOLUTION_RANGE, MAX_CANDIDATES, Planner, PlannerConfig
+from cinenerf_ns.planner.safety import plot_clearance, plot_paths_topdown
 from cinenerf_ns.planner.scene import SceneConfig
-from cinenerf_ns.planner.timing import TimingConfig
-from cinenerf_ns.scenes import LoadedScene, _word_match, load_scene, parse_point, resolve_target
+from cinenerf_ns.planner.scoring import ScoreConfig
+from cinenerf_ns.planner.timing import MAX_FPS, MIN_FPS, TimingConfig
+from cinenerf_ns.scenes import LoadedScene, _word_match, load_scene, parse_point, resolve_match
 
 CONSOLE = Console()
+ERRORS = Console(stderr=True)
 
 
 @dataclass
@@ -50,87 +52,77 @@ class PlanArgs:
     """Plan camera shots: go to one thing, look at another."""
 
     scene: str
-    """A cinesplat/splatfacto run (config.yml, its folder or a .ckpt), a compact export (.pt), a 3DGS .ply,
+    """A cinesplat/splatfacto run (config.yml, its folder or a .ckpt), a compact export (.npz/.pt), a 3DGS .ply,
     or 'procedural[:N[:SEED]]' (a generated test room with known object names)."""
     go_to: str
     """Where the camera should end: text (needs a semantic scene) or 'x y z'."""
     look_at: str
     """What every frame looks at: text or 'x y z'."""
     start: Optional[str] = None
-    """Start point 'x y z'; default: random collision-free starts (seeded)."""
+    """Start point 'x y z' inside the planning region; default: random collision-free starts (seeded)."""
+    force_start: bool = False
+    """Plan from a --start outside the planning region (the region grows to hold it) instead of refusing it."""
     seed: int = 0
     """Seed of the random starts (same seed, same starts)."""
     start_look_distance: float = PlannerConfig.start_look_distance
     """Random starts keep at least this fraction of the start region's longest side from the look-at point when the
-    region allows (an opening frame that shows the subject; the aim is less sensitive to the estimated centre's
-    error). 0: uniform random starts. Ignored with --start."""
+    region allows (an opening frame that shows the subject). 0: uniform random starts. Ignored with --start."""
     candidates: int = 1
-    """Number of shots from different random starts."""
+    """Number of shots from different random starts, 1-64."""
+    time_budget: float = 60.0
+    """Seconds the candidates may take: once over it, no further candidate is started (fewer come back, reported)."""
     workers: Optional[int] = None
-    """Worker processes that plan the candidates in parallel (Linux, fork; see PlannerConfig.candidate_workers).
-    None: one per CPU on machines with >= 4 CPUs, else 0 (plan in this process)."""
+    """Worker processes that plan the candidates in parallel (Linux, fork). None: one per CPU on machines with
+    >= 4 CPUs, else 0 (plan in this process)."""
     output_dir: Path = Path("cinesplat_plans")
     """Where camera paths, the report and the plots go."""
     name: str = "shot"
-    """File name stem of the outputs."""
-    fps: float = 30.0
-    """Frames per second of the exported path."""
-    max_speed: float = 0.5
+    """File name stem of the outputs (letters, digits, '.', '_', '-')."""
+    fps: float = TimingConfig.fps
+    """Frames per second of the exported path, 1-240."""
+    max_speed: float = TimingConfig.max_speed
     """Camera speed cap, scene units per second."""
     fov: float = 50.0
-    """Vertical field of view of the exported camera, degrees."""
+    """Vertical field of view of the exported camera, degrees (1-179)."""
     width: int = 1280
-    """Render width written into the camera path."""
+    """Render width written into the camera path, pixels."""
     height: int = 720
-    """Render height written into the camera path."""
-    camera_radius: float = 0.03
+    """Render height written into the camera path, pixels."""
+    camera_radius: float = SceneConfig.camera_radius
     """Camera body sphere radius, scene units (paper: 0.03)."""
     safety_margin: float = 0.01
-    """Extra distance (scene units) kept from every ellipsoid on top of camera_radius: a splat only
-    approximates the real surfaces (measured on a synthetic room: the true surface can lie ~0.0005 outside
-    the ellipsoids). Clearances in the report are measured from the camera sphere grown by this margin."""
-    beta: float = 2.0
+    """Extra distance (scene units) kept from every ellipsoid on top of camera_radius: a splat only approximates the
+    real surfaces. Clearances in the report are measured from the camera sphere grown by this margin."""
+    beta: float = SceneConfig.beta
     """Ellipsoid size in sigmas (paper: 2), scaled by each Gaussian's opacity."""
-    opacity_floor: float = 0.05
+    opacity_floor: float = SceneConfig.opacity_floor
     """Gaussians below this opacity are not obstacles."""
-    grid_resolution: int = 96
-    """A* voxels along the longest side of the planning region."""
+    grid_resolution: int = PlannerConfig.grid_resolution
+    """A* voxels along the longest side of the planning region (8-1024, within --memory-budget-mb)."""
+    memory_budget_mb: float = PlannerConfig.memory_budget_mb
+    """Memory the voxel grid may take, MB; a finer grid is refused with the largest resolution that fits."""
     grid_polytopes: Literal["auto", "on", "off"] = "auto"
-    """Corridor polytopes from the occupancy grid where the path lies in free voxels (same safety, far cheaper, up to
-    a voxel more conservative); auto: on when the voxels are fine (<= 2 camera radii), see PlannerConfig."""
+    """Corridor polytopes from the occupancy grid where the path lies in free voxels (same safety, cheaper, up to a
+    voxel more conservative); auto: on when the voxels are at most 2 camera radii."""
     threshold: Optional[float] = None
-    """Relevancy threshold of text queries (default: the scene's)."""
+    """Relevancy threshold of text queries, in (0, 1) (default: the scene's)."""
     semantic_smoothing: int = 32
-    """Average each Gaussian's latent over this many nearest Gaussians before text queries (0: off): denoises
-    object selection (synthetic room: mean IoU 0.28 -> 0.40) for ~2 s of CPU per 400k Gaussians, once per
-    scene load (see SemanticScene / smooth_latents)."""
+    """Average each Gaussian's latent over this many nearest Gaussians before text queries (0: off; once per load)."""
     object_cluster: float = 0.02
-    """A text target is the heaviest spatial cluster (relevancy x opacity) of the selected Gaussians, binned at
-    this fraction of the scene's extent (0: all selected Gaussians). One object, not the centroid of scattered
-    matches or of several instances (synthetic room: centroid within 5% for 6 of 8 objects instead of 3)."""
+    """A text target is the heaviest spatial cluster of the selected Gaussians, binned at this fraction of the scene's
+    extent (0: all selected Gaussians): one object, not the centroid of scattered matches."""
     object_centre: Literal["volume", "surface"] = "volume"
-    """Where a text target is: 'volume' (estimated volume centroid of the selected object: surface Gaussians
-    voxelised and filled, see cinenerf_ns/method/object_centre.py) or 'surface' (opacity-weighted mean of the
-    selected Gaussians: pulled toward thin parts such as a lamp's pole). Synthetic room: worst object 7.4% -> 0.9%
-    of the room size from the true centre (with the support-layer rule below)."""
+    """Where a text target is: 'volume' (the selected object's estimated volume centroid,
+    cinenerf_ns/method/object_centre.py) or 'surface' (opacity-weighted mean of its Gaussians)."""
     keep_support: bool = False
-    """Keep the floor / table layer under a text target in its selection. By default it is dropped: features bleed
-    across contact, and the floor around a lamp's base pulls its centre down (synthetic room: lamp 2.9% -> 0.9% of
-    the room size; see cinenerf_ns/method/object_support.py)."""
+    """Keep the floor / table layer under a text target in its selection (by default it is dropped: features bleed
+    across contact, cinenerf_ns/method/object_support.py)."""
     centre_relevancy: float = CENTRE_RELEVANCY
-    """Estimate a text target's centre only from its selected Gaussians with relevancy above this (the confident core;
-    the whole selection when the core is under a quarter of it); the selection keeps --threshold. Gaussians that only
-    show through an object's pixels (behind it, in a wall beside it) carry its label weakly and pull its centre off.
-    0: off. Measured on four trained synthetic rooms (benchmarks/RESULTS.md): worst centre 7.96 -> 0.67% of the room
-    (room 4's bookshelf), 1.17 -> 1.00%, 0.90 -> 0.65%, but 1.31 -> 1.39% in room 2; shots within 2 deg of the true
-    centre at every frame (10 starts per pair) 306 -> 314 of 320."""
+    """Estimate a text target's centre only from its Gaussians with relevancy above this, in [0, 1) (the confident
+    core; the whole selection when the core is under a quarter of it). 0: off."""
     no_unseen_fill: bool = False
-    """Estimate a text target's volume centre from its Gaussians alone. By default, when the scene knows its training
-    cameras (a run's config.yml with its data in place, or a compact export that carries them), the part of the object
-    that no camera saw (a back facing away from the capture, left thin in the splat) is filled as the object's volume
-    (see cinenerf_ns/method/object_centre.py). Measured on four trained synthetic rooms (benchmarks/RESULTS.md): room 2's
-    cabinet 1.39 -> 0.40% of the room off, worst centres 0.65/1.00/1.39/0.68 -> 0.51/1.42/0.93/0.87%; shots within 2 deg
-    of the true centre at every frame (3 starts per pair) 94 -> 96 of 96. It overfills pockets no camera looks into."""
+    """Estimate a text target's volume centre from its Gaussians alone, without filling the part of the object that
+    no training camera saw."""
     device: str = "cpu"
     """torch device of the scene tensors ('cpu' or 'cuda')."""
     up: Tuple[float, float, float] = (0.0, 0.0, 1.0)
@@ -140,15 +132,83 @@ class PlanArgs:
     then_look_at: Tuple[str, ...] = ()
     """Look-at of each further stop (one per --then-go-to); empty: every stop looks at --look-at."""
     max_acceleration: Optional[float] = None
-    """Acceleration limit of the exported frames, units/s^2 (enables dynamic limits; default 0.5 when
-    another limit is set)."""
+    """Acceleration limit of the exported frames, units/s^2 (enables dynamic limits; default 0.5 when another limit
+    is set)."""
     max_angular_rate: Optional[float] = None
     """Limit on how fast the view direction turns, deg/s (enables dynamic limits; default 60)."""
     object_radius: Optional[float] = None
-    """Bounding-sphere radius of the look-at object for scoring (framing size; sight lines stop at it so
-    the object does not hide itself). Default: the procedural object's half diagonal, else 0.1."""
+    """Bounding-sphere radius of the look-at object for scoring (framing size; sight lines stop at it). Default: the
+    procedural object's half diagonal, else 0.1."""
     score: ScoreConfig = field(default_factory=ScoreConfig)
     """Weights of the shot score (its fov_deg is replaced by --fov)."""
+
+
+def _number(value: Any, option: str, lo: float, hi: float, lo_open: bool = False, integer: bool = False) -> None:
+    """InvalidInputError unless ``value`` is a finite number (an integer with ``integer``) in [lo, hi] ((lo, hi] with
+    lo_open)."""
+    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+    ok = ok and math.isfinite(float(value)) and (float(value) > lo if lo_open else float(value) >= lo)
+    ok = ok and float(value) <= hi and (not integer or float(value) == int(value))
+    if not ok:
+        kind = "an integer" if integer else "a number"
+        rng = f"({lo:g}, {hi:g}]" if lo_open else f"[{lo:g}, {hi:g}]"
+        raise InvalidInputError(f"{option} must be {kind} in {rng}, got {value!r}")
+
+
+def check_args(args: PlanArgs) -> None:
+    """Every option that can be judged without the scene, before anything is loaded or written. The scene-relative
+    checks (points near the scene, camera radius against its size, grid against memory, frames) follow in the
+    planner (Planner.checked_point, check_region, check_timing)."""
+    if not isinstance(args.scene, str) or not args.scene.strip():
+        raise InvalidInputError("--scene is empty: give a run's config.yml, a compact export, a .ply or 'procedural'")
+    _number(args.candidates, "--candidates", 1, MAX_CANDIDATES, integer=True)
+    _number(args.time_budget, "--time-budget", 0, 3600, lo_open=True)
+    _number(args.seed, "--seed", 0, 2**63 - 1, integer=True)
+    _number(args.fps, "--fps", MIN_FPS, MAX_FPS)
+    _number(args.max_speed, "--max-speed", 0, 100, lo_open=True)
+    _number(args.fov, "--fov", 1, 179)
+    _number(args.width, "--width", 16, 8192, integer=True)
+    _number(args.height, "--height", 16, 8192, integer=True)
+    _number(args.camera_radius, "--camera-radius", 0, 10)
+    _number(args.safety_margin, "--safety-margin", 0, 10)
+    _number(args.beta, "--beta", 0, 10, lo_open=True)
+    _number(args.opacity_floor, "--opacity-floor", 0, 0.999)
+    _number(args.grid_resolution, "--grid-resolution", *GRID_RESOLUTION_RANGE, integer=True)
+    _number(args.memory_budget_mb, "--memory-budget-mb", 64, 2**20)
+    _number(args.semantic_smoothing, "--semantic-smoothing", 0, 256, integer=True)
+    _number(args.object_cluster, "--object-cluster", 0, 0.5)
+    _number(args.start_look_distance, "--start-look-distance", 0, 0.99)
+    if not (0.0 <= args.centre_relevancy < 1.0):
+        raise InvalidInputError(f"--centre-relevancy must be in [0, 1) (0: the centre from the whole selection), "
+                                f"got {args.centre_relevancy}")
+    if args.threshold is not None:
+        _number(args.threshold, "--threshold", 0, 0.999, lo_open=True)
+    if args.workers is not None:
+        _number(args.workers, "--workers", 0, 256, integer=True)
+    if args.max_acceleration is not None:
+        _number(args.max_acceleration, "--max-acceleration", 0, 1000, lo_open=True)
+    if args.max_angular_rate is not None:
+        _number(args.max_angular_rate, "--max-angular-rate", 0, 3600, lo_open=True)
+    if args.object_radius is not None:
+        _number(args.object_radius, "--object-radius", 0, 100)
+    up = np.asarray(args.up, dtype=np.float64)
+    if up.shape != (3,) or not np.all(np.isfinite(up)) or np.linalg.norm(up) < 1e-9:
+        raise InvalidInputError(f"--up must be three finite numbers, not all zero, got {args.up}")
+    if args.device not in ("cpu", "cuda") and not str(args.device).startswith("cuda:"):
+        raise InvalidInputError(f"--device must be 'cpu' or 'cuda', got {args.device!r}")
+    if str(args.device).startswith("cuda"):
+        import torch
+
+        if not torch.cuda.is_available():
+            raise InvalidInputError(f"--device {args.device}: no CUDA device here; use --device cpu")
+    if args.then_look_at and len(args.then_look_at) != len(args.then_go_to):
+        raise InvalidInputError(f"--then-look-at needs one look-at per --then-go-to ({len(args.then_go_to)}), got "
+                                f"{len(args.then_look_at)}")
+    if args.start is not None and parse_point(args.start) is None:
+        raise InvalidInputError(f"--start must be a point 'x y z', got {args.start!r}")
+    check_name(args.name)
+    check_writable(Path(args.output_dir))
+    args.score.validate()
 
 
 def _obstacles_near_paths(means: np.ndarray, shots, up: np.ndarray, band: float = 0.1) -> np.ndarray:
@@ -163,8 +223,6 @@ def _obstacles_near_paths(means: np.ndarray, shots, up: np.ndarray, band: float 
 
 def _object_radius(args: PlanArgs, loaded: LoadedScene) -> float:
     if args.object_radius is not None:
-        if not (np.isfinite(args.object_radius) and args.object_radius >= 0):
-            raise InvalidInputError(f"--object-radius must be >= 0, got {args.object_radius}")
         return float(args.object_radius)
     if loaded.kind == "procedural" and parse_point(args.look_at) is None:
         objs = loaded.extra["room"].objects
@@ -184,15 +242,64 @@ def _limits(args: PlanArgs) -> Optional[DynamicLimits]:
     )
 
 
+def _plan_shots(args: PlanArgs, planner: Planner, loaded: LoadedScene, goal: np.ndarray, look: np.ndarray,
+                start: Optional[np.ndarray], timings: Dict[str, float]) -> tuple:
+    """(shots, scores, multi-stop shot or None, object radius, score config) for the request the options describe."""
+    limits = _limits(args)
+    obj_r = _object_radius(args, loaded)
+    score_cfg = ScoreConfig(**{**args.score.__dict__, "fov_deg": args.fov})
+    if args.then_go_to:
+        stops = [goal] + [resolve_match(t, loaded, f"go-to {i + 2}")["point"] for i, t in enumerate(args.then_go_to)]
+        looks = [look] + ([resolve_match(t, loaded, f"look-at {i + 2}")["point"] for i, t in enumerate(args.then_look_at)]
+                          if args.then_look_at else [look] * len(args.then_go_to))
+        multi = plan_multistop(planner, stops, np.stack(looks), start=start, seed=args.seed, limits=limits,
+                               force_start=args.force_start)
+        return [multi.shot], [None], multi, obj_r, score_cfg
+    if start is not None:
+        shots = planner.plan(goal, look, start=start, seed=args.seed, n_candidates=1, force_start=args.force_start)
+        if limits is not None:
+            shots = [retime_shot(sh, limits, up=planner.config.up) for sh in shots]
+        return shots, score_shots(planner, shots, look, score_cfg, object_radius=obj_r), None, obj_r, score_cfg
+    ranked: List[RankedShot] = plan_candidates(planner, goal, look, k=args.candidates, seed=args.seed,
+                                               score_config=score_cfg, limits=limits, object_radius=obj_r,
+                                               timings=timings, time_budget_s=args.time_budget)
+    return [r.shot for r in ranked], [r.score for r in ranked], None, obj_r, score_cfg
+
+
+def _write_outputs(args: PlanArgs, out: OutputSet, planner: Planner, loaded: LoadedScene, shots, goal, look,
+                   reports) -> tuple:
+    """Camera paths and plots into the output set: (camera-path files as they will be named, plot files)."""
+    files = []
+    for k, sh in enumerate(shots):
+        cp = shot_to_camera_path(sh, fov_deg=args.fov, width=args.width, height=args.height)
+        write_camera_path(out.path(f"{args.name}_{k}.json"), cp)
+        files.append(out.final(f"{args.name}_{k}.json"))
+    plot_clearance(reports, out.path(f"{args.name}_clearance.png"))
+    plot_paths_topdown(
+        [sh.positions for sh in shots], out.path(f"{args.name}_topdown.png"),
+        obstacles=_obstacles_near_paths(loaded.scene.means.detach().cpu().numpy(), shots, np.asarray(args.up, float)),
+        targets={"go to": goal, "look at": look}, labels=[f"rank {k + 1}" for k in range(len(shots))],
+    )
+    return files, {"clearance": str(out.final(f"{args.name}_clearance.png")),
+                   "topdown": str(out.final(f"{args.name}_topdown.png"))}
+
+
+def _resolve(args: PlanArgs, loaded: LoadedScene, planner: Planner, gm: Dict[str, Any], lm: Dict[str, Any]) -> tuple:
+    """Targets and the given start, checked against the planning region (errors name the option)."""
+    goal = planner.checked_point(gm["point"], "go-to point (--go-to)")
+    look = planner.checked_point(lm["point"], "look-at point (--look-at)")
+    start = None if args.start is None else planner.checked_point(parse_point(args.start), "start point (--start)")
+    if start is not None and planner.distance_outside(start) > 0 and not args.force_start:
+        planner.checked_start(start)  # the error that names --force-start
+    planner.check_timing()
+    return goal, look, start
+
+
 def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
-    """Plan and write outputs; returns a summary dict (paths, per-candidate metrics)."""
-    if not (args.safety_margin >= 0):
-        raise InvalidInputError(f"--safety-margin must be >= 0, got {args.safety_margin}")
-    if not (0.0 <= args.centre_relevancy < 1.0):  # checked before anything is loaded or written
-        raise InvalidInputError(f"--centre-relevancy must be in [0, 1) (0: the centre from the whole selection), "
-                                f"got {args.centre_relevancy}")
+    """Check the options, plan, and write the outputs all together; returns a summary dict (paths, per-candidate
+    metrics). Raises InvalidInputError / PlanningError / CheckpointError with a message for the user."""
+    check_args(args)
     scfg = SceneConfig(beta=args.beta, camera_radius=args.camera_radius + args.safety_margin, opacity_floor=args.opacity_floor)
-    out = Path(args.output_dir)
     t_all = time.perf_counter()
     # auto_refresh=False: no refresh thread. plan_candidates forks worker processes, and a fork while another thread
     # holds an output lock can hang the child; the bar is redrawn at each stage instead (prog.update(refresh=True)).
@@ -204,93 +311,73 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
                             drop_support=not args.keep_support, centre_relevancy=args.centre_relevancy,
                             unseen_fill=not args.no_unseen_fill)
         prog.update(task, advance=1, description="resolving targets", refresh=True)
-        goal, goal_desc = resolve_target(args.go_to, loaded, "go-to")
-        look, look_desc = resolve_target(args.look_at, loaded, "look-at")
-        start = None
-        if args.start is not None:
-            start = parse_point(args.start)
-            if start is None:
-                raise InvalidInputError(f"--start must be 'x y z', got {args.start!r}")
+        # text first: a query that matches nothing fails before the grid is built
+        gm, lm = resolve_match(args.go_to, loaded, "go-to"), resolve_match(args.look_at, loaded, "look-at")
+        for i, t in enumerate(args.then_go_to + args.then_look_at):
+            resolve_match(t, loaded, f"stop target {i + 2}")
         prog.update(task, advance=1, description="preparing (index, occupancy grid)", refresh=True)
         pcfg = PlannerConfig(
             grid_resolution=args.grid_resolution, up=tuple(args.up), timing=TimingConfig(max_speed=args.max_speed, fps=args.fps),
-            start_region=loaded.start_region, candidate_workers=args.workers,
+            start_region=loaded.start_region, candidate_workers=args.workers, memory_budget_mb=args.memory_budget_mb,
             start_look_distance=args.start_look_distance, grid_polytopes={"auto": "auto", "on": True, "off": False}[args.grid_polytopes],
         )
         planner = Planner(loaded.scene, pcfg)
         prep = planner.prepare()
+        goal, look, start = _resolve(args, loaded, planner, gm, lm)
         prog.update(task, advance=1, description=f"planning {args.candidates} candidate(s)", refresh=True)
-        limits = _limits(args)
-        obj_r = _object_radius(args, loaded)
-        score_cfg = ScoreConfig(**{**args.score.__dict__, "fov_deg": args.fov})
-        multi = None
-        if args.then_go_to:
-            if args.then_look_at and len(args.then_look_at) != len(args.then_go_to):
-                raise InvalidInputError(
-                    f"--then-look-at needs one look-at per --then-go-to ({len(args.then_go_to)}), got {len(args.then_look_at)}"
-                )
-            stops = [goal] + [resolve_target(t, loaded, f"go-to {i + 2}")[0] for i, t in enumerate(args.then_go_to)]
-            looks = [look] + ([resolve_target(t, loaded, f"look-at {i + 2}")[0] for i, t in enumerate(args.then_look_at)]
-                              if args.then_look_at else [look] * len(args.then_go_to))
-            multi = plan_multistop(planner, stops, np.stack(looks), start=start, seed=args.seed, limits=limits)
-            shots = [multi.shot]
-            scores = [None]
-        elif start is not None:
-            shots = planner.plan(goal, look, start=start, seed=args.seed, n_candidates=1)
-            if limits is not None:
-                shots = [retime_shot(sh, limits, up=pcfg.up) for sh in shots]
-            scores = score_shots(planner, shots, look, score_cfg, object_radius=obj_r)
-        else:
-            ranked: List[RankedShot] = plan_candidates(planner, goal, look, k=args.candidates, seed=args.seed,
-                                                       score_config=score_cfg, limits=limits, object_radius=obj_r)
-            shots = [r.shot for r in ranked]
-            scores = [r.score for r in ranked]
+        batch_tm: Dict[str, float] = {}
+        shots, scores, multi, obj_r, score_cfg = _plan_shots(args, planner, loaded, goal, look, start, batch_tm)
         prog.update(task, advance=1, description="exact clearance report + plots", refresh=True)
-        out.mkdir(parents=True, exist_ok=True)
-        reports, files = [], []
-        for k, sh in enumerate(shots):
-            rep = safety_report(sh, planner.clearance, max_spacing=0.02, label=f"rank {k + 1}")
-            reports.append(rep)
-            cp = shot_to_camera_path(sh, fov_deg=args.fov, width=args.width, height=args.height)
-            files.append(write_camera_path(out / f"{args.name}_{k}.json", cp))
-        png_c = plot_clearance(reports, out / f"{args.name}_clearance.png")
-        lo, hi = planner.planning_bounds()
-        png_t = plot_paths_topdown(
-            [sh.positions for sh in shots], out / f"{args.name}_topdown.png",
-            obstacles=_obstacles_near_paths(loaded.scene.means.detach().cpu().numpy(), shots, np.asarray(args.up, float)),
-            targets={"go to": goal, "look at": look},
-            labels=[f"rank {k + 1}" for k in range(len(shots))],
-        )
-        summary = {
-            "scene": loaded.source,
-            "go_to": {"text": args.go_to, "point": goal.tolist(), "resolved": goal_desc},
-            "look_at": {"text": args.look_at, "point": look.tolist(), "resolved": look_desc},
-            "prepare_ms": prep.timings_ms,
-            "camera_radius": args.camera_radius,
-            "safety_margin": args.safety_margin,
-            "clearance_note": "clearances are measured from the camera sphere of radius camera_radius + safety_margin",
-            "candidates": [
-                {**(multi.to_dict() if multi is not None else sh.to_dict()), "rank": k + 1,
-                 "score": None if scores[k] is None else scores[k].to_dict(),
-                 "dynamics": getattr(sh, "dynamics", None) if multi is None else multi.dynamics,
-                 "camera_path": str(files[k]), "exact_clearance": {kk: v for kk, v in reports[k].items() if kk not in ("times", "clearance")},
-                 "verification": sh.safety}
-                for k, sh in enumerate(shots)
-            ],
-            "object_radius": obj_r,
-            "score_config": score_cfg.__dict__,
-            "clearance_samples": [{"times": r["times"], "clearance": r["clearance"]} for r in reports],
-            "plots": {"clearance": str(png_c), "topdown": str(png_t)},
-            "total_s": time.perf_counter() - t_all,
-        }
-        rpath = out / f"{args.name}_report.json"
-        tmp = rpath.with_suffix(".json.tmp")
-        tmp.write_text(json.dumps(summary, indent=2, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
-        tmp.replace(rpath)
-        summary["report"] = str(rpath)
+        reports = [planner.clearance_report(sh, max_spacing=0.02, label=f"rank {k + 1}") for k, sh in enumerate(shots)]
+        moves = [planner.explain_goal(goal if multi is None else multi.shot.goal_target, sh.goal) for sh in shots]
+        with OutputSet(Path(args.output_dir), args.name) as out:
+            files, plots = _write_outputs(args, out, planner, loaded, shots, goal, look, reports)
+            summary = _summary(args, loaded, planner, prep, gm, lm, goal, look, shots, scores, multi, reports, moves,
+                               files, plots, obj_r, score_cfg, batch_tm)
+            summary["total_s"] = time.perf_counter() - t_all
+            rpath = out.final(f"{args.name}_report.json")
+            summary["report"] = str(rpath)
+            Path(out.path(rpath.name)).write_text(json.dumps(
+                summary, indent=2, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
         prog.update(task, advance=1, refresh=True)
+    _print_summary(args, console, loaded, gm, lm, shots, scores, multi, reports, moves, files, summary)
+    return summary
 
-    table = Table(title=f"cinesplat-plan: go to {goal_desc}, look at {look_desc}")
+
+def _summary(args, loaded, planner, prep, gm, lm, goal, look, shots, scores, multi, reports, moves, files, plots,
+             obj_r, score_cfg, batch_tm) -> Dict[str, Any]:
+    """The report's JSON content."""
+    lo, hi = planner.region()
+    strip = lambda m: {k: v for k, v in m.items() if k != "point"}  # noqa: E731
+    return {
+        "scene": loaded.source,
+        "go_to": {**strip(gm), "point": goal.tolist(), "resolved": gm["description"]},
+        "look_at": {**strip(lm), "point": look.tolist(), "resolved": lm["description"]},
+        "planning_region": {"lo": lo.tolist(), "hi": hi.tolist()},
+        "prepare_ms": prep.timings_ms,
+        "camera_radius": args.camera_radius,
+        "safety_margin": args.safety_margin,
+        "clearance_note": "clearances are measured from the camera sphere of radius camera_radius + safety_margin",
+        "requested_candidates": args.candidates,
+        "stopped_by_time_budget": bool(batch_tm.get("budget_stopped")),
+        "candidates": [
+            {**(multi.to_dict() if multi is not None else sh.to_dict()), "rank": k + 1,
+             "score": None if scores[k] is None else scores[k].to_dict(),
+             "dynamics": getattr(sh, "dynamics", None) if multi is None else multi.dynamics,
+             "camera_path": str(files[k]), "goal_moved": moves[k],
+             "exact_clearance": {kk: v for kk, v in reports[k].items() if kk not in ("times", "clearance")},
+             "verification": sh.safety}
+            for k, sh in enumerate(shots)
+        ],
+        "object_radius": obj_r,
+        "score_config": score_cfg.__dict__,
+        "clearance_samples": [{"times": r["times"], "clearance": r["clearance"]} for r in reports],
+        "plots": plots,
+    }
+
+
+def _print_summary(args, console, loaded, gm, lm, shots, scores, multi, reports, moves, files, summary) -> None:
+    table = Table(title=f"cinesplat-plan: go to {gm['description']}, look at {lm['description']}")
     # short headers, no wrapping: the table must stay readable in an 80-column terminal (legend below)
     wide = console.width >= 140
     cols = ["#", "score", "occl", "min clr", "len", "dur s", "peak v/a/w", "file"]
@@ -313,26 +400,49 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
     console.print(table)
     console.print("score: lower is better (every term in the report); occl: occluded fraction of frames; clr/len in scene "
                   "units; peak: speed / acceleration / view rotation deg/s" + ("" if wide else " (wider terminal: more columns)")
-                  + f"; files in {out}/")
-    console.print(f"report: {summary['report']}\nplots: {png_c}, {png_t}")
+                  + f"; files in {Path(args.output_dir).absolute()}/")
+    if summary["stopped_by_time_budget"]:
+        console.print(f"[yellow]note: {len(shots)} of {args.candidates} candidates planned within --time-budget "
+                      f"{args.time_budget:g} s[/yellow]")
+    elif len(shots) < args.candidates and multi is None and args.start is None:
+        console.print(f"[yellow]note: {len(shots)} of {args.candidates} candidates could be planned[/yellow]")
+    for k, mv in enumerate(moves):
+        if mv is not None:
+            console.print(f"[yellow]note (rank {k + 1}): the go-to point moved {mv['distance']:.3f} units, from "
+                          f"{_fmt3(mv['from'])} to {_fmt3(mv['to'])}: {mv['why']}[/yellow]")
+    console.print(f"report: {summary['report']}\nplots: {summary['plots']['clearance']}, {summary['plots']['topdown']}")
     if loaded.config_path is not None:
         console.print(
             f"render: ns-render camera-path --load-config {loaded.config_path} --camera-path-filename {files[0]} "
             f"--output-path renders/{args.name}.mp4"
         )
-    return summary
+
+
+def _fmt3(p) -> str:
+    return "(" + ", ".join(f"{v:.3f}" for v in p) + ")"
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    """Parse ``argv`` (default: sys.argv), run; returns the exit status: 0, 2 for a user error (message on stderr),
+    130 when interrupted. Nothing partial is left behind in either case."""
+    args = tyro.cli(PlanArgs, args=argv)
+    try:
+        run_plan(args)
+    except KeyboardInterrupt:
+        ERRORS.print("cinesplat-plan: interrupted; no output was written")
+        return 130
+    except MemoryError:
+        ERRORS.print("cinesplat-plan: out of memory; lower --grid-resolution or --memory-budget-mb, or plan fewer "
+                     "--candidates")
+        return 2
+    except (PlanningError, FileNotFoundError, ValueError, OSError) as e:  # user-facing: CheckpointError, QueryError...
+        ERRORS.print(f"[bold red]cinesplat-plan:[/bold red] {e}", markup=True, highlight=False)
+        return 2
+    return 0
 
 
 def entrypoint() -> None:
-    args = tyro.cli(PlanArgs)
-    try:
-        run_plan(args)
-    except PlanningError as e:
-        CONSOLE.print(f"[bold red]cinesplat-plan: {e}")
-        raise SystemExit(2)
-    except (FileNotFoundError, ValueError) as e:  # loaders' user-facing errors (CheckpointError, QueryError, ...)
-        CONSOLE.print(f"[bold red]cinesplat-plan: {e}")
-        raise SystemExit(2)
+    sys.exit(main())
 
 
 if __name__ == "__main__":

@@ -21,13 +21,12 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from pathlib import Path
 from typing import Any, Dict, Union
 
 import numpy as np
 
+from .atomic import atomic_write
 from .errors import InvalidInputError
 from .shot import Shot
 
@@ -127,21 +126,7 @@ def write_camera_path(path: Union[str, Path], d: Dict[str, Any]) -> Path:
     """Validate and write atomically (temporary file in the same folder + os.replace): a reader never
     sees a half-written file and a failed write leaves any previous file untouched."""
     validate_camera_path(d)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    text = json.dumps(d, indent=2, allow_nan=False)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    return atomic_write(path, json.dumps(d, indent=2, allow_nan=False))
 
 
 def read_camera_path(path: Union[str, Path]) -> Dict[str, Any]:

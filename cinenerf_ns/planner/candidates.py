@@ -69,7 +69,7 @@ from .corridor import CorridorError, build_corridor, build_corridors
 from .dynamics import DynamicLimits, retime_shot
 from .errors import GoalUnreachableError, InvalidInputError, PlanningError, StartInCollisionError, UnsafeTrajectoryError
 from .occlusion import sight_lines_blocked
-from .planner import Planner, _as_point
+from .planner import MAX_CANDIDATES, Planner, _as_point
 from .safety import _dense_samples
 from .scoring import ScoreConfig, ShotScore, _frames, score_terms
 from .shot import Shot
@@ -371,6 +371,7 @@ def plan_candidates(
     exclude: Optional[torch.Tensor] = None,
     spare_fraction: float = 0.5,
     timings: Optional[Dict[str, float]] = None,
+    time_budget_s: Optional[float] = None,
 ) -> List[RankedShot]:
     """Plan up to ``k`` verified-safe shots from different seeded random starts, all ending as close as
     safely possible to ``goal`` and looking at ``look_at``; score them (scoring.py) and return them ranked
@@ -383,9 +384,11 @@ def plan_candidates(
     timings: optional dict filled with per-stage milliseconds (summed over candidates) and the total; with
     worker processes (PlannerConfig.candidate_workers, see the module docstring) also pool_ms (wall time of
     the parallel rounds), pool_start_ms (forking, first request only) and workers (their number).
+    time_budget_s: once this much time has passed and at least one shot is planned, no further candidate is started
+    (fewer come back; timings["budget_stopped"] = 1). None: no budget.
     Raises InvalidInputError (bad input) and GoalUnreachableError (no candidate could be planned)."""
     kw = dict(limits=limits, object_radius=object_radius, object_center=object_center, object_samples=object_samples,
-              exclude=exclude, spare_fraction=spare_fraction, timings=timings)
+              exclude=exclude, spare_fraction=spare_fraction, timings=timings, time_budget_s=time_budget_s)
     try:
         return _plan_candidates(planner, goal, look_at, k, seed, score_config, use_workers=True, **kw)
     except BrokenProcessPool:
@@ -412,13 +415,18 @@ def _plan_candidates(
     exclude: Optional[torch.Tensor],
     spare_fraction: float,
     timings: Optional[Dict[str, float]],
+    time_budget_s: Optional[float] = None,
 ) -> List[RankedShot]:
     """The body of plan_candidates (use_workers: allow the planner's worker pool)."""
-    if int(k) != k or not 1 <= k <= 256:
-        raise InvalidInputError(f"number of candidates must be an integer in 1..256, got {k}")
+    if int(k) != k or not 1 <= k <= MAX_CANDIDATES:
+        raise InvalidInputError(f"number of candidates (--candidates) must be an integer in [1, {MAX_CANDIDATES}], got {k}")
     k = int(k)
-    goal_p = _as_point(goal, "go-to point")
-    look_p = _as_point(look_at, "look-at point")
+    if time_budget_s is not None and not (math.isfinite(time_budget_s) and time_budget_s > 0):
+        raise InvalidInputError(f"the time budget (--time-budget) must be a positive number of seconds, got {time_budget_s}")
+    planner._prep()
+    goal_p = planner.checked_point(goal, "go-to point")
+    look_p = planner.checked_point(look_at, "look-at point")
+    planner.check_timing()
     if not (0 <= spare_fraction <= 4):
         raise InvalidInputError(f"spare_fraction must be in [0, 4], got {spare_fraction}")
     if not (math.isfinite(object_radius) and object_radius >= 0):  # before any planning (scoring needs it)
@@ -427,6 +435,12 @@ def _plan_candidates(
     tm: Dict[str, float] = {}
     t_all = time.perf_counter()
     lap = _lapper(tm)
+
+    def over_budget() -> bool:
+        if time_budget_s is None or not shots or time.perf_counter() - t_all < time_budget_s:
+            return False
+        tm["budget_stopped"] = 1.0
+        return True
 
     t = time.perf_counter()
     prep = planner._prep()
@@ -451,7 +465,7 @@ def _plan_candidates(
         t = lap("goal_ms", t)
     early_scores: Dict[int, Any] = {}  # candidate id -> ShotScore of shots scored while workers still ran
     nxt = 0  # next unused start; spares are only planned to replace failed candidates
-    while len(shots) < k and nxt < len(starts):
+    while len(shots) < k and nxt < len(starts) and not over_budget():
         batch = list(range(nxt, min(len(starts), nxt + k - len(shots))))
         nxt = batch[-1] + 1
         if pool is not None and planner.corridor_backend() == "batched" and not planner.use_grid_polytopes():
@@ -535,6 +549,8 @@ def _plan_candidates(
         ways = [p["reach"].shortcut_ends(w) for p, w in zip(plans, ways)]
         t = lap("shortcut_ms", t)
         for p, way in zip(plans, ways):
+            if over_budget():
+                break
             if np.linalg.norm(way[-1] - way[0]) < 1e-9:
                 errors.append("the start is already at the goal")
                 continue

@@ -55,13 +55,20 @@ class Corridor:
     n_host_segments: int = 0  # backend "batched": segments it flagged, built by the host path instead
     n_grid_segments: int = 0  # segments whose polytope came from the occupancy grid (grid_polytope.py)
     n_known_segments: int = 0  # segments that reused a ``known`` polytope (e.g. the goal's)
+    region: Optional[tuple] = None  # (lo [3], hi [3]) the planning region: every polytope is cut to it
 
     def __len__(self) -> int:
         return len(self.polytopes)
 
     def constraints(self) -> list[tuple[np.ndarray, np.ndarray]]:
-        """[(A [F,3], b [F])] float64 numpy, one per segment (what the trajectory QP consumes)."""
-        return [p.to_numpy() for p in self.polytopes]
+        """[(A [F,3], b [F])] float64 numpy, one per segment (what the trajectory QP consumes). With a region each
+        polytope also gets the region's six faces: the curve (in the control points' hull) stays inside it."""
+        out = [p.to_numpy() for p in self.polytopes]
+        if self.region is None:
+            return out
+        lo, hi = (np.asarray(v, dtype=np.float64).reshape(3) for v in self.region)
+        box_a, box_b = np.vstack([np.eye(3), -np.eye(3)]), np.concatenate([hi, -lo])  # [6, 3], [6]
+        return [(np.vstack([a, box_a]), np.concatenate([b, box_b])) for a, b in out]
 
     @property
     def num_faces(self) -> list[int]:
@@ -122,6 +129,7 @@ def build_corridor(
     batch_index=None,
     grid=None,
     known=(),
+    region=None,
 ) -> Corridor:
     """Corridor of safe polytopes along a polyline of camera centres.
 
@@ -142,6 +150,7 @@ def build_corridor(
     docstring), the rest go to the backend.
     known: safe polytopes (of this scene) built earlier, e.g. the one the goal was projected onto; a segment with
     both ends inside one of them (checked) takes it as its polytope, before the grid and the backend.
+    region: (lo [3], hi [3]) the planning region; Corridor.constraints() cuts every polytope to it.
     Raises InvalidInputError (bad waypoints), CorridorError (a segment cannot be covered).
     """
     _check_options(box, box_margin, backend)
@@ -155,7 +164,9 @@ def build_corridor(
     else:
         batched = pre
     pieces = _path_pieces(w, batched, scene, index, box_margin, max_split_depth, kw, stats, box)
-    return _assemble(pieces, stats, min_overlap, exact_overlap)
+    out = _assemble(pieces, stats, min_overlap, exact_overlap)
+    out.region = region
+    return out
 
 
 def build_corridors(waypoint_list, scene, index=None, **options) -> list:
@@ -190,7 +201,9 @@ def build_corridors(waypoint_list, scene, index=None, **options) -> list:
         except CorridorError as e:
             out.append(e)
             continue
-        out.append(_assemble(pieces, stats, o["min_overlap"], o["exact_overlap"]))
+        cor = _assemble(pieces, stats, o["min_overlap"], o["exact_overlap"])
+        cor.region = o["region"]
+        out.append(cor)
     return out
 
 

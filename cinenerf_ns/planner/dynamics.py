@@ -34,7 +34,7 @@ import numpy as np
 from .bezier import BezierTrajectory
 from .errors import InvalidInputError, PlanningError
 from .orientation import look_at_rotations
-from .timing import arc_length_table, invert_arc_length
+from .timing import MAX_FPS, MIN_FPS, TimingConfig, arc_length_table, check_frame_count, invert_arc_length
 
 LookAt = Union[np.ndarray, Callable[[np.ndarray], np.ndarray]]
 
@@ -61,6 +61,8 @@ class DynamicLimits:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InvalidInputError(f"DynamicLimits.{name} must be a positive finite number, got {v!r}.")
+        if not MIN_FPS <= self.fps <= MAX_FPS:
+            raise InvalidInputError(f"DynamicLimits.fps must be in [{MIN_FPS:g}, {MAX_FPS:g}], got {self.fps!r}.")
         if int(self.max_iterations) < 1:
             raise InvalidInputError("DynamicLimits.max_iterations must be >= 1.")
 
@@ -179,7 +181,7 @@ def retime(traj: BezierTrajectory, look_at: LookAt, limits: Optional[DynamicLimi
             v[i] = min(v[i], math.sqrt(v[i + 1] ** 2 + 2 * a_t * ds[i]))
         t_grid = np.concatenate([[0.0], np.cumsum(2 * ds / np.maximum(v[1:] + v[:-1], 1e-300))])  # [K+1]
         dur = float(t_grid[-1])
-        n_int = max(1, math.ceil(dur * lim.fps - 1e-9))
+        n_int = check_frame_count(dur, lim.fps, TimingConfig.max_frames, "the retimed shot")
         slow = n_int / lim.fps / dur  # >= 1: whole number of frames, only slower
         times = np.arange(n_int + 1) / lim.fps
         s_f = np.interp(times / slow, t_grid, s)  # t(s) is monotone; piecewise-linear inverse

@@ -33,7 +33,7 @@ from .bezier import BezierTrajectory
 from .corridor import build_corridor
 from .dynamics import DynamicLimits, dynamics_report, retime
 from .errors import InvalidInputError, UnsafeTrajectoryError
-from .planner import Planner, _as_point
+from .planner import Planner
 from .safety import verify_shot
 from .shot import Shot
 from .timing import arc_length_table
@@ -177,32 +177,37 @@ def plan_multistop(
     start: Optional[Any] = None,
     seed: int = 0,
     limits: Optional[DynamicLimits] = None,
+    force_start: bool = False,
 ) -> MultiStopShot:
     """One smooth verified-safe shot from ``start`` (or a seeded random free start) through the closest
     safe points to each go-to in ``stops`` [S, 3] (S >= 1), in order. look_at: one point [3] shared by all
     stops, or one per stop [S, 3]. limits: dynamic limits of the exported frames (default: the planner's
     max speed / acceleration / fps and 60 deg/s). Raises InvalidInputError, StartInCollisionError,
-    GoalUnreachableError (a stop cannot be reached, or no smooth curve fits)."""
-    targets = [_as_point(s, f"stop {i + 1}") for i, s in enumerate(stops)]
+    GoalUnreachableError (a stop cannot be reached, or no smooth curve fits). A start outside the planning region
+    is an error unless ``force_start`` (Planner.checked_start)."""
+    planner._prep()
+    targets = [planner.checked_point(s, f"stop {i + 1}") for i, s in enumerate(stops)]
     if not targets:
         raise InvalidInputError("a multi-stop shot needs at least one stop.")
     la = np.asarray(look_at, dtype=np.float64)
     if la.shape == (3,):
-        looks = np.tile(_as_point(la, "look-at point"), (len(targets), 1))
+        looks = np.tile(planner.checked_point(la, "look-at point"), (len(targets), 1))
     elif la.shape == (len(targets), 3):
-        looks = np.stack([_as_point(p, f"look-at of stop {i + 1}") for i, p in enumerate(la)])
+        looks = np.stack([planner.checked_point(p, f"look-at of stop {i + 1}") for i, p in enumerate(la)])
     else:
         raise InvalidInputError(f"look_at must be one point [3] or one per stop [{len(targets)}, 3], got shape {la.shape}.")
+    planner.check_timing()
     cfg = planner.config
     if limits is None:
         limits = DynamicLimits(max_speed=cfg.timing.max_speed, max_acceleration=cfg.timing.max_acceleration or 0.5,
                                fps=cfg.timing.fps)
-    prep = planner._prep()
-    labels, grid = prep.astar_grid.labels, prep.grid
     tm: Dict[str, float] = {}
     t0 = time.perf_counter()
-    if start is not None:
-        s = planner.checked_start(start)
+    given = None if start is None else planner.checked_start(start, force=force_start)  # may grow the region
+    prep = planner._prep()
+    labels, grid = prep.astar_grid.labels, prep.grid
+    if given is not None:
+        s = given
     else:
         s = planner.random_starts(1, torch.Generator().manual_seed(int(seed)), looks[0])[0].detach().cpu().numpy()
     s_ijk = planner._free_voxel_near(s, None)

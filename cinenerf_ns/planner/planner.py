@@ -16,7 +16,7 @@ from __future__ import annotations
 import contextlib
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Optional, Sequence, Union
 
 import numpy as np
@@ -41,7 +41,7 @@ from .polytope import Polytope, safe_polytope
 from .ranges import group_ranks
 from .polytope import prepare_native as prepare_native_polytope
 from .occupancy import OccupancyGrid, build_occupancy
-from .safety import verify_shot
+from .safety import DEFAULT_CLEARANCE_CAP, safety_report, verify_shot
 from .scene import EllipsoidScene
 from .shot import Shot
 from .spatial_index import GridIndex
@@ -113,6 +113,15 @@ class PlannerConfig:
     robust_bounds_quantile: float = 0.01
     """With bounds=None the grid spans these quantiles of the Gaussian means (floaters far away
     would otherwise blow up the grid) grown by 10%."""
+    region_padding: float = 0.5
+    """With bounds=None and a start_region (a capture's training cameras), the planning region is the start region
+    grown by this fraction of its longest side on every side, cut to the robust scene box: a real capture's floaters
+    and open background far from the cameras do not stretch the grid. Paths never leave the planning region."""
+    memory_budget_mb: float = 4096.0
+    """Memory the voxel grid and its companions may take (MB); a finer --grid-resolution is refused, not swapped."""
+    far_limit: float = 1.0
+    """Targets and starts farther than this x the planning region's longest side from the region are errors (a typo
+    or a point in other units, never something to move silently)."""
     max_attempts_per_candidate: int = 4
     """Random starts tried per requested candidate before giving up on it."""
     plan_cpu_threads: Optional[int] = 1
@@ -208,6 +217,10 @@ class ReachableGoal:
         return [] if self.polytope is None else [self.polytope]
 
 
+def _fmt(p: np.ndarray) -> str:
+    return "(" + ", ".join(f"{v:.3g}" for v in np.asarray(p, dtype=np.float64).reshape(-1)) + ")"
+
+
 def _as_point(x: ArrayLike, what: str) -> np.ndarray:
     try:
         p = np.asarray(x.detach().cpu() if isinstance(x, Tensor) else x, dtype=np.float64).reshape(-1)
@@ -217,6 +230,18 @@ def _as_point(x: ArrayLike, what: str) -> np.ndarray:
         raise InvalidInputError(f"{what} must be 3 finite numbers, got {p.tolist()}")
     return p
 
+
+MAX_CANDIDATES = 64
+"""Most candidates one request may ask for (each is a whole plan; more are better drawn as several requests)."""
+
+GRID_BYTES_PER_VOXEL = 80
+"""Peak memory per grid voxel of prepare() + a plan (occupancy, components, distance transform, search workspaces):
+measured 64 B/voxel between grids of 1.2M and 9.8M voxels, rounded up."""
+
+MAX_RADIUS_FRACTION = 0.1
+"""The camera sphere's radius may be at most this fraction of the planning region's longest side."""
+
+GRID_RESOLUTION_RANGE = (8, 1024)
 
 GOAL_FIRST_BOX_VOXELS = 2.0  # half-width of the goal's first polytope box (Planner._reachable_goal, step 2)
 
@@ -245,6 +270,15 @@ class Planner:
         self.batch_scene = scene  # the scene on its own device: big batched queries (candidate scoring)
         self.scene = scene  # the scene on the request device (a CPU mirror after prepare() when 'auto' + GPU)
         validate_workers(self.config.candidate_workers)
+        lo_r, hi_r = GRID_RESOLUTION_RANGE
+        res = self.config.grid_resolution
+        if isinstance(res, bool) or not isinstance(res, (int, np.integer)) or not lo_r <= res <= hi_r:
+            raise InvalidInputError(f"grid_resolution (--grid-resolution) must be an integer in [{lo_r}, {hi_r}] voxels "
+                                    f"along the planning region's longest side, got {res!r}")
+        mb = self.config.memory_budget_mb
+        if isinstance(mb, bool) or not isinstance(mb, (int, float)) or not (math.isfinite(mb) and mb >= 64):
+            raise InvalidInputError(f"memory_budget_mb (--memory-budget-mb) must be a number >= 64, got {mb!r}")
+        self.config.timing.validate()
         if self.config.grid_polytopes not in (True, False, "auto"):
             raise InvalidInputError(f"grid_polytopes must be True, False or 'auto', got {self.config.grid_polytopes!r}")
         self.prepared: Optional[PreparedScene] = None
@@ -273,16 +307,83 @@ class Planner:
         else:
             lo, hi = m.min(0).values, m.max(0).values
         pad = 0.1 * (hi - lo).max() + self.scene.camera_radius
-        return lo - pad, hi + pad
+        lo, hi = lo - pad, hi + pad
+        if cfg.start_region is not None:  # the capture's cameras: the region that matters
+            slo, shi = (torch.as_tensor(np.asarray(v, dtype=np.float64), device=dev).reshape(3) for v in cfg.start_region)
+            grow = cfg.region_padding * float((shi - slo).max())
+            inner = self.scene.camera_radius + 1e-6  # the start region itself always fits
+            lo = torch.minimum(torch.maximum(lo, slo - grow), slo - inner)
+            hi = torch.maximum(torch.minimum(hi, shi + grow), shi + inner)
+        return lo, hi
+
+    def check_region(self, lo: np.ndarray, hi: np.ndarray) -> None:
+        """InvalidInputError when the camera sphere is too large for the planning region [lo, hi] or the voxel grid
+        would not fit config.memory_budget_mb (both named by their options, with the allowed range)."""
+        side = np.asarray(hi, dtype=np.float64) - np.asarray(lo, dtype=np.float64)
+        longest = float(side.max())
+        r = float(self.scene.camera_radius)
+        if r > MAX_RADIUS_FRACTION * longest:
+            raise InvalidInputError(
+                f"the camera sphere (--camera-radius + --safety-margin = {r:.4g}) is too large for this scene: its "
+                f"radius may be at most {MAX_RADIUS_FRACTION:g} x the planning region's longest side "
+                f"({longest:.4g} scene units), i.e. <= {MAX_RADIUS_FRACTION * longest:.4g}")
+        res = int(self.config.grid_resolution)
+        voxels = float(np.prod(np.ceil(side / (longest / res))))
+        need = voxels * GRID_BYTES_PER_VOXEL / 2**20
+        budget = float(self.config.memory_budget_mb)
+        if need > budget:
+            fits = int(res * (budget / need) ** (1 / 3))
+            raise InvalidInputError(
+                f"--grid-resolution {res} needs about {need:.0f} MB for its voxel grid ({voxels:.3g} voxels), more "
+                f"than the memory budget {budget:g} MB (--memory-budget-mb); at most {fits} fits")
+
+    def check_timing(self) -> None:
+        """InvalidInputError when a shot across the planning region (its diagonal at config.timing.max_speed) would
+        need more than config.timing.max_frames frames: refused before planning, not when the frames are made."""
+        lo, hi = self.region()
+        t = self.config.timing
+        diag = float(np.linalg.norm(hi - lo))
+        frames = diag / t.max_speed * t.fps
+        if frames > t.max_frames:
+            need = diag * t.fps / t.max_frames
+            raise InvalidInputError(
+                f"--max-speed {t.max_speed:g} is too slow for --fps {t.fps:g}: crossing the planning region "
+                f"({diag:.3g} scene units) would take {frames:.3g} frames, more than max_frames {t.max_frames}; "
+                f"use --max-speed >= {need:.3g} or a lower --fps")
+
+    def region(self) -> tuple[np.ndarray, np.ndarray]:
+        """The prepared planning region (lo [3], hi [3]) float64: the occupancy grid's box. Paths stay inside it."""
+        g = self._prep().grid
+        lo = g.lo.detach().cpu().double().numpy()
+        return lo, lo + np.array(g.shape, dtype=np.float64) * float(g.voxel_size)
+
+    def distance_outside(self, point: np.ndarray) -> float:
+        """Euclidean distance [scene units] from a point [3] to the planning region (0 inside)."""
+        lo, hi = self.region()
+        return float(np.linalg.norm(np.maximum(np.maximum(lo - point, point - hi), 0.0)))
+
+    def checked_point(self, point: ArrayLike, what: str) -> np.ndarray:
+        """A user point [3] as float64: finite and within config.far_limit region sizes of the planning region, else
+        InvalidInputError naming ``what`` and the allowed range."""
+        p = _as_point(point, what)
+        lo, hi = self.region()
+        limit = self.config.far_limit * float((hi - lo).max())
+        d = self.distance_outside(p)
+        if d > limit:
+            raise InvalidInputError(
+                f"the {what} {_fmt(p)} is {d:.3g} units outside the planning region {_fmt(lo)}..{_fmt(hi)}; points must "
+                f"lie within {limit:.3g} units of it (scene units: a run's normalised coordinates)")
+        return p
 
     def prepare(self) -> PreparedScene:
         """Build the spatial index and the occupancy grid (timed, one-time) on the scene's device; with
         request_device 'auto' and a GPU scene, mirror scene, index and grid to the CPU for requests."""
         self.scene = self.batch_scene
+        lo, hi = self.planning_bounds()
+        self.check_region(lo.cpu().numpy(), hi.cpu().numpy())  # before any expensive work
         t0 = time.perf_counter()
         index = GridIndex.build(self.scene)
         t1 = time.perf_counter()
-        lo, hi = self.planning_bounds()
         grid = build_occupancy(self.scene, index, self.config.grid_resolution, bounds=(lo, hi))
         t2 = time.perf_counter()
         batch_index = index
@@ -349,6 +450,33 @@ class Planner:
             self._pool[2].close()
             self._pool = None
 
+    def grow_region(self, point: np.ndarray) -> None:
+        """Grow the planning region to hold ``point`` [3] (with a voxel's room) and prepare again: a forced start."""
+        lo, hi = self.region()
+        room = 2.0 * float(self._prep().grid.voxel_size) + float(self.scene.camera_radius)
+        lo, hi = np.minimum(lo, point - room), np.maximum(hi, point + room)
+        self.close()
+        self.config = replace(self.config, bounds=(lo, hi))
+        self.prepared = None
+        self.prepare()
+
+    def explain_goal(self, target: ArrayLike, reached: ArrayLike, tol: float = 1e-6) -> Optional[dict]:
+        """Why a shot ends away from its go-to target: None when it ends there, else {"from", "to", "distance",
+        "why"}, for the report, the CLI and the viewer (a moved goal is never silent)."""
+        t, g = (np.asarray(v, dtype=np.float64).reshape(3) for v in (target, reached))
+        d = float(np.linalg.norm(g - t))
+        if d <= tol:
+            return None
+        if self.distance_outside(t) > 0:
+            why = "the go-to point is outside the planning region; the shot ends at the nearest safe point inside it"
+        elif not bool(self.points_free(t[None])[0]):
+            why = ("the camera does not fit at the go-to point (inside an object or wall, or closer than the camera "
+                   "radius + safety margin); the shot ends at the nearest safe point")
+        else:
+            why = ("the go-to point is free but cannot be reached from the start (its free space is not connected "
+                   "to the start's at this grid resolution); the shot ends at the nearest reachable point")
+        return {"from": t.tolist(), "to": g.tolist(), "distance": d, "why": why}
+
     def _prep(self) -> PreparedScene:
         return self.prepared if self.prepared is not None else self.prepare()
 
@@ -376,7 +504,7 @@ class Planner:
         margin and the resolved corridor backend (the batched one runs on ``batch_scene`` / its index; the corridor's
         polytopes end up on the request device)."""
         prep = self._prep()
-        kw = dict(box_margin=self.config.box_margin)
+        kw = dict(box_margin=self.config.box_margin, region=self.region())
         if self.use_grid_polytopes():
             kw["grid"] = prep.voxels
         if self.corridor_backend() == "batched":
@@ -410,6 +538,13 @@ class Planner:
             with self.request_threads():
                 out[todo] = clearance(p, scene, index, max_distance=md, start_radius=start).detach().cpu().numpy()
         return out
+
+    def clearance_report(self, shot: Shot, max_spacing: float = 0.02, label: str = "",
+                         cap: float = DEFAULT_CLEARANCE_CAP) -> dict:
+        """safety.safety_report of a shot with this scene's exact clearance capped at ``cap`` (bounded work on any
+        scene: far from everything a sample is 'at least the cap')."""
+        return safety_report(shot, lambda p: self.clearance(p, cap=cap, batch=True), max_spacing=max_spacing,
+                             label=label, clearance_cap=cap)
 
     def _distance_estimate(self, points: np.ndarray) -> np.ndarray:
         """An estimate [P] of each camera centre's distance to the nearest ellipsoid from the occupancy grid, for
@@ -504,6 +639,9 @@ class Planner:
         prep = self._prep()
         grid, labels = prep.grid, prep.astar_grid.labels
         dev = self.scene.device
+        rlo, rhi = self.region()
+        half_voxel = 0.5 * float(grid.voxel_size)
+        target = np.clip(target, rlo + half_voxel, rhi - half_voxel)  # paths never leave the planning region
         tv = grid.world_to_voxel(torch.as_tensor(target, device=grid.device)).cpu().numpy()  # [3]
         inside = bool(((tv >= 0) & (tv < np.array(grid.shape))).all())
         # target in an occupied voxel or a free pocket of another component (e.g. inside a hollow
@@ -534,7 +672,9 @@ class Planner:
         for half in (np.minimum(full, GOAL_FIRST_BOX_VOXELS * vs), full):
             try:
                 h = torch.as_tensor(half, device=dev)
-                poly = safe_polytope(c[None], self.scene, prep.index, c - h, c + h)
+                blo = torch.maximum(c - h, torch.as_tensor(rlo, device=dev))  # the box stays in the planning region
+                bhi = torch.minimum(c + h, torch.as_tensor(rhi, device=dev))
+                poly = safe_polytope(c[None], self.scene, prep.index, blo, bhi)
                 A, b = poly.to_numpy()
                 x = _project_onto_polytope(A, b, target, interior=c_np)  # the seed: inside
             except PlanningError:
@@ -756,15 +896,18 @@ class Planner:
         start: Optional[ArrayLike] = None,
         seed: int = 0,
         n_candidates: int = 1,
+        force_start: bool = False,
     ) -> list[Shot]:
         """Plan ``n_candidates`` shots ending as close as safely possible to ``goal`` and always
         looking at ``look_at``. With ``start`` all candidates start there (n_candidates is then 1);
-        otherwise starts are sampled free and reachable with the seeded generator.
+        otherwise starts are sampled free and reachable with the seeded generator. A start outside the planning
+        region is an error unless ``force_start`` (the region then grows to hold it).
 
         Raises InvalidInputError, StartInCollisionError, GoalUnreachableError (see messages).
-        Every returned shot's exact clearance along the densely sampled curve is >= 0."""
+        Every returned shot's exact clearance along the densely sampled curve is >= 0; explain_goal says why a
+        shot ends away from ``goal``."""
         with self.request_threads():
-            return self._plan_request(goal, look_at, start, seed, n_candidates)
+            return self._plan_request(goal, look_at, start, seed, n_candidates, force_start)
 
     @contextlib.contextmanager
     def request_threads(self):
@@ -793,10 +936,22 @@ class Planner:
             away_from=look_at, away_fraction=self.config.start_look_distance,
         )
 
-    def checked_start(self, start: ArrayLike) -> np.ndarray:
-        """A user-given start [3] as float64, or StartInCollisionError when the camera would be inside the scene."""
-        s = _as_point(start, "start point")
-        c = float(self.clearance(s[None])[0])
+    def checked_start(self, start: ArrayLike, force: bool = False) -> np.ndarray:
+        """A user-given start [3] as float64: InvalidInputError when it lies outside the planning region (unless
+        ``force``: the region then grows to hold it, see grow_region), StartInCollisionError when the camera would be
+        inside the scene. Only the sign of the clearance is needed: a proof from the grid, else a capped distance."""
+        s = self.checked_point(start, "start point")
+        if self.distance_outside(s) > 0:
+            if not force:
+                lo, hi = self.region()
+                raise InvalidInputError(
+                    f"the start point {_fmt(s)} is outside the planning region {_fmt(lo)}..{_fmt(hi)} (the training "
+                    f"cameras' box grown by region_padding, or the scene's box); pick a start inside it or force it "
+                    f"(cinesplat-plan --force-start: the region then grows to hold the start)")
+            self.grow_region(s)
+        if bool(self.points_free(s[None])[0]):
+            return s
+        c = float(self.clearance(s[None], cap=float(self._prep().grid.voxel_size))[0])
         if c < 0:
             raise StartInCollisionError(
                 f"the start {np.round(s, 4).tolist()} puts the camera inside the scene (clearance {c:.4f}); "
@@ -811,17 +966,19 @@ class Planner:
         start: Optional[ArrayLike] = None,
         seed: int = 0,
         n_candidates: int = 1,
+        force_start: bool = False,
     ) -> list[Shot]:
         """The body of :meth:`plan` (which sets the request's thread count)."""
-        goal_p = _as_point(goal, "go-to point")
-        look_p = _as_point(look_at, "look-at point")
-        if int(n_candidates) != n_candidates or n_candidates < 1:
-            raise InvalidInputError(f"number of candidates must be a positive integer, got {n_candidates}")
+        if int(n_candidates) != n_candidates or not 1 <= n_candidates <= MAX_CANDIDATES:
+            raise InvalidInputError(f"number of candidates must be an integer in [1, {MAX_CANDIDATES}], got {n_candidates}")
         self._prep()  # prepare on first use, before the request clock starts
+        goal_p = self.checked_point(goal, "go-to point")
+        look_p = self.checked_point(look_at, "look-at point")
+        self.check_timing()
         t_req = time.perf_counter()
 
         if start is not None:
-            starts = [self.checked_start(start)]
+            starts = [self.checked_start(start, force=force_start)]
             n_candidates = 1
         else:
             starts = []

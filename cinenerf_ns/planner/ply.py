@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import os
 import re
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, Optional, Union
 
 import numpy as np
 
+from .atomic import atomic_write
 from .errors import InvalidInputError
 
 _PLY_TYPES = {
@@ -204,16 +204,4 @@ def write_splat_ply(
         rec[k] = c
     header = "ply\nformat binary_little_endian 1.0\n" f"element vertex {n}\n"
     header += "".join(f"property float {k}\n" for k in cols) + "end_header\n"
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(header.encode("ascii"))
-            f.write(rec.tobytes())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    return atomic_write(path, header.encode("ascii") + rec.tobytes())

@@ -14,19 +14,21 @@ clearance_fn is an exact distance, not for conservative approximations).
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from pathlib import Path
-from typing import Any, Callable, Dict, Iterable, List, Optional, Sequence, Union
+from typing import Any, Callable, Dict, Optional, Sequence, Union
 
 import numpy as np
 
+from .atomic import atomic_open
 from .bezier import _to_numpy
 from .errors import InvalidInputError
 from .ranges import group_ranks
 from .shot import Shot
 
 DEFAULT_THRESHOLDS = (0.0, 0.01, 0.03, 0.05)
+DEFAULT_CLEARANCE_CAP = 0.5
+"""Reports search clearance only up to this (scene units); a sample at the cap is 'at least the cap'. Far from
+everything (open background, a path outside a capture) an uncapped search is unbounded work and no more useful."""
 
 
 def _speed_bounds(traj) -> np.ndarray:
@@ -94,6 +96,7 @@ def safety_report(
     max_spacing: float = 0.005,
     thresholds: Sequence[float] = DEFAULT_THRESHOLDS,
     label: str = "",
+    clearance_cap: Optional[float] = None,
 ) -> Dict[str, Any]:
     """Clearance statistics along the densely sampled path; a JSON-serialisable dict.
 
@@ -101,6 +104,8 @@ def safety_report(
     with `times` [T], default 0..T-1). Keys: label, num_samples, max_sample_spacing, min/mean/max
     clearance, argmin_time_s, argmin_position, fraction_below {threshold: fraction of samples below},
     lipschitz_lower_bound, safe (min clearance > 0), times, clearance (the samples, for plotting).
+    ``clearance_cap``: the cap clearance_fn applies (its values are min(clearance, cap), still 1-Lipschitz, so the
+    bound above stays valid); the report states it and how many samples are at it ("at least the cap").
     """
     if not (max_spacing > 0 and math.isfinite(max_spacing)):
         raise InvalidInputError(f"max_spacing must be positive, got {max_spacing}.")
@@ -112,7 +117,12 @@ def safety_report(
         raise InvalidInputError("clearance_fn returned NaN or inf.")
     i = int(np.argmin(c))
     bound = float(np.min((c[:-1] + c[1:] - lengths) / 2)) if len(lengths) else float(c[0])
-    return {
+    capped = {} if clearance_cap is None else {
+        "clearance_cap": float(clearance_cap),
+        "samples_at_cap": int(np.sum(c >= float(clearance_cap) * (1 - 1e-12))),
+        "cap_note": "a clearance equal to clearance_cap means 'at least the cap' (not searched further)",
+    }
+    return {**capped,
         "label": label,
         "num_samples": int(len(c)),
         "max_sample_spacing": float(lengths.max()) if len(lengths) else 0.0,
@@ -141,19 +151,10 @@ def _figure(figsize):
 
 
 def _save_png(fig, png_path: Union[str, Path]) -> Path:
-    """Atomic PNG write (temporary file + os.replace)."""
-    png_path = Path(png_path)
-    png_path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{png_path.stem}.", suffix=".png", dir=png_path.parent)
-    os.close(fd)
-    try:
-        fig.savefig(tmp, format="png", bbox_inches="tight")
-        os.replace(tmp, png_path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return png_path
+    """Atomic PNG write (atomic.atomic_open)."""
+    with atomic_open(png_path, binary=True) as f:
+        fig.savefig(f, format="png", bbox_inches="tight")
+    return Path(png_path)
 
 
 def plot_clearance(
@@ -172,6 +173,9 @@ def plot_clearance(
         label = rep.get("label") or f"candidate {k}"
         ax.plot(rep["times"], rep["clearance"], lw=1.5, label=f"{label} (min {rep['min_clearance']:.3f})")
     ax.axhline(0.0, color="red", lw=1.5, label="collision")
+    cap = reports[0].get("clearance_cap")
+    if cap is not None and any(r.get("samples_at_cap") for r in reports):
+        ax.axhline(cap, color="grey", ls="--", lw=1, label=f"cap: at least {cap:g}")
     ax.set_xlabel("time [s]")
     ax.set_ylabel("clearance [scene units]")
     ax.set_title(title)

@@ -16,7 +16,7 @@ import numpy as np
 from .bezier import BezierTrajectory, _to_numpy
 from .errors import InvalidInputError
 from .orientation import look_at_error_deg, look_at_rotations
-from .timing import TimingConfig, arc_length_table, time_parametrize
+from .timing import TimingConfig, arc_length_table, check_frame_count, time_parametrize
 
 
 def _finite_or_none(x: Optional[float]) -> Optional[float]:
@@ -163,7 +163,7 @@ class Shot:
         if math.isclose(fps, float(self.fps), rel_tol=1e-9):
             return self
         t0, dur = float(self.times[0]), self.duration
-        n_int = max(1, int(math.ceil(dur * fps - 1e-9)))
+        n_int = check_frame_count(dur, fps, TimingConfig.max_frames, "the resampled shot")
         times = t0 + np.minimum(np.arange(n_int + 1) / fps, dur)  # [T']
         times[-1] = t0 + dur
         if np.any(np.diff(times) <= 0):  # duration shorter than one new frame

@@ -29,6 +29,20 @@ from .errors import InvalidInputError
 _GL5 = np.polynomial.legendre.leggauss(5)  # 5-point Gauss-Legendre nodes/weights on [-1, 1]
 
 
+MIN_FPS, MAX_FPS = 1.0, 240.0  # frame rates a camera path may ask for
+
+
+def check_frame_count(duration_s: float, fps: float, max_frames: int, what: str = "the shot") -> int:
+    """Frame intervals of a ``duration_s`` shot at ``fps``; InvalidInputError when its frames would exceed
+    ``max_frames`` (before any frame is made)."""
+    n_int = max(1, math.ceil(duration_s * fps - 1e-9))
+    if n_int + 1 > max_frames:
+        raise InvalidInputError(
+            f"{what} would need {n_int + 1} frames ({duration_s:.4g} s at {fps:g} fps), more than max_frames "
+            f"{max_frames}: raise --max-speed or lower --fps")
+    return n_int
+
+
 @dataclass
 class TimingConfig:
     """How fast the camera flies along the planned curve and how it is sampled."""
@@ -43,14 +57,18 @@ class TimingConfig:
     """Frames per second of the sampled shot."""
     table_samples_per_segment: int = 64
     """Intervals per Bezier segment of the arc-length table (each integrated with 5-point Gauss-Legendre)."""
+    max_frames: int = 18_000
+    """Most frames a shot may have (10 min at 30 fps): a bound on memory, checked before frames are made."""
 
     def validate(self) -> None:
         if not (self.max_speed > 0 and math.isfinite(self.max_speed)):
             raise InvalidInputError(f"max_speed must be positive, got {self.max_speed}.")
         if self.max_acceleration is not None and not (self.max_acceleration > 0 and math.isfinite(self.max_acceleration)):
             raise InvalidInputError(f"max_acceleration must be positive or None, got {self.max_acceleration}.")
-        if not (self.fps > 0 and math.isfinite(self.fps)):
-            raise InvalidInputError(f"fps must be positive, got {self.fps}.")
+        if not (MIN_FPS <= self.fps <= MAX_FPS):
+            raise InvalidInputError(f"fps must be in [{MIN_FPS:g}, {MAX_FPS:g}] frames per second, got {self.fps}.")
+        if not (isinstance(self.max_frames, int) and self.max_frames >= 2):
+            raise InvalidInputError(f"max_frames must be an integer >= 2, got {self.max_frames!r}.")
         if self.table_samples_per_segment < 2:
             raise InvalidInputError("table_samples_per_segment must be >= 2.")
 
@@ -196,7 +214,7 @@ def time_parametrize(traj: BezierTrajectory, config: TimingConfig = None) -> Tim
         zeros = np.zeros(2)
         return TimedPath(times, pos, np.array([0.0, traj.total_duration]), zeros, zeros, 0.0, float(times[-1]), cfg.fps)
     dur, s_of_t, v_of_t = _profile(length, cfg)
-    n_int = max(1, math.ceil(dur * cfg.fps - 1e-9))  # frame intervals
+    n_int = check_frame_count(dur, cfg.fps, cfg.max_frames)  # frame intervals
     slow = n_int / cfg.fps / dur  # >= 1: stretch the profile to a whole number of frames
     times = np.arange(n_int + 1) / cfg.fps  # [T]
     s = s_of_t(times / slow)  # [T]

@@ -242,10 +242,11 @@ class SplatModelBackend:
         if locate_fn is None:
             sem = self._current("semantic")
             if sem is not None:
-                from cinenerf_ns.scenes import label_query
+                from cinenerf_ns.scenes import free_text, label_query
 
-                names = list(getattr(self.model, "cine_info", {}).get("label_names") or [])
-                locate_fn = lambda t: sem.locate(label_query(t, names))  # noqa: E731
+                info = getattr(self.model, "cine_info", {}) or {}
+                names, free = list(info.get("label_names") or []), free_text(info)
+                locate_fn = lambda t: sem.locate(label_query(t, names, free))  # noqa: E731
         # FunctionBackend gives the same empty-text / no-semantics messages as the standalone viewer.
         return FunctionBackend(self.gaussians(), lambda *a, **k: [], locate_fn).locate(text)
 

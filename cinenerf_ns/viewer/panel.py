@@ -356,7 +356,7 @@ class CinePanel:
         self._set_status(
             f"Planned {len(shots)} candidate(s){f' with the {by}' if by else ''} in {timings['total_s']:.2f} s (query {timings['query_s']:.2f} s, "
             f"planner {timings['plan_s']:.2f} s{'; ' + detail if detail else ''}, drawing {timings['draw_s']:.2f} s). "
-            f"{shot_summary(shots[0])}",
+            f"{shot_summary(shots[0])}{goal_note(shots[0])}",
             "ok",
         )
         if self.config.autoplay:
@@ -611,6 +611,16 @@ def shot_summary(shot: Any) -> str:
     score = shot_score(shot)
     return (f"{times[-1] - times[0]:.1f} s, {length:.2f} units long, min clearance {cl}"
             f"{'' if score is None else f', score {score:.3g}'}")
+
+
+def goal_note(shot: Any) -> str:
+    """' Note: the go-to point moved ...' when the planner ended the shot away from the go-to target (planner
+    explain_goal: from where to where and why), else ''."""
+    mv = getattr(shot, "goal_moved", None)
+    if not mv:
+        return ""
+    f = lambda p: "(" + ", ".join(f"{v:.3f}" for v in p) + ")"  # noqa: E731
+    return f" Note: the go-to point moved {mv['distance']:.3f} units, from {f(mv['from'])} to {f(mv['to'])}: {mv['why']}."
 
 
 def candidate_label(i: int, shot: Any) -> str:

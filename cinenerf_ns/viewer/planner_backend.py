@@ -128,6 +128,7 @@ class PreparedPlanner:
             else:
                 shots = self.planner.plan(pt(goal), pt(look_at), start=pt(start), seed=int(seed), n_candidates=int(n_candidates))
             for shot in shots:
+                shot.goal_moved = self.planner.explain_goal(pt(goal), shot.goal)  # said on screen, never silent
                 if getattr(shot, "clearance", None) is None:
                     t0 = time.perf_counter()
                     # exact where it matters (near obstacles); capped far away: the uncapped search

@@ -147,13 +147,13 @@ def procedural_locate(room: Any) -> LocateFn:
     return locate
 
 
-def semantic_locate(sem: Any, label_names: List[str]) -> LocateFn:
+def semantic_locate(sem: Any, label_names: List[str], free: bool = True) -> LocateFn:
     """Text query of a cinesplat scene: relevancy of the distilled latents (``SemanticScene.locate``), with
-    ``cinesplat-plan``'s mapping of words onto the scene's own label names."""
+    ``cinesplat-plan``'s mapping of words onto the scene's own label names (only those when not ``free``)."""
     from cinenerf_ns.scenes import label_query
 
     def locate(text: str):
-        c, mask = sem.locate(label_query(text, label_names))
+        c, mask = sem.locate(label_query(text, label_names, free))
         return to_numpy(c), to_numpy(mask, bool)
 
     return locate
@@ -214,7 +214,8 @@ def load_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optio
     sem = ld.extra.get("semantic")
     return LoadedScene(
         splat_display(st), name, data_dir or data or (path if path.is_dir() else path.parent), cfg_path,
-        locate=None if sem is None else semantic_locate(sem, ld.extra.get("label_names") or []),
+        locate=None if sem is None else semantic_locate(sem, ld.extra.get("label_names") or [],
+                                                        ld.extra.get("free_text", True)),
         obstacles=ld.scene, start_region=ld.start_region, semantics="none" if sem is None else "relevancy",
     )
 

@@ -40,7 +40,7 @@ def test_procedural_text_plan(tmp_path):
     for p in s["plots"].values():
         assert open(p, "rb").read(8) == b"\x89PNG\r\n\x1a\n"
     rep = json.loads(open(s["report"]).read())
-    assert rep["go_to"]["resolved"].startswith("object 'armchair'")
+    assert "-> object 'armchair'" in rep["go_to"]["resolved"]  # the text and the object it picked
 
 
 def test_ply_points_and_errors(tmp_path):
@@ -103,7 +103,7 @@ def test_workers_option(tmp_path):
     b = run_plan(PlanArgs(output_dir=tmp_path / "b", workers=2, **kw))
     assert [c["start"] for c in a["candidates"]] == [c["start"] for c in b["candidates"]]
     assert [c["score"]["total"] for c in a["candidates"]] == pytest.approx([c["score"]["total"] for c in b["candidates"]])
-    with pytest.raises(InvalidInputError, match="candidate_workers"):
+    with pytest.raises(InvalidInputError, match="--workers"):
         run_plan(PlanArgs(output_dir=tmp_path / "c", workers=-1, **kw))
 
 
@@ -213,7 +213,7 @@ def test_start_look_distance_option(tmp_path):
     a = run_plan(PlanArgs(output_dir=tmp_path / "a", **kw))
     b = run_plan(PlanArgs(output_dir=tmp_path / "b", start_look_distance=0.0, **kw))
     assert [c["start"] for c in a["candidates"]] != [c["start"] for c in b["candidates"]]
-    with pytest.raises(InvalidInputError, match="start_look_distance"):
+    with pytest.raises(InvalidInputError, match="--start-look-distance"):
         run_plan(PlanArgs(output_dir=tmp_path / "c", start_look_distance=1.0, **kw))
     assert not (tmp_path / "c").exists()
 
@@ -264,3 +264,47 @@ def test_training_cameras_read_ns_train_configs(tmp_path, shared_data):
     np.testing.assert_allclose(got[1], norm.max(0) + 0.1)
     (data / "transforms.json").unlink()  # data gone: no region, no crash
     assert training_camera_centres(run / "config.yml") is None
+
+
+def test_rerun_with_fewer_candidates_leaves_no_stale_shot(tmp_path):
+    """A second run into the same folder with fewer candidates removes the first run's extra camera paths; files
+    are 0644; the report names exactly the camera paths that exist."""
+    import os
+    import stat
+
+    kw = dict(scene="procedural:3000:1", go_to="the armchair", look_at="floor lamp", grid_resolution=48, workers=0,
+              output_dir=tmp_path)
+    run_plan(PlanArgs(candidates=3, **kw))
+    assert sorted(p.name for p in tmp_path.glob("shot_?.json")) == ["shot_0.json", "shot_1.json", "shot_2.json"]
+    s = run_plan(PlanArgs(candidates=1, **kw))
+    assert sorted(p.name for p in tmp_path.glob("shot_?.json")) == ["shot_0.json"]
+    assert [c["camera_path"] for c in s["candidates"]] == [str(tmp_path.absolute() / "shot_0.json")]
+    assert all(stat.S_IMODE(os.stat(p).st_mode) == 0o644 for p in tmp_path.iterdir())
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no staging folder left
+
+
+def test_interrupted_run_writes_nothing(tmp_path, monkeypatch, capsys):
+    """Ctrl-C while the plots are drawn: exit 130, a message on stderr, no file in the output folder."""
+    import cinenerf_ns.cli.plan as plan_mod
+
+    def interrupt(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(plan_mod, "plot_paths_topdown", interrupt)
+    out = tmp_path / "out"
+    code = plan_mod.main(["--scene", "procedural:3000:1", "--go-to", "armchair", "--look-at", "floor lamp",
+                          "--grid-resolution", "48", "--candidates", "2", "--workers", "0", "--output-dir", str(out)])
+    assert code == 130 and "interrupted" in capsys.readouterr().err
+    assert not out.exists() or not list(out.iterdir())
+
+
+def test_moved_goal_is_reported(tmp_path, capsys):
+    """A go-to inside the room's wall band but outside the planning region ends inside it; the report and the
+    summary say from where to where and why."""
+    s = run_plan(PlanArgs(scene="procedural:3000:1", go_to="1.9 0 0.5", look_at="floor lamp", grid_resolution=48,
+                          workers=0, output_dir=tmp_path))
+    mv = s["candidates"][0]["goal_moved"]
+    assert mv is not None and mv["distance"] > 0.1 and "outside the planning region" in mv["why"]
+    assert "the go-to point moved" in " ".join(capsys.readouterr().out.split())
+    rep = json.loads(open(s["report"]).read())
+    assert rep["candidates"][0]["goal_moved"]["why"] == mv["why"]

@@ -139,7 +139,7 @@ def test_atomic_write_keeps_old_file_on_failure(shot, tmp_path):
     with pytest.raises(InvalidInputError):
         write_camera_path(target, bad)
     # failure while writing (after validation): old file intact, no temp file left
-    with mock.patch("cinenerf_ns.planner.camera_path.os.fsync", side_effect=OSError("disk full")):
+    with mock.patch("cinenerf_ns.planner.atomic.os.fsync", side_effect=OSError("disk full")):  # the one writer
         with pytest.raises(OSError):
             write_camera_path(target, d)
     assert target.read_text() == before

@@ -100,7 +100,7 @@ def test_nerfstudio_viewer_installs_panel_on_cinesplat_model(tmp_path):
         for text in ["red chair", "the lamp", "sofa"]:
             query = "lamp" if "lamp" in text else text  # cinesplat-plan's word -> label-name mapping
             if text == "sofa":  # no label: goes to the CLIP tower, which this offline scene has none of
-                with pytest.raises(ValueError, match="only its label names can be queried"):
+                with pytest.raises(ValueError, match="answers only its own object names"):
                     backend.locate(text)
                 continue
             try:

@@ -188,7 +188,7 @@ def test_standalone_compact_scene_answers_text_by_relevancy(tmp_path):
         assert np.array_equal(m, m_ref.numpy()) and m.sum() > 0
         assert v.panel.request_plan("", "armchair").result(30) is None and "'Go to' is empty" in v.panel.status
         assert v.panel.request_plan("sofa", "armchair").result(30) is None
-        assert "only its label names can be queried" in v.panel.status
+        assert "answers only its own object names" in v.panel.status
     finally:
         v.close()
 

@@ -1,0 +1,83 @@
+"""All-or-nothing outputs: a run writes its files into a hidden folder beside their destination and moves the complete
+set into place at the end; an interrupted or failed run leaves the folder as it was. Files of an earlier run under
+the same name that this run does not rewrite are removed (a report never sits beside another run's camera paths)."""
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import tempfile
+from pathlib import Path
+from typing import List, Optional
+
+from cinenerf_ns.planner.atomic import FILE_MODE
+from cinenerf_ns.planner.errors import InvalidInputError
+
+NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")
+
+
+def check_name(name: str, option: str = "--name") -> str:
+    """A file-name stem: letters, digits, '.', '_', '-' (1-100 characters, no folder)."""
+    if not isinstance(name, str) or not NAME_PATTERN.match(name):
+        raise InvalidInputError(f"{option} must be 1-100 letters, digits, '.', '_' or '-' (no folder), got {name!r}")
+    return name
+
+
+def check_writable(folder: Path, option: str = "--output-dir") -> Path:
+    """InvalidInputError unless ``folder`` is (or can be created as) a writable folder; creates nothing."""
+    folder = Path(folder).expanduser().absolute()
+    probe: Optional[Path] = folder
+    while probe is not None and not probe.exists():
+        probe = probe.parent if probe.parent != probe else None
+    if probe is None or not probe.is_dir():
+        what = "is a file" if probe is not None and probe == folder else f"lies under {probe}, which is not a folder"
+        raise InvalidInputError(f"{option} {folder} {what}; give a folder")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise InvalidInputError(f"{option} {folder}: {probe} is not writable")
+    return folder
+
+
+class OutputSet:
+    """``with OutputSet(folder, name) as out:`` write files to ``out.path(filename)``; they appear in ``folder`` only
+    when the block ends without an exception (mode 0644), and earlier files of this name (``name_*``,
+    ``name.*``) that the set does not hold are removed then."""
+
+    def __init__(self, folder: Path, name: str):
+        self.folder = Path(folder).expanduser().absolute()
+        self.name = check_name(name)
+        self.staging: Optional[Path] = None
+        self.written: List[Path] = []
+
+    def __enter__(self) -> "OutputSet":
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.staging = Path(tempfile.mkdtemp(prefix=f".{self.name}.partial-", dir=self.folder))
+        return self
+
+    def path(self, filename: str) -> Path:
+        """Where to write ``filename`` now (inside the staging folder)."""
+        assert self.staging is not None, "use OutputSet in a with block"
+        return self.staging / filename
+
+    def final(self, filename: str) -> Path:
+        """Where ``filename`` will be once the set is complete."""
+        return self.folder / filename
+
+    def _ours(self, p: Path) -> bool:
+        n = p.name
+        return p.is_file() and (n.startswith(self.name + "_") or n.startswith(self.name + "."))
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        try:
+            if exc_type is None:
+                new = sorted(self.staging.iterdir())
+                for f in new:
+                    os.chmod(f, FILE_MODE)
+                stale = [p for p in self.folder.iterdir() if self._ours(p) and not (self.staging / p.name).exists()]
+                # the report (name_report.json) last: a reader that sees it sees every file it names
+                for f in sorted(new, key=lambda f: f.name.endswith("_report.json")):
+                    os.replace(f, self.folder / f.name)
+                    self.written.append(self.folder / f.name)
+                for p in stale:
+                    p.unlink()
+        finally:
+            shutil.rmtree(self.staging, ignore_errors=True)

@@ -1,0 +1,65 @@
+"""All-or-nothing outputs: files appear together at the end, an exception leaves the folder as it was, an earlier
+run's files under the same name are removed, files are 0644."""
+import os
+import stat
+
+import pytest
+
+from cinenerf_ns.output_set import OutputSet, check_name, check_writable
+from cinenerf_ns.planner.errors import InvalidInputError
+
+
+def _mode(p):
+    return stat.S_IMODE(os.stat(p).st_mode)
+
+
+def test_files_appear_together_with_mode_0644(tmp_path):
+    with OutputSet(tmp_path / "out", "shot") as out:
+        for f in ("shot_0.json", "shot_1.json", "shot_report.json"):
+            out.path(f).write_text("{}")
+        assert not (tmp_path / "out" / "shot_0.json").exists()  # nothing visible until the end
+    names = sorted(p.name for p in (tmp_path / "out").iterdir())
+    assert names == ["shot_0.json", "shot_1.json", "shot_report.json"]
+    assert all(_mode(tmp_path / "out" / n) == 0o644 for n in names)
+
+
+def test_failure_leaves_the_folder_as_it_was(tmp_path):
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    (out_dir / "shot_0.json").write_text("old")
+    with pytest.raises(KeyboardInterrupt):
+        with OutputSet(out_dir, "shot") as out:
+            out.path("shot_0.json").write_text("new")
+            raise KeyboardInterrupt
+    assert [p.name for p in out_dir.iterdir()] == ["shot_0.json"]
+    assert (out_dir / "shot_0.json").read_text() == "old"
+
+
+def test_stale_files_of_the_same_name_are_removed_others_kept(tmp_path):
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    for n in ("shot_0.json", "shot_1.json", "shot_2.json", "shot_report.json", "other_0.json", "shotgun.json"):
+        (out_dir / n).write_text("old")
+    with OutputSet(out_dir, "shot") as out:
+        out.path("shot_0.json").write_text("new")
+        out.path("shot_report.json").write_text("new")
+    assert sorted(p.name for p in out_dir.iterdir()) == ["other_0.json", "shot_0.json", "shot_report.json",
+                                                        "shotgun.json"]
+
+
+@pytest.mark.parametrize("bad", ["", "../x", "a/b", ".hidden", "x" * 101, "sp ace"])
+def test_bad_names(bad):
+    with pytest.raises(InvalidInputError, match="--name"):
+        check_name(bad)
+
+
+def test_writable_checks_create_nothing(tmp_path):
+    target = tmp_path / "a" / "b"
+    assert check_writable(target) == target
+    assert not (tmp_path / "a").exists()
+    f = tmp_path / "file"
+    f.write_text("x")
+    with pytest.raises(InvalidInputError, match="is a file"):
+        check_writable(f)
+    with pytest.raises(InvalidInputError, match="not a folder"):
+        check_writable(f / "sub")
