@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 import pickle
+import warnings
 import zipfile
 import zlib
 from pathlib import Path
@@ -34,7 +35,7 @@ class CheckpointError(ValueError):
 
 def _short(e: BaseException) -> str:
     """First line of an exception's message, without library advice on unsafe loading."""
-    msg = (str(e).strip().splitlines() or [""])[0][:160]
+    msg = (str(e).strip().splitlines() or [""])[0].split(". ")[0][:160]
     if "weights_only" in msg or "allow_pickle" in msg or "Weights only" in msg:
         msg = ""
     return f"{type(e).__name__}: {msg}" if msg else type(e).__name__
@@ -66,13 +67,15 @@ def torch_read(path: Path, what: str) -> Any:
         raise CheckpointError(f"{path} is not a PyTorch file (it starts with {head[:4]!r}): not a {what}")
     register_torch_safe_globals()
     try:
-        return torch.load(path, map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():  # a damaged legacy file can claim any pickle protocol
+            warnings.filterwarnings("ignore", message="Detected pickle protocol")
+            return torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as e:
         if "Weights only" in str(e):
             raise CheckpointError(f"{path} holds Python objects other than tensors, numbers and plain containers: "
                                   f"not a {what} (such files are not loaded: unpickling them could run code)") from None
         raise CheckpointError(f"{path} is truncated or corrupt: not a readable {what} ({_short(e)})") from None
-    except Exception as e:  # torch raises RuntimeError, EOFError, ValueError... for damaged archives
+    except Exception as e:  # noqa: BLE001 (torch raises RuntimeError, EOFError, ValueError... for damaged files)
         raise CheckpointError(f"{path} is truncated or corrupt: not a readable {what} ({_short(e)})") from None
 
 
@@ -105,7 +108,7 @@ def read_npz(path: Path) -> Dict[str, np.ndarray]:
     """All arrays of an .npz file (never unpickles; bounded by the archive's stored sizes)."""
     nonempty_size(path, f"{COMPACT} (.npz)")
     head = _head(path, 4)
-    if head != _ZIP:
+    if head not in (_ZIP, b"PK\x05\x06"):  # a local file header, or the end record of an empty archive
         raise CheckpointError(f"{path} is not a .npz archive (it starts with {head!r}, not a zip signature): "
                               f"not a {COMPACT}")
     try:
@@ -186,7 +189,7 @@ def check_splat(arrays: Mapping[str, Any], path: Path) -> int:
     of the right shape and row count, at least one Gaussian whose parameters are all finite. Returns N."""
     for k in COMPACT_KEYS:
         if not isinstance(arrays.get(k), Tensor):
-            raise CheckpointError(f"{path} has no {k} tensor: not a splat")
+            raise CheckpointError(f"{path} has no {k} tensor (a splat needs {', '.join(COMPACT_KEYS)})")
     for k, t in arrays.items():
         if t is not None and (not isinstance(t, Tensor) or t.dtype in (torch.bool,) or t.is_complex()):
             raise CheckpointError(f"{path}: {k} must be a tensor of numbers, got {getattr(t, 'dtype', type(t))}")
@@ -240,6 +243,7 @@ def check_config_yml(path: Path) -> None:
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        raise CheckpointError(f"{path} is not valid YAML ({getattr(e, 'problem', None) or 'parse error'}{where})") from None
+        problem = getattr(e, "problem", None) or "parse error"
+        raise CheckpointError(f"{path} is not valid YAML ({problem}{where})") from None
     if node is not None and not isinstance(node, yaml.MappingNode):
         raise CheckpointError(f"{path} is not a nerfstudio config.yml (its top level is not a mapping)")

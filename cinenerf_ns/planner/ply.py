@@ -199,7 +199,8 @@ def read_splat_ply(path: Union[str, Path]) -> SplatPly:
     names = v.dtype.names or ()
     missing = [p for p in REQUIRED if p not in names]
     if missing:
-        points = " (a point cloud: each Gaussian needs scale_*, rot_* and opacity)" if {"x", "y", "z"} <= set(names) else ""
+        cloud = len(missing) == len(REQUIRED) - 3 and "x" not in missing  # positions only (colours, normals)
+        points = " (a point cloud: each Gaussian needs scale_*, rot_* and opacity)" if cloud else ""
         raise InvalidInputError(
             f"{path} is not a Gaussian splat .ply: vertex properties {missing} are missing{points} "
             f"(found {list(names)[:20]}{'...' if len(names) > 20 else ''})"
