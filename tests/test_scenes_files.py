@@ -356,3 +356,18 @@ def test_cli_prints_one_line(tmp_path, monkeypatch, capsys):
         assert ei.value.code == 2
         out = capsys.readouterr().out
         assert "cinesplat-plan: " in out and spec in out.replace("\n", "") and "Traceback" not in out
+
+
+def test_run_with_malformed_camera_files_loads_without_cameras(tmp_path):
+    """A run whose dataset/dataparser json is malformed still loads (no start region), never an IndexError."""
+    data, run = tmp_path / "data", tmp_path / "run"
+    data.mkdir()
+    (run / "nerfstudio_models").mkdir(parents=True)
+    sd = {"_model.gauss_params." + k: v for k, v in tiny_splat(8).items()}
+    torch.save({"step": 1, "pipeline": sd}, run / "nerfstudio_models" / "step-000000001.ckpt")
+    parts = "".join(f"- {p}\n" for p in data.parts)
+    (run / "config.yml").write_text(f"method_name: cinesplat\ndata: !!python/object/apply:pathlib.PosixPath\n{parts}")
+    (data / "transforms.json").write_text(json.dumps({"frames": [{"transform_matrix": [[1, 0], [0, 1]]}]}))
+    (run / "dataparser_transforms.json").write_text(json.dumps({"transform": [[1, 0], [0, 1]], "scale": 1.0}))
+    ld = load_scene(str(run / "config.yml"), SceneConfig())
+    assert len(ld.scene) > 0 and ld.start_region is None and ld.config_path == run / "config.yml"
