@@ -96,17 +96,32 @@ def label_query(text: str, label_names: List[str], free: bool = True) -> str:
         f"so text means nothing to it; give the target as a point 'x y z'")
 
 
+PROCEDURAL_N = (1000, 2_000_000)  # Gaussians a procedural:N room may have
+
+
+def procedural_spec(spec: str) -> Optional[Tuple[int, int]]:
+    """(N, SEED) of 'procedural', 'procedural:N' or 'procedural:N:SEED'; None for anything not starting with
+    'procedural:' (a file such as procedural_room.ply); InvalidInputError for a malformed procedural spec."""
+    if spec != "procedural" and not spec.startswith("procedural:"):
+        return None
+    m = re.fullmatch(r"procedural(?::([0-9]{1,9})(?::([0-9]{1,18}))?)?", spec)
+    lo, hi = PROCEDURAL_N
+    if m is None or not lo <= int(m.group(1) or 20_000) <= hi:
+        raise InvalidInputError(f"bad procedural scene {spec!r}: give procedural, procedural:N or procedural:N:SEED "
+                                f"with N a whole number in [{lo}, {hi}] and SEED a whole number >= 0")
+    return int(m.group(1) or 20_000), int(m.group(2) or 0)
+
+
 def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Optional[float] = None,
                smooth_neighbors: int = 32, object_cluster: float = 0.02, object_centre: str = "volume",
                up: Tuple[float, float, float] = (0.0, 0.0, 1.0), drop_support: bool = True,
                centre_relevancy: float = CENTRE_RELEVANCY, unseen_fill: bool = True) -> LoadedScene:
     """Scene file/spec -> obstacles + (optionally) a text locator."""
-    if spec.startswith("procedural"):
+    proc = procedural_spec(spec)
+    if proc is not None:
         from cinenerf_ns.planner.procedural import procedural_room
 
-        parts = spec.split(":")
-        n = int(parts[1]) if len(parts) > 1 and parts[1] else 20_000
-        seed = int(parts[2]) if len(parts) > 2 else 0
+        n, seed = proc
         room = procedural_room(n, seed=seed)
         scene = EllipsoidScene.from_splat(room.means, room.quats, room.log_scales, room.opacity_logits, cfg).to(device)
         names = [o.name for o in room.objects]
@@ -122,7 +137,8 @@ def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Opti
                            start_region=(room.free_lo + r, room.free_hi - r))
     path = Path(spec)
     if not path.exists():
-        raise InvalidInputError(f"scene not found: {spec} (give a config.yml, run folder, .ckpt, compact .pt or .ply)")
+        raise InvalidInputError(f"scene not found: {spec} (give a config.yml, run folder, .ckpt, compact .npz/.pt, "
+                                f".ply or procedural[:N[:SEED]])")
     if path.suffix.lower() == ".ply":
         return LoadedScene(EllipsoidScene.from_ply(path, cfg).to(device), None, "ply", str(path))
     # checkpoints and compact exports go through the method's loader (no trainer is built)

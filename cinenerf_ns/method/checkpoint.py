@@ -12,7 +12,6 @@ latents [N,3] or None, codec (FeatureCodec, frozen) or None, info (dict), label_
 
 from __future__ import annotations
 
-import io
 import json
 import re
 from dataclasses import dataclass, field
@@ -23,14 +22,12 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from cinenerf_ns.method.compat import register_torch_safe_globals
+from cinenerf_ns.method.scene_files import (
+    COMPACT, SUPPORTED, CheckpointError, check_config_yml, check_splat, compact_blob, compact_npz, torch_read,
+)
 
 PREFIX = "_model.gauss_params."
 SH_C0 = 0.28209479177387814
-
-
-class CheckpointError(ValueError):
-    """The path holds no loadable splat checkpoint. Message is user-facing."""
 
 
 @dataclass
@@ -61,26 +58,56 @@ class SplatTensors:
 
 
 def find_checkpoint(path: str | Path) -> Path:
-    """Resolve config.yml / run folder / models folder / .ckpt to the newest .ckpt file."""
+    """Resolve config.yml / run folder / models folder / .ckpt to the newest .ckpt file (a config.yml is checked)."""
     p = Path(path)
-    if p.is_file() and p.suffix in (".ckpt", ".pt", ".npz"):
-        return p
-    if p.is_file() and p.name.endswith((".yml", ".yaml")):
-        p = p.parent
+    if not p.exists():
+        raise CheckpointError(f"{p} does not exist (not a checkpoint, run folder or config.yml)")
+    if p.is_file():
+        suffix = p.suffix.lower()
+        if suffix in (".ckpt", ".pt", ".npz"):
+            return p
+        if suffix not in (".yml", ".yaml"):
+            raise CheckpointError(f"{p} is not a checkpoint or scene file this tool reads (suffix "
+                                  f"{p.suffix or 'none'!r}); give {SUPPORTED}")
+        check_config_yml(p)
+        return _newest_ckpt(p.parent, p)
     if p.is_dir():
-        cands = list((p / "nerfstudio_models").glob("*.ckpt")) + list(p.glob("*.ckpt"))
-        if not cands:
-            raise CheckpointError(f"no .ckpt found in {p} or {p / 'nerfstudio_models'} (has training saved a checkpoint?)")
+        cfg = p / "config.yml"
+        if cfg.is_file():
+            check_config_yml(cfg)
+        return _newest_ckpt(p, cfg if cfg.is_file() else None)
+    raise CheckpointError(f"{p} is neither a file nor a folder: give {SUPPORTED}")
 
+
+def _newest_ckpt(folder: Path, config: Optional[Path]) -> Path:
+    """The newest (highest step) .ckpt in folder/nerfstudio_models or folder."""
+    models = folder / "nerfstudio_models"
+    cands = [f for f in list(models.glob("*.ckpt")) + list(folder.glob("*.ckpt")) if f.is_file()]
+    if cands:
         def step_of(f: Path) -> int:
             m = re.search(r"(\d+)", f.stem)
             return int(m.group(1)) if m else -1
 
         return max(cands, key=step_of)
-    raise CheckpointError(f"not a checkpoint, run folder or config.yml: {path}")
+    where = f"no .ckpt in {models} or {folder}"
+    if config is not None:
+        raise CheckpointError(f"no checkpoint found for {config}: {where} (has training saved a checkpoint?)")
+    if models.is_dir():
+        raise CheckpointError(f"no checkpoint found in {folder}: {where} and no config.yml "
+                              f"(has training saved a checkpoint?)")
+    raise CheckpointError(f"{folder} is a folder with no config.yml and {where}: not a run folder; give {SUPPORTED}")
 
 
-def _codec_from(info: Dict[str, Any], state: Dict[str, Tensor], device) -> Any:
+def _codec_from(info: Dict[str, Any], state: Dict[str, Tensor], device, path: Optional[Path] = None) -> Any:
+    try:
+        return _build_codec(info, state, device)
+    except (KeyError, TypeError, ValueError, RuntimeError) as e:
+        raise CheckpointError(f"{path}: its feature codec cannot be rebuilt from the stored codec_config and weights "
+                              f"({type(e).__name__}: {str(e).strip().splitlines()[0][:160] if str(e).strip() else ''})"
+                              ) from None
+
+
+def _build_codec(info: Dict[str, Any], state: Dict[str, Tensor], device) -> Any:
     from cinenerf_ns.method.codec import CodecConfig, FeatureCodec
 
     cfg = CodecConfig(**info["codec_config"])
@@ -94,17 +121,23 @@ def _codec_from(info: Dict[str, Any], state: Dict[str, Tensor], device) -> Any:
 
 
 def load_splat(path: str | Path, device: torch.device | str = "cpu") -> SplatTensors:
+    """A checkpoint, run folder, config.yml or compact export -> SplatTensors (CheckpointError if malformed)."""
     ckpt = find_checkpoint(path)
-    if ckpt.suffix == ".npz" or (ckpt.suffix == ".pt" and _is_compact(ckpt)):
+    if ckpt.suffix.lower() == ".npz":
         return load_compact(ckpt, device)
-    register_torch_safe_globals()
-    try:
-        blob = torch.load(ckpt, map_location="cpu", weights_only=True)
-    except Exception as e:
-        raise CheckpointError(f"could not read checkpoint {ckpt}: {type(e).__name__}: {str(e)[:200]}") from None
-    sd = blob.get("pipeline", blob)
-    if PREFIX + "means" not in sd:
-        raise CheckpointError(f"{ckpt} is not a splatfacto/cinesplat checkpoint (no {PREFIX}means)")
+    what = COMPACT if ckpt.suffix.lower() == ".pt" else "splatfacto/cinesplat checkpoint"
+    blob = torch_read(ckpt, what)
+    if isinstance(blob, dict) and blob.get("format") == "cinesplat-compact":
+        return _compact_tensors(*compact_blob(blob, ckpt), ckpt, device)
+    sd = blob.get("pipeline", blob) if isinstance(blob, dict) else blob
+    if not isinstance(sd, dict) or PREFIX + "means" not in sd:
+        if ckpt.suffix.lower() == ".pt":
+            compact_blob(blob, ckpt)  # says why it is not a compact export either
+        keys = f"; keys: {sorted(map(str, sd))[:8]}" if isinstance(sd, dict) else f"; it holds a {type(sd).__name__}"
+        raise CheckpointError(f"{ckpt} is not a splatfacto/cinesplat checkpoint (no {PREFIX}means in its "
+                              f"pipeline state{keys})")
+    check_splat({k: sd.get(PREFIX + k) for k in ("means", "quats", "scales", "opacities", "features_dc", "latents")},
+                ckpt)
 
     def g(name: str) -> Optional[Tensor]:
         t = sd.get(PREFIX + name)
@@ -113,8 +146,9 @@ def load_splat(path: str | Path, device: torch.device | str = "cpu") -> SplatTen
     extra = sd.get("_model._extra_state")
     info = dict(extra.get("cine_info", {})) if isinstance(extra, dict) else {}
     codec_state = {k[len("_model.codec.") :]: v for k, v in sd.items() if k.startswith("_model.codec.")}
-    codec = _codec_from(info, codec_state, device) if (codec_state and info) else None
+    codec = _codec_from(info, codec_state, device, ckpt) if (codec_state and info) else None
     lab = sd.get("_model.label_embeddings")
+    lab = lab if isinstance(lab, Tensor) and lab.ndim == 2 else None
     return SplatTensors(
         means=g("means"),  # type: ignore[arg-type]
         quats=g("quats"),  # type: ignore[arg-type]
@@ -132,11 +166,17 @@ def load_splat(path: str | Path, device: torch.device | str = "cpu") -> SplatTen
 
 
 def _is_compact(path: Path) -> bool:
+    """Whether a scene path is a compact export: any .npz file, a .pt file saved by export_compact."""
+    path = Path(path)
+    if not path.is_file() or path.suffix.lower() not in (".npz", ".pt"):
+        return False  # a .ckpt is not loaded twice to tell
+    if path.suffix.lower() == ".npz":
+        return True
     try:
-        blob = torch.load(path, map_location="cpu", weights_only=True)
-        return isinstance(blob, dict) and blob.get("format") == "cinesplat-compact"
-    except Exception:
-        return False
+        blob = torch_read(path, COMPACT)
+    except CheckpointError:
+        return False  # load_splat says why
+    return isinstance(blob, dict) and blob.get("format") == "cinesplat-compact"
 
 
 def export_compact(st: SplatTensors, path: str | Path, half: bool = True) -> Path:
@@ -177,24 +217,25 @@ def export_compact(st: SplatTensors, path: str | Path, half: bool = True) -> Pat
 
 
 def load_compact(path: str | Path, device: torch.device | str = "cpu") -> SplatTensors:
+    """A compact export (.npz or .pt, see export_compact) -> SplatTensors (CheckpointError if malformed)."""
     path = Path(path)
-    if path.suffix == ".npz":
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: torch.from_numpy(z[k]) for k in z.files if k != "info_json" and not k.startswith("codec.")}
-            codec_state = {k[len("codec.") :]: torch.from_numpy(z[k]) for k in z.files if k.startswith("codec.")}
-            info = json.loads(str(z["info_json"]))
+    if path.suffix.lower() == ".npz":
+        parts = compact_npz(path)
     else:
-        blob = torch.load(path, map_location="cpu", weights_only=True)
-        if blob.get("format") != "cinesplat-compact":
-            raise CheckpointError(f"{path} is not a cinesplat compact export")
-        arrays, codec_state, info = blob["arrays"], blob["codec"], json.loads(blob["info_json"])
+        parts = compact_blob(torch_read(path, COMPACT), path)
+    return _compact_tensors(*parts, path, device)
+
+
+def _compact_tensors(arrays: Dict[str, Tensor], codec_state: Dict[str, Tensor], info: Dict[str, Any], path: Path,
+                     device: torch.device | str) -> SplatTensors:
+    check_splat(arrays, path)
     f = lambda k: arrays[k].float().to(device) if k in arrays else None  # noqa: E731
     rgb = f("rgb")
     info = dict(info)
     info["sh_degree"] = 0
     # store colour as the logit so SplatTensors.rgb() (sh_degree 0 -> sigmoid) returns it back
     features_dc = torch.logit(rgb.clamp(1e-4, 1 - 1e-4)) if rgb is not None else None
-    codec = _codec_from(info, codec_state, device) if (codec_state and info.get("codec_config")) else None
+    codec = _codec_from(info, codec_state, device, path) if (codec_state and info.get("codec_config")) else None
     return SplatTensors(
         means=f("means"),  # type: ignore[arg-type]
         quats=f("quats"),  # type: ignore[arg-type]

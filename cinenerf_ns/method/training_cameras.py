@@ -35,7 +35,7 @@ def run_data_path(config_path: Path) -> Optional[Path]:
     if m is None:
         return None
     parts = [ln.strip()[2:] for ln in m.group(2).splitlines() if ln.strip().startswith("- ")]
-    return Path(*parts)
+    return Path(*parts) if parts else None
 
 
 def training_camera_centres(config_path: Path) -> Optional[np.ndarray]:
@@ -47,7 +47,7 @@ def training_camera_centres(config_path: Path) -> Optional[np.ndarray]:
             return None
         tj = data / "transforms.json" if data.is_dir() else data
         c = camera_centres(tj, Path(config_path).parent / "dataparser_transforms.json")
-    except (OSError, KeyError, ValueError, TypeError):
+    except (OSError, KeyError, ValueError, TypeError, IndexError, AttributeError):  # any malformed file: no cameras
         return None
     return c if len(c) and np.isfinite(c).all() else None
 

@@ -25,6 +25,8 @@ _PLY_TYPES = {
     "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
 }
 REQUIRED = ("x", "y", "z", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3", "opacity")
+_MAX_HEADER_LINE = 4096  # bytes; a longer "line" is binary data, not a header
+_MAX_HEADER_LINES = 100_000
 
 
 @dataclass
@@ -40,82 +42,148 @@ class SplatPly:
     extra: Dict[str, np.ndarray] = field(default_factory=dict)  # any other vertex property [N]
 
 
+def _element(tok, path: Path, lineno: int):
+    """[name, count, []] of an 'element NAME COUNT' header line."""
+    if len(tok) != 3:
+        raise InvalidInputError(f"{path}: .ply header line {lineno} {' '.join(tok)!r} is not 'element NAME COUNT'")
+    if not tok[2].isdigit():
+        raise InvalidInputError(f"{path}: .ply header line {lineno}: element {tok[1]!r} count {tok[2]!r} is not a "
+                                f"whole number >= 0")
+    return [tok[1], int(tok[2]), []]
+
+
+def _property(tok, path: Path, lineno: int):
+    """(name, dtype) or (name, ('list', count_t, item_t)) of a 'property ...' header line."""
+    is_list = len(tok) > 1 and tok[1] == "list"
+    if len(tok) != (5 if is_list else 3):
+        want = "property list COUNT_TYPE ITEM_TYPE NAME" if is_list else "property TYPE NAME"
+        raise InvalidInputError(f"{path}: .ply header line {lineno} {' '.join(tok)!r} is not '{want}'")
+    types = tok[2:4] if is_list else tok[1:2]
+    bad = [t for t in types if t not in _PLY_TYPES]
+    if bad:
+        raise InvalidInputError(f"{path}: unknown .ply property type {bad[0]!r} (header line {lineno})")
+    if is_list:
+        return tok[4], ("list", _PLY_TYPES[tok[2]], _PLY_TYPES[tok[3]])
+    return tok[2], _PLY_TYPES[tok[1]]
+
+
 def _parse_header(f, path: Path):
-    first = f.readline()
+    first = f.readline(_MAX_HEADER_LINE)
+    if not first:
+        raise InvalidInputError(f"{path} is empty (0 bytes): not a .ply file")
     if first.strip() != b"ply":
         raise InvalidInputError(f"{path} is not a .ply file (first line {first[:20]!r}, want 'ply')")
     fmt = None
     elements = []  # [name, count, [(prop_name, dtype or ('list', count_t, item_t))]]
-    while True:
-        line = f.readline()
+    for lineno in range(2, _MAX_HEADER_LINES):
+        line = f.readline(_MAX_HEADER_LINE)
         if not line:
             raise InvalidInputError(f"{path}: .ply header has no 'end_header' line (truncated file?)")
+        if not line.endswith(b"\n") and len(line) == _MAX_HEADER_LINE:
+            raise InvalidInputError(f"{path}: .ply header line {lineno} is over {_MAX_HEADER_LINE} bytes long: "
+                                    f"no 'end_header' before binary data (corrupt header?)")
         tok = line.decode("ascii", errors="replace").split()
         if not tok or tok[0] in ("comment", "obj_info"):
             continue
         if tok[0] == "end_header":
             break
         if tok[0] == "format":
-            fmt = tok[1]
+            fmt = tok[1] if len(tok) > 1 else None
         elif tok[0] == "element":
-            elements.append([tok[1], int(tok[2]), []])
+            elements.append(_element(tok, path, lineno))
         elif tok[0] == "property":
             if not elements:
                 raise InvalidInputError(f"{path}: .ply property before any element")
-            if tok[1] == "list":
-                elements[-1][2].append((tok[4], ("list", _PLY_TYPES[tok[2]], _PLY_TYPES[tok[3]])))
-            else:
-                if tok[1] not in _PLY_TYPES:
-                    raise InvalidInputError(f"{path}: unknown .ply property type {tok[1]!r}")
-                elements[-1][2].append((tok[2], _PLY_TYPES[tok[1]]))
+            elements[-1][2].append(_property(tok, path, lineno))
+    else:
+        raise InvalidInputError(f"{path}: .ply header has no 'end_header' in {_MAX_HEADER_LINES} lines")
     if fmt not in ("binary_little_endian", "binary_big_endian", "ascii"):
         raise InvalidInputError(f"{path}: unsupported .ply format {fmt!r}")
+    for name, _, props in elements:
+        names = [p for p, _ in props]
+        dup = sorted({p for p in names if names.count(p) > 1})
+        if dup:
+            raise InvalidInputError(f"{path}: .ply element {name!r} repeats the properties {dup}")
     return fmt, elements
 
 
 def read_ply_vertices(path: Union[str, Path]) -> np.ndarray:
     """The ``vertex`` element of a .ply file as a numpy structured array [N]."""
     path = Path(path)
+    if path.is_dir():
+        raise InvalidInputError(f"{path} is a folder, not a .ply file")
     if not path.is_file():
         raise InvalidInputError(f"scene file not found: {path}")
     with open(path, "rb") as f:
         fmt, elements = _parse_header(f, path)
+        data_bytes = os.fstat(f.fileno()).st_size - f.tell()
         if fmt == "ascii":
-            lines = f.read().decode("ascii", errors="replace").splitlines()
-            pos = 0
-            for name, count, props in elements:
-                if name == "vertex":
-                    if any(isinstance(t, tuple) for _, t in props):
-                        raise InvalidInputError(f"{path}: list properties in 'vertex' are not supported")
-                    dt = np.dtype([(p, t) for p, t in props])
-                    rows = [ln.split() for ln in lines[pos:pos + count]]
-                    if len(rows) != count or any(len(r) != len(props) for r in rows):
-                        raise InvalidInputError(f"{path}: ascii vertex data is truncated or malformed")
-                    arr = np.empty(count, dtype=dt)
-                    data = np.asarray(rows, dtype=np.float64)
-                    for k, (p, _) in enumerate(props):
-                        arr[p] = data[:, k]
-                    return arr
-                pos += count
-            raise InvalidInputError(f"{path}: .ply file has no 'vertex' element")
-        endian = "<" if fmt == "binary_little_endian" else ">"
-        for name, count, props in elements:
-            if any(isinstance(t, tuple) for _, t in props):
-                if name == "vertex":
-                    raise InvalidInputError(f"{path}: list properties in 'vertex' are not supported")
-                raise InvalidInputError(
-                    f"{path}: element {name!r} with list properties precedes 'vertex'; cannot locate vertex data"
-                )
-            dt = np.dtype([(p, endian + t) for p, t in props])
+            return _read_ascii(f, path, elements, data_bytes)
+        return _read_binary(f, path, "<" if fmt == "binary_little_endian" else ">", elements, data_bytes)
+
+
+def _read_ascii(f, path: Path, elements, data_bytes: int) -> np.ndarray:
+    """The vertex rows of an ascii .ply body (one line per element row)."""
+    pos = 0
+    for name, count, props in elements:
+        if name != "vertex":
+            pos += count
+            continue
+        if any(isinstance(t, tuple) for _, t in props):
+            raise InvalidInputError(f"{path}: list properties in 'vertex' are not supported")
+        if (pos + count) * 2 > data_bytes + 1:  # a row is at least one digit and a newline
+            raise InvalidInputError(f"{path}: .ply header claims {count} vertices but the file's ascii data is "
+                                    f"{data_bytes} bytes (truncated file?)")
+        lines = f.read().decode("ascii", errors="replace").splitlines()
+        rows = [ln.split() for ln in lines[pos:pos + count]]
+        if len(rows) != count:
+            raise InvalidInputError(f"{path}: .ply header claims {count} vertices but {len(rows)} ascii data lines "
+                                    f"follow (truncated file?)")
+        for i, r in enumerate(rows):
+            if len(r) != len(props):
+                raise InvalidInputError(f"{path}: ascii vertex {i} has {len(r)} values, the header declares "
+                                        f"{len(props)} properties")
+        arr = np.empty(count, dtype=np.dtype([(p, t) for p, t in props]))
+        try:
+            data = np.asarray(rows, dtype=np.float64).reshape(count, len(props))
+        except ValueError:
+            i, v = next((i, v) for i, r in enumerate(rows) for v in r if not _is_number(v))
+            raise InvalidInputError(f"{path}: ascii vertex {i}: {v[:40]!r} is not a number") from None
+        for k, (p, _) in enumerate(props):
+            arr[p] = data[:, k]
+        return arr
+    raise InvalidInputError(f"{path}: .ply file has no 'vertex' element")
+
+
+def _is_number(v: str) -> bool:
+    try:
+        float(v)
+    except ValueError:
+        return False
+    return True
+
+
+def _read_binary(f, path: Path, endian: str, elements, data_bytes: int) -> np.ndarray:
+    """The vertex rows of a binary .ply body; claimed sizes are checked against the file size before reading."""
+    offset = 0
+    for name, count, props in elements:
+        if any(isinstance(t, tuple) for _, t in props):
             if name == "vertex":
-                buf = f.read(dt.itemsize * count)
-                if len(buf) != dt.itemsize * count:
-                    raise InvalidInputError(
-                        f"{path}: truncated .ply: {count} vertices need {dt.itemsize * count} bytes, "
-                        f"found {len(buf)}"
-                    )
-                return np.frombuffer(buf, dtype=dt, count=count)
-            f.seek(dt.itemsize * count, os.SEEK_CUR)
+                raise InvalidInputError(f"{path}: list properties in 'vertex' are not supported")
+            raise InvalidInputError(
+                f"{path}: element {name!r} with list properties precedes 'vertex'; cannot locate vertex data"
+            )
+        dt = np.dtype([(p, endian + t) for p, t in props])
+        need = dt.itemsize * count
+        if offset + need > data_bytes:
+            raise InvalidInputError(
+                f"{path}: truncated .ply: the header's {count} {name!r} rows need {need} bytes, "
+                f"found {max(data_bytes - offset, 0)} (header count too large or file cut short)"
+            )
+        if name == "vertex":
+            f.seek(offset, os.SEEK_CUR)
+            return np.frombuffer(f.read(need), dtype=dt, count=count)
+        offset += need
     raise InvalidInputError(f"{path}: .ply file has no 'vertex' element")
 
 
@@ -125,18 +193,30 @@ def _numbered(names, prefix: str):
 
 
 def read_splat_ply(path: Union[str, Path]) -> SplatPly:
-    """Splat parameters of a standard 3DGS .ply (see module docstring)."""
+    """Splat parameters of a standard 3DGS .ply (see module docstring). InvalidInputError when a property is
+    missing, the file holds no Gaussian, or no Gaussian has all-finite parameters."""
     v = read_ply_vertices(path)
     names = v.dtype.names or ()
     missing = [p for p in REQUIRED if p not in names]
     if missing:
+        cloud = len(missing) == len(REQUIRED) - 3 and "x" not in missing  # positions only (colours, normals)
+        points = " (a point cloud: each Gaussian needs scale_*, rot_* and opacity)" if cloud else ""
         raise InvalidInputError(
-            f"{path} is not a Gaussian splat .ply: vertex properties {missing} are missing "
+            f"{path} is not a Gaussian splat .ply: vertex properties {missing} are missing{points} "
             f"(found {list(names)[:20]}{'...' if len(names) > 20 else ''})"
         )
+    if len(v) == 0:
+        raise InvalidInputError(f"{path} holds 0 Gaussians (element vertex 0)")
 
     def cols(ns):
         return np.stack([np.asarray(v[n]) for n in ns], axis=-1)
+
+    q = cols(("rot_0", "rot_1", "rot_2", "rot_3")).astype(np.float64)
+    usable = (np.isfinite(cols(("x", "y", "z", "opacity")).astype(np.float64)).all(-1) & np.isfinite(q).all(-1)
+              & (np.linalg.norm(q, axis=-1) > 1e-12) & ~np.isnan(cols(("scale_0", "scale_1", "scale_2"))).any(-1))
+    if not usable.any():
+        raise InvalidInputError(f"{path} has no usable Gaussians: all {len(v)} have NaN/inf positions or parameters "
+                                f"(or zero rotations)")
 
     dc = _numbered(names, "f_dc_")
     rest = _numbered(names, "f_rest_")
