@@ -354,8 +354,8 @@ def test_cli_prints_one_line(tmp_path, monkeypatch, capsys):
         with pytest.raises(SystemExit) as ei:
             plan.entrypoint()
         assert ei.value.code == 2
-        out = capsys.readouterr().out
-        assert "cinesplat-plan: " in out and spec in out.replace("\n", "") and "Traceback" not in out
+        err = capsys.readouterr().err  # errors go to stderr
+        assert "cinesplat-plan: " in err and spec in err.replace("\n", "") and "Traceback" not in err
 
 
 def test_run_with_malformed_camera_files_loads_without_cameras(tmp_path):

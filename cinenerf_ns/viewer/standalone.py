@@ -186,7 +186,7 @@ def load_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optio
             locate=label_locate(d.means, d.labels, d.label_of), default_goto="red box", default_look_at="blue pillar",
             semantics="labels", object_names=list(d.labels),
         )
-    if source.startswith("procedural"):
+    if cli.procedural_spec(source) is not None:  # the explicit spec only, never a file name
         ld = cli.load_scene(source, scfg, device)
         room = ld.extra["room"]
         names = [o.name for o in room.objects]

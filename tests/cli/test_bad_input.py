@@ -90,18 +90,23 @@ def _scene_file_cases(tmp: Path):
     (tmp / "noise.ply").write_bytes(os.urandom(512))
     (tmp / "notes.txt").write_text("not a scene")
     (tmp / "empty_dir").mkdir()
-    pts = tmp / "points.ply"
-    pts.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
-                   "end_header\n0 0 0\n1 0 0\n0 1 0\n")
+    from cinenerf_ns.planner.ply import write_splat_ply
+    from cinenerf_ns.planner.procedural import procedural_room
+
+    r = procedural_room(1000, seed=2)
+    pts = write_splat_ply(tmp / "room.ply", r.means.numpy(), r.quats.numpy(), r.log_scales.numpy(),
+                          r.opacity_logits.numpy().reshape(-1))
     return [
         ("scene-empty-string", "", r"--scene is empty"),
         ("scene-missing", str(tmp / "nope.npz"), r"nope\.npz"),
+        ("scene-procedural-bad", "procedural:abc", r"bad procedural scene 'procedural:abc'"),
+        ("scene-procedural-small", "procedural:5", r"bad procedural scene .* N a whole number in \[1000, "),
         ("scene-empty-npz", str(tmp / "empty.npz"), r"empty\.npz"),
         ("scene-noise-npz", str(tmp / "noise.npz"), r"noise\.npz"),
         ("scene-noise-ply", str(tmp / "noise.ply"), r"noise\.ply"),
         ("scene-text-file", str(tmp / "notes.txt"), r"notes\.txt"),
         ("scene-empty-folder", str(tmp / "empty_dir"), r"empty_dir"),
-        ("text-on-points-only-ply", str(pts), r"is text, but this scene \(ply\) has no semantics"),
+        ("text-on-a-splat-ply", str(pts), r"is text, but this scene \(ply\) has no semantics"),
     ]
 
 
@@ -178,4 +183,18 @@ def test_output_dir_that_is_not_a_folder(where, tmp_path, capsys):
 
 
 def test_suite_is_at_least_sixty_cases(tmp_path):
-    assert len(OPTION_CASES) + len(_scene_file_cases(tmp_path)) + 2 >= 60
+    assert len(OPTION_CASES) + len(_scene_file_cases(tmp_path)) + 2 >= 60  # + the two output-folder cases
+
+
+@pytest.mark.parametrize("text", ["the purple elephant", "xyzzy"])
+def test_text_that_matches_nothing_on_the_bundled_scene(text, tmp_path, capsys):
+    """The bundled room was trained without real CLIP weights: text naming none of its labels is refused with the
+    list of what it can answer (it once planned a shot to the purple stool / the armchair)."""
+    from cinenerf_ns.demo import DEMO_SCENE
+
+    if not DEMO_SCENE.exists():
+        pytest.skip("the bundled scene is not in this checkout")
+    out = tmp_path / "out"
+    code, o, e, dt = _run(["--scene", str(DEMO_SCENE), "--go-to", text, "--look-at", "floor lamp", "--output-dir",
+                           str(out)], capsys, out)
+    _check(code, o, e, dt, rf"nothing in the scene matches '{text}': .* red armchair, floor lamp", out)
