@@ -16,7 +16,6 @@ is checked before the scene is loaded; errors go to stderr with exit status 2 an
 from __future__ import annotations
 
 import json
-import math
 import sys
 import time
 from dataclasses import dataclass, field
@@ -30,6 +29,7 @@ from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeEl
 from rich.table import Table
 
 from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY
+from cinenerf_ns.options import check_number
 from cinenerf_ns.output_set import OutputSet, check_name, check_writable
 from cinenerf_ns.planner.camera_path import shot_to_camera_path, write_camera_path
 from cinenerf_ns.planner.candidates import RankedShot, plan_candidates, score_shots
@@ -143,54 +143,42 @@ class PlanArgs:
     """Weights of the shot score (its fov_deg is replaced by --fov)."""
 
 
-def _number(value: Any, option: str, lo: float, hi: float, lo_open: bool = False, integer: bool = False) -> None:
-    """InvalidInputError unless ``value`` is a finite number (an integer with ``integer``) in [lo, hi] ((lo, hi] with
-    lo_open)."""
-    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
-    ok = ok and math.isfinite(float(value)) and (float(value) > lo if lo_open else float(value) >= lo)
-    ok = ok and float(value) <= hi and (not integer or float(value) == int(value))
-    if not ok:
-        kind = "an integer" if integer else "a number"
-        rng = f"({lo:g}, {hi:g}]" if lo_open else f"[{lo:g}, {hi:g}]"
-        raise InvalidInputError(f"{option} must be {kind} in {rng}, got {value!r}")
-
-
 def check_args(args: PlanArgs) -> None:
     """Every option that can be judged without the scene, before anything is loaded or written. The scene-relative
     checks (points near the scene, camera radius against its size, grid against memory, frames) follow in the
     planner (Planner.checked_point, check_region, check_timing)."""
     if not isinstance(args.scene, str) or not args.scene.strip():
         raise InvalidInputError("--scene is empty: give a run's config.yml, a compact export, a .ply or 'procedural'")
-    _number(args.candidates, "--candidates", 1, MAX_CANDIDATES, integer=True)
-    _number(args.time_budget, "--time-budget", 0, 3600, lo_open=True)
-    _number(args.seed, "--seed", 0, 2**63 - 1, integer=True)
-    _number(args.fps, "--fps", MIN_FPS, MAX_FPS)
-    _number(args.max_speed, "--max-speed", 0, 100, lo_open=True)
-    _number(args.fov, "--fov", 1, 179)
-    _number(args.width, "--width", 16, 8192, integer=True)
-    _number(args.height, "--height", 16, 8192, integer=True)
-    _number(args.camera_radius, "--camera-radius", 0, 10)
-    _number(args.safety_margin, "--safety-margin", 0, 10)
-    _number(args.beta, "--beta", 0, 10, lo_open=True)
-    _number(args.opacity_floor, "--opacity-floor", 0, 0.999)
-    _number(args.grid_resolution, "--grid-resolution", *GRID_RESOLUTION_RANGE, integer=True)
-    _number(args.memory_budget_mb, "--memory-budget-mb", 64, 2**20)
-    _number(args.semantic_smoothing, "--semantic-smoothing", 0, 256, integer=True)
-    _number(args.object_cluster, "--object-cluster", 0, 0.5)
-    _number(args.start_look_distance, "--start-look-distance", 0, 0.99)
+    check_number(args.candidates, "--candidates", 1, MAX_CANDIDATES, integer=True)
+    check_number(args.time_budget, "--time-budget", 0, 3600, lo_open=True)
+    check_number(args.seed, "--seed", 0, 2**63 - 1, integer=True)
+    check_number(args.fps, "--fps", MIN_FPS, MAX_FPS)
+    check_number(args.max_speed, "--max-speed", 0, 100, lo_open=True)
+    check_number(args.fov, "--fov", 1, 179)
+    check_number(args.width, "--width", 16, 8192, integer=True)
+    check_number(args.height, "--height", 16, 8192, integer=True)
+    check_number(args.camera_radius, "--camera-radius", 0, 10)
+    check_number(args.safety_margin, "--safety-margin", 0, 10)
+    check_number(args.beta, "--beta", 0, 10, lo_open=True)
+    check_number(args.opacity_floor, "--opacity-floor", 0, 0.999)
+    check_number(args.grid_resolution, "--grid-resolution", *GRID_RESOLUTION_RANGE, integer=True)
+    check_number(args.memory_budget_mb, "--memory-budget-mb", 64, 2**20)
+    check_number(args.semantic_smoothing, "--semantic-smoothing", 0, 256, integer=True)
+    check_number(args.object_cluster, "--object-cluster", 0, 0.5)
+    check_number(args.start_look_distance, "--start-look-distance", 0, 0.99)
     if not (0.0 <= args.centre_relevancy < 1.0):
         raise InvalidInputError(f"--centre-relevancy must be in [0, 1) (0: the centre from the whole selection), "
                                 f"got {args.centre_relevancy}")
     if args.threshold is not None:
-        _number(args.threshold, "--threshold", 0, 0.999, lo_open=True)
+        check_number(args.threshold, "--threshold", 0, 0.999, lo_open=True)
     if args.workers is not None:
-        _number(args.workers, "--workers", 0, 256, integer=True)
+        check_number(args.workers, "--workers", 0, 256, integer=True)
     if args.max_acceleration is not None:
-        _number(args.max_acceleration, "--max-acceleration", 0, 1000, lo_open=True)
+        check_number(args.max_acceleration, "--max-acceleration", 0, 1000, lo_open=True)
     if args.max_angular_rate is not None:
-        _number(args.max_angular_rate, "--max-angular-rate", 0, 3600, lo_open=True)
+        check_number(args.max_angular_rate, "--max-angular-rate", 0, 3600, lo_open=True)
     if args.object_radius is not None:
-        _number(args.object_radius, "--object-radius", 0, 100)
+        check_number(args.object_radius, "--object-radius", 0, 100)
     up = np.asarray(args.up, dtype=np.float64)
     if up.shape != (3,) or not np.all(np.isfinite(up)) or np.linalg.norm(up) < 1e-9:
         raise InvalidInputError(f"--up must be three finite numbers, not all zero, got {args.up}")

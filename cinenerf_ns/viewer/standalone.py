@@ -24,7 +24,7 @@ from typing import Any, List, Optional, Tuple
 
 import numpy as np
 
-from cinenerf_ns.planner.errors import InvalidInputError
+from cinenerf_ns.planner.errors import InvalidInputError, PlanningError
 from cinenerf_ns.planner.scene import EllipsoidScene, SceneConfig, quat_wxyz_to_rotmat
 
 from .backend import FunctionBackend, LocateFn, PlanFn, SceneGaussians, label_locate, to_numpy
@@ -352,9 +352,31 @@ class StandaloneViewer:
         self.server.stop()
 
 
+def check_config(cfg: StandaloneConfig) -> None:
+    """The options' ranges, before the scene is loaded (messages name the option); the scene-relative checks (camera
+    radius against the scene, grid against memory) follow in the planner, shown in the status line."""
+    from cinenerf_ns.options import check_number
+    from cinenerf_ns.planner.planner import GRID_RESOLUTION_RANGE, MAX_CANDIDATES
+
+    if not isinstance(cfg.load_config, str) or not cfg.load_config.strip():
+        raise InvalidInputError("--load-config is empty: give a run's config.yml, a compact export, a .ply, "
+                                "'procedural' or 'demo'")
+    check_number(cfg.port, "--port", 1, 65535, integer=True)
+    check_number(cfg.camera_radius, "--camera-radius", 0, 10)
+    check_number(cfg.safety_margin, "--safety-margin", 0, 10)
+    check_number(cfg.grid_resolution, "--grid-resolution", *GRID_RESOLUTION_RANGE, integer=True)
+    check_number(cfg.max_speed, "--max-speed", 0, 100, lo_open=True)
+    check_number(cfg.n_candidates, "--n-candidates", 1, MAX_CANDIDATES, integer=True)
+    check_number(cfg.max_display_gaussians, "--max-display-gaussians", 1, 50_000_000, integer=True)
+    check_number(cfg.scale, "--scale", 0, 1e6, lo_open=True)
+    if cfg.device != "cpu" and not str(cfg.device).startswith("cuda"):
+        raise InvalidInputError(f"--device must be 'cpu' or 'cuda', got {cfg.device!r}")
+
+
 def main(cfg: StandaloneConfig) -> None:
     from rich.console import Console
 
+    check_config(cfg)
     viewer = StandaloneViewer(cfg)
     Console().print(f"[bold green]cinesplat-viewer[/] running at {viewer.url}  (Ctrl+C to stop)\n{viewer.panel.status}")
     if viewer.planner is not None:
@@ -369,10 +391,19 @@ def main(cfg: StandaloneConfig) -> None:
         viewer.close()
 
 
-def entrypoint() -> None:
-    import tyro
+def entrypoint(argv: Optional[List[str]] = None) -> None:
+    """cinesplat-viewer: user errors (options, scene files) end with a message on stderr and exit status 2."""
+    import sys
 
-    main(tyro.cli(StandaloneConfig))
+    import tyro
+    from rich.console import Console
+
+    cfg = tyro.cli(StandaloneConfig, args=argv)
+    try:
+        main(cfg)
+    except (PlanningError, FileNotFoundError, ValueError, OSError) as e:  # CheckpointError, QueryError, port in use
+        Console(stderr=True).print(f"[bold red]cinesplat-viewer:[/bold red] {e}", highlight=False)
+        sys.exit(2)
 
 
 if __name__ == "__main__":

@@ -209,3 +209,26 @@ def test_cli_help():
     r = subprocess.run([sys.executable, "-m", "cinenerf_ns.viewer.standalone", "--help"], capture_output=True,
                        text=True, env=env, timeout=120)
     assert r.returncode == 0 and "--load-config" in r.stdout and "--port" in r.stdout
+
+
+@pytest.mark.parametrize("argv,regex", [
+    (["--port", "0"], r"--port must be an integer in \[1, 65535\]"),
+    (["--camera-radius", "-1"], r"--camera-radius must be"),
+    (["--grid-resolution", "100000"], r"--grid-resolution must be an integer in \[8, 1024\]"),
+    (["--max-speed", "0"], r"--max-speed must be"),
+    (["--n-candidates", "500"], r"--n-candidates must be an integer in \[1, 64\]"),
+    (["--device", "tpu"], r"--device must be"),
+    (["--load-config", "/nonexistent/scene.npz"], r"scene\.npz"),
+    (["--load-config", "procedural:abc"], r"bad procedural scene"),
+])
+def test_viewer_options_are_checked_before_anything_starts(argv, regex, capsys):
+    """cinesplat-viewer refuses bad options with a message naming them on stderr, exit 2, no server started."""
+    import re
+
+    from cinenerf_ns.viewer.standalone import entrypoint
+
+    with pytest.raises(SystemExit) as ei:
+        entrypoint(argv)
+    assert ei.value.code == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "Traceback" not in err and re.search(regex, err), err
