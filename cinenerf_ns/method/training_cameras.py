@@ -9,7 +9,6 @@ config is read as text.
 from __future__ import annotations
 
 import json
-import re
 from pathlib import Path
 from typing import Any, Mapping, Optional, Tuple
 
@@ -26,16 +25,44 @@ def camera_centres(transforms_json: Path, dataparser_transforms_json: Path) -> n
     return ((T[:3, :3] @ c.T).T + T[:3, 3]) * float(dp["scale"])
 
 
+def read_run_config(config_path: Path) -> dict:
+    """A nerfstudio config.yml as plain dicts and lists (the one reader of run configs): its ``!!python/object`` tags
+    become dicts, ``pathlib`` tags become Paths, nothing else is constructed (no code from the file runs). YAML
+    anchors resolve as usual: ns-train writes the data path once ('data: &id003 !!python/...') and refers to it."""
+    import yaml
+
+    class _Loader(yaml.SafeLoader):
+        pass
+
+    def _path(loader, suffix, node):
+        return Path(*[str(p) for p in loader.construct_sequence(node, deep=True)])
+
+    def _plain(loader, suffix, node):
+        if isinstance(node, yaml.MappingNode):
+            m = loader.construct_mapping(node, deep=True)
+            # "!!python/object/apply:X {args, state}": the object's attributes are its state
+            return m["state"] if suffix.startswith("object/apply:") and isinstance(m.get("state"), dict) else m
+        if isinstance(node, yaml.SequenceNode):
+            return loader.construct_sequence(node, deep=True)
+        return loader.construct_scalar(node)
+
+    _Loader.add_multi_constructor("tag:yaml.org,2002:python/object/apply:pathlib.", _path)
+    _Loader.add_multi_constructor("tag:yaml.org,2002:python/", _plain)
+    out = yaml.load(Path(config_path).read_text(), Loader=_Loader)
+    return out if isinstance(out, dict) else {}
+
+
 def run_data_path(config_path: Path) -> Optional[Path]:
-    """The data path a nerfstudio config.yml was trained on, or None when the config names none."""
-    text = Path(config_path).read_text()
-    # ns-train --data writes the path once with a YAML anchor ("data: &id003 !!python/..."; the datamanager's
-    # "data: *id003" refers to it); Python 3.13 pickles pathlib._local.PosixPath
-    m = re.search(r"^([ ]*)data: (?:&\S+ )?!!python/object/apply:pathlib\.[\w.]+\n((?:\1- .*\n)+)", text, re.M)
-    if m is None:
+    """The data path a nerfstudio config.yml was trained on, or None when the config names none or is unreadable."""
+    try:
+        cfg = read_run_config(config_path)
+    except Exception:  # noqa: BLE001 - any malformed YAML: no data path
         return None
-    parts = [ln.strip()[2:] for ln in m.group(2).splitlines() if ln.strip().startswith("- ")]
-    return Path(*parts) if parts else None
+    data = cfg.get("data")
+    if data is None:
+        dm = (cfg.get("pipeline") or {}).get("datamanager") if isinstance(cfg.get("pipeline"), dict) else None
+        data = dm.get("data") if isinstance(dm, dict) else None
+    return data if isinstance(data, Path) else None
 
 
 def training_camera_centres(config_path: Path) -> Optional[np.ndarray]:

@@ -101,16 +101,11 @@ def load_ply(path: Path) -> SplatParams:
 
 def run_data_dir(config_path: Path) -> Optional[Path]:
     """The dataset directory of a nerfstudio run's config.yml (where the Render tab keeps camera_paths/)."""
-    import yaml
+    from cinenerf_ns.method.training_cameras import run_data_path
 
-    try:  # nerfstudio's own loader (a trusted local file, as ns-viewer reads it)
-        config = yaml.load(config_path.read_text(), Loader=yaml.Loader)
-    except Exception:
-        return None
-    data = getattr(config, "data", None) or getattr(getattr(getattr(config, "pipeline", None), "datamanager", None), "data", None)
+    data = run_data_path(config_path)
     if data is None:
         return None
-    data = Path(data)
     return data.parent if data.is_file() else data
 
 

@@ -101,3 +101,17 @@ def test_add_camera_centres_script_keeps_the_arrays(tmp_path, suffix):
     with pytest.raises(SystemExit, match="not found"):
         acc.main(["--scene", str(tmp_path / "none.pt"), "--transforms", str(tmp_path / "transforms.json"),
                   "--dataparser-transforms", str(tmp_path / "dataparser_transforms.json")])
+
+
+def test_run_config_reader_constructs_nothing(tmp_path):
+    """The one config.yml reader turns python tags into plain data: a tag naming a function is never called."""
+    from cinenerf_ns.method.training_cameras import read_run_config, run_data_path
+
+    marker = tmp_path / "ran"
+    (tmp_path / "config.yml").write_text(
+        "!!python/object:nerfstudio.engine.trainer.TrainerConfig\n"
+        f"hook: !!python/object/apply:os.system ['touch {marker}']\n"
+        "data: !!python/object/apply:pathlib.PosixPath ['/', 'srv', 'scene']\n")
+    cfg = read_run_config(tmp_path / "config.yml")
+    assert not marker.exists() and cfg["hook"] == [f"touch {marker}"]
+    assert run_data_path(tmp_path / "config.yml") == Path("/srv/scene")
