@@ -105,6 +105,7 @@ class Mp4Writer:
 def contact_sheet(frames: Sequence[np.ndarray], labels: Sequence[str], cols: int = 3, pad: int = 4) -> np.ndarray:
     """uint8 [H', W', 3] grid of frames [H, W, 3] with a label in each frame's corner."""
     h, w = frames[0].shape[:2]
+    cols = max(1, min(cols, len(frames)))
     rows = (len(frames) + cols - 1) // cols
     sheet = Image.new("RGB", (cols * w + (cols + 1) * pad, rows * h + (rows + 1) * pad), (20, 20, 20))
     draw = ImageDraw.Draw(sheet)
