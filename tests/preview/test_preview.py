@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -118,3 +119,15 @@ def test_no_compiler_falls_back_to_torch(tmp_path):
         assert r.returncode == 0, r.stderr
         backend, status = r.stdout.strip().splitlines()
         assert backend == "torch" and ("failed" in status or "turned off" in status)
+
+
+def test_imports_stay_light_and_one_way():
+    """preview imports no nerfstudio / gsplat / viser at module level, and the planner never imports preview."""
+    code = ("import sys, cinenerf_ns.preview, cinenerf_ns.preview.cli, cinenerf_ns.ffmpeg_entry; "
+            "print([m for m in ('nerfstudio', 'gsplat', 'viser') if m in sys.modules])")
+    r = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120,
+                       env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert r.returncode == 0 and r.stdout.strip() == "[]", r.stderr
+    planner = REPO / "cinenerf_ns" / "planner"
+    pat = re.compile(r"^\s*(from\s+\S*preview|import\s+\S*preview)", re.M)
+    assert not [p for p in planner.rglob("*.py") if pat.search(p.read_text())]
