@@ -34,6 +34,7 @@ def _frames(scene: PreviewScene, cams: PreviewCameras, backend: str, background,
         return
     import torch
 
+    scene = scene.to(device=device, dtype=torch.float32)  # once; render_gsplat's .to is then a no-op
     for s in range(0, len(cams), GSPLAT_BATCH):
         ids = range(s, min(s + GSPLAT_BATCH, len(cams)))
         t0 = time.perf_counter()

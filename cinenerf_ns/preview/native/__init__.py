@@ -91,6 +91,14 @@ def native_status() -> dict:
     return dict(_STATUS)
 
 
+def default_threads() -> int:
+    """CPUs this process may run on (its affinity mask, else os.cpu_count())."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
 def render_native(
     means: np.ndarray,  # [N, 3] world
     cov3d: np.ndarray,  # [N, 6] xx xy xz yy yz zz
@@ -117,7 +125,7 @@ def render_native(
     rgb = np.empty((height, width, 3), dtype=dt)  # [H, W, 3]
     alpha = np.empty((height, width, 1), dtype=dt)  # [H, W, 1]
     stats = np.zeros(2, dtype=np.int64)
-    threads = threads or os.cpu_count() or 1
+    threads = threads or default_threads()
     ptr = lambda a: a.ctypes.data  # noqa: E731
     rc = fn(*(ptr(a) for a in arrs[:4]), n, ptr(arrs[4]), ptr(intr), int(width), int(height), float(near_plane),
             float(eps2d), int(threads), ptr(rgb), ptr(alpha), ptr(stats))
