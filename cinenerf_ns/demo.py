@@ -4,7 +4,8 @@ The bundled scene (cinenerf_ns/assets/room0.npz, see assets/README.md) is a synt
 `ns-train cinesplat` on label masks. The demo asks "go to the red armchair, look at the floor lamp" and
 writes into demo_output/: the nerfstudio camera path (demo_0.json), the planner report
 (demo_report.json with the exact clearance along the whole curve), the clearance-over-time plot and a
-top view of the path through the room. Without the bundled scene (e.g. a trimmed checkout) it falls back
+top view of the path through the room, and a preview of the shot rendered on the CPU (demo.mp4, 480x270 at 15 fps,
+and its contact sheet demo_sheet.png). Without the bundled scene (e.g. a trimmed checkout) it falls back
 to a procedural room with known object names.
 """
 from __future__ import annotations
@@ -12,6 +13,7 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
+from typing import Optional
 
 from rich.console import Console
 
@@ -29,11 +31,24 @@ def demo_args(output_dir: Path, scene: Path = DEMO_SCENE, candidates: int = 1) -
                     candidates=candidates, seed=0)
 
 
+def demo_preview(scene: str, camera_path: str, output_dir: Path, console: Console) -> Optional[dict]:
+    """demo.mp4 + demo_sheet.png of the planned shot (480x270, 15 fps, CPU), or None when the scene has no colour."""
+    from cinenerf_ns.method.checkpoint import load_splat
+    from cinenerf_ns.preview import preview_camera_path
+
+    if str(scene).startswith("procedural:"):
+        console.print("[yellow]no preview: the procedural fallback scene has no colours[/yellow]")
+        return None
+    return preview_camera_path(load_splat(scene), camera_path, output_dir, "demo", width=480, height=270, fps=15,
+                               console=console)
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--output-dir", type=Path, default=Path("demo_output"))
     ap.add_argument("--scene", type=Path, default=DEMO_SCENE, help="compact scene / config.yml (default: the bundled room)")
     ap.add_argument("--candidates", type=int, default=1)
+    ap.add_argument("--no-preview", action="store_true", help="skip the mp4 preview of the planned shot")
     a = ap.parse_args(argv)
     console = Console(width=max(Console().width, 150))  # the candidates table has many columns
     args = demo_args(a.output_dir, a.scene, a.candidates)
@@ -41,9 +56,16 @@ def main(argv=None) -> dict:
     t0 = time.perf_counter()
     summary = run_plan(args, console=console)
     cam = summary["candidates"][0]["camera_path"]
+    preview = None if a.no_preview else demo_preview(args.scene, cam, a.output_dir, console)
+    if preview is not None:
+        summary["preview"] = preview
     console.print(f"\n[green]done in {time.perf_counter() - t0:.1f} s[/green]. Outputs in {a.output_dir}/:")
     console.print(f"  camera path  {cam}\n  report       {summary['report']}\n"
                   f"  clearance    {summary['plots']['clearance']}\n  top view     {summary['plots']['topdown']}")
+    if preview is not None:
+        console.print(f"  preview      {preview['paths']['mp4']} ({preview['frames']} frames, {preview['width']}x"
+                      f"{preview['height']} @ {preview['fps']:g} fps, rendered in {preview['timings']['total_s']:.1f} s)\n"
+                      f"  contact      {preview['paths']['contact_sheet']}")
     console.print("\nGo further (after `source .venv/bin/activate` when you used make):")
     console.print(f"  watch and re-plan in the browser:  cinesplat-viewer --load-config {args.scene}")
     console.print(f"  the same from the command line:    cinesplat-plan --scene {args.scene} --go-to 'green sofa' "

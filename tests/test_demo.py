@@ -27,3 +27,9 @@ def test_demo_plans_from_text_on_bundled_scene(tmp_path):
     assert "armchair" in rep["go_to"]["resolved"] and "lamp" in rep["look_at"]["resolved"]
     assert np.linalg.norm(goal - look) > 0.05
     assert s["report"] == str(tmp_path / "demo_report.json")
+    # the CPU preview of the planned shot: 15 fps over the path's duration, first and last poses included
+    p = s["preview"]
+    assert p["frames"] == max(2, round(cam["seconds"] * 15)) and p["width"] == 480 and p["height"] == 270
+    assert p["frame_index"][0] == 0 and p["frame_index"][-1] == len(cam["camera_path"]) - 1
+    assert (tmp_path / "demo.mp4").read_bytes()[4:8] == b"ftyp"
+    assert (tmp_path / "demo_sheet.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

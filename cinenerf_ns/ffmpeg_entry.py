@@ -1,0 +1,55 @@
+"""The ``ffmpeg`` console script this package installs: runs the imageio-ffmpeg wheel's bundled ffmpeg.
+
+Stock ``ns-render`` checks for ``ffmpeg`` on PATH (nerfstudio utils/install_checks.check_ffmpeg_installed,
+shutil.which) and mediapy writes its videos through the ``ffmpeg`` it finds on PATH, so a machine without a
+system ffmpeg can still write mp4s once the environment's bin folder is on PATH. Kept free of heavy imports:
+it starts on every ffmpeg call.
+
+ffmpeg 7 removed ``-vsync`` (mediapy 1.2's reader still passes it); it is rewritten to ``-fps_mode`` (ffmpeg >= 5.1).
+"""
+from __future__ import annotations
+
+import os
+import sys
+from typing import List, Optional, Sequence
+
+
+def bundled_ffmpeg() -> str:
+    """Path of the imageio-ffmpeg wheel's ffmpeg binary (raises RuntimeError when the wheel has none)."""
+    import imageio_ffmpeg
+
+    return imageio_ffmpeg.get_ffmpeg_exe()
+
+
+VSYNC_TO_FPS_MODE = {"0": "passthrough", "1": "cfr", "2": "vfr", "-1": "auto"}
+
+
+def translate_args(args: Sequence[str]) -> List[str]:
+    """Arguments for the bundled ffmpeg: ``-vsync X`` becomes ``-fps_mode X`` (numeric modes by name)."""
+    out: List[str] = []
+    i = 0
+    while i < len(args):
+        if args[i] == "-vsync" and i + 1 < len(args):
+            out += ["-fps_mode", VSYNC_TO_FPS_MODE.get(args[i + 1], args[i + 1])]
+            i += 2
+        else:
+            out.append(args[i])
+            i += 1
+    return out
+
+
+def main(argv: Optional[Sequence[str]] = None) -> None:
+    """Replace this process with the bundled ffmpeg, passing the arguments through (os.execv)."""
+    args = translate_args(sys.argv[1:] if argv is None else argv)
+    try:
+        exe = bundled_ffmpeg()
+    except (ImportError, RuntimeError) as e:
+        print(f"ffmpeg (cinenerf_ns): no bundled ffmpeg: {e} (pip install imageio-ffmpeg)", file=sys.stderr)
+        raise SystemExit(127)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.execv(exe, [exe, *args])
+
+
+if __name__ == "__main__":
+    main()

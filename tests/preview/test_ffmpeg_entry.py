@@ -1,0 +1,64 @@
+"""The ``ffmpeg`` console script (cinenerf_ns.ffmpeg_entry) that lets stock ns-render / mediapy write mp4s without a
+system ffmpeg. These tests never use a system ffmpeg: the only ffmpeg on the PATH they build is the entry's."""
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cinenerf_ns import ffmpeg_entry
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _console_script(bin_dir: Path) -> Path:
+    """The wrapper pip writes for ``ffmpeg = "cinenerf_ns.ffmpeg_entry:main"`` (same form as pip's template)."""
+    bin_dir.mkdir(parents=True, exist_ok=True)
+    p = bin_dir / "ffmpeg"
+    p.write_text(f"#!{sys.executable}\nimport sys\nfrom cinenerf_ns.ffmpeg_entry import main\n"
+                 "if __name__ == '__main__':\n    sys.exit(main())\n")
+    p.chmod(0o755)
+    return p
+
+
+def test_pyproject_installs_the_entry():
+    meta = tomllib.loads((REPO / "pyproject.toml").read_text())
+    assert meta["project"]["scripts"]["ffmpeg"] == "cinenerf_ns.ffmpeg_entry:main"
+    assert any(d.startswith("imageio-ffmpeg") for d in meta["project"]["dependencies"])
+    assert os.access(ffmpeg_entry.bundled_ffmpeg(), os.X_OK)
+
+
+def test_entry_runs_the_bundled_ffmpeg():
+    r = subprocess.run([sys.executable, "-c", "from cinenerf_ns.ffmpeg_entry import main; main()", "-version"],
+                       cwd=REPO, capture_output=True, text=True, timeout=60, env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert r.returncode == 0 and r.stdout.startswith("ffmpeg version")
+
+
+def test_nerfstudio_check_and_mediapy_find_it(tmp_path, monkeypatch):
+    media = pytest.importorskip("mediapy")
+    script = _console_script(tmp_path / "bin")
+    monkeypatch.setenv("PATH", str(script.parent) + os.pathsep + os.environ.get("PATH", ""))
+    monkeypatch.setenv("PYTHONPATH", str(REPO))
+    assert shutil.which("ffmpeg") == str(script)
+    install_checks = pytest.importorskip("nerfstudio.utils.install_checks")
+    install_checks.check_ffmpeg_installed()  # sys.exit(1) when shutil.which finds none
+    assert media.video_is_available() and media._search_for_ffmpeg_path() == str(script)
+    frames = np.zeros((6, 32, 48, 3), np.uint8)
+    frames[:, :, :, 0] = np.linspace(0, 250, 6, dtype=np.uint8)[:, None, None]  # red ramp over time
+    out = tmp_path / "tiny.mp4"
+    media.write_video(out, frames, fps=6)  # what ns-render's media.VideoWriter does, through our ffmpeg
+    back = media.read_video(out)
+    assert back.shape == (6, 32, 48, 3) and out.read_bytes()[4:8] == b"ftyp"
+    assert np.abs(back[..., 0].astype(int).mean(axis=(1, 2)) - frames[:, 0, 0, 0]).max() < 12
+
+
+def test_vsync_is_rewritten_for_new_ffmpeg():
+    assert ffmpeg_entry.translate_args(["-i", "a.mp4", "-vsync", "0", "-f", "null", "-"]) == \
+        ["-i", "a.mp4", "-fps_mode", "passthrough", "-f", "null", "-"]
+    assert ffmpeg_entry.translate_args(["-vsync", "vfr", "-vsync"]) == ["-fps_mode", "vfr", "-vsync"]

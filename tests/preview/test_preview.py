@@ -1,0 +1,133 @@
+"""preview_camera_path end to end: mp4 (decoded back), contact sheet, GIF, atomic writes, backends, fallback."""
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from cinenerf_ns.planner.errors import InvalidInputError
+from cinenerf_ns.preview import native, preview_camera_path, render_frame, scene_from_splat
+from cinenerf_ns.preview import render as render_mod
+from cinenerf_ns.preview import video
+from cinenerf_ns.preview.cameras import path_cameras
+
+sys.path.insert(0, str(Path(__file__).parent))
+from _scenes import orbit_camera_path, random_splat  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _decode(path: Path):
+    import imageio_ffmpeg
+
+    gen = imageio_ffmpeg.read_frames(str(path))
+    meta = next(gen)
+    w, h = meta["size"]
+    frames = [np.frombuffer(f, np.uint8).reshape(h, w, 3) for f in gen]
+    return meta, frames
+
+
+def test_preview_writes_mp4_sheet_and_gif(tmp_path):
+    splat, cam = random_splat(1), orbit_camera_path(n=40, fps=30.0)
+    out = preview_camera_path(splat, cam, tmp_path / "out", "shot", width=64, height=48, fps=10, gif=True,
+                              progress=False)
+    n = round(cam["seconds"] * 10)
+    assert out["frames"] == n and out["frame_index"][0] == 0 and out["frame_index"][-1] == 39
+    names = sorted(os.listdir(tmp_path / "out"))
+    assert names == ["shot.gif", "shot.mp4", "shot_sheet.png"]  # no temporary file left
+    for p in out["paths"].values():
+        assert os.stat(p).st_mode & 0o777 == 0o644
+    meta, frames = _decode(Path(out["paths"]["mp4"]))
+    assert meta["codec"].startswith("h264") and len(frames) == n and frames[0].shape == (48, 64, 3)
+    assert meta["fps"] == pytest.approx(10)
+    cams = path_cameras(cam, 64, 48, 10)
+    scene = scene_from_splat(splat)
+    for k in (0, n - 1):  # the first and last frames of the video are the first and last poses of the path
+        ref = render_frame(scene, cams.viewmats[k], cams.intrinsics[k], 64, 48).astype(float)
+        other = render_frame(scene, cams.viewmats[n - 1 - k], cams.intrinsics[n - 1 - k], 64, 48).astype(float)
+        err = np.abs(frames[k] - ref).mean()
+        assert err < 6.0 and err < 0.5 * np.abs(frames[k] - other).mean()  # H.264 loss << the change of view
+    sheet = Image.open(out["paths"]["contact_sheet"])
+    assert sheet.size == (3 * 64 + 4 * 4, 2 * 48 + 3 * 4)
+    gif = Image.open(out["paths"]["gif"])
+    assert gif.n_frames == n
+    t = out["timings"]
+    assert len(t["frame_ms"]) == n and t["total_s"] >= t["render_s"] > 0
+
+
+def test_bad_input_writes_nothing(tmp_path):
+    splat, cam = random_splat(2), orbit_camera_path(n=10)
+    for kw, opt in (({"width": 8}, "width"), ({"height": 5000}, "height"), ({"fps": 0.5}, "fps"),
+                    ({"name": "../x"}, "name"), ({"backend": "vulkan"}, "backend")):
+        with pytest.raises(InvalidInputError, match=opt):
+            preview_camera_path(splat, cam, tmp_path / "out", **kw, progress=False)
+    bad = dict(cam, camera_path=[])
+    with pytest.raises(InvalidInputError, match="no frames"):
+        preview_camera_path(splat, bad, tmp_path / "out", progress=False)
+    assert not (tmp_path / "out").exists()
+
+
+def test_failures_mid_way_leave_no_partial_file(tmp_path, monkeypatch):
+    splat, cam = random_splat(3), orbit_camera_path(n=20)
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    (out_dir / "shot.mp4").write_bytes(b"previous")  # an earlier preview stays untouched
+    monkeypatch.setattr(video, "ffmpeg_exe", lambda: "/bin/false")
+    with pytest.raises(RuntimeError, match="ffmpeg failed"):
+        preview_camera_path(splat, cam, out_dir, "shot", width=32, height=32, progress=False)
+    assert os.listdir(out_dir) == ["shot.mp4"] and (out_dir / "shot.mp4").read_bytes() == b"previous"
+    monkeypatch.undo()
+    calls = []
+    real = render_mod.render_premultiplied
+
+    def failing(*a, **k):
+        calls.append(1)
+        if len(calls) == 3:
+            raise MemoryError("boom")
+        return real(*a, **k)
+
+    monkeypatch.setattr("cinenerf_ns.preview.preview.render_premultiplied", failing)
+    with pytest.raises(MemoryError):
+        preview_camera_path(splat, cam, out_dir, "other", width=32, height=32, progress=False)
+    assert os.listdir(out_dir) == ["shot.mp4"]
+
+
+def test_backends_give_the_same_frame():
+    scene = scene_from_splat(random_splat(4, n=500))
+    cams = path_cameras(orbit_camera_path(n=5), 80, 45, 30)
+    a = render_frame(scene, cams.viewmats[2], cams.intrinsics[2], 80, 45, backend="torch").astype(int)
+    if native.render_fn("float32") is not None:
+        b = render_frame(scene, cams.viewmats[2], cams.intrinsics[2], 80, 45, backend="native").astype(int)
+        assert np.abs(a - b).max() <= 1
+    bg = np.rint(np.array(render_mod.NERFSTUDIO_BACKGROUND) * 255)
+    assert (np.abs(a - bg).sum(-1) > 0).mean() > 0.2  # the splat covers part of the frame, background elsewhere
+
+
+def test_no_compiler_falls_back_to_torch(tmp_path):
+    """A failing compiler (CC) or CINENERF_NATIVE=0: the loader says why and "auto" renders with torch."""
+    code = ("from cinenerf_ns.preview import native, render; print(render.choose_backend('auto')); "
+            "print(native.native_status()['float32'])")
+    for env in ({"CC": str(tmp_path / "no-such-cc")}, {"CINENERF_NATIVE": "0"}):
+        r = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120,
+                           env={**os.environ, "PYTHONPATH": str(REPO), "CINENERF_CACHE": str(tmp_path), **env})
+        assert r.returncode == 0, r.stderr
+        backend, status = r.stdout.strip().splitlines()
+        assert backend == "torch" and ("failed" in status or "turned off" in status)
+
+
+def test_imports_stay_light_and_one_way():
+    """preview imports no nerfstudio / gsplat / viser at module level, and the planner never imports preview."""
+    code = ("import sys, cinenerf_ns.preview, cinenerf_ns.preview.cli, cinenerf_ns.ffmpeg_entry; "
+            "print([m for m in ('nerfstudio', 'gsplat', 'viser') if m in sys.modules])")
+    r = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120,
+                       env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert r.returncode == 0 and r.stdout.strip() == "[]", r.stderr
+    planner = REPO / "cinenerf_ns" / "planner"
+    pat = re.compile(r"^\s*(from\s+\S*preview|import\s+\S*preview)", re.M)
+    assert not [p for p in planner.rglob("*.py") if pat.search(p.read_text())]
