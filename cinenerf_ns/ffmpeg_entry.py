@@ -53,3 +53,17 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
 
 if __name__ == "__main__":
     main()
+
+
+def ensure_on_path() -> bool:
+    """Put this environment's bin folder (where pip installed the ``ffmpeg`` script) on PATH when no ffmpeg is found
+    there: ``.venv/bin/ns-render`` run without activating the venv then still passes nerfstudio's ffmpeg check and
+    mediapy finds the same binary. Returns whether an ffmpeg is on PATH afterwards."""
+    import shutil
+
+    if shutil.which("ffmpeg"):
+        return True
+    here = os.path.dirname(os.path.abspath(sys.executable))
+    if os.path.isfile(os.path.join(here, "ffmpeg")) and os.access(os.path.join(here, "ffmpeg"), os.X_OK):
+        os.environ["PATH"] = here + os.pathsep + os.environ.get("PATH", "")
+    return shutil.which("ffmpeg") is not None

@@ -78,6 +78,12 @@ class PlanArgs:
     """Where camera paths, the report and the plots go."""
     name: str = "shot"
     """File name stem of the outputs (letters, digits, '.', '_', '-')."""
+    preview: bool = False
+    """Also render each candidate as a video on the CPU (SH degree 0): <name>_<k>_preview.mp4 and a contact sheet PNG."""
+    preview_size: Tuple[int, int] = (480, 270)
+    """Width and height of the preview videos, pixels (16-4096 each)."""
+    preview_fps: float = 15.0
+    """Frame rate of the preview videos (1-120; frames are taken from the camera path, never interpolated)."""
     fps: float = TimingConfig.fps
     """Frames per second of the exported path, 1-240."""
     max_speed: float = TimingConfig.max_speed
@@ -195,6 +201,10 @@ def check_args(args: PlanArgs) -> None:
     if args.start is not None and parse_point(args.start) is None:
         raise InvalidInputError(f"--start must be a point 'x y z', got {args.start!r}")
     check_name(args.name)
+    if args.preview:
+        for v, opt in zip(args.preview_size, ("--preview-size (width)", "--preview-size (height)")):
+            check_number(v, opt, 16, 4096, integer=True)
+        check_number(args.preview_fps, "--preview-fps", 1, 120)
     check_writable(Path(args.output_dir))
     args.score.validate()
 
@@ -268,8 +278,20 @@ def _write_outputs(args: PlanArgs, out: OutputSet, planner: Planner, loaded: Loa
         obstacles=_obstacles_near_paths(loaded.scene.means.detach().cpu().numpy(), shots, np.asarray(args.up, float)),
         targets={"go to": goal, "look at": look}, labels=[f"rank {k + 1}" for k in range(len(shots))],
     )
-    return files, {"clearance": str(out.final(f"{args.name}_clearance.png")),
-                   "topdown": str(out.final(f"{args.name}_topdown.png"))}
+    plots = {"clearance": str(out.final(f"{args.name}_clearance.png")),
+             "topdown": str(out.final(f"{args.name}_topdown.png"))}
+    if args.preview:
+        from cinenerf_ns.preview import preview_camera_path
+        from cinenerf_ns.scenes import preview_scene
+
+        scene = preview_scene(loaded)
+        w, h = args.preview_size
+        for k in range(len(shots)):
+            res = preview_camera_path(scene, out.path(f"{args.name}_{k}.json"), out.staging, name=f"{args.name}_{k}_preview",
+                                      width=w, height=h, fps=args.preview_fps, progress=False)
+            plots[f"preview_{k}"] = str(out.final(Path(res["paths"]["mp4"]).name))
+            plots[f"preview_sheet_{k}"] = str(out.final(Path(res["paths"]["contact_sheet"]).name))
+    return files, plots
 
 
 def _resolve(args: PlanArgs, loaded: LoadedScene, planner: Planner, gm: Dict[str, Any], lm: Dict[str, Any]) -> tuple:
@@ -315,7 +337,8 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
         prog.update(task, advance=1, description=f"planning {args.candidates} candidate(s)", refresh=True)
         batch_tm: Dict[str, float] = {}
         shots, scores, multi, obj_r, score_cfg = _plan_shots(args, planner, loaded, goal, look, start, batch_tm)
-        prog.update(task, advance=1, description="exact clearance report + plots", refresh=True)
+        prog.update(task, advance=1, refresh=True, description="exact clearance report + plots"
+                    + (" + preview videos" if args.preview else ""))
         reports = [planner.clearance_report(sh, max_spacing=0.02, label=f"rank {k + 1}") for k, sh in enumerate(shots)]
         moves = [planner.explain_goal(goal if multi is None else multi.shot.goal_target, sh.goal) for sh in shots]
         with OutputSet(Path(args.output_dir), args.name) as out:
@@ -399,6 +422,9 @@ def _print_summary(args, console, loaded, gm, lm, shots, scores, multi, reports,
             console.print(f"[yellow]note (rank {k + 1}): the go-to point moved {mv['distance']:.3f} units, from "
                           f"{_fmt3(mv['from'])} to {_fmt3(mv['to'])}: {mv['why']}[/yellow]")
     console.print(f"report: {summary['report']}\nplots: {summary['plots']['clearance']}, {summary['plots']['topdown']}")
+    videos = [v for k, v in summary["plots"].items() if k.startswith("preview_") and not k.startswith("preview_sheet")]
+    if videos:
+        console.print("preview: " + ", ".join(videos))
     if loaded.config_path is not None:
         console.print(
             f"render: ns-render camera-path --load-config {loaded.config_path} --camera-path-filename {files[0]} "

@@ -64,6 +64,8 @@ OPTION_CASES = [
     ("device-tpu", ["--device", "tpu"], r"--device must be 'cpu' or 'cuda'"),
     ("name-path", ["--name", "../evil"], r"--name must be 1-100 letters"),
     ("name-empty", ["--name", ""], r"--name must be"),
+    ("preview-size", ["--preview", "--preview-size", "8", "270"], r"--preview-size \(width\) must be an integer in \[16, 4096\]"),
+    ("preview-fps", ["--preview", "--preview-fps", "500"], r"--preview-fps must be a number in \[1, 120\]"),
     ("then-look-at-count", ["--then-go-to", "sofa", "--then-look-at", "table", "bookshelf"],
      r"--then-look-at needs one look-at per --then-go-to"),
     ("go-to-huge", ["--go-to", "1e30 0 0"], r"go-to point .* units outside the planning region"),

@@ -308,3 +308,15 @@ def test_moved_goal_is_reported(tmp_path, capsys):
     assert "the go-to point moved" in " ".join(capsys.readouterr().out.split())
     rep = json.loads(open(s["report"]).read())
     assert rep["candidates"][0]["goal_moved"]["why"] == mv["why"]
+
+
+def test_preview_videos_per_candidate(tmp_path):
+    """--preview writes one mp4 + contact sheet per candidate beside the camera paths; the report names them."""
+    s = run_plan(PlanArgs(scene="procedural:3000:1", go_to="the armchair", look_at="floor lamp", grid_resolution=48,
+                          workers=0, candidates=2, preview=True, preview_size=(64, 36), preview_fps=5,
+                          output_dir=tmp_path))
+    for k in range(2):
+        mp4 = tmp_path / f"shot_{k}_preview.mp4"
+        assert s["plots"][f"preview_{k}"] == str(mp4.absolute())
+        assert mp4.read_bytes()[4:8] == b"ftyp"
+        assert (tmp_path / f"shot_{k}_preview_sheet.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

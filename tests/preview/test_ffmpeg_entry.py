@@ -62,3 +62,24 @@ def test_vsync_is_rewritten_for_new_ffmpeg():
     assert ffmpeg_entry.translate_args(["-i", "a.mp4", "-vsync", "0", "-f", "null", "-"]) == \
         ["-i", "a.mp4", "-fps_mode", "passthrough", "-f", "null", "-"]
     assert ffmpeg_entry.translate_args(["-vsync", "vfr", "-vsync"]) == ["-fps_mode", "vfr", "-vsync"]
+
+
+def test_loading_the_method_puts_the_env_ffmpeg_on_path(tmp_path, monkeypatch):
+    """.venv/bin/ns-render run without an activated venv: importing the method (eval_setup does, before nerfstudio's
+    ffmpeg check) puts the interpreter's bin folder, which holds the ffmpeg script, on PATH."""
+    import importlib
+
+    import cinenerf_ns.method
+
+    bin_dir = tmp_path / "venv" / "bin"
+    script = _console_script(bin_dir)
+    monkeypatch.setenv("PATH", "/nonexistent-bin")
+    monkeypatch.setattr(sys, "executable", str(bin_dir / "python"))
+    assert shutil.which("ffmpeg") is None
+    importlib.reload(cinenerf_ns.method)
+    assert shutil.which("ffmpeg") == str(script)
+    install_checks = pytest.importorskip("nerfstudio.utils.install_checks")
+    install_checks.check_ffmpeg_installed()  # sys.exit(1) when it finds none
+    monkeypatch.setenv("PATH", "/nonexistent-bin")
+    monkeypatch.setattr(sys, "executable", str(tmp_path / "elsewhere" / "python"))  # no script beside it: left alone
+    assert ffmpeg_entry.ensure_on_path() is False and os.environ["PATH"] == "/nonexistent-bin"
