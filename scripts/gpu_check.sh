@@ -95,6 +95,15 @@ for group, eps in [("console_scripts", proj.get("scripts", {}))] + list(proj.get
 (di / "entry_points.txt").write_text("\n".join(lines))
 (di / "RECORD").write_text("")
 print("wrote", di)
+# console scripts (cinesplat-plan, cinesplat-preview, ffmpeg, ...) as pip would write them
+bin_dir = site / "bin"
+bin_dir.mkdir(exist_ok=True)
+for name, target in proj.get("scripts", {}).items():
+    mod, fn = target.split(":")
+    exe = bin_dir / name
+    exe.write_text(f"#!{sys.executable}\nimport sys\nfrom {mod} import {fn}\nsys.exit({fn}())\n")
+    exe.chmod(0o755)
+print("console scripts:", sorted(proj.get("scripts", {})))
 EOF
   $PY - <<'EOF' || return 1
 import importlib, sys
@@ -334,6 +343,20 @@ stage_demo_render() {
   ns-render camera-path --load-config "$cfg" --camera-path-filename "$OUT/demo_render/demo_0.json" \
     --output-path "$OUT/demo_render/frames" --output-format images --rendered-output-names rgb || return 1
   echo "rendered frames: $(ls "$OUT/demo_render/frames" | wc -l)"
+}
+
+stage_shots() {
+  # issue 24 on a GPU: the bundled room's demo shot previewed at 1280x720 / 15 fps through gsplat (mp4 through the
+  # imageio-ffmpeg wheel's ffmpeg), the preview-vs-gsplat tests and the stock ns-render mp4 test (no system ffmpeg)
+  $PY -c "import imageio_ffmpeg; print('imageio-ffmpeg', imageio_ffmpeg.get_ffmpeg_exe())" || { echo "imageio-ffmpeg missing"; return 1; }
+  gsplat_compile || return 1
+  $PY -m cinenerf_ns.cli.plan --scene cinenerf_ns/assets/room0.npz --go-to "the red armchair" --look-at "the floor lamp" \
+      --output-dir "$OUT/shots" --name demo --workers 0 || return 1
+  for k in 1 2 3; do  # the first call warms gsplat's kernels up
+    $PY -m cinenerf_ns.preview.cli --scene cinenerf_ns/assets/room0.npz --camera-path "$OUT/shots/demo_0.json" \
+        --output-dir "$OUT/shots" --name "demo_720p_$k" --width 1280 --height 720 --fps 15 --device cuda || return 1
+  done
+  $PY -m pytest -q -ra -p no:cacheprovider tests/preview/test_gpu.py tests/preview/test_ns_render_gpu.py ${PYTEST_ARGS:-}
 }
 
 STAGES=("$@")

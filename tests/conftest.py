@@ -8,7 +8,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 FOX = Path(os.environ.get("CINENERF_FOX", REPO.parent / "shared" / "data" / "fox"))
-FOX_SPLAT = REPO.parent / "shared" / "data" / "fox_cinesplat" / "fox3000.npz"  # the fox capture, trained (cinesplat)
+FOX_SPLAT = Path(os.environ.get("CINENERF_FOX_SPLAT", REPO.parent / "shared" / "data" / "fox_cinesplat" / "fox3000.npz"))  # trained fox
 
 
 def _cuda() -> bool:
