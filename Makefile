@@ -26,7 +26,7 @@ $(VENV)/.installed: pyproject.toml Makefile | $(VPY)
 install: $(VENV)/.installed
 
 demo: install
-	$(VPY) -m cinenerf_ns.demo
+	$(VPY) -m cinenerf_ns.cli.demo
 
 test: install
 	$(VPY) -m pytest $(PYTEST_ARGS)

@@ -17,6 +17,9 @@ from cinenerf_ns.planner.scene import EllipsoidScene, SceneConfig
 
 
 
+ASSETS = Path(__file__).parent / "assets"
+DEMO_SCENE = ASSETS / "room0.npz"  # the bundled trained room (make demo, cinesplat-viewer's 'demo')
+
 @dataclass
 class LoadedScene:
     scene: EllipsoidScene

@@ -6,7 +6,8 @@ import json
 import numpy as np
 import pytest
 
-from cinenerf_ns.demo import DEMO_SCENE, main
+from cinenerf_ns.cli.demo import main
+from cinenerf_ns.scenes import DEMO_SCENE
 
 
 @pytest.mark.slow

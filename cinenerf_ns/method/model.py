@@ -37,6 +37,9 @@ META_CODEC_STATE = "cinesplat_codec_state"
 META_INFO = "cinesplat_info"
 
 
+VIEWER_EXTENSIONS = "cinenerf_ns.viewer_extensions"  # entry-point group: name -> callable(model) -> ViewerControl
+
+
 @dataclass
 class CineSplatModelConfig(SplatfactoModelConfig):
     """Splatfacto with a distilled 3-dim CLIP latent per Gaussian (Cine-NeRF, paper Sec. III)."""
@@ -116,12 +119,17 @@ class CineSplatModel(SplatfactoModel):
         if self.config.viewer_default_query:
             self._query_text = self.config.viewer_default_query
         if self.config.viewer_cine_panel:
-            # nerfstudio's Viewer finds this ViewerControl on the model (parse_object) and calls its _setup
-            # once the viser server exists; the backend (snapshot under train_lock, real planner, semantics)
-            # is built then, after a checkpoint has been loaded.
-            from cinenerf_ns.viewer.nerfstudio_panel import CinePanelControl, cinesplat_backend
+            self._attach_viewer_extensions()
 
-            self.cine_panel = CinePanelControl(lambda: cinesplat_backend(self, device=self.config.viewer_planner_device))
+    def _attach_viewer_extensions(self) -> None:
+        """Viewer panels are attached from outside the method: every entry point of the group VIEWER_EXTENSIONS
+        (pyproject; the cinematography panel of cinenerf_ns.viewer) is called with this model and its result is set
+        as the attribute of its name. nerfstudio's Viewer finds such ViewerControls on the model (parse_object)
+        and sets them up once the viser server exists, after a checkpoint has been loaded."""
+        from importlib.metadata import entry_points
+
+        for ep in entry_points(group=VIEWER_EXTENSIONS):
+            setattr(self, ep.name, ep.load()(self))
 
     def k_nearest_sklearn(self, x: torch.Tensor, k: int):
         """splatfacto's initial-scale kNN without scikit-learn (not in our dependency set): scipy cKDTree.

@@ -298,3 +298,9 @@ def model_semantic_scene(model: Any, camera_centres: Optional[Callable[[], Optio
 def cinesplat_backend(model: Any, device: Union[str, torch.device] = "cpu", planner_config: Any = None) -> SplatModelBackend:
     """The backend ``CineSplatModel`` installs: real planner + its semantics, planning on ``device``."""
     return SplatModelBackend(model, planner_config=planner_config, device=device)
+
+
+def attach(model: Any) -> CinePanelControl:
+    """The ``cine_panel`` viewer extension of a CineSplatModel (entry point group cinenerf_ns.viewer_extensions): the
+    panel's backend (a snapshot under the train lock, the real planner, semantics) is built when the viewer sets it up."""
+    return CinePanelControl(lambda: cinesplat_backend(model, device=model.config.viewer_planner_device))

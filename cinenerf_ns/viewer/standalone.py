@@ -164,7 +164,7 @@ def load_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optio
 
     scfg = scene_config or SceneConfig()
     if source == "demo":  # the bundled trained room (make demo's scene) when the package ships it
-        from cinenerf_ns.demo import DEMO_SCENE
+        from cinenerf_ns.scenes import DEMO_SCENE
 
         if DEMO_SCENE.exists():
             ls = load_scene(str(DEMO_SCENE), data_dir or Path("demo_output") / "cinesplat-viewer-demo", scene_config, device)

@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from cinenerf_ns.demo import ASSETS, DEMO_SCENE
+from cinenerf_ns.scenes import ASSETS, DEMO_SCENE
 
 
 @pytest.mark.slow

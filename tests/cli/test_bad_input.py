@@ -192,7 +192,7 @@ def test_suite_is_at_least_sixty_cases(tmp_path):
 def test_text_that_matches_nothing_on_the_bundled_scene(text, tmp_path, capsys):
     """The bundled room was trained without real CLIP weights: text naming none of its labels is refused with the
     list of what it can answer (it once planned a shot to the purple stool / the armchair)."""
-    from cinenerf_ns.demo import DEMO_SCENE
+    from cinenerf_ns.scenes import DEMO_SCENE
 
     if not DEMO_SCENE.exists():
         pytest.skip("the bundled scene is not in this checkout")

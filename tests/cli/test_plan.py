@@ -140,7 +140,7 @@ def test_keep_support_reaches_the_locator(monkeypatch, tmp_path):
 @pytest.mark.slow
 def test_load_scene_passes_drop_support():
     from cinenerf_ns.scenes import load_scene
-    from cinenerf_ns.demo import DEMO_SCENE
+    from cinenerf_ns.scenes import DEMO_SCENE
     from cinenerf_ns.planner.scene import SceneConfig
 
     for flag in (True, False):
@@ -168,7 +168,7 @@ def test_load_scene_passes_centre_relevancy():
     import torch
 
     from cinenerf_ns.scenes import label_query, load_scene
-    from cinenerf_ns.demo import DEMO_SCENE
+    from cinenerf_ns.scenes import DEMO_SCENE
     from cinenerf_ns.planner.scene import SceneConfig
 
     for v in (0.0, 0.7):
@@ -193,7 +193,7 @@ def test_load_scene_gives_the_bundled_scene_its_training_cameras():
     """The bundled export carries its 150 training cameras (info["camera_centres"]): load_scene hands them to the
     SemanticScene (unless unseen_fill=False) and draws random starts from their box (+0.1)."""
     from cinenerf_ns.scenes import load_scene
-    from cinenerf_ns.demo import DEMO_SCENE
+    from cinenerf_ns.scenes import DEMO_SCENE
     from cinenerf_ns.planner.scene import SceneConfig
 
     ld = load_scene(str(DEMO_SCENE), SceneConfig(), smooth_neighbors=0)

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import torch
 
-from cinenerf_ns.demo import DEMO_SCENE
+from cinenerf_ns.scenes import DEMO_SCENE
 from cinenerf_ns.method.checkpoint import load_splat
 from cinenerf_ns.planner.orientation import look_at_rotations
 from cinenerf_ns.preview import native, path_cameras, preview_camera_path, scene_from_splat

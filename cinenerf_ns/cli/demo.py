@@ -18,9 +18,8 @@ from typing import Optional
 from rich.console import Console
 
 from cinenerf_ns.cli.plan import PlanArgs, run_plan
+from cinenerf_ns.scenes import ASSETS, DEMO_SCENE  # noqa: F401 (ASSETS: the bundled files)
 
-ASSETS = Path(__file__).parent / "assets"
-DEMO_SCENE = ASSETS / "room0.npz"
 
 
 def demo_args(output_dir: Path, scene: Path = DEMO_SCENE, candidates: int = 1) -> PlanArgs:
