@@ -977,8 +977,10 @@ class Planner:
         self.check_timing()
         t_req = time.perf_counter()
 
+        check_ms = None
         if start is not None:
             starts = [self.checked_start(start, force=force_start)]
+            check_ms = 1e3 * (time.perf_counter() - t_req)  # a given start's region + sign-of-clearance check
             n_candidates = 1
         else:
             starts = []
@@ -1011,6 +1013,8 @@ class Planner:
             )
         for sh in shots:
             sh.timings["request_total_ms"] = 1e3 * (time.perf_counter() - t_req)
+            if check_ms is not None:
+                sh.timings["start_check_ms"] = check_ms
         return shots
 
     def _plan_one(self, s: np.ndarray, goal_p: np.ndarray, look_p: np.ndarray, goal_cache: dict, sample_ms: float) -> Shot:
