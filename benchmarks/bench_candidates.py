@@ -183,7 +183,7 @@ def main() -> None:
         "- batched (in-process) stage medians (ms, summed over candidates): "
         + ", ".join(f"{k[:-3]} {v:.1f}" for k, v in med_stage.items()),
         *workers_notes,
-        "- sequential stage medians (ms, summed over its plans; different random starts): "
+        "- sequential stage medians (ms, summed over its plans; " + ("the given starts" if starts is not None else "different random starts") + "): "
         + ", ".join(f"{k[:-3]} {v:.1f}" for k, v in med_seq.items()),
         f"- speed-up sequential / batched in-process: {msq / mb:.2f}x; target on H100 at 1M, K=32: batched <= 150 ms "
         f"and >= 5x",
