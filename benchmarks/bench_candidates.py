@@ -2,9 +2,14 @@
 """K ranked candidates (planned + scored) in one batched call vs K sequential single-candidate plans.
 
     python benchmarks/bench_candidates.py --device cuda --n-gaussians 1000000 --k 32 [--repeats 5] [--workers N] [--no-record]
+        [--family procedural|blobs|fox|ply:PATH|npz:PATH] [--start-mode random|given]
 
-Scene: procedural_room(N) (seeded) on --device; go to object 0, look at object 1. One-time work
-(spatial index, occupancy grid) is done once before timing and is not included.
+Scene (--family, benchmarks/scene_families.py; default the procedural room, seeded) on --device; go to object 0, look
+at object 1 (files: seeded points in the start region). One-time work (spatial index, occupancy grid) is done once
+before timing and is not included.
+--start-mode given: the sequential variant plans from K explicit starts (drawn seeded before timing, see
+scene_families.given_starts; each Planner.plan includes its start check); plan_candidates samples its own starts
+(it takes none), so the batched / workers rows are the same as with random.
   batched:    candidates.plan_candidates(planner, goal, look, k, seed)  (planned, verified, scored, ranked),
               all in this process (PlannerConfig.candidate_workers=0)
   workers:    the same call with candidate_workers=--workers (None/auto: one per usable CPU, 0 on
@@ -32,10 +37,9 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from benchmarks._results import append_results, device_name  # noqa: E402
+from benchmarks.scene_families import FAMILIES, given_starts, load_family  # noqa: E402
 from cinenerf_ns.planner.candidates import plan_candidates, score_shots  # noqa: E402
 from cinenerf_ns.planner.planner import Planner, PlannerConfig  # noqa: E402
-from cinenerf_ns.planner.procedural import procedural_room  # noqa: E402
-from cinenerf_ns.planner.scene import EllipsoidScene  # noqa: E402
 from cinenerf_ns.planner.scoring import ScoreConfig  # noqa: E402
 
 
@@ -46,7 +50,10 @@ def _sync(dev: torch.device) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
+    ap.add_argument("--device", default="cpu", help="cpu | cuda | cuda:N")
+    ap.add_argument("--family", default="procedural", help=f"scene family: {FAMILIES}")
+    ap.add_argument("--start-mode", default="random", choices=["random", "given"],
+                    help="given: the sequential variant plans from K explicit starts drawn before timing")
     ap.add_argument("--n-gaussians", type=int, default=20_000)
     ap.add_argument("--k", type=int, default=32)
     ap.add_argument("--repeats", type=int, default=3)
@@ -64,18 +71,23 @@ def main() -> None:
     args = ap.parse_args()
     dev = torch.device(args.device)
 
-    room = procedural_room(args.n_gaussians, seed=args.seed)
-    scene = EllipsoidScene.from_splat(room.means, room.quats, room.log_scales, room.opacity_logits).to(dev)
-    r = scene.camera_radius
+    fam = load_family(args.family, args.n_gaussians, args.seed, args.device)
+    scene = fam.scene
     planner = Planner(scene, PlannerConfig(grid_resolution=args.grid_resolution, request_device=args.request_device,
-                                           start_region=(room.free_lo + r, room.free_hi - r),
+                                           start_region=fam.start_region, up=fam.up,
                                            corridor_backend=args.corridor_backend))
     t0 = time.perf_counter()
     planner.prepare()
     _sync(dev)
     prep_s = time.perf_counter() - t0
-    goal, look = room.objects[0].center, room.objects[1].center
-    obj_r = float(0.5 * np.linalg.norm(room.objects[1].size))
+    region = fam.start_region if fam.start_region is not None else planner.region()
+    if fam.objects:
+        goal, look = fam.objects[0][0], fam.objects[1][0]
+        obj_r = float(0.5 * np.linalg.norm(fam.objects[1][1]))
+    else:
+        goal, look = fam.targets(np.random.default_rng(args.seed), *region)
+        obj_r = 0.1
+    starts = given_starts(planner, [goal] * args.k, region, args.seed) if args.start_mode == "given" else None
     cfg = ScoreConfig()
 
     def batched(workers=0):
@@ -92,7 +104,8 @@ def main() -> None:
     def sequential():
         out = []
         for i in range(args.k):
-            sh = planner.plan(goal, look, seed=args.seed + i, n_candidates=1)
+            s = None if starts is None else starts[i]
+            sh = planner.plan(goal, look, start=s, seed=args.seed + i, n_candidates=1)
             out.append((sh[0], score_shots(planner, sh, look, cfg, object_radius=obj_r)[0]))
         return out
 
@@ -124,6 +137,7 @@ def main() -> None:
         n_s = len(res)
         seq_stages.append({k: sum(sh.timings.get(k, 0.0) for sh, _ in res) for k in stages[-1]})
     mb, msq = statistics.median(b_ms), statistics.median(s_ms)
+    spread = lambda v: f"{np.percentile(v, 95):.1f} / {max(v):.1f}"  # noqa: E731 - p95 / max over the repeats
     stage_keys = [k for k in stages[0] if k.endswith("_ms") and k != "total_ms"]
     med_stage = {k: statistics.median(s[k] for s in stages) for k in stage_keys}
     # the sequential plans' own stage times (Shot.timings; scoring is not in them)
@@ -133,7 +147,8 @@ def main() -> None:
     w_keys = [k for k in w_stages[0] if k.endswith("_ms") and k != "total_ms"] if w_stages else []
     med_w = {k: statistics.median(s.get(k, 0.0) for s in w_stages) for k in w_keys}
     workers_rows = [
-        f"| batched plan_candidates, {n_workers} workers | {mw:.1f} | {n_w} | {mw / max(n_w, 1):.1f} | {mb / mw:.2f} |"
+        f"| batched plan_candidates, {n_workers} workers | {mw:.1f} | {spread(w_ms)} | {n_w} | {mw / max(n_w, 1):.1f} | "
+        f"{mb / mw:.2f} |"
     ] if n_workers else []
     workers_notes = [
         f"- {n_workers}-worker stage medians (ms; per-stage sums of the workers' wall times, which overlap; pool = "
@@ -151,20 +166,24 @@ def main() -> None:
     lines = [
         f"## bench_candidates {date} — {device_name(dev)}",
         "",
-        f"procedural_room N={args.n_gaussians} (kept {len(scene)}), K={args.k}, grid {args.grid_resolution}, "
+        f"`{' '.join(['python benchmarks/bench_candidates.py', *sys.argv[1:]])}`",
+        "",
+        f"family {args.family}: {fam.description}, {args.start_mode} starts (sequential row), K={args.k}, "
+        f"grid {args.grid_resolution}, "
         f"request_device {args.request_device}, corridor_backend {args.corridor_backend} -> {planner.corridor_backend()}, "
         f"repeats {args.repeats}, prepare {prep_s:.2f} s (not timed below), commit {rev or '?'}",
         "",
-        "| variant | median ms | shots | ms / shot | x batched |",
-        "|---|---|---|---|---|",
-        f"| batched plan_candidates | {mb:.1f} | {n_b} | {mb / max(n_b, 1):.1f} | 1.00 |",
+        "| variant (request total) | median ms | p95 / max ms | shots | ms / shot | x batched |",
+        "|---|---|---|---|---|---|",
+        f"| batched plan_candidates | {mb:.1f} | {spread(b_ms)} | {n_b} | {mb / max(n_b, 1):.1f} | 1.00 |",
         *workers_rows,
-        f"| sequential plan(n_candidates=1) + score | {msq:.1f} | {n_s} | {msq / max(n_s, 1):.1f} | {msq / mb:.2f} |",
+        f"| sequential plan(n_candidates=1) + score | {msq:.1f} | {spread(s_ms)} | {n_s} | {msq / max(n_s, 1):.1f} | "
+        f"{msq / mb:.2f} |",
         "",
         "- batched (in-process) stage medians (ms, summed over candidates): "
         + ", ".join(f"{k[:-3]} {v:.1f}" for k, v in med_stage.items()),
         *workers_notes,
-        "- sequential stage medians (ms, summed over its plans; different random starts): "
+        "- sequential stage medians (ms, summed over its plans; " + ("the given starts" if starts is not None else "different random starts") + "): "
         + ", ".join(f"{k[:-3]} {v:.1f}" for k, v in med_seq.items()),
         f"- speed-up sequential / batched in-process: {msq / mb:.2f}x; target on H100 at 1M, K=32: batched <= 150 ms "
         f"and >= 5x",

@@ -2,11 +2,17 @@
 
 Usage: .venv/bin/python benchmarks/bench_planner.py [--device cpu|cuda] [--n-gaussians 200000]
        [--pairs 100] [--seed 0] [--grid-resolution 96] [--corridor-backend auto|cpu|batched] [--quick] [--no-record]
+       [--family procedural|blobs|fox|ply:PATH|npz:PATH] [--start-mode random|given]
 
-Scene: procedural_room(N) (floor, walls, 6 objects). Request k: go-to = a random object's centre
-(+ seeded jitter inside its box), look-at = another object's centre, start sampled by the planner
-with seed k (what the viewer does). Reports success rate, per-stage median / p95 ms of every key in
-Shot.timings, the request total, failures by exception type, and two clearances: the planner's own
+Scene (--family, benchmarks/scene_families.py): procedural_room(N) (floor, walls, 6 objects; the default), blobs
+(synthetic/blobs.py: y up, walls + random round blobs + floaters), or a file (the fox capture, any .ply / compact
+export; loaded with cinenerf_ns.scenes.load_scene, its start_region passed to PlannerConfig). Request k: go-to = a random
+object's centre (+ seeded jitter inside it), look-at = another object's centre (files: both uniform in the start
+region); start (--start-mode): sampled by the planner with seed k (random: what the viewer does), or given: an explicit
+start drawn seeded before timing (>= 0.1 from every Gaussian centre, >= 0.5 from the go-to target, accepted by the
+planner's checks); Planner.plan then includes its start check (start_check stage). Reports success rate, the request
+total (wall time of Planner.plan: what the user waits for) with median / p95 / max, per-stage median / p95 / max of
+every key in Shot.timings, failures by exception type, and two clearances: the planner's own
 verification (every dense sample proven free by the conservative test, else the exact clearance of
 the inconclusive ones) and an independent exact clearance of every frame (not timed; on the scene's own device). On CUDA every
 timed region is bracketed by torch.cuda.synchronize(). Prints a rich table, writes
@@ -30,10 +36,9 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from benchmarks._results import append_results, device_name  # noqa: E402
+from benchmarks.scene_families import FAMILIES, given_starts, load_family, request_fn  # noqa: E402
 from cinenerf_ns.planner.distance import clearance  # noqa: E402
 from cinenerf_ns.planner.planner import Planner, PlannerConfig  # noqa: E402
-from cinenerf_ns.planner.procedural import procedural_room  # noqa: E402
-from cinenerf_ns.planner.scene import EllipsoidScene  # noqa: E402
 
 
 def main() -> None:
@@ -49,6 +54,11 @@ def main() -> None:
                     help="PlannerConfig.corridor_backend: auto = batched polytopes on a CUDA scene, else host polytopes")
     ap.add_argument("--start-look-distance", type=float, default=None,
                     help="PlannerConfig.start_look_distance (default: PlannerConfig's; 0: uniform random starts)")
+    ap.add_argument("--family", default="procedural", help=f"scene family: {FAMILIES}")
+    ap.add_argument("--start-mode", default="random", choices=["random", "given"],
+                    help="random: the planner samples each start; given: explicit starts, drawn before timing")
+    ap.add_argument("--profile", type=int, default=0,
+                    help="cProfile the N slowest requests again after the run (printed, not recorded)")
     ap.add_argument("--quick", action="store_true", help="20k Gaussians, 20 requests (smoke run)")
     ap.add_argument("--no-record", action="store_true",
                     help="do not append to benchmarks/RESULTS.md nor write benchmarks/bench_planner_<device>_<N>.json")
@@ -66,13 +76,13 @@ def main() -> None:
             torch.cuda.synchronize(dev)
 
     t0 = time.perf_counter()
-    room = procedural_room(args.n_gaussians, seed=args.seed)
-    scene = EllipsoidScene.from_splat(
-        room.means.to(dev), room.quats.to(dev), room.log_scales.to(dev), room.opacity_logits.to(dev)
-    )
+    fam = load_family(args.family, args.n_gaussians, args.seed, args.device)
+    scene = fam.scene
     sync()
     build_s = time.perf_counter() - t0
-    cfg = PlannerConfig(request_device=args.request_device, corridor_backend=args.corridor_backend)
+    # the procedural room keeps its historical setting (no start region: comparable with older records)
+    cfg = PlannerConfig(request_device=args.request_device, corridor_backend=args.corridor_backend, up=fam.up,
+                        start_region=None if fam.kind == "procedural" else fam.start_region)
     if args.grid_resolution is not None:
         cfg.grid_resolution = args.grid_resolution
     if args.start_look_distance is not None:
@@ -87,21 +97,26 @@ def main() -> None:
     prepare_ms = {**prep.timings_ms, "prepare_total_ms": 1e3 * (time.perf_counter() - t0)}
 
     rng = np.random.default_rng(args.seed)
-    objs = room.objects
+    region = fam.start_region if fam.start_region is not None else planner.region()
     requests = []
     for k in range(args.pairs):
-        i, j = rng.choice(len(objs), 2, replace=False)
-        goal = objs[i].center + rng.uniform(-0.25, 0.25, 3) * objs[i].size
-        requests.append((goal, objs[j].center.copy(), args.seed * 100_003 + k))
+        goal, look = fam.targets(rng, *region)
+        requests.append((goal, look, args.seed * 100_003 + k))
+    starts = [None] * len(requests)
+    if args.start_mode == "given":  # drawn (and checked) before timing
+        starts = given_starts(planner, [g for g, _, _ in requests], region, args.seed)
+    plan = request_fn(planner, args.start_mode)
 
     per_stage: dict[str, list] = {}
     totals, fails, clear_verified, clear_exact, inconclusive = [], Counter(), [], [], []
     fail_examples: dict[str, str] = {}
-    for goal, look, seed in requests:
+    timed = []  # (ms, request index)
+    shot_timings = []  # (ms, request index, Shot.timings) of each planned request
+    for ri, ((goal, look, seed), st) in enumerate(zip(requests, starts)):
         sync()
         t0 = time.perf_counter()
         try:
-            shot = planner.plan(goal, look, seed=seed)[0]
+            shot = plan(goal, look, st, seed)[0]
         except Exception as e:  # noqa: BLE001 - the benchmark counts every failure by type
             sync()
             name = type(e).__name__
@@ -110,8 +125,10 @@ def main() -> None:
             continue
         sync()
         totals.append(1e3 * (time.perf_counter() - t0))
+        timed.append((totals[-1], ri))
         for k, v in shot.timings.items():
             per_stage.setdefault(k, []).append(float(v))
+        shot_timings.append((totals[-1], ri, dict(shot.timings)))
         rep = shot.safety
         inconclusive.append(rep["num_inconclusive"])
         if rep["min_exact_clearance"] is not None:
@@ -132,8 +149,7 @@ def main() -> None:
         return {"median": float(np.median(a)), "p95": float(np.percentile(a, 95)), "max": float(a.max())} if len(a) else None
 
     n_ok = len(totals)
-    stages = {k: stat(v) for k, v in sorted(per_stage.items())}
-    stages["wall_total_ms"] = stat(totals)
+    stages = {"wall_total_ms": stat(totals), **{k: stat(v) for k, v in sorted(per_stage.items())}}
     result = {
         "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d"),
         "device": device_name(args.device),
@@ -146,6 +162,11 @@ def main() -> None:
         "grid_shape": list(prep.grid.shape),
         "pairs": args.pairs,
         "seed": args.seed,
+        "family": args.family,
+        "family_description": fam.description,
+        "start_mode": args.start_mode,
+        "slowest_requests": [{"ms": ms, "request": ri, "timings_ms": tm}
+                             for ms, ri, tm in sorted(shot_timings, key=lambda x: -x[0])[:3]],
         "scene_build_s": build_s,
         "prepare_ms": prepare_ms,
         "success": n_ok,
@@ -163,7 +184,8 @@ def main() -> None:
         from rich.console import Console
         from rich.table import Table
 
-        tab = Table(title=f"plan() per stage, {len(scene)} Gaussians, {result['device']} ({n_ok}/{args.pairs} ok)")
+        tab = Table(title=f"plan() request total, then per stage: {fam.description}, {args.start_mode} starts, "
+                          f"{result['device']} ({n_ok}/{args.pairs} ok)")
         for c in ("stage", "median ms", "p95 ms", "max ms"):
             tab.add_column(c, justify="right" if c != "stage" else "left")
         for k, v in stages.items():
@@ -179,32 +201,69 @@ def main() -> None:
         f"min exact frame clearance {result['min_exact_frame_clearance']}, verified exact (inconclusive samples only) "
         f"{result['min_verified_exact_clearance']}, shots with inconclusive samples {result['shots_with_inconclusive_samples']}"
     )
+    for sl in result["slowest_requests"]:
+        print(f"slow request {sl['request']}: {sl['ms']:.1f} ms: "
+              + ", ".join(f"{k[:-3]} {v:.1f}" for k, v in sl["timings_ms"].items() if k.endswith("_ms")))
+    if args.profile:
+        profile_requests(plan, requests, starts, [ri for _, ri in sorted(timed, reverse=True)[: args.profile]])
     if args.no_record:  # a trial run: neither the committed JSON nor RESULTS.md changes
         return
-    out = REPO / "benchmarks" / f"bench_planner_{dev.type}_{len(scene)}.json"
+    default = args.family == "procedural" and args.start_mode == "random"  # the historical file names
+    tag = "" if default else f"{args.family.split(':')[0]}_{args.start_mode}_"
+    out = REPO / "benchmarks" / f"bench_planner_{dev.type}_{tag}{len(scene)}.json"
     out.write_text(json.dumps(result, indent=1))
     print(f"wrote {out}")
     med = lambda k: stages[k]["median"] if stages.get(k) else float("nan")  # noqa: E731
     p95 = lambda k: stages[k]["p95"] if stages.get(k) else float("nan")  # noqa: E731
-    keys = [k for k in ("start_sample_ms", "goal_ms", "astar_ms", "shortcut_ms", "corridor_ms", "qp_ms", "timing_ms",
-                        "orientation_ms", "verify_ms") if k in stages]
+    mx = lambda k: stages[k]["max"] if stages.get(k) else float("nan")  # noqa: E731
+    keys = [k for k in ("start_check_ms", "start_sample_ms", "goal_ms", "astar_ms", "shortcut_ms", "corridor_ms",
+                        "qp_ms", "timing_ms", "orientation_ms", "verify_ms") if k in stages]
+    cmd = " ".join(["python benchmarks/bench_planner.py", *sys.argv[1:]])
     lines = [
         f"### bench_planner.py  {result['date']}  {result['device']} ({args.device}, request_device {args.request_device}, corridor_backend {result['corridor_backend']}, torch threads {result['torch_threads']})"
         + (f"  {args.note}" if args.note else ""),
         "",
-        f"procedural_room N={len(scene)} seed {args.seed}, grid_resolution {cfg.grid_resolution} {result['grid_shape']}, "
-        f"{args.pairs} requests (random start, go-to object +-jitter, look-at object); success {n_ok}/{args.pairs}, "
-        f"failures {dict(fails) or 'none'}; min exact frame clearance {result['min_exact_frame_clearance']}",
+        f"`{cmd}`",
+        "",
+        f"family {args.family}: {fam.description}, grid_resolution {cfg.grid_resolution} {result['grid_shape']}, "
+        f"{args.pairs} requests ({args.start_mode} start, "
+        + ("go-to object +-jitter, look-at object" if fam.objects else "go-to and look-at uniform in the start region")
+        + f"); success {n_ok}/{args.pairs}, failures {dict(fails) or 'none'}; min exact frame clearance "
+        f"{result['min_exact_frame_clearance']}",
         "",
         "prepare ms: " + ", ".join(f"{k} {v:.0f}" for k, v in prepare_ms.items()),
         "",
-        "| stage | " + " | ".join(k.replace("_ms", "") for k in keys) + " | request total (wall) |",
-        "|---" * (len(keys) + 2) + "|",
-        "| median ms | " + " | ".join(f"{med(k):.1f}" for k in keys) + f" | {med('wall_total_ms'):.1f} |",
-        "| p95 ms | " + " | ".join(f"{p95(k):.1f}" for k in keys) + f" | {p95('wall_total_ms'):.1f} |",
+        "| ms | median | p95 | max |",
+        "|---|---|---|---|",
+        f"| **request total (wall)** | {med('wall_total_ms'):.1f} | {p95('wall_total_ms'):.1f} | {mx('wall_total_ms'):.1f} |",
+        *[f"| {k.replace('_ms', '')} | {med(k):.1f} | {p95(k):.1f} | {mx(k):.1f} |" for k in keys],
         "",
     ]
     append_results("\n".join(lines))
+
+
+def profile_requests(plan, requests, starts, indices) -> None:
+    """Run the given requests again under cProfile and print each one's top functions (cumulative time)."""
+    import cProfile
+    import io
+    import pstats
+
+    for ri in indices:
+        (goal, look, seed), st = requests[ri], starts[ri]
+        pr = cProfile.Profile()
+        t0 = time.perf_counter()
+        pr.enable()
+        try:
+            shot = plan(goal, look, st, seed)[0]
+        finally:
+            pr.disable()
+        ms = 1e3 * (time.perf_counter() - t0)
+        buf = io.StringIO()
+        pstats.Stats(pr, stream=buf).sort_stats("cumulative").print_stats(30)
+        print(f"--- profile of request {ri} ({ms:.1f} ms under the profiler; goal {np.round(goal, 3).tolist()}, start "
+              f"{None if st is None else np.round(st, 3).tolist()}; stages "
+              + ", ".join(f"{k[:-3]} {v:.1f}" for k, v in shot.timings.items() if k.endswith("_ms")) + ")")
+        print(buf.getvalue())
 
 
 if __name__ == "__main__":

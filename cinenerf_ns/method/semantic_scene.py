@@ -7,6 +7,8 @@ table first, then the open_clip text tower). No nerfstudio / gsplat import.
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Dict, Optional, Sequence, Tuple, Union
@@ -128,6 +130,16 @@ CENTRES = ("volume", "surface")
 # chosen on synthetic rooms 0 and 1 and then checked on rooms 2 and 4, trained afterwards: room 4's bookshelf 7.96% ->
 # 0.67% of the room off, room 2's worst object 1.31 -> 1.39% (benchmarks/RESULTS.md has the sweep).
 CENTRE_RELEVANCY = 0.65
+# Text queries answered from memory per scene (SemanticScene.locate_full): enough for every label of a scene and the
+# free-text queries of a session; each entry holds two [N] tensors (relevancy float, mask bool: ~2 MB at 400k).
+LOCATE_CACHE_SIZE = 64
+
+
+def normalise_text(text: str) -> str:
+    """The cache key of a query's text: whitespace collapsed, case folded. Both text encoders treat such texts alike
+    (build_text_encoder's label table compares case-insensitively; open_clip's tokenizer lower-cases and cleans
+    whitespace), and so does the label contrast in SemanticScene._embed."""
+    return " ".join(str(text).split()).lower()
 
 
 class SemanticScene:
@@ -226,6 +238,10 @@ class SemanticScene:
         self._neg_emb: Optional[Tensor] = None
         self.label_names = [str(x) for x in (label_names or [])]
         self._label_neg: Dict[str, Tensor] = {}
+        self.cache_size = LOCATE_CACHE_SIZE
+        self._cache: "OrderedDict[tuple, LocateResult]" = OrderedDict()  # LRU of locate_full, see _cache_key
+        self._cache_lock = threading.Lock()  # guards _cache (short: lookups never wait for a computation)
+        self._compute_lock = threading.RLock()  # one computation at a time (warm() on a thread + a viewer query)
 
     @classmethod
     def from_checkpoint(cls, path: str | Path, device: torch.device | str = "cpu", **kwargs) -> "SemanticScene":
@@ -253,8 +269,56 @@ class SemanticScene:
         if self.smooth_neighbors <= 1:
             return self._raw_latents
         if self._smoothed is None:
-            self._smoothed = smooth_latents(self.means, self.opacities, self._raw_latents, self.smooth_neighbors)
+            with self._compute_lock:  # a query during warm() waits for its smoothing instead of doing it twice
+                if self._smoothed is None:
+                    self._smoothed = smooth_latents(self.means, self.opacities, self._raw_latents, self.smooth_neighbors)
         return self._smoothed
+
+    def warm(self, labels: bool = True, negatives: bool = False) -> Dict[str, float]:
+        """Compute what does not depend on a query's text now, off the request path (the standalone viewer calls
+        this on a background thread after loading; the CLI, which asks one or two queries, leaves it lazy): the latent
+        smoothing, the scene's robust extent, and with ``labels`` the answer of every label name of the scene at the
+        default threshold (a label fully determines it: same embedding, same contrast against the other labels), up to
+        the cache's size; with ``negatives`` the generic negatives' embedding (may load the CLIP text tower; a failure
+        is left for the first free-text query to report). Safe to call while queries run (they wait for the one
+        computation in progress, then find their answer cached). Returns the seconds each part took."""
+        import time
+
+        out: Dict[str, float] = {}
+        t0 = time.perf_counter()
+        _ = self.latents
+        out["smooth_s"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        self._extent()
+        out["extent_s"] = time.perf_counter() - t0
+        if negatives and self._neg_emb is None:
+            t0 = time.perf_counter()
+            try:
+                with self._compute_lock:
+                    if self._neg_emb is None:
+                        self._neg_emb = self.text_encoder(list(self.negatives)).to(self._raw_latents.device)
+            except Exception:  # noqa: BLE001 - e.g. missing CLIP weights: the query that needs them says so
+                pass
+            out["negatives_s"] = time.perf_counter() - t0
+        if labels:
+            t0 = time.perf_counter()
+            for name in self.label_names[: self.cache_size]:
+                try:
+                    self.locate_full(name)
+                except QueryError:  # a label nothing in the scene carries: the query itself will say so
+                    pass
+            out["labels_s"] = time.perf_counter() - t0
+        return out
+
+    def _cache_key(self, text: str, threshold: Optional[float]) -> tuple:
+        """(normalised text, threshold used, the settings the answer depends on): a settings change is a new entry."""
+        thr = self.threshold if threshold is None else float(threshold)
+        return (normalise_text(text), thr, self.centre, self.centre_relevancy, self.drop_support, self.cluster_fraction,
+                self.min_opacity, self.temperature, self.up, self.smooth_neighbors)
+
+    def cache_clear(self) -> None:
+        with self._cache_lock:
+            self._cache.clear()
 
     def __len__(self) -> int:
         return self.means.shape[0]
@@ -282,6 +346,35 @@ class SemanticScene:
 
     @torch.no_grad()
     def locate_full(self, text: str, threshold: Optional[float] = None) -> LocateResult:
+        """The selection, extent and centre of the text's object (see locate). Answers are kept in an LRU of
+        ``cache_size`` entries keyed by (normalised text, threshold, settings): a repeated query returns the same
+        LocateResult object without encoding the text or computing relevancy (treat its tensors as read-only).
+        Queries that match nothing raise QueryError each time (not cached)."""
+        if not isinstance(text, str) or not text.strip():
+            raise QueryError("empty text query: type what the camera should look at, e.g. 'the red chair'")
+        key = self._cache_key(text, threshold)
+        hit = self._cached(key)
+        if hit is not None:
+            return hit
+        with self._compute_lock:
+            hit = self._cached(key)  # computed by another thread (warm()) while this one waited
+            if hit is not None:
+                return hit
+            res = self._locate_uncached(text, threshold)
+            with self._cache_lock:
+                self._cache[key] = res
+                while len(self._cache) > max(int(self.cache_size), 0):
+                    self._cache.popitem(last=False)
+            return res
+
+    def _cached(self, key: tuple) -> Optional[LocateResult]:
+        with self._cache_lock:
+            hit = self._cache.get(key)
+            if hit is not None:
+                self._cache.move_to_end(key)
+            return hit
+
+    def _locate_uncached(self, text: str, threshold: Optional[float] = None) -> LocateResult:
         rel = self.query(text)
         thr = self.threshold if threshold is None else float(threshold)
         mask = relevancy_mask(rel, thr, self.opacities, self.min_opacity)

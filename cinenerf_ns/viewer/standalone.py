@@ -17,6 +17,7 @@ loader, so the command line and the viewer plan around the same obstacles.
 from __future__ import annotations
 
 import dataclasses
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -69,6 +70,8 @@ class LoadedScene:
     start_region: Optional[Tuple[np.ndarray, np.ndarray]] = None  # (lo [3], hi [3]) of random starts
     semantics: str = "none"  # what answers text queries: "none" | "labels" | "relevancy"
     object_names: List[str] = dataclasses.field(default_factory=list)  # ground-truth names (procedural / demo)
+    semantic: Optional[Any] = None  # the SemanticScene answering text ("relevancy" scenes), see warm_semantics
+    free_text: bool = False  # whether free text (not only label names) means anything to ``semantic``
 
 
 # --------------------------------------------------------------------------------------- loading
@@ -212,7 +215,30 @@ def load_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optio
         locate=None if sem is None else semantic_locate(sem, ld.extra.get("label_names") or [],
                                                         ld.extra.get("free_text", True)),
         obstacles=ld.scene, start_region=ld.start_region, semantics="none" if sem is None else "relevancy",
+        semantic=sem, free_text=bool(ld.extra.get("free_text", False)),
     )
+
+
+def warm_semantics(loaded: LoadedScene, background: bool = True) -> Optional[threading.Thread]:
+    """Compute the text-independent part of text queries (SemanticScene.warm: latent smoothing, every label's answer)
+    once per scene, off the request path: on a daemon thread when ``background`` (returned; None when the scene has no
+    relevancy semantics). A query typed meanwhile waits for the computation in progress, never repeats it."""
+    sem = loaded.semantic
+    if sem is None:
+        return None
+
+    def work() -> None:
+        try:
+            sem.warm(labels=True, negatives=loaded.free_text)
+        except Exception:  # noqa: BLE001 - warming is an optimisation: the query itself reports any error
+            pass
+
+    if not background:
+        work()
+        return None
+    th = threading.Thread(target=work, name="cine-semantic-warm", daemon=True)
+    th.start()
+    return th
 
 
 # --------------------------------------------------------------------------------------- viewer
@@ -320,6 +346,7 @@ class StandaloneViewer:
         if self.planner is not None:
             self.planner.on_status = self._prepare_status
             self.planner.start(background=True)
+        self.warm_thread = warm_semantics(self.loaded)  # text queries' smoothing and labels, off the request path
 
     def _prepare_status(self, text: str, level: str) -> None:
         """Progress of the planner's one-time preparation, shown unless a Plan already owns the status line."""

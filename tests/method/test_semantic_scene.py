@@ -331,3 +331,96 @@ def test_camera_centres_reach_the_volume_centre_and_are_validated():
     assert SemanticScene(means, opac, lat, IdentityCodec(), enc, camera_centres=np.zeros((0, 3))).camera_centres is None
     with pytest.raises(ValueError, match="camera_centres"):
         SemanticScene(means, opac, lat, IdentityCodec(), enc, camera_centres=[[0.0, float("nan"), 1.0]])
+
+
+# --------------------------------------------------------------------------- locate cache and warm() (issue 23)
+class Counting:
+    """A text encoder / relevancy wrapper that counts its calls."""
+
+    def __init__(self, fn):
+        self.fn, self.calls = fn, 0
+
+    def __call__(self, *a, **kw):
+        self.calls += 1
+        return self.fn(*a, **kw)
+
+
+def test_repeated_query_is_answered_from_the_cache(monkeypatch):
+    import cinenerf_ns.method.semantic_scene as ss
+
+    rel = Counting(ss.relevancy_fn)
+    monkeypatch.setattr(ss, "relevancy_fn", rel)
+    e = Counting(enc)
+    s = _scene()
+    s.text_encoder = e
+    a = s.locate_full("red chair")
+    n_enc, n_rel = e.calls, rel.calls
+    assert n_enc >= 1 and n_rel == 1
+    b = s.locate_full("  Red   CHAIR ")  # the same normalised text
+    assert b is a and e.calls == n_enc and rel.calls == n_rel
+    c, m = s.locate("red chair")
+    assert torch.equal(c, a.centroid) and torch.equal(m, a.mask) and rel.calls == n_rel
+    fresh = _scene().locate_full("red chair")  # equal to an uncached answer (another scene: relevancy once more)
+    assert torch.equal(fresh.mask, a.mask) and torch.allclose(fresh.centroid, a.centroid)
+    n_rel = rel.calls
+    # a different threshold is a different entry; the default threshold given explicitly is the same entry
+    d = s.locate_full("red chair", threshold=0.6)
+    assert d is not a and rel.calls == n_rel + 1
+    assert s.locate_full("red chair", threshold=s.threshold) is a and rel.calls == n_rel + 1
+    # a failed query is not cached: it raises every time
+    for _ in range(2):
+        with pytest.raises(QueryError, match="nothing in the scene matches"):
+            s.locate_full("red chair", threshold=0.9999)
+    assert rel.calls == n_rel + 3
+
+
+def test_locate_cache_is_bounded_and_least_recently_used():
+    s = _scene()
+    s.cache_size = 2
+    a = s.locate_full("red chair", threshold=0.5)
+    b = s.locate_full("red chair", threshold=0.6)
+    assert s.locate_full("red chair", threshold=0.5) is a  # a is now the most recent
+    s.locate_full("palm tree")  # evicts b
+    assert len(s._cache) == 2
+    assert s.locate_full("red chair", threshold=0.5) is a
+    assert s.locate_full("red chair", threshold=0.6) is not b
+
+
+def test_settings_change_is_a_new_cache_entry():
+    s = _scene(centre="surface")
+    a = s.locate_full("red chair")
+    s.centre = "volume"
+    assert s.locate_full("red chair") is not a
+
+
+def test_warm_smooths_once_and_answers_the_labels(monkeypatch):
+    import cinenerf_ns.method.semantic_scene as ss
+
+    smooth = Counting(ss.smooth_latents)
+    monkeypatch.setattr(ss, "smooth_latents", smooth)
+    rel = Counting(ss.relevancy_fn)
+    monkeypatch.setattr(ss, "relevancy_fn", rel)
+    s = _scene(smooth_neighbors=3, label_names=["red chair", "palm tree"])
+    t = s.warm()
+    assert smooth.calls == 1 and set(t) >= {"smooth_s", "extent_s", "labels_s"}
+    n_rel = rel.calls
+    assert n_rel == 2  # one per label
+    r = s.locate_full("red chair")  # the first query: neither smoothing nor relevancy again
+    assert smooth.calls == 1 and rel.calls == n_rel and r.mask.any()
+    s.locate_full("red chair", threshold=0.7)  # another threshold: relevancy again, smoothing still not
+    assert smooth.calls == 1 and rel.calls == n_rel + 1
+    s2 = _scene(smooth_neighbors=3)  # without warm(): the first query smooths (lazily, once)
+    s2.locate_full("red chair")
+    s2.locate_full("palm tree")
+    assert smooth.calls == 2
+
+
+def test_warm_in_a_thread_while_querying():
+    import threading
+
+    s = _scene(smooth_neighbors=3, label_names=["red chair", "palm tree"])
+    th = threading.Thread(target=s.warm)
+    th.start()
+    r = s.locate_full("palm tree")
+    th.join()
+    assert s.locate_full("palm tree") is r and r.mask.sum() == 3

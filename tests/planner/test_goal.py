@@ -334,3 +334,27 @@ def test_sample_free_starts_away_from_property(point, fraction, seed):
     assert (np.linalg.norm(s - np.asarray(point), axis=1) >= fraction * 2.0 - 1e-12).all()
     assert clearance(s, scene).min() >= 0
     assert ((s >= lo) & (s <= hi)).all()
+
+
+def test_mean_voxel_mask_gives_the_same_goals_as_the_box_query():
+    """closest_safe_point's fallback with the precomputed voxels-holding-a-mean mask picks exactly the goal the per-window
+    box query picks (targets buried inside the volume blobs of synthetic/blobs.py), and the goal is free."""
+    import numpy as np
+
+    from cinenerf_ns.planner.goal import closest_safe_point, mean_voxel_mask
+    from cinenerf_ns.planner.planner import Planner, PlannerConfig
+    from cinenerf_ns.planner.scene import EllipsoidScene
+    from cinenerf_ns.synthetic.blobs import blob_scene
+
+    b = blob_scene(20_000, seed=1)
+    scene = EllipsoidScene.from_splat(b.means, b.quats, b.log_scales, b.opacity_logits)
+    pl = Planner(scene, PlannerConfig(up=b.up, candidate_workers=0))
+    prep = pl.prepare()
+    mv = mean_voxel_mask(scene, prep.grid)
+    assert prep.mean_voxels is not None and np.array_equal(prep.mean_voxels, mv) and mv.any()
+    for blob in b.blobs[:4]:
+        t = torch.as_tensor(blob.center, dtype=torch.float64)
+        kw = dict(reachable=prep.astar_grid.labels > 0, clearance_fn=pl._free_fn)
+        a = closest_safe_point(t, scene, prep.index, prep.grid, **kw)
+        m = closest_safe_point(t, scene, prep.index, prep.grid, mean_voxels=mv, **kw)
+        assert torch.equal(a, m) and bool(pl.points_free(m[None].numpy())[0])

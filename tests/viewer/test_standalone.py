@@ -181,7 +181,15 @@ def test_standalone_compact_scene_answers_text_by_relevancy(tmp_path):
     v = viewer_for(str(path), tmp_path, data=tmp_path / "out")
     try:
         assert "relevancy" in v.panel.status and v.loaded.semantics == "relevancy"
+        # the viewer warms the text queries on a thread after loading: every label answered from the cache
+        assert v.warm_thread is not None
+        v.warm_thread.join(60)
+        warm = v.loaded.semantic
+        assert not v.warm_thread.is_alive() and warm._smoothed is not None
+        assert warm.locate_full("armchair") is warm.locate_full("armchair")
+        assert len(warm._cache) >= 1
         sem = cli_load(str(path), SceneConfig())
+        assert sem.extra["semantic"]._smoothed is None and not sem.extra["semantic"]._cache  # the CLI stays lazy
         c_ref, m_ref = sem.extra["semantic"].locate("armchair")
         c, m = v.backend.locate("the armchair")  # word -> label name, as cinesplat-plan maps it
         np.testing.assert_allclose(c, c_ref.numpy(), atol=1e-6)

@@ -1,0 +1,29 @@
+"""benchmarks/scene_families.py: families and given starts of the planner benchmarks."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from benchmarks.scene_families import GIVEN_CLEAR, GIVEN_FROM_GOAL, given_starts, load_family
+from cinenerf_ns.planner.planner import Planner, PlannerConfig
+
+
+@pytest.mark.parametrize("family", ["procedural", "blobs"])
+def test_given_starts_keep_their_distances_and_plan(family):
+    fam = load_family(family, 20_000, 0)
+    pl = Planner(fam.scene, PlannerConfig(start_region=fam.start_region, up=fam.up, candidate_workers=0))
+    pl.prepare()
+    rng = np.random.default_rng(0)
+    reqs = [fam.targets(rng, *fam.start_region) for _ in range(3)]
+    starts = given_starts(pl, [g for g, _ in reqs], fam.start_region, seed=0)
+    means = fam.scene.means.double().numpy()
+    for (g, la), s in zip(reqs, starts):
+        assert np.linalg.norm(s - g) >= GIVEN_FROM_GOAL
+        assert np.linalg.norm(means - s, axis=1).min() >= GIVEN_CLEAR
+        shot = pl.plan(g, la, start=s)[0]
+        assert np.allclose(shot.positions[0], s) and shot.safety["safe"] and "start_check_ms" in shot.timings
+
+
+def test_unknown_family_is_refused():
+    with pytest.raises(SystemExit, match="expected"):
+        load_family("cubes", 1000, 0)
