@@ -14,6 +14,8 @@
 #              steps) -> compact export + ground-truth files in $OUT/room (the bundled demo scene's recipe)
 #     planner  benchmarks/bench_planner.py, bench_candidates.py, bench_viewer.py on CUDA (1M Gaussians)
 #     demo_render  cinesplat-plan from text on the room run, then stock ns-render of the planned camera path
+#     gputests GPU-marked tests only (not slow); latency: bench_planner per family / start mode + bench_candidates
+#     shots    720p GPU preview of the demo shot, preview-vs-gsplat tests, stock ns-render mp4 (needs imageio-ffmpeg)
 #   render/viewer use RUN_CFG (a run's config.yml) and RUN_DATA (its dataset) when set, else the fox run
 #
 # Environment:
@@ -357,6 +359,28 @@ stage_shots() {
         --output-dir "$OUT/shots" --name "demo_720p_$k" --width 1280 --height 720 --fps 15 --device cuda || return 1
   done
   $PY -m pytest -q -ra -p no:cacheprovider tests/preview/test_gpu.py tests/preview/test_ns_render_gpu.py ${PYTEST_ARGS:-}
+}
+
+stage_gputests() {
+  # only the GPU tests (the CPU suite is CI's): gsplat compiled first, slow ones (training runs) left to their stages
+  gsplat_compile || return 1
+  $PY -m pytest -q -ra -p no:cacheprovider -m "gpu and not slow" tests
+}
+
+stage_latency() {
+  # issue 23 on a GPU: request totals (median / p95 / max) per scene family and start mode at $PLAN_N Gaussians, then
+  # 32 ranked candidates; runs as FAMILY@MODE (a family: procedural, blobs, fox, npz:PATH, ply:PATH)
+  local n=${PLAN_N:-1000000} spec
+  for spec in ${LAT_RUNS:-procedural@random procedural@given blobs@given blobs@random}; do
+    timeout "${LAT_CAP:-120}" $PY benchmarks/bench_planner.py --device cuda --n-gaussians "$n" --family "${spec%@*}" \
+        --start-mode "${spec##*@}" --pairs "${PLAN_PAIRS:-60}" || echo "latency run $spec: rc=$?"
+  done
+  [ -n "${CAND_FAMILIES:-procedural}" ] && for fam in ${CAND_FAMILIES:-procedural}; do
+    timeout "${CAND_CAP:-150}" $PY benchmarks/bench_candidates.py --device cuda --n-gaussians "$n" --family "$fam" \
+        --k 32 --repeats 4 || echo "candidates $fam: rc=$?"
+  done
+  cp benchmarks/RESULTS.md "$OUT/RESULTS.md"
+  return 0
 }
 
 STAGES=("$@")
