@@ -38,14 +38,34 @@ def translate_args(args: Sequence[str]) -> List[str]:
     return out
 
 
+def binary_version(exe: str) -> Optional[tuple]:
+    """(major, minor) of an imageio-ffmpeg binary from its file name ('ffmpeg-linux64-v4.2.2',
+    'ffmpeg-linux-x86_64-v9.0.2'), else from imageio_ffmpeg.get_ffmpeg_version(); None when neither says."""
+    import re
+
+    m = re.search(r"-v(\d+)\.(\d+)", os.path.basename(exe))
+    if m is None:
+        try:
+            import imageio_ffmpeg
+
+            m = re.match(r"(\d+)\.(\d+)", imageio_ffmpeg.get_ffmpeg_version())
+        except Exception:  # noqa: BLE001 - unknown version: pass the arguments through unchanged
+            return None
+    return (int(m.group(1)), int(m.group(2))) if m else None
+
+
 def main(argv: Optional[Sequence[str]] = None) -> None:
-    """Replace this process with the bundled ffmpeg, passing the arguments through (os.execv)."""
-    args = translate_args(sys.argv[1:] if argv is None else argv)
+    """Replace this process with the bundled ffmpeg, passing the arguments through (os.execv); ``-vsync`` becomes
+    ``-fps_mode`` only for an ffmpeg that has it (>= 5.1; 7 removed -vsync, 4.x does not know -fps_mode)."""
+    args = list(sys.argv[1:] if argv is None else argv)
     try:
         exe = bundled_ffmpeg()
     except (ImportError, RuntimeError) as e:
         print(f"ffmpeg (cinenerf_ns): no bundled ffmpeg: {e} (pip install imageio-ffmpeg)", file=sys.stderr)
         raise SystemExit(127)
+    version = binary_version(exe)
+    if version is not None and version >= (5, 1):
+        args = translate_args(args)
     sys.stdout.flush()
     sys.stderr.flush()
     os.execv(exe, [exe, *args])

@@ -17,6 +17,11 @@ from cinenerf_ns import ffmpeg_entry
 REPO = Path(__file__).resolve().parents[2]
 
 
+def _pythonpath() -> str:
+    """The repo first, then whatever PYTHONPATH already holds (a GPU machine's packages live in a --target folder)."""
+    return os.pathsep.join([str(REPO)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
+
+
 def _console_script(bin_dir: Path) -> Path:
     """The wrapper pip writes for ``ffmpeg = "cinenerf_ns.ffmpeg_entry:main"`` (same form as pip's template)."""
     bin_dir.mkdir(parents=True, exist_ok=True)
@@ -36,7 +41,7 @@ def test_pyproject_installs_the_entry():
 
 def test_entry_runs_the_bundled_ffmpeg():
     r = subprocess.run([sys.executable, "-c", "from cinenerf_ns.ffmpeg_entry import main; main()", "-version"],
-                       cwd=REPO, capture_output=True, text=True, timeout=60, env={**os.environ, "PYTHONPATH": str(REPO)})
+                       cwd=REPO, capture_output=True, text=True, timeout=60, env={**os.environ, "PYTHONPATH": _pythonpath()})
     assert r.returncode == 0 and r.stdout.startswith("ffmpeg version")
 
 
@@ -44,7 +49,7 @@ def test_nerfstudio_check_and_mediapy_find_it(tmp_path, monkeypatch):
     media = pytest.importorskip("mediapy")
     script = _console_script(tmp_path / "bin")
     monkeypatch.setenv("PATH", str(script.parent) + os.pathsep + os.environ.get("PATH", ""))
-    monkeypatch.setenv("PYTHONPATH", str(REPO))
+    monkeypatch.setenv("PYTHONPATH", _pythonpath())
     assert shutil.which("ffmpeg") == str(script)
     install_checks = pytest.importorskip("nerfstudio.utils.install_checks")
     install_checks.check_ffmpeg_installed()  # sys.exit(1) when shutil.which finds none
@@ -83,3 +88,16 @@ def test_loading_the_method_puts_the_env_ffmpeg_on_path(tmp_path, monkeypatch):
     monkeypatch.setenv("PATH", "/nonexistent-bin")
     monkeypatch.setattr(sys, "executable", str(tmp_path / "elsewhere" / "python"))  # no script beside it: left alone
     assert ffmpeg_entry.ensure_on_path() is False and os.environ["PATH"] == "/nonexistent-bin"
+
+
+@pytest.mark.parametrize("name,version,rewritten", [("ffmpeg-linux64-v4.2.2", (4, 2), False),
+                                                    ("ffmpeg-linux-x86_64-v9.0.2", (9, 0), True)])
+def test_vsync_rewritten_only_for_an_ffmpeg_that_knows_fps_mode(name, version, rewritten, monkeypatch):
+    """imageio-ffmpeg 0.5 ships ffmpeg 4.2 (no -fps_mode), 0.8 ships 9.0 (no -vsync): the script passes what the
+    binary understands."""
+    seen = {}
+    monkeypatch.setattr(ffmpeg_entry, "bundled_ffmpeg", lambda: f"/bin/{name}")
+    monkeypatch.setattr(ffmpeg_entry.os, "execv", lambda exe, argv: seen.update(exe=exe, argv=argv))
+    assert ffmpeg_entry.binary_version(f"/bin/{name}") == version
+    ffmpeg_entry.main(["-i", "x.mp4", "-vsync", "0", "-f", "rawvideo", "-"])
+    assert ("-fps_mode" in seen["argv"]) is rewritten and ("-vsync" in seen["argv"]) is not rewritten
