@@ -48,15 +48,15 @@ def write_json_atomic(path: Path, data: Dict[str, Any]) -> Path:
     return write_camera_path(path, data)
 
 
-def unique_json_path(folder: Path, name: str) -> Tuple[Path, str]:
-    """(``folder/<name>.json``, name) or, when that file exists, the first free ``<name>-2``, ``<name>-3``, ...:
+def unique_json_path(folder: Path, name: str, ext: str = ".json") -> Tuple[Path, str]:
+    """(``folder/<name><ext>``, name) or, when that file exists, the first free ``<name>-2``, ``<name>-3``, ...:
     an export never overwrites an earlier one."""
     folder = Path(folder)
     candidate, k = name, 1
-    while (folder / f"{candidate}.json").exists():
+    while (folder / f"{candidate}{ext}").exists():
         k += 1
         candidate = f"{name}-{k}"
-    return folder / f"{candidate}.json", candidate
+    return folder / f"{candidate}{ext}", candidate
 
 
 def render_command(config_path: Optional[Path], json_path: Path, data_name: str, name: str) -> Optional[str]:

@@ -205,6 +205,9 @@ class CinePanel(OutputMixin):
         except BaseException as err:  # never let the worker die silently
             if not self._superseded(req):
                 self._fail("Plan", err)
+                if req.warning:  # the likely cause, said with the error
+                    end = "" if self.status.endswith((".", "!", "?")) else "."
+                    self._set_status(f"{self.status}{end} Warning: {req.warning}", "error")
                 with self._lock:
                     self._state = self.READY if self._shots else self.IDLE
             return None
@@ -216,7 +219,7 @@ class CinePanel(OutputMixin):
         t0 = time.perf_counter()
         goal = self._resolve(req.goto, "Go to")
         look = self._resolve(req.look_at, "Look at")
-        warning = same_place_warning(goal, look)
+        warning = req.warning = same_place_warning(goal, look)
         if warning:  # said while planning too, not only when the shot is there
             self._set_status(f"Planning: {goal.describe()}; {look.describe()}... Warning: {warning}", "busy")
         start = None

@@ -89,9 +89,7 @@ class OutputMixin:
             cfg = self.config
             data = self._camera_path(shot, cfg.preview_fps, cfg.preview_width, cfg.preview_height)
             out_dir = Path(cfg.data_dir) / "previews"
-            stem = unique_json_path(out_dir, name)[1]
-            while (out_dir / f"{stem}.mp4").exists():  # the video's own name must be free too
-                stem = unique_json_path(out_dir, f"{stem}-v")[1]
+            stem = unique_json_path(out_dir, name, ".mp4")[1]
         except BaseException as err:
             self._fail("Preview", err)
             return None

@@ -173,29 +173,7 @@ class PlanRequest:
     n_candidates: int
     start_from_camera: bool
     generation: int
-
-
-@dataclass
-class PlanResult:
-    shots: List[ShotLike]
-    targets: List[Target]
-    timings: Dict[str, float]
-
-
-@dataclass
-class ExportResult:
-    path: Path
-    command: str
-
-
-@dataclass
-class PlanRequest:
-    goto: str
-    look_at: str
-    seed: int
-    n_candidates: int
-    start_from_camera: bool
-    generation: int
+    warning: str = ""  # set once the targets are resolved (go-to and look-at the same place)
 
 
 @dataclass

@@ -151,8 +151,8 @@ class ViserPanelUI:
         that keeps only the latest message, so an edit followed within 50 ms by another edit (or a click) never
         reaches the server while the box still shows it; re-sending the server's values makes every box show them."""
         for handle, value in ((self.goto, goto), (self.look_at, look_at)):
-            handle.value = value  # the server's state (no message when unchanged)
-            push_value(handle)  # always a message: the client may show something else
+            handle.value = value  # the server's state
+            push_value(handle)  # and on every screen, whatever the client showed
 
     def show_details(self, text: str) -> None:
         self.details_md.content = text or "(plan first)"
@@ -311,10 +311,13 @@ class ViserPanelUI:
 
 
 def push_value(handle: Any) -> None:
-    """Send ``handle``'s current (server) value to every client even when the server thinks it unchanged (viser's
-    ``value`` setter skips equal values); the message is viser's own GuiUpdateMessage."""
-    impl = handle._impl
-    impl.gui_api._websock_interface.queue_message(_messages.GuiUpdateMessage(impl.uuid, {"value": impl.value}))
+    """Make every client show ``handle``'s server value, even where the client shows something else that never
+    reached the server: an equal value is not re-applied by the client, so the box goes through a different value
+    first (two messages, flushed apart so the server's buffer does not merge them)."""
+    value = handle.value
+    handle.value = value + " "  # differs from the value: the client applies it
+    handle._impl.gui_api._websock_interface.flush()
+    handle.value = value
 
 
 def closest_approach(shot: ShotLike) -> "tuple[int, str]":
