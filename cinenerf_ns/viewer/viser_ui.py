@@ -312,8 +312,9 @@ class ViserPanelUI:
 
 def push_value(handle: Any) -> None:
     """Make every client show ``handle``'s server value, even where the client shows something else that never
-    reached the server: an equal value is not re-applied by the client, so the box goes through a different value
-    first (two messages, flushed apart so the server's buffer does not merge them)."""
+    reached the server. The box goes through a different value first (two messages, flushed apart so the server's
+    buffer does not merge them): this is the form the browser test checks; re-sending only the equal value was not
+    tested on its own."""
     value = handle.value
     handle.value = value + " "  # differs from the value: the client applies it
     handle._impl.gui_api._websock_interface.flush()
