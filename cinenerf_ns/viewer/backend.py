@@ -65,7 +65,7 @@ def parse_point(text: str) -> Optional[np.ndarray]:
     return p if np.all(np.isfinite(p)) else None
 
 
-LocateFn = Callable[[str], Tuple[Any, Any]]  # text -> (centroid [3], mask [N])
+LocateFn = Callable[[str], Tuple[Any, ...]]  # text -> (centroid [3], mask [N][, what it matched, in words])
 PlanFn = Callable[..., List[Any]]  # (goal [3], look_at [3], start=None|[3], seed=int, n_candidates=int) -> shots
 
 
@@ -94,7 +94,8 @@ class FunctionBackend:
     def gaussians(self) -> SceneGaussians:
         return self._gaussians
 
-    def locate(self, text: str) -> Tuple[np.ndarray, np.ndarray]:
+    def locate(self, text: str) -> Tuple[Any, ...]:
+        """(centroid [3], mask [N][, what it matched]) of ``text``."""
         if not text or not text.strip():
             raise InvalidInputError("empty query: type an object name or 'x y z' coordinates")
         if self._locate_fn is None:
@@ -102,8 +103,9 @@ class FunctionBackend:
                 f"text queries need a trained cinesplat scene (semantic latents + codec); this scene has none. "
                 f"Type coordinates 'x y z' instead of '{text}'"
             )
-        centroid, mask = self._locate_fn(text)
-        return to_numpy(centroid).reshape(3), to_numpy(mask, bool).reshape(-1)
+        found = tuple(self._locate_fn(text))  # (centroid [3], mask [N][, what it matched])
+        centroid, mask = to_numpy(found[0]).reshape(3), to_numpy(found[1], bool).reshape(-1)
+        return (centroid, mask) + found[2:3]
 
     def plan(self, goal, look_at, start=None, seed: int = 0, n_candidates: int = 1) -> List[Any]:
         with self._plan_lock:
@@ -129,6 +131,7 @@ def label_locate(means: np.ndarray, labels: Sequence[str], label_of: np.ndarray)
         mask = np.isin(label_of, hit)
         if not mask.any():
             raise NoMatchError(f"'{text}' names an object with no Gaussians left")
-        return means[mask].mean(0), mask
+        return means[mask].mean(0), mask, "the label" + ("s " if len(hit) > 1 else " ") + ", ".join(
+            f"'{labels[i]}'" for i in hit)
 
     return locate

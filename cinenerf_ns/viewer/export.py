@@ -10,10 +10,10 @@ atomically by its ``write_camera_path``.
 """
 from __future__ import annotations
 
-import os
 import re
+import shlex
 from pathlib import Path
-from typing import Any, Callable, Dict, Optional
+from typing import Any, Callable, Dict, Optional, Tuple
 
 from cinenerf_ns.planner.errors import InvalidInputError
 
@@ -48,14 +48,33 @@ def write_json_atomic(path: Path, data: Dict[str, Any]) -> Path:
     return write_camera_path(path, data)
 
 
-def render_command(config_path: Optional[Path], json_path: Path, data_name: str, name: str) -> str:
-    """The ``ns-render`` command nerfstudio's Render tab shows for the same file."""
-    cfg = str(config_path) if config_path is not None else "<path/to/your/run/config.yml>"
+def unique_json_path(folder: Path, name: str, ext: str = ".json") -> Tuple[Path, str]:
+    """(``folder/<name><ext>``, name) or, when that file exists, the first free ``<name>-2``, ``<name>-3``, ...:
+    an export never overwrites an earlier one."""
+    folder = Path(folder)
+    candidate, k = name, 1
+    while (folder / f"{candidate}{ext}").exists():
+        k += 1
+        candidate = f"{name}-{k}"
+    return folder / f"{candidate}{ext}", candidate
+
+
+def render_command(config_path: Optional[Path], json_path: Path, data_name: str, name: str) -> Optional[str]:
+    """The ``ns-render`` command nerfstudio's Render tab shows for the same file, with the run's real config.yml
+    (absolute); None when there is no run to render with (a compact export, a .ply, a procedural room)."""
+    if config_path is None:
+        return None
     return " ".join(
         [
             "ns-render camera-path",
-            f"--load-config {cfg}",
-            f"--camera-path-filename {Path(json_path).absolute()}",
-            f"--output-path renders/{data_name}/{name}.mp4",
+            f"--load-config {shlex.quote(str(Path(config_path).absolute()))}",
+            f"--camera-path-filename {shlex.quote(str(Path(json_path).absolute()))}",
+            f"--output-path {shlex.quote(str(Path('renders') / data_name / (name + '.mp4')))}",
         ]
     )
+
+
+def command_lines(command: str) -> str:
+    """The command broken before each option with shell line continuations: still one valid command when copied,
+    and no line runs off a narrow panel."""
+    return " \\\n  --".join(command.split(" --"))

@@ -242,11 +242,13 @@ class SplatModelBackend:
         if locate_fn is None:
             sem = self._current("semantic")
             if sem is not None:
-                from cinenerf_ns.scenes import free_text, label_query
+                from cinenerf_ns.scenes import free_text
+
+                from .standalone import semantic_locate  # says what matched: the label, the best relevancy
 
                 info = getattr(self.model, "cine_info", {}) or {}
                 names, free = list(info.get("label_names") or []), free_text(info)
-                locate_fn = lambda t: sem.locate(label_query(t, names, free))  # noqa: E731
+                locate_fn = semantic_locate(sem, names, free)
         # FunctionBackend gives the same empty-text / no-semantics messages as the standalone viewer.
         return FunctionBackend(self.gaussians(), lambda *a, **k: [], locate_fn).locate(text)
 

@@ -18,164 +18,30 @@ import logging
 import threading
 import time
 import traceback
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Protocol, Sequence, Tuple, runtime_checkable
+from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
 from cinenerf_ns.planner.errors import GoalUnreachableError, InvalidInputError, PlanningError
 
-from .backend import SceneGaussians, parse_point, to_numpy
+from .backend import parse_point, to_numpy
 from .conventions import interpolate_pose
-from .export import Exporter, check_export_name, default_exporter, render_command, write_json_atomic
+from .export import Exporter, default_exporter
+from .panel_output import OutputMixin, Previewer
+from .panel_types import (DisplayOptions, ExportResult, PanelBackend, PanelConfig, PanelView, PlanRequest,  # noqa: F401
+                          PlanResult, ShotLike, Target)
+from .shot_text import (SCORE_RULE, candidate_label, check_shot, goal_note, min_clearance, plan_summary,  # noqa: F401
+                        shot_score, shot_summary, sort_by_score, timings_detail)
 
 log = logging.getLogger(__name__)
 
 
-# ----------------------------------------------------------------------------------------- interfaces
-@runtime_checkable
-class ShotLike(Protocol):
-    """What the panel reads from a planned shot (``cinenerf_ns.planner.shot.Shot`` satisfies it).
-
-    Required: ``times`` [T] seconds, increasing; ``positions`` [T, 3]; ``rotations`` [T, 3, 3]
-    camera-to-world rotations, nerfstudio convention (camera looks along -z, y up).
-    Optional, used when present: ``clearance`` [T] (or ``min_clearance`` float), ``corridor`` (with
-    ``.polytopes``, each ``.A`` [F,3] / ``.b`` [F] or an ``(A, b)`` pair), ``look_at`` [3], ``goal`` [3],
-    ``start`` [3], ``timings`` dict of seconds. Tensors may be torch (any device) or numpy."""
-
-    times: Any
-    positions: Any
-    rotations: Any
-
-
-@runtime_checkable
-class PanelBackend(Protocol):
-    """Scene access for the panel. Points are nerfstudio scene coordinates (numpy float64 [3])."""
-
-    def gaussians(self) -> SceneGaussians:
-        """Gaussians to draw / highlight (means [N,3], optional colors [N,3], opacities [N], covariances)."""
-        ...
-
-    def locate(self, text: str) -> Tuple[Any, Any]:
-        """Text query -> (centroid [3], mask [N] bool over ``gaussians()``). Raises a
-        ``PlanningError`` (e.g. ``InvalidInputError`` for empty text, ``NoMatchError`` when nothing
-        matches) whose message is shown verbatim."""
-        ...
-
-    def plan(
-        self, goal: np.ndarray, look_at: np.ndarray, start: Optional[np.ndarray] = None, seed: int = 0,
-        n_candidates: int = 1,
-    ) -> Sequence[ShotLike]:
-        """Collision-free shots from ``start`` (None: the planner picks a free start from ``seed``)
-        to ``goal`` looking at ``look_at``. Raises ``PlanningError`` subclasses on failure."""
-        ...
-
-
-@dataclass
-class DisplayOptions:
-    """What the view draws besides the splat."""
-
-    show_path: bool = True
-    """Spline through the shot plus camera frustums along it."""
-    show_targets: bool = True
-    """Highlight the Gaussians / centroids the go-to and look-at queries matched."""
-    show_corridor: bool = False
-    """The shot's safe corridor (convex polytopes)."""
-    show_clearance: bool = False
-    """Clearance numbers along the path."""
-
-
-@dataclass
-class Target:
-    """A resolved go-to / look-at request."""
-
-    role: str  # "go to" | "look at"
-    text: str
-    point: np.ndarray  # [3] scene units
-    mask: Optional[np.ndarray] = None  # [N] bool, None for typed coordinates
-
-
-class PanelView(Protocol):
-    """Drawing / camera side of the panel. Called from worker threads: implementations must be
-    thread-safe (viser's scene and GUI APIs are)."""
-
-    def set_status(self, text: str, level: str) -> None:
-        """level: "info" | "busy" | "ok" | "error"."""
-
-    def show_candidates(self, labels: List[str], selected: int) -> None: ...
-
-    def draw_shot(self, shot: Optional[ShotLike], options: DisplayOptions) -> None:
-        """Draw (or with None, remove) path, frustums, corridor and clearance labels."""
-
-    def draw_targets(self, targets: List[Target], options: DisplayOptions) -> None: ...
-
-    def set_camera(self, c2w: np.ndarray) -> int:
-        """Move every connected client's camera to nerfstudio c2w [3, 4]; returns clients moved."""
-
-    def camera_position(self) -> Optional[np.ndarray]:
-        """A connected client's camera position in scene units, None when no client."""
-
-    def set_playing(self, playing: bool) -> None: ...
-
-    def show_export(self, path: Path, command: str) -> None: ...
-
-
-# ----------------------------------------------------------------------------------------- config
-@dataclass
-class PanelConfig:
-    """Panel settings (defaults match nerfstudio's Render tab)."""
-
-    data_dir: Path = Path(".")
-    """Dataset directory: exports go to ``<data_dir>/camera_paths/<name>.json`` like the Render tab."""
-    config_path: Optional[Path] = None
-    """The run's config.yml, for the ``ns-render`` command (None: a placeholder is shown)."""
-    fov_deg: float = 50.0
-    """Vertical field of view of the exported path."""
-    render_width: int = 1920
-    """Exported render width in pixels."""
-    render_height: int = 1080
-    """Exported render height in pixels."""
-    fps: int = 30
-    """Exported frame rate."""
-    n_candidates: int = 3
-    """Shots requested per Plan (random starts)."""
-    update_hz: float = 60.0
-    """Camera updates per second sent to each client while playing."""
-    autoplay: bool = True
-    """Start playing the first candidate as soon as it is planned."""
-    loop: bool = False
-    """Restart at the end."""
-    speed: float = 1.0
-    """Playback speed multiple of the shot's real speed."""
-
-
-@dataclass
-class PlanRequest:
-    goto: str
-    look_at: str
-    seed: int
-    n_candidates: int
-    start_from_camera: bool
-    generation: int
-
-
-@dataclass
-class PlanResult:
-    shots: List[ShotLike]
-    targets: List[Target]
-    timings: Dict[str, float]
-
-
-@dataclass
-class ExportResult:
-    path: Path
-    command: str
-
-
 # ----------------------------------------------------------------------------------------- panel
-class CinePanel:
-    """All state and logic of the cinematography panel. GUI layers call the public methods."""
+class CinePanel(OutputMixin):
+    """All state and logic of the cinematography panel. GUI layers call the public methods (export and preview:
+    :class:`~.panel_output.OutputMixin`)."""
 
     IDLE, PLANNING, READY, PLAYING, PAUSED = "idle", "planning", "ready", "playing", "paused"
 
@@ -185,16 +51,23 @@ class CinePanel:
         view: PanelView,
         config: Optional[PanelConfig] = None,
         exporter: Optional[Exporter] = None,
+        previewer: Optional[Previewer] = None,
     ) -> None:
+        """``previewer`` renders a camera-path dict to a video (None: no "Preview video")."""
         self.backend = backend
         self.view = view
         self.config = replace(config) if config is not None else PanelConfig()
+        # absolute once, at start: exports never depend on a later working directory, and the path shown is the file's
+        self.config.data_dir = Path(self.config.data_dir).expanduser().absolute()
         self.exporter: Exporter = exporter or default_exporter()
+        self.previewer = previewer
         self.options = DisplayOptions()
         self.seed = 0
         self.last_timings: Dict[str, float] = {}
         self.status = ""
         self.status_level = "info"
+        self._status_owner = ""  # what set the status ("speed": a speed error, cleared by the next good speed)
+        self._status_before = ("", "info")  # the status a speed error replaced
         self._lock = threading.RLock()  # state; held while joining the animation thread
         self._t_lock = threading.Lock()  # playback time / end-of-shot state, shared with the animation thread
         self._state = self.IDLE
@@ -210,6 +83,7 @@ class CinePanel:
         self._anim_stop = threading.Event()
         self.frames_sent = 0  # camera updates sent by the animation thread (all plays)
         self._closed = False
+        self._init_output()
 
     # ------------------------------------------------------------------ read-only state
     @property
@@ -238,12 +112,21 @@ class CinePanel:
         return self._t
 
     # ------------------------------------------------------------------ status
-    def _set_status(self, text: str, level: str = "info") -> None:
-        self.status, self.status_level = text, level
+    def _set_status(self, text: str, level: str = "info", owner: str = "") -> None:
+        if owner and not self._status_owner:
+            self._status_before = (self.status, self.status_level)
+        self.status, self.status_level, self._status_owner = text, level, owner
         try:
             self.view.set_status(text, level)
         except Exception:  # a broken view must not take the panel down
             log.exception("view.set_status failed")
+
+    def _call_view(self, method: str, *args) -> None:
+        """A view call whose failure must not stop the panel (logged)."""
+        try:
+            getattr(self.view, method)(*args)
+        except Exception:
+            log.exception("view.%s failed", method)
 
     def _fail(self, what: str, err: BaseException) -> None:
         if isinstance(err, PlanningError) or isinstance(err, ValueError):
@@ -281,7 +164,12 @@ class CinePanel:
                 start_from_camera=start_from_camera, generation=self._generation,
             )
             self._state = self.PLANNING
-        self._set_status(f"Planning: go to '{req.goto}', look at '{req.look_at}' (seed {req.seed})...", "busy")
+        # one source of truth: the boxes show exactly the texts this plan uses; the last plan's outputs go away
+        self._call_view("show_inputs", req.goto, req.look_at)
+        self._call_view("show_export", None, "")
+        self._call_view("show_preview", None)
+        self._call_view("show_details", "")
+        self._set_status(f"Planning: go to '{req.goto}', look at '{req.look_at}'...", "busy")
         return self._executor.submit(self._plan_job, req)
 
     def new_random_start(self, n_candidates: Optional[int] = None) -> cf.Future:
@@ -296,11 +184,15 @@ class CinePanel:
         point = parse_point(text)
         if point is not None:
             return Target(role, text, point, None)
-        centroid, mask = self.backend.locate(text)
-        centroid = to_numpy(centroid).reshape(3)
+        found = tuple(self.backend.locate(text))  # (centroid [3], mask [N][, what it matched])
+        centroid, mask = to_numpy(found[0]).reshape(3), found[1]
+        matched = str(found[2]) if len(found) > 2 and found[2] else ""
+        mask = None if mask is None else to_numpy(mask, bool).reshape(-1)
+        if mask is not None and not mask.any():
+            raise InvalidInputError(f"'{role}': '{text}' matches nothing in this scene (no Gaussian selected)")
         if not np.all(np.isfinite(centroid)):
             raise InvalidInputError(f"the query '{text}' gave a non-finite centroid {centroid}")
-        return Target(role, text, centroid, None if mask is None else to_numpy(mask, bool).reshape(-1))
+        return Target(role, text, centroid, mask, matched)
 
     def _superseded(self, req: PlanRequest) -> bool:
         return req.generation != self._generation or self._closed
@@ -313,6 +205,9 @@ class CinePanel:
         except BaseException as err:  # never let the worker die silently
             if not self._superseded(req):
                 self._fail("Plan", err)
+                if req.warning:  # the likely cause, said with the error
+                    end = "" if self.status.endswith((".", "!", "?")) else "."
+                    self._set_status(f"{self.status}{end} Warning: {req.warning}", "error")
                 with self._lock:
                     self._state = self.READY if self._shots else self.IDLE
             return None
@@ -324,6 +219,9 @@ class CinePanel:
         t0 = time.perf_counter()
         goal = self._resolve(req.goto, "Go to")
         look = self._resolve(req.look_at, "Look at")
+        warning = req.warning = same_place_warning(goal, look)
+        if warning:  # said while planning too, not only when the shot is there
+            self._set_status(f"Planning: {goal.describe()}; {look.describe()}... Warning: {warning}", "busy")
         start = None
         if req.start_from_camera:
             start = self.view.camera_position()
@@ -339,6 +237,7 @@ class CinePanel:
             )
         for i, s in enumerate(shots):
             check_shot(s, f"candidate {i + 1}")
+        shots = sort_by_score(shots)  # best (lowest score) first
         with self._lock:
             if self._superseded(req):
                 return None  # a newer Plan arrived while planning: drop this result
@@ -350,20 +249,31 @@ class CinePanel:
         t3 = time.perf_counter()
         timings = {"query_s": t1 - t0, "plan_s": t2 - t1, "draw_s": t3 - t2, "total_s": t3 - t0}
         self.last_timings = timings
-        inner = getattr(shots[0], "timings", None) or {}
-        detail = timings_detail(inner)
-        by = getattr(self.backend, "planner_name", None)
-        self._set_status(
-            f"Planned {len(shots)} candidate(s){f' with the {by}' if by else ''} in {timings['total_s']:.2f} s (query {timings['query_s']:.2f} s, "
-            f"planner {timings['plan_s']:.2f} s{'; ' + detail if detail else ''}, drawing {timings['draw_s']:.2f} s). "
-            f"{shot_summary(shots[0])}{goal_note(shots[0])}",
-            "ok",
-        )
+        result = PlanResult(shots, [goal, look], timings, warning)
+        self._report_plan(req, result)
         if self.config.autoplay:
             with self._lock:  # atomic with request_plan's generation bump: no stale autoplay
                 if not self._superseded(req):
                     self.play()
-        return PlanResult(shots, [goal, look], timings)
+        return result
+
+    def _report_plan(self, req: PlanRequest, result: PlanResult) -> None:
+        """Status in the user's words (what was planned, what each query matched, the best shot, any warning);
+        timings and the planner's internals go to the details fold."""
+        shots, (goal, look), timings = result.shots, result.targets, result.timings
+        scored = shot_score(shots[0]) is not None
+        text = (f"{plan_summary(len(shots), timings['total_s'])}: {goal.describe()}; {look.describe()}. "
+                f"Shot 1: {shot_summary(shots[0])}{goal_note(shots[0])}."
+                f"{f' Candidates are sorted by score ({SCORE_RULE}).' if scored and len(shots) > 1 else ''}")
+        if result.warning:
+            text += f" Warning: {result.warning}"
+        self._set_status(text, "warn" if result.warning else "ok")
+        inner = timings_detail(getattr(shots[0], "timings", None) or {})
+        by = getattr(self.backend, "planner_name", None)
+        self._call_view("show_details", (
+            f"Planner{f': {by}' if by else ''}, seed {req.seed}. Total {timings['total_s']:.2f} s: queries "
+            f"{timings['query_s']:.2f} s, planning {timings['plan_s']:.2f} s{f' ({inner})' if inner else ''}, "
+            f"drawing {timings['draw_s']:.2f} s."))
 
     def wait_idle(self, timeout: float = 30.0) -> bool:
         """Block until no plan request is pending (tests, benchmarks, CLI)."""
@@ -390,7 +300,10 @@ class CinePanel:
             self._state = self.READY
             shot = self._shots[index]
         self.view.draw_shot(shot, self.options)
-        self._set_status(f"Candidate {index + 1}: {shot_summary(shot)}", "ok")
+        self._call_view("show_export", None, "")  # the export / preview shown were of another candidate
+        self._call_view("show_preview", None)
+        scored = shot_score(shot) is not None
+        self._set_status(f"Candidate {index + 1}: {shot_summary(shot)}{f' ({SCORE_RULE})' if scored else ''}", "ok")
 
     def set_display(self, **flags: bool) -> None:
         """Toggle ``show_path`` / ``show_targets`` / ``show_corridor`` / ``show_clearance``."""
@@ -446,10 +359,15 @@ class CinePanel:
         self.view.set_camera(c2w)
 
     def set_speed(self, speed: float) -> None:
+        """A speed <= 0 (e.g. "0" on the way to typing 0.25) keeps the current speed and says so until a good one
+        arrives, which puts back the status it replaced."""
         if not (np.isfinite(speed) and speed > 0):
-            self._set_status(f"speed must be > 0, got {speed}", "error")
+            self._set_status(f"Speed must be above 0 (got {speed:g}); still playing at {self.config.speed:g}x",
+                             "error", owner="speed")
             return
         self.config.speed = float(speed)
+        if self._status_owner == "speed":
+            self._set_status(*self._status_before)
 
     def set_loop(self, loop: bool) -> None:
         self.config.loop = bool(loop)
@@ -509,30 +427,6 @@ class CinePanel:
                 if not stop.is_set():
                     self._state = self.READY
 
-    # ------------------------------------------------------------------ export
-    def export(self, name: str) -> Optional[ExportResult]:
-        """Write the selected shot to ``<data>/camera_paths/<name>.json`` (atomically) and show the
-        ``ns-render`` command. Returns None (and sets an error status) on failure; an existing file
-        of that name is only replaced once the new one is complete."""
-        try:
-            name = check_export_name(name)
-            shot = self.shot
-            if shot is None:
-                raise InvalidInputError("nothing to export: press Plan first")
-            cfg = self.config
-            if hasattr(shot, "resampled"):  # ns-render plays frames at the file's own rate: re-time, never relabel
-                shot = shot.resampled(cfg.fps)
-            data = self.exporter(shot, cfg.fov_deg, cfg.render_width, cfg.render_height, cfg.fps)
-            path = write_json_atomic(Path(cfg.data_dir) / "camera_paths" / f"{name}.json", data)
-            command = render_command(cfg.config_path, path, Path(cfg.data_dir).absolute().name, name)
-        except BaseException as err:
-            self._fail("Export", err)
-            return None
-        self.view.show_export(path, command)
-        note = "" if cfg.config_path is not None else " (replace the config placeholder with your run's config.yml)"
-        self._set_status(f"Exported {path}. Render with: {command}{note}", "ok")
-        return ExportResult(path, command)
-
     # ------------------------------------------------------------------ teardown
     def close(self) -> None:
         with self._lock:
@@ -540,93 +434,15 @@ class CinePanel:
             self._generation += 1
             self._stop_animation()
         self._executor.shutdown(wait=True, cancel_futures=True)
+        self._close_output()
 
 
-# ----------------------------------------------------------------------------------------- helpers
-def check_shot(shot: Any, what: str = "shot") -> None:
-    """Raise PlanningError when a shot lacks what the panel needs or holds NaN."""
-    try:
-        times = to_numpy(shot.times).reshape(-1)
-        pos = to_numpy(shot.positions)
-        rot = to_numpy(shot.rotations)
-    except AttributeError as err:
-        raise PlanningError(f"the planner returned a malformed {what}: {err}") from err
-    t = len(times)
-    if t < 2 or pos.shape != (t, 3) or rot.shape != (t, 3, 3):
-        raise PlanningError(
-            f"the planner returned a malformed {what}: times {times.shape}, positions {pos.shape}, "
-            f"rotations {rot.shape} (want [T>=2], [T,3], [T,3,3])"
-        )
-    if not (np.all(np.isfinite(times)) and np.all(np.isfinite(pos)) and np.all(np.isfinite(rot))):
-        raise PlanningError(f"the planner returned a {what} with NaN/inf samples")
-    if not np.all(np.diff(times) > 0):
-        raise PlanningError(f"the planner returned a {what} whose times do not increase")
-
-
-def min_clearance(shot: Any) -> Optional[float]:
-    """Smallest clearance the shot reports: per-frame ``clearance`` [T], else ``min_clearance``, else the
-    planner's dense verification (``safety['min_exact_clearance']``, None when every sample was proven free)."""
-    c = getattr(shot, "clearance", None)
-    if c is not None:
-        c = to_numpy(c).reshape(-1)
-        return float(c.min()) if c.size else None
-    m = getattr(shot, "min_clearance", None)
-    if m is not None:
-        return float(m)
-    safety = getattr(shot, "safety", None)
-    m = safety.get("min_exact_clearance") if isinstance(safety, dict) else None
-    return None if m is None else float(m)
-
-
-def shot_score(shot: Any) -> Optional[float]:
-    """The candidate's ranking score when the planner gives one (``shot.score``), else None."""
-    s = getattr(shot, "score", None)
-    try:
-        return None if s is None else float(s)
-    except (TypeError, ValueError):
-        return None
-
-
-def timings_detail(timings: Dict[str, Any]) -> str:
-    """``{'astar_ms': 12.3, 'fit_s': 0.5}`` -> ``'astar 12 ms, fit 0.50 s'`` (the planner reports ms)."""
-    out = []
-    for k, v in timings.items():
-        if not isinstance(v, (int, float)):
-            continue
-        if k.endswith("_ms"):
-            out.append(f"{k[:-3]} {v:.0f} ms")
-        elif k.endswith("_s"):
-            out.append(f"{k[:-2]} {v:.2f} s")
-        else:
-            out.append(f"{k} {v:.3g}")
-    return ", ".join(out)
-
-
-def shot_summary(shot: Any) -> str:
-    times = to_numpy(shot.times)
-    pos = to_numpy(shot.positions)
-    length = float(np.linalg.norm(np.diff(pos, axis=0), axis=1).sum())
-    c = min_clearance(shot)
-    cl = "n/a" if c is None else f"{c:.3g}"
-    score = shot_score(shot)
-    return (f"{times[-1] - times[0]:.1f} s, {length:.2f} units long, min clearance {cl}"
-            f"{'' if score is None else f', score {score:.3g}'}")
-
-
-def goal_note(shot: Any) -> str:
-    """' Note: the go-to point moved ...' when the planner ended the shot away from the go-to target (planner
-    explain_goal: from where to where and why), else ''."""
-    mv = getattr(shot, "goal_moved", None)
-    if not mv:
+def same_place_warning(goal: Target, look: Target) -> str:
+    """A warning when the go-to and look-at targets are the same place (the camera would end inside what it looks at),
+    else ""."""
+    same_mask = goal.mask is not None and look.mask is not None and goal.mask.shape == look.mask.shape \
+        and bool(np.array_equal(goal.mask, look.mask))
+    if not (same_mask or np.allclose(goal.point, look.point, atol=1e-6)):
         return ""
-    f = lambda p: "(" + ", ".join(f"{v:.3f}" for v in p) + ")"  # noqa: E731
-    return f" Note: the go-to point moved {mv['distance']:.3f} units, from {f(mv['from'])} to {f(mv['to'])}: {mv['why']}."
-
-
-def candidate_label(i: int, shot: Any) -> str:
-    """Dropdown entry: ``'<n>: <duration> s, clearance <min>[, score <s>]'`` (the panel parses the number)."""
-    times = to_numpy(shot.times)
-    c = min_clearance(shot)
-    score = shot_score(shot)
-    return (f"{i + 1}: {times[-1] - times[0]:.1f} s, clearance {'n/a' if c is None else f'{c:.3g}'}"
-            f"{'' if score is None else f', score {score:.3g}'}")
+    return (f"'Go to' and 'Look at' are the same place ('{goal.text}' / '{look.text}'): the camera flies into what "
+            f"it looks at. Look at something else, or go to a point beside it.")

@@ -72,6 +72,7 @@ class LoadedScene:
     object_names: List[str] = dataclasses.field(default_factory=list)  # ground-truth names (procedural / demo)
     semantic: Optional[Any] = None  # the SemanticScene answering text ("relevancy" scenes), see warm_semantics
     free_text: bool = False  # whether free text (not only label names) means anything to ``semantic``
+    scene_note: str = ""  # what the scene is when it has no run (said instead of an ns-render command)
 
 
 # --------------------------------------------------------------------------------------- loading
@@ -140,7 +141,7 @@ def procedural_locate(room: Any) -> LocateFn:
 
     def locate(text: str):
         i = procedural_object(room, text)
-        return np.asarray(room.objects[i].center, np.float64), ids == i
+        return np.asarray(room.objects[i].center, np.float64), ids == i, f"the object '{room.objects[i].name}'"
 
     return locate
 
@@ -151,8 +152,12 @@ def semantic_locate(sem: Any, label_names: List[str], free: bool = True) -> Loca
     from cinenerf_ns.scenes import label_query
 
     def locate(text: str):
-        c, mask = sem.locate(label_query(text, label_names, free))
-        return to_numpy(c), to_numpy(mask, bool)
+        query = label_query(text, label_names, free)  # InvalidInputError listing the scene's names for nonsense
+        r = sem.locate_full(query)
+        mask = to_numpy(r.mask, bool)  # [N]
+        best = float(to_numpy(r.relevancy)[mask].max()) if mask.any() else float("nan")
+        label = f"the label '{query}', " if query in label_names else ""
+        return to_numpy(r.centroid), mask, f"{label}best relevancy {best:.2f}"
 
     return locate
 
@@ -182,7 +187,7 @@ def load_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optio
         return LoadedScene(
             splat, "demo", data_dir or Path("demo_output") / "cinesplat-viewer-demo", None,
             locate=label_locate(d.means, d.labels, d.label_of), default_goto="red box", default_look_at="blue pillar",
-            semantics="labels", object_names=list(d.labels),
+            semantics="labels", object_names=list(d.labels), scene_note="the tiny built-in demo scene has no training run",
         )
     if cli.procedural_spec(source) is not None:  # the explicit spec only, never a file name
         ld = cli.load_scene(source, scfg, device)
@@ -192,6 +197,7 @@ def load_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optio
             procedural_display(room), source.replace(":", "-"), data_dir or Path("demo_output") / "cinesplat-viewer-procedural",
             None, locate=procedural_locate(room), default_goto=names[0], default_look_at=names[1 % len(names)],
             obstacles=ld.scene, start_region=ld.start_region, semantics="labels", object_names=names,
+            scene_note=f"'{source}' is a generated test room with no training run",
         )
     path = Path(source)
     if not path.exists():
@@ -200,7 +206,8 @@ def load_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optio
             f"'procedural[:N[:SEED]]' or 'demo')"
         )
     if path.suffix.lower() == ".ply":
-        return LoadedScene(load_ply(path), path.stem, data_dir or path.parent, None)
+        return LoadedScene(load_ply(path), path.stem, data_dir or path.parent, None,
+                           scene_note=f"{path.absolute()} is a .ply splat with no training run")
     if not (path.is_dir() or path.suffix.lower() in (".yml", ".yaml", ".ckpt", ".pt", ".npz")):
         raise InvalidInputError(f"--load-config {source}: expected a config.yml, run folder, .ckpt, compact export, "
                                 f".ply, 'procedural' or 'demo'")
@@ -216,6 +223,7 @@ def load_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optio
                                                         ld.extra.get("free_text", True)),
         obstacles=ld.scene, start_region=ld.start_region, semantics="none" if sem is None else "relevancy",
         semantic=sem, free_text=bool(ld.extra.get("free_text", False)),
+        scene_note="" if cfg_path is not None else f"{path.absolute()} is a compact export with no training run",
     )
 
 
@@ -239,6 +247,34 @@ def warm_semantics(loaded: LoadedScene, background: bool = True) -> Optional[thr
     th = threading.Thread(target=work, name="cine-semantic-warm", daemon=True)
     th.start()
     return th
+
+
+class SplatPreviewer:
+    """The panel's "Preview video": renders a camera-path dict through the viewer's splat with
+    ``cinenerf_ns.preview`` (CPU); the renderable scene is built on first use (exp of log-scales, sigmoid of logits)."""
+
+    def __init__(self, splat: SplatParams) -> None:
+        self.splat = splat
+        self._scene = None
+
+    def scene(self):
+        if self._scene is None:
+            import torch
+
+            from cinenerf_ns.preview.raster_torch import make_scene
+
+            sp = self.splat
+            f = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
+            self._scene = make_scene(f(sp.means), f(sp.quats_wxyz), torch.exp(f(sp.log_scales)),  # [N,3], [N,4], [N,3]
+                                     torch.sigmoid(f(sp.opacity_logits)).reshape(-1), f(sp.colors))  # [N], [N,3]
+        return self._scene
+
+    def __call__(self, camera_path, out_dir: Path, name: str, width: int, height: int, fps: int) -> Path:
+        from cinenerf_ns.preview import preview_camera_path
+
+        out = preview_camera_path(self.scene(), camera_path, out_dir, name, width=width, height=height, fps=fps,
+                                  progress=False)
+        return Path(out["paths"]["mp4"])
 
 
 # --------------------------------------------------------------------------------------- viewer
@@ -319,18 +355,16 @@ class StandaloneViewer:
         self._draw_splat(display)
         self.panel = attach_cine_panel(
             self.server, self.backend,
-            PanelConfig(data_dir=self.loaded.data_dir, config_path=self.loaded.config_path, n_candidates=cfg.n_candidates),
+            PanelConfig(data_dir=self.loaded.data_dir, config_path=self.loaded.config_path, n_candidates=cfg.n_candidates,
+                        scene_note=self.loaded.scene_note),
             scale=cfg.scale, default_goto=self.loaded.default_goto, default_look_at=self.loaded.default_look_at,
+            previewer=SplatPreviewer(sp), export_name=f"{self.loaded.name}-shot", start_region=self.loaded.start_region,
         )
         self.ui = self.panel.view
-        lo, hi = np.percentile(display.means, 2, axis=0), np.percentile(display.means, 98, axis=0)
-        self._home_target = (lo + hi) / 2 * cfg.scale
-        self._home_position = ((lo + hi) / 2 + np.array([1.0, -1.2, 0.9]) * (hi - lo).max()) * cfg.scale
 
         @self.server.on_client_connect
-        def _(client) -> None:
-            client.camera.position = self._home_position
-            client.camera.look_at = self._home_target
+        def _(client) -> None:  # the opening view: inside the captured region, not outside the walls
+            self.ui.go_to_view(self.ui.overview if self.ui.overview_box.value else self.ui.home, client)
 
         if locate is None:
             text = "Text queries need a trained cinesplat scene (semantic latents + codec); this scene has none: type targets as x y z."

@@ -6,7 +6,6 @@ Used by both the nerfstudio viewer adapter and the standalone viewer. Scene coor
 """
 from __future__ import annotations
 
-import datetime
 import logging
 import threading
 from pathlib import Path
@@ -18,11 +17,14 @@ import viser
 from .backend import to_numpy
 from .conventions import VISER_NERFSTUDIO_SCALE_RATIO, nerfstudio_c2w_to_viser, viser_to_world
 from .panel import CinePanel, DisplayOptions, PanelBackend, PanelConfig, ShotLike, Target, min_clearance
+from .panel_output import Previewer
 from .polytope_mesh import polytope_mesh
+from .shot_text import SCORE_RULE
+from .views import View, highlight_box, opening_view, overview_view
 
 log = logging.getLogger(__name__)
 
-_LEVEL_ICON = {"info": "", "busy": "⏳ ", "ok": "✅ ", "error": "⚠️ "}
+_LEVEL_ICON = {"info": "", "busy": "⏳ ", "ok": "✅ ", "warn": "⚠️ ", "error": "❌ "}
 _TARGET_COLOR = {"Go to": (40, 220, 90), "Look at": (255, 150, 20)}
 _NO_CANDIDATES = "(plan first)"
 
@@ -42,6 +44,7 @@ class ViserPanelUI:
         folder_label: str = "Cinematography",
         root: str = "/cine",
         n_candidates: int = 3,
+        export_name: str = "shot",
     ) -> None:
         self.server = server
         self.scale = float(scale)
@@ -54,6 +57,9 @@ class ViserPanelUI:
         self._nodes: Dict[str, List[Any]] = {"shot": [], "targets": []}
         self.camera_updates = 0
         self.panel: Optional[CinePanel] = None
+        self.home: Optional[View] = None  # the opening view (scene units); set by attach_cine_panel
+        self.overview: Optional[View] = None  # the top-down overview
+        self.preview_path: Optional[Path] = None
 
         gui = server.gui
         with gui.add_folder(folder_label):
@@ -65,7 +71,8 @@ class ViserPanelUI:
                                                 hint="Plan from the current browser camera instead of a random start")
             self.plan_button = gui.add_button("Plan", icon=viser.Icon.ROUTE, color="green")
             self.new_start_button = gui.add_button("New random start", icon=viser.Icon.DICE)
-            self.candidate = gui.add_dropdown("Candidate", [_NO_CANDIDATES])
+            self.candidate = gui.add_dropdown("Candidate", [_NO_CANDIDATES],
+                                              hint=f"Best first: sorted by score, {SCORE_RULE}")
             self.play_button = gui.add_button("Play", icon=viser.Icon.PLAYER_PLAY_FILLED)
             self.pause_button = gui.add_button("Pause", icon=viser.Icon.PLAYER_PAUSE_FILLED, visible=False)
             self.speed = gui.add_slider("Speed", min=0.25, max=4.0, step=0.25, initial_value=1.0)
@@ -74,11 +81,20 @@ class ViserPanelUI:
                 self.show_path = gui.add_checkbox("Path + frustums", True)
                 self.show_targets = gui.add_checkbox("Selected objects", True)
                 self.show_corridor = gui.add_checkbox("Safe corridor", False)
-                self.show_clearance = gui.add_checkbox("Clearance numbers", False)
-            self.export_name = gui.add_text("Export name", datetime.datetime.now().strftime("cine-%Y-%m-%d-%H-%M-%S"))
+                self.show_clearance = gui.add_checkbox("Closest approach", False,
+                                                       hint="Where the shot passes closest to the scene, and how close")
+                self.overview_box = gui.add_checkbox("Top-down overview", False,
+                                                     hint="See the whole scene from above; untick to go back inside")
+            self.status_md = gui.add_markdown("Type where the camera should go and what it should look at, then Plan.")
+            self.export_name = gui.add_text("Export name", export_name,
+                                            hint="File name; a taken name gets -2, -3, ... (nothing is overwritten)")
             self.export_button = gui.add_button("Export camera path", icon=viser.Icon.FILE_EXPORT)
             self.export_info = gui.add_markdown("", visible=False)
-            self.status_md = gui.add_markdown("Type where the camera should go and what it should look at, then Plan.")
+            self.preview_button = gui.add_button("Preview video", icon=viser.Icon.MOVIE, visible=False,
+                                                 hint="Render the selected candidate on the CPU (480x270)")
+            self.preview_download = gui.add_button("Download preview", icon=viser.Icon.DOWNLOAD, visible=False)
+            with gui.add_folder("Details", expand_by_default=False):
+                self.details_md = gui.add_markdown("(plan first)")
 
     # ------------------------------------------------------------------ wiring
     def attach(self, panel: CinePanel) -> None:
@@ -105,6 +121,11 @@ class ViserPanelUI:
         self.speed.on_update(guarded(lambda e: p.set_speed(float(self.speed.value))))
         self.loop.on_update(guarded(lambda e: p.set_loop(bool(self.loop.value))))
         self.export_button.on_click(guarded(lambda e: p.export(self.export_name.value)))
+        self.preview_button.visible = p.previewer is not None
+        self.preview_button.on_click(guarded(lambda e: p.preview(self.export_name.value)))
+        self.preview_download.on_click(guarded(self._send_preview))
+        self.overview_box.on_update(guarded(lambda e: self.go_to_view(self.overview if self.overview_box.value
+                                                                      else self.home)))
 
         @self.candidate.on_update
         def _(event: viser.GuiEvent) -> None:
@@ -124,6 +145,40 @@ class ViserPanelUI:
     def set_status(self, text: str, level: str) -> None:
         self.status_md.content = f"{_LEVEL_ICON.get(level, '')}{text}"
 
+    def show_inputs(self, goto: str, look_at: str) -> None:
+        """The boxes show what the server plans with. viser's client sends all GUI updates through one 50 ms throttle
+        that keeps only the latest message, so an edit followed within 50 ms by another edit (or a click) never
+        reaches the server while the box still shows it; re-sending the server's values makes every box show them."""
+        for handle, value in ((self.goto, goto), (self.look_at, look_at)):
+            handle.value = value  # the server's state
+            push_value(handle)  # and on every screen, whatever the client showed
+
+    def show_details(self, text: str) -> None:
+        self.details_md.content = text or "(plan first)"
+
+    def show_preview(self, path: Optional[Path]) -> None:
+        self.preview_path = path
+        self.preview_download.visible = path is not None
+
+    def _send_preview(self, event: viser.GuiEvent) -> None:
+        path = self.preview_path
+        if path is None or event.client is None:
+            return
+        event.client.send_file_download(path.name, path.read_bytes())
+
+    def go_to_view(self, view: Optional[View], client: Any = None) -> None:
+        """Move ``client``'s camera (all clients when None) to ``view`` (scene units)."""
+        if view is None:
+            return
+        clients = [client] if client is not None else list(self.server.get_clients().values())
+        for c in clients:
+            try:
+                with c.atomic():
+                    c.camera.position = np.asarray(view.position) * self.scale
+                    c.camera.look_at = np.asarray(view.look_at) * self.scale
+            except Exception:
+                log.debug("moving client %s to a view failed", getattr(c, "client_id", "?"), exc_info=True)
+
     def show_candidates(self, labels: List[str], selected: int) -> None:
         opts = list(labels) or [_NO_CANDIDATES]
         self.candidate.options = opts
@@ -133,9 +188,9 @@ class ViserPanelUI:
         self.play_button.visible = not playing
         self.pause_button.visible = playing
 
-    def show_export(self, path: Path, command: str) -> None:
-        self.export_info.content = f"Wrote `{path}`. Render with:\n\n```\n{command}\n```"
-        self.export_info.visible = True
+    def show_export(self, path: Optional[Path], text: str) -> None:
+        self.export_info.content = text if path is not None else ""
+        self.export_info.visible = path is not None
 
     def set_camera(self, c2w: np.ndarray) -> int:
         wxyz, pos = nerfstudio_c2w_to_viser(np.asarray(c2w), self.scale)
@@ -183,6 +238,8 @@ class ViserPanelUI:
         return self.gaussian_means if len(self.gaussian_means) == len(mask) else None
 
     def draw_targets(self, targets: List[Target], options: DisplayOptions) -> None:
+        """Each matched object as a wireframe box with a faint fill (the splat stays visible through it) and a label
+        saying what the query matched; typed coordinates as a small box."""
         with self._draw_lock:
             self._clear("targets")
             if not options.show_targets:
@@ -192,17 +249,18 @@ class ViserPanelUI:
                 color = _TARGET_COLOR.get(t.role, (200, 200, 200))
                 base = f"{self.root}/targets/{i}"
                 means = self._means_for(t.mask)
-                if means is not None:
-                    pts = means[t.mask]
-                    if len(pts) > 50_000:  # keep the message small; a subsample shows the object as well
-                        pts = pts[np.random.default_rng(0).choice(len(pts), 50_000, replace=False)]
-                    add(self.server.scene.add_point_cloud(
-                        f"{base}/gaussians", points=(pts * self.scale).astype(np.float32), colors=color,
-                        point_size=0.3 * self.unit, point_shape="circle"))
-                p = np.asarray(t.point) * self.scale
-                add(self.server.scene.add_icosphere(f"{base}/centroid", radius=1.2 * self.unit, color=color,
-                                                     position=p))
-                add(self.server.scene.add_label(f"{base}/label", f"{t.role}: {t.text}", position=p))
+                if means is not None and t.mask.any():
+                    centre, size = highlight_box(means[t.mask])  # [3], [3] scene units
+                else:
+                    centre, size = np.asarray(t.point, np.float64), np.full(3, 2.0 * self.unit / self.scale)
+                kw = dict(color=color, dimensions=tuple(np.maximum(size, 1e-4) * self.scale),
+                          position=tuple(centre * self.scale))
+                add(self.server.scene.add_box(f"{base}/outline", wireframe=True, **kw))
+                add(self.server.scene.add_box(f"{base}/fill", opacity=0.12, cast_shadow=False, receive_shadow=False,
+                                              **kw))
+                top = centre + np.array([0.0, 0.0, size[2] / 2])
+                what = f" ({t.count} Gaussians)" if t.count is not None else ""
+                add(self.server.scene.add_label(f"{base}/label", f"{t.role}: {t.text}{what}", position=top * self.scale))
 
     def draw_shot(self, shot: Optional[ShotLike], options: DisplayOptions) -> None:
         with self._draw_lock:
@@ -227,19 +285,9 @@ class ViserPanelUI:
                         wxyz=wxyz, position=p, thickness=1.5, thickness_units="screen"))
             if options.show_corridor:
                 self._draw_corridor(shot, base)
-            if options.show_clearance:
-                clear = getattr(shot, "clearance", None)
-                if clear is not None:
-                    clear = to_numpy(clear).reshape(-1)
-                    picks = set(np.linspace(0, len(pos) - 1, 7).round().astype(int)) | {int(np.argmin(clear))}
-                    for i in sorted(picks):
-                        add(self.server.scene.add_label(
-                            f"{base}/clearance_{i}", f"{clear[i]:.3f}", position=pos[i] * self.scale))
-                else:
-                    m = min_clearance(shot)
-                    add(self.server.scene.add_label(
-                        f"{base}/clearance_min", f"min clearance {'n/a' if m is None else f'{m:.3f}'}",
-                        position=pos[len(pos) // 2] * self.scale))
+            if options.show_clearance:  # one label, where it matters: the closest approach
+                i, text = closest_approach(shot)
+                add(self.server.scene.add_label(f"{base}/clearance_min", text, position=pos[i] * self.scale))
 
     def _draw_corridor(self, shot: ShotLike, base: str) -> None:
         corridor = getattr(shot, "corridor", None)
@@ -258,7 +306,30 @@ class ViserPanelUI:
             verts, faces = mesh
             self._nodes["shot"].append(self.server.scene.add_mesh_simple(
                 f"{base}/corridor_{k}", vertices=(verts * self.scale).astype(np.float32), faces=faces,
-                color=(80, 170, 255), opacity=0.15, side="double", cast_shadow=False, receive_shadow=False))
+                color=(80, 170, 255), opacity=0.06, side="double", cast_shadow=False, receive_shadow=False))
+
+
+def push_value(handle: Any) -> None:
+    """Make every client show ``handle``'s server value, even where the client shows something else that never
+    reached the server. The box goes through a different value first (two messages, flushed apart so the server's
+    buffer does not merge them): this is the form the browser test checks; re-sending only the equal value was not
+    tested on its own."""
+    value = handle.value
+    handle.value = value + " "  # differs from the value: the client applies it
+    handle._impl.gui_api._websock_interface.flush()
+    handle.value = value
+
+
+def closest_approach(shot: ShotLike) -> "tuple[int, str]":
+    """(frame index, label) of the shot's minimum clearance: the per-frame ``clearance`` [T] when given, else the
+    shot's reported minimum at the path's middle."""
+    clear = getattr(shot, "clearance", None)
+    if clear is not None and to_numpy(clear).size:
+        c = to_numpy(clear).reshape(-1)  # [T]
+        i = int(np.argmin(c))
+        return i, f"closest approach {c[i]:.3f}"
+    m = min_clearance(shot)
+    return len(to_numpy(shot.positions)) // 2, f"min clearance {'n/a' if m is None else f'{m:.3f}'}"
 
 
 def attach_cine_panel(
@@ -270,19 +341,26 @@ def attach_cine_panel(
     default_goto: str = "",
     default_look_at: str = "",
     folder_label: str = "Cinematography",
+    previewer: Optional[Previewer] = None,
+    export_name: str = "shot",
+    start_region=None,
 ) -> CinePanel:
     """Add the cinematography panel to ``server`` and return its :class:`CinePanel`.
 
     ``backend`` gives Gaussians / locate / plan (see :class:`PanelBackend`); coordinates are drawn at
-    ``scale`` x scene units (10 inside nerfstudio's viewer)."""
+    ``scale`` x scene units (10 inside nerfstudio's viewer). ``previewer`` enables "Preview video"; ``start_region``
+    (lo [3], hi [3]) places the opening view (``ui.home``) inside the captured region."""
     cfg = config or PanelConfig()
     g = backend.gaussians()
     means = to_numpy(g.means)
     extent = float(np.linalg.norm(np.percentile(means, 98, axis=0) - np.percentile(means, 2, axis=0))) if len(means) else 2.0
     ui = ViserPanelUI(server, scale=scale, scene_extent=extent, fov_deg=cfg.fov_deg,
                       aspect=cfg.render_width / cfg.render_height, default_goto=default_goto,
-                      default_look_at=default_look_at, folder_label=folder_label, n_candidates=cfg.n_candidates)
+                      default_look_at=default_look_at, folder_label=folder_label, n_candidates=cfg.n_candidates,
+                      export_name=export_name)
     ui.gaussian_means = means
-    panel = CinePanel(backend, ui, cfg, exporter)
+    if len(means):
+        ui.home, ui.overview = opening_view(means, start_region), overview_view(means, cfg.fov_deg)
+    panel = CinePanel(backend, ui, cfg, exporter, previewer)
     ui.attach(panel)
     return panel

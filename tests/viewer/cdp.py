@@ -43,6 +43,7 @@ class Chromium:
         page = next(t for t in targets if t["type"] == "page")
         self.ws = connect(page["webSocketDebuggerUrl"], max_size=64 * 2**20, open_timeout=10)
         self._id = 0
+        self.console: list = []  # (level, text) of every console message and uncaught exception of the page
         self.call("Page.enable")
         self.call("Runtime.enable")
         self.call("Page.navigate", url=url)
@@ -54,10 +55,30 @@ class Chromium:
         end = time.monotonic() + timeout
         while True:
             msg = json.loads(self.ws.recv(timeout=max(end - time.monotonic(), 0.01)))
+            self._event(msg)
             if msg.get("id") == my:
                 if "error" in msg:
                     raise RuntimeError(f"{method}: {msg['error']}")
                 return msg.get("result", {})
+
+    def _event(self, msg: dict) -> None:
+        """Keep the page's console output (warnings and errors are what the tests check)."""
+        method, params = msg.get("method"), msg.get("params", {})
+        if method == "Runtime.consoleAPICalled":
+            text = " ".join(str(a.get("value", a.get("description", ""))) for a in params.get("args", []))
+            self.console.append((params.get("type", "log"), text))
+        elif method == "Runtime.exceptionThrown":
+            d = params.get("exceptionDetails", {})
+            self.console.append(("exception", str(d.get("exception", {}).get("description") or d.get("text"))))
+
+    def pump(self, seconds: float) -> None:
+        """Read the page's events for ``seconds`` (console messages arrive only while something reads)."""
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            try:
+                self._event(json.loads(self.ws.recv(timeout=max(end - time.monotonic(), 0.01))))
+            except TimeoutError:
+                break
 
     def js(self, expression: str) -> Any:
         r = self.call("Runtime.evaluate", expression=expression, returnByValue=True, awaitPromise=True)

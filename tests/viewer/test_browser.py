@@ -1,7 +1,9 @@
 """Real-browser test: the standalone viewer with the real planner on a small procedural room, on
-localhost, driven by headless Chromium over the Chrome DevTools Protocol. Fills the text boxes with
-object names, clicks Plan, checks the path node exists and that the browser's camera moves over time
-(positions the browser itself reports back), clicks Export and checks the file. Screenshots go to
+localhost, driven by headless Chromium over the Chrome DevTools Protocol. Checks the console on load, makes
+fast scripted edits and clicks Plan (the boxes must end up showing what the server planned with), fills the
+text boxes with object names, clicks Plan, checks the path node exists and that the browser's camera moves over
+time (positions the browser itself reports back), exports twice (two files), renders a preview video and
+sends a nonsense query (an error naming the scene's objects). Screenshots and timings.json go to
 $CINENERF_ARTIFACTS when set, else to the test's pytest tmp dir (artifacts/)."""
 from __future__ import annotations
 
@@ -51,6 +53,29 @@ def type_into(b, label: str, text: str) -> None:
     assert ok, f"no input labelled {label}"
     b.insert_text(text)
     b.js(f"({INPUT_FOR})({json.dumps(label)}).blur()")
+    time.sleep(0.12)  # as a person types: longer than the client's 50 ms GUI-message throttle (see fast_edits)
+
+
+def fast_edits(b) -> None:
+    """Scripted edits through the browser's real input pipeline, milliseconds apart, then Plan: clear Go to, type
+    into it, type into Look at, click (viser's client keeps only the latest of GUI messages 50 ms apart)."""
+    select = "(() => {{ const e = ({f})({n}); e.focus(); e.select(); return true; }})()"
+    b.js(select.format(f=INPUT_FOR, n=json.dumps("Go to")))
+    b.call("Input.dispatchKeyEvent", type="keyDown", key="Backspace", code="Backspace", windowsVirtualKeyCode=8)
+    b.call("Input.dispatchKeyEvent", type="keyUp", key="Backspace", code="Backspace", windowsVirtualKeyCode=8)
+    b.insert_text("sofa")
+    b.js(select.format(f=INPUT_FOR, n=json.dumps("Look at")))
+    b.insert_text("potted plant")
+    click(b, "Plan")
+
+
+# viser's client (1.1.1) gives its Gaussian-splat quad a 2-component position attribute; three.js's frustum culling
+# then computes a NaN bounding sphere and logs this once per splat node. It is not ours to fix from the server.
+VISER_SPLAT_NAN = "computeBoundingSphere(): Computed radius is NaN"
+
+
+def box_values(b) -> tuple:
+    return tuple(b.js(f"({INPUT_FOR})({json.dumps(k)}).value") for k in ("Go to", "Look at"))
 
 
 def click(b, text: str) -> None:
@@ -76,9 +101,31 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
     from cdp import Chromium
 
     b = Chromium(viewer.url)
+    artifacts = Path(os.environ.get("CINENERF_ARTIFACTS") or tmp_path / "artifacts")
+    artifacts.mkdir(parents=True, exist_ok=True)
+    timings = {}
     try:
         b.wait_js("document.body && document.body.innerText.includes('Export camera path')", 60)
         assert viewer.server.get_clients(), "the browser did not connect"
+        b.pump(3.0)  # the splat loads and the first frames render
+        errors = [c for c in b.console if c[0] in ("error", "exception", "assert")]
+        ours = [c for c in errors if VISER_SPLAT_NAN not in c[1]]
+        assert ours == [], f"console errors on load: {ours}"
+        timings["console_errors_on_load"] = [c[1][:120] for c in errors]
+        b.screenshot(artifacts / "browser_first_view.png")
+        home = viewer.ui.home.position * viewer.cfg.scale  # the opening view: inside the room (procedural start region)
+        lo, hi = viewer.loaded.start_region
+        assert np.all(viewer.ui.home.position >= lo) and np.all(viewer.ui.home.position <= hi)
+
+        # fast scripted edits then Plan: whatever reached the server, the boxes end up showing what was planned
+        before = viewer.panel.status
+        fast_edits(b)
+        assert wait(lambda: viewer.panel.status != before and viewer.panel.status_level != "busy", 30)
+        planned = viewer.panel._last_texts
+        assert wait(lambda: box_values(b) == tuple(planned), 10), (
+            f"boxes show {box_values(b)}, the server planned with {planned}")
+        assert f"go to '{planned[0]}'" in viewer.panel.status or "'Go to' is empty" in viewer.panel.status
+        timings["fast_edits_planned_with"] = list(planned)
         client = next(iter(viewer.server.get_clients().values()))
         reported = []  # camera poses the browser reports back (proves the browser's camera moved)
         client.camera.on_update(lambda cam: reported.append((time.perf_counter(), np.array(cam.position))))
@@ -88,9 +135,14 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
         assert wait(lambda: viewer.ui.goto.value == "potted plant" and viewer.ui.look_at.value == "sofa")
         viewer.panel.config.loop = False
         viewer.panel.config.speed = 0.5  # a longer flight: screenshots must land while it is under way, even on a busy box
+        t0 = time.perf_counter()
         click(b, "Plan")
         assert wait(lambda: "Planned" in viewer.panel.status, 60), viewer.panel.status
-        assert "with the cinenerf_ns planner" in viewer.panel.status
+        timings["plan_click_to_planned_s"] = time.perf_counter() - t0
+        assert box_values(b) == ("potted plant", "sofa")
+        assert "go to 'potted plant' matched the object 'potted plant'" in viewer.panel.status
+        assert "cinenerf_ns planner" in viewer.ui.details_md.content  # internals in the details fold
+        assert "lower score is better" in viewer.panel.status
         # the candidate dropdown lists duration and min clearance of each candidate
         assert all(" s, clearance " in o for o in viewer.ui.candidate.options), viewer.ui.candidate.options
         # the path node exists on the server and in the browser's scene tree
@@ -99,8 +151,6 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
         assert b.wait_js("document.body.innerText.includes('Planned')", 20)
         # the browser camera moves over time while the shot plays (autoplay at the shot's real speed)
         n_before = len(reported)
-        artifacts = Path(os.environ.get("CINENERF_ARTIFACTS") or tmp_path / "artifacts")
-        artifacts.mkdir(parents=True, exist_ok=True)
         shots = []
         for i in range(5):
             time.sleep(0.3)
@@ -116,22 +166,51 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
         moved = [p for _, p in reported[n_before:]]
         assert len(moved) >= 2 and np.linalg.norm(moved[-1] - reported[n_before - 1][1]) > 1.0
 
-        # export through the GUI
-        type_into(b, "Export name", "browser-take")
-        click(b, "Export camera path")
-        out = tmp_path / "data" / "camera_paths" / "browser-take.json"
-        assert wait(lambda: out.exists(), 20), viewer.panel.status
-        data = json.loads(out.read_text())
-        assert len(data["camera_path"]) > 10 and data["render_width"] == 1920
-        assert b.wait_js("document.body.innerText.includes('ns-render camera-path')", 20)
+        viewer.ui.overview_box.value = True  # the "Top-down overview" toggle (server side: the box is in a fold)
+        time.sleep(1.0)
+        b.screenshot(artifacts / "browser_overview.png")
+        viewer.ui.overview_box.value = False
 
-        # bad input from the browser: readable message, viewer keeps running
-        type_into(b, "Go to", "the unicorn")
-        click(b, "Plan")
-        assert b.wait_js("document.body.innerText.includes('no object matches')", 20)
+        exports_preview_and_nonsense(b, viewer, tmp_path, timings)
         b.screenshot(artifacts / "browser_final.png")
     finally:
         b.close()
+        (artifacts / "timings.json").write_text(json.dumps(timings, indent=1))
+        print("browser timings:", json.dumps(timings))
+
+
+def exports_preview_and_nonsense(b, viewer, tmp_path, timings) -> None:
+    """Two exports (two files, the second renamed and said), the preview video, a nonsense query."""
+    # export through the GUI, twice: two files, the second with a numbered name, said on the page
+    type_into(b, "Export name", "browser-take")
+    click(b, "Export camera path")
+    out = tmp_path / "data" / "camera_paths" / "browser-take.json"
+    assert wait(lambda: out.exists(), 20), viewer.panel.status
+    click(b, "Export camera path")
+    out2 = out.with_name("browser-take-2.json")
+    assert wait(lambda: out2.exists(), 20), viewer.panel.status
+    for f in (out, out2):
+        data = json.loads(f.read_text())
+        assert len(data["camera_path"]) > 10 and data["render_width"] == 1920
+    assert b.wait_js("document.body.innerText.includes(\"'browser-take.json' already exists\")", 20)
+    assert b.wait_js(f"document.body.innerText.includes({json.dumps(str(out2))})", 20)  # the absolute path
+    assert b.wait_js("document.body.innerText.includes('No ns-render command')", 20)  # no run: said, no placeholder
+
+    # the preview video of the selected candidate, rendered on the CPU in the background
+    t0 = time.perf_counter()
+    click(b, "Preview video")
+    video = tmp_path / "data" / "previews" / "browser-take.mp4"
+    assert wait(lambda: "Preview of candidate 1 written" in viewer.panel.status, 300), viewer.panel.status
+    timings["preview_click_to_written_s"] = time.perf_counter() - t0
+    assert video.is_file() and video.stat().st_size > 1000
+    assert b.wait_js(f"document.body.innerText.includes({json.dumps(str(video))})", 20)
+    assert b.wait_js("document.body.innerText.includes('Download preview')", 20)
+
+    # nonsense from the browser: an error naming the scene's objects; the viewer keeps running
+    type_into(b, "Go to", "the unicorn")
+    click(b, "Plan")
+    assert b.wait_js("document.body.innerText.includes(\"no object matches 'the unicorn'\")", 20)
+    assert b.wait_js("document.body.innerText.includes('objects: armchair, floor lamp')", 20)
 
 
 def wait(pred, timeout=10.0):

@@ -92,6 +92,7 @@ def test_write_json_atomic(tmp_path):
 
 
 def test_render_command(tmp_path):
-    cmd = render_command(None, tmp_path / "x.json", "fox", "x")
-    assert cmd.startswith("ns-render camera-path --load-config <path/to/your/run/config.yml>")
+    assert render_command(None, tmp_path / "x.json", "fox", "x") is None  # no run: no command with a placeholder
+    cmd = render_command(tmp_path / "run" / "config.yml", tmp_path / "x.json", "fox", "x")
+    assert cmd.startswith(f"ns-render camera-path --load-config {tmp_path / 'run' / 'config.yml'} ")
     assert cmd.endswith("--output-path renders/fox/x.mp4")

@@ -50,7 +50,9 @@ def test_plan_resolves_text_and_coordinates(tmp_path):
     assert len(view.candidates) == 2 and view.candidates[0].startswith("1: 1.0 s")
     assert [t.role for t in view.targets] == ["Go to", "Look at"]
     assert view.targets[0].mask.sum() == 10 and view.targets[1].mask is None
-    assert view.last_status[1] == "ok" and "Planned 2 candidate" in view.last_status[0]
+    assert view.last_status[1] == "ok" and view.last_status[0].startswith("Planned 2 shots in ")
+    assert "go to 'the chair' matched label 'chair' (10 Gaussians)" in view.last_status[0]
+    assert "look at the point (0.1, 0.2, 0.3)" in view.last_status[0]
     assert set(panel.last_timings) == {"query_s", "plan_s", "draw_s", "total_s"}
     panel.close()
 
@@ -258,7 +260,9 @@ def test_export_atomic_and_command(tmp_path):
         f"ns-render camera-path --load-config {tmp_path / 'config.yml'} --camera-path-filename "
         f"{res.path.absolute()} --output-path renders/{tmp_path.name}/take1.mp4"
     )
-    assert view.exports[-1] == (res.path, res.command) and "Exported" in view.last_status[0]
+    shown_path, text = view.exports[-1]
+    assert shown_path == res.path and text.count(str(res.path)) == 2  # once as the file, once inside the command
+    assert "--load-config " + str(tmp_path / "config.yml") in text and "Exported candidate 1" in view.last_status[0]
     assert sorted(os.listdir(res.path.parent)) == ["take1.json"]  # no temp files left
     panel.close()
 
@@ -310,11 +314,12 @@ def test_candidate_labels_show_duration_clearance_and_optional_score(tmp_path):
     backend.plan = ranked
     res = panel.request_plan("chair", "lamp", n_candidates=3).result(10)
     assert res is not None
-    assert view.candidates == ["1: 1.0 s, clearance 0.05", "2: 1.0 s, clearance 1.05, score 0.25",
+    # scored candidates first, best (lowest score) first: the planner's unscored ones keep their order after them
+    assert view.candidates == ["1: 1.0 s, clearance 1.05, score 0.25", "2: 1.0 s, clearance 0.05",
                                "3: 1.0 s, clearance 0.0123"]
     res.shots[2].safety = {"min_exact_clearance": None, "safe": True}  # every sample proven free: no number
     assert min_clearance(res.shots[2]) is None and candidate_label(2, res.shots[2]).endswith("clearance n/a")
-    panel.select(1)
-    assert "score 0.25" in view.last_status[0]
+    panel.select(0)
+    assert "score 0.25" in view.last_status[0] and "lower score is better" in view.last_status[0]
     assert timings_detail({"astar_ms": 12.34, "fit_s": 0.5, "n": 3, "note": "x"}) == "astar 12 ms, fit 0.50 s, n 3"
     panel.close()

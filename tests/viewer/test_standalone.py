@@ -115,7 +115,7 @@ def test_standalone_on_ply_plans_with_coordinates(tmp_path):
         goal = " ".join(f"{x:.3f}" for x in room.object("table").center + [0, 0, 0.3])
         look = " ".join(f"{x:.3f}" for x in room.object("table").center)
         assert v.panel.request_plan(goal, look, n_candidates=2).result(60) is not None, v.panel.status
-        assert "with the cinenerf_ns planner" in v.panel.status
+        assert "cinenerf_ns planner" in v.ui.details_md.content
         out = v.panel.export("ply-take")
         assert out.path == tmp_path / "camera_paths" / "ply-take.json"
     finally:
@@ -146,8 +146,11 @@ def test_standalone_procedural_names_progress_and_errors(tmp_path):
         assert v.panel.request_plan("armchair", "sofa", start_from_camera=True).result(60) is None
         assert "puts the camera inside the scene" in v.panel.status and v.panel.status_level == "error"
         assert v.panel.shot is res.shots[0]  # the previous plan is kept
-        assert v.panel.export("take").path == ok.path and ok.path.read_bytes() == before
-        assert sorted(p.name for p in ok.path.parent.iterdir()) == ["take.json"]
+        again = v.panel.export("take")  # never overwrites: a numbered name, said in the status
+        assert again.path == ok.path.with_name("take-2.json") and ok.path.read_bytes() == before
+        assert again.renamed_from == "take" and "'take.json' already exists" in v.panel.status
+        assert again.command is None  # a procedural room has no run: no ns-render command with a placeholder
+        assert sorted(p.name for p in ok.path.parent.iterdir()) == ["take-2.json", "take.json"]
     finally:
         v.close()
 
@@ -191,7 +194,8 @@ def test_standalone_compact_scene_answers_text_by_relevancy(tmp_path):
         sem = cli_load(str(path), SceneConfig())
         assert sem.extra["semantic"]._smoothed is None and not sem.extra["semantic"]._cache  # the CLI stays lazy
         c_ref, m_ref = sem.extra["semantic"].locate("armchair")
-        c, m = v.backend.locate("the armchair")  # word -> label name, as cinesplat-plan maps it
+        c, m, what = v.backend.locate("the armchair")  # word -> label name, as cinesplat-plan maps it
+        assert what.startswith("the label 'armchair', best relevancy ")  # what the query matched, in words
         np.testing.assert_allclose(c, c_ref.numpy(), atol=1e-6)
         assert np.array_equal(m, m_ref.numpy()) and m.sum() > 0
         assert v.panel.request_plan("", "armchair").result(30) is None and "'Go to' is empty" in v.panel.status

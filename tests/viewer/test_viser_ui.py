@@ -79,12 +79,14 @@ def test_drawing_follows_options(ui_panel):
     assert "/cine/shot/path" in n and sum("frustum" in x for x in n) == 8
     assert not any("corridor" in x or "clearance" in x for x in n)
     tnames = sorted(h.name for h in ui._nodes["targets"])
-    assert "/cine/targets/0/gaussians" in tnames and "/cine/targets/1/gaussians" not in tnames  # coords: no mask
+    # matched objects are outlined (wireframe box + faint fill), never drawn as opaque blobs
+    assert {"/cine/targets/0/outline", "/cine/targets/0/fill", "/cine/targets/1/outline"} <= set(tnames)
+    assert not any("gaussians" in x or "centroid" in x for x in tnames)
 
     panel.set_display(show_corridor=True, show_clearance=True, show_path=False)
     n = names(ui)
     assert "/cine/shot/path" not in n and "/cine/shot/corridor_0" in n and "/cine/shot/corridor_1" in n
-    assert any("clearance" in x for x in n)
+    assert [x for x in n if "clearance" in x] == ["/cine/shot/clearance_min"]  # one label, at the minimum
     panel.set_display(show_targets=False)
     assert ui._nodes["targets"] == []
 

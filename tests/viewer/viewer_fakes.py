@@ -19,7 +19,10 @@ class FakeView:
         self.cameras: List[tuple] = []  # (perf_counter, c2w [3,4])
         self.statuses: List[tuple] = []
         self.playing: List[bool] = []
-        self.exports: List[tuple] = []
+        self.exports: List[tuple] = []  # (path or None, text) of every show_export
+        self.inputs: List[tuple] = []  # (goto, look_at) put on screen by each Plan
+        self.details: List[str] = []
+        self.previews: List[Any] = []  # paths offered (None: offer hidden)
         self.drawn_shot: Any = "never"
         self.candidates: List[str] = []
         self.targets: list = []
@@ -58,8 +61,18 @@ class FakeView:
         with self.lock:
             self.playing.append(playing)
 
-    def show_export(self, path, command):
-        self.exports.append((path, command))
+    def show_export(self, path, text):
+        self.exports.append((path, text))
+
+    def show_inputs(self, goto, look_at):
+        self._rec("inputs", goto, look_at)
+        self.inputs.append((goto, look_at))
+
+    def show_details(self, text):
+        self.details.append(text)
+
+    def show_preview(self, path):
+        self.previews.append(path)
 
     @property
     def last_status(self):
@@ -91,14 +104,19 @@ class FakeBackend:
         return SceneGaussians(self.means)
 
     def locate(self, text):
+        """(centroid, mask, what matched); 'ghost' names an object with no Gaussians left (an empty mask)."""
         mask = np.zeros(30, bool)
         if "chair" in text:
             mask[:10] = True
+            label = "chair"
         elif "lamp" in text:
             mask[10:20] = True
+            label = "lamp"
+        elif "ghost" in text:
+            return np.zeros(3), mask, "label 'ghost'"
         else:
             raise NoMatchError(f"'{text}' matches nothing")
-        return self.means[mask].mean(0), mask
+        return self.means[mask].mean(0), mask, f"label '{label}'"
 
     def plan(self, goal, look_at, start=None, seed=0, n_candidates=1):
         self.plan_calls.append(dict(goal=goal, look_at=look_at, start=start, seed=seed, n=n_candidates))

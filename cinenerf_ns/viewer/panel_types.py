@@ -1,0 +1,191 @@
+"""The panel's interfaces and plain data: what a shot, a backend and a view must offer, its settings, targets.
+
+No viser import; tensors may be torch (any device) or numpy, converted with ``backend.to_numpy``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Dict, List, Optional, Protocol, Sequence, Tuple, runtime_checkable
+
+import numpy as np
+
+from .backend import SceneGaussians
+
+
+
+@runtime_checkable
+class ShotLike(Protocol):
+    """What the panel reads from a planned shot (``cinenerf_ns.planner.shot.Shot`` satisfies it).
+
+    Required: ``times`` [T] seconds, increasing; ``positions`` [T, 3]; ``rotations`` [T, 3, 3]
+    camera-to-world rotations, nerfstudio convention (camera looks along -z, y up).
+    Optional, used when present: ``clearance`` [T] (or ``min_clearance`` float), ``corridor`` (with
+    ``.polytopes``, each ``.A`` [F,3] / ``.b`` [F] or an ``(A, b)`` pair), ``look_at`` [3], ``goal`` [3],
+    ``start`` [3], ``timings`` dict of seconds. Tensors may be torch (any device) or numpy."""
+
+    times: Any
+    positions: Any
+    rotations: Any
+
+
+@runtime_checkable
+class PanelBackend(Protocol):
+    """Scene access for the panel. Points are nerfstudio scene coordinates (numpy float64 [3])."""
+
+    def gaussians(self) -> SceneGaussians:
+        """Gaussians to draw / highlight (means [N,3], optional colors [N,3], opacities [N], covariances)."""
+        ...
+
+    def locate(self, text: str) -> Tuple[Any, ...]:
+        """Text query -> (centroid [3], mask [N] bool over ``gaussians()``[, what it matched: a str such as
+        "label 'sofa'" or "best relevancy 0.71"]). Raises a
+        ``PlanningError`` (e.g. ``InvalidInputError`` for empty text, ``NoMatchError`` when nothing
+        matches) whose message is shown verbatim."""
+        ...
+
+    def plan(
+        self, goal: np.ndarray, look_at: np.ndarray, start: Optional[np.ndarray] = None, seed: int = 0,
+        n_candidates: int = 1,
+    ) -> Sequence[ShotLike]:
+        """Collision-free shots from ``start`` (None: the planner picks a free start from ``seed``)
+        to ``goal`` looking at ``look_at``. Raises ``PlanningError`` subclasses on failure."""
+        ...
+
+
+@dataclass
+class DisplayOptions:
+    """What the view draws besides the splat."""
+
+    show_path: bool = True
+    """Spline through the shot plus camera frustums along it."""
+    show_targets: bool = True
+    """Highlight the Gaussians / centroids the go-to and look-at queries matched."""
+    show_corridor: bool = False
+    """The shot's safe corridor (convex polytopes)."""
+    show_clearance: bool = False
+    """The shot's closest approach to the scene (one label, at the minimum clearance)."""
+
+
+@dataclass
+class Target:
+    """A resolved go-to / look-at request."""
+
+    role: str  # "go to" | "look at"
+    text: str
+    point: np.ndarray  # [3] scene units
+    mask: Optional[np.ndarray] = None  # [N] bool, None for typed coordinates
+    matched: str = ""  # what the query matched, in words ("label 'sofa'", "best relevancy 0.71"); "" for coordinates
+
+    @property
+    def count(self) -> Optional[int]:
+        """Gaussians the query selected (None for typed coordinates)."""
+        return None if self.mask is None else int(self.mask.sum())
+
+    def describe(self) -> str:
+        """"go to 'plant' matched label 'potted plant' (212 Gaussians)" / "look at the point (0, 1, 0.5)"."""
+        if self.mask is None:
+            return f"{self.role.lower()} the point ({', '.join(f'{v:.3g}' for v in self.point)})"
+        if self.matched:
+            return f"{self.role.lower()} '{self.text}' matched {self.matched} ({self.count} Gaussians)"
+        return f"{self.role.lower()} '{self.text}': {self.count} Gaussians selected"
+
+
+class PanelView(Protocol):
+    """Drawing / camera side of the panel. Called from worker threads: implementations must be
+    thread-safe (viser's scene and GUI APIs are)."""
+
+    def set_status(self, text: str, level: str) -> None:
+        """level: "info" | "busy" | "ok" | "warn" | "error"."""
+
+    def show_inputs(self, goto: str, look_at: str) -> None:
+        """Put the texts a Plan uses into the Go to / Look at boxes of every client (the server's values are the
+        one source of truth: what is on screen is what was planned)."""
+
+    def show_details(self, text: str) -> None:
+        """Timings and other internals, in a collapsed details fold ("" clears it)."""
+
+    def show_candidates(self, labels: List[str], selected: int) -> None: ...
+
+    def draw_shot(self, shot: Optional[ShotLike], options: DisplayOptions) -> None:
+        """Draw (or with None, remove) path, frustums, corridor and clearance labels."""
+
+    def draw_targets(self, targets: List[Target], options: DisplayOptions) -> None: ...
+
+    def set_camera(self, c2w: np.ndarray) -> int:
+        """Move every connected client's camera to nerfstudio c2w [3, 4]; returns clients moved."""
+
+    def camera_position(self) -> Optional[np.ndarray]:
+        """A connected client's camera position in scene units, None when no client."""
+
+    def set_playing(self, playing: bool) -> None: ...
+
+    def show_export(self, path: Optional[Path], text: str) -> None:
+        """Show the exported file (absolute path) and how to render it; ``path`` None hides the box."""
+
+    def show_preview(self, path: Optional[Path]) -> None:
+        """Offer the preview video at ``path`` (a download); None hides the offer."""
+
+
+
+@dataclass
+class PanelConfig:
+    """Panel settings (defaults match nerfstudio's Render tab)."""
+
+    data_dir: Path = Path(".")
+    """Dataset directory: exports go to ``<data_dir>/camera_paths/<name>.json`` like the Render tab."""
+    config_path: Optional[Path] = None
+    """The run's config.yml, for the ``ns-render`` command (None: the panel says why there is no command)."""
+    scene_note: str = ""
+    """What the scene is when there is no run (e.g. "a compact export (scene.pt) with no training run"), said where
+    the ``ns-render`` command would be."""
+    preview_width: int = 480
+    """Width of the "Preview video" render (CPU)."""
+    preview_height: int = 270
+    """Height of the "Preview video" render."""
+    preview_fps: int = 15
+    """Frame rate of the "Preview video" render."""
+    fov_deg: float = 50.0
+    """Vertical field of view of the exported path."""
+    render_width: int = 1920
+    """Exported render width in pixels."""
+    render_height: int = 1080
+    """Exported render height in pixels."""
+    fps: int = 30
+    """Exported frame rate."""
+    n_candidates: int = 3
+    """Shots requested per Plan (random starts)."""
+    update_hz: float = 60.0
+    """Camera updates per second sent to each client while playing."""
+    autoplay: bool = True
+    """Start playing the first candidate as soon as it is planned."""
+    loop: bool = False
+    """Restart at the end."""
+    speed: float = 1.0
+    """Playback speed multiple of the shot's real speed."""
+
+
+@dataclass
+class PlanRequest:
+    goto: str
+    look_at: str
+    seed: int
+    n_candidates: int
+    start_from_camera: bool
+    generation: int
+    warning: str = ""  # set once the targets are resolved (go-to and look-at the same place)
+
+
+@dataclass
+class PlanResult:
+    shots: List[ShotLike]
+    targets: List[Target]
+    timings: Dict[str, float]
+    warning: str = ""
+
+
+@dataclass
+class ExportResult:
+    path: Path
+    command: Optional[str]  # None when the scene has no run to render with ns-render
+    renamed_from: Optional[str] = None  # the name asked for when a file of that name existed
