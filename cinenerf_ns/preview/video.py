@@ -102,8 +102,17 @@ class Mp4Writer:
             self.abort(ev)
 
 
-def contact_sheet(frames: Sequence[np.ndarray], labels: Sequence[str], cols: int = 3, pad: int = 4) -> np.ndarray:
-    """uint8 [H', W', 3] grid of frames [H, W, 3] with a label in each frame's corner."""
+SHEET_TILE_WIDTH = 480  # contact-sheet tiles at most this wide: a 1280x720 sheet of 6 frames took ~1 s to write as PNG
+
+
+def contact_sheet(frames: Sequence[np.ndarray], labels: Sequence[str], cols: int = 3, pad: int = 4,
+                  max_tile_width: int = SHEET_TILE_WIDTH) -> np.ndarray:
+    """uint8 [H', W', 3] grid of frames [H, W, 3] (scaled down to ``max_tile_width`` when wider) with a label in each
+    frame's corner."""
+    if frames[0].shape[1] > max_tile_width:
+        h0, w0 = frames[0].shape[:2]
+        size = (int(max_tile_width), max(1, round(h0 * max_tile_width / w0)))
+        frames = [np.asarray(Image.fromarray(f).resize(size, Image.BILINEAR)) for f in frames]
     h, w = frames[0].shape[:2]
     cols = max(1, min(cols, len(frames)))
     rows = (len(frames) + cols - 1) // cols

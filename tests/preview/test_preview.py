@@ -131,3 +131,23 @@ def test_imports_stay_light_and_one_way():
     planner = REPO / "cinenerf_ns" / "planner"
     pat = re.compile(r"^\s*(from\s+\S*preview|import\s+\S*preview)", re.M)
     assert not [p for p in planner.rglob("*.py") if pat.search(p.read_text())]
+
+
+def test_contact_sheet_tiles_are_thumbnails_of_the_frames():
+    """Frames wider than the tile width are scaled down (a 1280x720 sheet stays small and fast to write); each tile is
+    the frame itself, scaled."""
+    from cinenerf_ns.preview.video import SHEET_TILE_WIDTH, contact_sheet
+
+    rng = np.random.default_rng(0)
+    big = [np.repeat(np.repeat(rng.integers(0, 255, (9, 16, 3), dtype=np.uint8), 80, 0), 80, 1) for _ in range(6)]
+    sheet = contact_sheet(big, [""] * 6, pad=4)
+    tile_h = round(720 * SHEET_TILE_WIDTH / 1280)
+    assert sheet.shape == (2 * tile_h + 3 * 4, 3 * SHEET_TILE_WIDTH + 4 * 4, 3)
+    tile = sheet[4 + 20: 4 + tile_h - 2, 4 + 2: 4 + SHEET_TILE_WIDTH - 2]  # below the label box
+    cell = SHEET_TILE_WIDTH / 16  # each source block is 30 x 30 pixels in the tile
+    ys, xs = (np.arange(tile.shape[0]) + 20 + 0.5) / cell, (np.arange(tile.shape[1]) + 2 + 0.5) / cell
+    expect = big[0][(ys * 80).astype(int)[:, None], (xs * 80).astype(int)[None, :]]
+    inner = (np.abs(ys - np.round(ys))[:, None] > 0.1) & (np.abs(xs - np.round(xs))[None, :] > 0.1)  # off block edges
+    assert np.abs(tile.astype(int) - expect.astype(int))[inner].max() <= 2
+    small = [f[:90, :160] for f in big]
+    assert contact_sheet(small, [""] * 6).shape == (2 * 90 + 12, 3 * 160 + 16, 3)  # small frames stay as they are
