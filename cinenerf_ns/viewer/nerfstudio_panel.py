@@ -7,9 +7,10 @@ is such a control: the model declares one, and its ``_setup`` adds the panel (a 
 folder under the Control/Render/Export tabs) to ``viewer.viser_server``. ``ns-viewer`` builds the same
 ``Viewer`` on the loaded pipeline, so the panel appears there too.
 
-The cinesplat model (``method/model.py``, ``populate_modules``) declares one::
+The cinesplat model never imports this module: ``populate_modules`` calls every entry point of the group
+``cinenerf_ns.viewer_extensions`` (pyproject) with itself; this module's :func:`attach` is the ``cine_panel`` one::
 
-    self.cine_panel = CinePanelControl(lambda: cinesplat_backend(self))
+    model.cine_panel = attach(model)  # CinePanelControl(lambda: cinesplat_backend(model, device=...))
 
 :func:`cinesplat_backend` builds a :class:`SplatModelBackend`: each Plan snapshots the model's current
 Gaussians under the viewer's ``train_lock`` (copies, so training goes on while planning runs), builds
