@@ -64,16 +64,16 @@ import numpy as np
 import torch
 
 from .astar import batched_shortcut  # noqa: F401 (re-exported: part of the candidates API)
-from .coarse_path import voxel_path
-from .corridor import CorridorError, build_corridor, build_corridors
+from .corridor import CorridorError, build_corridors
 from .dynamics import DynamicLimits, retime_shot
 from .errors import GoalUnreachableError, InvalidInputError, PlanningError, StartInCollisionError, UnsafeTrajectoryError
 from .occlusion import sight_lines_blocked
 from .planner import MAX_CANDIDATES, Planner, _as_point
+from . import stages
+from .reach import reachable_goal
 from .safety import _dense_samples
 from .scoring import ScoreConfig, ShotScore, _frames, score_terms
 from .shot import Shot
-from .trajectory import solve_corridor_qp
 from .workers import BrokenProcessPool
 
 
@@ -153,7 +153,7 @@ def score_parts(planner: Planner, shots: List[Shot], look: np.ndarray, cfg: Scor
     clearances agree to ~1e-13, the occlusion flags except for sight lines that graze an ellipsoid within rounding."""
     if not (math.isfinite(object_radius) and object_radius >= 0):
         raise InvalidInputError(f"object_radius must be finite and >= 0, got {object_radius}.")
-    prep = planner._prep()
+    prep = planner.ready()
     targets = look[None] if object_samples is None else np.asarray(object_samples, np.float64).reshape(-1, 3)
     idx = [_frames(sh.num_frames, cfg.occlusion_frames) for sh in shots]
     pos = np.concatenate([sh.positions[i] for sh, i in zip(shots, idx)])  # [sum T', 3]
@@ -216,35 +216,22 @@ def _merge_task_results(ids: List[int], results: List[Dict[str, Any]], tm: Dict[
 
 def _candidate_way(planner: Planner, prep, start: np.ndarray, goal_p: np.ndarray, goal_cache: Dict[int, Any],
                    lap, t: float):
-    """Goal and voxel path of one candidate: (planner.ReachableGoal, polyline [K, 3] for the shortcut (its
+    """Goal and voxel path of one candidate: (reach.ReachableGoal, polyline [K, 3] for the shortcut (its
     way_to_shortcut), t). The goal is found once per free component (goal_cache). Laps goal_ms and astar_ms.
-    Raises GoalUnreachableError / StartInCollisionError."""
-    s_ijk = planner._free_voxel_near(start, None)
-    comp = int(prep.astar_grid.labels[tuple(s_ijk)])
-    if comp not in goal_cache:
-        goal_cache[comp] = planner._reachable_goal(goal_p, comp)
-    goal = goal_cache[comp]
+    Raises GoalUnreachableError / StartInCollisionError. The leg's stages (stages.leg_goal, leg_way)."""
+    goal, s_ijk = stages.leg_goal(planner, start, goal_p, goal_cache)
     t = lap("goal_ms", t)
-    path = voxel_path(prep.astar_grid, prep.coarse, s_ijk, goal.voxel, astar_weight=planner.config.astar_weight)  # [K, 3]
-    centres = prep.grid.voxel_to_world(torch.as_tensor(path, device=prep.grid.device)).cpu().numpy()
-    return goal, goal.way_to_shortcut(start, centres), lap("astar_ms", t)
+    return goal, stages.leg_way(planner, start, s_ijk, goal), lap("astar_ms", t)
 
 
 def _candidate_trajectory(planner: Planner, prep, way: np.ndarray, start: np.ndarray, g: np.ndarray, lap, t: float,
                           known=()):
     """Corridor and Bezier QP of one shortcut polyline: (corridor, trajectory, t). Laps corridor_ms and qp_ms.
-    known: the goal's polytope (ReachableGoal.known()). Raises CorridorError / PlanningError."""
-    # box margin and PlannerConfig.corridor_backend ('cpu' in a worker)
-    corridor = build_corridor(torch.as_tensor(way, device=planner.scene.device), planner.scene, prep.index,
-                              known=known, **planner.corridor_kwargs())
+    known: the goal's polytope (ReachableGoal.known()). Raises CorridorError / PlanningError. The leg's stages
+    (stages.leg_corridor: 'cpu' backend in a worker; stages.leg_trajectory)."""
+    corridor = stages.leg_corridor(planner, way, known)
     t = lap("corridor_ms", t)
-    return corridor, _candidate_qp(planner, corridor, start, g), lap("qp_ms", t)
-
-
-def _candidate_qp(planner: Planner, corridor, start: np.ndarray, g: np.ndarray):
-    """The Bezier QP of one corridor (raises PlanningError / GoalUnreachableError)."""
-    return solve_corridor_qp(corridor.constraints(), corridor.waypoints.cpu().numpy(), start, g,
-                             planner.config.trajectory)
+    return corridor, stages.leg_trajectory(planner, corridor, start, g), lap("qp_ms", t)
 
 
 def _candidate_shot(planner: Planner, traj, corridor, look_p: np.ndarray, goal_p: np.ndarray,
@@ -275,8 +262,7 @@ def _plan_candidate_task(planner: Planner, config, start: np.ndarray, goal_p: np
         return out
     t = time.perf_counter()
     try:  # the corridor here, in the worker ('cpu' backend: no CUDA after fork)
-        corridor = build_corridor(torch.as_tensor(way["way"], device=planner.scene.device), planner.scene,
-                                  planner._prep().index, known=way["known"], **planner.corridor_kwargs())
+        corridor = stages.leg_corridor(planner, way["way"], way["known"])
     except (GoalUnreachableError, PlanningError) as e:  # CorridorError and the rest, as in-process
         out["error"] = str(e)
         return out
@@ -301,7 +287,7 @@ def _candidate_way_task(planner: Planner, config, start: np.ndarray, goal_p: np.
     ReachableGoal), "error", "timings", "goal_cache"} (error: the message of a failure the in-process path would
     record, else None)."""
     planner.config = config
-    prep = planner._prep()
+    prep = planner.ready()
     tm: Dict[str, float] = {}
     known = set(goal_cache)
     lap = _lapper(tm)
@@ -333,7 +319,7 @@ def _candidate_finish_task(planner: Planner, config, corridor, start: np.ndarray
 
     t = time.perf_counter()
     try:
-        traj = _candidate_qp(planner, corridor, start, g)
+        traj = stages.leg_trajectory(planner, corridor, start, g)
     except (GoalUnreachableError, PlanningError) as e:
         return {"shot": None, "error": str(e), "timings": tm}
     t = lap("qp_ms", t)
@@ -423,7 +409,7 @@ def _plan_candidates(
     k = int(k)
     if time_budget_s is not None and not (math.isfinite(time_budget_s) and time_budget_s > 0):
         raise InvalidInputError(f"the time budget (--time-budget) must be a positive number of seconds, got {time_budget_s}")
-    planner._prep()
+    planner.ready()
     goal_p = planner.checked_point(goal, "go-to point")
     look_p = planner.checked_point(look_at, "look-at point")
     planner.check_timing()
@@ -443,7 +429,7 @@ def _plan_candidates(
         return True
 
     t = time.perf_counter()
-    prep = planner._prep()
+    prep = planner.ready()
     n_try = k + int(math.ceil(spare_fraction * k))
     starts = planner.random_starts(n_try, torch.Generator().manual_seed(int(seed)), look_p)
     starts = starts.detach().cpu().numpy()  # [n_try, 3]
@@ -459,7 +445,7 @@ def _plan_candidates(
         tm["workers"] = float(pool.processes)
         # the main component's goal once here (inherited by every task) instead of once per worker
         try:
-            goal_cache[planner._main_component()] = planner._reachable_goal(goal_p, planner._main_component())
+            goal_cache[planner.main_component()] = reachable_goal(planner, goal_p, planner.main_component())
         except GoalUnreachableError:
             pass  # each candidate then fails with this error in its worker, as in the in-process path
         t = lap("goal_ms", t)

@@ -2,7 +2,7 @@
 
 Choice (documented): ONE QP over the concatenated corridor, the stops as interpolation constraints.
   1. start (given, or seeded random free start) and, per stop, the closest safe point to the requested
-     go-to that the start's free component reaches (Planner._reachable_goal, as for single shots);
+     go-to that the start's free component reaches (reach.reachable_goal, as for single shots);
   2. per leg (start -> stop 1, stop 1 -> stop 2, ...): A*, line-of-sight shortcut (all legs in one
      batched call), safe polytope corridor (Planner's stages);
   3. the legs' polytopes and waypoints are concatenated and the corridor QP of trajectory.py is built once;
@@ -34,6 +34,7 @@ from .corridor import build_corridor
 from .dynamics import DynamicLimits, dynamics_report, retime
 from .errors import InvalidInputError, UnsafeTrajectoryError
 from .planner import Planner
+from .reach import free_voxel_near, reachable_goal
 from .safety import verify_shot
 from .shot import Shot
 from .timing import arc_length_table
@@ -185,7 +186,7 @@ def plan_multistop(
     max speed / acceleration / fps and 60 deg/s). Raises InvalidInputError, StartInCollisionError,
     GoalUnreachableError (a stop cannot be reached, or no smooth curve fits). A start outside the planning region
     is an error unless ``force_start`` (Planner.checked_start)."""
-    planner._prep()
+    planner.ready()
     targets = [planner.checked_point(s, f"stop {i + 1}") for i, s in enumerate(stops)]
     if not targets:
         raise InvalidInputError("a multi-stop shot needs at least one stop.")
@@ -204,17 +205,17 @@ def plan_multistop(
     tm: Dict[str, float] = {}
     t0 = time.perf_counter()
     given = None if start is None else planner.checked_start(start, force=force_start)  # may grow the region
-    prep = planner._prep()
+    prep = planner.ready()
     labels, grid = prep.astar_grid.labels, prep.grid
     if given is not None:
         s = given
     else:
         s = planner.random_starts(1, torch.Generator().manual_seed(int(seed)), looks[0])[0].detach().cpu().numpy()
-    s_ijk = planner._free_voxel_near(s, None)
+    s_ijk = free_voxel_near(planner, s, None)
     comp = int(labels[tuple(s_ijk)])
     pts, ijks, reached = [s], [s_ijk], [None]
     for g in targets:
-        goal = planner._reachable_goal(g, comp)
+        goal = reachable_goal(planner, g, comp)
         pts.append(np.asarray(goal.point, np.float64))
         ijks.append(np.asarray(goal.voxel))
         reached.append(goal)

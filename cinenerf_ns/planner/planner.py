@@ -23,30 +23,27 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .astar import AStarGrid, batched_shortcut
-from .coarse_path import CoarseGrid, voxel_path
-from .collision import points_collide, segments_collide
-from .corridor import CorridorError, build_corridor
+from . import shortcut, stages
+from .astar import AStarGrid
+from .coarse_path import CoarseGrid
+from .collision import points_collide
+from .corridor import CorridorError
 from .distance import clearance
 from .errors import (
     GoalUnreachableError,
     InvalidInputError,
-    PlanningError,
     StartInCollisionError,
-    UnsafeTrajectoryError,
 )
 from .grid_polytope import VoxelObstacles
-from .goal import _project_onto_polytope, closest_safe_point, mean_voxel_mask, sample_free_starts
-from .polytope import Polytope, safe_polytope
-from .ranges import group_ranks
+from .goal import mean_voxel_mask, sample_free_starts
 from .polytope import prepare_native as prepare_native_polytope
 from .occupancy import OccupancyGrid, build_occupancy
-from .safety import DEFAULT_CLEARANCE_CAP, safety_report, verify_shot
+from .safety import DEFAULT_CLEARANCE_CAP, safety_report
 from .scene import EllipsoidScene
 from .shot import Shot
 from .spatial_index import GridIndex
 from .timing import TimingConfig
-from .trajectory import TrajectoryConfig, solve_corridor_qp
+from .trajectory import TrajectoryConfig
 from .native import grid_polytope_c as native_grid_polytope
 from .native import search26 as native_search26
 from .workers import CandidatePool, default_workers, in_worker, pool_for, validate_workers
@@ -194,42 +191,6 @@ GRID_POLYTOPE_MAX_VOXEL = 2.0
 """PlannerConfig.grid_polytopes 'auto': grid polytopes when voxel_size <= this x camera_radius. Measured at 0.85 (the
 procedural room, a win) and 4.1 (the fox capture, a loss); the threshold between them is a guess."""
 
-CLASSIC_SHORTCUT_AFTER = 1
-"""shortcut_way also runs the classic shortcut when the grid rule's leaves more than this many segments off the grid."""
-
-OFF_GRID_SEGMENT_COST = 8.0
-"""choose_way: what a corridor segment off the grid costs, in grid segments (a Prop-2 polytope ~10-20 ms at 1M
-Gaussians against ~1.5 ms for a grid polytope, H100 host and CPU box)."""
-
-
-@dataclass
-class ReachableGoal:
-    """Where a shot ends: ``point`` [3] (the closest safe point to the go-to target that the component reaches),
-    ``voxel`` [3] (the free voxel the voxel path ends in) and, when the point came from projecting the target onto
-    a safe polytope seeded at that voxel's centre, that ``polytope`` (it holds the centre and the point).
-
-    With a polytope the way ends ... -> voxel centre -> point: the shortcut runs up to the voxel centre only, and
-    the last segment, inside the polytope, needs no corridor polytope of its own (``known()``). Without one the
-    shortcut may join any waypoint to the point, as before."""
-
-    point: np.ndarray
-    voxel: np.ndarray
-    polytope: Optional[Polytope] = None
-
-    def way_to_shortcut(self, start: np.ndarray, centres: np.ndarray) -> np.ndarray:
-        """The polyline [K, 3] the shortcut prunes: start, the voxel path's centres, and the point unless the last
-        segment is fixed (then the path ends at the goal voxel's centre; shortcut_ends appends the point)."""
-        tail = [] if self.polytope is not None else [self.point[None]]
-        return np.concatenate([start[None], centres] + tail)
-
-    def shortcut_ends(self, way: np.ndarray) -> np.ndarray:
-        """The shortcut polyline completed with the point where way_to_shortcut left it out."""
-        return way if self.polytope is None else np.concatenate([way, self.point[None]])
-
-    def known(self) -> list:
-        """Safe polytopes the corridor may reuse for any segment they contain (build_corridor's ``known``)."""
-        return [] if self.polytope is None else [self.polytope]
-
 
 def _fmt(p: np.ndarray) -> str:
     return "(" + ", ".join(f"{v:.3g}" for v in np.asarray(p, dtype=np.float64).reshape(-1)) + ")"
@@ -256,8 +217,6 @@ MAX_RADIUS_FRACTION = 0.1
 """The camera sphere's radius may be at most this fraction of the planning region's longest side."""
 
 GRID_RESOLUTION_RANGE = (8, 1024)
-
-GOAL_FIRST_BOX_VOXELS = 2.0  # half-width of the goal's first polytope box (Planner._reachable_goal, step 2)
 
 
 class Planner:
@@ -457,7 +416,7 @@ class Planner:
         n = self.candidate_workers()
         if n == 0:
             return None
-        self._main_component()  # cached before the fork so that workers inherit it
+        self.main_component()  # cached before the fork so that workers inherit it
         self._pool = pool_for(self, self._prep(), n, self._pool)
         return self._pool[2]
 
@@ -495,8 +454,11 @@ class Planner:
                    "to the start's at this grid resolution); the shot ends at the nearest reachable point")
         return {"from": t.tolist(), "to": g.tolist(), "distance": d, "why": why}
 
-    def _prep(self) -> PreparedScene:
+    def ready(self) -> PreparedScene:
+        """The prepared scene (prepare() on first use)."""
         return self.prepared if self.prepared is not None else self.prepare()
+
+    _prep = ready  # the planner's own short name
 
     # ------------------------------------------------------------------ helpers
     def corridor_backend(self) -> str:
@@ -602,214 +564,19 @@ class Planner:
         d = e - math.sqrt(3.0) * vs * (1 + 1e-9)
         return np.where(inside & (e > 0), np.maximum(d, 0.0), -np.inf)
 
-    def _free_voxel_near(self, p: np.ndarray, comp: Optional[int], max_window: int = 16) -> np.ndarray:
-        """Voxel [3] near world point p whose centre joins p by a collision-free segment (and lies in
-        free component ``comp`` when given), searched within ``max_window`` voxels."""
-        prep = self._prep()
-        grid, labels = prep.grid, prep.astar_grid.labels
-        pt = torch.as_tensor(p, dtype=torch.float64, device=grid.device)
-        ijk = grid.world_to_voxel(pt)
-        shape = np.array(grid.shape)
-        if bool(grid.in_bounds(ijk)):
-            i, j, k = (int(v) for v in ijk)
-            if labels[i, j, k] > 0 and (comp is None or labels[i, j, k] == comp):
-                return np.array([i, j, k])
-        # search growing windows for free voxels, nearest first, whose segment from p is free
-        c = np.clip(ijk.cpu().numpy(), 0, shape - 1)
-        for R in (r for r in (1, 2, 4, 8, 16) if r <= max_window):
-            a = np.maximum(c - R, 0)
-            e = np.minimum(c + R + 1, shape)
-            sub = labels[a[0]:e[0], a[1]:e[1], a[2]:e[2]]
-            ok = sub > 0 if comp is None else sub == comp
-            cand = np.argwhere(ok) + a
-            if len(cand) == 0:
-                continue
-            centres = grid.voxel_to_world(torch.as_tensor(cand, device=grid.device))
-            order = torch.argsort((centres - pt).norm(dim=-1))[:64]
-            for lo_, hi_ in ((0, 8), (8, 64)):  # the nearest few usually succeed: test them alone first
-                cen = centres[order[lo_:hi_]]
-                if cen.shape[0] == 0:
-                    break
-                # float64 ends (the test runs in float64): rounding them to a float32 scene's dtype
-                # could move a segment by ~1e-7, more than the collision margin covers
-                coll = segments_collide(pt.expand_as(cen), cen, self.scene, prep.index)
-                free = torch.nonzero(~coll).squeeze(-1)
-                if free.numel():
-                    return cand[int(order[lo_ + int(free[0])])]
-        raise GoalUnreachableError(
-            f"no free grid voxel can be reached in a straight line from {np.round(p, 4).tolist()}; the point is "
-            f"walled in at this grid resolution (raise --grid-resolution)"
-        )
-
-    def _reachable_goal(self, target: np.ndarray, comp: int) -> "ReachableGoal":
-        """Closest safe point to ``target`` that the free component ``comp`` reaches, its voxel, and (step 2) the
-        safe polytope it was projected onto, which also holds the voxel's centre: the way's last segment, voxel
-        centre -> goal, lies in it, so the corridor reuses it instead of building one (see ReachableGoal).
-
-        1. paper: closest_safe_point (target itself if free, else the projection of the target onto a
-           Prop-2 polytope grown at the target, else the nearest free voxel); accepted if a free voxel
-           of ``comp`` joins it by a straight collision-free segment.
-        2. otherwise (e.g. the centroid of a hollow object is free but walled in): the nearest voxel of
-           ``comp`` to the target, improved by projecting the target onto a safe polytope seeded at
-           that voxel's centre; the polytope is convex and holds the centre, so the segment between
-           them is safe and the goal stays reachable.
-        """
-        prep = self._prep()
-        grid, labels = prep.grid, prep.astar_grid.labels
-        dev = self.scene.device
-        rlo, rhi = self.region()
-        half_voxel = 0.5 * float(grid.voxel_size)
-        target = np.clip(target, rlo + half_voxel, rhi - half_voxel)  # paths never leave the planning region
-        tv = grid.world_to_voxel(torch.as_tensor(target, device=grid.device)).cpu().numpy()  # [3]
-        inside = bool(((tv >= 0) & (tv < np.array(grid.shape))).all())
-        # target in an occupied voxel or a free pocket of another component (e.g. inside a hollow
-        # object): a straight way out is only looked for next to it (a wider search almost always
-        # fails through the object's wall, at ~0.2 s on 200k Gaussians); the nearest voxel of
-        # ``comp`` (step 2) is the usual answer
-        walled_in = inside and labels[tuple(tv)] != comp
-        try:
-            g = closest_safe_point(
-                torch.as_tensor(target, device=dev), self.scene, prep.index, grid, reachable=labels == comp,
-                clearance_fn=self._free_fn, mean_voxels=prep.mean_voxels,
-            )
-            g = g.detach().cpu().numpy()
-            return ReachableGoal(g, self._free_voxel_near(g, comp, max_window=2 if walled_in else 16))
-        except GoalUnreachableError:
-            pass
-        ijk = torch.as_tensor(self._nearest_comp_voxel(target, comp), device=grid.device)
-        c = grid.voxel_to_world(ijk).to(dev)
-        c_np = c.cpu().numpy()
-        vs = float(grid.voxel_size)
-        full = np.maximum(np.abs(target - c_np), vs) + vs  # [3] half-widths of the box that reaches the target
-        # First a box of GOAL_FIRST_BOX_VOXELS voxels around c: the goal is usually within a voxel or two of it (c is
-        # the free voxel nearest to the target), and a smaller box gathers fewer ellipsoids (measured at 1M: 1.78 ->
-        # 1.37 ms median per goal, the same goals for all 100 requests of bench_planner). Only when the projection
-        # ends on a face of that box, where the larger box could let it go further, is the polytope built again in
-        # the full box. Every plane is safe either way; the full box's extra planes can only cut more.
-        x = poly = None
-        for half in (np.minimum(full, GOAL_FIRST_BOX_VOXELS * vs), full):
-            try:
-                h = torch.as_tensor(half, device=dev)
-                blo = torch.maximum(c - h, torch.as_tensor(rlo, device=dev))  # the box stays in the planning region
-                bhi = torch.minimum(c + h, torch.as_tensor(rhi, device=dev))
-                poly = safe_polytope(c[None], self.scene, prep.index, blo, bhi)
-                A, b = poly.to_numpy()
-                x = _project_onto_polytope(A, b, target, interior=c_np)  # the seed: inside
-            except PlanningError:
-                x = None
-            on_face = x is not None and bool((np.abs(np.abs(x - c_np) - half) <= 1e-9 * (1 + np.abs(x).max())).any())
-            if x is None or not on_face or (half >= full).all():
-                break
-        if x is None:
-            return ReachableGoal(c_np, ijk.cpu().numpy())
-        return ReachableGoal(x, ijk.cpu().numpy(), poly)
-
-    def _nearest_comp_voxel(self, target: np.ndarray, comp: int) -> np.ndarray:
-        """Voxel [3] of free component ``comp`` whose centre is nearest to world point ``target``
-        (growing windows; exact: a voxel outside a window of radius R is more than R voxels away)."""
-        prep = self._prep()
-        grid, labels = prep.grid, prep.astar_grid.labels
-        shape = np.array(grid.shape)
-        lo, vs = grid.lo.detach().cpu().double().numpy(), float(grid.voxel_size)
-        c = np.clip(np.floor((target - lo) / vs).astype(np.int64), 0, shape - 1)
-        R = 2
-        while True:
-            a, e = np.maximum(c - R, 0), np.minimum(c + R + 1, shape)
-            covers_all = bool((a == 0).all() and (e == shape).all())
-            cand = np.argwhere(labels[a[0]:e[0], a[1]:e[1], a[2]:e[2]] == comp) + a  # [K, 3]
-            if len(cand):
-                d = np.linalg.norm(lo + (cand + 0.5) * vs - target, axis=1)
-                k = int(np.argmin(d))
-                if d[k] <= R * vs or covers_all:
-                    return cand[k]
-            if covers_all:
-                raise GoalUnreachableError(f"the free-space component {comp} has no voxel")
-            R *= 2
 
     def segments_free(self, p0, p1) -> np.ndarray:
-        """bool [P]: segment p0[i] -> p1[i] proven collision-free for the camera ball (conservative).
+        """bool [P]: segment p0[i] -> p1[i] proven collision-free for the camera ball (shortcut.segments_free)."""
+        return shortcut.segments_free(self, p0, p1)
 
-        First the occupancy grid: a segment whose every point lies in a free voxel is proven clear with no
-        distance query (voxel_traversal.py: exact voxel walk). The rest are cut into pieces no longer than the
-        camera radius; a piece lies inside the ball of radius r + |piece|/2 around its midpoint, so proving
-        those balls clear (Cor. 1, batched in one call) proves the segment clear. A piece that is not proven
-        clear marks its segment as colliding."""
-        prep = self._prep()
-        a = np.asarray(p0, dtype=np.float64).reshape(-1, 3)
-        b = np.asarray(p1, dtype=np.float64).reshape(-1, 3)
-        ok = prep.voxels.segments_free(a, b)
-        rest = np.flatnonzero(~ok)
-        if rest.size:
-            ok[rest] = self._segments_free_by_pieces(a[rest], b[rest])
-        return ok
-
-    def _segments_free_by_pieces(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """segments_free's Corollary-1 proof (pieces no longer than the camera radius), for float64 [P, 3] ends."""
-        prep = self._prep()
-        r = self.scene.camera_radius
-        piece = max(r, 0.5 * prep.grid.voxel_size)
-        n = np.maximum(1, np.ceil(np.linalg.norm(b - a, axis=1) / piece).astype(np.int64))  # [P]
-        owner, k = group_ranks(n)
-        frac = (k + 0.5) / n[owner]  # (k + 1/2) / n per piece
-        mids = a[owner] + frac[:, None] * (b - a)[owner]
-        half = 0.5 * np.linalg.norm(b - a, axis=1)[owner] / n[owner]
-        dev = self.scene.device
-        hit = points_collide(
-            torch.as_tensor(mids, device=dev), self.scene, prep.index,  # float64: no rounding of the pieces
-            radius=torch.as_tensor(r + half, device=dev),
-        ).cpu().numpy()
-        bad = np.zeros(len(a), dtype=bool)
-        np.logical_or.at(bad, owner, hit)
-        return ~bad
-
-    def _grid_sight(self, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
-        """bool [P]: every sample (spacing <= half a voxel) of segment p0[i] -> p1[i] farther than one
-        voxel from both ends lies in a free voxel of the occupancy grid. Only a cheap pre-filter for
-        the shortcut: refusing a segment is always safe (it just keeps the voxel path there)."""
-        vs = float(self._prep().grid.voxel_size)
-        L = np.linalg.norm(p1 - p0, axis=1)  # [P]
-        n = np.maximum(2, np.ceil(L / (0.5 * vs)).astype(np.int64) + 1)  # samples per segment
-        owner, k = group_ranks(n)
-        frac = k / (n[owner] - 1)  # [S] in [0, 1]
-        dist_end = np.minimum(frac, 1 - frac) * L[owner]
-        pts = p0[owner] + frac[:, None] * (p1 - p0)[owner]
-        blocked = ~self.in_free_voxel(pts) & (dist_end > vs)
-        bad = np.zeros(len(p0), dtype=bool)
-        np.logical_or.at(bad, owner, blocked)
-        return ~bad
-
-    def _shortcut_free(self, p0, p1) -> np.ndarray:
-        """bool [P] for the shortcut: grid line of sight (cheap filter), then the conservative
-        segments_free test on the survivors (so every accepted segment is proven free).
-
-        With config.grid_polytopes a segment whose two ends lie in free voxels is accepted only when the
-        segment lies in free voxels too (the exact voxel walk): its corridor polytope then comes from the grid
-        (grid_polytope.py), far cheaper than a Prop-2 one. Only segments with an end outside the free voxels
-        (a goal next to an object, a start the user placed there) may be proven by Corollary-1 pieces.
-        shortcut_way decides between this rule and _shortcut_free_any's."""
-        return self._shortcut_test(p0, p1, grid_rule=self.use_grid_polytopes())
-
-    def _shortcut_free_any(self, p0, p1) -> np.ndarray:
-        """_shortcut_free without the grid rule: every segment may be proven by Corollary-1 pieces (longer jumps,
-        fewer segments, but each one that leaves the free voxels needs a Prop-2 polytope)."""
-        return self._shortcut_test(p0, p1, grid_rule=False)
 
     def segments_off_grid(self, way: np.ndarray) -> int:
-        """How many segments of a polyline [K, 3] do not lie in free voxels (each needs a Prop-2 polytope unless a
-        known one holds it)."""
-        w = np.asarray(way, dtype=np.float64)
-        return int((~self._prep().voxels.segments_free(w[:-1], w[1:])).sum()) if len(w) > 1 else 0
+        """Segments of a polyline [K, 3] that do not lie in free voxels (shortcut.segments_off_grid)."""
+        return shortcut.segments_off_grid(self, way)
 
     def choose_way(self, grid_way: np.ndarray, any_way: Optional[np.ndarray]) -> np.ndarray:
-        """The cheaper corridor of two shortcuts of one path: ``grid_way`` (the grid rule) or ``any_way`` (without
-        it; None: not computed). Cost = segments + OFF_GRID_SEGMENT_COST x segments off the grid. In rooms the
-        grid rule wins (a Prop-2 polytope only at the goal); in a real capture with floaters and a coarse grid
-        the voxel path cuts corners past occupied voxels so often that the grid rule keeps many short off-grid
-        segments, and the classic shortcut's fewer, longer segments are cheaper."""
-        if any_way is None:
-            return grid_way
-        cost = lambda w: (len(w) - 1) + OFF_GRID_SEGMENT_COST * self.segments_off_grid(w)  # noqa: E731
-        return any_way if cost(any_way) < cost(grid_way) else grid_way
+        """The cheaper corridor of two shortcuts of one path (shortcut.choose_way)."""
+        return shortcut.choose_way(self, grid_way, any_way)
 
     def shortcut_way(self, way: np.ndarray) -> np.ndarray:
         """The shortcut of one polyline [K, 3]: with grid polytopes, the grid rule's, unless it leaves more than
@@ -818,33 +585,9 @@ class Planner:
         return self.shortcut_ways([way])[0]
 
     def shortcut_ways(self, ways: list) -> list:
-        """shortcut_way for several polylines, each rule as one lock-step batched_shortcut (the same result as
-        astar.shortcut path by path)."""
-        a = batched_shortcut(ways, self._shortcut_free)
-        if not self.use_grid_polytopes():
-            return a
-        redo = [i for i, w in enumerate(a) if self.segments_off_grid(w) > CLASSIC_SHORTCUT_AFTER]
-        if redo:
-            b = batched_shortcut([ways[i] for i in redo], self._shortcut_free_any)
-            for i, w in zip(redo, b):
-                a[i] = self.choose_way(a[i], w)
-        return a
+        """The shortcut of several polylines [K, 3] (shortcut.shortcut_ways)."""
+        return shortcut.shortcut_ways(self, ways)
 
-    def _shortcut_test(self, p0, p1, grid_rule: bool) -> np.ndarray:
-        a = np.asarray(p0, dtype=np.float64).reshape(-1, 3)
-        b = np.asarray(p1, dtype=np.float64).reshape(-1, 3)
-        out = self._grid_sight(a, b)
-        if grid_rule:
-            ends_free = self.in_free_voxel(a) & self.in_free_voxel(b)
-            idx = np.flatnonzero(out & ends_free)
-            if idx.size:
-                out[idx] = self._prep().voxels.segments_free(a[idx], b[idx])
-            idx = np.flatnonzero(out & ~ends_free)
-        else:
-            idx = np.flatnonzero(out)
-        if idx.size:
-            out[idx] = self.segments_free(a[idx], b[idx])
-        return out
 
     def points_free(self, points) -> np.ndarray:
         """bool [P]: camera ball at each point proven clear. Points in a free voxel of the occupancy grid are proven
@@ -871,11 +614,11 @@ class Planner:
         c = np.clip(ijk, 0, shape - 1)
         return inside & ~occ[c[:, 0], c[:, 1], c[:, 2]]
 
-    def _free_fn(self, points: Tensor) -> Tensor:
+    def free_test(self, points: Tensor) -> Tensor:
         # goal/start acceptance only needs a proof of freedom: the conservative test is exact enough
         return torch.as_tensor(self.points_free(points.detach().cpu().numpy()))
 
-    def _main_component(self) -> int:
+    def main_component(self) -> int:
         """The free component random starts come from: the one with the most free voxels inside the
         start region when one is set (a room's interior, where the capture's cameras were: the shell of
         free space *outside* the walls inside the planning bounds can be larger), else preferred_component's choice
@@ -950,7 +693,7 @@ class Planner:
         lo, hi = self.config.start_region or (None, None)
         return sample_free_starts(
             n, self.scene, prep.index, prep.grid, generator=generator, region_lo=lo, region_hi=hi,
-            reachable=prep.astar_grid.labels == self._main_component(), clearance_fn=self._free_fn,
+            reachable=prep.astar_grid.labels == self.main_component(), clearance_fn=self.free_test,
             away_from=look_at, away_fraction=self.config.start_look_distance,
         )
 
@@ -1020,7 +763,7 @@ class Planner:
             s, sample_ms = (item, 0.0) if isinstance(item, np.ndarray) else item
             attempts += 1
             try:
-                shots.append(self._plan_one(s, goal_p, look_p, goal_cache, sample_ms))
+                shots.append(stages.plan_leg(self, s, goal_p, look_p, goal_cache, sample_ms))
             except (GoalUnreachableError, CorridorError, StartInCollisionError) as e:
                 errors.append(str(e))
                 if start is not None:
@@ -1034,55 +777,3 @@ class Planner:
             if check_ms is not None:
                 sh.timings["start_check_ms"] = check_ms
         return shots
-
-    def _plan_one(self, s: np.ndarray, goal_p: np.ndarray, look_p: np.ndarray, goal_cache: dict, sample_ms: float) -> Shot:
-        prep = self._prep()
-        grid, labels = prep.grid, prep.astar_grid.labels
-        dev = self.scene.device
-        cfg = self.config
-        tm: dict[str, float] = {"start_sample_ms": sample_ms}
-
-        t0 = time.perf_counter()
-        s_ijk = self._free_voxel_near(s, None)
-        comp = int(labels[tuple(s_ijk)])
-        if comp not in goal_cache:
-            goal_cache[comp] = self._reachable_goal(goal_p, comp)
-        goal = goal_cache[comp]
-        g = goal.point
-        t1 = time.perf_counter()
-        tm["goal_ms"] = 1e3 * (t1 - t0)
-
-        path = voxel_path(prep.astar_grid, prep.coarse, s_ijk, goal.voxel, astar_weight=cfg.astar_weight)  # [K, 3] fine voxel units (float)
-        t2 = time.perf_counter()
-        tm["astar_ms"] = 1e3 * (t2 - t1)
-        centres = grid.voxel_to_world(torch.as_tensor(path, device=grid.device)).cpu().numpy()
-        way = goal.shortcut_ends(self.shortcut_way(goal.way_to_shortcut(s, centres)))
-        t3 = time.perf_counter()
-        tm["shortcut_ms"] = 1e3 * (t3 - t2)
-        if np.linalg.norm(way[-1] - way[0]) < 1e-9:
-            raise GoalUnreachableError("the start is already at the goal; pick another start")
-
-        corridor = build_corridor(torch.as_tensor(way, device=dev), self.scene, prep.index, known=goal.known(),
-                                  **self.corridor_kwargs())
-        t4 = time.perf_counter()
-        tm["corridor_ms"] = 1e3 * (t4 - t3)
-        traj = solve_corridor_qp(corridor.constraints(), corridor.waypoints.cpu().numpy(), s, g, cfg.trajectory)
-        t5 = time.perf_counter()
-        tm["qp_ms"] = 1e3 * (t5 - t4)
-
-        shot = Shot.from_trajectory(traj, look_p, timing=cfg.timing, up=cfg.up, corridor=corridor, timings=tm)
-        t6 = time.perf_counter()
-        report = verify_shot(shot, self.points_free, self.clearance, max_spacing=cfg.verify_spacing)
-        t7 = time.perf_counter()
-        tm["verify_ms"] = 1e3 * (t7 - t6)
-        if not report["safe"]:
-            # Cannot happen if the corridor and QP are right; never return such a shot.
-            raise UnsafeTrajectoryError(
-                f"verification found exact clearance {report['min_exact_clearance']:.3g} < 0 on the curve; this is a "
-                f"planner bug, please report it with the scene and seed"
-            )
-        shot.safety = report
-        shot.goal_target = goal_p
-        tm["plan_ms"] = 1e3 * (t7 - t0) + sample_ms
-        shot.timings = {**shot.timings, **tm}  # keeps from_trajectory's timing_ms / orientation_ms
-        return shot

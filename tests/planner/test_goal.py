@@ -354,7 +354,7 @@ def test_mean_voxel_mask_gives_the_same_goals_as_the_box_query():
     assert prep.mean_voxels is not None and np.array_equal(prep.mean_voxels, mv) and mv.any()
     for blob in b.blobs[:4]:
         t = torch.as_tensor(blob.center, dtype=torch.float64)
-        kw = dict(reachable=prep.astar_grid.labels > 0, clearance_fn=pl._free_fn)
+        kw = dict(reachable=prep.astar_grid.labels > 0, clearance_fn=pl.free_test)
         a = closest_safe_point(t, scene, prep.index, prep.grid, **kw)
         m = closest_safe_point(t, scene, prep.index, prep.grid, mean_voxels=mv, **kw)
         assert torch.equal(a, m) and bool(pl.points_free(m[None].numpy())[0])

@@ -10,6 +10,8 @@ from cinenerf_ns.planner.distance import clearance
 from cinenerf_ns.planner.errors import InvalidInputError, PlanningError, StartInCollisionError
 from cinenerf_ns.planner.planner import Planner, PlannerConfig
 from cinenerf_ns.planner.procedural import procedural_room
+from cinenerf_ns.planner.reach import reachable_goal
+from cinenerf_ns.planner.shortcut import shortcut_free, shortcut_free_any
 from cinenerf_ns.planner.scene import EllipsoidScene
 
 
@@ -107,14 +109,14 @@ def test_errors_are_planning_errors():
 
 
 def test_shortcut_filter_only_accepts_proven_free_segments(room):
-    """_shortcut_free (grid line of sight, then segments_free) accepts a subset of segments_free, and
+    """shortcut_free (grid line of sight, then segments_free) accepts a subset of segments_free, and
     every accepted segment is free by the exact clearance on dense samples (brute force)."""
     s, e, pl = room
     rng = np.random.default_rng(0)
     lo, hi = pl.prepared.grid.lo.numpy(), pl.prepared.grid.hi.numpy()
     p0 = rng.uniform(lo, hi, (200, 3))
     p1 = p0 + rng.normal(size=(200, 3)) * 0.3
-    fast, exact = pl._shortcut_free(p0, p1), pl.segments_free(p0, p1)
+    fast, exact = shortcut_free(pl, p0, p1), pl.segments_free(p0, p1)
     assert not (fast & ~exact).any()
     assert fast.any() and (exact & ~fast).any()  # the filter both passes and refuses some here
     t = np.linspace(0, 1, 200)
@@ -231,16 +233,16 @@ def test_points_free_grid_filter_is_never_optimistic(seed, res):
 def test_astar_weight_config(room, monkeypatch):
     """Plain A* (1.0, default) and weighted A* (1.5, 3) both give verified-safe shots to the same goal, the configured
     weight reaches the voxel path search; bad weights are clear errors."""
-    import cinenerf_ns.planner.planner as planner_mod
+    import cinenerf_ns.planner.stages as stages_mod  # the leg's A* stage
 
     seen = []
-    real = planner_mod.voxel_path
+    real = stages_mod.voxel_path
 
     def spy(*a, **kw):
         seen.append(kw.get("astar_weight"))
         return real(*a, **kw)
 
-    monkeypatch.setattr(planner_mod, "voxel_path", spy)
+    monkeypatch.setattr(stages_mod, "voxel_path", spy)
     s, e, pl0 = room
     goal, look = s.objects[0].center, s.objects[1].center
     for w in (1.0, 1.5, 3.0):
@@ -290,11 +292,11 @@ def test_shortcut_ways_equals_shortcut_way_per_path_and_choose_way_takes_the_che
     for p, g in zip(paths, got):
         assert np.array_equal(g, pl.shortcut_way(p))
     # choose_way: segments + OFF_GRID_SEGMENT_COST x off-grid segments, the cheaper wins
-    from cinenerf_ns.planner.planner import OFF_GRID_SEGMENT_COST
+    from cinenerf_ns.planner.shortcut import OFF_GRID_SEGMENT_COST
 
     for p in paths:
         a = pl.shortcut_way(p)
-        b = shortcut(p, pl._shortcut_free_any)
+        b = shortcut(p, lambda a, b: shortcut_free_any(pl, a, b))
         cost = lambda w: (len(w) - 1) + OFF_GRID_SEGMENT_COST * pl.segments_off_grid(w)  # noqa: E731
         c = pl.choose_way(a, b)
         assert cost(c) == min(cost(a), cost(b))
@@ -305,7 +307,7 @@ def test_grid_rule_shortcut_keeps_interior_segments_in_free_voxels(grid_room):
     s, e, pl = grid_room
     rng = np.random.default_rng(5)
     for p in _random_voxel_paths(pl, rng, 10):
-        g = shortcut(p, pl._shortcut_free)
+        g = shortcut(p, lambda a, b: shortcut_free(pl, a, b))
         vox = pl.prepared.voxels
         # a segment the shortcut made (not a consecutive pair of the input) lies in free voxels
         idx = [int(np.flatnonzero((p == q).all(1))[0]) for q in g]
@@ -316,25 +318,25 @@ def test_grid_rule_shortcut_keeps_interior_segments_in_free_voxels(grid_room):
 
 @pytest.mark.parametrize("first_box", [2.0, 0.25])
 def test_goal_from_the_small_box_is_as_close_as_from_the_full_box(room, monkeypatch, first_box):
-    """Planner._reachable_goal builds the goal polytope in a box of GOAL_FIRST_BOX_VOXELS voxels first and in the
+    """reach.reachable_goal builds the goal polytope in a box of GOAL_FIRST_BOX_VOXELS voxels first and in the
     full box only when the projection ends on that box's face. Against the full box alone (the reference, built
     here): never farther from the target, and safe. With a tiny first box (0.25 voxel) the second pass runs and the
     goal is the reference's."""
-    import cinenerf_ns.planner.planner as planner_mod
+    import cinenerf_ns.planner.reach as reach_mod
     from cinenerf_ns.planner.goal import _project_onto_polytope
     from cinenerf_ns.planner.polytope import safe_polytope
 
     s, e, pl = room
-    monkeypatch.setattr(planner_mod, "GOAL_FIRST_BOX_VOXELS", first_box)
+    monkeypatch.setattr(reach_mod, "GOAL_FIRST_BOX_VOXELS", first_box)
     grid = pl.prepared.grid
     vs = float(grid.voxel_size)
-    comp = pl._main_component()
+    comp = pl.main_component()
     rng = np.random.default_rng(0)
     n_second = 0
     for o in s.objects:
         for _ in range(3):
             target = o.center + rng.uniform(-0.25, 0.25, 3) * o.size
-            goal = pl._reachable_goal(target, comp)
+            goal = reachable_goal(pl, target, comp)
             if goal.polytope is None:  # step 1 answered (target free and reachable) or no polytope
                 continue
             c = grid.voxel_to_world(torch.as_tensor(goal.voxel)).double()

@@ -86,7 +86,7 @@ def test_random_starts_in_a_closed_room_without_a_start_region_are_inside_it():
     labels = prep.astar_grid.labels
     counts = np.bincount(labels.ravel())
     counts[0] = 0
-    comp = pl._main_component()
+    comp = pl.main_component()
     assert comp != int(np.argmax(counts))  # the premise: the outside shell is the largest
     starts = pl.random_starts(20, torch.Generator().manual_seed(0), np.array([0.5, 0.0, 0.25])).numpy()
     assert (np.abs(starts[:, :2]) < w / 2).all() and (starts[:, 2] > 0).all() and (starts[:, 2] < h).all()

@@ -9,6 +9,7 @@ import pytest
 import torch
 
 import cinenerf_ns.planner.candidates as candidates
+import cinenerf_ns.planner.stages as stages
 from _shot_scenes import GO_TO, TARGET, TARGET_RADIUS, walled_target_scene
 from cinenerf_ns.planner.candidates import plan_candidates
 from cinenerf_ns.planner.corridor import CorridorError
@@ -104,7 +105,7 @@ def _corridor_fails_left_of_wall(real):
 
 def test_failed_candidates_are_replaced_by_the_same_spares(monkeypatch):
     # patched before the pool forks: the workers inherit the patched module
-    monkeypatch.setattr(candidates, "build_corridor", _corridor_fails_left_of_wall(candidates.build_corridor))
+    monkeypatch.setattr(stages, "build_corridor", _corridor_fails_left_of_wall(stages.build_corridor))  # the leg's
     out, tms = [], []
     for w in (0, 2):
         pl = _planner(w)
@@ -122,7 +123,7 @@ def test_unreachable_goal_errors_are_the_same(monkeypatch, workers):
     def no_path(*a, **kw):
         raise GoalUnreachableError("test: the goal is not connected to the start")
 
-    monkeypatch.setattr(candidates, "voxel_path", no_path)
+    monkeypatch.setattr(stages, "voxel_path", no_path)  # the leg's A* stage
     pl = _planner(workers)
     with pytest.raises(GoalUnreachableError, match=r"no safe candidate found from 6 start\(s\); last reason: test: "
                                                    r"the goal is not connected"):
