@@ -20,17 +20,17 @@ from typing import Any, Dict, List, Literal, Optional, Tuple, Type, Union
 
 import torch
 import torch.nn.functional as F
-from torch import Tensor
-from torch.nn import Parameter
-
-from cinenerf_ns.method.codec import CodecConfig, FeatureCodec
-from cinenerf_ns.method.feature_grid import feature_map_size
-from cinenerf_ns.method.compat import UnavailableLPIPS, offline_safe_lpips
-from cinenerf_ns.method.relevancy import DEFAULT_NEGATIVES, relevancy as relevancy_fn
 from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.models.splatfacto import SplatfactoModel, SplatfactoModelConfig, get_viewmat
 from nerfstudio.utils.rich_utils import CONSOLE
 from nerfstudio.viewer.viewer_elements import ViewerText
+from torch import Tensor
+from torch.nn import Parameter
+
+from cinenerf_ns.method.codec import CodecConfig, FeatureCodec
+from cinenerf_ns.method.compat import UnavailableLPIPS, offline_safe_lpips
+from cinenerf_ns.method.feature_grid import feature_map_size
+from cinenerf_ns.method.relevancy import DEFAULT_NEGATIVES, relevancy as relevancy_fn
 
 # keys the datamanager puts into train_dataset.metadata for the model
 META_CODEC_STATE = "cinesplat_codec_state"

@@ -53,7 +53,6 @@ time waiting for them.
 from __future__ import annotations
 
 import functools
-
 import math
 import time
 import warnings

@@ -35,20 +35,18 @@ from .errors import (
     StartInCollisionError,
     UnsafeTrajectoryError,
 )
-from .grid_polytope import VoxelObstacles
 from .goal import _project_onto_polytope, closest_safe_point, mean_voxel_mask, sample_free_starts
-from .polytope import Polytope, safe_polytope
-from .ranges import group_ranks
-from .polytope import prepare_native as prepare_native_polytope
+from .grid_polytope import VoxelObstacles
+from .native import grid_polytope_c as native_grid_polytope, search26 as native_search26
 from .occupancy import OccupancyGrid, build_occupancy
+from .polytope import Polytope, prepare_native as prepare_native_polytope, safe_polytope
+from .ranges import group_ranks
 from .safety import DEFAULT_CLEARANCE_CAP, safety_report, verify_shot
 from .scene import EllipsoidScene
 from .shot import Shot
 from .spatial_index import GridIndex
 from .timing import TimingConfig
 from .trajectory import TrajectoryConfig, solve_corridor_qp
-from .native import grid_polytope_c as native_grid_polytope
-from .native import search26 as native_search26
 from .workers import CandidatePool, default_workers, in_worker, pool_for, validate_workers
 
 ArrayLike = Union[Tensor, np.ndarray, Sequence[float]]

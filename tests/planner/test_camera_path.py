@@ -9,6 +9,7 @@ from unittest import mock
 
 import numpy as np
 import pytest
+from test_shot import make_shot  # tests/planner is on sys.path (pytest rootdir-relative import)
 
 from cinenerf_ns.planner.camera_path import (
     camera_path_poses,
@@ -18,8 +19,6 @@ from cinenerf_ns.planner.camera_path import (
     write_camera_path,
 )
 from cinenerf_ns.planner.errors import InvalidInputError
-
-from test_shot import make_shot  # tests/planner is on sys.path (pytest rootdir-relative import)
 
 
 @pytest.fixture(scope="module")

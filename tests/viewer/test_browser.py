@@ -16,7 +16,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from cdp import CHROMIUM
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]

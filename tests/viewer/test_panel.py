@@ -10,11 +10,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from viewer_fakes import FakeBackend, FakeView
 
 from cinenerf_ns.planner.errors import GoalUnreachableError, StartInCollisionError
 from cinenerf_ns.viewer.panel import CinePanel, PanelBackend, PanelConfig
-
-from viewer_fakes import FakeBackend, FakeView
 
 
 def make(tmp_path, **kw):
