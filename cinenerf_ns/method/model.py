@@ -14,7 +14,6 @@ run) to distil only after the geometry has settled, as in the paper.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any, Dict, List, Literal, Optional, Tuple, Type, Union
 

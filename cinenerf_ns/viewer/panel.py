@@ -30,7 +30,7 @@ from .backend import parse_point, to_numpy
 from .conventions import interpolate_pose
 from .export import Exporter, default_exporter
 from .panel_output import OutputMixin, Previewer
-from .panel_types import (  # noqa: F401
+from .panel_types import (  # noqa: F401 - re-exported: callers import the panel's types from here
     DisplayOptions,
     ExportResult,
     PanelBackend,
@@ -41,7 +41,7 @@ from .panel_types import (  # noqa: F401
     ShotLike,
     Target,
 )
-from .shot_text import (  # noqa: F401
+from .shot_text import (  # noqa: F401 - re-exported: callers import the shot texts from here
     SCORE_RULE,
     candidate_label,
     check_shot,

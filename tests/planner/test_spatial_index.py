@@ -5,7 +5,6 @@ from hypothesis import given, settings, strategies as st
 
 from cinenerf_ns.planner.distance import point_ellipsoid_distance
 from cinenerf_ns.planner.errors import InvalidInputError
-from cinenerf_ns.planner.scene import EllipsoidScene
 from cinenerf_ns.planner.spatial_index import GridIndex
 
 
