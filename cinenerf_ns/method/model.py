@@ -131,7 +131,9 @@ class CineSplatModel(SplatfactoModel):
             setattr(self, ep.name, ep.load()(self))
 
     def k_nearest_sklearn(self, x: torch.Tensor, k: int):
-        """splatfacto's initial-scale kNN without scikit-learn (not in our dependency set): scipy cKDTree.
+        """splatfacto's initial-scale kNN with scipy's cKDTree in place of scikit-learn's NearestNeighbors: the same
+        exact k nearest neighbours (computed in float64), so cinenerf_ns itself imports scipy only (scikit-learn is a
+        dependency for plain splatfacto, which runs in the same environment).
         Returns (distances [N, k], indices [N, k]) float32 numpy arrays, the point itself excluded."""
         import numpy as np
         from scipy.spatial import cKDTree
