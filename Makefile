@@ -1,4 +1,5 @@
 # Two set-up commands: `make demo` and `make test` (both create .venv and install on first use).
+# `make test` runs `make lint` (ruff, pinned in the dev extra; configured in pyproject.toml) before pytest.
 PY ?= python3
 VENV ?= .venv
 VPY := $(VENV)/bin/python
@@ -9,7 +10,7 @@ NERFSTUDIO_SPEC ?= nerfstudio==1.1.5
 PIP := $(VPY) -m pip --disable-pip-version-check
 PYTEST_ARGS ?=
 
-.PHONY: install demo test test-fast bench clean-venv
+.PHONY: install demo lint test test-fast bench clean-venv
 
 $(VPY):
 	$(PY) -m venv $(VENV)
@@ -28,7 +29,10 @@ install: $(VENV)/.installed
 demo: install
 	$(VPY) -m cinenerf_ns.cli.demo
 
-test: install
+lint: install
+	$(VPY) -m ruff check cinenerf_ns tests benchmarks scripts
+
+test: install lint
 	$(VPY) -m pytest $(PYTEST_ARGS)
 
 test-fast: install

@@ -11,13 +11,12 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "planner"))
 
-from cinenerf_ns.planner.trajectory import TrajectoryConfig, solve_corridor_qp  # noqa: E402
 from test_trajectory import cvxpy_reference, random_corridor  # noqa: E402
+
+from cinenerf_ns.planner.trajectory import TrajectoryConfig, solve_corridor_qp  # noqa: E402
 
 
 def main() -> None:

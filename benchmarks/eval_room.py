@@ -46,11 +46,11 @@ from benchmarks.eval_synthetic import (  # noqa: E402
     plot_topdown,
     selection_metrics,
 )
-from cinenerf_ns.scenes import load_scene  # noqa: E402
 from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY  # noqa: E402
 from cinenerf_ns.planner.errors import PlanningError  # noqa: E402
 from cinenerf_ns.planner.planner import Planner, PlannerConfig  # noqa: E402
 from cinenerf_ns.planner.scene import SceneConfig  # noqa: E402
+from cinenerf_ns.scenes import load_scene  # noqa: E402
 
 
 def evaluate_selection(loaded, gt) -> list[dict]:

@@ -15,8 +15,6 @@ from cinenerf_ns.method.training_cameras import camera_box, run_config_path, sce
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.scene import EllipsoidScene, SceneConfig
 
-
-
 ASSETS = Path(__file__).parent / "assets"
 DEMO_SCENE = ASSETS / "room0.npz"  # the bundled trained room (make demo, cinesplat-viewer's 'demo')
 
@@ -145,8 +143,11 @@ def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Opti
     if path.suffix.lower() == ".ply":
         return LoadedScene(EllipsoidScene.from_ply(path, cfg).to(device), None, "ply", str(path))
     # checkpoints and compact exports go through the method's loader (no trainer is built)
-    from cinenerf_ns.method.checkpoint import load_compact, load_splat
-    from cinenerf_ns.method.checkpoint import _is_compact  # noqa: WPS450 (one loader, two formats)
+    from cinenerf_ns.method.checkpoint import (
+        _is_compact,  # noqa: WPS450 (one loader, two formats)
+        load_compact,
+        load_splat,
+    )
 
     st = load_compact(path, device=device) if _is_compact(path) else load_splat(path, device=device)
     scene = EllipsoidScene.from_splat(st.means, st.quats, st.scales, st.opacities, cfg)

@@ -19,8 +19,8 @@ from pathlib import Path
 
 import torch
 
-from cinenerf_ns.method.training_cameras import camera_centres, camera_info
 from cinenerf_ns.method.checkpoint import export_compact, load_splat
+from cinenerf_ns.method.training_cameras import camera_centres, camera_info
 
 
 def subset(st, keep: torch.Tensor):

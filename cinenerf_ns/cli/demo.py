@@ -21,7 +21,6 @@ from cinenerf_ns.cli.plan import PlanArgs, run_plan
 from cinenerf_ns.scenes import ASSETS, DEMO_SCENE  # noqa: F401 (ASSETS: the bundled files)
 
 
-
 def demo_args(output_dir: Path, scene: Path = DEMO_SCENE, candidates: int = 1) -> PlanArgs:
     if scene.exists():
         return PlanArgs(scene=str(scene), go_to="the red armchair", look_at="the floor lamp", output_dir=output_dir,

@@ -23,7 +23,14 @@ import torch
 from torch import Tensor
 
 from cinenerf_ns.method.scene_files import (
-    COMPACT, SUPPORTED, CheckpointError, check_config_yml, check_splat, compact_blob, compact_npz, torch_read,
+    COMPACT,
+    SUPPORTED,
+    CheckpointError,
+    check_config_yml,
+    check_splat,
+    compact_blob,
+    compact_npz,
+    torch_read,
 )
 
 PREFIX = "_model.gauss_params."

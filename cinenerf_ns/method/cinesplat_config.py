@@ -13,17 +13,18 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Type
 
-from cinenerf_ns.method.clip_features import ClipFeatureConfig
-from cinenerf_ns.method.codec import CodecConfig
-from cinenerf_ns.method.datamanager import CineSplatDatamanagerConfig
-from cinenerf_ns.method.model import CineSplatModelConfig
-from cinenerf_ns.method.schedulers import FloatExponentialDecaySchedulerConfig
 from nerfstudio.configs.base_config import ViewerConfig
 from nerfstudio.data.dataparsers.nerfstudio_dataparser import NerfstudioDataParserConfig
 from nerfstudio.engine.optimizers import AdamOptimizerConfig
 from nerfstudio.engine.trainer import Trainer, TrainerConfig
 from nerfstudio.pipelines.base_pipeline import VanillaPipelineConfig
 from nerfstudio.plugins.types import MethodSpecification
+
+from cinenerf_ns.method.clip_features import ClipFeatureConfig
+from cinenerf_ns.method.codec import CodecConfig
+from cinenerf_ns.method.datamanager import CineSplatDatamanagerConfig
+from cinenerf_ns.method.model import CineSplatModelConfig
+from cinenerf_ns.method.schedulers import FloatExponentialDecaySchedulerConfig
 
 
 @dataclass

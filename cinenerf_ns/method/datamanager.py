@@ -23,14 +23,14 @@ from pathlib import Path
 from typing import Dict, List, Literal, Optional, Tuple, Type
 
 import torch
+from nerfstudio.cameras.cameras import Cameras
+from nerfstudio.data.datamanagers.full_images_datamanager import FullImageDatamanager, FullImageDatamanagerConfig
+from nerfstudio.utils.rich_utils import CONSOLE
 
 from cinenerf_ns.method.clip_features import ClipFeatureConfig
 from cinenerf_ns.method.codec import CodecConfig
 from cinenerf_ns.method.compat import patch_ply_loader_without_open3d
 from cinenerf_ns.method.model import META_CODEC_STATE, META_INFO
-from nerfstudio.cameras.cameras import Cameras
-from nerfstudio.data.datamanagers.full_images_datamanager import FullImageDatamanager, FullImageDatamanagerConfig
-from nerfstudio.utils.rich_utils import CONSOLE
 
 # splatfacto's seed points (transforms.json `ply_file_path`) load without open3d (see compat.py)
 patch_ply_loader_without_open3d()
@@ -134,7 +134,6 @@ class CineSplatDatamanager(FullImageDatamanager):
         """Label maps -> the training images' geometry: resize (nearest) to the camera's original size, then
         undistort + crop exactly like nerfstudio undistorts the images (perspective cameras)."""
         import numpy as np
-
         from nerfstudio.cameras.cameras import CameraType
 
         from cinenerf_ns.method.label_features import resize_labels, undistort_label_map

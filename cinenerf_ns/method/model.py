@@ -14,23 +14,22 @@ run) to distil only after the geometry has settled, as in the paper.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any, Dict, List, Literal, Optional, Tuple, Type, Union
 
 import torch
 import torch.nn.functional as F
-from torch import Tensor
-from torch.nn import Parameter
-
-from cinenerf_ns.method.codec import CodecConfig, FeatureCodec
-from cinenerf_ns.method.feature_grid import feature_map_size
-from cinenerf_ns.method.compat import UnavailableLPIPS, offline_safe_lpips
-from cinenerf_ns.method.relevancy import DEFAULT_NEGATIVES, relevancy as relevancy_fn
 from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.models.splatfacto import SplatfactoModel, SplatfactoModelConfig, get_viewmat
 from nerfstudio.utils.rich_utils import CONSOLE
 from nerfstudio.viewer.viewer_elements import ViewerText
+from torch import Tensor
+from torch.nn import Parameter
+
+from cinenerf_ns.method.codec import CodecConfig, FeatureCodec
+from cinenerf_ns.method.compat import UnavailableLPIPS, offline_safe_lpips
+from cinenerf_ns.method.feature_grid import feature_map_size
+from cinenerf_ns.method.relevancy import DEFAULT_NEGATIVES, relevancy as relevancy_fn
 
 # keys the datamanager puts into train_dataset.metadata for the model
 META_CODEC_STATE = "cinesplat_codec_state"
@@ -132,7 +131,9 @@ class CineSplatModel(SplatfactoModel):
             setattr(self, ep.name, ep.load()(self))
 
     def k_nearest_sklearn(self, x: torch.Tensor, k: int):
-        """splatfacto's initial-scale kNN without scikit-learn (not in our dependency set): scipy cKDTree.
+        """splatfacto's initial-scale kNN with scipy's cKDTree in place of scikit-learn's NearestNeighbors: the same
+        exact k nearest neighbours (computed in float64), so cinenerf_ns itself imports scipy only (scikit-learn is a
+        dependency for plain splatfacto, which runs in the same environment).
         Returns (distances [N, k], indices [N, k]) float32 numpy arrays, the point itself excluded."""
         import numpy as np
         from scipy.spatial import cKDTree

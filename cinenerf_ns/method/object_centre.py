@@ -109,7 +109,6 @@ def ray_cells(d: tuple[int, int], k: int) -> set[tuple[int, int]]:
 def _ray_hits(occ: np.ndarray, d: tuple[int, int]) -> np.ndarray:
     """bool [X, Y, Z]: a set voxel at or beyond each voxel along the horizontal ray d (same slice; ray_cells)."""
     X, Y, _ = occ.shape
-    n = max(abs(d[0]), abs(d[1]))
     hit = occ.copy()
     k = 1
     while True:

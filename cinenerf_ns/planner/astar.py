@@ -26,10 +26,12 @@ import numpy as np
 import torch
 
 from .errors import GoalUnreachableError, InvalidInputError, StartInCollisionError
-from .native import astar26 as native_astar26
-from .native import native_status
-from .native import search26 as native_search26
-from .native import search26_ws as native_search26_ws
+from .native import (
+    astar26 as native_astar26,
+    native_status,
+    search26 as native_search26,
+    search26_ws as native_search26_ws,
+)
 
 _SQ2, _SQ3 = math.sqrt(2.0), math.sqrt(3.0)
 

@@ -53,7 +53,6 @@ time waiting for them.
 from __future__ import annotations
 
 import functools
-
 import math
 import time
 import warnings
@@ -63,13 +62,13 @@ from typing import Any, Dict, List, Optional
 import numpy as np
 import torch
 
+from . import stages
 from .astar import batched_shortcut  # noqa: F401 (re-exported: part of the candidates API)
 from .corridor import CorridorError, build_corridors
 from .dynamics import DynamicLimits, retime_shot
 from .errors import GoalUnreachableError, InvalidInputError, PlanningError, StartInCollisionError, UnsafeTrajectoryError
 from .occlusion import sight_lines_blocked
 from .planner import MAX_CANDIDATES, Planner, _as_point
-from . import stages
 from .reach import reachable_goal
 from .safety import _dense_samples
 from .scoring import ScoreConfig, ShotScore, _frames, score_terms

@@ -28,8 +28,8 @@ import numpy as np
 import scipy.sparse as sp
 import torch
 
-from .coarse_path import voxel_path
 from .bezier import BezierTrajectory
+from .coarse_path import voxel_path
 from .corridor import build_corridor
 from .dynamics import DynamicLimits, dynamics_report, retime
 from .errors import InvalidInputError, UnsafeTrajectoryError

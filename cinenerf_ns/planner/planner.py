@@ -34,18 +34,17 @@ from .errors import (
     InvalidInputError,
     StartInCollisionError,
 )
-from .grid_polytope import VoxelObstacles
 from .goal import mean_voxel_mask, sample_free_starts
-from .polytope import prepare_native as prepare_native_polytope
+from .grid_polytope import VoxelObstacles
+from .native import grid_polytope_c as native_grid_polytope, search26 as native_search26
 from .occupancy import OccupancyGrid, build_occupancy
+from .polytope import prepare_native as prepare_native_polytope
 from .safety import DEFAULT_CLEARANCE_CAP, safety_report
 from .scene import EllipsoidScene
 from .shot import Shot
 from .spatial_index import GridIndex
 from .timing import TimingConfig
 from .trajectory import TrajectoryConfig
-from .native import grid_polytope_c as native_grid_polytope
-from .native import search26 as native_search26
 from .workers import CandidatePool, default_workers, in_worker, pool_for, validate_workers
 
 ArrayLike = Union[Tensor, np.ndarray, Sequence[float]]

@@ -14,13 +14,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import List, Optional, Tuple, Union
+from typing import TYPE_CHECKING, List, Optional, Tuple, Union
 
 import torch
 from torch import Tensor
 
 from .errors import InvalidInputError
 from .scene import EllipsoidScene
+
+if TYPE_CHECKING:  # numpy is imported where it is used (morton_order); the annotation only names it
+    import numpy as np
 
 
 @dataclass

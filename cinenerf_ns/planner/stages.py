@@ -12,9 +12,9 @@ from typing import TYPE_CHECKING, Tuple
 import numpy as np
 import torch
 
+from .coarse_path import voxel_path
 from .corridor import Corridor, build_corridor
 from .errors import GoalUnreachableError, UnsafeTrajectoryError
-from .coarse_path import voxel_path
 from .reach import ReachableGoal, free_voxel_near, reachable_goal
 from .safety import verify_shot
 from .shot import Shot

@@ -15,8 +15,15 @@ from cinenerf_ns.planner.errors import InvalidInputError
 
 from .cameras import PreviewCameras, path_cameras
 from .raster_torch import PreviewScene
-from .render import (NERFSTUDIO_BACKGROUND, choose_backend, composite, render_gsplat, render_premultiplied,
-                     scene_from_splat, to_uint8)
+from .render import (
+    NERFSTUDIO_BACKGROUND,
+    choose_backend,
+    composite,
+    render_gsplat,
+    render_premultiplied,
+    scene_from_splat,
+    to_uint8,
+)
 from .video import Mp4Writer, contact_sheet, write_gif, write_png
 
 GSPLAT_BATCH = 8

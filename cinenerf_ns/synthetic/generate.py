@@ -1,7 +1,7 @@
 """Seeded procedural room layout: non-overlapping furniture on the floor with free space between."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 

@@ -30,10 +30,29 @@ from .backend import parse_point, to_numpy
 from .conventions import interpolate_pose
 from .export import Exporter, default_exporter
 from .panel_output import OutputMixin, Previewer
-from .panel_types import (DisplayOptions, ExportResult, PanelBackend, PanelConfig, PanelView, PlanRequest,  # noqa: F401
-                          PlanResult, ShotLike, Target)
-from .shot_text import (SCORE_RULE, candidate_label, check_shot, goal_note, min_clearance, plan_summary,  # noqa: F401
-                        shot_score, shot_summary, sort_by_score, timings_detail)
+from .panel_types import (  # noqa: F401 - re-exported: callers import the panel's types from here
+    DisplayOptions,
+    ExportResult,
+    PanelBackend,
+    PanelConfig,
+    PanelView,
+    PlanRequest,
+    PlanResult,
+    ShotLike,
+    Target,
+)
+from .shot_text import (  # noqa: F401 - re-exported: callers import the shot texts from here
+    SCORE_RULE,
+    candidate_label,
+    check_shot,
+    goal_note,
+    min_clearance,
+    plan_summary,
+    shot_score,
+    shot_summary,
+    sort_by_score,
+    timings_detail,
+)
 
 log = logging.getLogger(__name__)
 

@@ -13,7 +13,6 @@ import numpy as np
 from .backend import SceneGaussians
 
 
-
 @runtime_checkable
 class ShotLike(Protocol):
     """What the panel reads from a planned shot (``cinenerf_ns.planner.shot.Shot`` satisfies it).

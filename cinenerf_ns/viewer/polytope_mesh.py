@@ -29,8 +29,7 @@ def polytope_mesh(
 ) -> Optional[Tuple[np.ndarray, np.ndarray]]:
     """(vertices [V, 3], faces [M, 3] int, outward winding not guaranteed) or None when the
     polytope is empty, flat or unbounded (nothing sensible to draw)."""
-    from scipy.spatial import ConvexHull, HalfspaceIntersection
-    from scipy.spatial import QhullError
+    from scipy.spatial import ConvexHull, HalfspaceIntersection, QhullError
 
     A = np.asarray(A, np.float64).reshape(-1, 3)
     b = np.asarray(b, np.float64).reshape(-1)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from cinenerf_ns.method.checkpoint import CheckpointError, export_compact, find_checkpoint, load_compact, load_splat
+from cinenerf_ns.method.checkpoint import CheckpointError, export_compact, find_checkpoint, load_splat
 from cinenerf_ns.method.codec import CodecConfig, FeatureCodec
 
 REPO = Path(__file__).resolve().parents[2]

@@ -5,7 +5,6 @@ from pathlib import Path
 
 import pytest
 import torch
-import torch.nn.functional as F
 
 from cinenerf_ns.method.clip_features import (
     ClipFeatureConfig,

@@ -117,10 +117,10 @@ def test_cached_mode_never_downloads(monkeypatch):
 def test_seed_points_load_without_open3d(tmp_path):
     """transforms.json `ply_file_path` seeds load through plyfile with nerfstudio's exact transform."""
     pytest.importorskip("nerfstudio")
+    from nerfstudio.data.dataparsers.nerfstudio_dataparser import Nerfstudio
     from plyfile import PlyData, PlyElement
 
     import cinenerf_ns.method.datamanager  # noqa: F401  (installs the patch)
-    from nerfstudio.data.dataparsers.nerfstudio_dataparser import Nerfstudio
 
     try:
         import open3d  # noqa: F401

@@ -2,11 +2,11 @@
 from __future__ import annotations
 
 import torch
+from nerfstudio.data.scene_box import SceneBox
 
 from cinenerf_ns.method.codec import CodecConfig, FeatureCodec
 from cinenerf_ns.method.compat import UnavailableLPIPS
 from cinenerf_ns.method.model import META_CODEC_STATE, META_INFO, CineSplatModel, CineSplatModelConfig
-from nerfstudio.data.scene_box import SceneBox
 
 
 def _make(metadata=None, n=64, lpips="cached"):

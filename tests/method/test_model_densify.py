@@ -5,11 +5,11 @@ same check through real training steps."""
 from __future__ import annotations
 
 import torch
+from nerfstudio.data.scene_box import SceneBox
+from nerfstudio.engine.optimizers import Optimizers
 
 from cinenerf_ns.method.cinesplat_config import make_cinesplat_config
 from cinenerf_ns.method.model import CineSplatModel, CineSplatModelConfig
-from nerfstudio.data.scene_box import SceneBox
-from nerfstudio.engine.optimizers import Optimizers
 
 
 def _model_and_opt(n=40, device="cpu"):

@@ -158,11 +158,13 @@ def test_dominant_cluster_keeps_the_heaviest_connected_group():
     # heaviest group: the isolated point weighs 5.0 < 20 x 1.0 of blob b > 50 x 0.1 of blob a
     assert out[50:70].all() and not out[:50].any() and not out[70]
     # only ever a subset of the mask; unselected Gaussians never join
-    mask2 = mask.clone(); mask2[55] = False
+    mask2 = mask.clone()
+    mask2[55] = False
     out2 = dominant_cluster(means, mask2, w, voxel=0.05)
     assert not out2[55] and out2[50:55].all()
     # a single selected Gaussian is returned as is
-    one = torch.zeros(71, dtype=torch.bool); one[3] = True
+    one = torch.zeros(71, dtype=torch.bool)
+    one[3] = True
     assert torch.equal(dominant_cluster(means, one, w, voxel=0.05), one)
 
 

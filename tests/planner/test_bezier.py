@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from hypothesis import given, settings, strategies as st
 
 from cinenerf_ns.planner.bezier import BezierTrajectory, bernstein_basis
 from cinenerf_ns.planner.errors import InvalidInputError

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import json
 import os
-from pathlib import Path
 from unittest import mock
 
 import numpy as np
 import pytest
+from test_shot import make_shot  # tests/planner is on sys.path (pytest rootdir-relative import)
 
 from cinenerf_ns.planner.camera_path import (
     camera_path_poses,
@@ -18,8 +18,6 @@ from cinenerf_ns.planner.camera_path import (
     write_camera_path,
 )
 from cinenerf_ns.planner.errors import InvalidInputError
-
-from test_shot import make_shot  # tests/planner is on sys.path (pytest rootdir-relative import)
 
 
 @pytest.fixture(scope="module")

@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 import torch
-
 from _shot_scenes import GO_TO, TARGET, TARGET_RADIUS, walled_target_scene
+
 from cinenerf_ns.planner.astar import shortcut
 from cinenerf_ns.planner.candidates import batched_shortcut, plan_candidates
 from cinenerf_ns.planner.distance import clearance

@@ -6,14 +6,13 @@ import itertools
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
+from hypothesis import HealthCheck, given, settings, strategies as st
 from scipy.sparse.csgraph import dijkstra
+from test_astar import grid_graph
 
 from cinenerf_ns.planner.astar import AStarGrid, SearchBudgetExhausted, astar
 from cinenerf_ns.planner.coarse_path import CoarseGrid, voxel_path
 from cinenerf_ns.planner.errors import GoalUnreachableError
-from test_astar import grid_graph
 
 SETTINGS = dict(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

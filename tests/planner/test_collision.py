@@ -1,13 +1,18 @@
-import math
 
 import pytest
 import torch
+from _geom_helpers import random_scene
 from hypothesis import given, settings, strategies as st
 
-from _geom_helpers import random_scene
 from cinenerf_ns.planner.collision import (
-    k_general, k_sherman_morrison, k_sphere, max_k_sherman_morrison, max_k_sphere, points_collide,
-    segments_collide, ellipsoids_collide,
+    ellipsoids_collide,
+    k_general,
+    k_sherman_morrison,
+    k_sphere,
+    max_k_sherman_morrison,
+    max_k_sphere,
+    points_collide,
+    segments_collide,
 )
 from cinenerf_ns.planner.distance import ellipsoid_scaling_factor, point_ellipsoid_distance
 from cinenerf_ns.planner.errors import InvalidInputError

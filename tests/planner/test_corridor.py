@@ -7,8 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
+from hypothesis import HealthCheck, given, settings, strategies as st
 
 import cinenerf_ns.planner.corridor as corridor_mod
 from cinenerf_ns.planner.corridor import Corridor, CorridorError, build_corridor

@@ -2,11 +2,15 @@ import math
 
 import pytest
 import torch
+from _geom_helpers import random_scene, surface_samples
 from hypothesis import given, settings, strategies as st
 
-from _geom_helpers import random_scene, surface_samples
 from cinenerf_ns.planner.distance import (
-    _distance_local, clearance, ellipsoid_ellipsoid_distance, ellipsoid_scaling_factor, point_ellipsoid_distance,
+    _distance_local,
+    clearance,
+    ellipsoid_ellipsoid_distance,
+    ellipsoid_scaling_factor,
+    point_ellipsoid_distance,
 )
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.scene import quat_wxyz_to_rotmat

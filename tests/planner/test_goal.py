@@ -8,8 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from hypothesis import HealthCheck, example, given, settings
-from hypothesis import strategies as st
+from hypothesis import HealthCheck, example, given, settings, strategies as st
 
 from cinenerf_ns.planner.errors import GoalUnreachableError, InvalidInputError, StartInCollisionError
 from cinenerf_ns.planner.goal import (

@@ -8,8 +8,7 @@ import itertools
 import numpy as np
 import pytest
 import torch
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
+from hypothesis import HealthCheck, given, settings, strategies as st
 from scipy.optimize import linprog
 
 from cinenerf_ns.planner.grid_polytope import (
@@ -261,8 +260,8 @@ def test_known_polytope_is_reused_only_where_it_holds_the_segment():
 
 
 def test_auto_resolves_by_voxel_size_against_the_camera_radius():
-    from cinenerf_ns.planner.planner import GRID_POLYTOPE_MAX_VOXEL, Planner, PlannerConfig
     from cinenerf_ns.planner.errors import InvalidInputError
+    from cinenerf_ns.planner.planner import GRID_POLYTOPE_MAX_VOXEL, Planner, PlannerConfig
     from cinenerf_ns.planner.procedural import procedural_room
     from cinenerf_ns.planner.scene import EllipsoidScene
 

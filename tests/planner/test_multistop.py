@@ -4,8 +4,8 @@ the dynamic limits hold on the exported frames; specific errors."""
 import numpy as np
 import pytest
 import torch
-
 from _shot_scenes import TARGET, walled_target_scene
+
 from cinenerf_ns.planner.distance import clearance
 from cinenerf_ns.planner.dynamics import DynamicLimits, frame_peaks
 from cinenerf_ns.planner.errors import InvalidInputError, StartInCollisionError

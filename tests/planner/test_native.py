@@ -7,13 +7,12 @@ import sys
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
+from hypothesis import HealthCheck, given, settings, strategies as st
+from test_astar import check_path, random_case
 
 from cinenerf_ns.planner import coarse_path, native
 from cinenerf_ns.planner.astar import AStarGrid, SearchBudgetExhausted, astar, path_cost
 from cinenerf_ns.planner.errors import GoalUnreachableError
-from test_astar import check_path, random_case
 
 SETTINGS = dict(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

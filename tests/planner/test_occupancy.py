@@ -2,9 +2,9 @@ import math
 
 import pytest
 import torch
+from _geom_helpers import random_scene
 from hypothesis import given, settings, strategies as st
 
-from _geom_helpers import random_scene
 from cinenerf_ns.planner.distance import clearance
 from cinenerf_ns.planner.errors import GoalUnreachableError, InvalidInputError
 from cinenerf_ns.planner.occupancy import OccupancyGrid, build_occupancy

@@ -1,9 +1,9 @@
 """End-to-end plans through generated cluttered scenes: positive exact clearance, look-at error
 near zero, goal reached; bad requests get specific errors."""
 import numpy as np
-from hypothesis import given, settings, strategies as st
 import pytest
 import torch
+from hypothesis import given, settings, strategies as st
 
 from cinenerf_ns.planner.astar import shortcut
 from cinenerf_ns.planner.distance import clearance
@@ -11,8 +11,8 @@ from cinenerf_ns.planner.errors import InvalidInputError, PlanningError, StartIn
 from cinenerf_ns.planner.planner import Planner, PlannerConfig
 from cinenerf_ns.planner.procedural import procedural_room
 from cinenerf_ns.planner.reach import reachable_goal
-from cinenerf_ns.planner.shortcut import shortcut_free, shortcut_free_any
 from cinenerf_ns.planner.scene import EllipsoidScene
+from cinenerf_ns.planner.shortcut import shortcut_free, shortcut_free_any
 
 
 @pytest.fixture(scope="module")
@@ -176,8 +176,7 @@ def test_gpu_scene_requests_run_on_a_cpu_mirror_with_the_same_result():
 
 
 def test_grid_clearance_lower_bound_is_never_optimistic_and_capped_clearance_is_exact(room):
-    from hypothesis import given, settings
-    from hypothesis import strategies as st
+    from hypothesis import given, settings, strategies as st
 
     s, e, pl = room
     lo, hi = (t.cpu().numpy() for t in pl.planning_bounds())
@@ -207,9 +206,9 @@ def test_grid_clearance_lower_bound_is_never_optimistic_and_capped_clearance_is_
 def test_points_free_grid_filter_is_never_optimistic(seed, res):
     """Planner.points_free decides points in free voxels of the occupancy grid without a distance test: against the
     float64 brute force, every point it calls free (grid or Cor. 1) has clearance >= 0, and the grid decides many."""
-    from cinenerf_ns.planner.distance import point_ellipsoid_distance
-
     from _geom_helpers import random_scene
+
+    from cinenerf_ns.planner.distance import point_ellipsoid_distance
 
     sc = random_scene(60, seed, rmin=0.02, rmax=0.2, camera_radius=0.03)
     pl = Planner(sc, PlannerConfig(grid_resolution=res, bounds=((-1.4, -1.4, -1.4), (1.4, 1.4, 1.4))))

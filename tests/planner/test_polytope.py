@@ -1,11 +1,13 @@
 """Safe polytopes (cinenerf_ns/planner/polytope.py) against float64 exact references."""
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
+from hypothesis import HealthCheck, given, settings, strategies as st
 from scipy.spatial import HalfspaceIntersection
 
 from cinenerf_ns.planner.errors import InvalidInputError
@@ -17,8 +19,6 @@ from cinenerf_ns.planner.polytope import (
     chebyshev_center,
     safe_polytope,
 )
-import sys
-from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))  # our float64 references live beside the tests
 from _corridor_refs import (  # noqa: E402

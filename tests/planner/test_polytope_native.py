@@ -10,12 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from hypothesis import HealthCheck, assume, given, settings
-from hypothesis import strategies as st
+from hypothesis import HealthCheck, assume, given, settings, strategies as st
 
 from cinenerf_ns.planner.errors import InvalidInputError
-from cinenerf_ns.planner.polytope import SeedNotFreeError, safe_polytope
 from cinenerf_ns.planner.native import safe_polytope_c
+from cinenerf_ns.planner.polytope import SeedNotFreeError, safe_polytope
 from cinenerf_ns.planner.spatial_index import GridIndex
 
 sys.path.insert(0, str(Path(__file__).parent))

@@ -7,8 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from hypothesis import HealthCheck, assume, given, settings
-from hypothesis import strategies as st
+from hypothesis import HealthCheck, assume, given, settings, strategies as st
 from scipy.optimize import linprog
 
 from cinenerf_ns.planner.polytope import SeedNotFreeError, safe_polytope

@@ -2,6 +2,7 @@
 frames and candidates, and goals that are never moved without saying why."""
 import numpy as np
 import pytest
+import torch
 from hypothesis import given, settings, strategies as st
 
 from cinenerf_ns.planner.candidates import plan_candidates
@@ -12,7 +13,6 @@ from cinenerf_ns.planner.polytope import Polytope
 from cinenerf_ns.planner.procedural import procedural_room
 from cinenerf_ns.planner.scene import EllipsoidScene, SceneConfig
 from cinenerf_ns.planner.timing import TimingConfig
-import torch
 
 
 def _scene(radius=0.03):

@@ -7,14 +7,12 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from hypothesis import given, settings, strategies as st
 from PIL import Image
+from test_shot import make_shot  # tests/planner is on sys.path (pytest rootdir-relative import)
 
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.safety import plot_clearance, plot_paths_topdown, safety_report
-
-from test_shot import make_shot  # tests/planner is on sys.path (pytest rootdir-relative import)
 
 CAMERA_RADIUS = 0.03
 

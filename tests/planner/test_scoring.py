@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 import torch
-
 from _shot_scenes import TARGET, TARGET_RADIUS, walled_target_scene
+
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.occlusion import sight_lines_blocked_reference
 from cinenerf_ns.planner.orientation import look_at_rotations

@@ -1,13 +1,11 @@
+import pytest
 import torch
+from _geom_helpers import random_scene
 from hypothesis import given, settings, strategies as st
 
-from _geom_helpers import random_scene
 from cinenerf_ns.planner.distance import point_ellipsoid_distance
 from cinenerf_ns.planner.errors import InvalidInputError
-from cinenerf_ns.planner.scene import EllipsoidScene
 from cinenerf_ns.planner.spatial_index import GridIndex
-
-import pytest
 
 
 def _brute_pairs(index, qlo, qhi):

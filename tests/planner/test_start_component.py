@@ -3,12 +3,12 @@ from __future__ import annotations
 
 import numpy as np
 import torch
+from _shot_scenes import _discs
 from hypothesis import given, settings, strategies as st
 from scipy import ndimage
 
 from cinenerf_ns.planner.planner import ENCLOSED_COMPONENT_FRACTION, Planner, PlannerConfig, preferred_component
 from cinenerf_ns.planner.scene import EllipsoidScene
-from _shot_scenes import _discs
 
 
 def _reference(labels: np.ndarray) -> int:

@@ -7,10 +7,10 @@ import multiprocessing as mp
 import numpy as np
 import pytest
 import torch
+from _shot_scenes import GO_TO, TARGET, TARGET_RADIUS, walled_target_scene
 
 import cinenerf_ns.planner.candidates as candidates
 import cinenerf_ns.planner.stages as stages
-from _shot_scenes import GO_TO, TARGET, TARGET_RADIUS, walled_target_scene
 from cinenerf_ns.planner.candidates import plan_candidates
 from cinenerf_ns.planner.corridor import CorridorError
 from cinenerf_ns.planner.dynamics import DynamicLimits

@@ -8,8 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from hypothesis import given, settings, strategies as st
 
 from cinenerf_ns.planner.camera_path import camera_path_poses
 from cinenerf_ns.planner.errors import InvalidInputError

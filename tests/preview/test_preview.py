@@ -12,9 +12,7 @@ import pytest
 from PIL import Image
 
 from cinenerf_ns.planner.errors import InvalidInputError
-from cinenerf_ns.preview import native, preview_camera_path, render_frame, scene_from_splat
-from cinenerf_ns.preview import render as render_mod
-from cinenerf_ns.preview import video
+from cinenerf_ns.preview import native, preview_camera_path, render as render_mod, render_frame, scene_from_splat, video
 from cinenerf_ns.preview.cameras import path_cameras
 
 sys.path.insert(0, str(Path(__file__).parent))

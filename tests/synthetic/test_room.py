@@ -1,5 +1,4 @@
 """Room generation: layouts, ground-truth objects, SDF, save/load."""
-import numpy as np
 import pytest
 import torch
 

@@ -11,7 +11,7 @@ import tempfile
 import time
 import urllib.request
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any
 
 CHROMIUM = os.environ.get("CINENERF_CHROMIUM", "/usr/bin/chromium")
 FLAGS = [

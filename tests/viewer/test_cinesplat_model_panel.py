@@ -10,6 +10,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import torch
+from nerfstudio.data.scene_box import SceneBox
 from torch import nn
 
 from cinenerf_ns.method.codec import CodecConfig, FeatureCodec
@@ -17,7 +18,6 @@ from cinenerf_ns.method.model import META_CODEC_STATE, META_INFO, CineSplatModel
 from cinenerf_ns.method.semantic_scene import SemanticScene
 from cinenerf_ns.viewer.nerfstudio_panel import CinePanelControl, SplatModelBackend
 from cinenerf_ns.viewer.panel import CinePanel
-from nerfstudio.data.scene_box import SceneBox
 
 torch.set_num_threads(1)
 D = 16

@@ -3,8 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 import viser.transforms as vtf
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from hypothesis import given, settings, strategies as st
 
 from cinenerf_ns.viewer.conventions import (
     VISER_NERFSTUDIO_SCALE_RATIO,

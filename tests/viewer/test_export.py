@@ -6,14 +6,13 @@ import json
 import numpy as np
 import pytest
 import torch
+from viewer_fakes import line_shot
 
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.shot import Shot
 from cinenerf_ns.viewer.export import check_export_name, default_exporter, render_command, write_json_atomic
 
 camera_path_from_shot = default_exporter()  # what the panel exports with (the planner's camera_path)
-
-from viewer_fakes import line_shot
 
 
 def test_camera_path_is_read_by_nerfstudio():

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import socket
 import threading
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -15,8 +14,8 @@ import torch
 from torch import nn
 
 from cinenerf_ns.viewer.nerfstudio_panel import CinePanelControl, LockedBackend, SplatModelBackend
-from cinenerf_ns.viewer.planner_backend import PreparedPlanner
 from cinenerf_ns.viewer.panel import CinePanel, PanelBackend
+from cinenerf_ns.viewer.planner_backend import PreparedPlanner
 
 
 def free_port() -> int:
@@ -198,9 +197,9 @@ def test_locked_backend_holds_train_lock():
 
 
 def test_control_is_found_by_nerfstudio_and_installs_panel(tmp_path):
+    import viser
     from nerfstudio.viewer.utils import parse_object
     from nerfstudio.viewer.viewer_elements import ViewerControl
-    import viser
 
     model = TinySplatModel()
     model.cine_panel = CinePanelControl(lambda: SplatModelBackend(model, Planners(), locate_first_half))

@@ -4,17 +4,14 @@ from __future__ import annotations
 
 import json
 import os
-import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
+from viewer_fakes import FakeBackend, FakeView
 
 from cinenerf_ns.planner.errors import GoalUnreachableError, StartInCollisionError
 from cinenerf_ns.viewer.panel import CinePanel, PanelBackend, PanelConfig
-
-from viewer_fakes import FakeBackend, FakeView
 
 
 def make(tmp_path, **kw):

@@ -8,11 +8,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from viewer_fakes import FakeBackend, FakeView
 
 from cinenerf_ns.viewer.panel import CinePanel, PanelConfig, Target, same_place_warning
 from cinenerf_ns.viewer.shot_text import sort_by_score
 from cinenerf_ns.viewer.views import highlight_box, opening_view, overview_view
-from viewer_fakes import FakeBackend, FakeView
 
 
 def make(tmp_path, config_path="config.yml", previewer=None, **kw):

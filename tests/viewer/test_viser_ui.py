@@ -7,13 +7,12 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from viewer_fakes import line_shot
 
 from cinenerf_ns.viewer.backend import FunctionBackend, SceneGaussians
 from cinenerf_ns.viewer.panel import PanelConfig
 from cinenerf_ns.viewer.polytope_mesh import chebyshev_center, polytope_mesh
 from cinenerf_ns.viewer.viser_ui import attach_cine_panel
-
-from viewer_fakes import line_shot
 
 
 def free_port() -> int:
