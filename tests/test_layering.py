@@ -39,3 +39,13 @@ def test_method_never_imports_the_viewer():
     bad = {str(p.relative_to(PKG)): m for p in _modules("method") for m in _imports(p)
            if m.startswith("cinenerf_ns.viewer")}
     assert not bad, bad
+
+
+def test_planner_public_names_resolve():
+    """Every name cinenerf_ns.planner exports (__all__) exists in the module it points to."""
+    import cinenerf_ns.planner as planner
+
+    for name in planner.__all__:
+        assert getattr(planner, name) is not None, name
+    with pytest.raises(AttributeError):
+        planner.no_such_name  # noqa: B018

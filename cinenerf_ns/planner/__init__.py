@@ -1,1 +1,40 @@
+"""The camera planner (paper Sec. IV): a splat's Gaussians as ellipsoid obstacles in, verified collision-free shots out.
+Imports nothing of nerfstudio, gsplat or viser (tests/test_layering.py).
 
+The public names below load their module on first use (PEP 562), so ``import cinenerf_ns.planner.errors`` stays light.
+The flow, by module (docs/ARCHITECTURE.md draws it):
+  scene.py (EllipsoidScene) -> planner.py (Planner: prepare, region, checks, plan) -> stages.py (one leg: reach.py goal,
+  coarse_path / astar voxel path, shortcut.py, corridor.py, trajectory.py QP, shot.py timing + orientation, safety.py
+  verification) -> candidates.py (ranked shots) / multistop.py -> camera_path.py (nerfstudio camera path).
+"""
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+_WHERE = {
+    "EllipsoidScene": "scene", "SceneConfig": "scene",
+    "Planner": "planner", "PlannerConfig": "planner", "PreparedScene": "planner", "MAX_CANDIDATES": "planner",
+    "plan_leg": "stages", "ReachableGoal": "reach", "reachable_goal": "reach",
+    "plan_candidates": "candidates", "RankedShot": "candidates", "score_shots": "candidates",
+    "plan_multistop": "multistop", "MultiStopShot": "multistop",
+    "Shot": "shot", "TimingConfig": "timing", "TrajectoryConfig": "trajectory", "DynamicLimits": "dynamics",
+    "retime_shot": "dynamics", "ScoreConfig": "scoring",
+    "safety_report": "safety", "verify_shot": "safety", "plot_clearance": "safety", "plot_paths_topdown": "safety",
+    "shot_to_camera_path": "camera_path", "write_camera_path": "camera_path", "read_camera_path": "camera_path",
+    "clearance": "distance", "build_corridor": "corridor", "Corridor": "corridor",
+    "atomic_write": "atomic",
+    "PlanningError": "errors", "InvalidInputError": "errors", "GoalUnreachableError": "errors",
+    "StartInCollisionError": "errors", "UnsafeTrajectoryError": "errors", "EmptySceneError": "errors",
+}
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _WHERE:
+        raise AttributeError(f"module 'cinenerf_ns.planner' has no attribute {name!r}")
+    return getattr(importlib.import_module(f"{__name__}.{_WHERE[name]}"), name)
+
+
+def __dir__() -> list:
+    return sorted(set(globals()) | set(__all__))

@@ -6,14 +6,14 @@ Every file is written to a temporary name in its folder, given mode 0644 and ren
 from __future__ import annotations
 
 import contextlib
-import os
 import subprocess
-import tempfile
 from pathlib import Path
-from typing import Iterator, List, Optional, Sequence
+from typing import List, Optional, Sequence
 
 import numpy as np
 from PIL import Image, ImageDraw
+
+from cinenerf_ns.planner.atomic import atomic_path
 
 
 def ffmpeg_exe() -> str:
@@ -23,23 +23,6 @@ def ffmpeg_exe() -> str:
     except ImportError as e:  # pragma: no cover - a dependency of the package
         raise RuntimeError("imageio-ffmpeg is not installed (pip install imageio-ffmpeg)") from e
     return imageio_ffmpeg.get_ffmpeg_exe()
-
-
-@contextlib.contextmanager
-def atomic_path(path: Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; on success it becomes ``path`` (mode 0644), on error it is removed."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        yield Path(tmp)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
 
 
 class Mp4Writer:
