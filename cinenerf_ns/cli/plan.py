@@ -31,14 +31,14 @@ from rich.table import Table
 from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY
 from cinenerf_ns.options import check_number
 from cinenerf_ns.output_set import OutputSet, check_name, check_writable
-from cinenerf_ns.planner.camera_path import shot_to_camera_path, write_camera_path
+from cinenerf_ns.planner.camera_path import DEFAULT_FOV_DEG, DEFAULT_RENDER_SIZE, shot_to_camera_path, write_camera_path
 from cinenerf_ns.planner.candidates import RankedShot, plan_candidates, score_shots
 from cinenerf_ns.planner.dynamics import DynamicLimits, retime_shot
 from cinenerf_ns.planner.errors import InvalidInputError, PlanningError
 from cinenerf_ns.planner.multistop import plan_multistop
 from cinenerf_ns.planner.planner import GRID_RESOLUTION_RANGE, MAX_CANDIDATES, Planner, PlannerConfig
 from cinenerf_ns.planner.safety import plot_clearance, plot_paths_topdown
-from cinenerf_ns.planner.scene import SceneConfig
+from cinenerf_ns.planner.scene import DEFAULT_SAFETY_MARGIN, SceneConfig
 from cinenerf_ns.planner.scoring import ScoreConfig
 from cinenerf_ns.planner.timing import MAX_FPS, MIN_FPS, TimingConfig
 from cinenerf_ns.scenes import LoadedScene, _word_match, load_scene, parse_point, resolve_match
@@ -88,15 +88,15 @@ class PlanArgs:
     """Frames per second of the exported path, 1-240."""
     max_speed: float = TimingConfig.max_speed
     """Camera speed cap, scene units per second."""
-    fov: float = 50.0
+    fov: float = DEFAULT_FOV_DEG
     """Vertical field of view of the exported camera, degrees (1-179)."""
-    width: int = 1280
+    width: int = DEFAULT_RENDER_SIZE[0]
     """Render width written into the camera path, pixels."""
-    height: int = 720
+    height: int = DEFAULT_RENDER_SIZE[1]
     """Render height written into the camera path, pixels."""
     camera_radius: float = SceneConfig.camera_radius
     """Camera body sphere radius, scene units (paper: 0.03)."""
-    safety_margin: float = 0.01
+    safety_margin: float = DEFAULT_SAFETY_MARGIN
     """Extra distance (scene units) kept from every ellipsoid on top of camera_radius: a splat only approximates the
     real surfaces. Clearances in the report are measured from the camera sphere grown by this margin."""
     beta: float = SceneConfig.beta

@@ -43,11 +43,15 @@ def keyframe_indices(times: np.ndarray, interval_s: float) -> np.ndarray:
     return np.union1d(first_of_slot, [0, len(times) - 1])
 
 
+DEFAULT_FOV_DEG = 50.0  # vertical field of view of exported cameras, degrees (the CLI, the viewer, the shot score)
+DEFAULT_RENDER_SIZE = (1920, 1080)  # render width, height written into exported camera paths (nerfstudio's usual)
+
+
 def shot_to_camera_path(
     shot: Shot,
-    fov_deg: float = 50.0,
-    width: int = 1920,
-    height: int = 1080,
+    fov_deg: float = DEFAULT_FOV_DEG,
+    width: int = DEFAULT_RENDER_SIZE[0],
+    height: int = DEFAULT_RENDER_SIZE[1],
     fps: float = None,
     keyframe_interval_s: float = 0.5,
     camera_type: str = "perspective",

@@ -20,6 +20,8 @@ from torch import Tensor
 
 from .errors import EmptySceneError, InvalidInputError
 
+DEFAULT_SAFETY_MARGIN = 0.01  # extra distance kept from every ellipsoid on top of the camera radius (CLI and viewer)
+
 
 @dataclass
 class SceneConfig:

@@ -31,6 +31,7 @@ from typing import Any, Dict, Optional
 import numpy as np
 import torch
 
+from .camera_path import DEFAULT_FOV_DEG
 from .dynamics import frame_peaks, view_vectors
 from .errors import InvalidInputError
 from .occlusion import sight_lines_blocked
@@ -59,7 +60,7 @@ class ScoreConfig:
     """Weight of duration / duration_ref."""
     target_fill: float = 0.3
     """Wanted projected object diameter as a fraction of the frame height."""
-    fov_deg: float = 50.0
+    fov_deg: float = DEFAULT_FOV_DEG
     """Vertical field of view of the camera, degrees (the exported camera's fov)."""
     clearance_ref: float = 0.1
     """Clearance (scene units) above which the clearance terms cost nothing."""

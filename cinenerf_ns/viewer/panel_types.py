@@ -10,6 +10,8 @@ from typing import Any, Dict, List, Optional, Protocol, Sequence, Tuple, runtime
 
 import numpy as np
 
+from cinenerf_ns.planner.camera_path import DEFAULT_FOV_DEG, DEFAULT_RENDER_SIZE
+
 from .backend import SceneGaussians
 
 
@@ -144,11 +146,11 @@ class PanelConfig:
     """Height of the "Preview video" render."""
     preview_fps: int = 15
     """Frame rate of the "Preview video" render."""
-    fov_deg: float = 50.0
+    fov_deg: float = DEFAULT_FOV_DEG
     """Vertical field of view of the exported path."""
-    render_width: int = 1920
+    render_width: int = DEFAULT_RENDER_SIZE[0]
     """Exported render width in pixels."""
-    render_height: int = 1080
+    render_height: int = DEFAULT_RENDER_SIZE[1]
     """Exported render height in pixels."""
     fps: int = 30
     """Exported frame rate."""

@@ -26,7 +26,9 @@ from typing import Any, List, Optional, Tuple
 import numpy as np
 
 from cinenerf_ns.planner.errors import InvalidInputError, PlanningError
-from cinenerf_ns.planner.scene import EllipsoidScene, SceneConfig, quat_wxyz_to_rotmat
+from cinenerf_ns.planner.planner import PlannerConfig
+from cinenerf_ns.planner.scene import DEFAULT_SAFETY_MARGIN, EllipsoidScene, SceneConfig, quat_wxyz_to_rotmat
+from cinenerf_ns.planner.timing import TimingConfig
 
 from .backend import FunctionBackend, LocateFn, PlanFn, SceneGaussians, label_locate, to_numpy
 from .conventions import VISER_NERFSTUDIO_SCALE_RATIO
@@ -292,13 +294,13 @@ class StandaloneConfig:
     """Interface to listen on (0.0.0.0: all, like ns-viewer)."""
     data: Optional[Path] = None
     """Where camera_paths/ go (default: the run's dataset directory, or the .ply's directory)."""
-    camera_radius: float = 0.03
+    camera_radius: float = SceneConfig.camera_radius
     """Camera body radius in scene units (obstacle model)."""
-    safety_margin: float = 0.01
+    safety_margin: float = DEFAULT_SAFETY_MARGIN
     """Extra distance kept from every ellipsoid on top of the camera radius (as cinesplat-plan's --safety-margin)."""
-    grid_resolution: int = 96
+    grid_resolution: int = PlannerConfig.grid_resolution
     """A* voxels along the longest side of the planning region (as cinesplat-plan's --grid-resolution)."""
-    max_speed: float = 0.5
+    max_speed: float = TimingConfig.max_speed
     """Camera speed cap of planned shots, scene units per second."""
     device: str = "cpu"
     """torch device of the obstacle scene and the planner ('cpu' or 'cuda')."""
