@@ -196,12 +196,6 @@ def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Opti
                        start_region=region)
 
 
-def resolve_target(text: str, loaded: LoadedScene, what: str) -> Tuple[np.ndarray, str]:
-    """A target's text -> (point [3], what it matched, in words); see resolve_match for the structured form."""
-    m = resolve_match(text, loaded, what)
-    return m["point"], m["description"]
-
-
 def resolve_match(text: str, loaded: LoadedScene, what: str) -> Dict[str, Any]:
     """A target's text -> {"point" [3], "description", and for text: "query", "label", "gaussians", "best_relevancy",
     "centre"}. InvalidInputError for empty text, text on a scene without semantics, text that matches nothing."""
@@ -227,24 +221,26 @@ PROCEDURAL_COLOURS = np.array([[0.85, 0.25, 0.2], [0.2, 0.7, 0.3], [0.25, 0.4, 0
                                [0.7, 0.3, 0.8], [0.2, 0.75, 0.8], [0.95, 0.5, 0.2], [0.5, 0.5, 0.9]], np.float32)
 
 
+def procedural_colours(room: Any) -> np.ndarray:
+    """float32 [N, 3] display colours of a procedural room's Gaussians: objects in distinct colours, the rest grey."""
+    ids = room.object_ids.cpu().numpy()
+    return np.where(ids[:, None] >= 0, PROCEDURAL_COLOURS[np.maximum(ids, 0) % len(PROCEDURAL_COLOURS)],
+                    np.float32(0.6)).astype(np.float32)
+
+
 def preview_scene(loaded: LoadedScene):
     """The renderable splat (cinenerf_ns.preview PreviewScene, SH degree 0) of a loaded scene: a checkpoint's or compact
     export's Gaussians, a .ply's (grey where it has no colour), a procedural room's (objects coloured, the rest grey)."""
-    from cinenerf_ns.preview.raster_torch import make_scene
-    from cinenerf_ns.preview.render import scene_from_splat
+    from cinenerf_ns.preview.render import scene_from_params, scene_from_splat
 
     if "splat" in loaded.extra:
         return scene_from_splat(loaded.extra["splat"])
-    t = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
     if "room" in loaded.extra:
         room = loaded.extra["room"]
-        ids = room.object_ids.cpu().numpy()
-        colours = np.where(ids[:, None] >= 0, PROCEDURAL_COLOURS[np.maximum(ids, 0) % len(PROCEDURAL_COLOURS)], 0.6)
-        return make_scene(t(room.means), t(room.quats), torch.exp(t(room.log_scales)),
-                          torch.sigmoid(t(room.opacity_logits)).reshape(-1), t(colours))
+        return scene_from_params(room.means, room.quats, room.log_scales, room.opacity_logits, procedural_colours(room))
+    from cinenerf_ns.method.checkpoint import SH_C0
     from cinenerf_ns.planner.ply import read_splat_ply
 
     p = read_splat_ply(loaded.source)
-    rgb = np.full((len(p.means), 3), 0.7, np.float32) if p.colors_dc is None else np.clip(0.5 + 0.28209479177387814 * p.colors_dc, 0, 1)
-    return make_scene(t(p.means), t(p.quats_wxyz), torch.exp(t(p.log_scales)), torch.sigmoid(t(p.opacity_logits)).reshape(-1),
-                      t(rgb))
+    rgb = np.full((len(p.means), 3), 0.7, np.float32) if p.colors_dc is None else np.clip(0.5 + SH_C0 * p.colors_dc, 0, 1)
+    return scene_from_params(p.means, p.quats_wxyz, p.log_scales, p.opacity_logits, rgb)

@@ -23,13 +23,20 @@ NERFSTUDIO_BACKGROUND = (0.1490, 0.1647, 0.2157)
 BACKENDS = ("auto", "native", "torch", "gsplat")
 
 
+def scene_from_params(means, quats, log_scales, opacity_logits, colors, dtype: torch.dtype = torch.float32) -> PreviewScene:
+    """Activated, SH-degree-0 scene (CPU) of raw splat parameters (tensors or arrays): means [N, 3], wxyz quats [N, 4],
+    log-scales [N, 3], opacity logits [N], colours in [0, 1] [N, 3]."""
+    f = lambda a: torch.as_tensor(a).detach().float().cpu()  # noqa: E731
+    return make_scene(f(means), f(quats), torch.exp(f(log_scales)), torch.sigmoid(f(opacity_logits)).reshape(-1),
+                      f(colors), dtype=dtype)
+
+
 def scene_from_splat(splat: SplatTensors, dtype: torch.dtype = torch.float32) -> PreviewScene:
     """Activated, SH-degree-0 scene of a loaded splat (CPU)."""
     rgb = splat.rgb()
     if rgb is None:
         raise InvalidInputError("the splat has no colour (features_dc); the preview needs it.")
-    return make_scene(splat.means.float().cpu(), splat.quats.float().cpu(), torch.exp(splat.scales.float().cpu()),
-                      torch.sigmoid(splat.opacities.float().cpu()), rgb.float().cpu(), dtype=dtype)
+    return scene_from_params(splat.means, splat.quats, splat.scales, splat.opacities, rgb, dtype=dtype)
 
 
 def choose_backend(backend: str, device: str = "cpu") -> str:

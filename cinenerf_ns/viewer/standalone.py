@@ -126,10 +126,9 @@ def splat_display(st: Any) -> SplatParams:
 
 def procedural_display(room: Any) -> SplatParams:
     """Display parameters of a procedural room: objects in distinct colours, floor and walls grey."""
-    ids = room.object_ids.cpu().numpy()
-    palette = np.array([[0.85, 0.25, 0.2], [0.2, 0.7, 0.3], [0.25, 0.4, 0.9], [0.9, 0.75, 0.2], [0.7, 0.3, 0.8],
-                        [0.2, 0.75, 0.8], [0.95, 0.5, 0.2], [0.5, 0.5, 0.9]], np.float32)
-    colors = np.where(ids[:, None] >= 0, palette[np.maximum(ids, 0) % len(palette)], np.float32(0.6))
+    from cinenerf_ns.scenes import procedural_colours
+
+    colors = procedural_colours(room)
     np_ = lambda x: x.detach().cpu().float().numpy()  # noqa: E731
     return SplatParams(np_(room.means), np_(room.quats), np_(room.log_scales), np_(room.opacity_logits).reshape(-1),
                        colors.astype(np.float32))
@@ -261,14 +260,10 @@ class SplatPreviewer:
 
     def scene(self):
         if self._scene is None:
-            import torch
-
-            from cinenerf_ns.preview.raster_torch import make_scene
+            from cinenerf_ns.preview.render import scene_from_params
 
             sp = self.splat
-            f = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
-            self._scene = make_scene(f(sp.means), f(sp.quats_wxyz), torch.exp(f(sp.log_scales)),  # [N,3], [N,4], [N,3]
-                                     torch.sigmoid(f(sp.opacity_logits)).reshape(-1), f(sp.colors))  # [N], [N,3]
+            self._scene = scene_from_params(sp.means, sp.quats_wxyz, sp.log_scales, sp.opacity_logits, sp.colors)
         return self._scene
 
     def __call__(self, camera_path, out_dir: Path, name: str, width: int, height: int, fps: int) -> Path:
