@@ -241,16 +241,15 @@ def _limits(args: PlanArgs) -> Optional[DynamicLimits]:
 
 
 def _plan_shots(args: PlanArgs, planner: Planner, loaded: LoadedScene, goal: np.ndarray, look: np.ndarray,
-                start: Optional[np.ndarray], timings: Dict[str, float]) -> tuple:
-    """(shots, scores, multi-stop shot or None, object radius, score config) for the request the options describe."""
+                start: Optional[np.ndarray], stops: list, stop_looks: list, timings: Dict[str, float]) -> tuple:
+    """(shots, scores, multi-stop shot or None, object radius, score config) for the request the options describe;
+    ``stops`` / ``stop_looks``: the points of --then-go-to / --then-look-at (resolved once, in run_plan)."""
     limits = _limits(args)
     obj_r = _object_radius(args, loaded)
     score_cfg = ScoreConfig(**{**args.score.__dict__, "fov_deg": args.fov})
     if args.then_go_to:
-        stops = [goal] + [resolve_match(t, loaded, f"go-to {i + 2}")["point"] for i, t in enumerate(args.then_go_to)]
-        looks = [look] + ([resolve_match(t, loaded, f"look-at {i + 2}")["point"] for i, t in enumerate(args.then_look_at)]
-                          if args.then_look_at else [look] * len(args.then_go_to))
-        multi = plan_multistop(planner, stops, np.stack(looks), start=start, seed=args.seed, limits=limits,
+        looks = [look] + (stop_looks or [look] * len(stops))
+        multi = plan_multistop(planner, [goal] + stops, np.stack(looks), start=start, seed=args.seed, limits=limits,
                                force_start=args.force_start)
         return [multi.shot], [None], multi, obj_r, score_cfg
     if start is not None:
@@ -294,14 +293,12 @@ def _write_outputs(args: PlanArgs, out: OutputSet, planner: Planner, loaded: Loa
     return files, plots
 
 
-def _resolve(args: PlanArgs, loaded: LoadedScene, planner: Planner, gm: Dict[str, Any], lm: Dict[str, Any]) -> tuple:
-    """Targets and the given start, checked against the planning region (errors name the option)."""
+def _resolve(args: PlanArgs, planner: Planner, gm: Dict[str, Any], lm: Dict[str, Any]) -> tuple:
+    """Targets and the given start checked against the planning region, with messages naming the options (the planning
+    calls check them again, and the start's region, collision and the frame count, before any planning)."""
     goal = planner.checked_point(gm["point"], "go-to point (--go-to)")
     look = planner.checked_point(lm["point"], "look-at point (--look-at)")
     start = None if args.start is None else planner.checked_point(parse_point(args.start), "start point (--start)")
-    if start is not None and planner.distance_outside(start) > 0 and not args.force_start:
-        planner.checked_start(start)  # the error that names --force-start
-    planner.check_timing()
     return goal, look, start
 
 
@@ -323,8 +320,8 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
         prog.update(task, advance=1, description="resolving targets", refresh=True)
         # text first: a query that matches nothing fails before the grid is built
         gm, lm = resolve_match(args.go_to, loaded, "go-to"), resolve_match(args.look_at, loaded, "look-at")
-        for i, t in enumerate(args.then_go_to + args.then_look_at):
-            resolve_match(t, loaded, f"stop target {i + 2}")
+        stops = [resolve_match(t, loaded, f"go-to {i + 2}")["point"] for i, t in enumerate(args.then_go_to)]
+        stop_looks = [resolve_match(t, loaded, f"look-at {i + 2}")["point"] for i, t in enumerate(args.then_look_at)]
         prog.update(task, advance=1, description="preparing (index, occupancy grid)", refresh=True)
         pcfg = PlannerConfig(
             grid_resolution=args.grid_resolution, up=tuple(args.up), timing=TimingConfig(max_speed=args.max_speed, fps=args.fps),
@@ -333,10 +330,11 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
         )
         planner = Planner(loaded.scene, pcfg)
         prep = planner.prepare()
-        goal, look, start = _resolve(args, loaded, planner, gm, lm)
+        goal, look, start = _resolve(args, planner, gm, lm)
         prog.update(task, advance=1, description=f"planning {args.candidates} candidate(s)", refresh=True)
         batch_tm: Dict[str, float] = {}
-        shots, scores, multi, obj_r, score_cfg = _plan_shots(args, planner, loaded, goal, look, start, batch_tm)
+        shots, scores, multi, obj_r, score_cfg = _plan_shots(args, planner, loaded, goal, look, start, stops, stop_looks,
+                                                             batch_tm)
         prog.update(task, advance=1, refresh=True, description="exact clearance report + plots"
                     + (" + preview videos" if args.preview else ""))
         reports = [planner.clearance_report(sh, max_spacing=0.02, label=f"rank {k + 1}") for k, sh in enumerate(shots)]
