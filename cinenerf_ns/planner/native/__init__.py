@@ -23,7 +23,7 @@ import sys
 import tempfile
 import threading
 from pathlib import Path
-from typing import Optional
+from typing import Optional, Sequence, Tuple
 
 from ..errors import InvalidInputError
 
@@ -46,33 +46,46 @@ def enabled() -> bool:
     return os.environ.get("CINENERF_NATIVE", "1").strip().lower() not in ("0", "false", "no", "off")
 
 
-def _compile(name: str) -> Optional[Path]:
-    src = _HERE / f"{name}.c"
+def turned_off(name: str) -> Optional[str]:
+    """Why the compiled library ``name`` is not to be used (CINENERF_NATIVE=0, or listed in CINENERF_NATIVE_OFF), or
+    None."""
+    if not enabled():
+        return "turned off (CINENERF_NATIVE=0)"
+    if name in {x.strip() for x in os.environ.get("CINENERF_NATIVE_OFF", "").split(",") if x.strip()}:
+        return "turned off (CINENERF_NATIVE_OFF)"
+    return None
+
+
+def compile_library(src: Path, stem: str, flags: Sequence[str]) -> Tuple[Optional[Path], str]:
+    """(path of the shared library compiled from ``src`` with ``flags``, "") from the cache (keyed by the source, the
+    compiler, the flags and the platform), compiled on first use; (None, why) when there is no compiler or it fails."""
     cc = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
     if cc is None:
-        _STATUS[name] = "no C compiler found (set CC)"
-        return None
-    key = hashlib.sha256(
-        src.read_bytes() + cc.encode() + platform.machine().encode() + sys.platform.encode()
-    ).hexdigest()[:16]
-    out_dir = cache_dir()
-    lib = out_dir / f"{name}-{key}.so"
+        return None, "no C compiler found (set CC)"
+    key = hashlib.sha256(src.read_bytes() + " ".join([cc, *flags]).encode() + platform.machine().encode()
+                         + sys.platform.encode()).hexdigest()[:16]
+    lib = cache_dir() / f"{stem}-{key}.so"
     if lib.exists():
-        return lib
+        return lib, ""
     try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{name}-", suffix=".so", dir=out_dir)
+        lib.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{stem}-", suffix=".so", dir=lib.parent)
         os.close(fd)
-        r = subprocess.run([cc, "-O2", "-shared", "-fPIC", "-o", tmp, str(src), "-lm"], capture_output=True, text=True,
-                           timeout=120)
+        r = subprocess.run([cc, *flags, "-shared", "-fPIC", "-o", tmp, str(src), "-lm"], capture_output=True,
+                           text=True, timeout=120)
         if r.returncode != 0:
             os.unlink(tmp)
-            _STATUS[name] = f"compiling {src.name} failed: {r.stderr.strip()[:300]}"
-            return None
+            return None, f"compiling {src.name} failed: {r.stderr.strip()[:300]}"
         os.replace(tmp, lib)  # atomic: another process sees the old state or the whole library
     except (OSError, subprocess.SubprocessError) as e:
-        _STATUS[name] = f"compiling {src.name} failed: {e}"
-        return None
+        return None, f"compiling {src.name} failed: {e}"
+    return lib, ""
+
+
+def _compile(name: str) -> Optional[Path]:
+    lib, why = compile_library(_HERE / f"{name}.c", name, ["-O2"])
+    if lib is None:
+        _STATUS[name] = why
     return lib
 
 
@@ -82,11 +95,9 @@ def load(name: str) -> Optional[ctypes.CDLL]:
         if name in _LIBS:
             return _LIBS[name]
         lib = None
-        off = {x.strip() for x in os.environ.get("CINENERF_NATIVE_OFF", "").split(",") if x.strip()}
-        if not enabled():
-            _STATUS[name] = "turned off (CINENERF_NATIVE=0)"
-        elif name in off:
-            _STATUS[name] = "turned off (CINENERF_NATIVE_OFF)"
+        off = turned_off(name)
+        if off is not None:
+            _STATUS[name] = off
         else:
             path = _compile(name)
             if path is not None:

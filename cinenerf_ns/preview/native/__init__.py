@@ -9,20 +9,14 @@ uses the pure-torch tiled renderer (preview/raster_torch.py, same images, much s
 from __future__ import annotations
 
 import ctypes
-import hashlib
 import os
-import platform
-import shutil
-import subprocess
-import sys
-import tempfile
 import threading
 from pathlib import Path
 from typing import Optional
 
 import numpy as np
 
-from cinenerf_ns.planner.native import cache_dir, enabled
+from cinenerf_ns.planner.native import compile_library, turned_off
 
 _HERE = Path(__file__).resolve().parent
 _LOCK = threading.Lock()
@@ -32,30 +26,9 @@ _VARIANTS = {"float32": ["-DREAL=float"], "float64": ["-DREAL=double", "-DREAL_I
 
 
 def _compile(variant: str) -> Optional[Path]:
-    src = _HERE / "raster.c"
-    cc = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
-    if cc is None:
-        _STATUS[variant] = "no C compiler found (set CC)"
-        return None
-    flags = ["-O3", "-shared", "-fPIC", "-pthread", *_VARIANTS[variant]]
-    key = hashlib.sha256(src.read_bytes() + " ".join([cc, *flags]).encode() + platform.machine().encode()
-                         + sys.platform.encode()).hexdigest()[:16]
-    lib = cache_dir() / f"preview_raster_{variant}-{key}.so"
-    if lib.exists():
-        return lib
-    try:
-        lib.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=".preview_raster-", suffix=".so", dir=lib.parent)
-        os.close(fd)
-        r = subprocess.run([cc, *flags, "-o", tmp, str(src), "-lm"], capture_output=True, text=True, timeout=120)
-        if r.returncode != 0:
-            os.unlink(tmp)
-            _STATUS[variant] = f"compiling raster.c failed: {r.stderr.strip()[:300]}"
-            return None
-        os.replace(tmp, lib)
-    except (OSError, subprocess.SubprocessError) as e:
-        _STATUS[variant] = f"compiling raster.c failed: {e}"
-        return None
+    lib, why = compile_library(_HERE / "raster.c", f"preview_raster_{variant}", ["-O3", "-pthread", *_VARIANTS[variant]])
+    if lib is None:
+        _STATUS[variant] = why
     return lib
 
 
@@ -65,11 +38,9 @@ def render_fn(dtype: str = "float32"):
         if dtype in _FUNCS:
             return _FUNCS[dtype]
         f = None
-        off = {x.strip() for x in os.environ.get("CINENERF_NATIVE_OFF", "").split(",") if x.strip()}
-        if not enabled():
-            _STATUS[dtype] = "turned off (CINENERF_NATIVE=0)"
-        elif "preview" in off:
-            _STATUS[dtype] = "turned off (CINENERF_NATIVE_OFF)"
+        off = turned_off("preview")
+        if off is not None:
+            _STATUS[dtype] = off
         else:
             path = _compile(dtype)
             if path is not None:
