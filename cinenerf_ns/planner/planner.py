@@ -325,7 +325,7 @@ class Planner:
 
     def region(self) -> tuple[np.ndarray, np.ndarray]:
         """The prepared planning region (lo [3], hi [3]) float64: the occupancy grid's box. Paths stay inside it."""
-        g = self._prep().grid
+        g = self.ready().grid
         lo = g.lo.detach().cpu().double().numpy()
         return lo, lo + np.array(g.shape, dtype=np.float64) * float(g.voxel_size)
 
@@ -404,7 +404,7 @@ class Planner:
         validate_workers(n)
         n = default_workers() if n is None else int(n)
         if n:
-            self._prep()  # the request device (self.scene's) is settled by prepare()
+            self.ready()  # the request device (self.scene's) is settled by prepare()
             if self.scene.device.type != "cpu":
                 return 0
         return n
@@ -416,7 +416,7 @@ class Planner:
         if n == 0:
             return None
         self.main_component()  # cached before the fork so that workers inherit it
-        self._pool = pool_for(self, self._prep(), n, self._pool)
+        self._pool = pool_for(self, self.ready(), n, self._pool)
         return self._pool[2]
 
     def close(self) -> None:
@@ -429,7 +429,7 @@ class Planner:
     def grow_region(self, point: np.ndarray) -> None:
         """Grow the planning region to hold ``point`` [3] (with a voxel's room) and prepare again: a forced start."""
         lo, hi = self.region()
-        room = 2.0 * float(self._prep().grid.voxel_size) + float(self.scene.camera_radius)
+        room = 2.0 * float(self.ready().grid.voxel_size) + float(self.scene.camera_radius)
         lo, hi = np.minimum(lo, point - room), np.maximum(hi, point + room)
         self.close()
         self.config = replace(self.config, bounds=(lo, hi))
@@ -457,8 +457,6 @@ class Planner:
         """The prepared scene (prepare() on first use)."""
         return self.prepared if self.prepared is not None else self.prepare()
 
-    _prep = ready  # the planner's own short name
-
     # ------------------------------------------------------------------ helpers
     def corridor_backend(self) -> str:
         """config.corridor_backend resolved for this process: 'batched' or 'cpu' ('auto': batched on a CUDA
@@ -475,14 +473,14 @@ class Planner:
         camera radius)."""
         g = self.config.grid_polytopes
         if g == "auto":
-            return float(self._prep().grid.voxel_size) <= GRID_POLYTOPE_MAX_VOXEL * float(self.scene.camera_radius)
+            return float(self.ready().grid.voxel_size) <= GRID_POLYTOPE_MAX_VOXEL * float(self.scene.camera_radius)
         return bool(g)
 
     def corridor_kwargs(self) -> dict:
         """Keyword arguments of build_corridor (after waypoints, scene, index) for this planner's requests: the box
         margin and the resolved corridor backend (the batched one runs on ``batch_scene`` / its index; the corridor's
         polytopes end up on the request device)."""
-        prep = self._prep()
+        prep = self.ready()
         kw = dict(box_margin=self.config.box_margin, region=self.region())
         if self.use_grid_polytopes():
             kw["grid"] = prep.voxels
@@ -497,7 +495,7 @@ class Planner:
         that the occupancy grid already proves to be >= cap from every obstacle cost no distance query, see
         clearance_lower_bound). ``batch``: many points (e.g. every frame of a shot): run on the scene's own
         device (a GPU when there is one) instead of the request device."""
-        prep = self._prep()
+        prep = self.ready()
         scene, index = self.scene, prep.index
         if batch and prep.batch_index is not None:
             scene, index = self.batch_scene, prep.batch_index
@@ -534,7 +532,7 @@ class Planner:
         157 ms from the default start; 3 rounds, 62 ms with this estimate (identical values); 2 rounds but 101 ms
         with a full diagonal more (bigger boxes, more pairs)."""
         lb = self.clearance_lower_bound(points)
-        vs = float(self._prep().grid.voxel_size)
+        vs = float(self.ready().grid.voxel_size)
         est = lb + 0.5 * math.sqrt(3.0) * vs + float(self.scene.camera_radius)
         return np.where(np.isfinite(lb), est, 0.0)
 
@@ -546,7 +544,7 @@ class Planner:
         outside the grid counts as occupied) and h half a voxel diagonal, D = E - 2h (p and the nearest
         occupied point each lie within h of their voxel centres); max(D, 0) in free voxels (their points are
         proven clear); -inf (no information) in occupied voxels and outside the grid."""
-        prep = self._prep()
+        prep = self.ready()
         grid = prep.grid
         if prep.free_edt is None:
             from scipy import ndimage
@@ -592,7 +590,7 @@ class Planner:
         """bool [P]: camera ball at each point proven clear. Points in a free voxel of the occupancy grid are proven
         by the grid (occupancy.py: every point of a free voxel keeps the ball clear, with slack for rounding); the
         rest by the conservative Cor. 1 test. Both are conservative, never optimistic."""
-        prep = self._prep()
+        prep = self.ready()
         pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         free = self.in_free_voxel(pts)
         todo = np.flatnonzero(~free)
@@ -603,7 +601,7 @@ class Planner:
 
     def in_free_voxel(self, points) -> np.ndarray:
         """bool [P]: the point lies in a free voxel of the (conservative) occupancy grid; False outside the grid."""
-        prep = self._prep()
+        prep = self.ready()
         grid, occ = prep.grid, prep.astar_grid._occ
         pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         lo, vs = grid.lo.detach().cpu().double().numpy(), float(grid.voxel_size)
@@ -623,7 +621,7 @@ class Planner:
         free space *outside* the walls inside the planning bounds can be larger), else preferred_component's choice
         (a large enclosed component, else the largest).
         Constant per prepared scene: computed once, not per request."""
-        prep = self._prep()
+        prep = self.ready()
         key = (prep, self.config.start_region)
         cached = getattr(self, "_main_component_of", None)
         if cached is not None and cached[0][0] is key[0] and cached[0][1] is key[1]:
@@ -688,7 +686,7 @@ class Planner:
         """n random collision-free starts [n, 3] (goal.sample_free_starts) as every request draws them: in
         config.start_region, in the main free component, config.start_look_distance away from ``look_at`` [3] where
         the region allows."""
-        prep = self._prep()
+        prep = self.ready()
         lo, hi = self.config.start_region or (None, None)
         return sample_free_starts(
             n, self.scene, prep.index, prep.grid, generator=generator, region_lo=lo, region_hi=hi,
@@ -711,7 +709,7 @@ class Planner:
             self.grow_region(s)
         if bool(self.points_free(s[None])[0]):
             return s
-        c = float(self.clearance(s[None], cap=float(self._prep().grid.voxel_size))[0])
+        c = float(self.clearance(s[None], cap=float(self.ready().grid.voxel_size))[0])
         if c < 0:
             raise StartInCollisionError(
                 f"the start {np.round(s, 4).tolist()} puts the camera inside the scene (clearance {c:.4f}); "
@@ -731,7 +729,7 @@ class Planner:
         """The body of :meth:`plan` (which sets the request's thread count)."""
         if int(n_candidates) != n_candidates or not 1 <= n_candidates <= MAX_CANDIDATES:
             raise InvalidInputError(f"number of candidates must be an integer in [1, {MAX_CANDIDATES}], got {n_candidates}")
-        self._prep()  # prepare on first use, before the request clock starts
+        self.ready()  # prepare on first use, before the request clock starts
         goal_p = self.checked_point(goal, "go-to point")
         look_p = self.checked_point(look_at, "look-at point")
         self.check_timing()
