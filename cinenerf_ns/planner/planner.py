@@ -250,6 +250,11 @@ class Planner:
         mb = self.config.memory_budget_mb
         if isinstance(mb, bool) or not isinstance(mb, (int, float)) or not (math.isfinite(mb) and mb >= 64):
             raise InvalidInputError(f"memory_budget_mb (--memory-budget-mb) must be a number >= 64, got {mb!r}")
+        for name, lo in (("region_padding", 0.0), ("far_limit", 1e-9)):
+            v = getattr(self.config, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v >= lo):
+                raise InvalidInputError(f"{name} must be a finite number >= {lo:g} (a fraction / multiple of the "
+                                        f"planning region's longest side), got {v!r}")
         self.config.timing.validate()
         if self.config.grid_polytopes not in (True, False, "auto"):
             raise InvalidInputError(f"grid_polytopes must be True, False or 'auto', got {self.config.grid_polytopes!r}")

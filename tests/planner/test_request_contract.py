@@ -185,3 +185,11 @@ def test_plans_stay_in_the_region(room):
         goal, look = rng.uniform(lo, hi), rng.uniform(lo, hi)
         shot = pl.plan(goal, look, seed=i)[0]
         assert shot.safety["safe"] and _inside(pl, shot.positions)
+
+
+@pytest.mark.parametrize("field,bad", [("region_padding", -0.1), ("region_padding", float("nan")), ("far_limit", 0.0),
+                                       ("far_limit", float("inf")), ("far_limit", True)])
+def test_region_options_are_checked(field, bad):
+    _, e = _scene()
+    with pytest.raises(InvalidInputError, match=f"{field} must be a finite number"):
+        Planner(e, PlannerConfig(**{field: bad}))
