@@ -110,6 +110,11 @@ class CinePanel(OutputMixin):
         return self._state
 
     @property
+    def planned_before(self) -> bool:
+        """Whether a Plan was ever requested (its status, even a fast failure's, then owns the status line)."""
+        return self._generation > 0
+
+    @property
     def shots(self) -> List[ShotLike]:
         return list(self._shots)
 

@@ -380,8 +380,9 @@ class StandaloneViewer:
         self.warm_thread = warm_semantics(self.loaded)  # text queries' smoothing and labels, off the request path
 
     def _prepare_status(self, text: str, level: str) -> None:
-        """Progress of the planner's one-time preparation, shown unless a Plan already owns the status line."""
-        if self.panel.state == self.panel.IDLE or level == "error":
+        """Progress of the planner's one-time preparation, shown until the first Plan owns the status line (a Plan that
+        failed fast, e.g. text that matches nothing, leaves the panel idle: its message must not be overwritten)."""
+        if (self.panel.state == self.panel.IDLE and not self.panel.planned_before) or level == "error":
             self.panel._set_status(f"{text} {self.loaded_message}", "busy" if level == "busy" else "info")
 
     def _draw_splat(self, g: SceneGaussians) -> None:

@@ -201,6 +201,9 @@ def test_standalone_compact_scene_answers_text_by_relevancy(tmp_path):
         assert v.panel.request_plan("", "armchair").result(30) is None and "'Go to' is empty" in v.panel.status
         assert v.panel.request_plan("sofa", "armchair").result(30) is None
         assert "answers only its own object names" in v.panel.status
+        # the planner's preparation finishing after that fast failure does not overwrite it (it once did, at random)
+        v._prepare_status("Planner ready in 0.01 s.", "ok")
+        assert "answers only its own object names" in v.panel.status
     finally:
         v.close()
 
