@@ -68,7 +68,9 @@ from .corridor import CorridorError, build_corridors
 from .dynamics import DynamicLimits, retime_shot
 from .errors import GoalUnreachableError, InvalidInputError, PlanningError, StartInCollisionError, UnsafeTrajectoryError
 from .occlusion import sight_lines_blocked
-from .planner import MAX_CANDIDATES, Planner, _as_point
+from .plan_request import MAX_CANDIDATES
+from .planner import Planner
+from .planning_region import as_point
 from .reach import reachable_goal
 from .safety import _dense_samples
 from .scoring import ScoreConfig, ShotScore, _frames, score_terms
@@ -136,7 +138,7 @@ def score_shots(
     occlusion term); the shots' safety is established separately by the dense verification."""
     cfg = config or ScoreConfig()
     cfg.validate()
-    look = _as_point(look_at, "look-at point")
+    look = as_point(look_at, "look-at point")
     parts = score_parts(planner, shots, look, cfg, object_radius, object_samples, exclude, batch=True)
     return [score_from_parts(sh, part, look, cfg, object_radius, object_center) for sh, part in zip(shots, parts)]
 

@@ -78,6 +78,19 @@ def validate_workers(value: Any) -> None:
         raise InvalidInputError("candidate_workers > 0 needs the 'fork' start method (Linux); use None or 0 here")
 
 
+def candidate_workers(planner: Any) -> int:
+    """Worker processes plan_candidates uses now: the planner's config.candidate_workers resolved (None: auto,
+    default_workers), 0 when requests run on a non-CPU device (a forked child cannot use CUDA)."""
+    n = planner.config.candidate_workers
+    validate_workers(n)
+    n = default_workers() if n is None else int(n)
+    if n:
+        planner.ready()  # the request device (planner.scene's) is settled by prepare()
+        if planner.scene.device.type != "cpu":
+            return 0
+    return n
+
+
 def _preload() -> None:
     """Load, before the fork, what candidate tasks would otherwise load lazily in every worker on first use: each
     child would import on its own, and a round waits for its slowest candidate. Measured at 1M (CPU box): one
@@ -113,8 +126,8 @@ def _call(task: bytes) -> bytes:
     return pickle.dumps(fn(_PLANNER, *args), protocol=pickle.HIGHEST_PROTOCOL)
 
 
-__all__ = ["BrokenProcessPool", "CandidatePool", "default_workers", "fork_available", "pool_for", "usable_cpus",
-           "validate_workers"]
+__all__ = ["BrokenProcessPool", "CandidatePool", "candidate_workers", "default_workers", "fork_available", "pool_for",
+           "usable_cpus", "validate_workers"]
 
 
 class CandidatePool:
