@@ -28,7 +28,7 @@ from cinenerf_ns.planner.candidates import plan_candidates  # noqa: E402
 from cinenerf_ns.planner.planner import Planner, PlannerConfig  # noqa: E402
 from cinenerf_ns.planner.procedural import procedural_room  # noqa: E402
 from cinenerf_ns.planner.scene import EllipsoidScene  # noqa: E402
-from cinenerf_ns.planner.scoring import _frames  # noqa: E402
+from cinenerf_ns.planner.scoring import scored_frames  # noqa: E402
 
 
 def main() -> None:
@@ -46,7 +46,7 @@ def main() -> None:
     prep = pl.prepare()
     objs = room.objects
     ranked = plan_candidates(pl, objs[0].center, objs[1].center, k=args.k, seed=3)
-    pos = np.concatenate([r.shot.positions[_frames(r.shot.num_frames, 64)] for r in ranked])
+    pos = np.concatenate([r.shot.positions[scored_frames(r.shot.num_frames, 64)] for r in ranked])
     idx = prep.batch_index if prep.batch_index is not None else prep.index
     rounds = [0]
     real_query = type(idx).query_points

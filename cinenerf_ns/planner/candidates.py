@@ -72,8 +72,8 @@ from .plan_request import MAX_CANDIDATES
 from .planner import Planner
 from .planning_region import as_point
 from .reach import reachable_goal
-from .safety import _dense_samples
-from .scoring import ScoreConfig, ShotScore, _frames, score_terms
+from .safety import dense_samples
+from .scoring import ScoreConfig, ShotScore, score_terms, scored_frames
 from .shot import Shot
 from .workers import BrokenProcessPool
 
@@ -100,7 +100,7 @@ class RankedShot:
 def batched_verify(planner: Planner, shots: List[Shot]) -> List[Dict[str, Any]]:
     """safety.verify_shot for several shots with one conservative and one exact call for all of them."""
     spacing = planner.config.verify_spacing
-    samples = [_dense_samples(sh, None, spacing)[1] for sh in shots]
+    samples = [dense_samples(sh, None, spacing)[1] for sh in shots]
     counts = [len(s) for s in samples]
     pts = np.concatenate(samples)
     ok = planner.points_free(pts)
@@ -156,7 +156,7 @@ def score_parts(planner: Planner, shots: List[Shot], look: np.ndarray, cfg: Scor
         raise InvalidInputError(f"object_radius must be finite and >= 0, got {object_radius}.")
     prep = planner.ready()
     targets = look[None] if object_samples is None else np.asarray(object_samples, np.float64).reshape(-1, 3)
-    idx = [_frames(sh.num_frames, cfg.occlusion_frames) for sh in shots]
+    idx = [scored_frames(sh.num_frames, cfg.occlusion_frames) for sh in shots]
     pos = np.concatenate([sh.positions[i] for sh, i in zip(shots, idx)])  # [sum T', 3]
     scene, index = planner.scene, prep.index
     if batch:
