@@ -1,6 +1,6 @@
 """K candidate shots for one go-to / look-at, planned in one call with batched stages, scored and ranked.
 
-Same pipeline as Planner._plan_one (same stages, same guarantees: every returned shot is verified safe),
+The same leg stages as Planner.plan (stages.py; same guarantees: every returned shot is verified safe),
 but the expensive collision work is done once for all K candidates instead of K times:
 
   stage            batched how
@@ -9,15 +9,15 @@ but the expensive collision work is done once for all K candidates instead of K 
   A*               per candidate (a sequential graph search on the CPU voxel grid)
   shortcut         lock-step greedy line-of-sight pruning: each round tests the candidate segments of
                    ALL candidates in one conservative segments_free call (one call per round instead of
-                   one per kept point per candidate)
+                   one per kept point per candidate; stages.legs_shortcut)
   corridor         per polytope: two-pass safe_polytope (near ellipsoids first, then only the index cells
-                   not already cut off by kept planes); a batched prefetch of all segment boxes was
-                   replaced by it (the two-pass queries are ~3x cheaper at 1M than any full-box gather)
+                   not already cut off by kept planes)
   QP               back to back; the constant per-degree matrices (Bernstein Gram, difference operators,
                    unit Hessians) are cached (trajectory.py lru_cache), only the corridor rows change
   timing           per candidate (numpy), optionally retimed under DynamicLimits (dynamics.py)
   verification     dense samples of all K curves in ONE conservative points_free call, exact clearance
-                   of the inconclusive samples of all K in one call (same rule as safety.verify_shot)
+                   of the inconclusive samples of all K in one call (stages.legs_verify: the rule of
+                   safety.verify_shot)
   scoring          sight lines of all K x scored frames in ONE occlusion call, exact clearance of all
                    scored frames in ONE call (searched up to ScoreConfig.clearance_cap), then score_terms
                    per candidate (scoring.py)
@@ -42,7 +42,7 @@ The workers are forked after prepare() and share the prepared CPU state (the CPU
 grids) copy-on-write, so they add little memory. Fork only: on macOS / Windows (no 'fork' start method) candidates are planned in
 this process. When this process builds corridors with the batched backend (PlannerConfig.corridor_backend, a
 CUDA scene by default) and grid polytopes are off (Planner.use_grid_polytopes), each round has two phases around ONE batched
-corridor computation for all its candidates (corridor.build_corridors; the workers cannot use CUDA): the workers
+corridor computation for all its candidates (stages.legs_corridor; the workers cannot use CUDA): the workers
 find the ways (A*, shortcut), this process builds every corridor at once, the workers solve the QPs, time and
 verify. With grid polytopes (the default) nearly every segment's polytope comes from the occupancy grid or is the
 goal's (corridor.py), cheap CPU work that the workers do themselves, so whole candidates run in the workers. With
@@ -64,15 +64,13 @@ import torch
 
 from . import stages
 from .astar import batched_shortcut  # noqa: F401 (re-exported: part of the candidates API)
-from .corridor import CorridorError, build_corridors
-from .dynamics import DynamicLimits, retime_shot
-from .errors import GoalUnreachableError, InvalidInputError, PlanningError, StartInCollisionError, UnsafeTrajectoryError
+from .corridor import CorridorError
+from .dynamics import DynamicLimits
+from .errors import GoalUnreachableError, InvalidInputError, PlanningError, StartInCollisionError
 from .occlusion import sight_lines_blocked
 from .plan_request import MAX_CANDIDATES
 from .planner import Planner
 from .planning_region import as_point
-from .reach import reachable_goal
-from .safety import dense_samples
 from .scoring import ScoreConfig, ShotScore, score_terms, scored_frames
 from .shot import Shot
 from .workers import BrokenProcessPool
@@ -95,31 +93,6 @@ class RankedShot:
         if self.shot.safety is not None:
             d["verification"] = self.shot.safety
         return d
-
-
-def batched_verify(planner: Planner, shots: List[Shot]) -> List[Dict[str, Any]]:
-    """safety.verify_shot for several shots with one conservative and one exact call for all of them."""
-    spacing = planner.config.verify_spacing
-    samples = [dense_samples(sh, None, spacing)[1] for sh in shots]
-    counts = [len(s) for s in samples]
-    pts = np.concatenate(samples)
-    ok = planner.points_free(pts)
-    bad = np.flatnonzero(~ok)
-    exact = np.full(len(pts), np.inf)
-    if bad.size:
-        exact[bad] = planner.clearance(pts[bad])
-    out, o = [], 0
-    for n in counts:
-        e = exact[o : o + n]
-        nb = int((~ok[o : o + n]).sum())
-        mn = float(e.min()) if nb else None
-        out.append({
-            "num_samples": int(n), "max_sample_spacing": float(spacing), "num_inconclusive": nb,
-            "min_exact_clearance": mn, "safe": bool(mn is None or mn >= 0.0),
-            "method": "conservative test on every sample (occupancy grid, then Cor.1), exact distance where inconclusive (batched over candidates)",
-        })
-        o += n
-    return out
 
 
 def score_shots(
@@ -235,17 +208,6 @@ def _candidate_trajectory(planner: Planner, prep, way: np.ndarray, start: np.nda
     return corridor, stages.leg_trajectory(planner, corridor, start, g), lap("qp_ms", t)
 
 
-def _candidate_shot(planner: Planner, traj, corridor, look_p: np.ndarray, goal_p: np.ndarray,
-                    limits: Optional[DynamicLimits]) -> Shot:
-    """Timing + look-at orientation of a trajectory (retimed under ``limits`` when given)."""
-    cfg = planner.config
-    sh = Shot.from_trajectory(traj, look_p, timing=cfg.timing, up=cfg.up, corridor=corridor)
-    if limits is not None:
-        sh = retime_shot(sh, limits, up=cfg.up)
-    sh.goal_target = goal_p
-    return sh
-
-
 def _plan_candidate_task(planner: Planner, config, start: np.ndarray, goal_p: np.ndarray, look_p: np.ndarray,
                          goal_cache: Dict[int, Any], limits: Optional[DynamicLimits],
                          score: Optional[tuple] = None) -> Dict[str, Any]:
@@ -303,9 +265,9 @@ def _candidate_way_task(planner: Planner, config, start: np.ndarray, goal_p: np.
         goal, way, t = _candidate_way(planner, prep, start, goal_p, goal_cache, lap, t)
     except (GoalUnreachableError, StartInCollisionError) as e:
         return result(None, None, str(e))
-    way = goal.shortcut_ends(planner.shortcut_way(way))  # == shortcut_ways on this path alone (tested)
+    way = stages.leg_shortcut(planner, way, goal)  # == stages.legs_shortcut on this path alone (tested)
     lap("shortcut_ms", t)
-    if np.linalg.norm(way[-1] - way[0]) < 1e-9:
+    if stages.at_goal_already(way):
         return result(None, None, "the start is already at the goal")
     return result(goal, way, None)
 
@@ -324,9 +286,9 @@ def _candidate_finish_task(planner: Planner, config, corridor, start: np.ndarray
     except (GoalUnreachableError, PlanningError) as e:
         return {"shot": None, "error": str(e), "timings": tm}
     t = lap("qp_ms", t)
-    sh = _candidate_shot(planner, traj, corridor, look_p, goal_p, limits)
+    sh = stages.leg_shot(planner, traj, corridor, look_p, goal_p, limits)
     t = lap("timing_ms", t)
-    sh.safety = batched_verify(planner, [sh])[0]  # the parent refuses unsafe shots (UnsafeTrajectoryError)
+    sh.safety = stages.legs_verify(planner, [sh])[0]  # the parent refuses unsafe shots (stages.refuse_unsafe)
     lap("verify_ms", t)
     return {"shot": sh, "error": None, "timings": tm}
 
@@ -446,7 +408,7 @@ def _plan_candidates(
         tm["workers"] = float(pool.processes)
         # the main component's goal once here (inherited by every task) instead of once per worker
         try:
-            goal_cache[planner.main_component()] = reachable_goal(planner, goal_p, planner.main_component())
+            stages.component_goal(planner, goal_p, planner.main_component(), goal_cache)
         except GoalUnreachableError:
             pass  # each candidate then fails with this error in its worker, as in the in-process path
         t = lap("goal_ms", t)
@@ -466,8 +428,7 @@ def _plan_candidates(
                 continue
             # the goals' polytopes, one per distinct goal (each task returns its own copy of its component's goal)
             known = list({tuple(r["goal"]): p for _, r in ways for p in r["known"]}.values())
-            corridors = build_corridors([r["way"] for _, r in ways], planner.scene, prep.index, known=known,
-                                        **planner.corridor_kwargs())
+            corridors = stages.legs_corridor(planner, [r["way"] for _, r in ways], known=known)
             t = lap("corridor_ms", t)
             todo = []
             for (ci, r), c in zip(ways, corridors):
@@ -532,13 +493,12 @@ def _plan_candidates(
             except (GoalUnreachableError, StartInCollisionError) as e:
                 errors.append(str(e))
                 t = time.perf_counter()
-        ways = planner.shortcut_ways([p["way"] for p in plans])
-        ways = [p["reach"].shortcut_ends(w) for p, w in zip(plans, ways)]
+        ways = stages.legs_shortcut(planner, [p["way"] for p in plans], [p["reach"] for p in plans])
         t = lap("shortcut_ms", t)
         for p, way in zip(plans, ways):
             if over_budget():
                 break
-            if np.linalg.norm(way[-1] - way[0]) < 1e-9:
+            if stages.at_goal_already(way):
                 errors.append("the start is already at the goal")
                 continue
             try:
@@ -548,7 +508,7 @@ def _plan_candidates(
                 errors.append(str(e))
                 t = time.perf_counter()
                 continue
-            shots.append(_candidate_shot(planner, traj, corridor, look_p, goal_p, limits))
+            shots.append(stages.leg_shot(planner, traj, corridor, look_p, goal_p, limits))
             cand_ids.append(p["cand"])
             t = lap("timing_ms", t)
     if not shots:
@@ -559,15 +519,10 @@ def _plan_candidates(
     if pool is not None:
         reports = [sh.safety for sh in shots]  # verified in the workers (same rule, CPU state)
     else:
-        reports = batched_verify(planner, shots)
+        reports = stages.legs_verify(planner, shots)
         t = lap("verify_ms", t)
     for sh, rep in zip(shots, reports):
-        if not rep["safe"]:  # cannot happen if corridor and QP are right; never return such a shot
-            raise UnsafeTrajectoryError(
-                f"verification found exact clearance {rep['min_exact_clearance']:.3g} < 0 on a candidate curve; this "
-                f"is a planner bug, please report it with the scene and seed"
-            )
-        sh.safety = rep
+        sh.safety = stages.refuse_unsafe(rep, "a candidate curve")
 
     late = [i for i, ci in enumerate(cand_ids) if ci not in early_scores]
     late_scores = score_shots(planner, [shots[i] for i in late], look_p, score_config, object_radius, object_center,
