@@ -16,7 +16,7 @@ _WHERE = {
     "EllipsoidScene": "scene", "SceneConfig": "scene",
     "Planner": "planner", "PlannerConfig": "planner", "PreparedScene": "planner", "MAX_CANDIDATES": "plan_request",
     "plan_leg": "stages", "ReachableGoal": "reach", "reachable_goal": "reach",
-    "plan_candidates": "candidates", "RankedShot": "candidates", "score_shots": "candidates",
+    "plan_candidates": "candidates", "RankedShot": "candidates", "score_shots": "candidate_scores",
     "plan_multistop": "multistop", "MultiStopShot": "multistop",
     "Shot": "shot", "TimingConfig": "timing", "TrajectoryConfig": "trajectory", "DynamicLimits": "dynamics",
     "retime_shot": "dynamics", "ScoreConfig": "scoring",
