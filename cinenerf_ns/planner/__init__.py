@@ -14,7 +14,7 @@ from typing import Any
 
 _WHERE = {
     "EllipsoidScene": "scene", "SceneConfig": "scene",
-    "Planner": "planner", "PlannerConfig": "planner", "PreparedScene": "planner", "MAX_CANDIDATES": "plan_request",
+    "Planner": "planner", "PlannerConfig": "planner", "PreparedScene": "prepared_scene", "MAX_CANDIDATES": "plan_request",
     "plan_leg": "stages", "ReachableGoal": "reach", "reachable_goal": "reach",
     "plan_candidates": "candidates", "RankedShot": "candidates", "score_shots": "candidate_scores",
     "plan_multistop": "multistop", "MultiStopShot": "multistop",

@@ -17,6 +17,7 @@ if TYPE_CHECKING:
     from torch import Tensor
 
     from .planner import Planner
+    from .prepared_scene import PreparedScene
     from .shot import Shot
 
 
@@ -58,6 +59,18 @@ def free_test(planner: "Planner", points: "Tensor") -> "Tensor":
     return torch.as_tensor(points_free(planner, points.detach().cpu().numpy()))
 
 
+def free_distance_transform(prep: "PreparedScene") -> np.ndarray:
+    """[X+2, Y+2, Z+2] distance (scene units) from each voxel centre of the grid padded by one ring to the nearest
+    occupied voxel centre (the ring outside the grid counts as occupied); computed once per prepared scene and kept
+    in ``prep.free_edt``."""
+    if prep.free_edt is None:
+        from scipy import ndimage
+
+        free = np.pad(~prep.astar_grid._occ, 1, constant_values=False)  # the ring outside the grid: occupied
+        prep.free_edt = ndimage.distance_transform_edt(free) * float(prep.grid.voxel_size)
+    return prep.free_edt
+
+
 def clearance_lower_bound(planner: "Planner", points) -> np.ndarray:
     """A lower bound [P] of the clearance of camera centres [P, 3] from the occupancy grid alone (no
     distance query). Every point of a free voxel keeps the camera ball clear (occupancy.py), so if the
@@ -68,16 +81,12 @@ def clearance_lower_bound(planner: "Planner", points) -> np.ndarray:
     proven clear); -inf (no information) in occupied voxels and outside the grid."""
     prep = planner.ready()
     grid = prep.grid
-    if prep.free_edt is None:  # computed once per prepared scene (prepare() warms it)
-        from scipy import ndimage
-
-        free = np.pad(~prep.astar_grid._occ, 1, constant_values=False)  # the ring outside the grid: occupied
-        prep.free_edt = ndimage.distance_transform_edt(free) * float(grid.voxel_size)  # [X+2, Y+2, Z+2]
+    edt = free_distance_transform(prep)  # [X+2, Y+2, Z+2]
     vs = float(grid.voxel_size)
     _, ijk = _grid_voxels(grid, points)
     inside = ((ijk >= 0) & (ijk < np.array(grid.shape))).all(1)
     c = np.clip(ijk, 0, np.array(grid.shape) - 1) + 1  # into the padded array
-    e = prep.free_edt[c[:, 0], c[:, 1], c[:, 2]]
+    e = edt[c[:, 0], c[:, 1], c[:, 2]]
     # (1 + 1e-9): the transform is float64 and the bound must never be optimistic
     d = e - math.sqrt(3.0) * vs * (1 + 1e-9)
     return np.where(inside & (e > 0), np.maximum(d, 0.0), -np.inf)

@@ -1,8 +1,8 @@
 """The camera planner: go-to / look-at points in, verified safe shots out (paper Sec. IV).
 
-``Planner`` is a facade over one scene's prepared state (``PreparedScene``: spatial index, occupancy grid, free-space
-components, built once by ``prepare()`` and reported separately from per-plan cost). Its methods delegate to the
-modules that do the work:
+``Planner`` is a facade over one scene's prepared state (prepared_scene.py's ``PreparedScene``: spatial index,
+occupancy grid, free-space components, built once by ``prepare()`` and reported separately from per-plan cost). Its
+methods delegate to the modules that do the work:
   planning_region.py   the planning region, its checks, user points against it
   starts.py            given starts checked, random starts drawn in the main free component
   clearance_queries.py free-voxel tests, conservative and exact clearance
@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import contextlib
 import math
-import time
 from dataclasses import dataclass, field, replace
 from typing import Optional, Union
 
@@ -25,21 +24,14 @@ import torch
 from torch import Tensor
 
 from . import clearance_queries, corridor_options, planning_region, reach, shortcut, starts
-from .astar import AStarGrid
-from .coarse_path import CoarseGrid
 from .corridor_options import GRID_POLYTOPE_MAX_VOXEL  # noqa: F401 (re-exported: PlannerConfig.grid_polytopes)
-from .errors import GoalUnreachableError, InvalidInputError
-from .goal import mean_voxel_mask
-from .grid_polytope import VoxelObstacles
-from .native import grid_polytope_c as native_grid_polytope, search26 as native_search26
-from .occupancy import OccupancyGrid, build_occupancy
+from .errors import InvalidInputError
 from .plan_request import MAX_CANDIDATES, plan_request  # noqa: F401 (MAX_CANDIDATES re-exported)
 from .planning_region import GRID_BYTES_PER_VOXEL, ArrayLike  # noqa: F401 (GRID_BYTES_PER_VOXEL re-exported)
-from .polytope import prepare_native as prepare_native_polytope
+from .prepared_scene import PreparedScene, prepare_scene
 from .safety import DEFAULT_CLEARANCE_CAP
 from .scene import EllipsoidScene
 from .shot import Shot
-from .spatial_index import GridIndex
 from .starts import ENCLOSED_COMPONENT_FRACTION, preferred_component  # noqa: F401 (re-exported)
 from .timing import TimingConfig
 from .trajectory import TrajectoryConfig
@@ -171,35 +163,6 @@ class PlannerConfig:
             raise InvalidInputError(f"grid_polytopes must be True, False or 'auto', got {self.grid_polytopes!r}")
 
 
-def preload_request_modules() -> None:
-    """Import now what requests import lazily (the goal's QP, polytope centres, the corridor QP's solvers): measured
-    ~90 ms of the first request after prepare() on the CPU box (scipy.optimize's import alone), paid once per process."""
-    import scipy.optimize  # noqa: F401
-    import scipy.sparse  # noqa: F401 - imported for its side effect (loaded once)
-
-    for name in ("clarabel", "osqp"):
-        try:
-            __import__(name)
-        except ImportError:  # optional solvers: the request reports what is missing
-            pass
-
-
-@dataclass
-class PreparedScene:
-    """What prepare() builds once per scene and planning region; every request reads it."""
-
-    index: GridIndex  # on the request device (Planner.scene's)
-    grid: OccupancyGrid
-    astar_grid: AStarGrid
-    timings_ms: dict
-    coarse: Optional[CoarseGrid] = None  # 2x-coarse blocks for hard path searches (coarse_path.py)
-    batch_index: Optional[GridIndex] = None  # the index on the scene's own device (Planner.batch_scene)
-    free_edt: Optional[np.ndarray] = None  # [X+2, Y+2, Z+2] see clearance_queries.clearance_lower_bound (lazy)
-    voxels: Optional[VoxelObstacles] = None  # the grid's occupied + surface voxels for grid polytopes
-    mean_voxels: Optional[np.ndarray] = None  # [X, Y, Z] bool voxels holding a Gaussian mean (goal.mean_voxel_mask)
-    main_component_of: Optional[tuple] = None  # (start_region, component) cached by starts.main_component
-
-
 class Planner:
     """Plans camera shots through one scene. ``prepare()`` once, then ``plan()`` many times."""
 
@@ -220,53 +183,14 @@ class Planner:
 
     # ------------------------------------------------------------------ one-time work
     def prepare(self) -> PreparedScene:
-        """Build the spatial index and the occupancy grid (timed, one-time) on the scene's device; with
-        request_device 'auto' and a GPU scene, mirror scene, index and grid to the CPU for requests."""
+        """Build the prepared scene (prepared_scene.prepare_scene: spatial index, occupancy grid, components, ...;
+        timed, one-time) for the planning region on the scene's device; with request_device 'auto' and a GPU scene,
+        requests then query a CPU mirror of scene, index and grid (``self.scene``)."""
         self.scene = self.batch_scene
         lo, hi = self.planning_bounds()
         self.check_region(lo.cpu().numpy(), hi.cpu().numpy())  # before any expensive work
-        t0 = time.perf_counter()
-        index = GridIndex.build(self.scene)
-        t1 = time.perf_counter()
-        grid = build_occupancy(self.scene, index, self.config.grid_resolution, bounds=(lo, hi))
-        t2 = time.perf_counter()
-        batch_index = index
-        mirrored = self._mirror_to_cpu()
-        if mirrored:
-            self.scene = self.batch_scene.to("cpu")
-            index, grid = index.to("cpu"), grid.to("cpu")
-        t3 = time.perf_counter()
-        ag = AStarGrid(grid.numpy())
-        _ = ag.labels  # free-space components, used for reachability of goals and starts
-        coarse = CoarseGrid(ag)
-        t4 = time.perf_counter()
-        voxels = VoxelObstacles.from_occupied(ag._occ, grid.lo.detach().cpu().double().numpy(), grid.voxel_size)
-        t5 = time.perf_counter()
-        # compile / load the compiled path search and polytope now (cached on disk after the first time), before
-        # candidate worker processes fork: they inherit them instead of each loading them on first use
-        native_search26()
-        native_grid_polytope()
-        prepare_native_polytope(self.scene, index)
-        preload_request_modules()
-        t6 = time.perf_counter()
-        if not (~grid.occupied).any():
-            raise GoalUnreachableError(
-                "the occupancy grid has no free voxel: the camera radius is too large for this scene, or the "
-                "planning bounds hold no free space (raise --grid-resolution or check --bounds)"
-            )
-        self.prepared = PreparedScene(
-            index=index,
-            grid=grid,
-            astar_grid=ag,
-            coarse=coarse,
-            batch_index=batch_index,
-            voxels=voxels,
-            mean_voxels=mean_voxel_mask(self.scene, grid),
-            timings_ms={"index_ms": 1e3 * (t1 - t0), "grid_ms": 1e3 * (t2 - t1), "mirror_ms": 1e3 * (t3 - t2) if mirrored else 0.0,
-                        "components_ms": 1e3 * (t4 - t3), "surface_ms": 1e3 * (t5 - t4), "native_ms": 1e3 * (t6 - t5)},
-        )
-        self.clearance_lower_bound(np.zeros((1, 3)))  # its distance transform, once, off the request path
-        self.prepared.timings_ms["warm_ms"] = 1e3 * (time.perf_counter() - t6)  # mean voxels + distance transform
+        self.scene, self.prepared = prepare_scene(self.batch_scene, self.config.grid_resolution, lo, hi,
+                                                  mirror=self._mirror_to_cpu())
         return self.prepared
 
     def ready(self) -> PreparedScene:

@@ -14,7 +14,8 @@ from .goal import sample_free_starts
 from .planning_region import ArrayLike, format_point
 
 if TYPE_CHECKING:
-    from .planner import Planner, PreparedScene
+    from .planner import Planner
+    from .prepared_scene import PreparedScene
 
 ENCLOSED_COMPONENT_FRACTION = 0.2  # an enclosed free component this large is taken for the capture's room
 
