@@ -13,8 +13,8 @@ if TYPE_CHECKING:
     from .planner import Planner
 
 GRID_POLYTOPE_MAX_VOXEL = 2.0
-"""PlannerConfig.grid_polytopes 'auto': grid polytopes when voxel_size <= this x camera_radius. Measured at 0.85 (the
-procedural room, a win) and 4.1 (the fox capture, a loss); the threshold between them is a guess."""
+"""PlannerConfig.grid_polytopes 'auto': grid polytopes when voxel_size <= this x camera_radius (between a ratio where
+they were a win and one where they were a loss: docs/PLANNER_DEFAULTS.md)."""
 
 
 def corridor_backend(planner: "Planner") -> str:

@@ -59,16 +59,14 @@ class PlannerConfig:
     look-at point, when the region has such free starts (else anywhere: it never fails a request). Why: a random
     start is the shot's opening frame, and one pressed against the subject shows only its near surface; and the aim
     is only as good as the subject's estimated centre: a centre off by e turns into up to asin(e / range) of aim
-    error, which grows fast at close range (issue 5: a 0.019-unit centre error cost 3.2 deg at a 0.27-unit range in
-    a 2.1-unit room). 0: starts anywhere (the paper's uniform random starts). User-given starts are never moved."""
+    error, which grows fast at close range (docs/PLANNER_DEFAULTS.md). 0: starts anywhere (the paper's uniform random starts). User-given starts are never moved."""
     up: tuple = (0.0, 0.0, 1.0)
     """World up direction: cameras keep their y axis as close to it as possible."""
     astar_weight: float = 1.0
     """Heuristic weight of the initial voxel path's A* (1: minimum-cost path; w > 1: its cost is at most w x the
     minimum, found with far fewer expansions; the path is only the corridor's seed and is shortcut first, so the
-    shot's safety does not depend on it). Measured (CPU 200k, 100 pairs): 1.5 cut the A* median 22.3 -> 2.6 ms but
-    its longer seed paths cost about as much in shortcut + corridor (plan median 86.7 -> 91.1 ms), so 1.0 stays the
-    default."""
+    shot's safety does not depend on it). 1.0 stays the default: a larger weight's faster search is paid back by its
+    longer seed paths in shortcut + corridor (docs/PLANNER_DEFAULTS.md)."""
     box_margin: float = 0.15
     """Each corridor polytope lives in its segment's bounding box grown by this (scene units)."""
     trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
@@ -94,13 +92,12 @@ class PlannerConfig:
     plan_cpu_threads: Optional[int] = 1
     """torch intra-op threads while plan() runs its queries on the CPU (restored afterwards); None: leave
     torch's setting alone. A request is thousands of small tensor ops, where thread hand-offs cost
-    more than they save: on a 2-core box shared with other work 1 thread was ~5x faster (median)."""
+    more than they save (docs/PLANNER_DEFAULTS.md)."""
     request_device: str = "auto"
     """Where a request's collision / polytope / clearance queries run. 'auto': on the CPU when the scene
     is on a GPU (the spatial index and the occupancy grid are still built there, then mirrored to the
     CPU once in prepare()): a request is thousands of tiny queries whose kernel launches and syncs cost
-    more than they compute (H100 host, 1M Gaussians, median per plan: 388 ms on CUDA tensors, 194 ms with
-    the CPU mirror). 'scene': on the scene's device. Batched scoring of many candidates (occlusion, clearance)
+    more than they compute (docs/PLANNER_DEFAULTS.md). 'scene': on the scene's device. Batched scoring of many candidates (occlusion, clearance)
     keeps using the scene's device (``Planner.batch_scene``)."""
     grid_polytopes: Union[bool, str] = "auto"
     """Corridor segments that lie in free voxels of the occupancy grid get polytopes built from the grid's surface
@@ -108,8 +105,8 @@ class PlannerConfig:
     voxel more distance from the scene); the others (usually the last one, next to the go-to object) get exact
     Prop-2 polytopes from corridor_backend, and the shortcut prefers segments in free voxels (shortcut_way).
     False: Prop-2 polytopes for every segment (the paper's corridor). 'auto': on when the grid's voxels are at most
-    GRID_POLYTOPE_MAX_VOXEL x the camera radius (fine voxels: a room at grid 96, voxel 0.85 r, plans ~40% faster);
-    off for coarse ones (a real capture with far floaters, voxel 4 r, planned ~15% slower with them)."""
+    GRID_POLYTOPE_MAX_VOXEL x the camera radius (fine voxels, where they make plans faster); off for coarse ones (a
+    real capture with far floaters, where they made plans slower; docs/PLANNER_DEFAULTS.md)."""
     corridor_backend: str = "auto"
     """How a request builds its corridor of safe polytopes. 'cpu': one host polytope per segment
     (polytope.safe_polytope) on the request device's scene. 'batched': all segments' polytopes in one batched

@@ -19,8 +19,8 @@ if TYPE_CHECKING:
 ArrayLike = Union[Tensor, np.ndarray, Sequence[float]]
 
 GRID_BYTES_PER_VOXEL = 80
-"""Peak memory per grid voxel of prepare() + a plan (occupancy, components, distance transform, search workspaces):
-measured 64 B/voxel between grids of 1.2M and 9.8M voxels, rounded up."""
+"""Peak memory per grid voxel of prepare() + a plan (occupancy, components, distance transform, search workspaces),
+rounded up from the measured peak (docs/PLANNER_DEFAULTS.md)."""
 
 MAX_RADIUS_FRACTION = 0.1
 """The camera sphere's radius may be at most this fraction of the planning region's longest side."""

@@ -130,8 +130,8 @@ def reachable_goal(planner: "Planner", target: np.ndarray, comp: int) -> "Reacha
     vs = float(grid.voxel_size)
     full = np.maximum(np.abs(target - c_np), vs) + vs  # [3] half-widths of the box that reaches the target
     # First a box of GOAL_FIRST_BOX_VOXELS voxels around c: the goal is usually within a voxel or two of it (c is
-    # the free voxel nearest to the target), and a smaller box gathers fewer ellipsoids (measured at 1M: 1.78 ->
-    # 1.37 ms median per goal, the same goals for all 100 requests of bench_planner). Only when the projection
+    # the free voxel nearest to the target), and a smaller box gathers fewer ellipsoids (faster, the same goals:
+    # docs/PLANNER_DEFAULTS.md). Only when the projection
     # ends on a face of that box, where the larger box could let it go further, is the polytope built again in
     # the full box. Every plane is safe either way; the full box's extra planes can only cut more.
     x = poly = None

@@ -1,7 +1,7 @@
 """A fork-based process pool that runs per-candidate planning work on a prepared Planner.
 
 Why processes: a request is thousands of small numpy / torch CPU ops in Python, holding the GIL (a thread
-pool gave 1.00x). Candidates are independent, so K of them can run in K processes. This is parallelism over
+pool gave no speed-up). Candidates are independent, so K of them can run in K processes. This is parallelism over
 CPU processes, not vectorised batching.
 
 Why fork: the workers must see the prepared planner (CPU scene mirror, spatial index, occupancy grid, A*
@@ -93,9 +93,8 @@ def candidate_workers(planner: Any) -> int:
 
 def _preload() -> None:
     """Load, before the fork, what candidate tasks would otherwise load lazily in every worker on first use: each
-    child would import on its own, and a round waits for its slowest candidate. Measured at 1M (CPU box): one
-    candidate's corridor took 130-140 ms the first time (scipy.optimize's HiGHS LP for an overlap check, ~0.2 s to
-    import) and 4 ms after; on the H100 host, K = 32 runs with such a first use took ~250 ms against ~130-160 ms."""
+    child would import on its own, and a round waits for its slowest candidate (a first use, e.g. scipy.optimize's
+    HiGHS LP of an overlap check, costs a corridor many times its usual time: docs/PLANNER_DEFAULTS.md)."""
     import numpy as np
     import scipy.linalg  # noqa: F401 - the QP's equality projection
     import scipy.sparse  # noqa: F401
