@@ -90,6 +90,7 @@ class RankedShot:
     candidate: int  # index of the candidate's start among the sampled starts (stable across scorings)
 
     def to_dict(self, include_frames: bool = False) -> Dict[str, Any]:
+        """Shot.to_dict with the rank, the candidate, the score and the shot's dynamics / verification."""
         d = self.shot.to_dict(include_frames)
         d.update({"rank": self.rank, "candidate": self.candidate, "score": self.score.to_dict()})
         if getattr(self.shot, "dynamics", None) is not None:

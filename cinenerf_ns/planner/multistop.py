@@ -65,6 +65,8 @@ class MultiStopShot:
     timings: Dict[str, float] = field(default_factory=dict)
 
     def to_dict(self, include_frames: bool = False) -> Dict[str, Any]:
+        """Shot.to_dict with the stops, their look-ats and frame times, the dynamics and the verification (and the
+        per-frame look-at points with include_frames)."""
         d = self.shot.to_dict(include_frames)
         # the generic look-at error assumes one look-at point; report the one against the per-frame points
         view = -self.shot.rotations[:, :, 2]

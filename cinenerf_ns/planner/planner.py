@@ -176,6 +176,7 @@ class Planner:
         self._pool: Optional[tuple] = None  # (PreparedScene, processes, CandidatePool), see candidate_pool()
 
     def _mirror_to_cpu(self) -> bool:
+        """Requests query a CPU mirror of the scene (request_device 'auto' and a scene off the CPU)."""
         return self.config.request_device == "auto" and self.batch_scene.device.type != "cpu"
 
     # ------------------------------------------------------------------ one-time work

@@ -49,6 +49,7 @@ def in_worker() -> bool:
 
 
 def fork_available() -> bool:
+    """The 'fork' start method exists here (Linux): the only one whose workers see the prepared planner unpickled."""
     return "fork" in mp.get_all_start_methods()
 
 
@@ -69,6 +70,8 @@ def default_workers() -> int:
 
 
 def validate_workers(value: Any) -> None:
+    """InvalidInputError unless ``value`` is a valid PlannerConfig.candidate_workers (None, 0, or N > 0 where fork
+    exists)."""
     if value is None:
         return
     if isinstance(value, bool) or not isinstance(value, int) or value < 0:
@@ -168,6 +171,7 @@ class CandidatePool:
 
     @property
     def closed(self) -> bool:
+        """The workers were terminated (close(), or the planner was collected)."""
         return not self._finalizer.alive
 
     def close(self) -> None:
