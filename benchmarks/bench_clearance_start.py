@@ -1,4 +1,4 @@
-"""Capped exact clearance with different first search boxes (Planner._distance_estimate): the records in RESULTS.md.
+"""Capped exact clearance with different first search boxes (clearance_queries.distance_estimate): the records in RESULTS.md.
 
     python benchmarks/bench_clearance_start.py [--device cuda] [--n-gaussians 1000000] [--k 32] [--cap 0.1]
 
@@ -23,11 +23,12 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from cinenerf_ns.planner import clearance_queries  # noqa: E402
 from cinenerf_ns.planner.candidates import plan_candidates  # noqa: E402
 from cinenerf_ns.planner.planner import Planner, PlannerConfig  # noqa: E402
 from cinenerf_ns.planner.procedural import procedural_room  # noqa: E402
 from cinenerf_ns.planner.scene import EllipsoidScene  # noqa: E402
-from cinenerf_ns.planner.scoring import _frames  # noqa: E402
+from cinenerf_ns.planner.scoring import scored_frames  # noqa: E402
 
 
 def main() -> None:
@@ -45,7 +46,7 @@ def main() -> None:
     prep = pl.prepare()
     objs = room.objects
     ranked = plan_candidates(pl, objs[0].center, objs[1].center, k=args.k, seed=3)
-    pos = np.concatenate([r.shot.positions[_frames(r.shot.num_frames, 64)] for r in ranked])
+    pos = np.concatenate([r.shot.positions[scored_frames(r.shot.num_frames, 64)] for r in ranked])
     idx = prep.batch_index if prep.batch_index is not None else prep.index
     rounds = [0]
     real_query = type(idx).query_points
@@ -67,12 +68,13 @@ def main() -> None:
     print("| first search box | index rounds | median ms | max abs diff to default |")
     print("|---|---|---|---|")
     ref = None
+    real_estimate = clearance_queries.distance_estimate  # Planner.clearance's first search box
     for f in (None, 0.0, 0.5, 1.0, 2.0):
         if f is None:
-            pl._distance_estimate = lambda p: np.zeros(len(p))
+            clearance_queries.distance_estimate = lambda _pl, p: np.zeros(len(p))
         else:
-            pl._distance_estimate = lambda p, f=f: np.where(np.isfinite(real_lb(p)),
-                                                            real_lb(p) + r + f * math.sqrt(3) * vs, 0.0)
+            clearance_queries.distance_estimate = lambda _pl, p, f=f: np.where(
+                np.isfinite(real_lb(p)), real_lb(p) + r + f * math.sqrt(3) * vs, 0.0)
         ts = []
         for _ in range(4):
             sync()
@@ -85,6 +87,7 @@ def main() -> None:
         name = "default (quarter cell)" if f is None else f"lower bound + r + {f} x diagonal"
         print(f"| {name} | {rounds[0]} | {np.median(ts[1:]):.1f} | {float(np.abs(c - ref).max()):.3g} |")
     type(idx).query_points = real_query
+    clearance_queries.distance_estimate = real_estimate
 
 
 if __name__ == "__main__":

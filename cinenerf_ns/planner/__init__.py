@@ -3,9 +3,11 @@ Imports nothing of nerfstudio, gsplat or viser (tests/test_layering.py).
 
 The public names below load their module on first use (PEP 562), so ``import cinenerf_ns.planner.errors`` stays light.
 The flow, by module (docs/ARCHITECTURE.md draws it):
-  scene.py (EllipsoidScene) -> planner.py (Planner: prepare, region, checks, plan) -> stages.py (one leg: reach.py goal,
-  coarse_path / astar voxel path, shortcut.py, corridor.py, trajectory.py QP, shot.py timing + orientation, safety.py
-  verification) -> candidates.py (ranked shots) / multistop.py -> camera_path.py (nerfstudio camera path).
+  scene.py (EllipsoidScene) -> planner.py (Planner: a facade over prepared_scene.py's PreparedScene, delegating to
+  planning_region.py, starts.py, clearance_queries.py, corridor_options.py, plan_request.py) -> stages.py (one leg, the
+  only place a leg is planned: reach.py goal, coarse_path / astar voxel path, shortcut.py, corridor.py, trajectory.py
+  QP, shot.py timing + orientation, safety.py verification) -> candidates.py (ranked shots, candidate_scores.py) /
+  multistop.py (the stages chained over stops) -> camera_path.py (nerfstudio camera path).
 """
 from __future__ import annotations
 
@@ -14,9 +16,9 @@ from typing import Any
 
 _WHERE = {
     "EllipsoidScene": "scene", "SceneConfig": "scene",
-    "Planner": "planner", "PlannerConfig": "planner", "PreparedScene": "planner", "MAX_CANDIDATES": "planner",
+    "Planner": "planner", "PlannerConfig": "planner", "PreparedScene": "prepared_scene", "MAX_CANDIDATES": "plan_request",
     "plan_leg": "stages", "ReachableGoal": "reach", "reachable_goal": "reach",
-    "plan_candidates": "candidates", "RankedShot": "candidates", "score_shots": "candidates",
+    "plan_candidates": "candidates", "RankedShot": "candidates", "score_shots": "candidate_scores",
     "plan_multistop": "multistop", "MultiStopShot": "multistop",
     "Shot": "shot", "TimingConfig": "timing", "TrajectoryConfig": "trajectory", "DynamicLimits": "dynamics",
     "retime_shot": "dynamics", "ScoreConfig": "scoring",

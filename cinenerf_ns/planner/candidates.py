@@ -1,7 +1,7 @@
 """K candidate shots for one go-to / look-at, planned in one call with batched stages, scored and ranked.
 
-Same pipeline as Planner._plan_one (same stages, same guarantees: every returned shot is verified safe),
-but the expensive collision work is done once for all K candidates instead of K times:
+The same leg stages as Planner.plan (stages.py; same guarantees: every returned shot is verified safe), but the
+expensive collision work is done once for all K candidates instead of K times:
 
   stage            batched how
   start sampling   one sample_free_starts call for K (+ spares) starts
@@ -9,15 +9,15 @@ but the expensive collision work is done once for all K candidates instead of K 
   A*               per candidate (a sequential graph search on the CPU voxel grid)
   shortcut         lock-step greedy line-of-sight pruning: each round tests the candidate segments of
                    ALL candidates in one conservative segments_free call (one call per round instead of
-                   one per kept point per candidate)
+                   one per kept point per candidate; stages.legs_shortcut)
   corridor         per polytope: two-pass safe_polytope (near ellipsoids first, then only the index cells
-                   not already cut off by kept planes); a batched prefetch of all segment boxes was
-                   replaced by it (the two-pass queries are ~3x cheaper at 1M than any full-box gather)
+                   not already cut off by kept planes)
   QP               back to back; the constant per-degree matrices (Bernstein Gram, difference operators,
                    unit Hessians) are cached (trajectory.py lru_cache), only the corridor rows change
   timing           per candidate (numpy), optionally retimed under DynamicLimits (dynamics.py)
   verification     dense samples of all K curves in ONE conservative points_free call, exact clearance
-                   of the inconclusive samples of all K in one call (same rule as safety.verify_shot)
+                   of the inconclusive samples of all K in one call (stages.legs_verify: the rule of
+                   safety.verify_shot)
   scoring          sight lines of all K x scored frames in ONE occlusion call, exact clearance of all
                    scored frames in ONE call (searched up to ScoreConfig.clearance_cap), then score_terms
                    per candidate (scoring.py)
@@ -25,30 +25,35 @@ but the expensive collision work is done once for all K candidates instead of K 
 Planning runs on the planner's request device (a CPU mirror of a GPU scene, PlannerConfig.request_device);
 scoring runs on the scene's own device. The QP and A* are CPU work in all cases.
 
-Worker processes (PlannerConfig.candidate_workers, workers.py): the stages above are Python/numpy work that
-holds the GIL, so with workers > 0 and k > 1 whole candidates (free voxel near the start, goal from a cache
-the parent fills for the main component first, A*, shortcut, corridor, QP, timing / retiming, dense
-verification) run in forked worker processes, one candidate per task, each on one thread. This is
-parallelism over CPU processes, not vectorised batching: the shortcut and verification are then per
-candidate instead of lock-step over all K, which costs more CPU in total but runs on all cores. The parent
-keeps start sampling, the spare rounds, the safety check of every worker's report (UnsafeTrajectoryError
-exactly as in-process), scoring and ranking. Scoring: by default (PlannerConfig.worker_scoring) each worker also
-computes its shot's score inputs (sight lines and capped exact clearance of the scored frames, score_parts on the
-CPU copy with the compiled searches of native/polytope.c) and this process only combines them; otherwise this
-process scores (on the GPU when the scene is there; CUDA is never used in a worker; shots that come back early
-are scored in chunks while the other workers still run, EARLY_SCORE_MIN). Results equal the in-process path's
-(same starts, shots and ranks; on a GPU scene the score terms agree to rounding, the two searches being exact).
-The workers are forked after prepare() and share the prepared CPU state (the CPU mirror of a GPU scene, index,
-grids) copy-on-write, so they add little memory. Fork only: on macOS / Windows (no 'fork' start method) candidates are planned in
-this process. When this process builds corridors with the batched backend (PlannerConfig.corridor_backend, a
-CUDA scene by default) and grid polytopes are off (Planner.use_grid_polytopes), each round has two phases around ONE batched
-corridor computation for all its candidates (corridor.build_corridors; the workers cannot use CUDA): the workers
-find the ways (A*, shortcut), this process builds every corridor at once, the workers solve the QPs, time and
-verify. With grid polytopes (the default) nearly every segment's polytope comes from the occupancy grid or is the
-goal's (corridor.py), cheap CPU work that the workers do themselves, so whole candidates run in the workers. With
-workers,
-``timings``' stage keys are sums of the workers' wall times (they overlap) and ``pool_ms`` is the parent's wall
-time waiting for them.
+A request runs in rounds, each planning as many unused starts as shots are still missing (spares replace failed
+candidates), with one of three round strategies:
+  _round_in_process     the stages above, batched across the round's candidates, in this process;
+  _round_in_workers     whole candidates in forked worker processes (PlannerConfig.candidate_workers, workers.py);
+  _round_two_phase      workers find the ways, this process builds every corridor at once, workers finish.
+
+Worker processes: the stages above are Python/numpy work that holds the GIL, so with workers > 0 and k > 1 whole
+candidates (free voxel near the start, goal from a cache the parent fills for the main component first, A*,
+shortcut, corridor, QP, timing / retiming, dense verification) run in forked worker processes, one candidate per
+task, each on one thread. This is parallelism over CPU processes, not vectorised batching: the shortcut and
+verification are then per candidate instead of lock-step over all K, which costs more CPU in total but runs on all
+cores. The parent keeps start sampling, the spare rounds, the safety check of every worker's report
+(UnsafeTrajectoryError exactly as in-process), scoring and ranking. Scoring: by default
+(PlannerConfig.worker_scoring) each worker also computes its shot's score inputs (sight lines and capped exact
+clearance of the scored frames, score_parts on the CPU copy with the compiled searches of native/polytope.c) and
+this process only combines them; otherwise this process scores (on the GPU when the scene is there; CUDA is never
+used in a worker; shots that come back early are scored in chunks while the other workers still run,
+EARLY_SCORE_MIN). Results equal the in-process path's (same starts, shots and ranks; on a GPU scene the score terms
+agree to rounding, the two searches being exact). The workers are forked after prepare() and share the prepared CPU
+state (the CPU mirror of a GPU scene, index, grids) copy-on-write, so they add little memory. Fork only: on macOS /
+Windows (no 'fork' start method) candidates are planned in this process.
+
+When this process builds corridors with the batched backend (PlannerConfig.corridor_backend, a CUDA scene by
+default) and grid polytopes are off (Planner.use_grid_polytopes), each worker round has two phases around ONE
+batched corridor computation for all its candidates (stages.legs_corridor; the workers cannot use CUDA). With grid
+polytopes (the default) nearly every segment's polytope comes from the occupancy grid or is the goal's (corridor.py),
+cheap CPU work that the workers do themselves, so whole candidates run in the workers. With workers, ``timings``'
+stage keys are sums of the workers' wall times (they overlap) and ``pool_ms`` is the parent's wall time waiting for
+them.
 """
 from __future__ import annotations
 
@@ -56,24 +61,23 @@ import functools
 import math
 import time
 import warnings
-from dataclasses import dataclass
-from typing import Any, Dict, List, Optional
+from dataclasses import dataclass, field
+from typing import Any, Callable, Dict, List, Optional
 
 import numpy as np
 import torch
 
 from . import stages
 from .astar import batched_shortcut  # noqa: F401 (re-exported: part of the candidates API)
-from .corridor import CorridorError, build_corridors
-from .dynamics import DynamicLimits, retime_shot
-from .errors import GoalUnreachableError, InvalidInputError, PlanningError, StartInCollisionError, UnsafeTrajectoryError
-from .occlusion import sight_lines_blocked
-from .planner import MAX_CANDIDATES, Planner, _as_point
-from .reach import reachable_goal
-from .safety import _dense_samples
-from .scoring import ScoreConfig, ShotScore, _frames, score_terms
+from .candidate_scores import score_from_parts, score_parts, score_shots
+from .corridor import CorridorError
+from .dynamics import DynamicLimits
+from .errors import GoalUnreachableError, InvalidInputError, PlanningError, StartInCollisionError
+from .plan_request import MAX_CANDIDATES
+from .planner import Planner
+from .scoring import ScoreConfig, ShotScore
 from .shot import Shot
-from .workers import BrokenProcessPool
+from .workers import BrokenProcessPool, CandidatePool
 
 
 @dataclass
@@ -86,6 +90,7 @@ class RankedShot:
     candidate: int  # index of the candidate's start among the sampled starts (stable across scorings)
 
     def to_dict(self, include_frames: bool = False) -> Dict[str, Any]:
+        """Shot.to_dict with the rank, the candidate, the score and the shot's dynamics / verification."""
         d = self.shot.to_dict(include_frames)
         d.update({"rank": self.rank, "candidate": self.candidate, "score": self.score.to_dict()})
         if getattr(self.shot, "dynamics", None) is not None:
@@ -93,93 +98,6 @@ class RankedShot:
         if self.shot.safety is not None:
             d["verification"] = self.shot.safety
         return d
-
-
-def batched_verify(planner: Planner, shots: List[Shot]) -> List[Dict[str, Any]]:
-    """safety.verify_shot for several shots with one conservative and one exact call for all of them."""
-    spacing = planner.config.verify_spacing
-    samples = [_dense_samples(sh, None, spacing)[1] for sh in shots]
-    counts = [len(s) for s in samples]
-    pts = np.concatenate(samples)
-    ok = planner.points_free(pts)
-    bad = np.flatnonzero(~ok)
-    exact = np.full(len(pts), np.inf)
-    if bad.size:
-        exact[bad] = planner.clearance(pts[bad])
-    out, o = [], 0
-    for n in counts:
-        e = exact[o : o + n]
-        nb = int((~ok[o : o + n]).sum())
-        mn = float(e.min()) if nb else None
-        out.append({
-            "num_samples": int(n), "max_sample_spacing": float(spacing), "num_inconclusive": nb,
-            "min_exact_clearance": mn, "safe": bool(mn is None or mn >= 0.0),
-            "method": "conservative test on every sample (occupancy grid, then Cor.1), exact distance where inconclusive (batched over candidates)",
-        })
-        o += n
-    return out
-
-
-def score_shots(
-    planner: Planner,
-    shots: List[Shot],
-    look_at: Any,
-    config: Optional[ScoreConfig] = None,
-    object_radius: float = 0.1,
-    object_center: Optional[Any] = None,
-    object_samples: Optional[Any] = None,
-    exclude: Optional[torch.Tensor] = None,
-) -> List[ShotScore]:
-    """scoring.score_shot for several shots: one occlusion call and one exact-clearance call for all.
-
-    Clearance terms use the scored frames (the same <= config.occlusion_frames frames per shot as the
-    occlusion term); the shots' safety is established separately by the dense verification."""
-    cfg = config or ScoreConfig()
-    cfg.validate()
-    look = _as_point(look_at, "look-at point")
-    parts = score_parts(planner, shots, look, cfg, object_radius, object_samples, exclude, batch=True)
-    return [score_from_parts(sh, part, look, cfg, object_radius, object_center) for sh, part in zip(shots, parts)]
-
-
-def score_parts(planner: Planner, shots: List[Shot], look: np.ndarray, cfg: ScoreConfig, object_radius: float,
-                object_samples: Optional[Any], exclude: Optional[torch.Tensor], batch: bool) -> List[tuple]:
-    """The expensive per-frame inputs of each shot's score, one occlusion call and one exact-clearance call for all
-    shots: [(tested frame indices [T'], occluded [T', S] bool, clearance [T'] exact up to the cap)].
-
-    batch: on the scene's own device (a GPU when there is one: many frames x many Gaussians); False: on the request
-    device (the CPU copy of a GPU scene), where the compiled sight-line and capped-distance searches apply
-    (native/polytope.c): what the candidate worker processes use, since they cannot use CUDA. Both are exact: the
-    clearances agree to ~1e-13, the occlusion flags except for sight lines that graze an ellipsoid within rounding."""
-    if not (math.isfinite(object_radius) and object_radius >= 0):
-        raise InvalidInputError(f"object_radius must be finite and >= 0, got {object_radius}.")
-    prep = planner.ready()
-    targets = look[None] if object_samples is None else np.asarray(object_samples, np.float64).reshape(-1, 3)
-    idx = [_frames(sh.num_frames, cfg.occlusion_frames) for sh in shots]
-    pos = np.concatenate([sh.positions[i] for sh, i in zip(shots, idx)])  # [sum T', 3]
-    scene, index = planner.scene, prep.index
-    if batch:
-        scene = planner.batch_scene
-        index = prep.batch_index if prep.batch_index is not None else prep.index
-    if exclude is not None:
-        exclude = torch.as_tensor(exclude, device=scene.device)
-    occ = sight_lines_blocked(pos, targets, scene, index, exclude=exclude,
-                              stop_distance=object_radius).cpu().numpy()  # [sum T', S]
-    clr = planner.clearance(pos, cap=cfg.clearance_cap, batch=batch)  # [sum T'] exact up to the cap
-    out, o = [], 0
-    for i in idx:
-        n = len(i)
-        out.append((i, occ[o : o + n], clr[o : o + n]))
-        o += n
-    return out
-
-
-def score_from_parts(shot: Shot, part: tuple, look: np.ndarray, cfg: ScoreConfig, object_radius: float,
-                     object_center: Optional[Any]) -> ShotScore:
-    """A shot's ShotScore from its score_parts entry (scoring.score_terms; cheap)."""
-    i, occ, clr = part
-    sc = score_terms(shot, look, occ, clr, object_radius, object_center, cfg)
-    sc.tested_frame_index = i
-    return sc
 
 
 def _lapper(tm: Dict[str, float]):
@@ -212,9 +130,8 @@ def _merge_task_results(ids: List[int], results: List[Dict[str, Any]], tm: Dict[
             ok.append((i, res))
     return ok
 
-
-def _candidate_way(planner: Planner, prep, start: np.ndarray, goal_p: np.ndarray, goal_cache: Dict[int, Any],
-                   lap, t: float):
+def _candidate_way(planner: Planner, start: np.ndarray, goal_p: np.ndarray, goal_cache: Dict[int, Any], lap,
+                   t: float):
     """Goal and voxel path of one candidate: (reach.ReachableGoal, polyline [K, 3] for the shortcut (its
     way_to_shortcut), t). The goal is found once per free component (goal_cache). Laps goal_ms and astar_ms.
     Raises GoalUnreachableError / StartInCollisionError. The leg's stages (stages.leg_goal, leg_way)."""
@@ -223,7 +140,7 @@ def _candidate_way(planner: Planner, prep, start: np.ndarray, goal_p: np.ndarray
     return goal, stages.leg_way(planner, start, s_ijk, goal), lap("astar_ms", t)
 
 
-def _candidate_trajectory(planner: Planner, prep, way: np.ndarray, start: np.ndarray, g: np.ndarray, lap, t: float,
+def _candidate_trajectory(planner: Planner, way: np.ndarray, start: np.ndarray, g: np.ndarray, lap, t: float,
                           known=()):
     """Corridor and Bezier QP of one shortcut polyline: (corridor, trajectory, t). Laps corridor_ms and qp_ms.
     known: the goal's polytope (ReachableGoal.known()). Raises CorridorError / PlanningError. The leg's stages
@@ -231,17 +148,6 @@ def _candidate_trajectory(planner: Planner, prep, way: np.ndarray, start: np.nda
     corridor = stages.leg_corridor(planner, way, known)
     t = lap("corridor_ms", t)
     return corridor, stages.leg_trajectory(planner, corridor, start, g), lap("qp_ms", t)
-
-
-def _candidate_shot(planner: Planner, traj, corridor, look_p: np.ndarray, goal_p: np.ndarray,
-                    limits: Optional[DynamicLimits]) -> Shot:
-    """Timing + look-at orientation of a trajectory (retimed under ``limits`` when given)."""
-    cfg = planner.config
-    sh = Shot.from_trajectory(traj, look_p, timing=cfg.timing, up=cfg.up, corridor=corridor)
-    if limits is not None:
-        sh = retime_shot(sh, limits, up=cfg.up)
-    sh.goal_target = goal_p
-    return sh
 
 
 def _plan_candidate_task(planner: Planner, config, start: np.ndarray, goal_p: np.ndarray, look_p: np.ndarray,
@@ -281,12 +187,10 @@ def _plan_candidate_task(planner: Planner, config, start: np.ndarray, goal_p: np
 
 def _candidate_way_task(planner: Planner, config, start: np.ndarray, goal_p: np.ndarray,
                         goal_cache: Dict[int, Any]) -> Dict[str, Any]:
-    """Phase 1 of a candidate in a worker when the parent builds the corridors (two-phase rounds, see
-    _plan_candidates): goal, voxel path, shortcut. Returns {"goal", "way" [K, 3], "known" (the goal's polytope, see
-    ReachableGoal), "error", "timings", "goal_cache"} (error: the message of a failure the in-process path would
-    record, else None)."""
+    """Phase 1 of a candidate in a worker when the parent builds the corridors (_round_two_phase): goal, voxel path,
+    shortcut. Returns {"goal", "way" [K, 3], "known" (the goal's polytope, see ReachableGoal), "error", "timings",
+    "goal_cache"} (error: the message of a failure the in-process path would record, else None)."""
     planner.config = config
-    prep = planner.ready()
     tm: Dict[str, float] = {}
     known = set(goal_cache)
     lap = _lapper(tm)
@@ -298,12 +202,12 @@ def _candidate_way_task(planner: Planner, config, start: np.ndarray, goal_p: np.
 
     t = time.perf_counter()
     try:
-        goal, way, t = _candidate_way(planner, prep, start, goal_p, goal_cache, lap, t)
+        goal, way, t = _candidate_way(planner, start, goal_p, goal_cache, lap, t)
     except (GoalUnreachableError, StartInCollisionError) as e:
         return result(None, None, str(e))
-    way = goal.shortcut_ends(planner.shortcut_way(way))  # == shortcut_ways on this path alone (tested)
+    way = stages.leg_shortcut(planner, way, goal)  # == stages.legs_shortcut on this path alone (tested)
     lap("shortcut_ms", t)
-    if np.linalg.norm(way[-1] - way[0]) < 1e-9:
+    if stages.at_goal_already(way):
         return result(None, None, "the start is already at the goal")
     return result(goal, way, None)
 
@@ -322,9 +226,9 @@ def _candidate_finish_task(planner: Planner, config, corridor, start: np.ndarray
     except (GoalUnreachableError, PlanningError) as e:
         return {"shot": None, "error": str(e), "timings": tm}
     t = lap("qp_ms", t)
-    sh = _candidate_shot(planner, traj, corridor, look_p, goal_p, limits)
+    sh = stages.leg_shot(planner, traj, corridor, look_p, goal_p, limits)
     t = lap("timing_ms", t)
-    sh.safety = batched_verify(planner, [sh])[0]  # the parent refuses unsafe shots (UnsafeTrajectoryError)
+    sh.safety = stages.legs_verify(planner, [sh])[0]  # the parent refuses unsafe shots (stages.refuse_unsafe)
     lap("verify_ms", t)
     return {"shot": sh, "error": None, "timings": tm}
 
@@ -383,6 +287,211 @@ def plan_candidates(
                       "workers; set PlannerConfig.candidate_workers=0 to stay in-process)", RuntimeWarning)
         return _plan_candidates(planner, goal, look_at, k, seed, score_config, use_workers=False, **kw)
 
+@dataclass
+class _CandidateRequest:
+    """One plan_candidates call while it runs: its checked inputs, the sampled starts [n_try, 3], what the rounds
+    have planned so far (shots and their candidate ids, failures, goals per free component, early scores) and the
+    per-stage milliseconds ``tm`` (laps of ``lap``)."""
+
+    planner: Planner
+    goal_p: np.ndarray  # [3] the go-to point
+    look_p: np.ndarray  # [3] the look-at point
+    k: int
+    limits: Optional[DynamicLimits]
+    score_config: Optional[ScoreConfig]
+    object_radius: float
+    object_center: Optional[Any]
+    object_samples: Optional[Any]
+    exclude: Optional[torch.Tensor]
+    time_budget_s: Optional[float]
+    t_all: float  # when the request started (its time budget and total_ms)
+    pool: Optional[CandidatePool] = None  # None: every round in this process
+    starts: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # [n_try, 3]
+    tm: Dict[str, float] = field(default_factory=dict)
+    errors: List[str] = field(default_factory=list)
+    goal_cache: Dict[int, Any] = field(default_factory=dict)  # free component -> ReachableGoal
+    shots: List[Shot] = field(default_factory=list)
+    cand_ids: List[int] = field(default_factory=list)  # the start index of each shot
+    early_scores: Dict[int, Any] = field(default_factory=dict)  # candidate id -> ShotScore scored while workers ran
+
+    def __post_init__(self) -> None:
+        self.lap = _lapper(self.tm)
+
+    def over_budget(self) -> bool:
+        """The time budget is spent and a shot exists: start no further candidate (timings' budget_stopped)."""
+        if self.time_budget_s is None or not self.shots or time.perf_counter() - self.t_all < self.time_budget_s:
+            return False
+        self.tm["budget_stopped"] = 1.0
+        return True
+
+    def add(self, cand: int, shot: Shot) -> None:
+        self.shots.append(shot)
+        self.cand_ids.append(cand)
+
+
+def _round_in_process(req: _CandidateRequest, batch: List[int], t: float) -> float:
+    """Plan the candidates of the starts ``batch`` in this process, each stage batched across them where it can be
+    (one lock-step shortcut for all). Returns the time of the last lap."""
+    planner, lap = req.planner, req.lap
+    plans: List[Dict[str, Any]] = []  # start, goal, waypoints of each candidate of this round
+    for ci in batch:
+        s = req.starts[ci]
+        try:
+            goal, way, t = _candidate_way(planner, s, req.goal_p, req.goal_cache, lap, t)
+            plans.append({"cand": ci, "start": s, "reach": goal, "way": way})
+        except (GoalUnreachableError, StartInCollisionError) as e:
+            req.errors.append(str(e))
+            t = time.perf_counter()
+    ways = stages.legs_shortcut(planner, [p["way"] for p in plans], [p["reach"] for p in plans])
+    t = lap("shortcut_ms", t)
+    for p, way in zip(plans, ways):
+        if req.over_budget():
+            break
+        if stages.at_goal_already(way):
+            req.errors.append("the start is already at the goal")
+            continue
+        try:
+            corridor, traj, t = _candidate_trajectory(planner, way, p["start"], p["reach"].point, lap, t,
+                                                      known=p["reach"].known())
+        except (GoalUnreachableError, CorridorError, PlanningError) as e:
+            req.errors.append(str(e))
+            t = time.perf_counter()
+            continue
+        req.add(p["cand"], stages.leg_shot(planner, traj, corridor, req.look_p, req.goal_p, req.limits))
+        t = lap("timing_ms", t)
+    return t
+
+
+def _round_in_workers(req: _CandidateRequest, batch: List[int], t: float) -> float:
+    """Plan whole candidates of the starts ``batch`` in the worker pool; the *_ms stage keys are then sums of the
+    workers' wall times per stage (they overlap), pool_ms is this process's wall time waiting for the round (scoring
+    excluded). With worker_scoring each worker also computes its shot's score inputs (score_parts on the CPU copy,
+    compiled searches) and this process only combines them; otherwise shots that come back early are scored here
+    while the other workers still run (scores are per shot, so chunks give the same scores as one call); score_ms
+    sums these calls."""
+    cfg, lap = req.planner.config, req.lap
+    results: List[Any] = [None] * len(batch)
+    ready: List[int] = []  # positions in batch of finished, successful tasks not scored yet
+    chunk = max(EARLY_SCORE_MIN, req.k // 4)
+    score_cfg = req.score_config or ScoreConfig()
+    score_cfg.validate()
+    score_args = (score_cfg, req.object_radius, req.object_samples,
+                  None if req.exclude is None else torch.as_tensor(req.exclude).cpu()) if cfg.worker_scoring else None
+    tasks = [(cfg, req.starts[ci], req.goal_p, req.look_p, req.goal_cache, req.limits, score_args) for ci in batch]
+    for done, (i, res) in enumerate(req.pool.imap_unordered(_plan_candidate_task, tasks), 1):
+        results[i] = res
+        if res["error"] is None and res.get("score_parts") is not None:
+            t_s = time.perf_counter()
+            req.early_scores[batch[i]] = score_from_parts(res["shot"], res["score_parts"], req.look_p, score_cfg,
+                                                          req.object_radius, req.object_center)
+            lap("score_ms", t_s)
+            t += time.perf_counter() - t_s  # not pool time
+            continue
+        if res["error"] is None:
+            ready.append(i)
+        if len(ready) >= chunk and done < len(batch):
+            t_s = time.perf_counter()
+            sc = score_shots(req.planner, [results[j]["shot"] for j in ready], req.look_p, req.score_config,
+                             req.object_radius, req.object_center, req.object_samples, req.exclude)
+            req.early_scores.update({batch[j]: x for j, x in zip(ready, sc)})
+            ready = []
+            lap("score_ms", t_s)
+            t += time.perf_counter() - t_s  # not pool time
+    for ci, res in _merge_task_results(batch, results, req.tm, req.goal_cache, req.errors):
+        req.add(ci, res["shot"])
+    return lap("pool_ms", t)
+
+
+def _round_two_phase(req: _CandidateRequest, batch: List[int], t: float) -> float:
+    """Plan the candidates of the starts ``batch`` in two phases around ONE batched corridor computation for the
+    whole round (this process can use the GPU, the workers cannot): workers find the ways, this process builds every
+    corridor at once (stages.legs_corridor), the workers solve the QPs and verify. Same shots as in-process with the
+    batched backend."""
+    cfg, lap = req.planner.config, req.lap
+    ph1 = req.pool.map(_candidate_way_task, [(cfg, req.starts[ci], req.goal_p, req.goal_cache) for ci in batch])
+    ways = _merge_task_results(batch, ph1, req.tm, req.goal_cache, req.errors)
+    t = lap("pool_ms", t)
+    if not ways:
+        return t
+    # the goals' polytopes, one per distinct goal (each task returns its own copy of its component's goal)
+    known = list({tuple(r["goal"]): p for _, r in ways for p in r["known"]}.values())
+    corridors = stages.legs_corridor(req.planner, [r["way"] for _, r in ways], known=known)
+    t = lap("corridor_ms", t)
+    todo = []
+    for (ci, r), c in zip(ways, corridors):
+        if isinstance(c, CorridorError):
+            req.errors.append(str(c))
+        else:
+            todo.append((ci, r, c))
+    ph2 = req.pool.map(_candidate_finish_task,
+                       [(cfg, c, req.starts[ci], r["goal"], req.look_p, req.goal_p, req.limits) for ci, r, c in todo])
+    for ci, res in _merge_task_results([ci for ci, _, _ in todo], ph2, req.tm, req.goal_cache, req.errors):
+        req.add(ci, res["shot"])
+    return lap("pool_ms", t)
+
+
+def _round_strategy(req: _CandidateRequest) -> Callable[[_CandidateRequest, List[int], float], float]:
+    """How this request's rounds run: in this process without a pool; with one, in two phases when this process
+    builds batched corridors without grid polytopes, else whole candidates in the workers."""
+    planner = req.planner
+    if req.pool is None:
+        return _round_in_process
+    if planner.corridor_backend() == "batched" and not planner.use_grid_polytopes():
+        return _round_two_phase
+    return _round_in_workers
+
+
+def _checked_inputs(planner: Planner, goal: Any, look_at: Any, k: int, spare_fraction: float, object_radius: float,
+                    time_budget_s: Optional[float]) -> tuple:
+    """(k, go-to point [3], look-at point [3]) of a plan_candidates call; InvalidInputError for any input out of
+    range, before any planning."""
+    if int(k) != k or not 1 <= k <= MAX_CANDIDATES:
+        raise InvalidInputError(f"number of candidates (--candidates) must be an integer in [1, {MAX_CANDIDATES}], got {k}")
+    if time_budget_s is not None and not (math.isfinite(time_budget_s) and time_budget_s > 0):
+        raise InvalidInputError(f"the time budget (--time-budget) must be a positive number of seconds, got {time_budget_s}")
+    planner.ready()
+    goal_p = planner.checked_point(goal, "go-to point")
+    look_p = planner.checked_point(look_at, "look-at point")
+    planner.check_timing()
+    if not (0 <= spare_fraction <= 4):
+        raise InvalidInputError(f"spare_fraction must be in [0, 4], got {spare_fraction}")
+    if not (math.isfinite(object_radius) and object_radius >= 0):  # before any planning (scoring needs it)
+        raise InvalidInputError(f"object_radius must be finite and >= 0, got {object_radius}.")
+    return int(k), goal_p, look_p
+
+
+def _ranked(req: _CandidateRequest, t: float, timings: Optional[Dict[str, float]]) -> List[RankedShot]:
+    """The request's shots verified (in this process unless the workers did), refused if unsafe, scored (the scores
+    of shots scored early kept) and ranked best first; timings filled."""
+    planner, lap, shots, cand_ids = req.planner, req.lap, req.shots, req.cand_ids
+    if not shots:
+        raise GoalUnreachableError(
+            f"no safe candidate found from {len(req.starts)} start(s); last reason: "
+            f"{req.errors[-1] if req.errors else 'unknown'}"
+        )
+    if req.pool is not None:
+        reports = [sh.safety for sh in shots]  # verified in the workers (same rule, CPU state)
+    else:
+        reports = stages.legs_verify(planner, shots)
+        t = lap("verify_ms", t)
+    for sh, rep in zip(shots, reports):
+        sh.safety = stages.refuse_unsafe(rep, "a candidate curve")
+    late = [i for i, ci in enumerate(cand_ids) if ci not in req.early_scores]
+    late_scores = score_shots(planner, [shots[i] for i in late], req.look_p, req.score_config, req.object_radius,
+                              req.object_center, req.object_samples, req.exclude) if late else []
+    by_pos = dict(zip(late, late_scores))
+    scores = [req.early_scores[ci] if ci in req.early_scores else by_pos[i] for i, ci in enumerate(cand_ids)]
+    t = lap("score_ms", t)
+    tm = req.tm
+    tm["total_ms"] = 1e3 * (time.perf_counter() - req.t_all)
+    tm["num_failed"] = float(len(req.errors))
+    for sh in shots:
+        sh.timings = {**{f"batch_{kk}": v for kk, v in tm.items()}}
+    order = sorted(range(len(shots)), key=lambda i: (scores[i].total, cand_ids[i]))
+    if timings is not None:
+        timings.update(tm)
+    return [RankedShot(rank=r + 1, shot=shots[i], score=scores[i], candidate=cand_ids[i]) for r, i in enumerate(order)]
+
 
 def _plan_candidates(
     planner: Planner,
@@ -402,182 +511,31 @@ def _plan_candidates(
     timings: Optional[Dict[str, float]],
     time_budget_s: Optional[float] = None,
 ) -> List[RankedShot]:
-    """The body of plan_candidates (use_workers: allow the planner's worker pool)."""
-    if int(k) != k or not 1 <= k <= MAX_CANDIDATES:
-        raise InvalidInputError(f"number of candidates (--candidates) must be an integer in [1, {MAX_CANDIDATES}], got {k}")
-    k = int(k)
-    if time_budget_s is not None and not (math.isfinite(time_budget_s) and time_budget_s > 0):
-        raise InvalidInputError(f"the time budget (--time-budget) must be a positive number of seconds, got {time_budget_s}")
-    planner.ready()
-    goal_p = planner.checked_point(goal, "go-to point")
-    look_p = planner.checked_point(look_at, "look-at point")
-    planner.check_timing()
-    if not (0 <= spare_fraction <= 4):
-        raise InvalidInputError(f"spare_fraction must be in [0, 4], got {spare_fraction}")
-    if not (math.isfinite(object_radius) and object_radius >= 0):  # before any planning (scoring needs it)
-        raise InvalidInputError(f"object_radius must be finite and >= 0, got {object_radius}.")
-    cfg = planner.config
-    tm: Dict[str, float] = {}
-    t_all = time.perf_counter()
-    lap = _lapper(tm)
-
-    def over_budget() -> bool:
-        if time_budget_s is None or not shots or time.perf_counter() - t_all < time_budget_s:
-            return False
-        tm["budget_stopped"] = 1.0
-        return True
-
+    """The body of plan_candidates (use_workers: allow the planner's worker pool): starts sampled, rounds of the
+    strategy _round_strategy picks until k shots exist, the starts run out or the time budget is spent, then
+    verified, scored and ranked (_ranked)."""
+    k, goal_p, look_p = _checked_inputs(planner, goal, look_at, k, spare_fraction, object_radius, time_budget_s)
+    req = _CandidateRequest(planner, goal_p, look_p, k, limits, score_config, object_radius, object_center,
+                            object_samples, exclude, time_budget_s, t_all=time.perf_counter())
     t = time.perf_counter()
-    prep = planner.ready()
     n_try = k + int(math.ceil(spare_fraction * k))
     starts = planner.random_starts(n_try, torch.Generator().manual_seed(int(seed)), look_p)
-    starts = starts.detach().cpu().numpy()  # [n_try, 3]
-    t = lap("start_sample_ms", t)
-
-    errors: List[str] = []
-    goal_cache: Dict[int, Any] = {}
-    shots: List[Shot] = []
-    cand_ids: List[int] = []
-    pool = planner.candidate_pool() if k > 1 and use_workers else None  # None: every round in this process
-    if pool is not None:
-        t = lap("pool_start_ms", t)  # forking the workers: first request after prepare() only
-        tm["workers"] = float(pool.processes)
+    req.starts = starts.detach().cpu().numpy()  # [n_try, 3]
+    t = req.lap("start_sample_ms", t)
+    req.pool = planner.candidate_pool() if k > 1 and use_workers else None
+    if req.pool is not None:
+        t = req.lap("pool_start_ms", t)  # forking the workers: first request after prepare() only
+        req.tm["workers"] = float(req.pool.processes)
         # the main component's goal once here (inherited by every task) instead of once per worker
         try:
-            goal_cache[planner.main_component()] = reachable_goal(planner, goal_p, planner.main_component())
+            stages.component_goal(planner, goal_p, planner.main_component(), req.goal_cache)
         except GoalUnreachableError:
             pass  # each candidate then fails with this error in its worker, as in the in-process path
-        t = lap("goal_ms", t)
-    early_scores: Dict[int, Any] = {}  # candidate id -> ShotScore of shots scored while workers still ran
+        t = req.lap("goal_ms", t)
+    plan_round = _round_strategy(req)
     nxt = 0  # next unused start; spares are only planned to replace failed candidates
-    while len(shots) < k and nxt < len(starts) and not over_budget():
-        batch = list(range(nxt, min(len(starts), nxt + k - len(shots))))
+    while len(req.shots) < k and nxt < len(req.starts) and not req.over_budget():
+        batch = list(range(nxt, min(len(req.starts), nxt + k - len(req.shots))))
         nxt = batch[-1] + 1
-        if pool is not None and planner.corridor_backend() == "batched" and not planner.use_grid_polytopes():
-            # two phases around ONE batched corridor computation for the whole round (this process can use the
-            # GPU, the workers cannot): workers find the ways, this process builds every corridor at once, the
-            # workers solve the QPs and verify. Same shots as in-process with the batched backend.
-            ph1 = pool.map(_candidate_way_task, [(cfg, starts[ci], goal_p, goal_cache) for ci in batch])
-            ways = _merge_task_results(batch, ph1, tm, goal_cache, errors)
-            t = lap("pool_ms", t)
-            if not ways:
-                continue
-            # the goals' polytopes, one per distinct goal (each task returns its own copy of its component's goal)
-            known = list({tuple(r["goal"]): p for _, r in ways for p in r["known"]}.values())
-            corridors = build_corridors([r["way"] for _, r in ways], planner.scene, prep.index, known=known,
-                                        **planner.corridor_kwargs())
-            t = lap("corridor_ms", t)
-            todo = []
-            for (ci, r), c in zip(ways, corridors):
-                if isinstance(c, CorridorError):
-                    errors.append(str(c))
-                else:
-                    todo.append((ci, r, c))
-            ph2 = pool.map(_candidate_finish_task,
-                           [(cfg, c, starts[ci], r["goal"], look_p, goal_p, limits) for ci, r, c in todo])
-            for ci, res in _merge_task_results([ci for ci, _, _ in todo], ph2, tm, goal_cache, errors):
-                shots.append(res["shot"])
-                cand_ids.append(ci)
-            t = lap("pool_ms", t)
-            continue
-        if pool is not None:
-            # whole candidates in the workers; the *_ms stage keys are then sums of the workers' wall times
-            # per stage (they overlap), pool_ms is this process's wall time waiting for the round (scoring
-            # excluded). With worker_scoring each worker also computes its shot's score inputs (score_parts on the
-            # CPU copy, compiled searches) and this process only combines them; otherwise shots that come back
-            # early are scored here while the other workers still run (scores are per shot, so chunks give the
-            # same scores as one call); score_ms sums these calls.
-            results: List[Any] = [None] * len(batch)
-            ready: List[int] = []  # positions in batch of finished, successful tasks not scored yet
-            chunk = max(EARLY_SCORE_MIN, k // 4)
-            score_cfg = score_config or ScoreConfig()
-            score_cfg.validate()
-            in_workers = cfg.worker_scoring
-            score_args = (score_cfg, object_radius, object_samples,
-                          None if exclude is None else torch.as_tensor(exclude).cpu()) if in_workers else None
-            for done, (i, res) in enumerate(pool.imap_unordered(
-                    _plan_candidate_task,
-                    [(cfg, starts[ci], goal_p, look_p, goal_cache, limits, score_args) for ci in batch]), 1):
-                results[i] = res
-                if res["error"] is None and res.get("score_parts") is not None:
-                    t_s = time.perf_counter()
-                    early_scores[batch[i]] = score_from_parts(res["shot"], res["score_parts"], look_p, score_cfg,
-                                                              object_radius, object_center)
-                    lap("score_ms", t_s)
-                    t += time.perf_counter() - t_s  # not pool time
-                    continue
-                if res["error"] is None:
-                    ready.append(i)
-                if len(ready) >= chunk and done < len(batch):
-                    t_s = time.perf_counter()
-                    sc = score_shots(planner, [results[j]["shot"] for j in ready], look_p, score_config,
-                                     object_radius, object_center, object_samples, exclude)
-                    early_scores.update({batch[j]: x for j, x in zip(ready, sc)})
-                    ready = []
-                    lap("score_ms", t_s)
-                    t += time.perf_counter() - t_s  # not pool time
-            for ci, res in _merge_task_results(batch, results, tm, goal_cache, errors):
-                shots.append(res["shot"])
-                cand_ids.append(ci)
-            t = lap("pool_ms", t)
-            continue
-        plans: List[Dict[str, Any]] = []  # start, goal, waypoints of each candidate of this round
-        for ci in batch:
-            s = starts[ci]
-            try:
-                goal, way, t = _candidate_way(planner, prep, s, goal_p, goal_cache, lap, t)
-                plans.append({"cand": ci, "start": s, "reach": goal, "way": way})
-            except (GoalUnreachableError, StartInCollisionError) as e:
-                errors.append(str(e))
-                t = time.perf_counter()
-        ways = planner.shortcut_ways([p["way"] for p in plans])
-        ways = [p["reach"].shortcut_ends(w) for p, w in zip(plans, ways)]
-        t = lap("shortcut_ms", t)
-        for p, way in zip(plans, ways):
-            if over_budget():
-                break
-            if np.linalg.norm(way[-1] - way[0]) < 1e-9:
-                errors.append("the start is already at the goal")
-                continue
-            try:
-                corridor, traj, t = _candidate_trajectory(planner, prep, way, p["start"], p["reach"].point, lap, t,
-                                                          known=p["reach"].known())
-            except (GoalUnreachableError, CorridorError, PlanningError) as e:
-                errors.append(str(e))
-                t = time.perf_counter()
-                continue
-            shots.append(_candidate_shot(planner, traj, corridor, look_p, goal_p, limits))
-            cand_ids.append(p["cand"])
-            t = lap("timing_ms", t)
-    if not shots:
-        raise GoalUnreachableError(
-            f"no safe candidate found from {len(starts)} start(s); last reason: {errors[-1] if errors else 'unknown'}"
-        )
-
-    if pool is not None:
-        reports = [sh.safety for sh in shots]  # verified in the workers (same rule, CPU state)
-    else:
-        reports = batched_verify(planner, shots)
-        t = lap("verify_ms", t)
-    for sh, rep in zip(shots, reports):
-        if not rep["safe"]:  # cannot happen if corridor and QP are right; never return such a shot
-            raise UnsafeTrajectoryError(
-                f"verification found exact clearance {rep['min_exact_clearance']:.3g} < 0 on a candidate curve; this "
-                f"is a planner bug, please report it with the scene and seed"
-            )
-        sh.safety = rep
-
-    late = [i for i, ci in enumerate(cand_ids) if ci not in early_scores]
-    late_scores = score_shots(planner, [shots[i] for i in late], look_p, score_config, object_radius, object_center,
-                              object_samples, exclude) if late else []
-    by_pos = dict(zip(late, late_scores))
-    scores = [early_scores[ci] if ci in early_scores else by_pos[i] for i, ci in enumerate(cand_ids)]
-    t = lap("score_ms", t)
-    tm["total_ms"] = 1e3 * (time.perf_counter() - t_all)
-    tm["num_failed"] = float(len(errors))
-    for sh in shots:
-        sh.timings = {**{f"batch_{kk}": v for kk, v in tm.items()}}
-    order = sorted(range(len(shots)), key=lambda i: (scores[i].total, cand_ids[i]))
-    if timings is not None:
-        timings.update(tm)
-    return [RankedShot(rank=r + 1, shot=shots[i], score=scores[i], candidate=cand_ids[i]) for r, i in enumerate(order)]
+        t = plan_round(req, batch, t)
+    return _ranked(req, t, timings)

@@ -4,7 +4,7 @@ Choice (documented): ONE QP over the concatenated corridor, the stops as interpo
   1. start (given, or seeded random free start) and, per stop, the closest safe point to the requested
      go-to that the start's free component reaches (reach.reachable_goal, as for single shots);
   2. per leg (start -> stop 1, stop 1 -> stop 2, ...): A*, line-of-sight shortcut (all legs in one
-     batched call), safe polytope corridor (Planner's stages);
+     batched call), safe polytope corridor (stages.py, the single shot's leg stages);
   3. the legs' polytopes and waypoints are concatenated and the corridor QP of trajectory.py is built once;
      for every interior stop j joining segments k-1 and k, the equality P_{k-1,D} = stop_j is added (the
      C0..C2 joins then carry the curve through it with continuous velocity and acceleration: the camera
@@ -22,20 +22,17 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any, Dict, List, Optional, Sequence
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 import scipy.sparse as sp
 import torch
 
+from . import stages
 from .bezier import BezierTrajectory
-from .coarse_path import voxel_path
-from .corridor import build_corridor
 from .dynamics import DynamicLimits, dynamics_report, retime
-from .errors import InvalidInputError, UnsafeTrajectoryError
+from .errors import InvalidInputError
 from .planner import Planner
-from .reach import free_voxel_near, reachable_goal
-from .safety import verify_shot
 from .shot import Shot
 from .timing import arc_length_table
 from .trajectory import (
@@ -68,6 +65,8 @@ class MultiStopShot:
     timings: Dict[str, float] = field(default_factory=dict)
 
     def to_dict(self, include_frames: bool = False) -> Dict[str, Any]:
+        """Shot.to_dict with the stops, their look-ats and frame times, the dynamics and the verification (and the
+        per-frame look-at points with include_frames)."""
         d = self.shot.to_dict(include_frames)
         # the generic look-at error assumes one look-at point; report the one against the per-frame points
         view = -self.shot.rotations[:, :, 2]
@@ -171,21 +170,9 @@ def solve_through_stops(polytopes, waypoints: np.ndarray, start: np.ndarray, goa
     return traj
 
 
-def plan_multistop(
-    planner: Planner,
-    stops: Sequence[Any],
-    look_at: Any,
-    start: Optional[Any] = None,
-    seed: int = 0,
-    limits: Optional[DynamicLimits] = None,
-    force_start: bool = False,
-) -> MultiStopShot:
-    """One smooth verified-safe shot from ``start`` (or a seeded random free start) through the closest
-    safe points to each go-to in ``stops`` [S, 3] (S >= 1), in order. look_at: one point [3] shared by all
-    stops, or one per stop [S, 3]. limits: dynamic limits of the exported frames (default: the planner's
-    max speed / acceleration / fps and 60 deg/s). Raises InvalidInputError, StartInCollisionError,
-    GoalUnreachableError (a stop cannot be reached, or no smooth curve fits). A start outside the planning region
-    is an error unless ``force_start`` (Planner.checked_start)."""
+def _checked_stops(planner: Planner, stops: Sequence[Any], look_at: Any) -> Tuple[List[np.ndarray], np.ndarray]:
+    """(the stops' go-to points [3] each, the look-at of each stop [S, 3]) checked against the planning region
+    (Planner.checked_point), and the region against the timing (Planner.check_timing); InvalidInputError otherwise."""
     planner.ready()
     targets = [planner.checked_point(s, f"stop {i + 1}") for i, s in enumerate(stops)]
     if not targets:
@@ -198,66 +185,46 @@ def plan_multistop(
     else:
         raise InvalidInputError(f"look_at must be one point [3] or one per stop [{len(targets)}, 3], got shape {la.shape}.")
     planner.check_timing()
-    cfg = planner.config
-    if limits is None:
-        limits = DynamicLimits(max_speed=cfg.timing.max_speed, max_acceleration=cfg.timing.max_acceleration or 0.5,
-                               fps=cfg.timing.fps)
-    tm: Dict[str, float] = {}
-    t0 = time.perf_counter()
-    given = None if start is None else planner.checked_start(start, force=force_start)  # may grow the region
-    prep = planner.ready()
-    labels, grid = prep.astar_grid.labels, prep.grid
-    if given is not None:
-        s = given
-    else:
-        s = planner.random_starts(1, torch.Generator().manual_seed(int(seed)), looks[0])[0].detach().cpu().numpy()
-    s_ijk = free_voxel_near(planner, s, None)
-    comp = int(labels[tuple(s_ijk)])
-    pts, ijks, reached = [s], [s_ijk], [None]
+    return targets, looks
+
+
+def _stop_goals(planner: Planner, start: np.ndarray, targets: List[np.ndarray]) -> Tuple[list, list, list]:
+    """The chain's points: (points [3] (the start, then the closest safe point to each stop that the start's free
+    component reaches), their voxels [3], their ReachableGoals (None for the start)). InvalidInputError when a stop
+    coincides with the point before it."""
+    s_ijk, comp = stages.start_voxel(planner, start)
+    pts, ijks, reached = [start], [s_ijk], [None]
     for g in targets:
-        goal = reachable_goal(planner, g, comp)
+        goal = stages.component_goal(planner, g, comp)
         pts.append(np.asarray(goal.point, np.float64))
         ijks.append(np.asarray(goal.voxel))
         reached.append(goal)
     for i in range(1, len(pts)):
         if np.linalg.norm(pts[i] - pts[i - 1]) < 1e-9:
             raise InvalidInputError(f"stop {i} coincides with the point before it; remove the repeated stop.")
-    tm["goal_ms"] = 1e3 * (time.perf_counter() - t0)
-    t1 = time.perf_counter()
-    ways = []
-    for i in range(len(targets)):
-        path = voxel_path(prep.astar_grid, prep.coarse, ijks[i], ijks[i + 1], astar_weight=planner.config.astar_weight)  # [K, 3] fine voxel units
-        centres = grid.voxel_to_world(torch.as_tensor(path, device=grid.device)).cpu().numpy()
-        ways.append(np.concatenate([pts[i][None], centres, pts[i + 1][None]]) if i + 1 < len(targets)
-                    else reached[-1].way_to_shortcut(pts[i], centres))
-    tm["astar_ms"] = 1e3 * (time.perf_counter() - t1)
-    t2 = time.perf_counter()
-    # the last way ends voxel centre -> final stop inside that stop's polytope when it has one (ReachableGoal),
-    # reused below. Not for the intermediate stops: the curve passes through them with continuous derivatives,
-    # and the projection puts a stop on a face of its polytope, which leaves such a junction little room
-    ways = planner.shortcut_ways(ways)
-    ways[-1] = reached[-1].shortcut_ends(ways[-1])
-    known = reached[-1].known()
-    tm["shortcut_ms"] = 1e3 * (time.perf_counter() - t2)
-    t3 = time.perf_counter()
+    return pts, ijks, reached
+
+
+def _chained_corridor(planner: Planner, ways: List[np.ndarray], pts: list, known: list) -> Tuple[list, np.ndarray, List[int]]:
+    """Every leg's corridor (stages.leg_corridor) concatenated: (polytopes, waypoints [M+1, 3] with the stops exactly
+    at the legs' joins, the segment index each interior stop starts [S-1])."""
     polys, wps, stop_segments = [], [pts[0][None]], []
     for i, w in enumerate(ways):
-        cor = build_corridor(torch.as_tensor(w, device=planner.scene.device), planner.scene, prep.index, known=known,
-                             **planner.corridor_kwargs())  # box margin, PlannerConfig.corridor_backend, grid
+        cor = stages.leg_corridor(planner, w, known)
         if i > 0:
             stop_segments.append(len(polys))
         polys.extend(cor.constraints())
-        cw = cor.waypoints.cpu().numpy()
+        cw = cor.waypoints.cpu().numpy()  # [K, 3]
         cw[0], cw[-1] = pts[i], pts[i + 1]
         wps.append(cw[1:])
-    tm["corridor_ms"] = 1e3 * (time.perf_counter() - t3)
-    t4 = time.perf_counter()
-    stop_pts = np.stack(pts[1:-1]) if len(pts) > 2 else np.zeros((0, 3))
-    traj = solve_through_stops(polys, np.concatenate(wps), pts[0], pts[-1], stop_segments, stop_pts, cfg.trajectory)
-    tm["qp_ms"] = 1e3 * (time.perf_counter() - t4)
+    return polys, np.concatenate(wps), stop_segments
 
-    # arc-length fraction of every stop (curve time of the segment joins)
-    t5 = time.perf_counter()
+
+def _moving_look_at(traj: BezierTrajectory, stop_segments: List[int],
+                    looks: np.ndarray) -> Tuple[Callable[[np.ndarray], np.ndarray], np.ndarray]:
+    """(look_of(arc-length fractions [K]) -> look-at points [K, 3], the curve time of each stop [S]). On the leg
+    towards stop j the look-at moves from stop j-1's look-at to stop j's with a smootherstep in the leg's arc-length
+    fraction; the first leg keeps stop 1's."""
     tau_tab, s_tab = arc_length_table(traj)
     stop_tau = np.concatenate([traj.segment_starts[stop_segments], [traj.total_duration]]) if stop_segments else np.array([traj.total_duration])
     frac = np.interp(stop_tau, tau_tab, s_tab) / s_tab[-1]  # [S] (last = 1)
@@ -265,29 +232,65 @@ def plan_multistop(
 
     def look_of(f: np.ndarray) -> np.ndarray:
         f = np.asarray(f, np.float64)
-        leg = np.clip(np.searchsorted(bounds, f, side="right") - 1, 0, len(targets) - 1)  # [K]
+        leg = np.clip(np.searchsorted(bounds, f, side="right") - 1, 0, len(looks) - 1)  # [K]
         x = (f - bounds[leg]) / np.maximum(bounds[leg + 1] - bounds[leg], 1e-12)
         prev = looks[np.maximum(leg - 1, 0)]
         w = np.where(leg == 0, 1.0, _smootherstep(x))[:, None]
         return prev + w * (looks[leg] - prev)
 
+    return look_of, stop_tau
+
+
+def plan_multistop(planner: Planner, stops: Sequence[Any], look_at: Any, start: Optional[Any] = None, seed: int = 0,
+                   limits: Optional[DynamicLimits] = None, force_start: bool = False) -> MultiStopShot:
+    """One smooth verified-safe shot from ``start`` (or a seeded random free start) through the closest
+    safe points to each go-to in ``stops`` [S, 3] (S >= 1), in order. look_at: one point [3] shared by all
+    stops, or one per stop [S, 3]. limits: dynamic limits of the exported frames (default: the planner's
+    max speed / acceleration / fps and 60 deg/s). Raises InvalidInputError, StartInCollisionError,
+    GoalUnreachableError (a stop cannot be reached, or no smooth curve fits). A start outside the planning region
+    is an error unless ``force_start`` (Planner.checked_start)."""
+    targets, looks = _checked_stops(planner, stops, look_at)
+    cfg = planner.config
+    if limits is None:
+        limits = DynamicLimits(max_speed=cfg.timing.max_speed, max_acceleration=cfg.timing.max_acceleration or 0.5,
+                               fps=cfg.timing.fps)
+    tm: Dict[str, float] = {}
+    t0 = time.perf_counter()
+    if start is not None:
+        s = planner.checked_start(start, force=force_start)  # may grow the region
+    else:
+        s = planner.random_starts(1, torch.Generator().manual_seed(int(seed)), looks[0])[0].detach().cpu().numpy()
+    pts, ijks, reached = _stop_goals(planner, s, targets)
+    tm["goal_ms"] = 1e3 * (time.perf_counter() - t0)
+    t1 = time.perf_counter()
+    last = len(targets) - 1  # legs i -> i + 1; the last one ends at the final stop like a single shot's leg
+    ways = [stages.stop_way(planner, pts[i], ijks[i], reached[i + 1]) if i < last
+            else stages.leg_way(planner, pts[i], ijks[i], reached[-1]) for i in range(len(targets))]
+    tm["astar_ms"] = 1e3 * (time.perf_counter() - t1)
+    t2 = time.perf_counter()
+    # only the last way ends in its stop's polytope (ReachableGoal), reused below; see stages.stop_way for the others
+    ways = stages.legs_shortcut(planner, ways, [None] * last + [reached[-1]])
+    known = reached[-1].known()
+    tm["shortcut_ms"] = 1e3 * (time.perf_counter() - t2)
+    t3 = time.perf_counter()
+    polys, waypoints, stop_segments = _chained_corridor(planner, ways, pts, known)
+    tm["corridor_ms"] = 1e3 * (time.perf_counter() - t3)
+    t4 = time.perf_counter()
+    stop_pts = np.stack(pts[1:-1]) if len(pts) > 2 else np.zeros((0, 3))
+    traj = solve_through_stops(polys, waypoints, pts[0], pts[-1], stop_segments, stop_pts, cfg.trajectory)
+    tm["qp_ms"] = 1e3 * (time.perf_counter() - t4)
+    t5 = time.perf_counter()
+    look_of, stop_tau = _moving_look_at(traj, stop_segments, looks)
     rf = retime(traj, look_of, limits, up=cfg.up)
     tm["timing_ms"] = 1e3 * (time.perf_counter() - t5)
     shot = Shot(times=rf.times, positions=rf.positions, rotations=rf.rotations, look_at=looks[-1], goal=pts[-1],
                 start=pts[0], trajectory=traj, fps=limits.fps, curve_times=rf.curve_times, goal_target=targets[-1])
     t6 = time.perf_counter()
-    rep = verify_shot(shot, planner.points_free, planner.clearance, max_spacing=cfg.verify_spacing)
+    shot.safety = stages.leg_verify(planner, shot, "the multi-stop curve")
     tm["verify_ms"] = 1e3 * (time.perf_counter() - t6)
-    if not rep["safe"]:
-        raise UnsafeTrajectoryError(
-            f"verification found exact clearance {rep['min_exact_clearance']:.3g} < 0 on the multi-stop curve; this "
-            f"is a planner bug, please report it with the scene and seed"
-        )
-    shot.safety = rep
     tm["plan_ms"] = 1e3 * (time.perf_counter() - t0)
     shot.timings = dict(tm)
-    stop_curve = stop_tau
-    stop_frame = np.interp(stop_curve, rf.curve_times, rf.times)
+    stop_frame = np.interp(stop_tau, rf.curve_times, rf.times)
     return MultiStopShot(shot=shot, stops=np.stack(pts[1:]), stop_targets=np.stack(targets), stop_look_ats=looks,
-                         stop_curve_times=stop_curve, stop_frame_times=stop_frame, look_at_points=rf.look_at_points,
+                         stop_curve_times=stop_tau, stop_frame_times=stop_frame, look_at_points=rf.look_at_points,
                          dynamics=dynamics_report(rf, limits), timings=tm)

@@ -130,8 +130,8 @@ def reachable_goal(planner: "Planner", target: np.ndarray, comp: int) -> "Reacha
     vs = float(grid.voxel_size)
     full = np.maximum(np.abs(target - c_np), vs) + vs  # [3] half-widths of the box that reaches the target
     # First a box of GOAL_FIRST_BOX_VOXELS voxels around c: the goal is usually within a voxel or two of it (c is
-    # the free voxel nearest to the target), and a smaller box gathers fewer ellipsoids (measured at 1M: 1.78 ->
-    # 1.37 ms median per goal, the same goals for all 100 requests of bench_planner). Only when the projection
+    # the free voxel nearest to the target), and a smaller box gathers fewer ellipsoids (faster, the same goals:
+    # docs/PLANNER_DEFAULTS.md). Only when the projection
     # ends on a face of that box, where the larger box could let it go further, is the polytope built again in
     # the full box. Every plane is safe either way; the full box's extra planes can only cut more.
     x = poly = None
@@ -174,3 +174,21 @@ def nearest_component_voxel(planner: "Planner", target: np.ndarray, comp: int) -
         if covers_all:
             raise GoalUnreachableError(f"the free-space component {comp} has no voxel")
         R *= 2
+
+
+def explain_goal(planner: "Planner", target, reached, tol: float = 1e-6) -> Optional[dict]:
+    """Why a shot ends away from its go-to target: None when ``reached`` [3] is within ``tol`` of ``target`` [3],
+    else {"from", "to", "distance", "why"}, for the report, the CLI and the viewer (a moved goal is never silent)."""
+    t, g = (np.asarray(v, dtype=np.float64).reshape(3) for v in (target, reached))
+    d = float(np.linalg.norm(g - t))
+    if d <= tol:
+        return None
+    if planner.distance_outside(t) > 0:
+        why = "the go-to point is outside the planning region; the shot ends at the nearest safe point inside it"
+    elif not bool(planner.points_free(t[None])[0]):
+        why = ("the camera does not fit at the go-to point (inside an object or wall, or closer than the camera "
+               "radius + safety margin); the shot ends at the nearest safe point")
+    else:
+        why = ("the go-to point is free but cannot be reached from the start (its free space is not connected "
+               "to the start's at this grid resolution); the shot ends at the nearest reachable point")
+    return {"from": t.tolist(), "to": g.tolist(), "distance": d, "why": why}

@@ -48,7 +48,7 @@ def _piece_speed_bound(traj, vb: np.ndarray, tau0: np.ndarray, tau1: np.ndarray)
     return out
 
 
-def _dense_samples(shot_or_positions: Any, times: Optional[Any], max_spacing: float):
+def dense_samples(shot_or_positions: Any, times: Optional[Any], max_spacing: float):
     """(times [S], positions [S,3], piece_lengths [S-1]) densely covering the path."""
     if isinstance(shot_or_positions, Shot):
         shot = shot_or_positions
@@ -109,7 +109,7 @@ def safety_report(
     """
     if not (max_spacing > 0 and math.isfinite(max_spacing)):
         raise InvalidInputError(f"max_spacing must be positive, got {max_spacing}.")
-    t, pos, lengths = _dense_samples(shot_or_positions, times, max_spacing)
+    t, pos, lengths = dense_samples(shot_or_positions, times, max_spacing)
     c = _to_numpy(clearance_fn(pos)).reshape(-1)
     if c.shape != (len(pos),):
         raise InvalidInputError(f"clearance_fn returned shape {c.shape} for {len(pos)} points.")
@@ -267,7 +267,7 @@ def verify_shot(
     curves are safe by construction) and still exact where it matters. Returns a JSON-able dict
     (num_samples, num_inconclusive, min_exact_clearance (None when every sample was proven free), safe).
     """
-    t, pos, _ = _dense_samples(shot, None, max_spacing)
+    t, pos, _ = dense_samples(shot, None, max_spacing)
     ok = np.asarray(_to_numpy(points_free(pos)), dtype=bool).reshape(-1)
     bad = np.flatnonzero(~ok)
     min_exact = None

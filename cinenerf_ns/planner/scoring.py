@@ -112,7 +112,9 @@ class ShotScore:
                 "costs": {k: float(v) for k, v in self.costs.items()}}
 
 
-def _frames(num: int, cap: int) -> np.ndarray:
+def scored_frames(num: int, cap: int) -> np.ndarray:
+    """Indices [T'] of the frames a score tests among ``num``: all of them, or ``cap`` evenly spaced ones (first and
+    last included) when there are more (ScoreConfig.occlusion_frames; cap <= 0: all)."""
     if cap <= 0 or num <= cap:
         return np.arange(num)
     return np.unique(np.round(np.linspace(0, num - 1, cap)).astype(np.int64))
@@ -195,7 +197,7 @@ def score_shot(
 
     index = index if index is not None else GridIndex.build(scene)
     targets = look[None] if object_samples is None else np.asarray(object_samples, np.float64).reshape(-1, 3)
-    idx = _frames(shot.num_frames, cfg.occlusion_frames)
+    idx = scored_frames(shot.num_frames, cfg.occlusion_frames)
     occ = sight_lines_blocked(shot.positions[idx], targets, scene, index, exclude=exclude,
                               stop_distance=object_radius).cpu().numpy()
     if shot.clearance is not None:

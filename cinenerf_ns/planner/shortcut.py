@@ -18,8 +18,8 @@ CLASSIC_SHORTCUT_AFTER = 1
 """shortcut_way also runs the classic shortcut when the grid rule's leaves more than this many segments off the grid."""
 
 OFF_GRID_SEGMENT_COST = 8.0
-"""choose_way: what a corridor segment off the grid costs, in grid segments (a Prop-2 polytope ~10-20 ms at 1M
-Gaussians against ~1.5 ms for a grid polytope, H100 host and CPU box)."""
+"""choose_way: what a corridor segment off the grid costs, in grid segments (a Prop-2 polytope costs several times a
+grid polytope: docs/PLANNER_DEFAULTS.md)."""
 
 
 def segments_free(planner: "Planner", p0, p1) -> np.ndarray:

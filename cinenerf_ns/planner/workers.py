@@ -1,7 +1,7 @@
 """A fork-based process pool that runs per-candidate planning work on a prepared Planner.
 
 Why processes: a request is thousands of small numpy / torch CPU ops in Python, holding the GIL (a thread
-pool gave 1.00x). Candidates are independent, so K of them can run in K processes. This is parallelism over
+pool gave no speed-up). Candidates are independent, so K of them can run in K processes. This is parallelism over
 CPU processes, not vectorised batching.
 
 Why fork: the workers must see the prepared planner (CPU scene mirror, spatial index, occupancy grid, A*
@@ -49,6 +49,7 @@ def in_worker() -> bool:
 
 
 def fork_available() -> bool:
+    """The 'fork' start method exists here (Linux): the only one whose workers see the prepared planner unpickled."""
     return "fork" in mp.get_all_start_methods()
 
 
@@ -69,6 +70,8 @@ def default_workers() -> int:
 
 
 def validate_workers(value: Any) -> None:
+    """InvalidInputError unless ``value`` is a valid PlannerConfig.candidate_workers (None, 0, or N > 0 where fork
+    exists)."""
     if value is None:
         return
     if isinstance(value, bool) or not isinstance(value, int) or value < 0:
@@ -78,11 +81,23 @@ def validate_workers(value: Any) -> None:
         raise InvalidInputError("candidate_workers > 0 needs the 'fork' start method (Linux); use None or 0 here")
 
 
+def candidate_workers(planner: Any) -> int:
+    """Worker processes plan_candidates uses now: the planner's config.candidate_workers resolved (None: auto,
+    default_workers), 0 when requests run on a non-CPU device (a forked child cannot use CUDA)."""
+    n = planner.config.candidate_workers
+    validate_workers(n)
+    n = default_workers() if n is None else int(n)
+    if n:
+        planner.ready()  # the request device (planner.scene's) is settled by prepare()
+        if planner.scene.device.type != "cpu":
+            return 0
+    return n
+
+
 def _preload() -> None:
     """Load, before the fork, what candidate tasks would otherwise load lazily in every worker on first use: each
-    child would import on its own, and a round waits for its slowest candidate. Measured at 1M (CPU box): one
-    candidate's corridor took 130-140 ms the first time (scipy.optimize's HiGHS LP for an overlap check, ~0.2 s to
-    import) and 4 ms after; on the H100 host, K = 32 runs with such a first use took ~250 ms against ~130-160 ms."""
+    child would import on its own, and a round waits for its slowest candidate (a first use, e.g. scipy.optimize's
+    HiGHS LP of an overlap check, costs a corridor many times its usual time: docs/PLANNER_DEFAULTS.md)."""
     import numpy as np
     import scipy.linalg  # noqa: F401 - the QP's equality projection
     import scipy.sparse  # noqa: F401
@@ -113,8 +128,8 @@ def _call(task: bytes) -> bytes:
     return pickle.dumps(fn(_PLANNER, *args), protocol=pickle.HIGHEST_PROTOCOL)
 
 
-__all__ = ["BrokenProcessPool", "CandidatePool", "default_workers", "fork_available", "pool_for", "usable_cpus",
-           "validate_workers"]
+__all__ = ["BrokenProcessPool", "CandidatePool", "candidate_workers", "default_workers", "fork_available", "pool_for",
+           "usable_cpus", "validate_workers"]
 
 
 class CandidatePool:
@@ -156,6 +171,7 @@ class CandidatePool:
 
     @property
     def closed(self) -> bool:
+        """The workers were terminated (close(), or the planner was collected)."""
         return not self._finalizer.alive
 
     def close(self) -> None:

@@ -164,6 +164,7 @@ def test_clearance_start_radius_changes_nothing(seed, cap, start):
 
 
 def test_planner_capped_clearance_with_the_grid_estimate_is_exact():
+    from cinenerf_ns.planner.clearance_queries import distance_estimate
     from cinenerf_ns.planner.planner import Planner, PlannerConfig
     from cinenerf_ns.planner.procedural import procedural_room
     from cinenerf_ns.planner.scene import EllipsoidScene
@@ -175,7 +176,7 @@ def test_planner_capped_clearance_with_the_grid_estimate_is_exact():
     g = torch.Generator().manual_seed(0)
     lo, hi = prep.grid.lo, prep.grid.hi
     pts = lo + torch.rand(300, 3, generator=g, dtype=F64) * (hi - lo)
-    est = pl._distance_estimate(pts.numpy())
+    est = distance_estimate(pl, pts.numpy())
     assert (est > 0).any() and (est == 0).any()  # free voxels get an estimate, occupied ones the default
     exact = clearance(pts, sc, prep.index)
     for cap in (0.05, 0.2):

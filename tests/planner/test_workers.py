@@ -133,7 +133,7 @@ def test_unreachable_goal_errors_are_the_same(monkeypatch, workers):
 
 @pytest.mark.parametrize("workers", [0, 2])
 def test_an_unsafe_candidate_is_never_returned(monkeypatch, workers):
-    real = candidates.batched_verify
+    real = stages.legs_verify
 
     def unsafe(planner, shots):
         reps = real(planner, shots)
@@ -141,7 +141,7 @@ def test_an_unsafe_candidate_is_never_returned(monkeypatch, workers):
             r.update(safe=False, min_exact_clearance=-1e-3)
         return reps
 
-    monkeypatch.setattr(candidates, "batched_verify", unsafe)
+    monkeypatch.setattr(stages, "legs_verify", unsafe)  # the legs' batched verification
     pl = _planner(workers)
     with pytest.raises(UnsafeTrajectoryError, match="planner bug"):
         plan_candidates(pl, GO_TO, TARGET, k=3, seed=1)
@@ -241,13 +241,13 @@ def test_two_phase_rounds_with_the_batched_corridor_give_the_same_shots(monkeypa
     process builds every corridor of the round in ONE build_corridors call, the workers solve and verify. Same
     ranked shots as in-process planning with the batched backend (one corridor per candidate)."""
     calls = []
-    real = candidates.build_corridors
+    real = stages.build_corridors
 
     def spy(ways, *a, **kw):
         calls.append(len(ways))
         return real(ways, *a, **kw)
 
-    monkeypatch.setattr(candidates, "build_corridors", spy)
+    monkeypatch.setattr(stages, "build_corridors", spy)  # the legs' batched corridor stage
     # grid polytopes off: with them (the default) whole candidates run in the workers (next test)
     kw = dict(corridor_backend="batched", grid_polytopes=False)
     p0, p2 = _planner(0, **kw), _planner(2, **kw)
@@ -267,7 +267,7 @@ def test_grid_polytopes_with_the_batched_backend_plan_whole_candidates_in_the_wo
     """With grid polytopes (the default) the batched backend's two-phase rounds are not used: the workers plan whole
     candidates (their corridors mostly from the grid and the goal's polytope); same ranked shots as in-process."""
     calls = []
-    monkeypatch.setattr(candidates, "build_corridors", lambda *a, **kw: calls.append(1))
+    monkeypatch.setattr(stages, "build_corridors", lambda *a, **kw: calls.append(1))
     kw = dict(corridor_backend="batched", grid_polytopes=True)
     p0, p2 = _planner(0, **kw), _planner(2, **kw)
     try:
