@@ -26,6 +26,9 @@ from torch import Tensor
 from .errors import GoalUnreachableError, InvalidInputError, StartInCollisionError
 from .polytope import _closest_t, candidate_ids, chebyshev_center, safe_polytope
 
+INTERIOR_RADIUS = 1e-9
+"""_project_onto_polytope: a polytope counts as empty unless a ball of this radius (scene units) fits inside."""
+
 
 class NoFreeStartError(StartInCollisionError):
     """No collision-free start position could be sampled in the requested region."""
@@ -152,17 +155,102 @@ def project_active_set(A: np.ndarray, b: np.ndarray, target: np.ndarray, x0: np.
     return None
 
 
+def project_dual_active_set(A: np.ndarray, b: np.ndarray, target: np.ndarray,
+                            max_iter: Optional[int] = None) -> Union[np.ndarray, None, str]:
+    """argmin_x |x - target|^2 s.t. A x <= b (A [F, 3], b [F]) by the dual active-set method of Goldfarb & Idnani
+    (Math. Programming 27, 1983; Hessian I) -> x [3], None when the polytope is empty, or "unfinished" when it does
+    not finish in ``max_iter`` steps or a step is too ill-conditioned to trust (the caller then solves it another way).
+
+    Why: it needs no feasible start, so the projection of a target onto a polytope that may exclude it (or be empty:
+    closest_safe_point's target deep inside an object) costs a few 3x3 solves instead of an LP for the Chebyshev
+    centre followed by the primal method. It starts at the target (the unconstrained minimum) and adds the most
+    violated face at each step, keeping x the projection of the target onto the working set's faces with
+    nonnegative multipliers (dual feasible); the objective only grows, so faces cannot cycle in exact arithmetic.
+    Empty polytope: the violated face's normal lies in the span of the working set's and no multiplier can shrink
+    (Farkas: a nonnegative combination of faces proves A x <= b infeasible). Rounding leaves A x - b at ~1e-16
+    relative; callers tighten b when they need the point strictly inside."""
+    A = np.asarray(A, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    x = np.asarray(target, dtype=np.float64).reshape(3).copy()
+    F = A.shape[0]
+    if max_iter is None:
+        max_iter = 50 + 4 * F
+    row2 = np.einsum("fi,fi->f", A, A)  # [F] squared row norms
+    scale = 1.0 + float(np.abs(b).max(initial=0.0)) + float(np.abs(x).max())
+    tol = 1e-13 * scale
+    W: list = []  # working set (independent faces held with equality)
+    u = np.zeros(0)  # their multipliers, >= 0
+    it = 0
+    while True:
+        v = A @ x - b  # [F] violation
+        p = int(np.argmax(v)) if F else -1
+        if F == 0 or v[p] <= tol * max(1.0, float(np.sqrt(row2[p]))):
+            return x
+        up = 0.0  # multiplier of the face being added
+        while True:
+            it += 1
+            if it > max_iter:
+                return "unfinished"
+            a = A[p]
+            if W:
+                N = A[W]  # [k, 3]
+                G = N @ N.T
+                r = np.linalg.solve(G, N @ a)  # [k]  du_W = -s r per unit of u_p
+                z = N.T @ r - a  # [3]  dx per unit of u_p: minus a's part off the span of the working set
+            else:
+                r, z = np.zeros(0), -a
+            zz = float(z @ z)
+            dependent = zz <= 1e-18 * float(row2[p])
+            pos = np.flatnonzero(r > 1e-12 * (1.0 + np.abs(r).max(initial=0.0)))
+            t1, k = np.inf, -1
+            if pos.size:
+                ratios = u[pos] / r[pos]
+                j = int(np.argmin(ratios))
+                t1, k = float(ratios[j]), int(pos[j])
+            t2 = np.inf if dependent else float(a @ x - b[p]) / zz
+            if not np.isfinite(t1) and not np.isfinite(t2):
+                return None  # a nonnegative combination of the working set's faces and face p is infeasible
+            if t2 < 0:
+                return "unfinished"  # rounding: face p no longer violated after a partial step; restart is safer
+            s = min(t1, t2)
+            if np.isfinite(t2):
+                x = x + s * z
+            u = u - s * r
+            up += s
+            if s == t2:  # full step: face p joins the working set
+                W.append(p)
+                u = np.append(u, up)
+                break
+            W.pop(k)  # partial step: face k's multiplier reached 0, it leaves
+            u = np.delete(u, k)
+
+
 def _project_onto_polytope(A: np.ndarray, b: np.ndarray, target: np.ndarray,
                            interior: Optional[np.ndarray] = None) -> Optional[np.ndarray]:
-    """argmin |x - target|^2 s.t. A x <= b (``project_active_set`` from an interior point; Clarabel when that does
-    not finish), then pulled exactly inside along the segment to the interior point (ratio test) so the returned
-    point satisfies A x <= b in floating point. The interior point is ``interior`` when it is strictly inside (e.g.
-    the polytope's seed: no LP needed), else the Chebyshev centre. None when the polytope has no interior."""
-    if interior is not None and float(np.min(b - A @ np.asarray(interior, dtype=np.float64))) > 1e-9:
+    """argmin |x - target|^2 s.t. A x <= b, returned strictly inside in floating point (A x <= b holds), or None when
+    the polytope has no interior (its Chebyshev radius is at most INTERIOR_RADIUS).
+
+    With ``interior`` strictly inside (e.g. the polytope's seed): ``project_active_set`` from it (Clarabel when that
+    does not finish), then pulled exactly inside along the segment to it (ratio test). Without one:
+    ``project_dual_active_set`` onto the polytope tightened by INTERIOR_RADIUS (b - INTERIOR_RADIUS |a_f|: non-empty
+    exactly when a ball of that radius fits, the rule the Chebyshev centre applied; the point moves by ~that radius
+    and keeps that slack), so no LP is solved; the Chebyshev centre and the primal method only when it does not
+    finish."""
+    A = np.asarray(A, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    if interior is not None and float(np.min(b - A @ np.asarray(interior, dtype=np.float64))) > INTERIOR_RADIUS:
         c = np.asarray(interior, dtype=np.float64)
     else:
+        try:
+            y = project_dual_active_set(A, b - INTERIOR_RADIUS * np.sqrt(np.einsum("fi,fi->f", A, A)), target)
+        except np.linalg.LinAlgError:  # a working set that rounding made singular: the LP and primal method instead
+            y = "unfinished"
+        if y is None:
+            return None
+        if not isinstance(y, str) and (A @ y <= b).all():
+            return y
         c, rad = chebyshev_center(A, b)
-        if not (rad > 1e-9):
+        if not (rad > INTERIOR_RADIUS):
             return None
     target = np.asarray(target, dtype=np.float64)
     try:
