@@ -40,7 +40,39 @@ def _grid_arrays(grid):
     occ = occ.detach().cpu().numpy() if isinstance(occ, Tensor) else np.asarray(occ)
     lo = torch.as_tensor(grid.lo).detach().cpu().to(torch.float64).reshape(3)
     vs = float(grid.voxel_size)
-    return occ.astype(bool), lo, vs
+    return np.asarray(occ, dtype=bool), lo, vs  # no copy of a bool grid (callers only read it)
+
+
+class ComponentMask:
+    """A ``reachable`` mask for closest_safe_point given lazily: voxel v is reachable iff labels[v] == comp (labels
+    [X, Y, Z] int, e.g. the free components of the A* grid). Indexing a window compares only that window, so a
+    request does not build the whole-grid mask; ``np.asarray`` gives the whole mask."""
+
+    def __init__(self, labels: np.ndarray, comp: int) -> None:
+        self.labels = labels
+        self.comp = comp
+
+    @property
+    def shape(self) -> tuple:
+        return tuple(self.labels.shape)
+
+    def __getitem__(self, idx) -> np.ndarray:
+        return np.asarray(self.labels[idx] == self.comp)
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        out = np.asarray(self.labels == self.comp)
+        return out if dtype is None else out.astype(dtype, copy=False)
+
+
+def _reachable_mask(reachable, shape):
+    """closest_safe_point's ``reachable`` (bool array or ComponentMask) checked against the grid's shape."""
+    if reachable is None:
+        return None
+    if not isinstance(reachable, ComponentMask):
+        reachable = np.asarray(reachable, dtype=bool)
+    if tuple(reachable.shape) != tuple(shape):
+        raise InvalidInputError(f"reachable mask {tuple(reachable.shape)} does not match the grid {tuple(shape)}")
+    return reachable
 
 
 def _voxel_to_world(grid, ijk: Tensor) -> Tensor:
@@ -300,7 +332,7 @@ def closest_safe_point(
     2. Prop-2 polytope in the box target +- box_half (default 8 voxels, or 0.2 without a grid), target
        projected onto it (QP), verified inside -> that point (safe by construction of the polytope).
     3. fallback: free voxels of ``grid`` holding no Gaussian mean (and inside ``reachable`` [X,Y,Z]
-       if given, e.g. the start's connected component), nearest first, the first whose centre passes
+       if given, e.g. the start's connected component; a ComponentMask is compared per window), nearest first, the first whose centre passes
        the exact clearance test.
     Raises GoalUnreachableError when all three fail. ``clearance_fn(points[P,3]) -> bool[P]`` replaces
     the built-in exact test (e.g. a closure over distance.clearance(...) >= 0). ``mean_voxels`` [X,Y,Z] bool:
@@ -344,12 +376,7 @@ def mean_voxel_mask(scene, grid) -> np.ndarray:
 def _nearest_free_voxel_centre(t, scene, index, grid, reachable, clear, max_candidates, mean_voxels=None) -> Tensor:
     occ, lo, vs = _grid_arrays(grid)
     shape = np.asarray(occ.shape)
-    free = ~occ
-    if reachable is not None:
-        reachable = np.asarray(reachable, dtype=bool)
-        if reachable.shape != occ.shape:
-            raise InvalidInputError(f"reachable mask {reachable.shape} does not match the grid {occ.shape}")
-        free &= reachable
+    reachable = _reachable_mask(reachable, occ.shape)  # free and reachable voxels: computed per window below
     tc = t.cpu()
     v = _world_to_voxel(grid, tc).numpy()
     vc = np.clip(v, 0, shape - 1)
@@ -357,22 +384,31 @@ def _nearest_free_voxel_centre(t, scene, index, grid, reachable, clear, max_cand
     while True:
         a = np.maximum(vc - R, 0)
         e = np.minimum(vc + R + 1, shape)
-        sub = free[a[0]:e[0], a[1]:e[1], a[2]:e[2]].copy()
+        win = (slice(a[0], e[0]), slice(a[1], e[1]), slice(a[2], e[2]))
+        sub = ~occ[win]
+        if reachable is not None:
+            sub &= reachable[win]
         covers_all = (a == 0).all() and (e == shape).all()
         if sub.any():
             # voxels holding a Gaussian mean are not goals (paper): mark them in this window only
             if mean_voxels is not None:
                 sub &= ~mean_voxels[a[0]:e[0], a[1]:e[1], a[2]:e[2]]
-            wlo = _voxel_to_world(grid, torch.as_tensor(a)) - 0.5 * vs
-            whi = _voxel_to_world(grid, torch.as_tensor(e - 1)) + 0.5 * vs
-            ids = None if mean_voxels is not None else candidate_ids(scene, index, wlo.to(scene.means.device),
-                                                                     whi.to(scene.means.device))
+            ids = None
+            if mean_voxels is None:  # the means in the window's box, from the index
+                wlo = _voxel_to_world(grid, torch.as_tensor(a)) - 0.5 * vs
+                whi = _voxel_to_world(grid, torch.as_tensor(e - 1)) + 0.5 * vs
+                ids = candidate_ids(scene, index, wlo.to(scene.means.device), whi.to(scene.means.device))
             if ids is not None and ids.numel():
                 mv = _world_to_voxel(grid, scene.means[ids].detach().cpu().to(torch.float64)).numpy() - a
                 ok = ((mv >= 0) & (mv < (e - a))).all(1)
                 mv = mv[ok]
                 sub[mv[:, 0], mv[:, 1], mv[:, 2]] = False
             ijk = np.argwhere(sub) + a
+            if len(ijk) == 0:  # every free voxel of the window holds a mean: a wider window
+                if covers_all:
+                    break
+                R *= 2
+                continue
             centres = _voxel_to_world(grid, torch.as_tensor(ijk))
             d = (centres - tc).norm(dim=-1)
             # every voxel outside the window is at least R voxels away (target inside the grid)
