@@ -24,6 +24,7 @@ import torch
 from torch import Tensor
 
 from .errors import GoalUnreachableError, InvalidInputError, StartInCollisionError
+from .occupancy import OccupancyGrid
 from .polytope import _closest_t, candidate_ids, chebyshev_center, safe_polytope
 
 INTERIOR_RADIUS = 1e-9
@@ -80,6 +81,14 @@ def _voxel_to_world(grid, ijk: Tensor) -> Tensor:
         return torch.as_tensor(grid.voxel_to_world(ijk)).detach().cpu().to(torch.float64)
     _, lo, vs = _grid_arrays(grid)
     return lo + (ijk.to(torch.float64) + 0.5) * vs
+
+
+def _voxel_centres(grid, ijk: np.ndarray, lo: np.ndarray, vs: float) -> np.ndarray:
+    """Voxel centres [K, 3] float64 numpy of indices ijk [K, 3]: OccupancyGrid.voxel_to_world's arithmetic (the same
+    floats) without torch's per-call cost, or the duck-typed grid's own voxel_to_world."""
+    if hasattr(grid, "voxel_to_world") and not isinstance(grid, OccupancyGrid):
+        return _voxel_to_world(grid, torch.as_tensor(ijk)).numpy()
+    return lo + (ijk.astype(np.float64) + 0.5) * vs
 
 
 def _world_to_voxel(grid, x: Tensor) -> Tensor:
@@ -378,6 +387,7 @@ def _nearest_free_voxel_centre(t, scene, index, grid, reachable, clear, max_cand
     shape = np.asarray(occ.shape)
     reachable = _reachable_mask(reachable, occ.shape)  # free and reachable voxels: computed per window below
     tc = t.cpu()
+    t_np, lo_np = tc.numpy(), lo.numpy()
     v = _world_to_voxel(grid, tc).numpy()
     vc = np.clip(v, 0, shape - 1)
     R = 2
@@ -409,12 +419,11 @@ def _nearest_free_voxel_centre(t, scene, index, grid, reachable, clear, max_cand
                     break
                 R *= 2
                 continue
-            centres = _voxel_to_world(grid, torch.as_tensor(ijk))
-            d = (centres - tc).norm(dim=-1)
+            centres = _voxel_centres(grid, ijk, lo_np, vs)  # [K, 3] float64
+            d = np.sqrt(((centres - t_np) ** 2).sum(1))
             # every voxel outside the window is at least R voxels away (target inside the grid)
             if float(d.min()) <= R * vs or covers_all:
-                order = torch.argsort(d)[:max_candidates]
-                cand = centres[order]
+                cand = torch.from_numpy(centres[np.argsort(d, kind="stable")[:max_candidates]])
                 for k in range(0, cand.shape[0], 16):  # nearest first, a few exact tests at a time
                     ok = torch.as_tensor(clear(cand[k:k + 16].to(scene.means.device))).reshape(-1).cpu()
                     if bool(ok.any()):
