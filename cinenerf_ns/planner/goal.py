@@ -24,7 +24,11 @@ import torch
 from torch import Tensor
 
 from .errors import GoalUnreachableError, InvalidInputError, StartInCollisionError
+from .occupancy import OccupancyGrid
 from .polytope import _closest_t, candidate_ids, chebyshev_center, safe_polytope
+
+INTERIOR_RADIUS = 1e-9
+"""_project_onto_polytope: a polytope counts as empty unless a ball of this radius (scene units) fits inside."""
 
 
 class NoFreeStartError(StartInCollisionError):
@@ -37,7 +41,39 @@ def _grid_arrays(grid):
     occ = occ.detach().cpu().numpy() if isinstance(occ, Tensor) else np.asarray(occ)
     lo = torch.as_tensor(grid.lo).detach().cpu().to(torch.float64).reshape(3)
     vs = float(grid.voxel_size)
-    return occ.astype(bool), lo, vs
+    return np.asarray(occ, dtype=bool), lo, vs  # no copy of a bool grid (callers only read it)
+
+
+class ComponentMask:
+    """A ``reachable`` mask for closest_safe_point given lazily: voxel v is reachable iff labels[v] == comp (labels
+    [X, Y, Z] int, e.g. the free components of the A* grid). Indexing a window compares only that window, so a
+    request does not build the whole-grid mask; ``np.asarray`` gives the whole mask."""
+
+    def __init__(self, labels: np.ndarray, comp: int) -> None:
+        self.labels = labels
+        self.comp = comp
+
+    @property
+    def shape(self) -> tuple:
+        return tuple(self.labels.shape)
+
+    def __getitem__(self, idx) -> np.ndarray:
+        return np.asarray(self.labels[idx] == self.comp)
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        out = np.asarray(self.labels == self.comp)
+        return out if dtype is None else out.astype(dtype, copy=False)
+
+
+def _reachable_mask(reachable, shape):
+    """closest_safe_point's ``reachable`` (bool array or ComponentMask) checked against the grid's shape."""
+    if reachable is None:
+        return None
+    if not isinstance(reachable, ComponentMask):
+        reachable = np.asarray(reachable, dtype=bool)
+    if tuple(reachable.shape) != tuple(shape):
+        raise InvalidInputError(f"reachable mask {tuple(reachable.shape)} does not match the grid {tuple(shape)}")
+    return reachable
 
 
 def _voxel_to_world(grid, ijk: Tensor) -> Tensor:
@@ -45,6 +81,14 @@ def _voxel_to_world(grid, ijk: Tensor) -> Tensor:
         return torch.as_tensor(grid.voxel_to_world(ijk)).detach().cpu().to(torch.float64)
     _, lo, vs = _grid_arrays(grid)
     return lo + (ijk.to(torch.float64) + 0.5) * vs
+
+
+def _voxel_centres(grid, ijk: np.ndarray, lo: np.ndarray, vs: float) -> np.ndarray:
+    """Voxel centres [K, 3] float64 numpy of indices ijk [K, 3]: OccupancyGrid.voxel_to_world's arithmetic (the same
+    floats) without torch's per-call cost, or the duck-typed grid's own voxel_to_world."""
+    if hasattr(grid, "voxel_to_world") and not isinstance(grid, OccupancyGrid):
+        return _voxel_to_world(grid, torch.as_tensor(ijk)).numpy()
+    return lo + (ijk.astype(np.float64) + 0.5) * vs
 
 
 def _world_to_voxel(grid, x: Tensor) -> Tensor:
@@ -152,17 +196,102 @@ def project_active_set(A: np.ndarray, b: np.ndarray, target: np.ndarray, x0: np.
     return None
 
 
+def project_dual_active_set(A: np.ndarray, b: np.ndarray, target: np.ndarray,
+                            max_iter: Optional[int] = None) -> Union[np.ndarray, None, str]:
+    """argmin_x |x - target|^2 s.t. A x <= b (A [F, 3], b [F]) by the dual active-set method of Goldfarb & Idnani
+    (Math. Programming 27, 1983; Hessian I) -> x [3], None when the polytope is empty, or "unfinished" when it does
+    not finish in ``max_iter`` steps or a step is too ill-conditioned to trust (the caller then solves it another way).
+
+    Why: it needs no feasible start, so the projection of a target onto a polytope that may exclude it (or be empty:
+    closest_safe_point's target deep inside an object) costs a few 3x3 solves instead of an LP for the Chebyshev
+    centre followed by the primal method. It starts at the target (the unconstrained minimum) and adds the most
+    violated face at each step, keeping x the projection of the target onto the working set's faces with
+    nonnegative multipliers (dual feasible); the objective only grows, so faces cannot cycle in exact arithmetic.
+    Empty polytope: the violated face's normal lies in the span of the working set's and no multiplier can shrink
+    (Farkas: a nonnegative combination of faces proves A x <= b infeasible). Rounding leaves A x - b at ~1e-16
+    relative; callers tighten b when they need the point strictly inside."""
+    A = np.asarray(A, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    x = np.asarray(target, dtype=np.float64).reshape(3).copy()
+    F = A.shape[0]
+    if max_iter is None:
+        max_iter = 50 + 4 * F
+    row2 = np.einsum("fi,fi->f", A, A)  # [F] squared row norms
+    scale = 1.0 + float(np.abs(b).max(initial=0.0)) + float(np.abs(x).max())
+    tol = 1e-13 * scale
+    W: list = []  # working set (independent faces held with equality)
+    u = np.zeros(0)  # their multipliers, >= 0
+    it = 0
+    while True:
+        v = A @ x - b  # [F] violation
+        p = int(np.argmax(v)) if F else -1
+        if F == 0 or v[p] <= tol * max(1.0, float(np.sqrt(row2[p]))):
+            return x
+        up = 0.0  # multiplier of the face being added
+        while True:
+            it += 1
+            if it > max_iter:
+                return "unfinished"
+            a = A[p]
+            if W:
+                N = A[W]  # [k, 3]
+                G = N @ N.T
+                r = np.linalg.solve(G, N @ a)  # [k]  du_W = -s r per unit of u_p
+                z = N.T @ r - a  # [3]  dx per unit of u_p: minus a's part off the span of the working set
+            else:
+                r, z = np.zeros(0), -a
+            zz = float(z @ z)
+            dependent = zz <= 1e-18 * float(row2[p])
+            pos = np.flatnonzero(r > 1e-12 * (1.0 + np.abs(r).max(initial=0.0)))
+            t1, k = np.inf, -1
+            if pos.size:
+                ratios = u[pos] / r[pos]
+                j = int(np.argmin(ratios))
+                t1, k = float(ratios[j]), int(pos[j])
+            t2 = np.inf if dependent else float(a @ x - b[p]) / zz
+            if not np.isfinite(t1) and not np.isfinite(t2):
+                return None  # a nonnegative combination of the working set's faces and face p is infeasible
+            if t2 < 0:
+                return "unfinished"  # rounding: face p no longer violated after a partial step; restart is safer
+            s = min(t1, t2)
+            if np.isfinite(t2):
+                x = x + s * z
+            u = u - s * r
+            up += s
+            if s == t2:  # full step: face p joins the working set
+                W.append(p)
+                u = np.append(u, up)
+                break
+            W.pop(k)  # partial step: face k's multiplier reached 0, it leaves
+            u = np.delete(u, k)
+
+
 def _project_onto_polytope(A: np.ndarray, b: np.ndarray, target: np.ndarray,
                            interior: Optional[np.ndarray] = None) -> Optional[np.ndarray]:
-    """argmin |x - target|^2 s.t. A x <= b (``project_active_set`` from an interior point; Clarabel when that does
-    not finish), then pulled exactly inside along the segment to the interior point (ratio test) so the returned
-    point satisfies A x <= b in floating point. The interior point is ``interior`` when it is strictly inside (e.g.
-    the polytope's seed: no LP needed), else the Chebyshev centre. None when the polytope has no interior."""
-    if interior is not None and float(np.min(b - A @ np.asarray(interior, dtype=np.float64))) > 1e-9:
+    """argmin |x - target|^2 s.t. A x <= b, returned strictly inside in floating point (A x <= b holds), or None when
+    the polytope has no interior (its Chebyshev radius is at most INTERIOR_RADIUS).
+
+    With ``interior`` strictly inside (e.g. the polytope's seed): ``project_active_set`` from it (Clarabel when that
+    does not finish), then pulled exactly inside along the segment to it (ratio test). Without one:
+    ``project_dual_active_set`` onto the polytope tightened by INTERIOR_RADIUS (b - INTERIOR_RADIUS |a_f|: non-empty
+    exactly when a ball of that radius fits, the rule the Chebyshev centre applied; the point moves by ~that radius
+    and keeps that slack), so no LP is solved; the Chebyshev centre and the primal method only when it does not
+    finish."""
+    A = np.asarray(A, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    if interior is not None and float(np.min(b - A @ np.asarray(interior, dtype=np.float64))) > INTERIOR_RADIUS:
         c = np.asarray(interior, dtype=np.float64)
     else:
+        try:
+            y = project_dual_active_set(A, b - INTERIOR_RADIUS * np.sqrt(np.einsum("fi,fi->f", A, A)), target)
+        except np.linalg.LinAlgError:  # a working set that rounding made singular: the LP and primal method instead
+            y = "unfinished"
+        if y is None:
+            return None
+        if not isinstance(y, str) and (A @ y <= b).all():
+            return y
         c, rad = chebyshev_center(A, b)
-        if not (rad > 1e-9):
+        if not (rad > INTERIOR_RADIUS):
             return None
     target = np.asarray(target, dtype=np.float64)
     try:
@@ -212,7 +341,7 @@ def closest_safe_point(
     2. Prop-2 polytope in the box target +- box_half (default 8 voxels, or 0.2 without a grid), target
        projected onto it (QP), verified inside -> that point (safe by construction of the polytope).
     3. fallback: free voxels of ``grid`` holding no Gaussian mean (and inside ``reachable`` [X,Y,Z]
-       if given, e.g. the start's connected component), nearest first, the first whose centre passes
+       if given, e.g. the start's connected component; a ComponentMask is compared per window), nearest first, the first whose centre passes
        the exact clearance test.
     Raises GoalUnreachableError when all three fail. ``clearance_fn(points[P,3]) -> bool[P]`` replaces
     the built-in exact test (e.g. a closure over distance.clearance(...) >= 0). ``mean_voxels`` [X,Y,Z] bool:
@@ -256,41 +385,45 @@ def mean_voxel_mask(scene, grid) -> np.ndarray:
 def _nearest_free_voxel_centre(t, scene, index, grid, reachable, clear, max_candidates, mean_voxels=None) -> Tensor:
     occ, lo, vs = _grid_arrays(grid)
     shape = np.asarray(occ.shape)
-    free = ~occ
-    if reachable is not None:
-        reachable = np.asarray(reachable, dtype=bool)
-        if reachable.shape != occ.shape:
-            raise InvalidInputError(f"reachable mask {reachable.shape} does not match the grid {occ.shape}")
-        free &= reachable
+    reachable = _reachable_mask(reachable, occ.shape)  # free and reachable voxels: computed per window below
     tc = t.cpu()
+    t_np, lo_np = tc.numpy(), lo.numpy()
     v = _world_to_voxel(grid, tc).numpy()
     vc = np.clip(v, 0, shape - 1)
     R = 2
     while True:
         a = np.maximum(vc - R, 0)
         e = np.minimum(vc + R + 1, shape)
-        sub = free[a[0]:e[0], a[1]:e[1], a[2]:e[2]].copy()
+        win = (slice(a[0], e[0]), slice(a[1], e[1]), slice(a[2], e[2]))
+        sub = ~occ[win]
+        if reachable is not None:
+            sub &= reachable[win]
         covers_all = (a == 0).all() and (e == shape).all()
         if sub.any():
             # voxels holding a Gaussian mean are not goals (paper): mark them in this window only
             if mean_voxels is not None:
                 sub &= ~mean_voxels[a[0]:e[0], a[1]:e[1], a[2]:e[2]]
-            wlo = _voxel_to_world(grid, torch.as_tensor(a)) - 0.5 * vs
-            whi = _voxel_to_world(grid, torch.as_tensor(e - 1)) + 0.5 * vs
-            ids = None if mean_voxels is not None else candidate_ids(scene, index, wlo.to(scene.means.device),
-                                                                     whi.to(scene.means.device))
+            ids = None
+            if mean_voxels is None:  # the means in the window's box, from the index
+                wlo = _voxel_to_world(grid, torch.as_tensor(a)) - 0.5 * vs
+                whi = _voxel_to_world(grid, torch.as_tensor(e - 1)) + 0.5 * vs
+                ids = candidate_ids(scene, index, wlo.to(scene.means.device), whi.to(scene.means.device))
             if ids is not None and ids.numel():
                 mv = _world_to_voxel(grid, scene.means[ids].detach().cpu().to(torch.float64)).numpy() - a
                 ok = ((mv >= 0) & (mv < (e - a))).all(1)
                 mv = mv[ok]
                 sub[mv[:, 0], mv[:, 1], mv[:, 2]] = False
             ijk = np.argwhere(sub) + a
-            centres = _voxel_to_world(grid, torch.as_tensor(ijk))
-            d = (centres - tc).norm(dim=-1)
+            if len(ijk) == 0:  # every free voxel of the window holds a mean: a wider window
+                if covers_all:
+                    break
+                R *= 2
+                continue
+            centres = _voxel_centres(grid, ijk, lo_np, vs)  # [K, 3] float64
+            d = np.sqrt(((centres - t_np) ** 2).sum(1))
             # every voxel outside the window is at least R voxels away (target inside the grid)
             if float(d.min()) <= R * vs or covers_all:
-                order = torch.argsort(d)[:max_candidates]
-                cand = centres[order]
+                cand = torch.from_numpy(centres[np.argsort(d, kind="stable")[:max_candidates]])
                 for k in range(0, cand.shape[0], 16):  # nearest first, a few exact tests at a time
                     ok = torch.as_tensor(clear(cand[k:k + 16].to(scene.means.device))).reshape(-1).cpu()
                     if bool(ok.any()):

@@ -11,7 +11,7 @@ import torch
 
 from .collision import segments_collide
 from .errors import GoalUnreachableError, PlanningError
-from .goal import _project_onto_polytope, closest_safe_point
+from .goal import ComponentMask, _project_onto_polytope, closest_safe_point
 from .polytope import Polytope, safe_polytope
 
 if TYPE_CHECKING:
@@ -117,7 +117,7 @@ def reachable_goal(planner: "Planner", target: np.ndarray, comp: int) -> "Reacha
     walled_in = inside and labels[tuple(tv)] != comp
     try:
         g = closest_safe_point(
-            torch.as_tensor(target, device=dev), planner.scene, prep.index, grid, reachable=labels == comp,
+            torch.as_tensor(target, device=dev), planner.scene, prep.index, grid, reachable=ComponentMask(labels, comp),
             clearance_fn=planner.free_test, mean_voxels=prep.mean_voxels,
         )
         g = g.detach().cpu().numpy()

@@ -60,20 +60,54 @@ def segments_free_by_pieces(planner: "Planner", a: np.ndarray, b: np.ndarray) ->
     return ~bad
 
 
+class FreeVoxels:
+    """Planner.in_free_voxel as flat arrays, built once per prepared scene (free_voxels): the shortcut asks it for
+    thousands of samples per request, a few hundred at a time, where the per-call array set-up and clipping cost
+    more than the lookups. Same answers: the voxel floor((x - lo) / voxel_size), False outside the grid."""
+
+    def __init__(self, occupied: np.ndarray, lo: np.ndarray, voxel_size: float) -> None:
+        self.occupied = occupied  # [X, Y, Z] bool (kept to tell whether the cache is current)
+        self.free = ~np.ascontiguousarray(occupied, dtype=bool).reshape(-1)  # [X * Y * Z]
+        self.shape = np.asarray(occupied.shape, dtype=np.int64)
+        self.strides = np.array([occupied.shape[1] * occupied.shape[2], occupied.shape[2], 1], dtype=np.int64)
+        self.lo = np.asarray(lo, dtype=np.float64).reshape(3)
+        self.voxel_size = float(voxel_size)
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        """bool [P]: world point [P, 3] (float64) lies in a free voxel."""
+        ijk = np.floor((points - self.lo) / self.voxel_size).astype(np.int64)  # [P, 3]
+        inside = ((ijk >= 0) & (ijk < self.shape)).all(1)
+        lin = ijk @ self.strides
+        lin[~inside] = 0
+        return inside & self.free[lin]
+
+
+def free_voxels(planner: "Planner") -> FreeVoxels:
+    """The prepared scene's FreeVoxels (built on first use, kept on the PreparedScene)."""
+    prep = planner.ready()
+    occ = prep.astar_grid._occ
+    fv = getattr(prep, "_shortcut_free_voxels", None)
+    if fv is None or fv.occupied is not occ:
+        fv = FreeVoxels(occ, prep.grid.lo.detach().cpu().double().numpy(), float(prep.grid.voxel_size))
+        prep._shortcut_free_voxels = fv
+    return fv
+
+
 def grid_sight(planner: "Planner", p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
     """bool [P]: every sample (spacing <= half a voxel) of segment p0[i] -> p1[i] farther than one
     voxel from both ends lies in a free voxel of the occupancy grid. Only a cheap pre-filter for
     the shortcut: refusing a segment is always safe (it just keeps the voxel path there)."""
-    vs = float(planner.ready().grid.voxel_size)
+    fv = free_voxels(planner)
+    vs = fv.voxel_size
     L = np.linalg.norm(p1 - p0, axis=1)  # [P]
     n = np.maximum(2, np.ceil(L / (0.5 * vs)).astype(np.int64) + 1)  # samples per segment
     owner, k = group_ranks(n)
     frac = k / (n[owner] - 1)  # [S] in [0, 1]
-    dist_end = np.minimum(frac, 1 - frac) * L[owner]
+    far = np.minimum(frac, 1 - frac) * L[owner] > vs  # only samples farther than a voxel from both ends count
+    owner, frac = owner[far], frac[far]
     pts = p0[owner] + frac[:, None] * (p1 - p0)[owner]
-    blocked = ~planner.in_free_voxel(pts) & (dist_end > vs)
     bad = np.zeros(len(p0), dtype=bool)
-    np.logical_or.at(bad, owner, blocked)
+    bad[owner[~fv.contains(pts)]] = True
     return ~bad
 
 
@@ -100,7 +134,8 @@ def shortcut_test(planner: "Planner", p0, p1, grid_rule: bool) -> np.ndarray:
     b = np.asarray(p1, dtype=np.float64).reshape(-1, 3)
     out = grid_sight(planner, a, b)
     if grid_rule:
-        ends_free = planner.in_free_voxel(a) & planner.in_free_voxel(b)
+        fv = free_voxels(planner)
+        ends_free = fv.contains(a) & fv.contains(b)
         idx = np.flatnonzero(out & ends_free)
         if idx.size:
             out[idx] = planner.ready().voxels.segments_free(a[idx], b[idx])

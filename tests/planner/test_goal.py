@@ -18,6 +18,7 @@ from cinenerf_ns.planner.goal import (
     closest_safe_point,
     points_clearance_lower,
     project_active_set,
+    project_dual_active_set,
     sample_free_starts,
 )
 
@@ -111,6 +112,69 @@ def test_active_set_projection_is_the_exact_projection(seed, n_planes, far):
     # the wrapper returns a point exactly inside, within rounding of the projection
     y = _project_onto_polytope(A, b, t, interior=c)
     assert (A @ y <= b).all() and np.linalg.norm(y - x) < 1e-9
+
+
+def vertex_slack_reference(A: np.ndarray, b: np.ndarray) -> float:
+    """Brute force (float64): max over the vertices of the plane arrangement (3 independent planes) of the smallest
+    slack min_f (b_f - A_f x). A bounded {x : A x <= b} is non-empty iff one of its vertices is feasible, so > 0 means
+    non-empty and < 0 empty (up to rounding near 0)."""
+    from itertools import combinations
+
+    best = -np.inf
+    for S in combinations(range(len(b)), 3):
+        M = A[list(S)]
+        if abs(np.linalg.det(M)) < 1e-9:
+            continue
+        x = np.linalg.solve(M, b[list(S)])
+        best = max(best, float((b - A @ x).min()))
+    return best
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**31 - 1), n_planes=st.integers(0, 10), n_cuts=st.integers(0, 6), far=st.floats(0.0, 4.0))
+def test_dual_projection_is_the_exact_projection_or_proves_the_polytope_empty(seed, n_planes, n_cuts, far):
+    """project_dual_active_set (no feasible start) against the brute-force references: the same distance as the exact
+    projection when the polytope is non-empty, None when it is empty (cuts through the centre make ~1/4 empty)."""
+    rng = np.random.default_rng(seed)
+    A, b, c = random_polytope(rng, n_planes)
+    n = rng.normal(size=(n_cuts, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    A, b = np.vstack([A, n]), np.concatenate([b, n @ c + rng.uniform(-0.8, 1.0, n_cuts)])
+    t = c + far * rng.normal(size=3)
+    x = project_dual_active_set(A, b, t)
+    assert not isinstance(x, str)  # finishes on these (degenerate vertices and repeated planes included)
+    slack = vertex_slack_reference(A, b)
+    if x is None:
+        assert slack < 1e-9
+        return
+    assert slack > -1e-9
+    assert (A @ x - b).max() <= 1e-12 * (1 + np.abs(b).max())
+    assert np.linalg.norm(x - t) == pytest.approx(projection_reference(A, b, t), abs=1e-9)
+    # the wrapper (no interior point given): inside exactly, within its tightening of the projection
+    y = _project_onto_polytope(A, b, t)
+    if slack > 1e-6:
+        assert y is not None and (A @ y <= b).all() and np.linalg.norm(y - x) < 1e-6
+
+
+def test_projection_without_interior_point_agrees_with_the_chebyshev_route():
+    """_project_onto_polytope without an interior point (dual method) gives the point the Chebyshev centre + primal
+    method gave, and None exactly for the polytopes with no interior."""
+    from cinenerf_ns.planner.polytope import chebyshev_center
+
+    for seed in range(200):
+        rng = np.random.default_rng(seed)
+        A, b, c = random_polytope(rng, int(rng.integers(0, 10)))
+        n = rng.normal(size=(4, 3))
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        A, b = np.vstack([A, n]), np.concatenate([b, n @ c + rng.uniform(-0.8, 1.0, 4)])
+        t = c + 3.0 * rng.normal(size=3)
+        y = _project_onto_polytope(A, b, t)
+        cc, rad = chebyshev_center(A, b)
+        if rad > 1e-6:
+            z = _project_onto_polytope(A, b, t, interior=cc)
+            assert y is not None and (A @ y <= b).all() and np.linalg.norm(y - z) < 1e-6
+        elif rad < -1e-6 or rad == -np.inf:
+            assert y is None
 
 
 def test_projection_falls_back_to_clarabel_when_the_active_set_does_not_finish():
