@@ -131,11 +131,11 @@ finding, dropping the nearest one reported inf."""
 
 def _native_capped_distance(fn, pts: Tensor, scene: EllipsoidScene, index, cap: float) -> Tensor:
     """min(cap, distance to the nearest ellipsoid) [P] through native/polytope.c (NaN where a point is inside one)."""
-    from .polytope import _native_arrays
+    from .polytope_native import native_arrays
 
     p = np.ascontiguousarray(pts.cpu().numpy(), dtype=np.float64)
     out = np.empty(p.shape[0], dtype=np.float64)
-    if fn(*_native_arrays(scene, index)["args"], p.ctypes.data, p.shape[0], float(cap), out.ctypes.data) != 0:
+    if fn(*native_arrays(scene, index)["args"], p.ctypes.data, p.shape[0], float(cap), out.ctypes.data) != 0:
         raise InvalidInputError(f"bad max_distance {cap}")
     return torch.from_numpy(out).to(pts.device)
 
@@ -174,7 +174,7 @@ def clearance(
         raise InvalidInputError("points contain NaN or inf")
     pts = pts.double()
     from .native import choose, points_distance_c
-    from .polytope import native_applies
+    from .polytope_native import native_applies
 
     fn = choose(backend, points_distance_c, "polytope", "capped distance",
                 applies=max_distance is not None and math.isfinite(max_distance) and not return_index
