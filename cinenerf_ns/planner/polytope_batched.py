@@ -27,7 +27,7 @@ no plane; at the end it must lie beyond some kept plane of its segment, else the
 ``failed`` (the same rule as ``safe_polytope``'s SeedNotFreeError; because the kept planes can differ
 from the host path's, a flag is not guaranteed to coincide with it). The caller builds those segments
 with the host path (which splits them). Negative-slack rows are retried with the host code's extra
-reference points (``_plane_candidates``, numpy) before they are declared bad: that retry is rare and
+reference points (``polytope_planes.plane_candidates``, numpy) before they are declared bad: that retry is rare and
 is a long sequential loop that a GPU would run launch by launch.
 
 Only axis-aligned boxes (build_corridor's default ``box="aabb"``) are supported.
@@ -41,7 +41,8 @@ import torch
 from torch import Tensor
 
 from .errors import InvalidInputError
-from .polytope import Polytope, _plane_candidates
+from .polytope import Polytope
+from .polytope_planes import plane_candidates
 from .spatial_index import GridIndex
 
 
@@ -69,7 +70,7 @@ def _argmax_k(w2: Tensor, lam: Tensor, kappa: float, n_coarse: int = 64, n_fine:
 
 
 def _closest_t(w2: Tensor, lam: Tensor, iters: int = 8) -> Tensor:
-    """t >= 0 with sum_i lambda_i w_i^2 / (lambda_i + t)^2 = 1 [C] (polytope._closest_t in torch: Newton on the
+    """t >= 0 with sum_i lambda_i w_i^2 / (lambda_i + t)^2 = 1 [C] (polytope_planes.closest_t in torch: Newton on the
     concave increasing phi(t) = (sum_i c_i / (lambda_i + t)^2)^(-1/2) from the left, monotone; ~8 steps reach
     ~1e-12). Only a normal rule uses it. Written with few ops per step: on a GPU each op is a kernel launch."""
     c = lam * w2  # [C, 3]
@@ -99,7 +100,7 @@ def _exact_offsets(nw: Tensor, mu: Tensor, rot: Tensor, axes: Tensor, r: float, 
 def _planes_at(w: Tensor, p0: Tensor, p1: Tensor, mu: Tensor, rot: Tensor, axes: Tensor, r: float,
                normal: str, margin: float) -> Tuple[Tensor, Tensor, Tensor]:
     """Best-slack safe plane per row among the normal rules at body-frame reference points w [C, 3]
-    (polytope._planes_at in torch) -> (n [C, 3], b [C], slack [C]); slack = b - max(n.p0, n.p1)."""
+    (polytope_planes._planes_at in torch) -> (n [C, 3], b [C], slack [C]); slack = b - max(n.p0, n.p1)."""
     lam = axes * axes  # [C, 3]
     degenerate = (w * w).sum(-1) < 1e-24  # reference point at the centre: any direction is valid
     w = torch.where(degenerate[:, None], torch.tensor([0.0, 0.0, 1e-12], dtype=w.dtype, device=w.device), w)
@@ -124,7 +125,7 @@ def _planes_at(w: Tensor, p0: Tensor, p1: Tensor, mu: Tensor, rot: Tensor, axes:
 def _segment_planes(p0: Tensor, p1: Tensor, mu: Tensor, rot: Tensor, axes: Tensor, r: float, normal: str,
                     margin: float) -> Tuple[Tensor, Tensor, Tensor]:
     """Per row (seed segment p0, p1 [C, 3]; ellipsoid mu [C, 3], rot [C, 3, 3], axes [C, 3]) the best-slack
-    plane at the segment point closest to mu in the ellipsoid metric (polytope._plane_candidates' first
+    plane at the segment point closest to mu in the ellipsoid metric (polytope_planes.plane_candidates' first
     step) -> (n [C, 3], b [C], slack [C])."""
     lam = axes * axes
     w0 = torch.einsum("cji,cj->ci", rot, p0 - mu)  # R^T (p0 - mu)  [C, 3]
@@ -138,7 +139,7 @@ def _segment_planes(p0: Tensor, p1: Tensor, mu: Tensor, rot: Tensor, axes: Tenso
 def _retry_on_host(rows: Tensor, p0: Tensor, p1: Tensor, mu: Tensor, rot: Tensor, axes: Tensor, seg: Tensor,
                    r: float, normal: str, margin: float) -> Tuple[Tensor, Tensor, Tensor]:
     """Negative-slack rows [B] (indices into the row tensors): the host path's full plane search
-    (``polytope._plane_candidates`` with its extra reference points), one call per segment; the returned
+    (``polytope_planes.plane_candidates`` with its extra reference points), one call per segment; the returned
     normal's offset is recomputed exactly here. -> (n [B, 3], b [B], slack [B]) on the rows' device."""
     dev = mu.device
     seg_h = seg[rows].cpu().numpy()
@@ -148,7 +149,7 @@ def _retry_on_host(rows: Tensor, p0: Tensor, p1: Tensor, mu: Tensor, rot: Tensor
     for m in np.unique(seg_h):
         j = np.flatnonzero(seg_h == m)
         seeds = np.stack([p0_h[j[0]], p1_h[j[0]]])  # [2, 3]
-        n_h[j] = _plane_candidates(seeds, mu_h[j], rot_h[j], axes_h[j], r, normal, margin)[0]
+        n_h[j] = plane_candidates(seeds, mu_h[j], rot_h[j], axes_h[j], r, normal, margin)[0]
     n, b = _exact_offsets(torch.as_tensor(n_h, device=dev), mu[rows], rot[rows], axes[rows], r, margin)
     slack = b - torch.maximum((n * p0[rows]).sum(-1), (n * p1[rows]).sum(-1))
     return n, b, slack

@@ -11,14 +11,8 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from scipy.spatial import HalfspaceIntersection
 
 from cinenerf_ns.planner.errors import InvalidInputError
-from cinenerf_ns.planner.polytope import (
-    Polytope,
-    SeedNotFreeError,
-    _argmax_k,
-    _k_sphere,
-    chebyshev_center,
-    safe_polytope,
-)
+from cinenerf_ns.planner.polytope import Polytope, SeedNotFreeError, chebyshev_center, safe_polytope
+from cinenerf_ns.planner.polytope_planes import argmax_k, k_sphere
 
 sys.path.insert(0, str(Path(__file__).parent))  # our float64 references live beside the tests
 from _corridor_refs import (  # noqa: E402
@@ -200,10 +194,10 @@ def test_argmax_k_matches_dense_grid(seed, r):
     rng = np.random.default_rng(seed)
     w = torch.as_tensor(rng.normal(size=(8, 3)))
     lam = torch.as_tensor(rng.uniform(0.001, 0.3, size=(8, 3)))
-    s = _argmax_k((w**2).numpy(), lam.numpy(), r * r)
+    s = argmax_k((w**2).numpy(), lam.numpy(), r * r)
     grid = np.linspace(1e-6, 1 - 1e-6, 20001)
-    dense = _k_sphere((w**2).numpy(), lam.numpy(), r * r, np.broadcast_to(grid, (8, grid.size))).max(-1)
-    got = _k_sphere((w**2).numpy(), lam.numpy(), r * r, s[:, None])[:, 0]
+    dense = k_sphere((w**2).numpy(), lam.numpy(), r * r, np.broadcast_to(grid, (8, grid.size))).max(-1)
+    got = k_sphere((w**2).numpy(), lam.numpy(), r * r, s[:, None])[:, 0]
     assert np.all(got >= dense * (1 - 1e-3) - 1e-12)  # golden section to ~1e-3 in s (normal only)
 
 
