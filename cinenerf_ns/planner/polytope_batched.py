@@ -42,7 +42,7 @@ from torch import Tensor
 
 from .errors import InvalidInputError
 from .polytope import Polytope
-from .polytope_planes import plane_candidates
+from .polytope_planes import body_normals, plane_candidates
 from .spatial_index import GridIndex
 
 
@@ -104,16 +104,7 @@ def _planes_at(w: Tensor, p0: Tensor, p1: Tensor, mu: Tensor, rot: Tensor, axes:
     lam = axes * axes  # [C, 3]
     degenerate = (w * w).sum(-1) < 1e-24  # reference point at the centre: any direction is valid
     w = torch.where(degenerate[:, None], torch.tensor([0.0, 0.0, 1e-12], dtype=w.dtype, device=w.device), w)
-    w2 = w * w
-    cands = []  # body-frame normals pointing from the reference point toward the ellipsoid
-    if normal in ("auto", "prop2"):
-        s = _argmax_k(w2, lam, r * r)[:, None]  # [C, 1]
-        cands.append(-(s * (1 - s) / (r * r + s * (lam - r * r))) * w)
-    if normal in ("auto", "mahalanobis"):
-        cands.append(-w / lam)
-    if normal in ("auto", "closest"):
-        cands.append(-w / (lam + _closest_t(w2, lam)[:, None]))
-    nb = torch.stack(cands)  # [R, C, 3]
+    nb = torch.stack(body_normals(w, w * w, lam, r, normal, _argmax_k, _closest_t))  # [R, C, 3]
     nw = torch.einsum("cij,rcj->rci", rot, nb)  # world normals R nb  [R, C, 3]
     nw, off = _exact_offsets(nw, mu, rot, axes, r, margin)  # [R, C, 3], [R, C]
     slack = off - torch.maximum((nw * p0).sum(-1), (nw * p1).sum(-1))  # [R, C]

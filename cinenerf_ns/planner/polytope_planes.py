@@ -125,22 +125,29 @@ def _segment_closest_u(w0: np.ndarray, dw: np.ndarray, lam: np.ndarray, iters: i
     return 0.5 * (lo + hi)
 
 
+def body_normals(w, w2, lam, r: float, normal: str, argmax_k, closest_t) -> list:
+    """The body-frame normals [C, 3] of the rules ``normal`` names ("auto": all three, in this order), pointing from
+    reference points w [C, 3] (w2 = w * w) toward ellipsoids with squared semi-axes lam [C, 3]: Prop. 2's
+    Q(s*) w, the Mahalanobis normal w / lam and the closest-point normal w / (lam + t). numpy or torch arrays alike,
+    with argmax_k and closest_t of the same kind (this module's, or polytope_batched's torch ports)."""
+    cands = []
+    if normal in ("auto", "prop2"):
+        s = argmax_k(w2, lam, r * r)[:, None]  # [C, 1]
+        cands.append(-(s * (1 - s) / (r * r + s * (lam - r * r))) * w)
+    if normal in ("auto", "mahalanobis"):
+        cands.append(-w / lam)
+    if normal in ("auto", "closest"):
+        cands.append(-w / (lam + closest_t(w2, lam)[:, None]))
+    return cands
+
+
 def _planes_at(w: np.ndarray, seeds: np.ndarray, mu: np.ndarray, rot: np.ndarray, axes: np.ndarray,
                lam: np.ndarray, r: float, normal: str, margin: float):
     """Best-slack safe plane per ellipsoid among the normal rules evaluated at body-frame reference
     points w [C, 3] -> (n [C, 3], b [C], slack [C])."""
     degenerate = (w**2).sum(-1) < 1e-24  # reference point at the centre: any direction is valid
     w = np.where(degenerate[:, None], np.array([0.0, 0.0, 1e-12]), w)
-    w2 = w**2
-    cands = []  # body-frame normals pointing from the reference point toward the ellipsoid
-    if normal in ("auto", "prop2"):
-        s = argmax_k(w2, lam, r * r)[:, None]
-        cands.append(-(s * (1 - s) / (r * r + s * (lam - r * r))) * w)
-    if normal in ("auto", "mahalanobis"):
-        cands.append(-w / lam)
-    if normal in ("auto", "closest"):
-        cands.append(-w / (lam + closest_t(w2, lam)[:, None]))
-    nb = np.stack(cands)  # [R, C, 3]
+    nb = np.stack(body_normals(w, w**2, lam, r, normal, argmax_k, closest_t))  # [R, C, 3]
     nb = nb / np.maximum(np.linalg.norm(nb, axis=-1, keepdims=True), 1e-300)
     nw = np.einsum("cij,rcj->rci", rot, nb)  # world normals R nb  [R, C, 3]
     # exact offset: n.mu - ||diag(a) R^T n|| - r (module docstring); R^T n = nb
