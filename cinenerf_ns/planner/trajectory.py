@@ -92,10 +92,9 @@ class TrajectoryConfig:
     tolerance: float = 1e-8
     """Clarabel feasibility/optimality tolerance (tol_feas, tol_gap_abs, tol_gap_rel)."""
     iterative_refinement: bool = False
-    """Clarabel's iterative refinement of every KKT solve. Off halves Clarabel's solve on corridor QPs (median 1.28 ->
-    0.65 ms, 40 QPs of 1M-Gaussian plans, CPU box, 2026-11-24) with the same optimum (objective within 7e-8 relative,
-    constraint violation <= 3e-11, far inside the margin); every control point is still checked against its
-    unshrunk polytope. The one retry after a stalled solve turns it on."""
+    """Clarabel's iterative refinement of every KKT solve. Off about halves Clarabel's solve on corridor QPs with the
+    same optimum (objective within ~1e-7 relative, constraint violations far inside the margin); every control point
+    is still checked against its unshrunk polytope. The one retry after a stalled solve turns it on."""
     osqp_tolerance: float = 1e-6
     """OSQP eps_abs/eps_rel. ADMM converges slowly on this ill-conditioned cost (1/d^5 terms), so it gets
     a looser tolerance than Clarabel; polishing usually sharpens it and the margin covers the rest."""
@@ -225,12 +224,11 @@ def _diagnose_infeasible(polys, margins) -> str:
 class CorridorQP:
     """The assembled QP: minimise 1/2 x^T P x subject to A_eq x = b_eq, A_in x <= b_in.
 
-    Stored in the forms the default path uses, so a plan pays for no conversion it does not need (scipy's
-    COO/stack/triu conversions, five per QP before, were ~2 ms of a ~3.5 ms QP stage, CPU box, 2026-11-24; now one
-    COO conversion for the stacked A): ``P_upper`` (the upper
-    triangle of P, what Clarabel reads), ``A`` (equalities stacked over inequalities) and ``eq_dense`` (A_eq as a
-    dense array: the post-solve equality projection is a small dense solve). ``P``, ``A_eq`` and ``A_in`` are built
-    from these on first use (OSQP, multi-stop, tests)."""
+    Stored in the forms the default path uses, so a plan pays for no scipy conversion it does not need (they took
+    over half of the QP stage; the stacked A takes one COO conversion): ``P_upper`` (the upper triangle of P, what
+    Clarabel reads), ``A`` (equalities stacked over inequalities) and ``eq_dense`` (A_eq as a dense array: the
+    post-solve equality projection is a small dense solve). ``P``, ``A_eq`` and ``A_in`` are built from these on
+    first use (OSQP, multi-stop, tests)."""
 
     def __init__(self, P_upper: sp.csc_matrix, A: sp.csc_matrix, b: np.ndarray, n_eq: int, eq_dense: np.ndarray,
                  durations: np.ndarray, degree: int, num_segments: int, polytopes: list):
