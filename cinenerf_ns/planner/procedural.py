@@ -193,7 +193,7 @@ def _place_objects(rng: np.random.Generator, n_objects: int, w: float, d: float,
 
 def _surface_areas(objects: list[ProceduralObject], w: float, d: float, h: float) -> np.ndarray:
     """[3 + O]: floor, the two walls at x = +-w/2, the two at y = +-d/2, then each object's visible surface."""
-    areas = [w * d, 2 * w * h, 2 * d * h]  # floor, walls (x), walls (y)
+    areas = [w * d, 2 * d * h, 2 * w * h]  # floor, walls at x = +-w/2 (d x h each), walls at y = +-d/2 (w x h each)
     for o in objects:
         if o.kind == "box":
             sx, sy, sz = o.size
