@@ -194,64 +194,88 @@ def clearance(
     arg = torch.full((P,), -1, dtype=torch.long, device=dev)
     brute = torch.zeros(P, dtype=torch.bool, device=dev)
     if index is not None and P:
-        lo_s, hi_s = index.lo.min(0).values, index.hi.max(0).values
-        # distance from each point to the scene box: no search box smaller than this can hit
-        gap = torch.maximum(lo_s - pts, pts - hi_s).clamp_min(0).max(-1).values
-        far_r = float((hi_s - lo_s).max()) + 1.0
-        rad = torch.maximum(torch.full((P,), max(FIRST_BOX_FRACTION * index.levels[0].cell, 1e-6), dtype=torch.float64, device=dev), gap)
-        if start_radius is not None:
-            sr = torch.as_tensor(start_radius, device=dev).double().reshape(-1)
-            if sr.shape != (P,):
-                raise InvalidInputError(f"start_radius must be [P={P}], got {tuple(sr.shape)}")
-            sr = torch.where(torch.isfinite(sr), sr, torch.zeros_like(sr))
-            if math.isfinite(cap):  # a box beyond the cap is never needed: reach >= cap already caps the point
-                sr = sr.clamp_max(max(cap - float(index.pad), 0.0))
-            rad = torch.maximum(rad, sr)
-        todo = torch.arange(P, device=dev)
-        while todo.numel():
-            pi, gi = index.query_points(pts[todo], rad[todo])
-            d, g_best = _min_over_pairs(pts[todo], scene, pi, gi, todo.numel())
-            reach = rad[todo] + index.pad  # every ellipsoid closer than this was a candidate
-            exact = d <= reach
-            capped = ~exact & (reach >= cap)
-            best[todo[exact]], arg[todo[exact]] = d[exact], g_best[exact]
-            best[todo[capped]] = cap
-            # found something farther than the search box: one more query, exactly as large as needed
-            redo = torch.nonzero(~exact & ~capped & torch.isfinite(d)).squeeze(-1)
-            if redo.numel():
-                t = todo[redo]
-                u = torch.minimum(d[redo], torch.full_like(d[redo], cap))
-                pi2, gi2 = index.query_points(pts[t], (u - index.pad).clamp_min(0))
-                d2, g2 = _min_over_pairs(pts[t], scene, pi2, gi2, t.numel(), u)
-                # d2 is exact (all ellipsoids closer than u were candidates); the first-round d is a
-                # true distance too, kept where it is smaller (last-bit rounding differences)
-                first = d[redo] < d2
-                best[t] = torch.where(first, d[redo], d2)
-                arg[t] = torch.where(first, g_best[redo], g2)
-            todo = todo[~exact & ~capped & ~torch.isfinite(d)]  # nothing found yet: grow the box
-            rad[todo] *= 1.5
-            whole = rad[todo] > far_r + gap[todo]  # the box covers the scene: brute force
-            brute[todo[whole]] = True
-            todo = todo[~whole]
+        _indexed_search(pts, scene, index, cap, start_radius, best, arg, brute)
         arg[best > cap] = -1
         best = best.clamp_max(cap)
     else:
         brute[:] = True
-    todo = torch.nonzero(brute).squeeze(-1)
-    if todo.numel():
-        n = len(scene)
-        step = max(1, chunk_pairs // max(n, 1))
-        for i in range(0, todo.numel(), step):
-            t = todo[i : i + step]
-            pi = torch.arange(t.numel(), device=dev).repeat_interleave(n)
-            gi = torch.arange(n, device=dev).repeat(t.numel())
-            d, g_best = _min_over_pairs(pts[t], scene, pi, gi, t.numel())
-            if not math.isinf(cap):
-                g_best = torch.where(d <= cap, g_best, torch.full_like(g_best, -1))
-                d = d.clamp_max(cap)
-            best[t], arg[t] = d, g_best
+    _brute_force(pts, scene, torch.nonzero(brute).squeeze(-1), cap, chunk_pairs, best, arg)
     out = best - scene.camera_radius
     return (out, arg) if return_index else out
+
+
+def _first_radius(pts: Tensor, index, cap: float, start_radius: Optional[Tensor]) -> Tuple[Tensor, Tensor, float]:
+    """(first search-box half-width [P], distance to the scene box [P], half-width beyond which a box covers the
+    scene) for clearance's indexed search."""
+    P, dev = pts.shape[0], pts.device
+    lo_s, hi_s = index.lo.min(0).values, index.hi.max(0).values
+    # distance from each point to the scene box: no search box smaller than this can hit
+    gap = torch.maximum(lo_s - pts, pts - hi_s).clamp_min(0).max(-1).values
+    far_r = float((hi_s - lo_s).max()) + 1.0
+    first = max(FIRST_BOX_FRACTION * index.levels[0].cell, 1e-6)
+    rad = torch.maximum(torch.full((P,), first, dtype=torch.float64, device=dev), gap)
+    if start_radius is not None:
+        sr = torch.as_tensor(start_radius, device=dev).double().reshape(-1)
+        if sr.shape != (P,):
+            raise InvalidInputError(f"start_radius must be [P={P}], got {tuple(sr.shape)}")
+        sr = torch.where(torch.isfinite(sr), sr, torch.zeros_like(sr))
+        if math.isfinite(cap):  # a box beyond the cap is never needed: reach >= cap already caps the point
+            sr = sr.clamp_max(max(cap - float(index.pad), 0.0))
+        rad = torch.maximum(rad, sr)
+    return rad, gap, far_r
+
+
+def _indexed_search(pts: Tensor, scene: EllipsoidScene, index, cap: float, start_radius: Optional[Tensor],
+                    best: Tensor, arg: Tensor, brute: Tensor) -> None:
+    """clearance's search with an index, filling best [P] / arg [P] in place (best = cap where capped; brute [P] set
+    for points whose growing box came to cover the whole scene without a candidate)."""
+    rad, gap, far_r = _first_radius(pts, index, cap, start_radius)
+    todo = torch.arange(pts.shape[0], device=pts.device)
+    while todo.numel():
+        pi, gi = index.query_points(pts[todo], rad[todo])
+        d, g_best = _min_over_pairs(pts[todo], scene, pi, gi, todo.numel())
+        reach = rad[todo] + index.pad  # every ellipsoid closer than this was a candidate
+        exact = d <= reach
+        capped = ~exact & (reach >= cap)
+        best[todo[exact]], arg[todo[exact]] = d[exact], g_best[exact]
+        best[todo[capped]] = cap
+        # found something farther than the search box: one more query, exactly as large as needed
+        redo = torch.nonzero(~exact & ~capped & torch.isfinite(d)).squeeze(-1)
+        if redo.numel():
+            t = todo[redo]
+            u = torch.minimum(d[redo], torch.full_like(d[redo], cap))
+            pi2, gi2 = index.query_points(pts[t], (u - index.pad).clamp_min(0))
+            d2, g2 = _min_over_pairs(pts[t], scene, pi2, gi2, t.numel(), u)
+            # d2 is exact (all ellipsoids closer than u were candidates); the first-round d is a
+            # true distance too, kept where it is smaller (last-bit rounding differences)
+            first = d[redo] < d2
+            best[t] = torch.where(first, d[redo], d2)
+            arg[t] = torch.where(first, g_best[redo], g2)
+        todo = todo[~exact & ~capped & ~torch.isfinite(d)]  # nothing found yet: grow the box
+        rad[todo] *= 1.5
+        whole = rad[todo] > far_r + gap[todo]  # the box covers the scene: brute force
+        brute[todo[whole]] = True
+        todo = todo[~whole]
+
+
+def _brute_force(pts: Tensor, scene: EllipsoidScene, todo: Tensor, cap: float, chunk_pairs: int, best: Tensor,
+                 arg: Tensor) -> None:
+    """Exact distance of the points todo [T] to every ellipsoid, in chunks of ~chunk_pairs pairs, into best / arg
+    (capped at cap, arg -1 there)."""
+    if not todo.numel():
+        return
+    dev = pts.device
+    n = len(scene)
+    step = max(1, chunk_pairs // max(n, 1))
+    for i in range(0, todo.numel(), step):
+        t = todo[i : i + step]
+        pi = torch.arange(t.numel(), device=dev).repeat_interleave(n)
+        gi = torch.arange(n, device=dev).repeat(t.numel())
+        d, g_best = _min_over_pairs(pts[t], scene, pi, gi, t.numel())
+        if not math.isinf(cap):
+            g_best = torch.where(d <= cap, g_best, torch.full_like(g_best, -1))
+            d = d.clamp_max(cap)
+        best[t], arg[t] = d, g_best
 
 
 def _pair_geometry(pts: Tensor, scene: EllipsoidScene, pi: Tensor, gi: Tensor):
