@@ -141,13 +141,16 @@ class PolytopeOptions:
             raise InvalidInputError(f"unknown normal rule {self.normal!r}")
 
 
+_OPTION_NAMES = frozenset(f.name for f in dataclasses.fields(PolytopeOptions))
+
+
 def _resolved_options(options: Optional[PolytopeOptions], fields: dict) -> PolytopeOptions:
     """``options`` (default PolytopeOptions()) with the named ``fields`` replaced (TypeError for unknown names)."""
-    unknown = sorted(set(fields) - {f.name for f in dataclasses.fields(PolytopeOptions)})
-    if unknown:
-        raise TypeError(f"safe_polytope() got unexpected keyword arguments {unknown}")
-    base = PolytopeOptions() if options is None else options
-    return dataclasses.replace(base, **fields) if fields else base
+    if not fields.keys() <= _OPTION_NAMES:
+        raise TypeError(f"safe_polytope() got unexpected keyword arguments {sorted(fields.keys() - _OPTION_NAMES)}")
+    if options is None:
+        return PolytopeOptions(**fields)
+    return dataclasses.replace(options, **fields) if fields else options
 
 
 def chebyshev_center(A: ArrayLike, b: ArrayLike) -> tuple[np.ndarray, float]:
@@ -243,7 +246,7 @@ class _Box:
     hi: Tensor  # [3]
     rot: Optional[Tensor]  # [3, 3] columns = box axes, or None
     A: np.ndarray  # [6, 3] its faces as planes A x <= b (float64 numpy, the first six planes of the polytope)
-    b: np.ndarray  # [6]
+    b: np.ndarray  # [6] (hi, -lo)
 
     def polytope(self, n: list, b: list, kept: Tensor, seeds_t: Tensor) -> Polytope:
         """The box's six faces then the planes n [f, 3], b [f] of each list entry; kept [F - 6] their scene ids."""
@@ -306,8 +309,9 @@ def _native_polytope(fn, scene, index, seeds_t: Tensor, box: _Box, opts: Polytop
     """safe_polytope through native/polytope.c (one or two seeds [S, 3])."""
     dev = scene.means.device
     seeds, r = _np(seeds_t), float(scene.camera_radius)
+    lo, hi = -box.b[3:], box.b[:3]  # b = (hi, -lo): the box in float64 numpy
     n, b, ids, bad_ids, bad_slack = native_safe_polytope(
-        fn, scene, index, seeds, _np(box.lo), _np(box.hi), None if box.rot is None else _np(box.rot), r, opts.margin,
+        fn, scene, index, seeds, lo, hi, None if box.rot is None else _np(box.rot), r, opts.margin,
         opts.normal, opts.require_seed_inside, opts.near_fraction if opts.two_pass else 0.0)
     if bad_slack.size:
         raise _seed_not_free(seeds, r, torch.as_tensor(bad_ids, device=dev), bad_slack)
