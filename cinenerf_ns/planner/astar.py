@@ -180,15 +180,28 @@ def astar(
     grid = occupied if isinstance(occupied, AStarGrid) else AStarGrid(occupied)
     s = _as_ijk(start_ijk, grid.shape, "start")
     g_ = _as_ijk(goal_ijk, grid.shape, "goal")
-    blocked = grid.blocked
+    _check_endpoints(grid, s, g_, check_components)
     start, goal = grid.flat(s), grid.flat(g_)
-    if blocked[start]:
-        raise StartInCollisionError(f"the start voxel {s} is occupied (too close to the scene); choose another start")
-    if blocked[goal]:
-        raise GoalUnreachableError(f"the goal voxel {g_} is occupied (too close to the scene)")
     if start == goal:
         return np.asarray([s], dtype=np.int64)
-    if check_components:
+
+    fn = None if backend == "python" else native_astar26()
+    if backend == "native" and fn is None:
+        raise RuntimeError(f"the compiled A* is not available: {native_status().get('astar26', 'not loaded')}")
+    if fn is not None:
+        return _astar_native(grid, start, goal, s, g_, max_expansions, float(heuristic_weight))
+    return _astar_python(grid, start, goal, s, g_, max_expansions, float(heuristic_weight))
+
+
+def _check_endpoints(grid: AStarGrid, s: tuple, g_: tuple, check_components: bool) -> None:
+    """Raise StartInCollisionError / GoalUnreachableError for an occupied start or goal voxel, or (with
+    check_components) a goal in another free component than the start."""
+    blocked = grid.blocked
+    if blocked[grid.flat(s)]:
+        raise StartInCollisionError(f"the start voxel {s} is occupied (too close to the scene); choose another start")
+    if blocked[grid.flat(g_)]:
+        raise GoalUnreachableError(f"the goal voxel {g_} is occupied (too close to the scene)")
+    if check_components and s != g_:
         lab = grid.labels
         if lab[s] != lab[g_]:
             raise GoalUnreachableError(
@@ -196,13 +209,10 @@ def astar(
                 f"through free space at this grid resolution"
             )
 
-    fn = None if backend == "python" else native_astar26()
-    if backend == "native" and fn is None:
-        raise RuntimeError(f"the compiled A* is not available: {native_status().get('astar26', 'not loaded')}")
-    if fn is not None:
-        return _astar_native(grid, start, goal, s, g_, max_expansions, float(heuristic_weight))
 
-    closed = bytearray(blocked)  # occupied or closed: one lookup per neighbour
+def _astar_python(grid: AStarGrid, start: int, goal: int, s, g_, max_expansions, weight: float) -> np.ndarray:
+    """astar() in pure Python (flat padded indices; the module docstring says why it is written this way)."""
+    closed = bytearray(grid.blocked)  # occupied or closed: one lookup per neighbour
     gi, gj, gk = g_
     sx, sy = grid.sx, grid.sy
     nbrs = grid.neighbours
@@ -215,8 +225,8 @@ def astar(
     g_get = g.get
     inf = math.inf
     c1, c2 = _C1, _C2
-    if heuristic_weight != 1.0:
-        wgt = float(heuristic_weight)
+    if weight != 1.0:
+        wgt = float(weight)
         c1, c2 = wgt * _C1, wgt * _C2
     else:
         wgt = 1.0

@@ -230,12 +230,12 @@ def _native_points_collide(fn, scene: EllipsoidScene, index, pts: Tensor, rad: T
     """points_collide through native/polytope.c (float64 CPU points [P, 3], radii [P])."""
     import numpy as np
 
-    from .polytope import _native_arrays
+    from .polytope_native import native_arrays
 
     p = np.ascontiguousarray(pts.cpu().numpy(), dtype=np.float64)
     rr = np.ascontiguousarray(rad.cpu().numpy(), dtype=np.float64)
     hit = np.zeros(p.shape[0], dtype=np.uint8)
-    fn(*_native_arrays(scene, index)["args"], p.ctypes.data, rr.ctypes.data, p.shape[0], float(margin), hit.ctypes.data)
+    fn(*native_arrays(scene, index)["args"], p.ctypes.data, rr.ctypes.data, p.shape[0], float(margin), hit.ctypes.data)
     return torch.from_numpy(hit.astype(bool)).to(pts.device)
 
 
@@ -254,7 +254,7 @@ def points_collide(
     on the CPU when it loads; the same pair rule below, one point at a time, stopping at its first collision),
     "native" (error if it does not apply) or "python"."""
     from .native import choose, points_collide_c
-    from .polytope import native_applies
+    from .polytope_native import native_applies
 
     fn = choose(backend, points_collide_c, "polytope", "point test", applies=native_applies(scene, index),
                 needs="a CPU scene and a GridIndex on the CPU")

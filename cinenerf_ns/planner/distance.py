@@ -121,7 +121,7 @@ def pair_distance(points: Tensor, scene: EllipsoidScene, pi: Tensor, gi: Tensor)
 FIRST_BOX_FRACTION = 0.25
 """First search box of clearance(), as a fraction of the index's finest cell: a box of a whole cell gathers
 thousands of point-ellipsoid pairs per point in dense scenes; a quarter cell finds a near surface with
-~10x fewer, and growing it (x1.5 per round) is cheap (200k-Gaussian room, 2041 shot frames: 1.40 s -> 0.65 s)."""
+~10x fewer, and growing it (x1.5 per round) is cheap (about twice as fast over a shot's frames as a whole cell)."""
 
 
 PRUNE_SLACK = 1e-6
@@ -131,11 +131,11 @@ finding, dropping the nearest one reported inf."""
 
 def _native_capped_distance(fn, pts: Tensor, scene: EllipsoidScene, index, cap: float) -> Tensor:
     """min(cap, distance to the nearest ellipsoid) [P] through native/polytope.c (NaN where a point is inside one)."""
-    from .polytope import _native_arrays
+    from .polytope_native import native_arrays
 
     p = np.ascontiguousarray(pts.cpu().numpy(), dtype=np.float64)
     out = np.empty(p.shape[0], dtype=np.float64)
-    if fn(*_native_arrays(scene, index)["args"], p.ctypes.data, p.shape[0], float(cap), out.ctypes.data) != 0:
+    if fn(*native_arrays(scene, index)["args"], p.ctypes.data, p.shape[0], float(cap), out.ctypes.data) != 0:
         raise InvalidInputError(f"bad max_distance {cap}")
     return torch.from_numpy(out).to(pts.device)
 
@@ -152,11 +152,11 @@ def clearance(
 ) -> Union[Tensor, Tuple[Tensor, Tensor]]:
     """Exact clearance [P] (float64) = min_j signed_dist(point, E_j) - camera_radius.
 
-    With an index, two phases per point: (1) grow a search box (doubling) until it holds a candidate,
-    and take U = the smallest cheap upper bound of the signed distance among those candidates;
-    (2) every ellipsoid closer than U has its AABB within the box of half-width U, so query that box,
-    prune with cheap lower bounds and run the exact root finding on the rest. Without an index all
-    ellipsoids are candidates. ``max_distance``: distances above it are not searched for and are
+    With an index, two phases per point: (1) grow a search box (x1.5 per round) until it holds a candidate,
+    and take U = the smallest distance to those candidates (cheap bounds prune most pairs before the exact root
+    finding); (2) every ellipsoid closer than U has its padded AABB within the box of half-width U - pad, so
+    unless the first box already reached that far, query that box once more and take its exact minimum. Without
+    an index all ellipsoids are candidates. ``max_distance``: distances above it are not searched for and are
     reported as max_distance (so the clearance is then max_distance - camera_radius, a lower bound);
     use it to bound the work for points far from everything. ``return_index`` also returns the id [P]
     of the nearest ellipsoid (-1 where capped). ``start_radius`` [P] (optional): the first search box's
@@ -174,7 +174,7 @@ def clearance(
         raise InvalidInputError("points contain NaN or inf")
     pts = pts.double()
     from .native import choose, points_distance_c
-    from .polytope import native_applies
+    from .polytope_native import native_applies
 
     fn = choose(backend, points_distance_c, "polytope", "capped distance",
                 applies=max_distance is not None and math.isfinite(max_distance) and not return_index
@@ -194,64 +194,88 @@ def clearance(
     arg = torch.full((P,), -1, dtype=torch.long, device=dev)
     brute = torch.zeros(P, dtype=torch.bool, device=dev)
     if index is not None and P:
-        lo_s, hi_s = index.lo.min(0).values, index.hi.max(0).values
-        # distance from each point to the scene box: no search box smaller than this can hit
-        gap = torch.maximum(lo_s - pts, pts - hi_s).clamp_min(0).max(-1).values
-        far_r = float((hi_s - lo_s).max()) + 1.0
-        rad = torch.maximum(torch.full((P,), max(FIRST_BOX_FRACTION * index.levels[0].cell, 1e-6), dtype=torch.float64, device=dev), gap)
-        if start_radius is not None:
-            sr = torch.as_tensor(start_radius, device=dev).double().reshape(-1)
-            if sr.shape != (P,):
-                raise InvalidInputError(f"start_radius must be [P={P}], got {tuple(sr.shape)}")
-            sr = torch.where(torch.isfinite(sr), sr, torch.zeros_like(sr))
-            if math.isfinite(cap):  # a box beyond the cap is never needed: reach >= cap already caps the point
-                sr = sr.clamp_max(max(cap - float(index.pad), 0.0))
-            rad = torch.maximum(rad, sr)
-        todo = torch.arange(P, device=dev)
-        while todo.numel():
-            pi, gi = index.query_points(pts[todo], rad[todo])
-            d, g_best = _min_over_pairs(pts[todo], scene, pi, gi, todo.numel())
-            reach = rad[todo] + index.pad  # every ellipsoid closer than this was a candidate
-            exact = d <= reach
-            capped = ~exact & (reach >= cap)
-            best[todo[exact]], arg[todo[exact]] = d[exact], g_best[exact]
-            best[todo[capped]] = cap
-            # found something farther than the search box: one more query, exactly as large as needed
-            redo = torch.nonzero(~exact & ~capped & torch.isfinite(d)).squeeze(-1)
-            if redo.numel():
-                t = todo[redo]
-                u = torch.minimum(d[redo], torch.full_like(d[redo], cap))
-                pi2, gi2 = index.query_points(pts[t], (u - index.pad).clamp_min(0))
-                d2, g2 = _min_over_pairs(pts[t], scene, pi2, gi2, t.numel(), u)
-                # d2 is exact (all ellipsoids closer than u were candidates); the first-round d is a
-                # true distance too, kept where it is smaller (last-bit rounding differences)
-                first = d[redo] < d2
-                best[t] = torch.where(first, d[redo], d2)
-                arg[t] = torch.where(first, g_best[redo], g2)
-            todo = todo[~exact & ~capped & ~torch.isfinite(d)]  # nothing found yet: grow the box
-            rad[todo] *= 1.5
-            whole = rad[todo] > far_r + gap[todo]  # the box covers the scene: brute force
-            brute[todo[whole]] = True
-            todo = todo[~whole]
+        _indexed_search(pts, scene, index, cap, start_radius, best, arg, brute)
         arg[best > cap] = -1
         best = best.clamp_max(cap)
     else:
         brute[:] = True
-    todo = torch.nonzero(brute).squeeze(-1)
-    if todo.numel():
-        n = len(scene)
-        step = max(1, chunk_pairs // max(n, 1))
-        for i in range(0, todo.numel(), step):
-            t = todo[i : i + step]
-            pi = torch.arange(t.numel(), device=dev).repeat_interleave(n)
-            gi = torch.arange(n, device=dev).repeat(t.numel())
-            d, g_best = _min_over_pairs(pts[t], scene, pi, gi, t.numel())
-            if not math.isinf(cap):
-                g_best = torch.where(d <= cap, g_best, torch.full_like(g_best, -1))
-                d = d.clamp_max(cap)
-            best[t], arg[t] = d, g_best
+    _brute_force(pts, scene, torch.nonzero(brute).squeeze(-1), cap, chunk_pairs, best, arg)
     out = best - scene.camera_radius
     return (out, arg) if return_index else out
+
+
+def _first_radius(pts: Tensor, index, cap: float, start_radius: Optional[Tensor]) -> Tuple[Tensor, Tensor, float]:
+    """(first search-box half-width [P], distance to the scene box [P], half-width beyond which a box covers the
+    scene) for clearance's indexed search."""
+    P, dev = pts.shape[0], pts.device
+    lo_s, hi_s = index.lo.min(0).values, index.hi.max(0).values
+    # distance from each point to the scene box: no search box smaller than this can hit
+    gap = torch.maximum(lo_s - pts, pts - hi_s).clamp_min(0).max(-1).values
+    far_r = float((hi_s - lo_s).max()) + 1.0
+    first = max(FIRST_BOX_FRACTION * index.levels[0].cell, 1e-6)
+    rad = torch.maximum(torch.full((P,), first, dtype=torch.float64, device=dev), gap)
+    if start_radius is not None:
+        sr = torch.as_tensor(start_radius, device=dev).double().reshape(-1)
+        if sr.shape != (P,):
+            raise InvalidInputError(f"start_radius must be [P={P}], got {tuple(sr.shape)}")
+        sr = torch.where(torch.isfinite(sr), sr, torch.zeros_like(sr))
+        if math.isfinite(cap):  # a box beyond the cap is never needed: reach >= cap already caps the point
+            sr = sr.clamp_max(max(cap - float(index.pad), 0.0))
+        rad = torch.maximum(rad, sr)
+    return rad, gap, far_r
+
+
+def _indexed_search(pts: Tensor, scene: EllipsoidScene, index, cap: float, start_radius: Optional[Tensor],
+                    best: Tensor, arg: Tensor, brute: Tensor) -> None:
+    """clearance's search with an index, filling best [P] / arg [P] in place (best = cap where capped; brute [P] set
+    for points whose growing box came to cover the whole scene without a candidate)."""
+    rad, gap, far_r = _first_radius(pts, index, cap, start_radius)
+    todo = torch.arange(pts.shape[0], device=pts.device)
+    while todo.numel():
+        pi, gi = index.query_points(pts[todo], rad[todo])
+        d, g_best = _min_over_pairs(pts[todo], scene, pi, gi, todo.numel())
+        reach = rad[todo] + index.pad  # every ellipsoid closer than this was a candidate
+        exact = d <= reach
+        capped = ~exact & (reach >= cap)
+        best[todo[exact]], arg[todo[exact]] = d[exact], g_best[exact]
+        best[todo[capped]] = cap
+        # found something farther than the search box: one more query, exactly as large as needed
+        redo = torch.nonzero(~exact & ~capped & torch.isfinite(d)).squeeze(-1)
+        if redo.numel():
+            t = todo[redo]
+            u = torch.minimum(d[redo], torch.full_like(d[redo], cap))
+            pi2, gi2 = index.query_points(pts[t], (u - index.pad).clamp_min(0))
+            d2, g2 = _min_over_pairs(pts[t], scene, pi2, gi2, t.numel(), u)
+            # d2 is exact (all ellipsoids closer than u were candidates); the first-round d is a
+            # true distance too, kept where it is smaller (last-bit rounding differences)
+            first = d[redo] < d2
+            best[t] = torch.where(first, d[redo], d2)
+            arg[t] = torch.where(first, g_best[redo], g2)
+        todo = todo[~exact & ~capped & ~torch.isfinite(d)]  # nothing found yet: grow the box
+        rad[todo] *= 1.5
+        whole = rad[todo] > far_r + gap[todo]  # the box covers the scene: brute force
+        brute[todo[whole]] = True
+        todo = todo[~whole]
+
+
+def _brute_force(pts: Tensor, scene: EllipsoidScene, todo: Tensor, cap: float, chunk_pairs: int, best: Tensor,
+                 arg: Tensor) -> None:
+    """Exact distance of the points todo [T] to every ellipsoid, in chunks of ~chunk_pairs pairs, into best / arg
+    (capped at cap, arg -1 there)."""
+    if not todo.numel():
+        return
+    dev = pts.device
+    n = len(scene)
+    step = max(1, chunk_pairs // max(n, 1))
+    for i in range(0, todo.numel(), step):
+        t = todo[i : i + step]
+        pi = torch.arange(t.numel(), device=dev).repeat_interleave(n)
+        gi = torch.arange(n, device=dev).repeat(t.numel())
+        d, g_best = _min_over_pairs(pts[t], scene, pi, gi, t.numel())
+        if not math.isinf(cap):
+            g_best = torch.where(d <= cap, g_best, torch.full_like(g_best, -1))
+            d = d.clamp_max(cap)
+        best[t], arg[t] = d, g_best
 
 
 def _pair_geometry(pts: Tensor, scene: EllipsoidScene, pi: Tensor, gi: Tensor):

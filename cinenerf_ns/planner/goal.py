@@ -25,7 +25,8 @@ from torch import Tensor
 
 from .errors import GoalUnreachableError, InvalidInputError, StartInCollisionError
 from .occupancy import OccupancyGrid
-from .polytope import _closest_t, candidate_ids, chebyshev_center, safe_polytope
+from .polytope import candidate_ids, chebyshev_center, safe_polytope
+from .polytope_planes import closest_t
 
 INTERIOR_RADIUS = 1e-9
 """_project_onto_polytope: a polytope counts as empty unless a ball of this radius (scene units) fits inside."""
@@ -122,7 +123,7 @@ def points_clearance_lower(points: Tensor, scene, index=None) -> Tensor:
         lam = scene.radii[ids].detach().cpu().double().numpy() ** 2
         w = np.einsum("kji,kj->ki", rot, pts[p].cpu().numpy() - mu)  # body frame [K, 3]
         inside = (w**2 / lam).sum(-1) <= 1
-        t = _closest_t(w**2, lam, iters=30)
+        t = closest_t(w**2, lam, iters=30)
         d = np.linalg.norm(t[:, None] * w / (lam + t[:, None]), axis=-1)
         d = np.where(inside, -math.inf, d)
         out[p] = float(d.min()) - r

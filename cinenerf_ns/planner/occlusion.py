@@ -72,13 +72,13 @@ def _local(x: Tensor, scene: EllipsoidScene, g: Tensor, translate: bool) -> Tens
 def _native_blocked(fn, a: Tensor, b: Tensor, scene: EllipsoidScene, index, piece_len: float,
                     exclude: Optional[Tensor]) -> Tensor:
     """bool [L]: segment a[l] -> b[l] meets an ellipsoid (not excluded), through native/polytope.c."""
-    from .polytope import _native_arrays
+    from .polytope_native import native_arrays
 
-    arr = _native_arrays(scene, index)
+    arr = native_arrays(scene, index)
     p0 = np.ascontiguousarray(a.cpu().numpy(), dtype=np.float64)
     p1 = np.ascontiguousarray(b.cpu().numpy(), dtype=np.float64)
     skip = None
-    if exclude is not None:  # the compiled code's ids are positions in Morton order (_native_arrays' "perm")
+    if exclude is not None:  # the compiled code's ids are positions in Morton order (native_arrays' "perm")
         skip = np.ascontiguousarray(exclude.cpu().numpy()[arr["perm"]], dtype=np.uint8)
     out = np.zeros(p0.shape[0], dtype=np.uint8)
     fn(*arr["args"], p0.ctypes.data, p1.ctypes.data, p0.shape[0], float(piece_len),
@@ -127,7 +127,7 @@ def sight_lines_blocked(
         return blocked.reshape(T, S)
     piece_len = max(float(index.levels[0].cell), 1e-6)
     from .native import choose, segments_blocked_c
-    from .polytope import native_applies
+    from .polytope_native import native_applies
 
     fn = choose(backend, segments_blocked_c, "polytope", "sight-line test", applies=native_applies(scene, index),
                 needs="a CPU scene and a GridIndex on the CPU")

@@ -39,6 +39,7 @@ the polytope is still contained in that plane's halfspace, which excludes the dr
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Optional, Sequence, Union
@@ -48,7 +49,8 @@ import torch
 from torch import Tensor
 
 from .errors import InvalidInputError, PlanningError
-from .ranges import group_ranks
+from .polytope_native import native_applies, native_arrays, native_safe_polytope
+from .polytope_planes import cut_by, plane_candidates, segment_frame_np, support_gap
 
 ArrayLike = Union[Tensor, np.ndarray, Sequence[float]]
 
@@ -97,6 +99,60 @@ class Polytope:
         )
 
 
+NORMAL_RULES = ("auto", "prop2", "closest", "mahalanobis")
+
+
+@dataclass(frozen=True)
+class PolytopeOptions:
+    """How safe_polytope builds its planes. Every choice gives a safe polytope (module docstring); they change how
+    much free space it keeps, what it costs, and whether seeds that are not free raise.
+
+    margin: extra distance (scene units) every plane keeps between the camera ball and its ellipsoid.
+    normal: "auto" (best of the three below per ellipsoid), "prop2" (paper: Q(s*) Delta),
+    "closest" (normal at the closest ellipsoid point), "mahalanobis" (Sigma^{-1} Delta).
+    require_seed_inside: raise SeedNotFreeError when no polytope holds every seed (False: return it anyway; it may
+    then exclude them or be empty).
+    prune: nearest-first redundancy removal (False: one plane per ellipsoid meeting the box).
+    chunk: ellipsoids are visited in order of a distance lower bound, ``chunk`` at a time; planes are
+    only computed for ellipsoids not already cut off by earlier planes, so far clutter costs ~nothing.
+    two_pass: with a grid index (and prune), first decide the ellipsoids near the seeds, then gather
+    only those in index cells not already cut off by the kept planes (far fewer candidates in dense
+    scenes; same safety guarantee). False: gather every ellipsoid meeting the box at once.
+    near_fraction: the first pass looks at ellipsoids within this fraction of the seeds' distance to
+    the box (a box around the seed set / an oriented box around a seed segment).
+    backend: "auto" (the compiled path, native/polytope.c, when it loads and applies: a CPU scene, a GridIndex
+    on the CPU, prune, one or two seeds; else Python), "native" (error if it does not apply) or "python". Both
+    give safe polytopes holding the seeds with the same normal rules and exact offsets; the compiled one visits
+    ellipsoids in buckets of ~16 by distance instead of chunks of ``chunk``, so its planes can differ a little
+    (native/polytope.c's header); two_pass and near_fraction apply to both.
+    """
+
+    margin: float = 1e-6
+    normal: str = "auto"
+    require_seed_inside: bool = True
+    prune: bool = True
+    chunk: int = 32
+    two_pass: bool = True
+    near_fraction: float = 0.5
+    backend: str = "auto"
+
+    def __post_init__(self):
+        if self.normal not in NORMAL_RULES:
+            raise InvalidInputError(f"unknown normal rule {self.normal!r}")
+
+
+_OPTION_NAMES = frozenset(f.name for f in dataclasses.fields(PolytopeOptions))
+
+
+def _resolved_options(options: Optional[PolytopeOptions], fields: dict) -> PolytopeOptions:
+    """``options`` (default PolytopeOptions()) with the named ``fields`` replaced (TypeError for unknown names)."""
+    if not fields.keys() <= _OPTION_NAMES:
+        raise TypeError(f"safe_polytope() got unexpected keyword arguments {sorted(fields.keys() - _OPTION_NAMES)}")
+    if options is None:
+        return PolytopeOptions(**fields)
+    return dataclasses.replace(options, **fields) if fields else options
+
+
 def chebyshev_center(A: ArrayLike, b: ArrayLike) -> tuple[np.ndarray, float]:
     """Centre and radius of the largest ball inside {x : A x <= b} (LP, HiGHS).
 
@@ -123,65 +179,7 @@ def chebyshev_center(A: ArrayLike, b: ArrayLike) -> tuple[np.ndarray, float]:
     return res.x[:d], float(res.x[-1])
 
 
-# ---------------------------------------------------------------------------------------- helpers
-# The per-ellipsoid kernels run in float64 numpy on the host: they are applied to small chunks
-# (tens of ellipsoids) inside a sequential loop, where numpy's per-call cost (~1 us) beats torch's.
-def _k_sphere(w2: np.ndarray, lam: np.ndarray, kappa: float, s: np.ndarray) -> np.ndarray:
-    """Corollary 1: K(s) = sum_i w_i^2 s(1-s) / (kappa + s (lambda_i - kappa)).
-    w2, lam [K, 3]; s [K, T] in (0, 1) -> [K, T]."""
-    s3 = s[..., None]  # [K, T, 1]
-    return (w2[:, None, :] * s3 * (1 - s3) / (kappa + s3 * (lam[:, None, :] - kappa))).sum(-1)
-
-
-def _argmax_k(w2: np.ndarray, lam: np.ndarray, kappa: float, n_samples: int = 64, iters: int = 6) -> np.ndarray:
-    """s* = argmax_{s in (0,1)} K(s) per row [K]: K is concave in s, so a coarse grid then golden
-    section inside the best bracket converges to the maximiser (~1e-3 in s; only the normal uses it, never the offset)."""
-    k = w2.shape[0]
-    grid = np.linspace(0.0, 1.0, n_samples + 2)[1:-1]  # [T]
-    vals = _k_sphere(w2, lam, kappa, np.broadcast_to(grid, (k, n_samples)))  # [K, T]
-    best = vals.argmax(-1)  # [K]
-    step = grid[1] - grid[0]
-    lo = np.maximum(grid[best] - step, 1e-9)
-    hi = np.minimum(grid[best] + step, 1 - 1e-9)
-    g = (math.sqrt(5) - 1) / 2
-    for _ in range(iters):
-        m1 = hi - g * (hi - lo)
-        m2 = lo + g * (hi - lo)
-        k12 = _k_sphere(w2, lam, kappa, np.stack([m1, m2], -1))  # [K, 2]
-        left = k12[:, 0] > k12[:, 1]
-        hi = np.where(left, m2, hi)
-        lo = np.where(left, lo, m1)
-    return 0.5 * (lo + hi)
-
-
-def _closest_t(w2: np.ndarray, lam: np.ndarray, iters: int = 10) -> np.ndarray:
-    """t >= 0 with sum_i lambda_i w_i^2 / (lambda_i + t)^2 = 1: the closest point of the ellipsoid to an
-    outside body-frame point w is y = lambda w / (lambda + t), its outer normal ∝ w / (lambda + t).
-
-    Newton on phi(t) = (sum_i c_i / (lambda_i + t)^2)^(-1/2) = 1 (c = lambda w^2): phi is a power mean
-    with exponent -2 of the affine lambda_i + t, hence concave and increasing, so Newton started left
-    of the root (phi(0) = 1/m < 1) stays left and converges monotonically; phi is nearly linear
-    (exactly linear for one axis), so ~8 steps reach 1e-12 relative accuracy. t never exceeds the
-    root, which callers rely on for lower bounds. Rows with the point inside get t = 0."""
-    c = lam * w2  # [K, 3]
-    # start from a lower bound of the root: f(t) >= lambda_min |w|^2 / (lambda_max + t)^2
-    t = np.maximum(np.sqrt(lam.min(-1) * w2.sum(-1)) - lam.max(-1), 0.0)
-    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # w = 0 rows: no step taken
-        t = _closest_t_steps(c, lam, t, iters)
-    return t
-
-
-def _closest_t_steps(c: np.ndarray, lam: np.ndarray, t: np.ndarray, iters: int) -> np.ndarray:
-    for _ in range(iters):
-        den = lam + t[:, None]
-        q = c / den**2
-        S = q.sum(-1)
-        phi = 1.0 / np.sqrt(np.maximum(S, 1e-300))
-        dphi = phi**3 * (q / den).sum(-1)
-        t = t + np.where(phi < 1.0, (1.0 - phi) / np.maximum(dphi, 1e-300), 0.0)
-    return t
-
-
+# ---------------------------------------------------------------------------------------- candidates
 def candidate_ids(scene, index, box_lo: Tensor, box_hi: Tensor) -> Tensor:
     """Ids [K] of ellipsoids whose camera-inflated body may meet the box (a superset: bounding-sphere
     test after the index's coarse AABB query). index: anything with query_box(lo[3], hi[3]) ->
@@ -239,297 +237,34 @@ def _np(x: Tensor) -> np.ndarray:
     return x.detach().cpu().to(torch.float64).numpy()
 
 
-def _plane_candidates(seeds: np.ndarray, mu: np.ndarray, rot: np.ndarray, axes: np.ndarray, r: float,
-                      normal: str, margin: float):
-    """Per ellipsoid, the best-slack safe plane among the normal rules -> (n [C,3], b [C], slack [C]).
-    slack = b - max_s n.seed_s (>= 0: every seed inside)."""
-    lam = axes**2  # [C, 3]
-    wb = np.einsum("cji,csj->csi", rot, seeds[None, :, :] - mu[:, None, :])  # body coords [C, S, 3]
-    if seeds.shape[0] == 2:
-        # reference point: the segment point closest to mu in the ellipsoid metric (a 1-D quadratic)
-        d = wb[:, 1] - wb[:, 0]  # [C, 3]
-        den = (d**2 / lam).sum(-1)
-        u = np.clip(-(wb[:, 0] * d / lam).sum(-1) / np.maximum(den, 1e-300), 0.0, 1.0)
-        u = np.where(den > 0, u, 0.0)
-        w = wb[:, 0] + u[:, None] * d  # [C, 3]
-    else:
-        w = wb[np.arange(len(mu)), (wb**2 / lam[:, None, :]).sum(-1).argmin(-1)]  # [C, 3]
-    n, off, slack = _planes_at(w, seeds, mu, rot, axes, lam, r, normal, margin)
-    if seeds.shape[0] == 2 and (slack < 0).any():
-        # A segment that grazes a flat ellipsoid can be free while the planes at the metric-closest
-        # point cut it; retry those ellipsoids from other segment points (the Euclidean-closest point
-        # to the centre and the ends) and keep the best slack. Any normal gives a safe plane.
-        bad = np.flatnonzero(slack < 0)
-        db = d[bad]
-        ue = np.clip(-(wb[bad, 0] * db).sum(-1) / np.maximum((db**2).sum(-1), 1e-300), 0.0, 1.0)
-        uc = _segment_closest_u(wb[bad, 0], db, lam[bad])
-        for uu in (uc, ue, np.zeros(len(bad)), np.ones(len(bad))):
-            n2, o2, s2 = _planes_at(wb[bad, 0] + uu[:, None] * db, seeds, mu[bad], rot[bad], axes[bad], lam[bad], r,
-                                    normal, margin)
-            better = s2 > slack[bad]
-            n[bad[better]], off[bad[better]], slack[bad[better]] = n2[better], o2[better], s2[better]
-    return n, off, slack
+# ---------------------------------------------------------------------------------------- input checks, the box
+@dataclass
+class _Box:
+    """A polytope's local box {x : lo <= rot^T x <= hi} (rot None: axis-aligned), float64 on the scene's device."""
+
+    lo: Tensor  # [3]
+    hi: Tensor  # [3]
+    rot: Optional[Tensor]  # [3, 3] columns = box axes, or None
+    A: np.ndarray  # [6, 3] its faces as planes A x <= b (float64 numpy, the first six planes of the polytope)
+    b: np.ndarray  # [6] (hi, -lo)
+
+    def polytope(self, n: list, b: list, kept: Tensor, seeds_t: Tensor) -> Polytope:
+        """The box's six faces then the planes n [f, 3], b [f] of each list entry; kept [F - 6] their scene ids."""
+        dev = self.lo.device
+        A = np.vstack([self.A] + n)
+        b = np.concatenate([self.b] + b)
+        return Polytope(torch.as_tensor(A, device=dev), torch.as_tensor(b, device=dev), seeds_t, kept)
 
 
-def _segment_closest_u(w0: np.ndarray, dw: np.ndarray, lam: np.ndarray, iters: int = 30) -> np.ndarray:
-    """u in [0, 1] [C] (approximately) minimising the Euclidean distance from w0 + u dw [C, 3] to the
-    axis-aligned ellipsoids with squared semi-axes lam [C, 3] (golden section: the distance to a convex
-    set is convex along a segment). Only a reference point for choosing normals: no safety relies on it."""
-
-    def dist(u):
-        w = w0 + u[:, None] * dw
-        t = _closest_t(w * w, lam)
-        return np.linalg.norm(t[:, None] * w / (lam + t[:, None]), axis=-1)
-
-    g = (math.sqrt(5.0) - 1.0) / 2.0
-    lo, hi = np.zeros(len(w0)), np.ones(len(w0))
-    x1, x2 = hi - g * (hi - lo), lo + g * (hi - lo)
-    f1, f2 = dist(x1), dist(x2)
-    for _ in range(iters):
-        left = f1 <= f2  # minimum in [lo, x2]
-        hi = np.where(left, x2, hi)
-        lo = np.where(left, lo, x1)
-        nx = np.where(left, hi - g * (hi - lo), lo + g * (hi - lo))
-        fn = dist(nx)
-        x1, x2, f1, f2 = (np.where(left, nx, x2), np.where(left, x1, nx), np.where(left, fn, f2), np.where(left, f1, fn))
-    return 0.5 * (lo + hi)
-
-
-def _planes_at(w: np.ndarray, seeds: np.ndarray, mu: np.ndarray, rot: np.ndarray, axes: np.ndarray,
-               lam: np.ndarray, r: float, normal: str, margin: float):
-    """Best-slack safe plane per ellipsoid among the normal rules evaluated at body-frame reference
-    points w [C, 3] -> (n [C, 3], b [C], slack [C])."""
-    degenerate = (w**2).sum(-1) < 1e-24  # reference point at the centre: any direction is valid
-    w = np.where(degenerate[:, None], np.array([0.0, 0.0, 1e-12]), w)
-    w2 = w**2
-    cands = []  # body-frame normals pointing from the reference point toward the ellipsoid
-    if normal in ("auto", "prop2"):
-        s = _argmax_k(w2, lam, r * r)[:, None]
-        cands.append(-(s * (1 - s) / (r * r + s * (lam - r * r))) * w)
-    if normal in ("auto", "mahalanobis"):
-        cands.append(-w / lam)
-    if normal in ("auto", "closest"):
-        cands.append(-w / (lam + _closest_t(w2, lam)[:, None]))
-    nb = np.stack(cands)  # [R, C, 3]
-    nb = nb / np.maximum(np.linalg.norm(nb, axis=-1, keepdims=True), 1e-300)
-    nw = np.einsum("cij,rcj->rci", rot, nb)  # world normals R nb  [R, C, 3]
-    # exact offset: n.mu - ||diag(a) R^T n|| - r (module docstring); R^T n = nb
-    offs = (nw * mu).sum(-1) - np.linalg.norm(axes * nb, axis=-1) - r - margin  # [R, C]
-    slack = offs - np.einsum("rci,si->rcs", nw, seeds).max(-1)  # [R, C]
-    best = slack.argmax(0)
-    ar = np.arange(len(mu))
-    return nw[best, ar], offs[best, ar], slack[best, ar]
-
-
-def _segment_frame_np(p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
-    """Orthonormal [3, 3] whose first column is the direction p0 -> p1 (p0 != p1)."""
-    u = (p1 - p0) / np.linalg.norm(p1 - p0)
-    helper = np.zeros(3)
-    helper[int(np.argmin(np.abs(u)))] = 1.0
-    v = np.cross(u, helper)
-    v /= np.linalg.norm(v)
-    return np.stack([u, v, np.cross(u, v)], axis=1)
-
-
-def _support_gap(n: np.ndarray, mu: np.ndarray, rot: np.ndarray, axes: np.ndarray, r: float) -> np.ndarray:
-    """min over E_c (+) B_r of n_f.x for planes n [F,3] and ellipsoids [C] -> [C, F]."""
-    nb = np.einsum("cji,fj->cfi", rot, n)  # R_c^T n_f  [C, F, 3]
-    return mu @ n.T - np.linalg.norm(axes[:, None, :] * nb, axis=-1) - r
-
-
-def _cut_by(n: np.ndarray, b: np.ndarray, mu: np.ndarray, amax: np.ndarray, rot: np.ndarray, axes: np.ndarray,
-            r: float, block: int = 65536) -> np.ndarray:
-    """bool [C]: ellipsoid c's inflated body lies entirely beyond one of the planes n [F, 3], b [F]
-    (exact support test; the bounding-sphere test, which implies it, decides most rows cheaply)."""
-    cut = ((mu @ n.T - amax[:, None] - r) >= b).any(1)  # [C] sound: sphere beyond => body beyond
-    todo = np.flatnonzero(~cut)
-    for s in range(0, todo.size, block):
-        j = todo[s:s + block]
-        cut[j] = (_support_gap(n, mu[j], rot[j], axes[j], r) >= b).any(1)
-    return cut
-
-
-# ---------------------------------------------------------------------------------------- compiled path
-_NORMAL_CODE = {"auto": 0, "prop2": 1, "mahalanobis": 2, "closest": 3}
-
-
-def native_applies(scene, index) -> bool:
-    """The compiled polytope and point test can run on this scene and index: a CPU scene (float32 or float64) and a
-    GridIndex on the CPU."""
-    return (index is not None and hasattr(index, "levels") and scene.means.device.type == "cpu"
-            and index.device.type == "cpu" and scene.means.dtype in (torch.float32, torch.float64))
-
-
-def prepare_native(scene, index) -> bool:
-    """Load the compiled polytope and build the arrays it reads for this scene and index (once; otherwise the first
-    safe_polytope call does it). False when the compiled path does not apply or did not load."""
-    from .native import safe_polytope_c
-
-    if not native_applies(scene, index) or safe_polytope_c() is None:
-        return False
-    _native_arrays(scene, index)
-    return True
-
-
-def _round_f32(x: np.ndarray, down: bool) -> np.ndarray:
-    """float64 x as float32, rounded toward -inf (down) or +inf (so the float32 value bounds x)."""
-    y = x.astype(np.float32)
-    if down:
-        return np.where(y.astype(np.float64) > x, np.nextafter(y, np.float32(-np.inf)), y)
-    return np.where(y.astype(np.float64) < x, np.nextafter(y, np.float32(np.inf)), y)
-
-
-def _positions_by_cell(level, inv: np.ndarray) -> Tensor:
-    """A GridIndex level's ids [M] as native positions (``inv`` [N]: scene id -> position), ascending within each cell
-    (same cells, same offsets): a cell's rows are then read in memory order. Measured at 1M Gaussians (CPU box, warm):
-    the goal's polytope took 0.98 ms with sorted cells against 2.5 ms with the positions left in scene-id order."""
-    pos = inv[level.ids.long().cpu().numpy()]  # [M]
-    off = level.offsets.long().cpu().numpy()
-    cell, _ = group_ranks(np.diff(off))  # [M] each entry's cell, ascending (CSR)
-    n = max(len(inv), 1)
-    return torch.from_numpy(np.sort(cell * n + pos) - cell * n)  # one sort of (cell, position) keys
-
-
-def _native_arrays(scene, index) -> dict:
-    """Contiguous CPU arrays and ctypes pointer tables the compiled polytope reads (built once per scene/index pair,
-    kept on the index so the memory they point into stays alive)."""
-    import ctypes
-
-    cache = getattr(index, "_native_polytope_arrays", None)
-    if cache is not None and cache["scene"] is scene:
-        return cache
-    from .spatial_index import morton_order
-
-    dt = scene.means.dtype
-    # The compiled code reads the ellipsoids in spatial (Morton) order: its ids are positions in that order, and
-    # "perm" maps them back to scene ids (native position -> scene id). A query visits one region, whose rows are
-    # then close in memory: the goal's polytope at 1M Gaussians took 1.78 -> 0.98 ms median (CPU box, warm cache)
-    # against the scene's own order, in which neighbours are scattered over the whole array.
-    perm = morton_order(scene.means)  # [N]
-    inv = np.empty_like(perm)
-    inv[perm] = np.arange(len(perm), dtype=np.int64)
-    perm_t = torch.from_numpy(perm)
-    keep = {
-        "perm": perm,
-        "means": scene.means.detach()[perm_t].contiguous(),
-        "rots": scene.rotations.detach().to(dt)[perm_t].contiguous(),
-        "radii": scene.radii.detach().to(dt)[perm_t].contiguous(),
-    }
-    # one float32 row per ellipsoid for the gather (polytope.c's header): padded AABB lo rounded down, hi rounded
-    # up, mean, largest semi-axis rounded up (rounding only widens the tests that read them)
-    boxes = index.boxes.detach().double().cpu().numpy()[perm]  # [N, 6]
-    pack = np.zeros((len(index), 12), dtype=np.float32)
-    pack[:, :3] = _round_f32(boxes[:, :3], down=True)
-    pack[:, 3:6] = _round_f32(boxes[:, 3:], down=False)
-    pack[:, 6:9] = keep["means"].cpu().numpy()
-    pack[:, 9] = _round_f32(keep["radii"].double().max(-1).values.cpu().numpy(), down=False)
-    pack[:, 10] = _round_f32(keep["radii"].double().min(-1).values.cpu().numpy(), down=True)  # distance upper bounds
-    keep["pack"] = pack
-    keep["origin"] = index.origin.double().contiguous()
-    keep["cells"] = np.array([lv.cell for lv in index.levels], dtype=np.float64)
-    keep["dims"] = np.ascontiguousarray(np.stack([lv.dims.cpu().numpy() for lv in index.levels]).astype(np.int64))
-    keep["offsets_t"] = [lv.offsets.long().contiguous() for lv in index.levels]
-    keep["ids_t"] = [_positions_by_cell(lv, inv) for lv in index.levels]
-    L = len(index.levels)
-    keep["offsets"] = (ctypes.c_void_p * L)(*[t.data_ptr() for t in keep["offsets_t"]])
-    keep["ids"] = (ctypes.c_void_p * L)(*[t.data_ptr() for t in keep["ids_t"]])
-    keep["scene"] = scene
-    # the scene and index arguments every compiled call starts with (see native/polytope.c)
-    keep["args"] = (
-        keep["means"].data_ptr(), keep["rots"].data_ptr(), keep["radii"].data_ptr(), pack.ctypes.data,
-        int(dt == torch.float32), keep["origin"].data_ptr(), L, keep["cells"].ctypes.data, keep["dims"].ctypes.data,
-        ctypes.cast(keep["offsets"], ctypes.c_void_p), ctypes.cast(keep["ids"], ctypes.c_void_p), float(index.pad),
-    )
-    index._native_polytope_arrays = keep
-    return keep
-
-
-def _native_polytope(fn, scene, index, seeds, seeds_t, lo, hi, rot, A_box, b_box, r, margin, normal,
-                     require_seed_inside, near_fraction) -> Polytope:
-    """safe_polytope through native/polytope.c (float64 numpy seeds [S, 3], box lo/hi [3], rot [3, 3] or None)."""
-    arr = _native_arrays(scene, index)
-    dev = scene.means.device
-    sd = np.ascontiguousarray(seeds, dtype=np.float64)
-    lo_c, hi_c = np.ascontiguousarray(lo, dtype=np.float64), np.ascontiguousarray(hi, dtype=np.float64)
-    rot_c = None if rot is None else np.ascontiguousarray(rot, dtype=np.float64)
-    info = np.zeros(4, dtype=np.int64)
-    cap = 512
-    while True:
-        n = np.empty((cap, 3)), np.empty(cap), np.empty(cap, dtype=np.int64), np.empty(cap, dtype=np.int64), np.empty(cap)
-        F = int(fn(
-            *arr["args"], sd.ctypes.data, sd.shape[0], lo_c.ctypes.data, hi_c.ctypes.data,
-            None if rot_c is None else rot_c.ctypes.data, r, float(margin), _NORMAL_CODE[normal],
-            int(bool(require_seed_inside)), float(near_fraction), cap, *(a.ctypes.data for a in n), info.ctypes.data))
-        if F == -2:
-            cap = int(info[2]) + 1
-            continue
-        if F < 0:
-            raise MemoryError(f"the compiled safe polytope failed (code {F})")
-        break
-    n_planes, b_planes, ids_planes, bad_ids, bad_slack = n
-    nbad = int(info[0])
-    perm = arr["perm"]  # the compiled ids are positions in spatial order
-    if nbad:
-        worst = float(bad_slack[:nbad].min())
-        raise SeedNotFreeError(
-            f"seed {'segment' if seeds.shape[0] == 2 else 'point(s)'} is within the camera radius {r:g} of "
-            f"{nbad} ellipsoid(s) (worst slack {worst:.3g}); no safe polytope contains it",
-            ellipsoid_ids=torch.as_tensor(perm[bad_ids[:nbad]], device=dev), min_slack=worst,
-        )
-    A = np.vstack([A_box, n_planes[:F]])
-    b = np.concatenate([b_box, b_planes[:F]])
-    kept = torch.as_tensor(perm[ids_planes[:F]], device=dev)
-    return Polytope(torch.as_tensor(A, device=dev), torch.as_tensor(b, device=dev), seeds_t, kept)
-
-
-# ---------------------------------------------------------------------------------------- main
-def safe_polytope(
-    seed_points: ArrayLike,
-    scene,
-    index=None,
-    box_lo: Optional[ArrayLike] = None,
-    box_hi: Optional[ArrayLike] = None,
-    *,
-    margin: float = 1e-6,
-    normal: str = "auto",
-    require_seed_inside: bool = True,
-    prune: bool = True,
-    chunk: int = 32,
-    box_rotation: Optional[ArrayLike] = None,
-    two_pass: bool = True,
-    near_fraction: float = 0.5,
-    backend: str = "auto",
-) -> Polytope:
-    """Safe polytope around seed points [S, 3] inside the box [box_lo, box_hi].
-
-    Every point of the returned polytope, used as a camera centre, keeps the camera ball
-    (scene.camera_radius) at distance >= ``margin`` outside every ellipsoid of the scene (exact, see
-    module docstring) and lies in the box. All seed points are inside (else SeedNotFreeError when
-    ``require_seed_inside``; with False the polytope is returned anyway and may exclude them or be
-    empty, which ``closest_safe_point`` uses). Planes are float64 on the scene's device.
-
-    normal: "auto" (best of the three below per ellipsoid), "prop2" (paper: Q(s*) Delta),
-    "closest" (normal at the closest ellipsoid point), "mahalanobis" (Sigma^{-1} Delta).
-    prune: nearest-first redundancy removal (False: one plane per ellipsoid meeting the box).
-    chunk: ellipsoids are visited in order of a distance lower bound, ``chunk`` at a time; planes are
-    only computed for ellipsoids not already cut off by earlier planes, so far clutter costs ~nothing.
-    box_rotation: optional orthonormal [3, 3] whose columns are the box axes; the box is then
-    {x : box_lo <= box_rotation^T x <= box_hi} (an oriented box, e.g. aligned with a segment).
-    two_pass: with a grid index (and prune), first decide the ellipsoids near the seeds, then gather
-    only those in index cells not already cut off by the kept planes (far fewer candidates in dense
-    scenes; same safety guarantee). False: gather every ellipsoid meeting the box at once.
-    near_fraction: the first pass looks at ellipsoids within this fraction of the seeds' distance to
-    the box (a box around the seed set / an oriented box around a seed segment).
-    backend: "auto" (the compiled path, native/polytope.c, when it loads and applies: a CPU scene, a GridIndex
-    on the CPU, prune, one or two seeds; else Python), "native" (error if it does not apply) or "python". Both
-    give safe polytopes holding the seeds with the same normal rules and exact offsets; the compiled one visits
-    ellipsoids in buckets of ~16 by distance instead of chunks of ``chunk``, so its planes can differ a little
-    (native/polytope.c's header); two_pass and near_fraction apply to both.
-    """
-    dev = scene.means.device
+def _checked_seeds(seed_points: ArrayLike, dev) -> Tensor:
     seeds_t = torch.as_tensor(seed_points, device=dev).to(torch.float64).reshape(-1, 3)  # [S, 3]
     if seeds_t.shape[0] == 0 or not torch.isfinite(seeds_t).all():
         raise InvalidInputError(f"safe_polytope needs finite seed points [S, 3], got {tuple(seeds_t.shape)}")
+    return seeds_t
+
+
+def _checked_box(box_lo, box_hi, box_rotation, seeds_t: Tensor, require_seed_inside: bool) -> _Box:
+    dev = seeds_t.device
     if box_lo is None or box_hi is None:
         raise InvalidInputError("safe_polytope needs a local box (box_lo, box_hi)")
     lo_t = torch.as_tensor(box_lo, device=dev).to(torch.float64).reshape(3)
@@ -544,133 +279,241 @@ def safe_polytope(
     seeds_box = seeds_t if rot_t is None else seeds_t @ rot_t
     if require_seed_inside and not ((seeds_box >= lo_t - 1e-12).all() and (seeds_box <= hi_t + 1e-12).all()):
         raise InvalidInputError("seed points must lie inside the polytope box")
-    if normal not in ("auto", "prop2", "closest", "mahalanobis"):
-        raise InvalidInputError(f"unknown normal rule {normal!r}")
-    from .native import choose, safe_polytope_c
+    axes = np.eye(3) if rot_t is None else _np(rot_t).T  # rows = box axes
+    return _Box(lo_t, hi_t, rot_t, np.vstack([axes, -axes]), np.concatenate([_np(hi_t), -_np(lo_t)]))
 
-    fn = choose(backend, safe_polytope_c, "polytope", "safe polytope",
-                applies=prune and seeds_t.shape[0] in (1, 2) and native_applies(scene, index),
-                needs="a CPU scene, a GridIndex on the CPU, prune and one or two seeds")
-    r = float(scene.camera_radius)
-    seeds = _np(seeds_t)
-    lo, hi = _np(lo_t), _np(hi_t)
-    axes_t = np.eye(3) if rot_t is None else _np(rot_t).T  # rows = box axes
-    A_box = np.vstack([axes_t, -axes_t])  # [6, 3]
-    b_box = np.concatenate([hi, -lo])
-    if fn is not None:
-        return _native_polytope(fn, scene, index, seeds, seeds_t, lo, hi, None if rot_t is None else _np(rot_t),
-                                A_box, b_box, r, margin, normal, require_seed_inside, near_fraction if two_pass else 0.0)
 
-    planes_n, planes_b, planes_id = [], [], []  # kept planes; planes_id: scene ids [f] on the device
-    bad = []  # (scene ids [J] cpu, mu, rot, axes, slack) of ellipsoids no plane of their own family cuts off
+def _seed_not_free(seeds: np.ndarray, r: float, ids: Tensor, slack: np.ndarray) -> SeedNotFreeError:
+    """The error for ellipsoids ids [J] that cut the seeds [S, 3] by slack [J] (< 0) and that no kept plane cuts off."""
+    worst = float(slack.min())
+    return SeedNotFreeError(
+        f"seed {'segment' if seeds.shape[0] == 2 else 'point(s)'} is within the camera radius {r:g} of "
+        f"{len(ids)} ellipsoid(s) (worst slack {worst:.3g}); no safe polytope contains it",
+        ellipsoid_ids=ids, min_slack=worst,
+    )
 
-    def add_planes(ids, mu_all, amax):
+
+# ---------------------------------------------------------------------------------------- compiled path
+def prepare_native(scene, index) -> bool:
+    """Load the compiled polytope and build the arrays it reads for this scene and index (once; otherwise the first
+    safe_polytope call does it). False when the compiled path does not apply or did not load."""
+    from .native import safe_polytope_c
+
+    if not native_applies(scene, index) or safe_polytope_c() is None:
+        return False
+    native_arrays(scene, index)
+    return True
+
+
+def _native_polytope(fn, scene, index, seeds_t: Tensor, box: _Box, opts: PolytopeOptions) -> Polytope:
+    """safe_polytope through native/polytope.c (one or two seeds [S, 3])."""
+    dev = scene.means.device
+    seeds, r = _np(seeds_t), float(scene.camera_radius)
+    lo, hi = -box.b[3:], box.b[:3]  # b = (hi, -lo): the box in float64 numpy
+    n, b, ids, bad_ids, bad_slack = native_safe_polytope(
+        fn, scene, index, seeds, lo, hi, None if box.rot is None else _np(box.rot), r, opts.margin,
+        opts.normal, opts.require_seed_inside, opts.near_fraction if opts.two_pass else 0.0)
+    if bad_slack.size:
+        raise _seed_not_free(seeds, r, torch.as_tensor(bad_ids, device=dev), bad_slack)
+    return box.polytope([n], [b], torch.as_tensor(ids, device=dev), seeds_t)
+
+
+# ---------------------------------------------------------------------------------------- python path
+def _distance_key(seeds: np.ndarray, mu: np.ndarray, amax: np.ndarray) -> np.ndarray:
+    """[K] lower bound of the distance from the seed set [S, 3] to ellipsoids (means [K, 3], bounding radii [K]):
+    the visiting order."""
+    if seeds.shape[0] == 2:
+        d = seeds[1] - seeds[0]
+        u = np.clip((mu - seeds[0]) @ d / max(float(d @ d), 1e-300), 0, 1)
+        dist = np.linalg.norm(seeds[0] + u[:, None] * d - mu, axis=1)
+    else:
+        dist = np.linalg.norm(mu[:, None, :] - seeds[None], axis=-1).min(1)
+    return dist - amax
+
+
+def _nearest_chunk(queue: np.ndarray, key: np.ndarray, step: int) -> tuple[np.ndarray, np.ndarray]:
+    """(the ``step`` entries of queue [Q] with the smallest key, sorted by key; the others, unordered)."""
+    if queue.size > step:
+        part = np.argpartition(key[queue], step - 1)[:step]  # O(Q) partition instead of a full sort
+        ch = queue[part]
+        left = np.ones(queue.size, dtype=bool)
+        left[part] = False
+        rest = queue[left]
+    else:
+        ch, rest = queue, queue[:0]
+    return ch[np.argsort(key[ch], kind="stable")], rest
+
+
+def _nearest_plane_first(beyond: np.ndarray, slack: np.ndarray) -> np.ndarray:
+    """bool [C]: the chunk's planes kept, nearest (smallest slack) first, skipping an ellipsoid that lies beyond a
+    plane already kept (beyond [C, C]: ellipsoid i lies beyond plane j, exact support test)."""
+    taken = np.zeros(len(slack), dtype=bool)
+    for i in np.argsort(slack, kind="stable"):
+        if beyond[i, taken].any():
+            continue  # already cut off by a kept plane: needs no plane of its own
+        taken[i] = True
+    return taken
+
+
+class _PlaneSet:
+    """The planes of one safe polytope as the Python path decides them, candidate chunk by candidate chunk."""
+
+    def __init__(self, seeds: np.ndarray, scene, opts: PolytopeOptions):
+        self.seeds, self.scene, self.opts = seeds, scene, opts  # seeds [S, 3] float64
+        self.r = float(scene.camera_radius)
+        self.n: list = []  # kept planes, per chunk: normals [f, 3], offsets [f], scene ids [f] on the scene's device
+        self.b: list = []
+        self.ids: list = []
+        # (scene ids [J] cpu, mu, rot, axes, slack) of ellipsoids whose own planes all cut the seeds
+        self.bad: list = []
+
+    def add(self, ids: Tensor, mu_all: np.ndarray, amax: np.ndarray) -> None:
         """Decide candidates ids [K] (means [K, 3], bounding radii [K]): each is either cut off
         (exact support test) by a kept plane, gets its own plane, or goes to ``bad``."""
         K = int(ids.numel())
         if not K:
             return
-        # visiting order: lower bound of the distance from the seed set to the inflated body
-        if seeds.shape[0] == 2:
-            d = seeds[1] - seeds[0]
-            u = np.clip((mu_all - seeds[0]) @ d / max(float(d @ d), 1e-300), 0, 1)
-            dist = np.linalg.norm(seeds[0] + u[:, None] * d - mu_all, axis=1)
-        else:
-            dist = np.linalg.norm(mu_all[:, None, :] - seeds[None], axis=-1).min(1)
-        key = dist - amax
-        rot_all = _np(scene.rotations[ids])  # [K, 3, 3] one gather, not one per chunk
-        axes_all = _np(scene.radii[ids])  # [K, 3]
+        prune, r = self.opts.prune, self.r
+        key = _distance_key(self.seeds, mu_all, amax)
+        rot_all = _np(self.scene.rotations[ids])  # [K, 3, 3] one gather, not one per chunk
+        axes_all = _np(self.scene.radii[ids])  # [K, 3]
         queue = np.arange(K)  # undecided candidates, unordered: only each chunk is sorted
-        if prune and planes_n:
+        if prune and self.n:
             # already cut off by a kept plane (exact support test): decided, needs no plane of its own
-            queue = queue[~_cut_by(np.vstack(planes_n), np.concatenate(planes_b), mu_all, amax, rot_all, axes_all, r)]
+            queue = queue[~cut_by(np.vstack(self.n), np.concatenate(self.b), mu_all, amax, rot_all, axes_all, r)]
         ids_cpu = ids.cpu()
-        step = chunk if prune else K
+        step = self.opts.chunk if prune else K
         while queue.size:
-            if queue.size > step:
-                # the `step` nearest by the lower bound (O(K) partition instead of a full sort)
-                part = np.argpartition(key[queue], step - 1)[:step]
-                ch = queue[part]
-                left = np.ones(queue.size, dtype=bool)
-                left[part] = False
-                rest = queue[left]
-            else:
-                ch, rest = queue, queue[:0]
-            ch = ch[np.argsort(key[ch], kind="stable")]
+            ch, rest = _nearest_chunk(queue, key, step)
             # (every queued candidate is not cut off by the kept planes: filtered when they were added)
-            rot, axes, mu = rot_all[ch], axes_all[ch], mu_all[ch]
-            n_c, b_c, slack_c = _plane_candidates(seeds, mu, rot, axes, r, normal, margin)
-            if require_seed_inside and (slack_c < 0).any():
-                # no plane of this ellipsoid's family keeps all seeds; it is only fatal if no other
-                # plane cuts it off either, which is decided once all planes are known
-                neg = slack_c < 0
-                bad.append((ids_cpu[torch.as_tensor(ch[neg])], mu[neg], rot[neg], axes[neg], slack_c[neg]))
-                keep_c = ~neg
-                ch, mu, rot, axes = ch[keep_c], mu[keep_c], rot[keep_c], axes[keep_c]
-                n_c, b_c, slack_c = n_c[keep_c], b_c[keep_c], slack_c[keep_c]
+            new = self._decide_chunk(ids, ids_cpu, ch, mu_all[ch], rot_all[ch], axes_all[ch])
             if not prune:
-                planes_n.append(n_c), planes_b.append(b_c), planes_id.append(ids[torch.as_tensor(ch).to(dev)])
                 break
-            # redundancy inside the chunk, vectorised: beyond[i, j] = ellipsoid i lies beyond plane j
-            # (exact support test) for the chunk's own planes and for the planes kept so far
-            beyond_own = _support_gap(n_c, mu, rot, axes, r) >= b_c  # [C, C]
-            taken = np.zeros(len(ch), dtype=bool)
-            for i in np.argsort(slack_c, kind="stable"):  # nearest plane first
-                if beyond_own[i, taken].any():
-                    continue  # already cut off by a kept plane: needs no plane of its own
-                taken[i] = True
-            if taken.any():
-                nn, nbv = n_c[taken], b_c[taken]
-                planes_n.append(nn)
-                planes_b.append(nbv)
-                planes_id.append(ids[torch.as_tensor(ch[taken]).to(dev)])
-                if rest.size:
-                    # drop the rest that lie beyond a new plane (exact support test, bounding sphere first)
-                    rest = rest[~_cut_by(nn, nbv, mu_all[rest], amax[rest], rot_all[rest], axes_all[rest], r)]
+            if new is not None and rest.size:
+                # drop the rest that lie beyond a new plane (exact support test, bounding sphere first)
+                rest = rest[~cut_by(*new, mu_all[rest], amax[rest], rot_all[rest], axes_all[rest], r)]
             queue = rest
 
-    if index is not None and prune and two_pass and hasattr(index, "query_box_in_planes"):
-        # Pass 1: the ellipsoids near the seeds (a tube of half-width rho around the seed set, rho =
-        # the seeds' distance to the box) give the planes that bound the polytope in practice.
-        # Pass 2: only ellipsoids in index cells that are not entirely beyond one of those planes (or
-        # the box) can still meet the polytope; all others are excluded by planes that are kept, so
-        # the result is as safe as deciding every ellipsoid of the box (see query_box_in_planes).
-        rho = near_fraction * float(torch.minimum(seeds_box - lo_t, hi_t - seeds_box).min().clamp_min(1e-9))
-        if seeds_t.shape[0] == 2:  # oriented box around the segment: [-rho, L + rho] x [-rho, rho]^2
-            frame = _segment_frame_np(seeds[0], seeds[1])  # [3, 3] columns u, v, w
-            proj = seeds @ frame  # [2, 3]
-            t_lo, t_hi = proj.min(0) - rho, proj.max(0) + rho
-        else:
-            frame = np.eye(3)
-            t_lo, t_hi = seeds.min(0) - rho, seeds.max(0) + rho
-        A_near = np.vstack([A_box, frame.T, -frame.T])
-        b_near = np.concatenate([b_box, t_hi, -t_lo])
-        ids0, mu0, am0 = _candidates(scene, index, lo_t, hi_t, rot_t, planes=(A_near, b_near))
-        add_planes(ids0, mu0, am0)
-        ids1, mu1, am1 = _candidates(scene, index, lo_t, hi_t, rot_t,
-                                     planes=(np.vstack([A_box] + planes_n), np.concatenate([b_box] + planes_b)))
-        if ids0.numel() and ids1.numel():
-            new1 = ~torch.isin(ids1, ids0)
-            new1_np = new1.cpu().numpy()
-            ids1, mu1, am1 = ids1[new1], mu1[new1_np], am1[new1_np]
-        add_planes(ids1, mu1, am1)
-    else:
-        add_planes(*_candidates(scene, index, lo_t, hi_t, rot_t))
-    if bad:
+    def _decide_chunk(self, ids, ids_cpu, ch, mu, rot, axes):
+        """Planes for the candidates ch [C] (ids positions, sorted nearest first) -> the planes kept (n [T, 3], b [T]),
+        or None when none was."""
+        o, r = self.opts, self.r
+        n_c, b_c, slack_c = plane_candidates(self.seeds, mu, rot, axes, r, o.normal, o.margin)
+        if o.require_seed_inside and (slack_c < 0).any():
+            # no plane of this ellipsoid's family keeps all seeds; it is only fatal if no other
+            # plane cuts it off either, which is decided once all planes are known
+            neg = slack_c < 0
+            self.bad.append((ids_cpu[torch.as_tensor(ch[neg])], mu[neg], rot[neg], axes[neg], slack_c[neg]))
+            keep_c = ~neg
+            ch, mu, rot, axes = ch[keep_c], mu[keep_c], rot[keep_c], axes[keep_c]
+            n_c, b_c, slack_c = n_c[keep_c], b_c[keep_c], slack_c[keep_c]
+        if not o.prune:
+            self._keep(n_c, b_c, ids, ch)
+            return None
+        # redundancy inside the chunk: beyond[i, j] = ellipsoid i lies beyond plane j (exact support test)
+        taken = _nearest_plane_first(support_gap(n_c, mu, rot, axes, r) >= b_c, slack_c)  # [C]
+        if not taken.any():
+            return None
+        self._keep(n_c[taken], b_c[taken], ids, ch[taken])
+        return self.n[-1], self.b[-1]
+
+    def _keep(self, n: np.ndarray, b: np.ndarray, ids: Tensor, ch: np.ndarray) -> None:
+        self.n.append(n)
+        self.b.append(b)
+        self.ids.append(ids[torch.as_tensor(ch).to(self.scene.means.device)])
+
+    def check_seeds(self) -> None:
+        """Raise SeedNotFreeError when a ``bad`` ellipsoid (its own planes all cut the seeds) lies beyond no kept
+        plane either."""
+        if not self.bad:
+            return
         b_ids, b_mu, b_rot, b_axes, b_slack = (
-            torch.cat([x[0] for x in bad]), *(np.concatenate([x[i] for x in bad]) for i in range(1, 5)))
-        if planes_n:
-            kn, kb = np.vstack(planes_n), np.concatenate(planes_b)
-            cut = ~(_support_gap(kn, b_mu, b_rot, b_axes, r) >= kb).any(1)
-            b_ids, b_slack = b_ids[torch.as_tensor(cut)], b_slack[cut]
+            torch.cat([x[0] for x in self.bad]), *(np.concatenate([x[i] for x in self.bad]) for i in range(1, 5)))
+        if self.n:
+            kn, kb = np.vstack(self.n), np.concatenate(self.b)
+            uncut = ~(support_gap(kn, b_mu, b_rot, b_axes, self.r) >= kb).any(1)
+            b_ids, b_slack = b_ids[torch.as_tensor(uncut)], b_slack[uncut]
         if b_slack.size:
-            worst = float(b_slack.min())
-            raise SeedNotFreeError(
-                f"seed {'segment' if seeds.shape[0] == 2 else 'point(s)'} is within the camera radius {r:g} of "
-                f"{len(b_ids)} ellipsoid(s) (worst slack {worst:.3g}); no safe polytope contains it",
-                ellipsoid_ids=b_ids, min_slack=worst,
-            )
-    A = np.vstack([A_box] + planes_n)
-    b = np.concatenate([b_box] + planes_b)
-    kept = torch.cat(planes_id) if planes_id else torch.zeros(0, dtype=torch.long, device=dev)  # [F - 6]
-    return Polytope(torch.as_tensor(A, device=dev), torch.as_tensor(b, device=dev), seeds_t, kept)
+            raise _seed_not_free(self.seeds, self.r, b_ids, b_slack)
+
+    def polytope(self, box: _Box, seeds_t: Tensor) -> Polytope:
+        dev = self.scene.means.device
+        kept = torch.cat(self.ids) if self.ids else torch.zeros(0, dtype=torch.long, device=dev)  # [F - 6]
+        return box.polytope(self.n, self.b, kept, seeds_t)
+
+
+def _near_box(seeds: np.ndarray, seeds_t: Tensor, box: _Box, near_fraction: float) -> tuple[np.ndarray, np.ndarray]:
+    """(A [12, 3], b [12]): the box cut to a tube of half-width rho around the seed set, rho = near_fraction x the
+    seeds' distance to the box (an oriented box around a seed segment, an axis-aligned one around other seeds)."""
+    seeds_box = seeds_t if box.rot is None else seeds_t @ box.rot
+    rho = near_fraction * float(torch.minimum(seeds_box - box.lo, box.hi - seeds_box).min().clamp_min(1e-9))
+    if seeds.shape[0] == 2:  # oriented box around the segment: [-rho, L + rho] x [-rho, rho]^2
+        frame = segment_frame_np(seeds[0], seeds[1])  # [3, 3] columns u, v, w
+        proj = seeds @ frame  # [2, 3]
+        t_lo, t_hi = proj.min(0) - rho, proj.max(0) + rho
+    else:
+        frame = np.eye(3)
+        t_lo, t_hi = seeds.min(0) - rho, seeds.max(0) + rho
+    return np.vstack([box.A, frame.T, -frame.T]), np.concatenate([box.b, t_hi, -t_lo])
+
+
+def _add_two_pass(planes: _PlaneSet, scene, index, box: _Box, seeds_t: Tensor) -> None:
+    """Pass 1: the ellipsoids near the seeds (``_near_box``) give the planes that bound the polytope in practice.
+    Pass 2: only ellipsoids in index cells that are not entirely beyond one of those planes (or the box) can still
+    meet the polytope; all others are excluded by planes that are kept, so the result is as safe as deciding every
+    ellipsoid of the box (see query_box_in_planes)."""
+    near = _near_box(planes.seeds, seeds_t, box, planes.opts.near_fraction)
+    ids0, mu0, am0 = _candidates(scene, index, box.lo, box.hi, box.rot, planes=near)
+    planes.add(ids0, mu0, am0)
+    kept = (np.vstack([box.A] + planes.n), np.concatenate([box.b] + planes.b))
+    ids1, mu1, am1 = _candidates(scene, index, box.lo, box.hi, box.rot, planes=kept)
+    if ids0.numel() and ids1.numel():
+        new1 = ~torch.isin(ids1, ids0)
+        new1_np = new1.cpu().numpy()
+        ids1, mu1, am1 = ids1[new1], mu1[new1_np], am1[new1_np]
+    planes.add(ids1, mu1, am1)
+
+
+# ---------------------------------------------------------------------------------------- main
+def safe_polytope(
+    seed_points: ArrayLike,
+    scene,
+    index=None,
+    box_lo: Optional[ArrayLike] = None,
+    box_hi: Optional[ArrayLike] = None,
+    *,
+    box_rotation: Optional[ArrayLike] = None,
+    options: Optional[PolytopeOptions] = None,
+    **option_fields,
+) -> Polytope:
+    """Safe polytope around seed points [S, 3] inside the box [box_lo, box_hi].
+
+    Every point of the returned polytope, used as a camera centre, keeps the camera ball
+    (scene.camera_radius) at distance >= ``margin`` outside every ellipsoid of the scene (exact, see
+    module docstring) and lies in the box. All seed points are inside (else SeedNotFreeError when
+    ``require_seed_inside``; with False the polytope is returned anyway and may exclude them or be
+    empty, which ``closest_safe_point`` uses). Planes are float64 on the scene's device.
+
+    box_rotation: optional orthonormal [3, 3] whose columns are the box axes; the box is then
+    {x : box_lo <= box_rotation^T x <= box_hi} (an oriented box, e.g. aligned with a segment).
+    options: PolytopeOptions (margin, normal rule, pruning, two passes, backend); ``option_fields`` set single
+    fields by name on top of it (``margin=1e-3`` is short for ``options=PolytopeOptions(margin=1e-3)``).
+    """
+    opts = _resolved_options(options, option_fields)
+    dev = scene.means.device
+    seeds_t = _checked_seeds(seed_points, dev)  # [S, 3]
+    box = _checked_box(box_lo, box_hi, box_rotation, seeds_t, opts.require_seed_inside)
+    from .native import choose, safe_polytope_c
+
+    fn = choose(opts.backend, safe_polytope_c, "polytope", "safe polytope",
+                applies=opts.prune and seeds_t.shape[0] in (1, 2) and native_applies(scene, index),
+                needs="a CPU scene, a GridIndex on the CPU, prune and one or two seeds")
+    if fn is not None:
+        return _native_polytope(fn, scene, index, seeds_t, box, opts)
+    planes = _PlaneSet(_np(seeds_t), scene, opts)
+    if index is not None and opts.prune and opts.two_pass and hasattr(index, "query_box_in_planes"):
+        _add_two_pass(planes, scene, index, box, seeds_t)
+    else:
+        planes.add(*_candidates(scene, index, box.lo, box.hi, box.rot))
+    planes.check_seeds()
+    return planes.polytope(box, seeds_t)

@@ -27,13 +27,14 @@ no plane; at the end it must lie beyond some kept plane of its segment, else the
 ``failed`` (the same rule as ``safe_polytope``'s SeedNotFreeError; because the kept planes can differ
 from the host path's, a flag is not guaranteed to coincide with it). The caller builds those segments
 with the host path (which splits them). Negative-slack rows are retried with the host code's extra
-reference points (``_plane_candidates``, numpy) before they are declared bad: that retry is rare and
+reference points (``polytope_planes.plane_candidates``, numpy) before they are declared bad: that retry is rare and
 is a long sequential loop that a GPU would run launch by launch.
 
 Only axis-aligned boxes (build_corridor's default ``box="aabb"``) are supported.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import List, Optional, Tuple
 
 import numpy as np
@@ -41,7 +42,8 @@ import torch
 from torch import Tensor
 
 from .errors import InvalidInputError
-from .polytope import Polytope, _plane_candidates
+from .polytope import NORMAL_RULES, Polytope
+from .polytope_planes import body_normals, plane_candidates
 from .spatial_index import GridIndex
 
 
@@ -69,7 +71,7 @@ def _argmax_k(w2: Tensor, lam: Tensor, kappa: float, n_coarse: int = 64, n_fine:
 
 
 def _closest_t(w2: Tensor, lam: Tensor, iters: int = 8) -> Tensor:
-    """t >= 0 with sum_i lambda_i w_i^2 / (lambda_i + t)^2 = 1 [C] (polytope._closest_t in torch: Newton on the
+    """t >= 0 with sum_i lambda_i w_i^2 / (lambda_i + t)^2 = 1 [C] (polytope_planes.closest_t in torch: Newton on the
     concave increasing phi(t) = (sum_i c_i / (lambda_i + t)^2)^(-1/2) from the left, monotone; ~8 steps reach
     ~1e-12). Only a normal rule uses it. Written with few ops per step: on a GPU each op is a kernel launch."""
     c = lam * w2  # [C, 3]
@@ -99,20 +101,11 @@ def _exact_offsets(nw: Tensor, mu: Tensor, rot: Tensor, axes: Tensor, r: float, 
 def _planes_at(w: Tensor, p0: Tensor, p1: Tensor, mu: Tensor, rot: Tensor, axes: Tensor, r: float,
                normal: str, margin: float) -> Tuple[Tensor, Tensor, Tensor]:
     """Best-slack safe plane per row among the normal rules at body-frame reference points w [C, 3]
-    (polytope._planes_at in torch) -> (n [C, 3], b [C], slack [C]); slack = b - max(n.p0, n.p1)."""
+    (polytope_planes._planes_at in torch) -> (n [C, 3], b [C], slack [C]); slack = b - max(n.p0, n.p1)."""
     lam = axes * axes  # [C, 3]
     degenerate = (w * w).sum(-1) < 1e-24  # reference point at the centre: any direction is valid
     w = torch.where(degenerate[:, None], torch.tensor([0.0, 0.0, 1e-12], dtype=w.dtype, device=w.device), w)
-    w2 = w * w
-    cands = []  # body-frame normals pointing from the reference point toward the ellipsoid
-    if normal in ("auto", "prop2"):
-        s = _argmax_k(w2, lam, r * r)[:, None]  # [C, 1]
-        cands.append(-(s * (1 - s) / (r * r + s * (lam - r * r))) * w)
-    if normal in ("auto", "mahalanobis"):
-        cands.append(-w / lam)
-    if normal in ("auto", "closest"):
-        cands.append(-w / (lam + _closest_t(w2, lam)[:, None]))
-    nb = torch.stack(cands)  # [R, C, 3]
+    nb = torch.stack(body_normals(w, w * w, lam, r, normal, _argmax_k, _closest_t))  # [R, C, 3]
     nw = torch.einsum("cij,rcj->rci", rot, nb)  # world normals R nb  [R, C, 3]
     nw, off = _exact_offsets(nw, mu, rot, axes, r, margin)  # [R, C, 3], [R, C]
     slack = off - torch.maximum((nw * p0).sum(-1), (nw * p1).sum(-1))  # [R, C]
@@ -124,7 +117,7 @@ def _planes_at(w: Tensor, p0: Tensor, p1: Tensor, mu: Tensor, rot: Tensor, axes:
 def _segment_planes(p0: Tensor, p1: Tensor, mu: Tensor, rot: Tensor, axes: Tensor, r: float, normal: str,
                     margin: float) -> Tuple[Tensor, Tensor, Tensor]:
     """Per row (seed segment p0, p1 [C, 3]; ellipsoid mu [C, 3], rot [C, 3, 3], axes [C, 3]) the best-slack
-    plane at the segment point closest to mu in the ellipsoid metric (polytope._plane_candidates' first
+    plane at the segment point closest to mu in the ellipsoid metric (polytope_planes.plane_candidates' first
     step) -> (n [C, 3], b [C], slack [C])."""
     lam = axes * axes
     w0 = torch.einsum("cji,cj->ci", rot, p0 - mu)  # R^T (p0 - mu)  [C, 3]
@@ -138,7 +131,7 @@ def _segment_planes(p0: Tensor, p1: Tensor, mu: Tensor, rot: Tensor, axes: Tenso
 def _retry_on_host(rows: Tensor, p0: Tensor, p1: Tensor, mu: Tensor, rot: Tensor, axes: Tensor, seg: Tensor,
                    r: float, normal: str, margin: float) -> Tuple[Tensor, Tensor, Tensor]:
     """Negative-slack rows [B] (indices into the row tensors): the host path's full plane search
-    (``polytope._plane_candidates`` with its extra reference points), one call per segment; the returned
+    (``polytope_planes.plane_candidates`` with its extra reference points), one call per segment; the returned
     normal's offset is recomputed exactly here. -> (n [B, 3], b [B], slack [B]) on the rows' device."""
     dev = mu.device
     seg_h = seg[rows].cpu().numpy()
@@ -148,7 +141,7 @@ def _retry_on_host(rows: Tensor, p0: Tensor, p1: Tensor, mu: Tensor, rot: Tensor
     for m in np.unique(seg_h):
         j = np.flatnonzero(seg_h == m)
         seeds = np.stack([p0_h[j[0]], p1_h[j[0]]])  # [2, 3]
-        n_h[j] = _plane_candidates(seeds, mu_h[j], rot_h[j], axes_h[j], r, normal, margin)[0]
+        n_h[j] = plane_candidates(seeds, mu_h[j], rot_h[j], axes_h[j], r, normal, margin)[0]
     n, b = _exact_offsets(torch.as_tensor(n_h, device=dev), mu[rows], rot[rows], axes[rows], r, margin)
     slack = b - torch.maximum((n * p0[rows]).sum(-1), (n * p1[rows]).sum(-1))
     return n, b, slack
@@ -189,6 +182,199 @@ def candidate_pairs(scene, index, box_lo: Tensor, box_hi: Tensor) -> Tuple[Tenso
     return q[near], g[near]
 
 
+def _checked_inputs(segments, box_lo, box_hi, normal: str, chunk: int, dev) -> Tuple[Tensor, Tensor, Tensor]:
+    """(segments [M, 2, 3], box_lo [M, 3], box_hi [M, 3]) float64 on dev, checked (one host sync)."""
+    seg = torch.as_tensor(segments, device=dev).to(torch.float64)
+    if seg.ndim != 3 or seg.shape[1:] != (2, 3) or seg.shape[0] == 0:
+        raise InvalidInputError(f"safe_polytopes_batched needs segments [M>=1, 2, 3], got {tuple(seg.shape)}")
+    if box_lo is None or box_hi is None:
+        raise InvalidInputError("safe_polytopes_batched needs boxes box_lo, box_hi [M, 3]")
+    M = seg.shape[0]
+    lo = torch.as_tensor(box_lo, device=dev).to(torch.float64).reshape(-1, 3)
+    hi = torch.as_tensor(box_hi, device=dev).to(torch.float64).reshape(-1, 3)
+    if lo.shape != (M, 3) or hi.shape != (M, 3):
+        raise InvalidInputError(f"boxes must be [M={M}, 3], got {tuple(lo.shape)}, {tuple(hi.shape)}")
+    ok = torch.isfinite(seg).all() & torch.isfinite(lo).all() & torch.isfinite(hi).all() & (hi > lo).all()
+    inside = ((seg >= lo[:, None] - 1e-12) & (seg <= hi[:, None] + 1e-12)).all()
+    ok, inside = torch.stack([ok, inside]).tolist()  # one host sync
+    if not ok:
+        raise InvalidInputError("safe_polytopes_batched needs finite segments and boxes with lo < hi")
+    if not inside:
+        raise InvalidInputError("seed segments must lie inside their polytope boxes")
+    if normal not in NORMAL_RULES:
+        raise InvalidInputError(f"unknown normal rule {normal!r}")
+    if chunk < 1:
+        raise InvalidInputError(f"chunk must be >= 1, got {chunk}")
+    return seg, lo, hi
+
+
+@dataclass
+class _Pairs:
+    """Candidate (segment, ellipsoid) pairs sorted by (segment, distance lower bound), float64 geometry."""
+
+    q: Tensor  # [P] segment
+    g: Tensor  # [P] scene id
+    mu: Tensor  # [P, 3]
+    ax: Tensor  # [P, 3] semi-axes
+    amax_s: Tensor  # [P] bounding-sphere radius (covers a float32 R's ~1e-7 stretch)
+    amin: Tensor  # [P] lower bound of ||diag(a) R^T n|| (used only to skip exact tests)
+
+
+def _sorted_pairs(scene, index, seg: Tensor, lo: Tensor, hi: Tensor) -> _Pairs:
+    """Steps 1-2 of the module docstring: candidate pairs, sorted by (segment, distance lower bound)."""
+    q, g = candidate_pairs(scene, index, lo, hi)  # [P], [P]
+    mu = scene.means.index_select(0, g).to(torch.float64)  # [P, 3]
+    ax = scene.radii.index_select(0, g).to(torch.float64)  # [P, 3]
+    amax_s = ax.max(-1).values * (1 + 1e-6)  # [P]
+    amin = ax.min(-1).values  # [P]
+    p0, p1 = seg[:, 0].index_select(0, q), seg[:, 1].index_select(0, q)  # [P, 3]
+    d = p1 - p0
+    u = (((mu - p0) * d).sum(-1) / (d * d).sum(-1).clamp_min(1e-300)).clamp(0.0, 1.0)
+    key = (p0 + u[:, None] * d - mu).norm(dim=-1) - ax.max(-1).values  # [P] as in safe_polytope
+    order = torch.argsort(key, stable=True)
+    order = order[torch.argsort(q[order], stable=True)]  # by segment, then by key
+    return _Pairs(q[order], g[order], mu[order], ax[order], amax_s[order], amin[order])
+
+
+def _chunk_planes(pairs: _Pairs, ch: Tensor, seg: Tensor, scene, r: float, normal: str, margin: float, st: dict):
+    """Best-slack plane of every chunk pair ch [C] (step 3a), negative-slack rows retried on the host
+    -> (means [C, 3], semi-axes [C, 3], rotations [C, 3, 3], n [C, 3], b [C], slack [C])."""
+    cq = pairs.q[ch]
+    rot = scene.rotations.index_select(0, pairs.g[ch]).to(torch.float64)  # [C, 3, 3]
+    c_mu, c_ax = pairs.mu[ch], pairs.ax[ch]
+    s0, s1 = seg[cq, 0], seg[cq, 1]  # [C, 3]
+    n, b, slack = _segment_planes(s0, s1, c_mu, rot, c_ax, r, normal, margin)  # [C, 3], [C], [C]
+    neg = torch.nonzero(slack < 0).squeeze(-1)
+    st["retried"] += int(neg.numel())
+    if neg.numel():  # rare: the host path's extra reference points for grazing segments
+        n2, b2, sl2 = _retry_on_host(neg, s0, s1, c_mu, rot, c_ax, cq, r, normal, margin)
+        better = sl2 > slack[neg]
+        n[neg] = torch.where(better[:, None], n2, n[neg])
+        b[neg] = torch.where(better, b2, b[neg])
+        slack[neg] = torch.where(better, sl2, slack[neg])
+    return c_mu, c_ax, rot, n, b, slack
+
+
+def _dense(x: Tensor, slot: Tensor, M: int, k: int, fill) -> Tensor:
+    """Rows x [C, ...] scattered to their slots of a dense [M, k, ...] layout, other slots ``fill``."""
+    out = torch.full((M * k, *x.shape[1:]), fill, dtype=x.dtype, device=x.device)
+    return out.index_copy_(0, slot, x).view(M, k, *x.shape[1:])
+
+
+def _greedy_in_chunks(slot: Tensor, n, b, slack, good, mu, ax, rot, M: int, k: int, r: float) -> Tuple[Tensor, ...]:
+    """Step 3b: nearest-plane-first greedy inside each segment's chunk, on a dense [M, k] layout (chunk rows at
+    ``slot`` = segment * k + rank) -> (taken bool [M, k], normals [M, k, 3], offsets [M, k]; inf: no plane)."""
+    dn = _dense(n, slot, M, k, 0.0)
+    db = _dense(torch.where(good, b, torch.full_like(b, float("inf"))), slot, M, k, float("inf"))
+    dmu, dax, drot = _dense(mu, slot, M, k, 0.0), _dense(ax, slot, M, k, 1.0), _dense(rot, slot, M, k, 0.0)
+    # beyond[m, i, j]: ellipsoid i of segment m lies beyond plane j of segment m (exact support test;
+    # planes that are not candidates have b = inf and never count)
+    beyond = _support_gap(dn[:, None, :, :], dmu, drot, dax, r) >= db[:, None, :]  # [M, k, k]
+    dsl, dgood = _dense(slack, slot, M, k, float("inf")), _dense(good, slot, M, k, False)
+    beyond_h, dsl_h, dgood_h = beyond.cpu().numpy(), dsl.cpu().numpy(), dgood.cpu().numpy()
+    taken_h = np.zeros((M, k), dtype=bool)
+    order_h = np.argsort(dsl_h, axis=1, kind="stable")  # nearest plane first
+    rows = np.arange(M)
+    for t in range(k):
+        i = order_h[:, t]
+        hit = (beyond_h[rows, i, :] & taken_h).any(-1)
+        taken_h[rows, i] = dgood_h[rows, i] & ~hit
+    return torch.as_tensor(taken_h, device=n.device), dn, db
+
+
+def _undecided(pairs: _Pairs, rest: Tensor, dn: Tensor, new_b: Tensor, scene, r: float, block: int,
+               st: dict) -> Tensor:
+    """Step 3c: the pairs of rest [R] NOT lying entirely beyond one of their segment's new planes (dn [M, k, 3],
+    new_b [M, k], inf where none): bounding sphere first, the exact support test where it cannot decide."""
+    keep_rest = []
+    for s in range(0, rest.numel(), block):
+        j = rest[s:s + block]  # [B]
+        qj = pairs.q[j]
+        nn, bb = dn[qj], new_b[qj]  # [B, k, 3], [B, k]
+        proj = torch.einsum("bi,bki->bk", pairs.mu[j], nn)  # [B, k]
+        cut = (proj - pairs.amax_s[j, None] - r >= bb).any(-1)  # sound: bounding sphere beyond => body beyond
+        maybe = torch.nonzero(~cut & (proj - pairs.amin[j, None] - r >= bb).any(-1)).squeeze(-1)
+        if maybe.numel():  # the exact support test only where the sphere test cannot decide
+            jm = j[maybe]
+            st["exact_tests"] += int(jm.numel())
+            rm = scene.rotations.index_select(0, pairs.g[jm]).to(torch.float64)
+            cut[maybe] = (_support_gap(nn[maybe], pairs.mu[jm], rm, pairs.ax[jm], r) >= bb[maybe]).any(-1)
+        keep_rest.append(j[~cut])
+    return torch.cat(keep_rest) if keep_rest else rest
+
+
+def _decide_pairs(pairs: _Pairs, seg: Tensor, scene, r: float, normal: str, margin: float, k: int, block: int,
+                  st: dict):
+    """Step 3's rounds until no pair is undecided -> (kept planes: segment [T], normal [T, 3], offset [T], scene
+    id [T]; bad pairs [Bp]: their own planes all cut their segment)."""
+    q, g, mu = pairs.q, pairs.g, pairs.mu
+    M, dev = seg.shape[0], seg.device
+    # planes kept, per round (seeded with empty tensors: a path may need no plane at all)
+    kept_seg, kept_g = [q[:0]], [g[:0]]
+    kept_n, kept_b = [mu[:0]], [mu[:0, 0]]
+    bad_pair = [q[:0]]  # pair indices whose own planes all cut their segment (decided at the end)
+    ar_m = torch.arange(M, device=dev)
+    alive = torch.arange(q.numel(), device=dev)  # [A] undecided pairs, still sorted by (segment, key)
+    while alive.numel():
+        st["alive"].append(int(alive.numel()))
+        # ---- 3a. the k nearest undecided pairs of every segment: rank inside its segment's run
+        qa = q[alive]
+        starts = torch.searchsorted(qa, ar_m)  # [M] first undecided pair of each segment
+        rank = torch.arange(alive.numel(), device=dev) - starts[qa]  # [A]
+        in_chunk = rank < k
+        ch, ch_rank = alive[in_chunk], rank[in_chunk]  # [C]
+        rest = alive[~in_chunk]
+        cq, cg = q[ch], g[ch]
+        c_mu, c_ax, rot, n, b, slack = _chunk_planes(pairs, ch, seg, scene, r, normal, margin, st)
+        good = slack >= 0  # [C] planes that keep the whole segment
+        bad_pair.append(ch[~good])
+        slot = cq * k + ch_rank  # [C]
+        taken, dn, db = _greedy_in_chunks(slot, n, b, slack, good, c_mu, c_ax, rot, M, k, r)
+        took = taken.view(-1)[slot]  # [C]
+        kept_seg.append(cq[took]), kept_n.append(n[took]), kept_b.append(b[took]), kept_g.append(cg[took])
+        new_b = torch.where(taken, db, torch.full_like(db, float("inf")))  # [M, k]
+        alive = _undecided(pairs, rest, dn, new_b, scene, r, block, st)
+    kept = torch.cat(kept_seg), torch.cat(kept_n), torch.cat(kept_b), torch.cat(kept_g)  # [T]...
+    return kept, torch.cat(bad_pair)
+
+
+def _failed_segments(pairs: _Pairs, bp: Tensor, kq: Tensor, kn: Tensor, kb: Tensor, scene, r: float, M: int) -> Tensor:
+    """bool [M]: a bad pair of bp [Bp] that no kept plane (kq [T], kn [T, 3], kb [T]) of its segment cuts off."""
+    failed = torch.zeros(M, dtype=torch.bool, device=pairs.q.device)
+    if bp.numel():
+        q = pairs.q
+        same = q[bp][:, None] == kq[None, :]  # [Bp, T]
+        rb = scene.rotations.index_select(0, pairs.g[bp]).to(torch.float64)
+        gap = _support_gap(kn[None].expand(bp.numel(), -1, -1), pairs.mu[bp], rb, pairs.ax[bp], r)  # [Bp, T]
+        uncut = ~((gap >= kb[None, :]) & same).any(-1)  # [Bp]
+        failed[q[bp][uncut]] = True
+    return failed
+
+
+def _split_polytopes(kept, failed: Tensor, seg: Tensor, lo: Tensor, hi: Tensor,
+                     out_device) -> List[Optional[Polytope]]:
+    """Box planes then kept planes, split per segment (one transfer to out_device); None where failed [M] (CPU)."""
+    kq, kn, kb, kg = kept
+    M = seg.shape[0]
+    srt = torch.argsort(kq, stable=True)
+    counts = torch.bincount(kq, minlength=M).cpu().tolist()
+    kn, kb, kg = kn[srt].to(out_device), kb[srt].to(out_device), kg[srt].to(out_device)
+    seg_o, lo_o, hi_o = seg.to(out_device), lo.to(out_device), hi.to(out_device)
+    eye = torch.eye(3, dtype=torch.float64, device=out_device)
+    A_box = torch.cat([eye, -eye])  # [6, 3]
+    polys: List[Optional[Polytope]] = []
+    start = 0
+    for m in range(M):
+        c = counts[m]
+        if failed[m]:
+            polys.append(None)
+        else:
+            polys.append(Polytope(torch.cat([A_box, kn[start:start + c]]),
+                                  torch.cat([hi_o[m], -lo_o[m], kb[start:start + c]]), seg_o[m], kg[start:start + c]))
+        start += c
+    return polys
+
+
 def safe_polytopes_batched(
     segments,  # [M, 2, 3]
     scene,
@@ -220,145 +406,12 @@ def safe_polytopes_batched(
     """
     dev = scene.means.device
     out_device = dev if out_device is None else torch.device(out_device)
-    seg = torch.as_tensor(segments, device=dev).to(torch.float64)
-    if seg.ndim != 3 or seg.shape[1:] != (2, 3) or seg.shape[0] == 0:
-        raise InvalidInputError(f"safe_polytopes_batched needs segments [M>=1, 2, 3], got {tuple(seg.shape)}")
-    if box_lo is None or box_hi is None:
-        raise InvalidInputError("safe_polytopes_batched needs boxes box_lo, box_hi [M, 3]")
-    M = seg.shape[0]
-    lo = torch.as_tensor(box_lo, device=dev).to(torch.float64).reshape(-1, 3)
-    hi = torch.as_tensor(box_hi, device=dev).to(torch.float64).reshape(-1, 3)
-    if lo.shape != (M, 3) or hi.shape != (M, 3):
-        raise InvalidInputError(f"boxes must be [M={M}, 3], got {tuple(lo.shape)}, {tuple(hi.shape)}")
-    ok = torch.isfinite(seg).all() & torch.isfinite(lo).all() & torch.isfinite(hi).all() & (hi > lo).all()
-    inside = ((seg >= lo[:, None] - 1e-12) & (seg <= hi[:, None] + 1e-12)).all()
-    ok, inside = torch.stack([ok, inside]).tolist()  # one host sync
-    if not ok:
-        raise InvalidInputError("safe_polytopes_batched needs finite segments and boxes with lo < hi")
-    if not inside:
-        raise InvalidInputError("seed segments must lie inside their polytope boxes")
-    if normal not in ("auto", "prop2", "closest", "mahalanobis"):
-        raise InvalidInputError(f"unknown normal rule {normal!r}")
-    if chunk < 1:
-        raise InvalidInputError(f"chunk must be >= 1, got {chunk}")
+    seg, lo, hi = _checked_inputs(segments, box_lo, box_hi, normal, chunk, dev)
     r = float(scene.camera_radius)
-    k = int(chunk)
-
-    # ---- 1-2. candidate pairs, sorted by (segment, distance lower bound)
-    q, g = candidate_pairs(scene, index, lo, hi)  # [P], [P]
-    mu = scene.means.index_select(0, g).to(torch.float64)  # [P, 3]
-    ax = scene.radii.index_select(0, g).to(torch.float64)  # [P, 3]
-    amax_s = ax.max(-1).values * (1 + 1e-6)  # [P] bounding-sphere radius (covers a float32 R's ~1e-7 stretch)
-    amin = ax.min(-1).values  # [P] lower bound of ||diag(a) R^T n|| (used only to skip exact tests)
-    p0, p1 = seg[:, 0].index_select(0, q), seg[:, 1].index_select(0, q)  # [P, 3]
-    d = p1 - p0
-    u = (((mu - p0) * d).sum(-1) / (d * d).sum(-1).clamp_min(1e-300)).clamp(0.0, 1.0)
-    key = (p0 + u[:, None] * d - mu).norm(dim=-1) - ax.max(-1).values  # [P] as in safe_polytope
-    order = torch.argsort(key, stable=True)
-    order = order[torch.argsort(q[order], stable=True)]  # by segment, then by key
-    q, g, mu, ax, amax_s, amin = q[order], g[order], mu[order], ax[order], amax_s[order], amin[order]
-    del p0, p1, d, u, key
-
-    # planes kept, per round (seeded with empty tensors: a path may need no plane at all)
-    kept_seg, kept_g = [q[:0]], [g[:0]]
-    kept_n, kept_b = [mu[:0]], [mu[:0, 0]]
-    bad_pair = [q[:0]]  # pair indices whose own planes all cut their segment (decided at the end)
-    ar_m = torch.arange(M, device=dev)
-    alive = torch.arange(q.numel(), device=dev)  # [A] undecided pairs, still sorted by (segment, key)
+    pairs = _sorted_pairs(scene, index, seg, lo, hi)
     st = stats if stats is not None else {}
-    st.update(pairs=int(q.numel()), alive=[], exact_tests=0, retried=0)
-    while alive.numel():
-        st["alive"].append(int(alive.numel()))
-        # ---- 3a. the k nearest undecided pairs of every segment: rank inside its segment's run
-        qa = q[alive]
-        starts = torch.searchsorted(qa, ar_m)  # [M] first undecided pair of each segment
-        rank = torch.arange(alive.numel(), device=dev) - starts[qa]  # [A]
-        in_chunk = rank < k
-        ch, ch_rank = alive[in_chunk], rank[in_chunk]  # [C]
-        rest = alive[~in_chunk]
-        cq, cg = q[ch], g[ch]
-        rot = scene.rotations.index_select(0, cg).to(torch.float64)  # [C, 3, 3]
-        c_mu, c_ax = mu[ch], ax[ch]
-        s0, s1 = seg[cq, 0], seg[cq, 1]  # [C, 3]
-        n, b, slack = _segment_planes(s0, s1, c_mu, rot, c_ax, r, normal, margin)  # [C, 3], [C], [C]
-        neg = torch.nonzero(slack < 0).squeeze(-1)
-        st["retried"] += int(neg.numel())
-        if neg.numel():  # rare: the host path's extra reference points for grazing segments
-            n2, b2, sl2 = _retry_on_host(neg, s0, s1, c_mu, rot, c_ax, cq, r, normal, margin)
-            better = sl2 > slack[neg]
-            n[neg] = torch.where(better[:, None], n2, n[neg])
-            b[neg] = torch.where(better, b2, b[neg])
-            slack[neg] = torch.where(better, sl2, slack[neg])
-        good = slack >= 0  # [C] planes that keep the whole segment
-        bad_pair.append(ch[~good])
-        # ---- 3b. nearest-plane-first greedy inside each segment's chunk, on a dense [M, k] layout
-        slot = cq * k + ch_rank  # [C]
-        dn = torch.zeros(M * k, 3, dtype=torch.float64, device=dev).index_copy_(0, slot, n).view(M, k, 3)
-        db = torch.full((M * k,), float("inf"), dtype=torch.float64, device=dev)
-        db = db.index_copy_(0, slot, torch.where(good, b, torch.full_like(b, float("inf")))).view(M, k)
-        dmu = torch.zeros(M * k, 3, dtype=torch.float64, device=dev).index_copy_(0, slot, c_mu).view(M, k, 3)
-        dax = torch.ones(M * k, 3, dtype=torch.float64, device=dev).index_copy_(0, slot, c_ax).view(M, k, 3)
-        drot = torch.zeros(M * k, 3, 3, dtype=torch.float64, device=dev).index_copy_(0, slot, rot).view(M, k, 3, 3)
-        # beyond[m, i, j]: ellipsoid i of segment m lies beyond plane j of segment m (exact support test;
-        # planes that are not candidates have b = inf and never count)
-        beyond = _support_gap(dn[:, None, :, :], dmu, drot, dax, r) >= db[:, None, :]  # [M, k, k]
-        dsl = torch.full((M * k,), float("inf"), dtype=torch.float64, device=dev).index_copy_(0, slot, slack).view(M, k)
-        dgood = torch.zeros(M * k, dtype=torch.bool, device=dev).index_copy_(0, slot, good).view(M, k)
-        beyond_h, dsl_h, dgood_h = beyond.cpu().numpy(), dsl.cpu().numpy(), dgood.cpu().numpy()
-        taken_h = np.zeros((M, k), dtype=bool)
-        order_h = np.argsort(dsl_h, axis=1, kind="stable")  # nearest plane first
-        rows = np.arange(M)
-        for t in range(k):
-            i = order_h[:, t]
-            hit = (beyond_h[rows, i, :] & taken_h).any(-1)
-            taken_h[rows, i] = dgood_h[rows, i] & ~hit
-        taken = torch.as_tensor(taken_h, device=dev)  # [M, k]
-        took = taken.view(-1)[slot]  # [C]
-        kept_seg.append(cq[took]), kept_n.append(n[took]), kept_b.append(b[took]), kept_g.append(cg[took])
-        # ---- 3c. decide the rest: pairs lying entirely beyond one of their segment's new planes
-        new_b = torch.where(taken, db, torch.full_like(db, float("inf")))  # [M, k]
-        keep_rest = []
-        for s in range(0, rest.numel(), block):
-            j = rest[s:s + block]  # [B]
-            qj = q[j]
-            nn, bb = dn[qj], new_b[qj]  # [B, k, 3], [B, k]
-            proj = torch.einsum("bi,bki->bk", mu[j], nn)  # [B, k]
-            cut = (proj - amax_s[j, None] - r >= bb).any(-1)  # sound: bounding sphere beyond => body beyond
-            maybe = torch.nonzero(~cut & (proj - amin[j, None] - r >= bb).any(-1)).squeeze(-1)
-            if maybe.numel():  # the exact support test only where the sphere test cannot decide
-                jm = j[maybe]
-                st["exact_tests"] += int(jm.numel())
-                rm = scene.rotations.index_select(0, g[jm]).to(torch.float64)
-                cut[maybe] = (_support_gap(nn[maybe], mu[jm], rm, ax[jm], r) >= bb[maybe]).any(-1)
-            keep_rest.append(j[~cut])
-        alive = torch.cat(keep_rest) if keep_rest else rest
-
-    kq, kn, kb, kg = torch.cat(kept_seg), torch.cat(kept_n), torch.cat(kept_b), torch.cat(kept_g)  # [T]...
-    # ---- bad pairs: fatal unless some kept plane of the same segment cuts them off
-    failed = torch.zeros(M, dtype=torch.bool, device=dev)
-    bp = torch.cat(bad_pair)
-    if bp.numel():
-        same = q[bp][:, None] == kq[None, :]  # [Bp, T]
-        rb = scene.rotations.index_select(0, g[bp]).to(torch.float64)
-        gap = _support_gap(kn[None].expand(bp.numel(), -1, -1), mu[bp], rb, ax[bp], r)  # [Bp, T]
-        uncut = ~((gap >= kb[None, :]) & same).any(-1)  # [Bp]
-        failed[q[bp][uncut]] = True
-    # ---- polytopes: box planes then kept planes, split per segment (one transfer to out_device)
-    srt = torch.argsort(kq, stable=True)
-    counts = torch.bincount(kq, minlength=M).cpu().tolist()
-    kn, kb, kg = kn[srt].to(out_device), kb[srt].to(out_device), kg[srt].to(out_device)
-    seg_o, lo_o, hi_o = seg.to(out_device), lo.to(out_device), hi.to(out_device)
-    failed = failed.cpu()
-    eye = torch.eye(3, dtype=torch.float64, device=out_device)
-    A_box = torch.cat([eye, -eye])  # [6, 3]
-    polys: List[Optional[Polytope]] = []
-    start = 0
-    for m in range(M):
-        c = counts[m]
-        if failed[m]:
-            polys.append(None)
-        else:
-            polys.append(Polytope(torch.cat([A_box, kn[start:start + c]]), torch.cat([hi_o[m], -lo_o[m], kb[start:start + c]]),
-                                  seg_o[m], kg[start:start + c]))
-        start += c
-    return polys, failed
+    st.update(pairs=int(pairs.q.numel()), alive=[], exact_tests=0, retried=0)
+    kept, bad_pairs = _decide_pairs(pairs, seg, scene, r, normal, margin, int(chunk), block, st)
+    # bad pairs: fatal unless some kept plane of the same segment cuts them off
+    failed = _failed_segments(pairs, bad_pairs, *kept[:3], scene, r, seg.shape[0]).cpu()
+    return _split_polytopes(kept, failed, seg, lo, hi, out_device), failed

@@ -142,8 +142,32 @@ def procedural_room(
         raise InvalidInputError(f"n_objects must be in 1..{len(OBJECT_NAMES)}, got {n_objects}")
     rng = np.random.default_rng(seed)
     w, d, h = room
+    objects = _place_objects(rng, n_objects, w, d, h)
+    areas = _surface_areas(objects, w, d, h)
+    # objects get 3x the density of walls so they read as detailed, as in real captures
+    weights = areas * np.array([1.0, 1.0, 1.0] + [3.0] * len(objects))
+    counts = rng.multinomial(n_gaussians, weights / weights.sum())
+    means, normals, ids, sp = _sample_surfaces(rng, objects, counts, areas, w, d, h)
+    # disc radius ~ 0.6 x spacing (overlapping discs, as trained splats), thickness 10% of that;
+    # the planner's beta*opacity then scales them (beta=2, opacity 0.9 -> 1.8x).
+    sigma_t = 0.6 * sp * rng.uniform(0.7, 1.3, len(sp))
+    scales = np.stack([sigma_t, sigma_t * rng.uniform(0.5, 1.0, len(sp)), 0.1 * sigma_t], 1)
+    quats = _quat_from_z_to(normals, rng)
+    op = np.clip(opacity + rng.normal(0, 0.03, len(sp)), 0.05, 0.999)
+    logits = np.log(op / (1 - op))
+    return ProceduralScene(
+        means=torch.as_tensor(means, dtype=torch.float32),
+        quats=torch.as_tensor(quats, dtype=torch.float32),
+        log_scales=torch.as_tensor(np.log(scales), dtype=torch.float32),
+        opacity_logits=torch.as_tensor(logits, dtype=torch.float32),
+        object_ids=torch.as_tensor(ids, dtype=torch.long),
+        objects=objects,
+        room=room,
+    )
 
-    # --- place objects on a jittered grid so that they do not overlap and leave corridors
+
+def _place_objects(rng: np.random.Generator, n_objects: int, w: float, d: float, h: float) -> list[ProceduralObject]:
+    """Objects standing on the floor, on a jittered grid so that they do not overlap and leave corridors."""
     objects: list[ProceduralObject] = []
     cols = int(math.ceil(math.sqrt(n_objects)))
     rows = int(math.ceil(n_objects / cols))
@@ -164,9 +188,12 @@ def procedural_room(
             size = np.array([foot, foot, h * rng.uniform(0.3, 0.7)])
         zc = size[2] / 2
         objects.append(ProceduralObject(OBJECT_NAMES[i], kind, np.array([cx, cy, zc]), size))
+    return objects
 
-    # --- surface areas -> Gaussian counts
-    areas = [w * d, 2 * w * h, 2 * d * h]  # floor, walls (x), walls (y)
+
+def _surface_areas(objects: list[ProceduralObject], w: float, d: float, h: float) -> np.ndarray:
+    """[3 + O]: floor, the two walls at x = +-w/2, the two at y = +-d/2, then each object's visible surface."""
+    areas = [w * d, 2 * d * h, 2 * w * h]  # floor, walls at x = +-w/2 (d x h each), walls at y = +-d/2 (w x h each)
     for o in objects:
         if o.kind == "box":
             sx, sy, sz = o.size
@@ -176,11 +203,13 @@ def procedural_room(
         else:
             rr = o.size[0] / 2
             areas.append(2 * np.pi * rr * o.size[2] + np.pi * rr**2)
-    areas_np = np.array(areas)
-    # objects get 3x the density of walls so they read as detailed, as in real captures
-    weights = areas_np * np.array([1.0, 1.0, 1.0] + [3.0] * len(objects))
-    counts = rng.multinomial(n_gaussians, weights / weights.sum())
+    return np.array(areas)
 
+
+def _sample_surfaces(rng: np.random.Generator, objects: list[ProceduralObject], counts: np.ndarray,
+                     areas: np.ndarray, w: float, d: float, h: float):
+    """Surface points [N, 3], unit normals [N, 3], object ids [N] (-1: floor / walls) and point spacing [N]
+    (sqrt(area / count) of each surface) for counts [3 + O] points per surface (``_surface_areas``' order)."""
     pts, nrm, ids, spacing = [], [], [], []
 
     def add(p, n_, oid, area, count):
@@ -192,16 +221,16 @@ def procedural_room(
     # floor
     c0 = counts[0]
     p = np.stack([rng.uniform(-w / 2, w / 2, c0), rng.uniform(-d / 2, d / 2, c0), np.zeros(c0)], 1)
-    add(p, np.tile([0.0, 0.0, 1.0], (c0, 1)), -1, areas_np[0], c0)
+    add(p, np.tile([0.0, 0.0, 1.0], (c0, 1)), -1, areas[0], c0)
     # walls at x = +-w/2 (normals point inward)
     c1 = counts[1]
     side = rng.integers(0, 2, c1) * 2 - 1
     p = np.stack([side * w / 2, rng.uniform(-d / 2, d / 2, c1), rng.uniform(0, h, c1)], 1)
-    add(p, np.stack([-side, 0 * side, 0 * side], 1).astype(float), -1, areas_np[1], c1)
+    add(p, np.stack([-side, 0 * side, 0 * side], 1).astype(float), -1, areas[1], c1)
     c2 = counts[2]
     side = rng.integers(0, 2, c2) * 2 - 1
     p = np.stack([rng.uniform(-w / 2, w / 2, c2), side * d / 2, rng.uniform(0, h, c2)], 1)
-    add(p, np.stack([0 * side, -side, 0 * side], 1).astype(float), -1, areas_np[2], c2)
+    add(p, np.stack([0 * side, -side, 0 * side], 1).astype(float), -1, areas[2], c2)
     for k, o in enumerate(objects):
         ck = counts[3 + k]
         if ck == 0:
@@ -212,24 +241,5 @@ def procedural_room(
             p, n_ = _sample_sphere_surface(o.center, o.size[0] / 2, ck, rng)
         else:
             p, n_ = _sample_cylinder_surface(o.center, o.size[0] / 2, o.size[2], ck, rng)
-        add(p, n_, k, areas_np[3 + k], ck)
-
-    means = np.concatenate(pts)
-    normals = np.concatenate(nrm)
-    sp = np.concatenate(spacing)
-    # disc radius ~ 0.6 x spacing (overlapping discs, as trained splats), thickness 10% of that;
-    # the planner's beta*opacity then scales them (beta=2, opacity 0.9 -> 1.8x).
-    sigma_t = 0.6 * sp * rng.uniform(0.7, 1.3, len(sp))
-    scales = np.stack([sigma_t, sigma_t * rng.uniform(0.5, 1.0, len(sp)), 0.1 * sigma_t], 1)
-    quats = _quat_from_z_to(normals, rng)
-    op = np.clip(opacity + rng.normal(0, 0.03, len(sp)), 0.05, 0.999)
-    logits = np.log(op / (1 - op))
-    return ProceduralScene(
-        means=torch.as_tensor(means, dtype=torch.float32),
-        quats=torch.as_tensor(quats, dtype=torch.float32),
-        log_scales=torch.as_tensor(np.log(scales), dtype=torch.float32),
-        opacity_logits=torch.as_tensor(logits, dtype=torch.float32),
-        object_ids=torch.as_tensor(np.concatenate(ids), dtype=torch.long),
-        objects=objects,
-        room=room,
-    )
+        add(p, n_, k, areas[3 + k], ck)
+    return np.concatenate(pts), np.concatenate(nrm), np.concatenate(ids), np.concatenate(spacing)

@@ -92,10 +92,9 @@ class TrajectoryConfig:
     tolerance: float = 1e-8
     """Clarabel feasibility/optimality tolerance (tol_feas, tol_gap_abs, tol_gap_rel)."""
     iterative_refinement: bool = False
-    """Clarabel's iterative refinement of every KKT solve. Off halves Clarabel's solve on corridor QPs (median 1.28 ->
-    0.65 ms, 40 QPs of 1M-Gaussian plans, CPU box, 2026-11-24) with the same optimum (objective within 7e-8 relative,
-    constraint violation <= 3e-11, far inside the margin); every control point is still checked against its
-    unshrunk polytope. The one retry after a stalled solve turns it on."""
+    """Clarabel's iterative refinement of every KKT solve. Off about halves Clarabel's solve on corridor QPs with the
+    same optimum (objective within ~1e-7 relative, constraint violations far inside the margin); every control point
+    is still checked against its unshrunk polytope. The one retry after a stalled solve turns it on."""
     osqp_tolerance: float = 1e-6
     """OSQP eps_abs/eps_rel. ADMM converges slowly on this ill-conditioned cost (1/d^5 terms), so it gets
     a looser tolerance than Clarabel; polishing usually sharpens it and the margin covers the rest."""
@@ -225,12 +224,11 @@ def _diagnose_infeasible(polys, margins) -> str:
 class CorridorQP:
     """The assembled QP: minimise 1/2 x^T P x subject to A_eq x = b_eq, A_in x <= b_in.
 
-    Stored in the forms the default path uses, so a plan pays for no conversion it does not need (scipy's
-    COO/stack/triu conversions, five per QP before, were ~2 ms of a ~3.5 ms QP stage, CPU box, 2026-11-24; now one
-    COO conversion for the stacked A): ``P_upper`` (the upper
-    triangle of P, what Clarabel reads), ``A`` (equalities stacked over inequalities) and ``eq_dense`` (A_eq as a
-    dense array: the post-solve equality projection is a small dense solve). ``P``, ``A_eq`` and ``A_in`` are built
-    from these on first use (OSQP, multi-stop, tests)."""
+    Stored in the forms the default path uses, so a plan pays for no scipy conversion it does not need (they took
+    over half of the QP stage; the stacked A takes one COO conversion): ``P_upper`` (the upper triangle of P, what
+    Clarabel reads), ``A`` (equalities stacked over inequalities) and ``eq_dense`` (A_eq as a dense array: the
+    post-solve equality projection is a small dense solve). ``P``, ``A_eq`` and ``A_in`` are built from these on
+    first use (OSQP, multi-stop, tests)."""
 
     def __init__(self, P_upper: sp.csc_matrix, A: sp.csc_matrix, b: np.ndarray, n_eq: int, eq_dense: np.ndarray,
                  durations: np.ndarray, degree: int, num_segments: int, polytopes: list):
@@ -314,6 +312,31 @@ def _upper_block_pattern(npts: int) -> Tuple[np.ndarray, np.ndarray, np.ndarray,
 def build_corridor_qp(polytopes, waypoints, start, goal, config: TrajectoryConfig) -> CorridorQP:
     """Assemble the sparse QP matrices (see the module docstring). Validates the input."""
     config.validate()
+    polys, wp, start, goal = _checked_qp_input(polytopes, waypoints, start, goal)
+    m = len(polys)
+    d = config.degree
+    npts = d + 1
+    n = m * npts * 3
+    durations = segment_durations(wp, config)
+    P_upper = _objective_upper(2.0 * segment_hessians(d, durations, config), n)
+    eq_rows, eq_cols, eq_vals, b_eq = _equalities(m, d, config, durations, start, goal)
+    n_eq = b_eq.size
+    eq_dense = np.zeros((n_eq, n))
+    eq_dense[eq_rows, eq_cols] = eq_vals
+    # pinned control points are fixed by the equalities and get no inequality rows
+    q = config.rest_at_ends
+    pinned = np.zeros((m, npts), dtype=bool)
+    pinned[0, : q + 1] = True
+    pinned[m - 1, d - q :] = True
+    in_rows, in_cols, in_vals, b_in, n_rows = _inequalities(polys, pinned, config.effective_margin(), n_eq)
+    rows, cols = np.concatenate([eq_rows] + in_rows), np.concatenate([eq_cols] + in_cols)
+    A = sp.csc_matrix((np.concatenate([eq_vals] + in_vals), (rows, cols)), shape=(n_rows, n))
+    return CorridorQP(P_upper, A, np.concatenate([b_eq] + b_in), n_eq, eq_dense, durations, d, m, polys)
+
+
+def _checked_qp_input(polytopes, waypoints, start, goal):
+    """(polytopes [(A, b)], waypoints [M+1, 3], start [3], goal [3]) as float64 numpy; InvalidInputError for bad
+    shapes or values, CorridorInfeasibleError when start / goal (pinned by equality) lie outside their polytope."""
     polys = _as_polytopes(polytopes)
     wp = _to_numpy(waypoints)
     start = _to_numpy(start).reshape(-1)
@@ -327,12 +350,6 @@ def build_corridor_qp(polytopes, waypoints, start, goal, config: TrajectoryConfi
         raise InvalidInputError("start and goal must be 3D points.")
     if not (np.all(np.isfinite(wp)) and np.all(np.isfinite(start)) and np.all(np.isfinite(goal))):
         raise InvalidInputError("waypoints, start and goal must be finite (found NaN or inf).")
-
-    d = config.degree
-    npts = d + 1
-    q = config.rest_at_ends
-    n = m * npts * 3
-
     # pinned points are fixed by equality; check them against their polytope now (unshrunk, tiny tol)
     tol = 1e-9 * max(1.0, float(np.abs(wp).max()))
     if _point_violation(*polys[0], start) > tol:
@@ -343,29 +360,34 @@ def build_corridor_qp(polytopes, waypoints, start, goal, config: TrajectoryConfi
         raise CorridorInfeasibleError(
             f"the goal point {np.round(goal, 4).tolist()} lies outside the last corridor polytope."
         )
+    return polys, wp, start, goal
 
-    durations = segment_durations(wp, config)
 
-    # ---- objective: block diagonal, 2 * kron(H_k, I3) so that 1/2 x^T P x = sum_k cost_k
-    hess = 2.0 * segment_hessians(d, durations, config)  # [M, D+1, D+1]
-    # its upper triangle, straight into CSC (the blocks are diagonal, columns in order): what Clarabel reads
+def _objective_upper(hess: np.ndarray, n: int) -> sp.csc_matrix:
+    """Upper triangle [n, n] of the block-diagonal objective 2 * kron(H_k, I3) (hess [M, D+1, D+1] already doubled,
+    so that 1/2 x^T P x = sum_k cost_k), straight into CSC (the blocks are diagonal, columns in order): what
+    Clarabel reads."""
+    m, npts = hess.shape[0], hess.shape[1]
     u_rows, u_i, u_j, u_ptr = _upper_block_pattern(npts)
     seg = np.arange(m)[:, None]
-    P_upper = sp.csc_matrix(
+    return sp.csc_matrix(
         (hess[:, u_i, u_j].ravel(), (seg * npts * 3 + u_rows[None]).ravel(),
          np.concatenate([(seg * u_rows.size + u_ptr[None, :-1]).ravel(), [m * u_rows.size]])),
         shape=(n, n),
     )
 
-    # ---- equalities, first on points (one row per point-equation), then expanded over x/y/z
+
+def _equalities(m: int, d: int, config: TrajectoryConfig, durations: np.ndarray, start: np.ndarray,
+                goal: np.ndarray) -> Tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(rows, cols, values, rhs [3 n_eq]) of the equalities: the pinned end points (rest_at_ends + 1 each), then the
+    C^continuity joins, first on points (one row per point-equation), then expanded over x/y/z."""
+    npts = d + 1
+    q = config.rest_at_ends
     pin_rows = 2 * (q + 1)
     pt_rows = [np.arange(pin_rows)]
     pt_cols = [np.concatenate([np.arange(q + 1), (m - 1) * npts + d - np.arange(q + 1)])]
     pt_vals = [np.ones(pin_rows)]
     rhs_pts = np.concatenate([np.tile(start, (q + 1, 1)), np.tile(goal, (q + 1, 1))])  # [2(q+1), 3]
-    pinned = np.zeros((m, npts), dtype=bool)
-    pinned[0, : q + 1] = True
-    pinned[m - 1, d - q :] = True
     n_join = (m - 1) * (config.continuity + 1)
     if m > 1:
         joins = np.arange(m - 1)
@@ -384,23 +406,23 @@ def build_corridor_qp(polytopes, waypoints, start, goal, config: TrajectoryConfi
     pr, pc, pv = np.concatenate(pt_rows), np.concatenate(pt_cols), np.concatenate(pt_vals)
     keep = pv != 0.0
     pr, pc, pv = pr[keep], pc[keep], pv[keep]
-    n_eq_pts = pin_rows + n_join
     eq_rows = (pr[:, None] * 3 + np.arange(3)).ravel()
     eq_cols = (pc[:, None] * 3 + np.arange(3)).ravel()
-    eq_vals = np.repeat(pv, 3)
-    eq_dense = np.zeros((3 * n_eq_pts, n))
-    eq_dense[eq_rows, eq_cols] = eq_vals
-    b_eq = np.concatenate([rhs_pts.ravel(), np.zeros(3 * n_join)])
+    return eq_rows, eq_cols, np.repeat(pv, 3), np.concatenate([rhs_pts.ravel(), np.zeros(3 * n_join)])
 
-    # ---- inequalities: vectorised per segment, one block of F_k rows per free control point
+
+def _inequalities(polys, pinned: np.ndarray, margin: float, row0: int):
+    """Inequality blocks, vectorised per segment, one block of F_k rows per free control point (pinned [M, D+1]),
+    rows from row0 on (they follow the equality rows in the stacked A) -> (rows, cols, values, rhs: lists of
+    arrays; the row count of the stacked A). Faces are shrunk by ``margin``."""
+    npts = pinned.shape[1]
     blocks_r, blocks_c, blocks_v, b_in = [], [], [], []
-    row0 = 3 * n_eq_pts  # inequality rows follow the equality rows in the stacked A
     for k, (a, b) in enumerate(polys):
         free = np.flatnonzero(~pinned[k])  # [nf]
         if free.size == 0:
             continue
         f = a.shape[0]
-        b_shrunk = b - config.effective_margin() * np.linalg.norm(a, axis=1)  # [F]
+        b_shrunk = b - margin * np.linalg.norm(a, axis=1)  # [F]
         nf = free.size
         # row index for (point p, face j) = row0 + p*F + j ; columns var(k, free[p], c)
         rr = row0 + (np.arange(nf)[:, None, None] * f + np.arange(f)[None, :, None])  # [nf, F, 1]
@@ -412,11 +434,7 @@ def build_corridor_qp(polytopes, waypoints, start, goal, config: TrajectoryConfi
         b_in.append(np.tile(b_shrunk, nf))
         row0 += nf * f
     # (no inequality row when every control point is pinned: one segment, 2(q+1) = D+1, the straight line)
-    A = sp.csc_matrix(
-        (np.concatenate([eq_vals] + blocks_v), (np.concatenate([eq_rows] + blocks_r), np.concatenate([eq_cols] + blocks_c))),
-        shape=(row0, n),
-    )
-    return CorridorQP(P_upper, A, np.concatenate([b_eq] + b_in), 3 * n_eq_pts, eq_dense, durations, d, m, polys)
+    return blocks_r, blocks_c, blocks_v, b_in, row0
 
 
 def _normalised(P: sp.csc_matrix) -> sp.csc_matrix:

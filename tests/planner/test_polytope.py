@@ -11,14 +11,8 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from scipy.spatial import HalfspaceIntersection
 
 from cinenerf_ns.planner.errors import InvalidInputError
-from cinenerf_ns.planner.polytope import (
-    Polytope,
-    SeedNotFreeError,
-    _argmax_k,
-    _k_sphere,
-    chebyshev_center,
-    safe_polytope,
-)
+from cinenerf_ns.planner.polytope import Polytope, PolytopeOptions, SeedNotFreeError, chebyshev_center, safe_polytope
+from cinenerf_ns.planner.polytope_planes import argmax_k, k_sphere
 
 sys.path.insert(0, str(Path(__file__).parent))  # our float64 references live beside the tests
 from _corridor_refs import (  # noqa: E402
@@ -187,6 +181,26 @@ def test_bad_input():
         safe_polytope([[5.0, 0, 0]], scene, None, [-1, -1, -1], [1, 1, 1])
 
 
+def test_options_object_and_keyword_fields_agree():
+    """PolytopeOptions and the keyword shorthand give the same polytope; keywords override the options' fields;
+    unknown names and unknown normal rules are refused."""
+    rng = np.random.default_rng(4)
+    scene = random_scene(rng, 40, camera_radius=0.03)
+    x0, lo, hi = [[0.0, 0, 0]], [-0.6, -0.6, -0.6], [0.6, 0.6, 0.6]
+    kw = dict(margin=1e-3, normal="mahalanobis", chunk=4, require_seed_inside=False)
+    a = safe_polytope(x0, scene, None, lo, hi, **kw)
+    b = safe_polytope(x0, scene, None, lo, hi, options=PolytopeOptions(**kw))
+    c = safe_polytope(x0, scene, None, lo, hi, options=PolytopeOptions(**dict(kw, margin=0.5)), margin=1e-3)
+    for P in (b, c):
+        assert torch.equal(a.A, P.A) and torch.equal(a.b, P.b) and torch.equal(a.ellipsoid_ids, P.ellipsoid_ids)
+    with pytest.raises(TypeError):
+        safe_polytope(x0, scene, None, lo, hi, margn=1e-3)
+    with pytest.raises(InvalidInputError):
+        PolytopeOptions(normal="nearest")
+    with pytest.raises(InvalidInputError):
+        safe_polytope(x0, scene, None, lo, hi, normal="nearest")
+
+
 def test_empty_neighbourhood_gives_the_box():
     scene = make_scene([[5.0, 5, 5]], np.eye(3)[None], [[0.2, 0.1, 0.1]], 0.05)
     P = safe_polytope([[0.0, 0, 0]], scene, None, [-1, -1, -1], [1, 1, 1])
@@ -200,10 +214,10 @@ def test_argmax_k_matches_dense_grid(seed, r):
     rng = np.random.default_rng(seed)
     w = torch.as_tensor(rng.normal(size=(8, 3)))
     lam = torch.as_tensor(rng.uniform(0.001, 0.3, size=(8, 3)))
-    s = _argmax_k((w**2).numpy(), lam.numpy(), r * r)
+    s = argmax_k((w**2).numpy(), lam.numpy(), r * r)
     grid = np.linspace(1e-6, 1 - 1e-6, 20001)
-    dense = _k_sphere((w**2).numpy(), lam.numpy(), r * r, np.broadcast_to(grid, (8, grid.size))).max(-1)
-    got = _k_sphere((w**2).numpy(), lam.numpy(), r * r, s[:, None])[:, 0]
+    dense = k_sphere((w**2).numpy(), lam.numpy(), r * r, np.broadcast_to(grid, (8, grid.size))).max(-1)
+    got = k_sphere((w**2).numpy(), lam.numpy(), r * r, s[:, None])[:, 0]
     assert np.all(got >= dense * (1 - 1e-3) - 1e-12)  # golden section to ~1e-3 in s (normal only)
 
 

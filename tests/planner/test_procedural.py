@@ -56,3 +56,20 @@ def test_becomes_ellipsoid_scene():
     s = procedural_room(3000, seed=1)
     e = EllipsoidScene.from_splat(s.means, s.quats, s.log_scales, s.opacity_logits)
     assert len(e) == 3000
+
+
+def test_walls_of_a_long_room_get_gaussians_by_their_area():
+    """The walls at x = +-W/2 are D x H, those at y = +-D/2 are W x H: in a 4 x 1 room the y walls hold 4x as many
+    Gaussians as the x walls, at the same density (the areas were swapped: x walls got W x H)."""
+    w, d, h = 4.0, 1.0, 1.0
+    s = procedural_room(40_000, seed=2, room=(w, d, h))
+    m = s.means.double()
+    wall = (s.object_ids == -1) & (m[:, 2] > 1e-9)
+    on_x = wall & ((m[:, 0].abs() - w / 2).abs() < 1e-5)
+    on_y = wall & ((m[:, 1].abs() - d / 2).abs() < 1e-5)
+    assert int((on_x & on_y).sum()) == 0 and int((on_x | on_y).sum()) == int(wall.sum())
+    dens_x, dens_y = int(on_x.sum()) / (2 * d * h), int(on_y.sum()) / (2 * w * h)
+    assert abs(dens_x / dens_y - 1) < 0.1, (dens_x, dens_y)
+    # disc sizes follow the spacing of their own surface: the same density gives the same sizes
+    sx, sy = s.log_scales[on_x, 0].double().exp().median(), s.log_scales[on_y, 0].double().exp().median()
+    assert abs(float(sx / sy) - 1) < 0.1, (float(sx), float(sy))

@@ -24,10 +24,10 @@
    Memory: the index lists each ellipsoid in several cells, so the gather is bound by cache misses. It reads one
    packed float32 row per ellipsoid ([N, 12]: padded AABB lo rounded down, hi rounded up, mean, max semi-axis
    rounded up, min semi-axis rounded down, 1 unused), one cache line instead of three arrays.
-   polytope._native_arrays stores these rows and the means, rotations and radii in spatial (Morton) order and gives
-   the index ids as positions in that order, so the rows of one cell's ellipsoids lie close together; the ids this
-   file returns are such positions (the caller maps them back to scene ids). Rounding only ever widens these tests;
-   planes and exact tests use the scene's own values (float32 or float64 scene arrays, f32 flag), computed in
+   polytope_native.native_arrays stores these rows and the means, rotations and radii in spatial (Morton) order and
+   gives the index ids as positions in that order, so the rows of one cell's ellipsoids lie close together; the ids
+   this file returns are such positions (the caller maps them back to scene ids). Rounding only ever widens these
+   tests; planes and exact tests use the scene's own values (float32 or float64 scene arrays, f32 flag), computed in
    float64. */
 #include <math.h>
 #include <stdint.h>
