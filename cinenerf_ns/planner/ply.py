@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import os
 import re
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, Optional, Union
 
@@ -17,6 +16,7 @@ import numpy as np
 
 from .atomic import atomic_write
 from .errors import InvalidInputError
+from .splat_params import SplatParams
 
 _PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -27,19 +27,6 @@ _PLY_TYPES = {
 REQUIRED = ("x", "y", "z", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3", "opacity")
 _MAX_HEADER_LINE = 4096  # bytes; a longer "line" is binary data, not a header
 _MAX_HEADER_LINES = 100_000
-
-
-@dataclass
-class SplatPly:
-    """Raw splat parameters of a .ply file (numpy, float32 unless the file says otherwise)."""
-
-    means: np.ndarray  # [N, 3]
-    quats_wxyz: np.ndarray  # [N, 4]
-    log_scales: np.ndarray  # [N, 3]
-    opacity_logits: np.ndarray  # [N]
-    colors_dc: Optional[np.ndarray] = None  # [N, 3] SH DC coefficients (f_dc_*), None if absent
-    sh_rest: Optional[np.ndarray] = None  # [N, K] f_rest_* in file order, None if absent
-    extra: Dict[str, np.ndarray] = field(default_factory=dict)  # any other vertex property [N]
 
 
 def _element(tok, path: Path, lineno: int):
@@ -192,7 +179,7 @@ def _numbered(names, prefix: str):
     return [n for _, n in ks]
 
 
-def read_splat_ply(path: Union[str, Path]) -> SplatPly:
+def read_splat_ply(path: Union[str, Path]) -> SplatParams:
     """Splat parameters of a standard 3DGS .ply (see module docstring). InvalidInputError when a property is
     missing, the file holds no Gaussian, or no Gaussian has all-finite parameters."""
     v = read_ply_vertices(path)
@@ -221,7 +208,7 @@ def read_splat_ply(path: Union[str, Path]) -> SplatPly:
     dc = _numbered(names, "f_dc_")
     rest = _numbered(names, "f_rest_")
     known = set(REQUIRED) | set(dc) | set(rest) | {"nx", "ny", "nz"}
-    return SplatPly(
+    return SplatParams(
         means=cols(("x", "y", "z")),
         quats_wxyz=cols(("rot_0", "rot_1", "rot_2", "rot_3")),
         log_scales=cols(("scale_0", "scale_1", "scale_2")),

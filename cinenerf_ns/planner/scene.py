@@ -19,6 +19,7 @@ import torch
 from torch import Tensor
 
 from .errors import EmptySceneError, InvalidInputError
+from .splat_params import SplatParams
 
 DEFAULT_SAFETY_MARGIN = 0.01  # extra distance kept from every ellipsoid on top of the camera radius (CLI and viewer)
 
@@ -151,6 +152,17 @@ class EllipsoidScene:
         )
 
     @classmethod
+    def from_params(
+        cls,
+        params: SplatParams,
+        config: Optional[SceneConfig] = None,
+        device: Union[str, torch.device, None] = None,
+        dtype: torch.dtype = torch.float32,
+    ) -> "EllipsoidScene":
+        """Obstacles of a splat's parameters (see from_splat), built on ``device`` in ``dtype``."""
+        return cls.from_splat(*params.tensors(device, dtype), config)
+
+    @classmethod
     def from_ply(
         cls,
         path,
@@ -161,12 +173,7 @@ class EllipsoidScene:
         """Obstacles from a standard 3DGS .ply (x,y,z, scale_* log, rot_* wxyz, opacity logit)."""
         from .ply import read_splat_ply
 
-        sp = read_splat_ply(path)
-
-        def t(a):
-            return torch.as_tensor(a.astype("float64"), device=device).to(dtype)
-
-        return cls.from_splat(t(sp.means), t(sp.quats_wxyz), t(sp.log_scales), t(sp.opacity_logits), config)
+        return cls.from_params(read_splat_ply(path), config, device, dtype)
 
     # ------------------------------------------------------------------ helpers
     def __len__(self) -> int:
