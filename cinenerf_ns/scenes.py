@@ -8,7 +8,6 @@ from pathlib import Path
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
 import numpy as np
-import torch
 
 from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY
 from cinenerf_ns.method.training_cameras import camera_box, run_config_path, scene_camera_centres
@@ -150,20 +149,20 @@ def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Opti
     )
 
     st = load_compact(path, device=device) if _is_compact(path) else load_splat(path, device=device)
-    scene = EllipsoidScene.from_splat(st.means, st.quats, st.scales, st.opacities, cfg)
+    scene = EllipsoidScene.from_params(st.params, cfg, device=device)
     cfg_path = run_config_path(path)
     cams = scene_camera_centres(cfg_path, st.info)  # the run's training cameras, else what a compact export carries
     locate = None
-    if st.latents is not None and st.codec is not None:
+    if st.params.latents is not None and st.codec is not None:
         from cinenerf_ns.method.semantic_scene import SemanticScene, build_text_encoder
 
         enc = build_text_encoder(st.info, st.label_embeddings, device=device)
         kw = {} if threshold is None else {"threshold": threshold}
-        sem = SemanticScene(st.means, torch.sigmoid(st.opacities.reshape(-1)), st.latents, st.codec, enc,
-                            label_names=st.info.get("label_names"), smooth_neighbors=smooth_neighbors,
-                            cluster_fraction=object_cluster, log_scales=st.scales, quats=st.quats,
-                            centre=object_centre, up=up, drop_support=drop_support,
-                            centre_relevancy=centre_relevancy, camera_centres=cams if unseen_fill else None, **kw)
+        sem = SemanticScene.from_params(st.params, st.codec, enc, device, label_names=st.info.get("label_names"),
+                                        smooth_neighbors=smooth_neighbors, cluster_fraction=object_cluster,
+                                        centre=object_centre, up=up, drop_support=drop_support,
+                                        centre_relevancy=centre_relevancy,
+                                        camera_centres=cams if unseen_fill else None, **kw)
         label_names = list(st.info.get("label_names") or [])
         free = free_text(st.info)
 
@@ -234,13 +233,11 @@ def preview_scene(loaded: LoadedScene):
     from cinenerf_ns.preview.render import scene_from_params, scene_from_splat
 
     if "splat" in loaded.extra:
-        return scene_from_splat(loaded.extra["splat"])
+        return scene_from_splat(loaded.extra["splat"].params)
     if "room" in loaded.extra:
         room = loaded.extra["room"]
         return scene_from_params(room.means, room.quats, room.log_scales, room.opacity_logits, procedural_colours(room))
-    from cinenerf_ns.method.checkpoint import SH_C0
     from cinenerf_ns.planner.ply import read_splat_ply
 
     p = read_splat_ply(loaded.source)
-    rgb = np.full((len(p.means), 3), 0.7, np.float32) if p.colors_dc is None else np.clip(0.5 + SH_C0 * p.colors_dc, 0, 1)
-    return scene_from_params(p.means, p.quats_wxyz, p.log_scales, p.opacity_logits, rgb)
+    return scene_from_params(p.means, p.quats_wxyz, p.log_scales, p.opacity_logits, p.rgb(default=0.7))

@@ -182,8 +182,9 @@ from cinenerf_ns.method.checkpoint import load_splat
 from cinenerf_ns.method.relevancy import QueryError
 from cinenerf_ns.method.semantic_scene import SemanticScene
 st = load_splat(sys.argv[1])
-print("checkpoint", st.path, "gaussians", len(st), "latents", None if st.latents is None else tuple(st.latents.shape),
-      "latent std", None if st.latents is None else float(st.latents.std()), "codec", st.codec is not None, "step", st.step)
+lat = st.params.latents
+print("checkpoint", st.path, "gaussians", len(st), "latents", None if lat is None else tuple(lat.shape),
+      "latent std", None if lat is None else float(lat.std()), "codec", st.codec is not None, "step", st.step)
 s = SemanticScene.from_checkpoint(sys.argv[1], device="cuda")
 rel = s.query(sys.argv[2]); torch.cuda.synchronize()
 t = time.perf_counter(); rel = s.query(sys.argv[2]); torch.cuda.synchronize()

@@ -16,10 +16,11 @@ import numpy as np
 import pytest
 import torch
 
-from cinenerf_ns.method.checkpoint import CheckpointError, SplatTensors, export_compact
+from cinenerf_ns.method.checkpoint import CheckpointError, SplatCheckpoint, export_compact
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.ply import write_splat_ply
 from cinenerf_ns.planner.scene import SceneConfig
+from cinenerf_ns.planner.splat_params import SplatParams
 from cinenerf_ns.scenes import load_scene
 
 REPO = Path(__file__).resolve().parents[1]
@@ -141,7 +142,9 @@ def test_npz_non_finite(tmp_path):
 
 
 def test_npz_truncated_export(tmp_path):
-    st = SplatTensors(**tiny_splat(200), features_dc=torch.randn(200, 3), info={"label_names": ["a"]})
+    s = tiny_splat(200)
+    st = SplatCheckpoint(SplatParams.of(s["means"], s["quats"], s["scales"], s["opacities"], colors_dc=torch.randn(200, 3)),
+                         info={"label_names": ["a"]})
     p = export_compact(st, tmp_path / "scene.npz")
     assert len(load_scene(str(p), SceneConfig()).scene) > 0  # the export itself loads
     half = tmp_path / "half.npz"

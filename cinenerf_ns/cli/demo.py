@@ -37,7 +37,7 @@ def demo_preview(scene: str, camera_path: str, output_dir: Path, console: Consol
     if str(scene).startswith("procedural:"):
         console.print("[yellow]no preview: the procedural fallback scene has no colours[/yellow]")
         return None
-    return preview_camera_path(load_splat(scene), camera_path, output_dir, "demo", width=480, height=270, fps=15,
+    return preview_camera_path(load_splat(scene).params, camera_path, output_dir, "demo", width=480, height=270, fps=15,
                                console=console)
 
 

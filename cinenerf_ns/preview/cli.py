@@ -62,10 +62,10 @@ def _check_args(ap: argparse.ArgumentParser, a: argparse.Namespace):
     from cinenerf_ns.method.checkpoint import load_splat
 
     try:
-        splat = load_splat(a.scene)
+        splat = load_splat(a.scene).params
     except (ValueError, OSError, KeyError) as e:
         ap.error(f"--scene: could not load {a.scene}: {e}")
-    if splat.features_dc is None:
+    if splat.colors_dc is None:
         ap.error(f"--scene: {a.scene} has no colour (features_dc / rgb)")
     return splat, cam
 

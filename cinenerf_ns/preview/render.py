@@ -1,7 +1,6 @@
 """Render preview frames of a splat: compiled CPU kernel, pure-torch tiled renderer or gsplat on CUDA.
 
-Colour is SH degree 0 (SplatTensors.rgb(): 0.5 + C0 * sh_dc clamped to [0, 1], or the stored colour of a compact
-export); the background is composited as ns-render does (rgb + (1 - alpha) * background, clamped to [0, 1]).
+Colour is SH degree 0 (SplatParams.rgb(): 0.5 + C0 * sh_dc clamped to [0, 1]; a compact export's stored colour); the background is composited as ns-render does (rgb + (1 - alpha) * background, clamped to [0, 1]).
 gsplat is imported only when the CUDA path is used.
 """
 from __future__ import annotations
@@ -12,8 +11,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from cinenerf_ns.method.checkpoint import SplatTensors
 from cinenerf_ns.planner.errors import InvalidInputError
+from cinenerf_ns.planner.splat_params import SplatParams
 
 from . import native
 from .raster_torch import PreviewScene, make_scene, render_torch
@@ -31,12 +30,12 @@ def scene_from_params(means, quats, log_scales, opacity_logits, colors, dtype: t
                       f(colors), dtype=dtype)
 
 
-def scene_from_splat(splat: SplatTensors, dtype: torch.dtype = torch.float32) -> PreviewScene:
-    """Activated, SH-degree-0 scene of a loaded splat (CPU)."""
+def scene_from_splat(splat: SplatParams, dtype: torch.dtype = torch.float32) -> PreviewScene:
+    """Activated, SH-degree-0 scene of a splat's parameters (CPU)."""
     rgb = splat.rgb()
     if rgb is None:
         raise InvalidInputError("the splat has no colour (features_dc); the preview needs it.")
-    return scene_from_params(splat.means, splat.quats, splat.scales, splat.opacities, rgb, dtype=dtype)
+    return scene_from_params(splat.means, splat.quats_wxyz, splat.log_scales, splat.opacity_logits, rgb, dtype=dtype)
 
 
 def choose_backend(backend: str, device: str = "cpu") -> str:

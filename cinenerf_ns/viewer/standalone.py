@@ -116,12 +116,9 @@ def run_data_dir(config_path: Path) -> Optional[Path]:
 
 
 def splat_display(st: Any) -> SplatParams:
-    """Display parameters of a checkpoint / compact export (``method.checkpoint.SplatTensors``)."""
-    rgb = st.rgb()
-    n = len(st)
-    colors = np.full((n, 3), 0.7, np.float32) if rgb is None else rgb.detach().cpu().float().numpy()
-    np_ = lambda x: x.detach().cpu().float().numpy()  # noqa: E731
-    return SplatParams(np_(st.means), np_(st.quats), np_(st.scales), np_(st.opacities).reshape(-1), colors)
+    """Display parameters of a checkpoint / compact export (``method.checkpoint.SplatCheckpoint``)."""
+    p = st.params
+    return SplatParams(p.means, p.quats_wxyz, p.log_scales, p.opacity_logits, p.rgb(default=0.7))
 
 
 def procedural_display(room: Any) -> SplatParams:

@@ -16,6 +16,7 @@ import torch
 import yaml
 
 from cinenerf_ns.planner.errors import InvalidInputError
+from cinenerf_ns.planner.splat_params import SplatParams
 from cinenerf_ns.viewer.demo import demo_scene
 from cinenerf_ns.viewer.standalone import SH_C0, StandaloneConfig, StandaloneViewer, load_scene
 
@@ -156,7 +157,7 @@ def test_standalone_procedural_names_progress_and_errors(tmp_path):
 
 
 def test_standalone_compact_scene_answers_text_by_relevancy(tmp_path):
-    from cinenerf_ns.method.checkpoint import SplatTensors, export_compact
+    from cinenerf_ns.method.checkpoint import SplatCheckpoint, export_compact
     from cinenerf_ns.method.codec import CodecConfig, FeatureCodec
 
     room, sp = room_splat()
@@ -170,9 +171,8 @@ def test_standalone_compact_scene_answers_text_by_relevancy(tmp_path):
     names = ["armchair", *DEFAULT_NEGATIVES]  # offline: the relevancy negatives are labels too (no CLIP weights)
     with torch.no_grad():  # label embeddings = decoded codes: the armchair's code, the background's for the rest
         emb = codec.decode(torch.tensor([[0.9, -0.5, 0.3]] + [[0.0, 0.0, 0.0]] * len(DEFAULT_NEGATIVES)))
-    st = SplatTensors(
-        means=torch.as_tensor(sp.means), quats=torch.as_tensor(sp.quats_wxyz), scales=torch.as_tensor(sp.log_scales),
-        opacities=torch.as_tensor(sp.opacity_logits), features_dc=None, latents=latents, codec=codec,
+    st = SplatCheckpoint(
+        SplatParams.of(sp.means, sp.quats_wxyz, sp.log_scales, sp.opacity_logits, latents=latents), codec=codec,
         codec_state=codec.state_dict(), label_embeddings=emb,
         info={"feature_dim": 8, "codec_config": vars(CodecConfig(hidden_dim=8, train_steps=1)), "label_names": names,
               "clip": None},
