@@ -374,3 +374,13 @@ def test_run_with_malformed_camera_files_loads_without_cameras(tmp_path):
     (run / "dataparser_transforms.json").write_text(json.dumps({"transform": [[1, 0], [0, 1]], "scale": 1.0}))
     ld = load_scene(str(run / "config.yml"), SceneConfig())
     assert len(ld.scene) > 0 and ld.start_region is None and ld.config_path == run / "config.yml"
+
+
+def test_preview_of_a_ply_coloured_with_red_green_blue(tmp_path):
+    """The preview (cinesplat-plan --preview) draws a .ply's red/green/blue colours, as the viewer does (it drew grey)."""
+    from cinenerf_ns.scenes import preview_scene
+
+    rgb = np.array([[255, 0, 0], [0, 128, 0], [10, 20, 30]], np.float32)
+    rows = np.concatenate([np.ones((3, len(SPLAT_PROPS)), np.float32), rgb], 1)
+    p = write_ply(tmp_path / "rgb.ply", props=SPLAT_PROPS + ("red", "green", "blue"), count=3, rows=rows, fmt="ascii")
+    np.testing.assert_allclose(preview_scene(load_scene(str(p), SceneConfig())).colors.numpy(), rgb / 255.0, atol=1e-6)

@@ -3,7 +3,8 @@
 The 3DGS layout (Kerbl et al., also written by ``ns-export gaussian-splat``) is one ``vertex`` element
 with float properties ``x y z`` (means), ``scale_0..2`` (log scales), ``rot_0..3`` (quaternion, wxyz),
 ``opacity`` (logit), ``f_dc_0..2`` (SH DC colour) and ``f_rest_*`` (higher SH bands); ``nx ny nz``
-are usually present and unused. Binary (little or big endian) and ascii bodies are read.
+are usually present and unused. A file without ``f_dc_*`` may colour its Gaussians with ``red green blue``.
+Binary (little or big endian) and ascii bodies are read.
 """
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ import numpy as np
 
 from .atomic import atomic_write
 from .errors import InvalidInputError
-from .splat_params import SplatParams
+from .splat_params import SplatParams, rgb_to_dc
 
 _PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -25,6 +26,7 @@ _PLY_TYPES = {
     "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
 }
 REQUIRED = ("x", "y", "z", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3", "opacity")
+RGB = ("red", "green", "blue")
 _MAX_HEADER_LINE = 4096  # bytes; a longer "line" is binary data, not a header
 _MAX_HEADER_LINES = 100_000
 
@@ -174,6 +176,14 @@ def _read_binary(f, path: Path, endian: str, elements, data_bytes: int) -> np.nd
     raise InvalidInputError(f"{path}: .ply file has no 'vertex' element")
 
 
+def unit_rgb(rgb: np.ndarray) -> np.ndarray:
+    """.ply colours [N, 3] (red, green, blue) in [0, 1] (float32): integers and floats above 1 are 0..255 values."""
+    out = rgb.astype(np.float32)
+    if rgb.dtype.kind != "f" or (out.size and out.max() > 1.0):
+        out = out / np.float32(255.0)
+    return np.clip(out, 0.0, 1.0)
+
+
 def _numbered(names, prefix: str):
     ks = sorted((int(m.group(1)), n) for n in names if (m := re.fullmatch(prefix + r"(\d+)", n)))
     return [n for _, n in ks]
@@ -207,13 +217,14 @@ def read_splat_ply(path: Union[str, Path]) -> SplatParams:
 
     dc = _numbered(names, "f_dc_")
     rest = _numbered(names, "f_rest_")
-    known = set(REQUIRED) | set(dc) | set(rest) | {"nx", "ny", "nz"}
+    rgb = RGB if not dc and set(RGB) <= set(names) else ()  # a file with plain colours instead of SH
+    known = set(REQUIRED) | set(dc) | set(rest) | set(rgb) | {"nx", "ny", "nz"}
     return SplatParams(
         means=cols(("x", "y", "z")),
         quats_wxyz=cols(("rot_0", "rot_1", "rot_2", "rot_3")),
         log_scales=cols(("scale_0", "scale_1", "scale_2")),
         opacity_logits=np.asarray(v["opacity"]).copy(),
-        colors_dc=cols(dc) if dc else None,
+        colors_dc=cols(dc) if dc else rgb_to_dc(unit_rgb(cols(rgb))) if rgb else None,
         sh_rest=cols(rest) if rest else None,
         extra={n: np.asarray(v[n]).copy() for n in names if n not in known},
     )
