@@ -13,6 +13,7 @@ from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY
 from cinenerf_ns.method.training_cameras import camera_box, run_config_path, scene_camera_centres
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.scene import EllipsoidScene, SceneConfig
+from cinenerf_ns.planner.splat_params import NO_COLOUR_GREY, SplatParams, rgb_to_dc
 
 ASSETS = Path(__file__).parent / "assets"
 DEMO_SCENE = ASSETS / "room0.npz"  # the bundled trained room (make demo, cinesplat-viewer's 'demo')
@@ -227,17 +228,21 @@ def procedural_colours(room: Any) -> np.ndarray:
                     np.float32(0.6)).astype(np.float32)
 
 
+def procedural_params(room: Any) -> SplatParams:
+    """The Gaussians of a procedural room (planner.procedural) with their display colours (procedural_colours)."""
+    return SplatParams.of(room.means, room.quats, room.log_scales, room.opacity_logits,
+                          colors_dc=rgb_to_dc(procedural_colours(room)))
+
+
 def preview_scene(loaded: LoadedScene):
     """The renderable splat (cinenerf_ns.preview PreviewScene, SH degree 0) of a loaded scene: a checkpoint's or compact
     export's Gaussians, a .ply's (grey where it has no colour), a procedural room's (objects coloured, the rest grey)."""
-    from cinenerf_ns.preview.render import scene_from_params, scene_from_splat
+    from cinenerf_ns.preview.render import scene_from_splat
 
     if "splat" in loaded.extra:
         return scene_from_splat(loaded.extra["splat"].params)
     if "room" in loaded.extra:
-        room = loaded.extra["room"]
-        return scene_from_params(room.means, room.quats, room.log_scales, room.opacity_logits, procedural_colours(room))
+        return scene_from_splat(procedural_params(loaded.extra["room"]))
     from cinenerf_ns.planner.ply import read_splat_ply
 
-    p = read_splat_ply(loaded.source)
-    return scene_from_params(p.means, p.quats_wxyz, p.log_scales, p.opacity_logits, p.rgb(default=0.7))
+    return scene_from_splat(read_splat_ply(loaded.source), grey=NO_COLOUR_GREY)

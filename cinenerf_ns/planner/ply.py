@@ -200,7 +200,8 @@ def read_splat_ply(path: Union[str, Path]) -> SplatParams:
         points = " (a point cloud: each Gaussian needs scale_*, rot_* and opacity)" if cloud else ""
         raise InvalidInputError(
             f"{path} is not a Gaussian splat .ply: vertex properties {missing} are missing{points} "
-            f"(found {list(names)[:20]}{'...' if len(names) > 20 else ''})"
+            f"(found {list(names)[:20]}{'...' if len(names) > 20 else ''}); export one with `ns-export gaussian-splat` "
+            f"or give the run's config.yml"
         )
     if len(v) == 0:
         raise InvalidInputError(f"{path} holds 0 Gaussians (element vertex 0)")

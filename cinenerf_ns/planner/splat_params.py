@@ -17,6 +17,7 @@ import torch
 from torch import Tensor
 
 SH_C0 = 0.28209479177387814  # degree-0 spherical-harmonic constant (base colour = 0.5 + SH_C0 * SH DC coefficient)
+NO_COLOUR_GREY = 0.7  # what the viewer and the previews draw Gaussians of a splat without colour in
 
 
 def to_float32(x: Any) -> np.ndarray:

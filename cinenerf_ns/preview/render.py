@@ -22,20 +22,14 @@ NERFSTUDIO_BACKGROUND = (0.1490, 0.1647, 0.2157)
 BACKENDS = ("auto", "native", "torch", "gsplat")
 
 
-def scene_from_params(means, quats, log_scales, opacity_logits, colors, dtype: torch.dtype = torch.float32) -> PreviewScene:
-    """Activated, SH-degree-0 scene (CPU) of raw splat parameters (tensors or arrays): means [N, 3], wxyz quats [N, 4],
-    log-scales [N, 3], opacity logits [N], colours in [0, 1] [N, 3]."""
-    f = lambda a: torch.as_tensor(a).detach().float().cpu()  # noqa: E731
-    return make_scene(f(means), f(quats), torch.exp(f(log_scales)), torch.sigmoid(f(opacity_logits)).reshape(-1),
-                      f(colors), dtype=dtype)
-
-
-def scene_from_splat(splat: SplatParams, dtype: torch.dtype = torch.float32) -> PreviewScene:
-    """Activated, SH-degree-0 scene of a splat's parameters (CPU)."""
-    rgb = splat.rgb()
+def scene_from_splat(splat: SplatParams, dtype: torch.dtype = torch.float32, grey: Optional[float] = None) -> PreviewScene:
+    """Activated, SH-degree-0 scene of a splat's parameters (CPU). A splat without colour is drawn in ``grey``; with
+    ``grey`` None it is refused (InvalidInputError)."""
+    rgb = splat.rgb(default=grey)
     if rgb is None:
         raise InvalidInputError("the splat has no colour (features_dc); the preview needs it.")
-    return scene_from_params(splat.means, splat.quats_wxyz, splat.log_scales, splat.opacity_logits, rgb, dtype=dtype)
+    means, quats, log_scales, logits = splat.tensors()
+    return make_scene(means, quats, torch.exp(log_scales), torch.sigmoid(logits), torch.from_numpy(rgb), dtype=dtype)
 
 
 def choose_backend(backend: str, device: str = "cpu") -> str:
