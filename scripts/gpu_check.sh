@@ -110,7 +110,7 @@ EOF
   $PY - <<'EOF' || return 1
 import importlib, sys
 core = ["torch", "nerfstudio", "gsplat", "viser", "open_clip", "scipy", "cinenerf_ns.method"]
-extra = ["pytest", "hypothesis", "cvxpy", "osqp", "clarabel", "tensorboard", "plyfile", "tinycudann"]  # tests / planner / room / optional
+extra = ["pytest", "hypothesis", "cvxpy", "osqp", "clarabel", "tensorboard", "plyfile", "tinycudann"]  # tests / planner / optional
 missing = []
 for m in core + extra:
     try:
@@ -289,8 +289,6 @@ stage_bench() {
 
 stage_room() {
   local d="$WORK/room${ROOM_SEED:-0}" steps=${ROOM_STEPS:-5000} name="room${ROOM_SEED:-0}"
-  # the generator writes the seed point cloud with plyfile, which ../shared/gpu/wheels-py312.txt does not list
-  $PY -c "import plyfile" || { echo "plyfile missing: add its wheel to $WHEELS (pip download --no-deps --python-version 3.12 plyfile==1.1.5)"; return 1; }
   [ -f "$d/transforms.json" ] || $PY -c "from cinenerf_ns.synthetic.cli import entrypoint; entrypoint()" --seed "${ROOM_SEED:-0}" --num-views 150 --output "$d" \
       --threads "${ROOM_THREADS:-8}" --ply-in-transforms || return 1
   rm -rf "$WORK/outputs/$name/cinesplat/gpu_check"

@@ -1,4 +1,11 @@
-"""Read and write standard 3D Gaussian Splatting ``.ply`` files (numpy only, no plyfile).
+"""Read and write ``.ply`` files: the project's one .ply reader and writer (numpy only, no plyfile).
+
+Why our own reader: a scene file may be anything a user points the tools at. ``read_ply_vertices`` checks every size a
+header claims against the file before it allocates or reads (a count of 10^12 vertices in a small file is refused at
+once, with the file named), and reports every malformed header or body as one InvalidInputError that says what is
+wrong; plyfile trusts the header and fails with its own exceptions (and is not in the GPU machines' wheel set). Splat
+scenes (``read_splat_ply``), training seed point clouds (synthetic/dataset.py, method/compat.py) and the viewer all
+read through it; ``write_ply_vertices`` is the one writer.
 
 The 3DGS layout (Kerbl et al., also written by ``ns-export gaussian-splat``) is one ``vertex`` element
 with float properties ``x y z`` (means), ``scale_0..2`` (log scales), ``rot_0..3`` (quaternion, wxyz),
@@ -231,6 +238,27 @@ def read_splat_ply(path: Union[str, Path]) -> SplatParams:
     )
 
 
+_PLY_NAMES = {"i1": "char", "u1": "uchar", "i2": "short", "u2": "ushort", "i4": "int", "u4": "uint", "f4": "float",
+              "f8": "double"}
+
+
+def write_ply_vertices(path: Union[str, Path], rec: np.ndarray) -> Path:
+    """Write a structured array [N] as the ``vertex`` element of a binary little-endian .ply (atomic: temp file +
+    rename); its fields are the properties, in order (numeric scalars: float, double, (u)char, (u)short, (u)int)."""
+    names = rec.dtype.names or ()
+    props = []
+    for n in names:
+        t = rec.dtype.fields[n][0]
+        key = f"{t.kind}{t.itemsize}"
+        if t.shape or key not in _PLY_NAMES:
+            raise InvalidInputError(f"write_ply_vertices: field {n!r} has type {t}, which a .ply property cannot hold")
+        props.append((n, key))
+    le = np.dtype([(n, "<" + k) for n, k in props])
+    header = "ply\nformat binary_little_endian 1.0\n" f"element vertex {len(rec)}\n"
+    header += "".join(f"property {_PLY_NAMES[k]} {n}\n" for n, k in props) + "end_header\n"
+    return atomic_write(path, header.encode("ascii") + rec.astype(le).tobytes())
+
+
 def write_splat_ply(
     path: Union[str, Path],
     means,  # [N, 3]
@@ -277,10 +305,7 @@ def write_splat_ply(
     for k, c in cols.items():
         if c.shape != (n,):
             raise InvalidInputError(f"write_splat_ply: property {k} has {c.shape[0]} rows, means have {n}")
-    dt = np.dtype([(k, "<f4") for k in cols])
-    rec = np.empty(n, dtype=dt)
+    rec = np.empty(n, dtype=np.dtype([(k, "<f4") for k in cols]))
     for k, c in cols.items():
         rec[k] = c
-    header = "ply\nformat binary_little_endian 1.0\n" f"element vertex {n}\n"
-    header += "".join(f"property float {k}\n" for k in cols) + "end_header\n"
-    return atomic_write(path, header.encode("ascii") + rec.tobytes())
+    return write_ply_vertices(path, rec)

@@ -30,7 +30,7 @@ def free_port() -> int:
 
 
 def write_3dgs_ply(path: Path, d) -> None:
-    from plyfile import PlyData, PlyElement
+    from cinenerf_ns.planner.ply import write_ply_vertices
 
     n = len(d.means)
     names = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",
@@ -41,7 +41,7 @@ def write_3dgs_ply(path: Path, d) -> None:
             *d.log_scales.T, *d.quats_wxyz.T]
     for k, c in zip(names, cols):
         arr[k] = c
-    PlyData([PlyElement.describe(arr, "vertex")]).write(str(path))
+    write_ply_vertices(path, arr)
 
 
 def test_load_ply_round_trip(tmp_path):
@@ -81,10 +81,9 @@ def test_bad_sources(tmp_path):
     (tmp_path / "x.txt").write_text("hi")
     with pytest.raises(InvalidInputError, match="expected a config.yml"):
         load_scene(str(tmp_path / "x.txt"))
-    from plyfile import PlyData, PlyElement
+    from cinenerf_ns.planner.ply import write_ply_vertices
 
-    arr = np.zeros(3, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")])
-    PlyData([PlyElement.describe(arr, "vertex")]).write(str(tmp_path / "pts.ply"))
+    write_ply_vertices(tmp_path / "pts.ply", np.zeros(3, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")]))
     with pytest.raises(InvalidInputError, match="not a Gaussian splat .ply"):
         load_scene(str(tmp_path / "pts.ply"))
 
