@@ -9,7 +9,7 @@ from typing import Any, Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 
-from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY
+from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY, OBJECT_CLUSTER, SMOOTH_NEIGHBORS
 from cinenerf_ns.method.training_cameras import camera_box, run_config_path, scene_camera_centres
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.scene import EllipsoidScene, SceneConfig
@@ -114,7 +114,7 @@ def procedural_spec(spec: str) -> Optional[Tuple[int, int]]:
 
 
 def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Optional[float] = None,
-               smooth_neighbors: int = 32, object_cluster: float = 0.02, object_centre: str = "volume",
+               smooth_neighbors: int = SMOOTH_NEIGHBORS, object_cluster: float = OBJECT_CLUSTER, object_centre: str = "volume",
                up: Tuple[float, float, float] = (0.0, 0.0, 1.0), drop_support: bool = True,
                centre_relevancy: float = CENTRE_RELEVANCY, unseen_fill: bool = True) -> LoadedScene:
     """Scene file/spec -> obstacles + (optionally) a text locator."""

@@ -63,7 +63,7 @@ class EllipsoidScene:
     rotations: Tensor  # [N, 3, 3] columns = principal axes in world coordinates
     radii: Tensor  # [N, 3] semi-axis lengths (already scaled by beta * opacity)
     opacities: Tensor  # [N]
-    camera_radius: float = 0.03
+    camera_radius: float = SceneConfig.camera_radius
     source_index: Optional[Tensor] = field(default=None)  # [N] index of each kept Gaussian in the input
 
     def __post_init__(self) -> None:

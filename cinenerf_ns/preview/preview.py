@@ -9,7 +9,7 @@ import numpy as np
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from cinenerf_ns.planner.camera_path import read_camera_path
+from cinenerf_ns.planner.camera_path import DEFAULT_PREVIEW_FPS, DEFAULT_PREVIEW_SIZE, read_camera_path
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.splat_params import SplatParams
 
@@ -59,9 +59,9 @@ def preview_camera_path(
     camera_path: Union[Dict[str, Any], str, Path],
     out_dir: Union[str, Path],
     name: str = "preview",
-    width: int = 480,
-    height: int = 270,
-    fps: float = 15.0,
+    width: int = DEFAULT_PREVIEW_SIZE[0],
+    height: int = DEFAULT_PREVIEW_SIZE[1],
+    fps: float = DEFAULT_PREVIEW_FPS,
     device: str = "cpu",
     backend: str = "auto",
     background: Optional[Sequence[float]] = NERFSTUDIO_BACKGROUND,

@@ -15,7 +15,7 @@ from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.splat_params import SplatParams
 
 from . import native
-from .raster_torch import PreviewScene, make_scene, render_torch
+from .raster_torch import EPS2D, NEAR_PLANE, PreviewScene, make_scene, render_torch
 
 # splatfacto's background_color "random" (cinesplat's default) renders over this colour outside training
 NERFSTUDIO_BACKGROUND = (0.1490, 0.1647, 0.2157)
@@ -50,7 +50,7 @@ def choose_backend(backend: str, device: str = "cpu") -> str:
 
 
 def render_premultiplied(scene: PreviewScene, viewmat: np.ndarray, intrinsics: Sequence[float], width: int, height: int,
-                         backend: str = "native", near_plane: float = 0.01, eps2d: float = 0.3,
+                         backend: str = "native", near_plane: float = NEAR_PLANE, eps2d: float = EPS2D,
                          threads: int = 0) -> Tuple[Tensor, Tensor]:
     """(premultiplied rgb [H, W, 3], alpha [H, W, 1]) on the CPU, in the scene's dtype; backend "native" | "torch"."""
     intr = tuple(float(v) for v in intrinsics)
@@ -65,7 +65,7 @@ def render_premultiplied(scene: PreviewScene, viewmat: np.ndarray, intrinsics: S
 
 
 def render_gsplat(scene: PreviewScene, viewmats: np.ndarray, Ks: np.ndarray, width: int, height: int,
-                  near_plane: float = 0.01, eps2d: float = 0.3, device: str = "cuda") -> Tuple[Tensor, Tensor]:
+                  near_plane: float = NEAR_PLANE, eps2d: float = EPS2D, device: str = "cuda") -> Tuple[Tensor, Tensor]:
     """(premultiplied rgb [C, H, W, 3], alpha [C, H, W, 1]) from gsplat.rasterization (classic mode), on ``device``."""
     from gsplat import rasterization  # lazily: CUDA only
 

@@ -273,7 +273,7 @@ def model_semantic_scene(model: Any, camera_centres: Optional[Callable[[], Optio
         # checked per snapshot: ns-viewer builds the codec when it loads the checkpoint, after construction
         if snap.splat.latents is None or getattr(model, "codec", None) is None or not hasattr(model, "text_encoder"):
             return None
-        from cinenerf_ns.method.semantic_scene import SemanticScene
+        from cinenerf_ns.method.semantic_scene import OBJECT_CLUSTER, SemanticScene
 
         if state.get("codec_src") is not model.codec:  # frozen: one copy on the planning device
             state["codec"] = copy.deepcopy(model.codec).to(snap.device).eval()
@@ -285,8 +285,8 @@ def model_semantic_scene(model: Any, camera_centres: Optional[Callable[[], Optio
                       threshold=float(cfg.relevancy_threshold))
         return SemanticScene.from_params(snap.splat, state["codec"], model.text_encoder(), snap.device,
                                          label_names=(getattr(model, "cine_info", None) or {}).get("label_names"),
-                                         cluster_fraction=0.02,
-                                         camera_centres=None if camera_centres is None else camera_centres(), **kw)  # one object per query, as cinesplat-plan's --object-cluster
+                                         cluster_fraction=OBJECT_CLUSTER,  # one object per query, as cinesplat-plan's
+                                         camera_centres=None if camera_centres is None else camera_centres(), **kw)
 
     return build
 
