@@ -313,7 +313,7 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
     """Check the options, plan, and write the outputs all together; returns a summary dict (paths, per-candidate
     metrics). Raises InvalidInputError / PlanningError / CheckpointError with a message for the user."""
     check_args(args)
-    scfg = SceneConfig(beta=args.beta, camera_radius=args.camera_radius + args.safety_margin, opacity_floor=args.opacity_floor)
+    scfg = SceneConfig.with_margin(args.camera_radius, args.safety_margin, beta=args.beta, opacity_floor=args.opacity_floor)
     t_all = time.perf_counter()
     # auto_refresh=False: no refresh thread. plan_candidates forks worker processes, and a fork while another thread
     # holds an output lock can hang the child; the bar is redrawn at each stage instead (prog.update(refresh=True)).

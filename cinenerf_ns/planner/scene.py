@@ -39,6 +39,15 @@ class SceneConfig:
     max_axis: Optional[float] = None
     """Gaussians with a semi-axis longer than this are dropped as floaters (None: keep all)."""
 
+    @classmethod
+    def with_margin(cls, camera_radius: Optional[float] = None, safety_margin: float = DEFAULT_SAFETY_MARGIN,
+                    **kwargs) -> "SceneConfig":
+        """The obstacle model shots are planned with: the camera sphere (default radius: ``camera_radius``'s field
+        default) grown by ``safety_margin``, as cinesplat-plan and the viewers plan (a splat only approximates the
+        surfaces). Other fields from ``kwargs``."""
+        radius = cls.camera_radius if camera_radius is None else camera_radius
+        return cls(camera_radius=radius + safety_margin, **kwargs)
+
 
 def quat_wxyz_to_rotmat(quats: Tensor) -> Tensor:
     """Unit quaternions (w, x, y, z) [..., 4] -> rotation matrices [..., 3, 3] (normalises first)."""

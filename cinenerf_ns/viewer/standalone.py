@@ -264,7 +264,7 @@ class StandaloneViewer:
 
         t0 = time.perf_counter()
         self.cfg = cfg
-        scfg = SceneConfig(camera_radius=cfg.camera_radius + cfg.safety_margin)
+        scfg = SceneConfig.with_margin(cfg.camera_radius, cfg.safety_margin)
         self.loaded = load_scene(cfg.load_config, cfg.data, scfg, cfg.device)
         sp = self.loaded.splat
         self.obstacles = self.loaded.obstacles
