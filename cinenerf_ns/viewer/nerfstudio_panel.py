@@ -176,7 +176,7 @@ class SplatModelBackend:
         self.planner_config = planner_config
         self.make_planner = make_planner or self._default_planner
         self.locate_fn = locate_fn
-        self.scene_config = scene_config or SceneConfig()
+        self.scene_config = scene_config or SceneConfig.with_margin()  # cinesplat-plan's camera radius + margin
         self.version_fn = version_fn or (lambda: (int(getattr(model, "step", 0)), int(model.means.shape[0])))
         self.device = torch.device(device)
         self.lock = lock

@@ -283,3 +283,12 @@ def test_model_semantic_scene_gets_the_training_cameras():
     assert build(snap).camera_centres is None
     assert model_semantic_scene(model)(snap).camera_centres is None
     assert model_semantic_scene(SimpleNamespace(codec=None))(snap) is None
+
+
+def test_model_backend_plans_with_the_safety_margin():
+    """The ns-viewer panel keeps cinesplat-plan's and cinesplat-viewer's distance from the scene: the camera radius
+    plus the safety margin (it planned with the bare radius)."""
+    from cinenerf_ns.planner.scene import DEFAULT_SAFETY_MARGIN, SceneConfig
+
+    scene, _ = SplatModelBackend(TinySplatModel(), Planners())._current("planner")
+    assert scene.camera_radius == pytest.approx(SceneConfig.camera_radius + DEFAULT_SAFETY_MARGIN)
