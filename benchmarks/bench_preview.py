@@ -90,7 +90,7 @@ def main(argv=None) -> None:
     compile_s = time.perf_counter() - t0
     tmp = Path(tempfile.mkdtemp(prefix="bench_preview_"))
     rows = []
-    room = load_splat(REPO / "cinenerf_ns" / "assets" / "room0.npz")
+    room = load_splat(REPO / "cinenerf_ns" / "assets" / "room0.npz").params
     cam = read_camera_path(a.camera_path) if a.camera_path else demo_camera_path(tmp / "plan")
     rows.append(("bundled room, demo shot", bench(room, cam, tmp, "room", a.repeats)))
     cams = path_cameras(cam, 480, 270, 15)
@@ -99,7 +99,7 @@ def main(argv=None) -> None:
     torch_ms = (time.perf_counter() - t) * 1e3
     if a.fox.exists():
         fox = load_splat(a.fox)
-        rows.append(("fox capture (real), orbit", bench(fox, orbit_camera_path(np.asarray(fox.info["camera_centres"])),
+        rows.append(("fox capture (real), orbit", bench(fox.params, orbit_camera_path(np.asarray(fox.info["camera_centres"])),
                                                          tmp, "fox", a.repeats)))
     else:
         print(f"fox scene not found at {a.fox}: skipped")

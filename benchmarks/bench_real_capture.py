@@ -40,7 +40,7 @@ def bench_scene(path: Path, pairs: int, seed: int) -> str:
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        loaded = load_scene(str(path), SceneConfig(camera_radius=0.04))  # cinesplat-plan's radius + margin
+        loaded = load_scene(str(path), SceneConfig.with_margin())  # cinesplat-plan's radius + margin
     load_s = time.perf_counter() - t0
     planner = Planner(loaded.scene, PlannerConfig(start_region=loaded.start_region))
     t0 = time.perf_counter()

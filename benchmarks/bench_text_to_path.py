@@ -68,7 +68,7 @@ def main() -> None:
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        ls = load_scene(a.scene, scene_config=SceneConfig(camera_radius=vc.camera_radius + vc.safety_margin),
+        ls = load_scene(a.scene, scene_config=SceneConfig.with_margin(vc.camera_radius, vc.safety_margin),
                         device=a.device)
     load_s = time.perf_counter() - t0
     if ls.locate is None or ls.obstacles is None:

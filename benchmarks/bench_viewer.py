@@ -36,7 +36,7 @@ from cinenerf_ns.planner.scene import SceneConfig  # noqa: E402
 from cinenerf_ns.viewer.backend import FunctionBackend  # noqa: E402
 from cinenerf_ns.viewer.panel import PanelConfig  # noqa: E402
 from cinenerf_ns.viewer.planner_backend import PreparedPlanner  # noqa: E402
-from cinenerf_ns.viewer.standalone import load_scene  # noqa: E402
+from cinenerf_ns.viewer.standalone import display_gaussians, load_scene  # noqa: E402
 
 
 def free_port() -> int:
@@ -76,7 +76,7 @@ def main() -> None:
     if planner.error is not None:
         raise SystemExit(f"prepare failed: {planner.error}")
     prep_s = time.perf_counter() - t0
-    display = loaded.splat.display_gaussians()
+    display = display_gaussians(loaded.splat)
     backend = FunctionBackend(display, planner.plan, loaded.locate, loaded.name, PreparedPlanner.name)
 
     server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)

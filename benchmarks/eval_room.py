@@ -49,7 +49,7 @@ from benchmarks.eval_synthetic import (  # noqa: E402
 from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY  # noqa: E402
 from cinenerf_ns.planner.errors import PlanningError  # noqa: E402
 from cinenerf_ns.planner.planner import Planner, PlannerConfig  # noqa: E402
-from cinenerf_ns.planner.scene import SceneConfig  # noqa: E402
+from cinenerf_ns.planner.scene import DEFAULT_SAFETY_MARGIN, SceneConfig  # noqa: E402
 from cinenerf_ns.scenes import load_scene  # noqa: E402
 
 
@@ -229,8 +229,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--dataset", type=Path, required=True, help="folder with geometry.json + dataparser_transforms.json")
     ap.add_argument("--dataparser-transforms", type=Path, default=None, help="default: <dataset>/dataparser_transforms.json")
     ap.add_argument("--starts", type=int, default=3, help="random starts per go-to/look-at pair")
-    ap.add_argument("--camera-radius", type=float, default=0.03)
-    ap.add_argument("--safety-margin", type=float, default=0.01, help="planning margin on top of the radius (cinesplat-plan's default)")
+    ap.add_argument("--camera-radius", type=float, default=SceneConfig.camera_radius)
+    ap.add_argument("--safety-margin", type=float, default=DEFAULT_SAFETY_MARGIN, help="planning margin on top of the radius (cinesplat-plan's default)")
     ap.add_argument("--grid-resolution", type=int, default=96)
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--start-look-distance", type=float, default=PlannerConfig.start_look_distance,
@@ -253,7 +253,7 @@ def main(argv=None) -> dict:
     dpt = a.dataparser_transforms or a.dataset / "dataparser_transforms.json"
     gt = load_ground_truth(a.dataset, dpt)
     # the planner plans for radius + margin, exactly as cinesplat-plan does; the truth is scored for the radius
-    loaded = load_scene(str(a.scene), SceneConfig(camera_radius=a.camera_radius + a.safety_margin), device=a.device,
+    loaded = load_scene(str(a.scene), SceneConfig.with_margin(a.camera_radius, a.safety_margin), device=a.device,
                         smooth_neighbors=a.semantic_smoothing, object_cluster=a.object_cluster,
                         object_centre=a.object_centre, drop_support=not a.keep_support,
                         centre_relevancy=a.centre_relevancy, unseen_fill=not a.no_unseen_fill)

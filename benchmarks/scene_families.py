@@ -68,8 +68,7 @@ def load_family(spec: str, n_gaussians: int, seed: int, device: str = "cpu") -> 
         from cinenerf_ns.synthetic.blobs import blob_scene
 
         b = blob_scene(n_gaussians, seed=seed)
-        scene = EllipsoidScene.from_splat(b.means.to(dev), b.quats.to(dev), b.log_scales.to(dev),
-                                          b.opacity_logits.to(dev))
+        scene = EllipsoidScene.from_params(b.splat, device=dev)
         r = float(scene.camera_radius)
         return Family(spec, "blobs", scene, (b.free_lo + r, b.free_hi - r), b.up,
                       [(x.center, np.full(3, 2 * x.radius)) for x in b.blobs], f"blob_scene N={len(scene)} seed {seed}")

@@ -8,12 +8,12 @@ from pathlib import Path
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
 import numpy as np
-import torch
 
-from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY
+from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY, OBJECT_CLUSTER, SMOOTH_NEIGHBORS
 from cinenerf_ns.method.training_cameras import camera_box, run_config_path, scene_camera_centres
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.scene import EllipsoidScene, SceneConfig
+from cinenerf_ns.planner.splat_params import NO_COLOUR_GREY, SplatParams, rgb_to_dc
 
 ASSETS = Path(__file__).parent / "assets"
 DEMO_SCENE = ASSETS / "room0.npz"  # the bundled trained room (make demo, cinesplat-viewer's 'demo')
@@ -114,7 +114,7 @@ def procedural_spec(spec: str) -> Optional[Tuple[int, int]]:
 
 
 def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Optional[float] = None,
-               smooth_neighbors: int = 32, object_cluster: float = 0.02, object_centre: str = "volume",
+               smooth_neighbors: int = SMOOTH_NEIGHBORS, object_cluster: float = OBJECT_CLUSTER, object_centre: str = "volume",
                up: Tuple[float, float, float] = (0.0, 0.0, 1.0), drop_support: bool = True,
                centre_relevancy: float = CENTRE_RELEVANCY, unseen_fill: bool = True) -> LoadedScene:
     """Scene file/spec -> obstacles + (optionally) a text locator."""
@@ -150,20 +150,20 @@ def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Opti
     )
 
     st = load_compact(path, device=device) if _is_compact(path) else load_splat(path, device=device)
-    scene = EllipsoidScene.from_splat(st.means, st.quats, st.scales, st.opacities, cfg)
+    scene = EllipsoidScene.from_params(st.params, cfg, device=device)
     cfg_path = run_config_path(path)
     cams = scene_camera_centres(cfg_path, st.info)  # the run's training cameras, else what a compact export carries
     locate = None
-    if st.latents is not None and st.codec is not None:
+    if st.params.latents is not None and st.codec is not None:
         from cinenerf_ns.method.semantic_scene import SemanticScene, build_text_encoder
 
         enc = build_text_encoder(st.info, st.label_embeddings, device=device)
         kw = {} if threshold is None else {"threshold": threshold}
-        sem = SemanticScene(st.means, torch.sigmoid(st.opacities.reshape(-1)), st.latents, st.codec, enc,
-                            label_names=st.info.get("label_names"), smooth_neighbors=smooth_neighbors,
-                            cluster_fraction=object_cluster, log_scales=st.scales, quats=st.quats,
-                            centre=object_centre, up=up, drop_support=drop_support,
-                            centre_relevancy=centre_relevancy, camera_centres=cams if unseen_fill else None, **kw)
+        sem = SemanticScene.from_params(st.params, st.codec, enc, device, label_names=st.info.get("label_names"),
+                                        smooth_neighbors=smooth_neighbors, cluster_fraction=object_cluster,
+                                        centre=object_centre, up=up, drop_support=drop_support,
+                                        centre_relevancy=centre_relevancy,
+                                        camera_centres=cams if unseen_fill else None, **kw)
         label_names = list(st.info.get("label_names") or [])
         free = free_text(st.info)
 
@@ -228,19 +228,21 @@ def procedural_colours(room: Any) -> np.ndarray:
                     np.float32(0.6)).astype(np.float32)
 
 
+def procedural_params(room: Any) -> SplatParams:
+    """The Gaussians of a procedural room (planner.procedural) with their display colours (procedural_colours)."""
+    return SplatParams.of(room.means, room.quats, room.log_scales, room.opacity_logits,
+                          colors_dc=rgb_to_dc(procedural_colours(room)))
+
+
 def preview_scene(loaded: LoadedScene):
     """The renderable splat (cinenerf_ns.preview PreviewScene, SH degree 0) of a loaded scene: a checkpoint's or compact
     export's Gaussians, a .ply's (grey where it has no colour), a procedural room's (objects coloured, the rest grey)."""
-    from cinenerf_ns.preview.render import scene_from_params, scene_from_splat
+    from cinenerf_ns.preview.render import scene_from_splat
 
     if "splat" in loaded.extra:
-        return scene_from_splat(loaded.extra["splat"])
+        return scene_from_splat(loaded.extra["splat"].params)
     if "room" in loaded.extra:
-        room = loaded.extra["room"]
-        return scene_from_params(room.means, room.quats, room.log_scales, room.opacity_logits, procedural_colours(room))
-    from cinenerf_ns.method.checkpoint import SH_C0
+        return scene_from_splat(procedural_params(loaded.extra["room"]))
     from cinenerf_ns.planner.ply import read_splat_ply
 
-    p = read_splat_ply(loaded.source)
-    rgb = np.full((len(p.means), 3), 0.7, np.float32) if p.colors_dc is None else np.clip(0.5 + SH_C0 * p.colors_dc, 0, 1)
-    return scene_from_params(p.means, p.quats_wxyz, p.log_scales, p.opacity_logits, rgb)
+    return scene_from_splat(read_splat_ply(loaded.source), grey=NO_COLOUR_GREY)

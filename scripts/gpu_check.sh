@@ -110,7 +110,7 @@ EOF
   $PY - <<'EOF' || return 1
 import importlib, sys
 core = ["torch", "nerfstudio", "gsplat", "viser", "open_clip", "scipy", "cinenerf_ns.method"]
-extra = ["pytest", "hypothesis", "cvxpy", "osqp", "clarabel", "tensorboard", "plyfile", "tinycudann"]  # tests / planner / room / optional
+extra = ["pytest", "hypothesis", "cvxpy", "osqp", "clarabel", "tensorboard", "plyfile", "tinycudann"]  # tests / planner / optional
 missing = []
 for m in core + extra:
     try:
@@ -182,8 +182,9 @@ from cinenerf_ns.method.checkpoint import load_splat
 from cinenerf_ns.method.relevancy import QueryError
 from cinenerf_ns.method.semantic_scene import SemanticScene
 st = load_splat(sys.argv[1])
-print("checkpoint", st.path, "gaussians", len(st), "latents", None if st.latents is None else tuple(st.latents.shape),
-      "latent std", None if st.latents is None else float(st.latents.std()), "codec", st.codec is not None, "step", st.step)
+lat = st.params.latents
+print("checkpoint", st.path, "gaussians", len(st), "latents", None if lat is None else tuple(lat.shape),
+      "latent std", None if lat is None else float(lat.std()), "codec", st.codec is not None, "step", st.step)
 s = SemanticScene.from_checkpoint(sys.argv[1], device="cuda")
 rel = s.query(sys.argv[2]); torch.cuda.synchronize()
 t = time.perf_counter(); rel = s.query(sys.argv[2]); torch.cuda.synchronize()
@@ -288,8 +289,6 @@ stage_bench() {
 
 stage_room() {
   local d="$WORK/room${ROOM_SEED:-0}" steps=${ROOM_STEPS:-5000} name="room${ROOM_SEED:-0}"
-  # the generator writes the seed point cloud with plyfile, which ../shared/gpu/wheels-py312.txt does not list
-  $PY -c "import plyfile" || { echo "plyfile missing: add its wheel to $WHEELS (pip download --no-deps --python-version 3.12 plyfile==1.1.5)"; return 1; }
   [ -f "$d/transforms.json" ] || $PY -c "from cinenerf_ns.synthetic.cli import entrypoint; entrypoint()" --seed "${ROOM_SEED:-0}" --num-views 150 --output "$d" \
       --threads "${ROOM_THREADS:-8}" --ply-in-transforms || return 1
   rm -rf "$WORK/outputs/$name/cinesplat/gpu_check"

@@ -23,12 +23,6 @@ from cinenerf_ns.method.checkpoint import export_compact, load_splat
 from cinenerf_ns.method.training_cameras import camera_centres, camera_info
 
 
-def subset(st, keep: torch.Tensor):
-    pick = lambda t: None if t is None else t[keep]  # noqa: E731
-    return replace(st, means=st.means[keep], quats=st.quats[keep], scales=st.scales[keep], opacities=st.opacities[keep],
-                   features_dc=pick(st.features_dc), latents=pick(st.latents))
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", type=Path, required=True)
@@ -45,9 +39,9 @@ def main() -> None:
     out = args.out / f"{args.name}.npz"
     keep_frac = 1.0
     while True:
-        order = torch.argsort(st.opacities.float().reshape(-1), descending=True)
+        order = torch.argsort(torch.as_tensor(st.params.opacity_logits).float().reshape(-1), descending=True)
         k = int(round(n0 * keep_frac))
-        sub = subset(st, torch.sort(order[:k]).values) if k < n0 else st
+        sub = replace(st, params=st.params.subset(torch.sort(order[:k]).values)) if k < n0 else st
         sub.info["demo_pruned"] = {"kept": k, "of": n0, "rule": "highest opacity"}
         export_compact(sub, out, half=True)
         mb = out.stat().st_size / 1e6

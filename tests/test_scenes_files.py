@@ -16,10 +16,11 @@ import numpy as np
 import pytest
 import torch
 
-from cinenerf_ns.method.checkpoint import CheckpointError, SplatTensors, export_compact
+from cinenerf_ns.method.checkpoint import CheckpointError, SplatCheckpoint, export_compact
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.ply import write_splat_ply
 from cinenerf_ns.planner.scene import SceneConfig
+from cinenerf_ns.planner.splat_params import SplatParams
 from cinenerf_ns.scenes import load_scene
 
 REPO = Path(__file__).resolve().parents[1]
@@ -141,7 +142,9 @@ def test_npz_non_finite(tmp_path):
 
 
 def test_npz_truncated_export(tmp_path):
-    st = SplatTensors(**tiny_splat(200), features_dc=torch.randn(200, 3), info={"label_names": ["a"]})
+    s = tiny_splat(200)
+    st = SplatCheckpoint(SplatParams.of(s["means"], s["quats"], s["scales"], s["opacities"], colors_dc=torch.randn(200, 3)),
+                         info={"label_names": ["a"]})
     p = export_compact(st, tmp_path / "scene.npz")
     assert len(load_scene(str(p), SceneConfig()).scene) > 0  # the export itself loads
     half = tmp_path / "half.npz"
@@ -371,3 +374,13 @@ def test_run_with_malformed_camera_files_loads_without_cameras(tmp_path):
     (run / "dataparser_transforms.json").write_text(json.dumps({"transform": [[1, 0], [0, 1]], "scale": 1.0}))
     ld = load_scene(str(run / "config.yml"), SceneConfig())
     assert len(ld.scene) > 0 and ld.start_region is None and ld.config_path == run / "config.yml"
+
+
+def test_preview_of_a_ply_coloured_with_red_green_blue(tmp_path):
+    """The preview (cinesplat-plan --preview) draws a .ply's red/green/blue colours, as the viewer does (it drew grey)."""
+    from cinenerf_ns.scenes import preview_scene
+
+    rgb = np.array([[255, 0, 0], [0, 128, 0], [10, 20, 30]], np.float32)
+    rows = np.concatenate([np.ones((3, len(SPLAT_PROPS)), np.float32), rgb], 1)
+    p = write_ply(tmp_path / "rgb.ply", props=SPLAT_PROPS + ("red", "green", "blue"), count=3, rows=rows, fmt="ascii")
+    np.testing.assert_allclose(preview_scene(load_scene(str(p), SceneConfig())).colors.numpy(), rgb / 255.0, atol=1e-6)

@@ -30,15 +30,15 @@ def demo_args(output_dir: Path, scene: Path = DEMO_SCENE, candidates: int = 1) -
 
 
 def demo_preview(scene: str, camera_path: str, output_dir: Path, console: Console) -> Optional[dict]:
-    """demo.mp4 + demo_sheet.png of the planned shot (480x270, 15 fps, CPU), or None when the scene has no colour."""
+    """demo.mp4 + demo_sheet.png of the planned shot (the preview's default size and frame rate, 480x270 at 15 fps,
+    CPU), or None when the scene has no colour."""
     from cinenerf_ns.method.checkpoint import load_splat
     from cinenerf_ns.preview import preview_camera_path
 
     if str(scene).startswith("procedural:"):
         console.print("[yellow]no preview: the procedural fallback scene has no colours[/yellow]")
         return None
-    return preview_camera_path(load_splat(scene), camera_path, output_dir, "demo", width=480, height=270, fps=15,
-                               console=console)
+    return preview_camera_path(load_splat(scene).params, camera_path, output_dir, "demo", console=console)
 
 
 def main(argv=None) -> dict:

@@ -28,10 +28,17 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY
+from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY, OBJECT_CLUSTER, SMOOTH_NEIGHBORS
 from cinenerf_ns.options import check_number
 from cinenerf_ns.output_set import OutputSet, check_name, check_writable
-from cinenerf_ns.planner.camera_path import DEFAULT_FOV_DEG, DEFAULT_RENDER_SIZE, shot_to_camera_path, write_camera_path
+from cinenerf_ns.planner.camera_path import (
+    DEFAULT_FOV_DEG,
+    DEFAULT_PREVIEW_FPS,
+    DEFAULT_PREVIEW_SIZE,
+    DEFAULT_RENDER_SIZE,
+    shot_to_camera_path,
+    write_camera_path,
+)
 from cinenerf_ns.planner.candidates import RankedShot, plan_candidates, score_shots
 from cinenerf_ns.planner.dynamics import DynamicLimits, retime_shot
 from cinenerf_ns.planner.errors import InvalidInputError, PlanningError
@@ -80,9 +87,9 @@ class PlanArgs:
     """File name stem of the outputs (letters, digits, '.', '_', '-')."""
     preview: bool = False
     """Also render each candidate as a video on the CPU (SH degree 0): <name>_<k>_preview.mp4 and a contact sheet PNG."""
-    preview_size: Tuple[int, int] = (480, 270)
+    preview_size: Tuple[int, int] = DEFAULT_PREVIEW_SIZE
     """Width and height of the preview videos, pixels (16-4096 each)."""
-    preview_fps: float = 15.0
+    preview_fps: float = DEFAULT_PREVIEW_FPS
     """Frame rate of the preview videos (1-120; frames are taken from the camera path, never interpolated)."""
     fps: float = TimingConfig.fps
     """Frames per second of the exported path, 1-240."""
@@ -112,9 +119,9 @@ class PlanArgs:
     voxel more conservative); auto: on when the voxels are at most 2 camera radii."""
     threshold: Optional[float] = None
     """Relevancy threshold of text queries, in (0, 1) (default: the scene's)."""
-    semantic_smoothing: int = 32
+    semantic_smoothing: int = SMOOTH_NEIGHBORS
     """Average each Gaussian's latent over this many nearest Gaussians before text queries (0: off; once per load)."""
-    object_cluster: float = 0.02
+    object_cluster: float = OBJECT_CLUSTER
     """A text target is the heaviest spatial cluster of the selected Gaussians, binned at this fraction of the scene's
     extent (0: all selected Gaussians): one object, not the centroid of scattered matches."""
     object_centre: Literal["volume", "surface"] = "volume"
@@ -235,8 +242,8 @@ def _limits(args: PlanArgs) -> Optional[DynamicLimits]:
         return None
     return DynamicLimits(
         max_speed=args.max_speed, fps=args.fps,
-        max_acceleration=0.5 if args.max_acceleration is None else args.max_acceleration,
-        max_angular_rate_deg=60.0 if args.max_angular_rate is None else args.max_angular_rate,
+        max_acceleration=DynamicLimits.max_acceleration if args.max_acceleration is None else args.max_acceleration,
+        max_angular_rate_deg=DynamicLimits.max_angular_rate_deg if args.max_angular_rate is None else args.max_angular_rate,
     )
 
 
@@ -306,7 +313,7 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
     """Check the options, plan, and write the outputs all together; returns a summary dict (paths, per-candidate
     metrics). Raises InvalidInputError / PlanningError / CheckpointError with a message for the user."""
     check_args(args)
-    scfg = SceneConfig(beta=args.beta, camera_radius=args.camera_radius + args.safety_margin, opacity_floor=args.opacity_floor)
+    scfg = SceneConfig.with_margin(args.camera_radius, args.safety_margin, beta=args.beta, opacity_floor=args.opacity_floor)
     t_all = time.perf_counter()
     # auto_refresh=False: no refresh thread. plan_candidates forks worker processes, and a fork while another thread
     # holds an output lock can hang the child; the bar is redrawn at each stage instead (prog.update(refresh=True)).

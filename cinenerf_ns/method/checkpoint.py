@@ -1,13 +1,13 @@
-"""Load a splatfacto / cinesplat checkpoint into raw tensors without building nerfstudio's trainer.
+"""Load a splatfacto / cinesplat checkpoint into raw splat parameters without building nerfstudio's trainer.
 
 ``load_splat(path)`` accepts a run's ``config.yml``, the run folder, a ``nerfstudio_models`` folder, a
 ``.ckpt`` file, or a compact export (``.pt`` / ``.npz`` written by ``export_compact``). It reads the
 checkpoint with ``torch.load(weights_only=True)`` (numpy scalars of nerfstudio's scheduler state allowed via
 compat's safe globals) and never imports nerfstudio, gsplat or the CLIP model.
 
-Returned tensors (nerfstudio / gsplat conventions): means [N,3], quats [N,4] wxyz (unnormalised),
-scales [N,3] log, opacities [N] logit, features_dc [N,3] (SH DC, or logit colour when sh_degree == 0),
-latents [N,3] or None, codec (FeatureCodec, frozen) or None, info (dict), label_embeddings [L,D] or None.
+Returns a ``SplatCheckpoint``: the Gaussians as ``planner.splat_params.SplatParams`` (numpy: means, quats_wxyz,
+log_scales, opacity_logits, colors_dc as SH DC coefficients, latents [N,3] or None) plus codec (FeatureCodec, frozen,
+on the load device) or None, info (dict), label_embeddings [L,D] (on the load device) or None.
 """
 
 from __future__ import annotations
@@ -32,36 +32,25 @@ from cinenerf_ns.method.scene_files import (
     compact_npz,
     torch_read,
 )
+from cinenerf_ns.planner.splat_params import SplatParams, rgb_to_dc
 
 PREFIX = "_model.gauss_params."
-SH_C0 = 0.28209479177387814
 
 
 @dataclass
-class SplatTensors:
-    means: Tensor
-    quats: Tensor
-    scales: Tensor
-    opacities: Tensor
-    features_dc: Optional[Tensor] = None
-    latents: Optional[Tensor] = None
-    codec: Any = None
-    codec_state: Optional[Dict[str, Tensor]] = None
-    info: Dict[str, Any] = field(default_factory=dict)
-    label_embeddings: Optional[Tensor] = None
+class SplatCheckpoint:
+    """A loaded checkpoint or compact export: its Gaussians and, for cinesplat runs, their semantics."""
+
+    params: SplatParams  # the Gaussians (numpy, SH degree 0 colour as colors_dc, latents if distilled)
+    codec: Any = None  # FeatureCodec decoding latents (frozen, on the load device), or None
+    codec_state: Optional[Dict[str, Tensor]] = None  # the codec's weights as stored (written back by export_compact)
+    info: Dict[str, Any] = field(default_factory=dict)  # the run's cine_info / a compact export's info_json
+    label_embeddings: Optional[Tensor] = None  # [L, D] CLIP embeddings of info["label_names"], or None
     step: int = -1
     path: Optional[Path] = None
 
     def __len__(self) -> int:
-        return int(self.means.shape[0])
-
-    def rgb(self) -> Optional[Tensor]:
-        """Base colour [N, 3] in [0, 1] (SH degree 0), assuming splatfacto's default sh_degree > 0."""
-        if self.features_dc is None:
-            return None
-        if self.info.get("sh_degree", 3) == 0:
-            return torch.sigmoid(self.features_dc)
-        return (self.features_dc * SH_C0 + 0.5).clamp(0, 1)
+        return len(self.params)
 
 
 def find_checkpoint(path: str | Path) -> Path:
@@ -127,15 +116,15 @@ def _build_codec(info: Dict[str, Any], state: Dict[str, Tensor], device) -> Any:
     return codec
 
 
-def load_splat(path: str | Path, device: torch.device | str = "cpu") -> SplatTensors:
-    """A checkpoint, run folder, config.yml or compact export -> SplatTensors (CheckpointError if malformed)."""
+def load_splat(path: str | Path, device: torch.device | str = "cpu") -> SplatCheckpoint:
+    """A checkpoint, run folder, config.yml or compact export -> SplatCheckpoint (CheckpointError if malformed)."""
     ckpt = find_checkpoint(path)
     if ckpt.suffix.lower() == ".npz":
         return load_compact(ckpt, device)
     what = COMPACT if ckpt.suffix.lower() == ".pt" else "splatfacto/cinesplat checkpoint"
     blob = torch_read(ckpt, what)
     if isinstance(blob, dict) and blob.get("format") == "cinesplat-compact":
-        return _compact_tensors(*compact_blob(blob, ckpt), ckpt, device)
+        return _compact_checkpoint(*compact_blob(blob, ckpt), ckpt, device)
     sd = blob.get("pipeline", blob) if isinstance(blob, dict) else blob
     if not isinstance(sd, dict) or PREFIX + "means" not in sd:
         if ckpt.suffix.lower() == ".pt":
@@ -148,7 +137,7 @@ def load_splat(path: str | Path, device: torch.device | str = "cpu") -> SplatTen
 
     def g(name: str) -> Optional[Tensor]:
         t = sd.get(PREFIX + name)
-        return None if t is None else t.float().to(device)
+        return None if t is None else t.float()
 
     extra = sd.get("_model._extra_state")
     info = dict(extra.get("cine_info", {})) if isinstance(extra, dict) else {}
@@ -156,13 +145,11 @@ def load_splat(path: str | Path, device: torch.device | str = "cpu") -> SplatTen
     codec = _codec_from(info, codec_state, device, ckpt) if (codec_state and info) else None
     lab = sd.get("_model.label_embeddings")
     lab = lab if isinstance(lab, Tensor) and lab.ndim == 2 else None
-    return SplatTensors(
-        means=g("means"),  # type: ignore[arg-type]
-        quats=g("quats"),  # type: ignore[arg-type]
-        scales=g("scales"),  # type: ignore[arg-type]
-        opacities=g("opacities").reshape(-1),  # type: ignore[union-attr]
-        features_dc=g("features_dc"),
-        latents=g("latents"),
+    dc = g("features_dc")
+    if dc is not None and info.get("sh_degree", 3) == 0:  # splatfacto's colour at SH degree 0: sigmoid(features_dc)
+        dc = rgb_to_dc(torch.sigmoid(dc))
+    return SplatCheckpoint(
+        params=SplatParams.of(g("means"), g("quats"), g("scales"), g("opacities"), colors_dc=dc, latents=g("latents")),
         codec=codec,
         codec_state=codec_state or None,
         info=info,
@@ -186,7 +173,7 @@ def _is_compact(path: Path) -> bool:
     return isinstance(blob, dict) and blob.get("format") == "cinesplat-compact"
 
 
-def export_compact(st: SplatTensors, path: str | Path, half: bool = True) -> Path:
+def export_compact(ck: SplatCheckpoint, path: str | Path, half: bool = True) -> Path:
     """Write a small self-contained scene (SH degree 0 colour): .pt (torch) or .npz (numpy).
 
     Keys: means, quats, scales (log), opacities (logit), rgb [N,3], latents?, codec state, info (JSON),
@@ -195,21 +182,23 @@ def export_compact(st: SplatTensors, path: str | Path, half: bool = True) -> Pat
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     ht = torch.float16 if half else torch.float32
+    p = ck.params
+    t = lambda a: torch.as_tensor(np.asarray(a, np.float32))  # noqa: E731
     arrays: Dict[str, Tensor] = {
-        "means": st.means.float().cpu(),
-        "quats": st.quats.to(ht).cpu(),
-        "scales": st.scales.to(ht).cpu(),
-        "opacities": st.opacities.to(ht).cpu(),
+        "means": t(p.means),
+        "quats": t(p.quats_wxyz).to(ht),
+        "scales": t(p.log_scales).to(ht),
+        "opacities": t(p.opacity_logits).to(ht),
     }
-    rgb = st.rgb()
+    rgb = p.rgb()
     if rgb is not None:
-        arrays["rgb"] = rgb.to(ht).cpu()
-    if st.latents is not None:
-        arrays["latents"] = st.latents.to(ht).cpu()
-    if st.label_embeddings is not None:
-        arrays["label_embeddings"] = st.label_embeddings.to(ht).cpu()
-    codec_state = {k: v.float().cpu() for k, v in (st.codec_state or {}).items()}
-    info_json = json.dumps(st.info, default=str)
+        arrays["rgb"] = t(rgb).to(ht)
+    if p.latents is not None:
+        arrays["latents"] = t(p.latents).to(ht)
+    if ck.label_embeddings is not None:
+        arrays["label_embeddings"] = ck.label_embeddings.to(ht).cpu()
+    codec_state = {k: v.float().cpu() for k, v in (ck.codec_state or {}).items()}
+    info_json = json.dumps(ck.info, default=str)
     tmp = path.with_name(path.name + ".tmp")
     if path.suffix == ".npz":
         flat = {k: v.numpy() for k, v in arrays.items()}
@@ -223,36 +212,31 @@ def export_compact(st: SplatTensors, path: str | Path, half: bool = True) -> Pat
     return path
 
 
-def load_compact(path: str | Path, device: torch.device | str = "cpu") -> SplatTensors:
-    """A compact export (.npz or .pt, see export_compact) -> SplatTensors (CheckpointError if malformed)."""
+def load_compact(path: str | Path, device: torch.device | str = "cpu") -> SplatCheckpoint:
+    """A compact export (.npz or .pt, see export_compact) -> SplatCheckpoint (CheckpointError if malformed)."""
     path = Path(path)
     if path.suffix.lower() == ".npz":
         parts = compact_npz(path)
     else:
         parts = compact_blob(torch_read(path, COMPACT), path)
-    return _compact_tensors(*parts, path, device)
+    return _compact_checkpoint(*parts, path, device)
 
 
-def _compact_tensors(arrays: Dict[str, Tensor], codec_state: Dict[str, Tensor], info: Dict[str, Any], path: Path,
-                     device: torch.device | str) -> SplatTensors:
+def _compact_checkpoint(arrays: Dict[str, Tensor], codec_state: Dict[str, Tensor], info: Dict[str, Any], path: Path,
+                     device: torch.device | str) -> SplatCheckpoint:
     check_splat(arrays, path)
-    f = lambda k: arrays[k].float().to(device) if k in arrays else None  # noqa: E731
+    f = lambda k: arrays[k].float() if k in arrays else None  # noqa: E731
     rgb = f("rgb")
     info = dict(info)
     info["sh_degree"] = 0
-    # store colour as the logit so SplatTensors.rgb() (sh_degree 0 -> sigmoid) returns it back
-    features_dc = torch.logit(rgb.clamp(1e-4, 1 - 1e-4)) if rgb is not None else None
     codec = _codec_from(info, codec_state, device, path) if (codec_state and info.get("codec_config")) else None
-    return SplatTensors(
-        means=f("means"),  # type: ignore[arg-type]
-        quats=f("quats"),  # type: ignore[arg-type]
-        scales=f("scales"),  # type: ignore[arg-type]
-        opacities=f("opacities").reshape(-1),  # type: ignore[union-attr]
-        features_dc=features_dc,
-        latents=f("latents"),
+    lab = f("label_embeddings")
+    return SplatCheckpoint(
+        params=SplatParams.of(f("means"), f("quats"), f("scales"), f("opacities"),
+                              colors_dc=None if rgb is None else rgb_to_dc(rgb), latents=f("latents")),
         codec=codec,
         codec_state=codec_state or None,
         info=info,
-        label_embeddings=f("label_embeddings"),
+        label_embeddings=None if lab is None else lab.to(device),
         path=path,
     )

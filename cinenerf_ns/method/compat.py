@@ -173,7 +173,7 @@ def offline_safe_lpips(mode: str = "auto") -> Iterator[None]:
 # 3. Seed point clouds without open3d.
 # nerfstudio's NerfstudioDataParser reads `ply_file_path` (splatfacto's initial points) with open3d,
 # which has no wheels for Python 3.12 / many machines; the import then crashes the whole run. The
-# patched reader uses plyfile (a project dependency) when open3d is missing and applies exactly the
+# patched reader uses the project's .ply reader (planner.ply) when open3d is missing and applies exactly the
 # transform nerfstudio applies (homogeneous `@ transform_matrix.T`, then `*= scale_factor`).
 _PLY_PATCHED = False
 
@@ -181,9 +181,9 @@ _PLY_PATCHED = False
 def read_ply_points(path) -> tuple[torch.Tensor, torch.Tensor]:
     """(xyz [P, 3] float32, rgb [P, 3] uint8) of a point-cloud .ply (ascii or binary); rgb is grey when
     the file has no colour."""
-    from plyfile import PlyData
+    from cinenerf_ns.planner.ply import read_ply_vertices
 
-    v = PlyData.read(str(path))["vertex"].data
+    v = read_ply_vertices(path)
     xyz = np.stack([np.asarray(v[k], dtype=np.float32) for k in ("x", "y", "z")], axis=1)  # [P, 3]
     names = v.dtype.names or ()
     if all(c in names for c in ("red", "green", "blue")):
@@ -196,7 +196,7 @@ def read_ply_points(path) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 def patch_ply_loader_without_open3d() -> bool:
-    """Make NerfstudioDataParser read `ply_file_path` with plyfile when open3d is not importable.
+    """Make NerfstudioDataParser read `ply_file_path` with read_ply_points when open3d is not importable.
     Returns True when the patch is (already) installed. A no-op for machines with open3d."""
     global _PLY_PATCHED
     if _PLY_PATCHED:

@@ -228,19 +228,29 @@ class CineSplatModel(SplatfactoModel):
 
         extra [N, E]: additional per-Gaussian channels composited in the same pass (e.g. relevancy).
         """
-        from gsplat.rendering import rasterization
-
         sel = slice(None) if crop_ids is None else crop_ids
         colors = self.latents[sel]  # [N, 3]
         if extra is not None:
             colors = torch.cat([colors, extra[sel].to(colors)], dim=-1)  # [N, 3+E]
-        render, alpha, _ = rasterization(
-            means=self.means[sel].detach(),
-            quats=self.quats[sel].detach(),
-            scales=torch.exp(self.scales[sel]).detach(),
-            opacities=torch.sigmoid(self.opacities[sel]).squeeze(-1).detach(),
+        # detached geometry and camera: camera-pose refinement, if on, learns from RGB only
+        render, alpha, _ = self._rasterize(colors, viewmat, K, width, height, sel=sel, detach=True)
+        return render[0], alpha[0]
+
+    def _rasterize(self, colors: Tensor, viewmat: Tensor, K: Tensor, width: int, height: int, sel=None,
+                   detach: bool = False, absgrad: bool = False):
+        """gsplat's rasterization of per-Gaussian ``colors`` [N', C] (no SH evaluation) over the Gaussians ``sel``
+        (all when None), with splatfacto's settings; geometry and camera detached when ``detach``."""
+        from gsplat.rendering import rasterization
+
+        pick = (lambda t: t) if sel is None else (lambda t: t[sel])  # noqa: E731
+        geo = (lambda t: t.detach()) if detach else (lambda t: t)  # noqa: E731
+        return rasterization(
+            means=geo(pick(self.means)),
+            quats=geo(pick(self.quats)),
+            scales=geo(torch.exp(pick(self.scales))),
+            opacities=geo(torch.sigmoid(pick(self.opacities)).squeeze(-1)),
             colors=colors,
-            viewmats=viewmat.detach(),  # camera-pose refinement, if on, learns from RGB only
+            viewmats=geo(viewmat),
             Ks=K,
             width=width,
             height=height,
@@ -250,10 +260,9 @@ class CineSplatModel(SplatfactoModel):
             render_mode="RGB",
             sh_degree=None,
             sparse_grad=False,
-            absgrad=False,
+            absgrad=absgrad,
             rasterize_mode=self.config.rasterize_mode,
         )
-        return render[0], alpha[0]
 
     def _latent_target_size(self, camera: Cameras) -> Tuple[int, int]:
         long_side = int(self.cine_info.get("feature_long_side", 64))
@@ -314,7 +323,6 @@ class CineSplatModel(SplatfactoModel):
     def _get_outputs_fused(self, camera: Cameras) -> Dict[str, Union[torch.Tensor, List]]:
         """One rasterization of [RGB(SH evaluated), latent] channels (approximate eq. 3, see config)."""
         from gsplat.cuda._wrapper import spherical_harmonics
-        from gsplat.rendering import rasterization
 
         viewmat, K, W, H = self._camera_setup(camera)
         d = self._get_downscale_factor()
@@ -333,25 +341,7 @@ class CineSplatModel(SplatfactoModel):
         else:
             rgb = torch.sigmoid(coeffs[:, 0, :])
         colors = torch.cat([rgb, self.latents], dim=-1)  # [N, 6]
-        render, alpha, self.info = rasterization(
-            means=self.means,
-            quats=self.quats,
-            scales=torch.exp(self.scales),
-            opacities=torch.sigmoid(self.opacities).squeeze(-1),
-            colors=colors,
-            viewmats=viewmat,
-            Ks=Kd,
-            width=Wd,
-            height=Hd,
-            packed=False,
-            near_plane=0.01,
-            far_plane=1e10,
-            render_mode="RGB",
-            sh_degree=None,
-            sparse_grad=False,
-            absgrad=self.strategy.absgrad,
-            rasterize_mode=self.config.rasterize_mode,
-        )
+        render, alpha, self.info = self._rasterize(colors, viewmat, Kd, Wd, Hd, absgrad=self.strategy.absgrad)
         self.strategy.step_pre_backward(self.gauss_params, self.optimizers, self.strategy_state, self.step, self.info)
         background = self._get_background_color()
         out_rgb = torch.clamp(render[..., :3] + (1 - alpha) * background, 0.0, 1.0)

@@ -26,6 +26,7 @@ from cinenerf_ns.method.relevancy import (
     relevancy as relevancy_fn,
     relevancy_mask,
 )
+from cinenerf_ns.planner.splat_params import SplatParams
 
 TextEncoder = Callable[[Sequence[str]], Tensor]
 
@@ -130,6 +131,9 @@ CENTRES = ("volume", "surface")
 # chosen on synthetic rooms 0 and 1 and then checked on rooms 2 and 4, trained afterwards: room 4's bookshelf 7.96% ->
 # 0.67% of the room off, room 2's worst object 1.31 -> 1.39% (benchmarks/RESULTS.md has the sweep).
 CENTRE_RELEVANCY = 0.65
+# What text queries use unless told otherwise (cinesplat-plan's --semantic-smoothing / --object-cluster, the viewers):
+SMOOTH_NEIGHBORS = 32  # each Gaussian's latent averaged over this many nearest Gaussians (once per scene)
+OBJECT_CLUSTER = 0.02  # a target is the heaviest cluster of its Gaussians, binned at this fraction of the scene extent
 # Text queries answered from memory per scene (SemanticScene.locate_full): enough for every label of a scene and the
 # free-text queries of a session; each entry holds two [N] tensors (relevancy float, mask bool: ~2 MB at 400k).
 LOCATE_CACHE_SIZE = 64
@@ -244,23 +248,34 @@ class SemanticScene:
         self._compute_lock = threading.RLock()  # one computation at a time (warm() on a thread + a viewer query)
 
     @classmethod
+    def from_params(cls, params: SplatParams, codec, text_encoder: TextEncoder, device: torch.device | str = "cpu",
+                    **kwargs) -> "SemanticScene":
+        """Of a splat's parameters (with latents): its means, opacities, latents, log-scales and rotations as tensors
+        on ``device``; ``kwargs`` as the constructor's."""
+        if params.latents is None:
+            raise QueryError("the splat has no semantic latents (a splatfacto scene?); train it with ns-train cinesplat")
+        means, quats, log_scales, logits = params.tensors(device)
+        kwargs.setdefault("log_scales", log_scales)
+        kwargs.setdefault("quats", quats)
+        latents = torch.as_tensor(params.latents, device=device)
+        return cls(means, torch.sigmoid(logits), latents, codec, text_encoder, **kwargs)
+
+    @classmethod
     def from_checkpoint(cls, path: str | Path, device: torch.device | str = "cpu", **kwargs) -> "SemanticScene":
         """From a cinesplat config.yml / run folder / .ckpt / compact export (see checkpoint.py); the training cameras
         (``camera_centres``) from the run's dataset or the export's info unless given."""
         from cinenerf_ns.method.checkpoint import load_splat
 
         st = load_splat(path, device=device)
-        if st.latents is None or st.codec is None:
+        if st.params.latents is None or st.codec is None:
             raise QueryError(f"{path} has no semantic latents (a splatfacto checkpoint?); train it with ns-train cinesplat")
         enc = build_text_encoder(st.info, st.label_embeddings, device=device)
         kwargs.setdefault("label_names", st.info.get("label_names"))
-        kwargs.setdefault("log_scales", st.scales)
-        kwargs.setdefault("quats", st.quats)
         if "camera_centres" not in kwargs:  # the run's training cameras, else what a compact export carries
             from cinenerf_ns.method.training_cameras import run_config_path, scene_camera_centres
 
             kwargs["camera_centres"] = scene_camera_centres(run_config_path(Path(path)), st.info)
-        return cls(st.means, torch.sigmoid(st.opacities), st.latents, st.codec, enc, **kwargs)
+        return cls.from_params(st.params, st.codec, enc, device, **kwargs)
 
     @property
     def latents(self) -> Tensor:

@@ -25,7 +25,7 @@ _WHERE = {
     "safety_report": "safety", "verify_shot": "safety", "plot_clearance": "safety", "plot_paths_topdown": "safety",
     "shot_to_camera_path": "camera_path", "write_camera_path": "camera_path", "read_camera_path": "camera_path",
     "clearance": "distance", "build_corridor": "corridor", "Corridor": "corridor",
-    "atomic_write": "atomic",
+    "atomic_write": "atomic", "SplatParams": "splat_params",
     "PlanningError": "errors", "InvalidInputError": "errors", "GoalUnreachableError": "errors",
     "StartInCollisionError": "errors", "UnsafeTrajectoryError": "errors", "EmptySceneError": "errors",
 }

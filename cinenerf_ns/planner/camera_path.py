@@ -45,6 +45,8 @@ def keyframe_indices(times: np.ndarray, interval_s: float) -> np.ndarray:
 
 DEFAULT_FOV_DEG = 50.0  # vertical field of view of exported cameras, degrees (the CLI, the viewer, the shot score)
 DEFAULT_RENDER_SIZE = (1920, 1080)  # render width, height written into exported camera paths (nerfstudio's usual)
+DEFAULT_PREVIEW_SIZE = (480, 270)  # width, height of the quick CPU preview of a path (cinesplat-plan, -preview, viewer)
+DEFAULT_PREVIEW_FPS = 15.0  # frame rate of that preview (frames are taken from the path, never interpolated)
 
 
 def shot_to_camera_path(

@@ -43,13 +43,13 @@ LookAt = Union[np.ndarray, Callable[[np.ndarray], np.ndarray]]
 class DynamicLimits:
     """Limits on what the exported frames show (finite differences at the frame rate)."""
 
-    max_speed: float = 0.5
+    max_speed: float = TimingConfig.max_speed
     """Camera speed cap, scene units per second."""
-    max_acceleration: float = 0.5
+    max_acceleration: float = TimingConfig.max_acceleration
     """Cap on the magnitude of the camera's acceleration (tangential and centripetal), units/s^2."""
     max_angular_rate_deg: float = 60.0
     """Cap on how fast the view direction turns, degrees per second."""
-    fps: float = 30.0
+    fps: float = TimingConfig.fps
     """Frame rate of the exported shot (the finite differences use dt = 1/fps)."""
     grid_per_unit: float = 400.0
     """Arc-length grid points per scene unit of the speed profile (at least 200 in total)."""

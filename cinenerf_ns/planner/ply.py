@@ -1,15 +1,22 @@
-"""Read and write standard 3D Gaussian Splatting ``.ply`` files (numpy only, no plyfile).
+"""Read and write ``.ply`` files: the project's one .ply reader and writer (numpy only, no plyfile).
+
+Why our own reader: a scene file may be anything a user points the tools at. ``read_ply_vertices`` checks every size a
+header claims against the file before it allocates or reads (a count of 10^12 vertices in a small file is refused at
+once, with the file named), and reports every malformed header or body as one InvalidInputError that says what is
+wrong; plyfile trusts the header and fails with its own exceptions (and is not in the GPU machines' wheel set). Splat
+scenes (``read_splat_ply``), training seed point clouds (synthetic/dataset.py, method/compat.py) and the viewer all
+read through it; ``write_ply_vertices`` is the one writer.
 
 The 3DGS layout (Kerbl et al., also written by ``ns-export gaussian-splat``) is one ``vertex`` element
 with float properties ``x y z`` (means), ``scale_0..2`` (log scales), ``rot_0..3`` (quaternion, wxyz),
 ``opacity`` (logit), ``f_dc_0..2`` (SH DC colour) and ``f_rest_*`` (higher SH bands); ``nx ny nz``
-are usually present and unused. Binary (little or big endian) and ascii bodies are read.
+are usually present and unused. A file without ``f_dc_*`` may colour its Gaussians with ``red green blue``.
+Binary (little or big endian) and ascii bodies are read.
 """
 from __future__ import annotations
 
 import os
 import re
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, Optional, Union
 
@@ -17,6 +24,7 @@ import numpy as np
 
 from .atomic import atomic_write
 from .errors import InvalidInputError
+from .splat_params import SplatParams, rgb_to_dc
 
 _PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -25,21 +33,9 @@ _PLY_TYPES = {
     "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
 }
 REQUIRED = ("x", "y", "z", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3", "opacity")
+RGB = ("red", "green", "blue")
 _MAX_HEADER_LINE = 4096  # bytes; a longer "line" is binary data, not a header
 _MAX_HEADER_LINES = 100_000
-
-
-@dataclass
-class SplatPly:
-    """Raw splat parameters of a .ply file (numpy, float32 unless the file says otherwise)."""
-
-    means: np.ndarray  # [N, 3]
-    quats_wxyz: np.ndarray  # [N, 4]
-    log_scales: np.ndarray  # [N, 3]
-    opacity_logits: np.ndarray  # [N]
-    colors_dc: Optional[np.ndarray] = None  # [N, 3] SH DC coefficients (f_dc_*), None if absent
-    sh_rest: Optional[np.ndarray] = None  # [N, K] f_rest_* in file order, None if absent
-    extra: Dict[str, np.ndarray] = field(default_factory=dict)  # any other vertex property [N]
 
 
 def _element(tok, path: Path, lineno: int):
@@ -187,12 +183,20 @@ def _read_binary(f, path: Path, endian: str, elements, data_bytes: int) -> np.nd
     raise InvalidInputError(f"{path}: .ply file has no 'vertex' element")
 
 
+def unit_rgb(rgb: np.ndarray) -> np.ndarray:
+    """.ply colours [N, 3] (red, green, blue) in [0, 1] (float32): integers and floats above 1 are 0..255 values."""
+    out = rgb.astype(np.float32)
+    if rgb.dtype.kind != "f" or (out.size and out.max() > 1.0):
+        out = out / np.float32(255.0)
+    return np.clip(out, 0.0, 1.0)
+
+
 def _numbered(names, prefix: str):
     ks = sorted((int(m.group(1)), n) for n in names if (m := re.fullmatch(prefix + r"(\d+)", n)))
     return [n for _, n in ks]
 
 
-def read_splat_ply(path: Union[str, Path]) -> SplatPly:
+def read_splat_ply(path: Union[str, Path]) -> SplatParams:
     """Splat parameters of a standard 3DGS .ply (see module docstring). InvalidInputError when a property is
     missing, the file holds no Gaussian, or no Gaussian has all-finite parameters."""
     v = read_ply_vertices(path)
@@ -203,7 +207,8 @@ def read_splat_ply(path: Union[str, Path]) -> SplatPly:
         points = " (a point cloud: each Gaussian needs scale_*, rot_* and opacity)" if cloud else ""
         raise InvalidInputError(
             f"{path} is not a Gaussian splat .ply: vertex properties {missing} are missing{points} "
-            f"(found {list(names)[:20]}{'...' if len(names) > 20 else ''})"
+            f"(found {list(names)[:20]}{'...' if len(names) > 20 else ''}); export one with `ns-export gaussian-splat` "
+            f"or give the run's config.yml"
         )
     if len(v) == 0:
         raise InvalidInputError(f"{path} holds 0 Gaussians (element vertex 0)")
@@ -220,16 +225,38 @@ def read_splat_ply(path: Union[str, Path]) -> SplatPly:
 
     dc = _numbered(names, "f_dc_")
     rest = _numbered(names, "f_rest_")
-    known = set(REQUIRED) | set(dc) | set(rest) | {"nx", "ny", "nz"}
-    return SplatPly(
+    rgb = RGB if not dc and set(RGB) <= set(names) else ()  # a file with plain colours instead of SH
+    known = set(REQUIRED) | set(dc) | set(rest) | set(rgb) | {"nx", "ny", "nz"}
+    return SplatParams(
         means=cols(("x", "y", "z")),
         quats_wxyz=cols(("rot_0", "rot_1", "rot_2", "rot_3")),
         log_scales=cols(("scale_0", "scale_1", "scale_2")),
         opacity_logits=np.asarray(v["opacity"]).copy(),
-        colors_dc=cols(dc) if dc else None,
+        colors_dc=cols(dc) if dc else rgb_to_dc(unit_rgb(cols(rgb))) if rgb else None,
         sh_rest=cols(rest) if rest else None,
         extra={n: np.asarray(v[n]).copy() for n in names if n not in known},
     )
+
+
+_PLY_NAMES = {"i1": "char", "u1": "uchar", "i2": "short", "u2": "ushort", "i4": "int", "u4": "uint", "f4": "float",
+              "f8": "double"}
+
+
+def write_ply_vertices(path: Union[str, Path], rec: np.ndarray) -> Path:
+    """Write a structured array [N] as the ``vertex`` element of a binary little-endian .ply (atomic: temp file +
+    rename); its fields are the properties, in order (numeric scalars: float, double, (u)char, (u)short, (u)int)."""
+    names = rec.dtype.names or ()
+    props = []
+    for n in names:
+        t = rec.dtype.fields[n][0]
+        key = f"{t.kind}{t.itemsize}"
+        if t.shape or key not in _PLY_NAMES:
+            raise InvalidInputError(f"write_ply_vertices: field {n!r} has type {t}, which a .ply property cannot hold")
+        props.append((n, key))
+    le = np.dtype([(n, "<" + k) for n, k in props])
+    header = "ply\nformat binary_little_endian 1.0\n" f"element vertex {len(rec)}\n"
+    header += "".join(f"property {_PLY_NAMES[k]} {n}\n" for n, k in props) + "end_header\n"
+    return atomic_write(path, header.encode("ascii") + rec.astype(le).tobytes())
 
 
 def write_splat_ply(
@@ -278,10 +305,7 @@ def write_splat_ply(
     for k, c in cols.items():
         if c.shape != (n,):
             raise InvalidInputError(f"write_splat_ply: property {k} has {c.shape[0]} rows, means have {n}")
-    dt = np.dtype([(k, "<f4") for k in cols])
-    rec = np.empty(n, dtype=dt)
+    rec = np.empty(n, dtype=np.dtype([(k, "<f4") for k in cols]))
     for k, c in cols.items():
         rec[k] = c
-    header = "ply\nformat binary_little_endian 1.0\n" f"element vertex {n}\n"
-    header += "".join(f"property float {k}\n" for k in cols) + "end_header\n"
-    return atomic_write(path, header.encode("ascii") + rec.tobytes())
+    return write_ply_vertices(path, rec)

@@ -19,6 +19,7 @@ import torch
 from torch import Tensor
 
 from .errors import EmptySceneError, InvalidInputError
+from .splat_params import SplatParams
 
 DEFAULT_SAFETY_MARGIN = 0.01  # extra distance kept from every ellipsoid on top of the camera radius (CLI and viewer)
 
@@ -37,6 +38,15 @@ class SceneConfig:
     """Semi-axes are clamped up to this length (flat Gaussians stay valid, slightly conservative)."""
     max_axis: Optional[float] = None
     """Gaussians with a semi-axis longer than this are dropped as floaters (None: keep all)."""
+
+    @classmethod
+    def with_margin(cls, camera_radius: Optional[float] = None, safety_margin: float = DEFAULT_SAFETY_MARGIN,
+                    **kwargs) -> "SceneConfig":
+        """The obstacle model shots are planned with: the camera sphere (default radius: ``camera_radius``'s field
+        default) grown by ``safety_margin``, as cinesplat-plan and the viewers plan (a splat only approximates the
+        surfaces). Other fields from ``kwargs``."""
+        radius = cls.camera_radius if camera_radius is None else camera_radius
+        return cls(camera_radius=radius + safety_margin, **kwargs)
 
 
 def quat_wxyz_to_rotmat(quats: Tensor) -> Tensor:
@@ -62,7 +72,7 @@ class EllipsoidScene:
     rotations: Tensor  # [N, 3, 3] columns = principal axes in world coordinates
     radii: Tensor  # [N, 3] semi-axis lengths (already scaled by beta * opacity)
     opacities: Tensor  # [N]
-    camera_radius: float = 0.03
+    camera_radius: float = SceneConfig.camera_radius
     source_index: Optional[Tensor] = field(default=None)  # [N] index of each kept Gaussian in the input
 
     def __post_init__(self) -> None:
@@ -151,6 +161,17 @@ class EllipsoidScene:
         )
 
     @classmethod
+    def from_params(
+        cls,
+        params: SplatParams,
+        config: Optional[SceneConfig] = None,
+        device: Union[str, torch.device, None] = None,
+        dtype: torch.dtype = torch.float32,
+    ) -> "EllipsoidScene":
+        """Obstacles of a splat's parameters (see from_splat), built on ``device`` in ``dtype``."""
+        return cls.from_splat(*params.tensors(device, dtype), config)
+
+    @classmethod
     def from_ply(
         cls,
         path,
@@ -161,12 +182,7 @@ class EllipsoidScene:
         """Obstacles from a standard 3DGS .ply (x,y,z, scale_* log, rot_* wxyz, opacity logit)."""
         from .ply import read_splat_ply
 
-        sp = read_splat_ply(path)
-
-        def t(a):
-            return torch.as_tensor(a.astype("float64"), device=device).to(dtype)
-
-        return cls.from_splat(t(sp.means), t(sp.quats_wxyz), t(sp.log_scales), t(sp.opacity_logits), config)
+        return cls.from_params(read_splat_ply(path), config, device, dtype)
 
     # ------------------------------------------------------------------ helpers
     def __len__(self) -> int:

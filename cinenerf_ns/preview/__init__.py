@@ -1,7 +1,7 @@
 """See the shot: CPU preview renders (mp4, contact sheet, GIF) of a nerfstudio camera path through a splat.
 
     from cinenerf_ns.preview import preview_camera_path
-    out = preview_camera_path(load_splat("scene.npz"), camera_path_dict, "renders", name="shot")
+    out = preview_camera_path(load_splat("scene.npz").params, camera_path_dict, "renders", name="shot")
     out["paths"]["mp4"], out["paths"]["contact_sheet"], out["timings"]["total_s"]
 
 Frames come from the compiled tile rasteriser (native/raster.c), else the pure-torch tiled renderer

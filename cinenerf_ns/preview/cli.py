@@ -14,6 +14,7 @@ from typing import Optional, Sequence
 
 from rich.console import Console
 
+from cinenerf_ns.planner.camera_path import DEFAULT_PREVIEW_FPS, DEFAULT_PREVIEW_SIZE
 from cinenerf_ns.preview.cameras import MAX_FPS, MAX_SIZE, MIN_FPS, MIN_SIZE
 
 
@@ -25,9 +26,11 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--camera-path", type=Path, required=True, help="nerfstudio camera-path JSON (cinesplat-plan, viewer)")
     ap.add_argument("--output-dir", type=Path, default=Path("renders"), help="folder of the outputs (default: renders)")
     ap.add_argument("--name", default=None, help="output file stem (default: the camera path's file stem)")
-    ap.add_argument("--width", type=int, default=480, help=f"frame width in pixels, {MIN_SIZE}..{MAX_SIZE} (default 480)")
-    ap.add_argument("--height", type=int, default=270, help=f"frame height in pixels, {MIN_SIZE}..{MAX_SIZE} (default 270)")
-    ap.add_argument("--fps", type=float, default=15.0, help=f"frames per second, {MIN_FPS:g}..{MAX_FPS:g} (default 15)")
+    w, h = DEFAULT_PREVIEW_SIZE
+    ap.add_argument("--width", type=int, default=w, help=f"frame width in pixels, {MIN_SIZE}..{MAX_SIZE} (default {w})")
+    ap.add_argument("--height", type=int, default=h, help=f"frame height in pixels, {MIN_SIZE}..{MAX_SIZE} (default {h})")
+    ap.add_argument("--fps", type=float, default=DEFAULT_PREVIEW_FPS,
+                    help=f"frames per second, {MIN_FPS:g}..{MAX_FPS:g} (default {DEFAULT_PREVIEW_FPS:g})")
     ap.add_argument("--gif", action="store_true", help="also write a small looping GIF")
     ap.add_argument("--device", default="cpu", help="cpu (default) or cuda (gsplat)")
     ap.add_argument("--backend", default="auto", choices=["auto", "native", "torch", "gsplat"],
@@ -62,10 +65,10 @@ def _check_args(ap: argparse.ArgumentParser, a: argparse.Namespace):
     from cinenerf_ns.method.checkpoint import load_splat
 
     try:
-        splat = load_splat(a.scene)
+        splat = load_splat(a.scene).params
     except (ValueError, OSError, KeyError) as e:
         ap.error(f"--scene: could not load {a.scene}: {e}")
-    if splat.features_dc is None:
+    if splat.colors_dc is None:
         ap.error(f"--scene: {a.scene} has no colour (features_dc / rgb)")
     return splat, cam
 

@@ -9,9 +9,9 @@ import numpy as np
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from cinenerf_ns.method.checkpoint import SplatTensors
-from cinenerf_ns.planner.camera_path import read_camera_path
+from cinenerf_ns.planner.camera_path import DEFAULT_PREVIEW_FPS, DEFAULT_PREVIEW_SIZE, read_camera_path
 from cinenerf_ns.planner.errors import InvalidInputError
+from cinenerf_ns.planner.splat_params import SplatParams
 
 from .cameras import PreviewCameras, path_cameras
 from .raster_torch import PreviewScene
@@ -55,13 +55,13 @@ def _frames(scene: PreviewScene, cams: PreviewCameras, backend: str, background,
 
 
 def preview_camera_path(
-    splat: Union[SplatTensors, PreviewScene],
+    splat: Union[SplatParams, PreviewScene],
     camera_path: Union[Dict[str, Any], str, Path],
     out_dir: Union[str, Path],
     name: str = "preview",
-    width: int = 480,
-    height: int = 270,
-    fps: float = 15.0,
+    width: int = DEFAULT_PREVIEW_SIZE[0],
+    height: int = DEFAULT_PREVIEW_SIZE[1],
+    fps: float = DEFAULT_PREVIEW_FPS,
     device: str = "cpu",
     backend: str = "auto",
     background: Optional[Sequence[float]] = NERFSTUDIO_BACKGROUND,

@@ -18,6 +18,8 @@ from cinenerf_ns.method.render_reference import quat_to_rotmat
 
 TILE = 16
 ALPHA_MIN = 1.0 / 255.0
+NEAR_PLANE = 0.01  # depth below which a Gaussian is not drawn (every backend; gsplat's default)
+EPS2D = 0.3  # added to the projected 2D covariance's diagonal, pixels^2 (every backend; gsplat's default)
 
 
 @dataclass
@@ -60,7 +62,7 @@ def make_scene(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, 
 
 
 def project(scene: PreviewScene, viewmat: Tensor, intrinsics: Tuple[float, float, float, float], width: int,
-            height: int, near_plane: float = 0.01, eps2d: float = 0.3) -> Dict[str, Tensor]:
+            height: int, near_plane: float = NEAR_PLANE, eps2d: float = EPS2D) -> Dict[str, Tensor]:
     """Visible Gaussians of one camera: index [M], means2d [M, 2], conics [M, 3] (a b c), depths [M],
     radii [M, 2] (pixels, integer valued), in the scene's dtype. viewmat [4, 4] world -> camera (OpenCV)."""
     dt = scene.means.dtype
@@ -153,7 +155,7 @@ def _composite_tile(pix: Tensor, m2d: Tensor, con: Tensor, op: Tensor, col: Tens
 
 
 def render_torch(scene: PreviewScene, viewmat: Tensor, intrinsics: Tuple[float, float, float, float], width: int,
-                 height: int, near_plane: float = 0.01, eps2d: float = 0.3) -> Tuple[Tensor, Tensor]:
+                 height: int, near_plane: float = NEAR_PLANE, eps2d: float = EPS2D) -> Tuple[Tensor, Tensor]:
     """(premultiplied rgb [H, W, 3], alpha [H, W, 1]) of one camera, in the scene's dtype (CPU)."""
     dt = scene.means.dtype
     pr = project(scene, viewmat, intrinsics, width, height, near_plane, eps2d)

@@ -1,7 +1,6 @@
 """Render preview frames of a splat: compiled CPU kernel, pure-torch tiled renderer or gsplat on CUDA.
 
-Colour is SH degree 0 (SplatTensors.rgb(): 0.5 + C0 * sh_dc clamped to [0, 1], or the stored colour of a compact
-export); the background is composited as ns-render does (rgb + (1 - alpha) * background, clamped to [0, 1]).
+Colour is SH degree 0 (SplatParams.rgb(): 0.5 + C0 * sh_dc clamped to [0, 1]; a compact export's stored colour); the background is composited as ns-render does (rgb + (1 - alpha) * background, clamped to [0, 1]).
 gsplat is imported only when the CUDA path is used.
 """
 from __future__ import annotations
@@ -12,31 +11,25 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from cinenerf_ns.method.checkpoint import SplatTensors
 from cinenerf_ns.planner.errors import InvalidInputError
+from cinenerf_ns.planner.splat_params import SplatParams
 
 from . import native
-from .raster_torch import PreviewScene, make_scene, render_torch
+from .raster_torch import EPS2D, NEAR_PLANE, PreviewScene, make_scene, render_torch
 
 # splatfacto's background_color "random" (cinesplat's default) renders over this colour outside training
 NERFSTUDIO_BACKGROUND = (0.1490, 0.1647, 0.2157)
 BACKENDS = ("auto", "native", "torch", "gsplat")
 
 
-def scene_from_params(means, quats, log_scales, opacity_logits, colors, dtype: torch.dtype = torch.float32) -> PreviewScene:
-    """Activated, SH-degree-0 scene (CPU) of raw splat parameters (tensors or arrays): means [N, 3], wxyz quats [N, 4],
-    log-scales [N, 3], opacity logits [N], colours in [0, 1] [N, 3]."""
-    f = lambda a: torch.as_tensor(a).detach().float().cpu()  # noqa: E731
-    return make_scene(f(means), f(quats), torch.exp(f(log_scales)), torch.sigmoid(f(opacity_logits)).reshape(-1),
-                      f(colors), dtype=dtype)
-
-
-def scene_from_splat(splat: SplatTensors, dtype: torch.dtype = torch.float32) -> PreviewScene:
-    """Activated, SH-degree-0 scene of a loaded splat (CPU)."""
-    rgb = splat.rgb()
+def scene_from_splat(splat: SplatParams, dtype: torch.dtype = torch.float32, grey: Optional[float] = None) -> PreviewScene:
+    """Activated, SH-degree-0 scene of a splat's parameters (CPU). A splat without colour is drawn in ``grey``; with
+    ``grey`` None it is refused (InvalidInputError)."""
+    rgb = splat.rgb(default=grey)
     if rgb is None:
         raise InvalidInputError("the splat has no colour (features_dc); the preview needs it.")
-    return scene_from_params(splat.means, splat.quats, splat.scales, splat.opacities, rgb, dtype=dtype)
+    means, quats, log_scales, logits = splat.tensors()
+    return make_scene(means, quats, torch.exp(log_scales), torch.sigmoid(logits), torch.from_numpy(rgb), dtype=dtype)
 
 
 def choose_backend(backend: str, device: str = "cpu") -> str:
@@ -57,7 +50,7 @@ def choose_backend(backend: str, device: str = "cpu") -> str:
 
 
 def render_premultiplied(scene: PreviewScene, viewmat: np.ndarray, intrinsics: Sequence[float], width: int, height: int,
-                         backend: str = "native", near_plane: float = 0.01, eps2d: float = 0.3,
+                         backend: str = "native", near_plane: float = NEAR_PLANE, eps2d: float = EPS2D,
                          threads: int = 0) -> Tuple[Tensor, Tensor]:
     """(premultiplied rgb [H, W, 3], alpha [H, W, 1]) on the CPU, in the scene's dtype; backend "native" | "torch"."""
     intr = tuple(float(v) for v in intrinsics)
@@ -72,7 +65,7 @@ def render_premultiplied(scene: PreviewScene, viewmat: np.ndarray, intrinsics: S
 
 
 def render_gsplat(scene: PreviewScene, viewmats: np.ndarray, Ks: np.ndarray, width: int, height: int,
-                  near_plane: float = 0.01, eps2d: float = 0.3, device: str = "cuda") -> Tuple[Tensor, Tensor]:
+                  near_plane: float = NEAR_PLANE, eps2d: float = EPS2D, device: str = "cuda") -> Tuple[Tensor, Tensor]:
     """(premultiplied rgb [C, H, W, 3], alpha [C, H, W, 1]) from gsplat.rasterization (classic mode), on ``device``."""
     from gsplat import rasterization  # lazily: CUDA only
 

@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from cinenerf_ns.planner.errors import InvalidInputError
+from cinenerf_ns.planner.splat_params import SplatParams
 
 
 @dataclass
@@ -30,11 +31,8 @@ class Blob:
 
 @dataclass
 class BlobScene:
-    means: torch.Tensor  # [N, 3] float32
-    quats: torch.Tensor  # [N, 4] wxyz
-    log_scales: torch.Tensor  # [N, 3]
-    opacity_logits: torch.Tensor  # [N]
-    blob_ids: torch.Tensor  # [N] index into blobs, -1 for walls and floaters
+    splat: SplatParams  # the Gaussians (no colour)
+    blob_ids: np.ndarray  # [N] int64 index into blobs, -1 for walls and floaters
     blobs: list = field(default_factory=list)
     up: tuple = (0.0, 1.0, 0.0)
 
@@ -135,7 +133,6 @@ def blob_scene(n_gaussians: int = 200_000, seed: int = 0, n_blobs: int = 12, wal
                          rng.uniform(0.02, 0.3, n_float)])
     t = lambda a: torch.as_tensor(np.concatenate(a), dtype=torch.float32)  # noqa: E731
     return BlobScene(
-        means=t(means), quats=t(quats), log_scales=torch.log(t(scales)),
-        opacity_logits=torch.as_tensor(np.log(op / (1 - op)), dtype=torch.float32),
-        blob_ids=torch.as_tensor(np.concatenate(ids), dtype=torch.long), blobs=blobs,
+        SplatParams.of(t(means), t(quats), torch.log(t(scales)), np.log(op / (1 - op))),
+        blob_ids=np.concatenate(ids).astype(np.int64), blobs=blobs,
     )

@@ -23,6 +23,7 @@ import numpy as np
 import torch
 from PIL import Image
 
+from cinenerf_ns.planner.ply import read_ply_vertices, write_ply_vertices
 from cinenerf_ns.synthetic.cameras import CameraSamplingConfig, sample_cameras
 from cinenerf_ns.synthetic.generate import RoomConfig, generate_room
 from cinenerf_ns.synthetic.render import Intrinsics, RoomRenderer
@@ -64,12 +65,10 @@ class DatasetConfig:
 
 
 def _write_ply(path: Path, xyz: np.ndarray, rgb: np.ndarray) -> None:
-    from plyfile import PlyData, PlyElement
-
     v = np.empty(len(xyz), dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")])
     v["x"], v["y"], v["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
     v["red"], v["green"], v["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
-    PlyData([PlyElement.describe(v, "vertex")]).write(str(path))
+    write_ply_vertices(path, v)
 
 
 def write_dataset(config: DatasetConfig, progress: Callable[[int, int], None] | None = None) -> dict:
@@ -180,12 +179,10 @@ def load_point_cloud(dataset: str | Path) -> tuple[torch.Tensor, torch.Tensor]:
     """sparse_pc.ply of a dataset without open3d: xyz [N,3] float64 (ORIGINAL room coordinates) and
     rgb [N,3] uint8. Map into nerfstudio coordinates with NerfstudioTransform.points_to_ns (this is what
     nerfstudio's dataparser does with ply_file_path, which needs open3d)."""
-    from plyfile import PlyData
-
     path = Path(dataset) / "sparse_pc.ply"
     if not path.exists():
         raise FileNotFoundError(f"no point cloud at {path} (written by cinesplat-synth unless --points-per-view 0)")
-    v = PlyData.read(str(path))["vertex"]
+    v = read_ply_vertices(path)
     xyz = torch.tensor(np.stack([v["x"], v["y"], v["z"]], -1), dtype=torch.float64)
     rgb = torch.tensor(np.stack([v["red"], v["green"], v["blue"]], -1), dtype=torch.uint8)
     return xyz, rgb

@@ -9,24 +9,21 @@ from typing import List, Tuple
 import numpy as np
 
 from cinenerf_ns.planner.errors import InvalidInputError
+from cinenerf_ns.planner.splat_params import SplatParams, rgb_to_dc
 
 UP = np.array([0.0, 0.0, 1.0])
 
 
 @dataclass
-class DemoSplat:
-    """Raw splat parameters (3DGS / splatfacto layout) plus ground-truth object labels."""
+class DemoScene:
+    """The demo's Gaussians plus their ground-truth object labels."""
 
-    means: np.ndarray  # [N, 3]
-    quats_wxyz: np.ndarray  # [N, 4]
-    log_scales: np.ndarray  # [N, 3]
-    opacity_logits: np.ndarray  # [N]
-    colors: np.ndarray  # [N, 3] RGB in [0, 1]
+    splat: SplatParams
     labels: List[str]  # object names; label_of indexes this list, -1 = background
     label_of: np.ndarray  # [N] int
 
 
-def demo_scene(seed: int = 0, floor_res: int = 30) -> DemoSplat:
+def demo_scene(seed: int = 0, floor_res: int = 30) -> DemoScene:
     """A floor with three named objects ('red box', 'green ball', 'blue pillar'), ~2.5k Gaussians."""
     rng = np.random.default_rng(seed)
     parts: List[Tuple[np.ndarray, np.ndarray, float, int]] = []  # (means, color, sigma, label)
@@ -52,9 +49,8 @@ def demo_scene(seed: int = 0, floor_res: int = 30) -> DemoSplat:
     q = rng.normal(size=(n, 4))
     q[: len(floor)] = [1, 0, 0, 0]
     q /= np.linalg.norm(q, axis=1, keepdims=True)
-    return DemoSplat(
-        means=means, quats_wxyz=q.astype(np.float32), log_scales=log_scales,
-        opacity_logits=np.full(n, 3.0, np.float32), colors=colors,
+    return DemoScene(
+        SplatParams(means, q.astype(np.float32), log_scales, np.full(n, 3.0, np.float32), colors_dc=rgb_to_dc(colors)),
         labels=["red box", "green ball", "blue pillar"],
         label_of=np.concatenate([np.full(len(p[0]), p[3]) for p in parts]),
     )

@@ -36,6 +36,7 @@ import torch
 
 from cinenerf_ns.method.training_cameras import camera_box
 from cinenerf_ns.planner.scene import EllipsoidScene, SceneConfig
+from cinenerf_ns.planner.splat_params import SplatParams, rgb_to_dc
 
 from .backend import LocateFn, SceneGaussians
 from .conventions import VISER_NERFSTUDIO_SCALE_RATIO
@@ -136,15 +137,11 @@ class LockedBackend:
 
 @dataclass
 class ModelSnapshot:
-    """Copies of a splatfacto-style model's Gaussians at one training step (on the planning device)."""
+    """A copy of a splatfacto-style model's Gaussians at one training step, and the device planning runs on."""
 
     version: Any  # what the backend compares to know the model changed (step, N)
-    means: torch.Tensor  # [N, 3]
-    quats: torch.Tensor  # [N, 4] wxyz
-    scales: torch.Tensor  # [N, 3] log
-    opacities: torch.Tensor  # [N] logits
-    colors: Optional[torch.Tensor]  # [N, 3] RGB in [0, 1]
-    latents: Optional[torch.Tensor]  # [N, 3] or None
+    splat: SplatParams  # colour from the model's ``colors``, latents when it has them
+    device: torch.device = torch.device("cpu")
 
 
 class SplatModelBackend:
@@ -152,8 +149,8 @@ class SplatModelBackend:
     ``opacities`` (logits), ``colors`` properties; cinesplat models also ``latents`` / ``codec``).
 
     Reads of the model happen only in :meth:`snapshot`, under ``lock`` (nerfstudio's ``train_lock``,
-    set by :func:`attach_to_nerfstudio_viewer`), and copy the tensors to ``device``; planning and text
-    queries then run on the copy without blocking training. The obstacle scene, the planner and the
+    set by :func:`attach_to_nerfstudio_viewer`), and copy the tensors (a SplatParams); planning and text
+    queries then run on the copy, on ``device``, without blocking training. The obstacle scene, the planner and the
     semantic scene are rebuilt when ``version_fn()`` (default: step and Gaussian count) changed since
     the last snapshot; otherwise they are reused, so repeated Plans on a paused or finished run only
     pay for planning.
@@ -179,7 +176,7 @@ class SplatModelBackend:
         self.planner_config = planner_config
         self.make_planner = make_planner or self._default_planner
         self.locate_fn = locate_fn
-        self.scene_config = scene_config or SceneConfig()
+        self.scene_config = scene_config or SceneConfig.with_margin()  # cinesplat-plan's camera radius + margin
         self.version_fn = version_fn or (lambda: (int(getattr(model, "step", 0)), int(model.means.shape[0])))
         self.device = torch.device(device)
         self.lock = lock
@@ -198,18 +195,14 @@ class SplatModelBackend:
     # ------------------------------------------------------------------ model reads
     @torch.no_grad()
     def snapshot(self) -> ModelSnapshot:
-        """Copy the model's Gaussians (under ``lock``) to ``device``."""
+        """Copy the model's Gaussians (under ``lock``)."""
         m = self.model
         with (self.lock if self.lock is not None else contextlib.nullcontext()):
             version = self.version_fn()
-            cp = lambda x: None if x is None else x.detach().to(self.device, torch.float32, copy=True)  # noqa: E731
             colors = getattr(m, "colors", None)
-            latents = getattr(m, "latents", None)
-            snap = ModelSnapshot(
-                version=version, means=cp(m.means), quats=cp(m.quats), scales=cp(m.scales),
-                opacities=cp(m.opacities).reshape(-1), colors=None if colors is None else cp(colors).clamp(0, 1),
-                latents=None if latents is None else cp(latents),
-            )
+            splat = SplatParams.of(m.means, m.quats, m.scales, m.opacities, latents=getattr(m, "latents", None),
+                                   colors_dc=None if colors is None else rgb_to_dc(colors.clamp(0, 1)))
+        snap = ModelSnapshot(version=version, splat=splat, device=self.device)
         self.snapshots_taken += 1
         return snap
 
@@ -221,9 +214,9 @@ class SplatModelBackend:
             snap = self._cache["snapshot"]
             if what not in self._cache:
                 if what == "gaussians":
-                    self._cache[what] = SceneGaussians(snap.means, snap.colors, torch.sigmoid(snap.opacities))
+                    self._cache[what] = SceneGaussians(snap.splat.means, snap.splat.rgb(), snap.splat.opacities())
                 elif what == "planner":
-                    scene = EllipsoidScene.from_splat(snap.means, snap.quats, snap.scales, snap.opacities, self.scene_config)
+                    scene = EllipsoidScene.from_params(snap.splat, self.scene_config, device=snap.device)
                     planner = self.make_planner(scene)
                     if hasattr(planner, "prepare") and not hasattr(planner, "wait_ready"):
                         planner.prepare()
@@ -278,22 +271,22 @@ def model_semantic_scene(model: Any, camera_centres: Optional[Callable[[], Optio
 
     def build(snap: ModelSnapshot):
         # checked per snapshot: ns-viewer builds the codec when it loads the checkpoint, after construction
-        if snap.latents is None or getattr(model, "codec", None) is None or not hasattr(model, "text_encoder"):
+        if snap.splat.latents is None or getattr(model, "codec", None) is None or not hasattr(model, "text_encoder"):
             return None
-        from cinenerf_ns.method.semantic_scene import SemanticScene
+        from cinenerf_ns.method.semantic_scene import OBJECT_CLUSTER, SemanticScene
 
         if state.get("codec_src") is not model.codec:  # frozen: one copy on the planning device
-            state["codec"] = copy.deepcopy(model.codec).to(snap.means.device).eval()
+            state["codec"] = copy.deepcopy(model.codec).to(snap.device).eval()
             state["codec_src"] = model.codec
         cfg = getattr(model, "config", None)
         kw = {}
         if cfg is not None:
             kw = dict(negatives=tuple(cfg.relevancy_negatives), temperature=float(cfg.relevancy_temperature),
                       threshold=float(cfg.relevancy_threshold))
-        return SemanticScene(snap.means, torch.sigmoid(snap.opacities), snap.latents, state["codec"],
-                             model.text_encoder(), label_names=(getattr(model, "cine_info", None) or {}).get("label_names"),
-                             cluster_fraction=0.02, log_scales=snap.scales, quats=snap.quats,
-                             camera_centres=None if camera_centres is None else camera_centres(), **kw)  # one object per query, as cinesplat-plan's --object-cluster
+        return SemanticScene.from_params(snap.splat, state["codec"], model.text_encoder(), snap.device,
+                                         label_names=(getattr(model, "cine_info", None) or {}).get("label_names"),
+                                         cluster_fraction=OBJECT_CLUSTER,  # one object per query, as cinesplat-plan's
+                                         camera_centres=None if camera_centres is None else camera_centres(), **kw)
 
     return build
 

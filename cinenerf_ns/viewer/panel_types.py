@@ -10,7 +10,13 @@ from typing import Any, Dict, List, Optional, Protocol, Sequence, Tuple, runtime
 
 import numpy as np
 
-from cinenerf_ns.planner.camera_path import DEFAULT_FOV_DEG, DEFAULT_RENDER_SIZE
+from cinenerf_ns.planner.camera_path import (
+    DEFAULT_FOV_DEG,
+    DEFAULT_PREVIEW_FPS,
+    DEFAULT_PREVIEW_SIZE,
+    DEFAULT_RENDER_SIZE,
+)
+from cinenerf_ns.planner.timing import TimingConfig
 
 from .backend import SceneGaussians
 
@@ -140,11 +146,11 @@ class PanelConfig:
     scene_note: str = ""
     """What the scene is when there is no run (e.g. "a compact export (scene.pt) with no training run"), said where
     the ``ns-render`` command would be."""
-    preview_width: int = 480
+    preview_width: int = DEFAULT_PREVIEW_SIZE[0]
     """Width of the "Preview video" render (CPU)."""
-    preview_height: int = 270
+    preview_height: int = DEFAULT_PREVIEW_SIZE[1]
     """Height of the "Preview video" render."""
-    preview_fps: int = 15
+    preview_fps: float = DEFAULT_PREVIEW_FPS
     """Frame rate of the "Preview video" render."""
     fov_deg: float = DEFAULT_FOV_DEG
     """Vertical field of view of the exported path."""
@@ -152,7 +158,7 @@ class PanelConfig:
     """Exported render width in pixels."""
     render_height: int = DEFAULT_RENDER_SIZE[1]
     """Exported render height in pixels."""
-    fps: int = 30
+    fps: float = TimingConfig.fps
     """Exported frame rate."""
     n_candidates: int = 3
     """Shots requested per Plan (random starts)."""

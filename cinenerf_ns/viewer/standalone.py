@@ -27,36 +27,23 @@ import numpy as np
 
 from cinenerf_ns.planner.errors import InvalidInputError, PlanningError
 from cinenerf_ns.planner.planner import PlannerConfig
+from cinenerf_ns.planner.ply import read_splat_ply
 from cinenerf_ns.planner.scene import DEFAULT_SAFETY_MARGIN, EllipsoidScene, SceneConfig, quat_wxyz_to_rotmat
+from cinenerf_ns.planner.splat_params import NO_COLOUR_GREY, SplatParams
 from cinenerf_ns.planner.timing import TimingConfig
 
 from .backend import FunctionBackend, LocateFn, PlanFn, SceneGaussians, label_locate, to_numpy
 from .conventions import VISER_NERFSTUDIO_SCALE_RATIO
 
-SH_C0 = 0.28209479177387814  # degree-0 spherical-harmonic constant (3DGS colour = 0.5 + C0 * f_dc)
 
-
-@dataclass
-class SplatParams:
-    """Raw splat parameters as 3DGS / splatfacto store them (numpy, scene units)."""
-
-    means: np.ndarray  # [N, 3]
-    quats_wxyz: np.ndarray  # [N, 4]
-    log_scales: np.ndarray  # [N, 3]
-    opacity_logits: np.ndarray  # [N]
-    colors: np.ndarray  # [N, 3] RGB in [0, 1]
-
-    def display_gaussians(self) -> SceneGaussians:
-        rot = quat_wxyz_to_rotmat(_t(self.quats_wxyz)).numpy()  # [N, 3, 3]
-        s2 = np.exp(2.0 * self.log_scales.astype(np.float64))  # [N, 3]
-        cov = (rot * s2[:, None, :]) @ np.swapaxes(rot, -1, -2)  # [N, 3, 3]
-        return SceneGaussians(self.means, self.colors, 1 / (1 + np.exp(-self.opacity_logits)), cov)
-
-
-def _t(x):
+def display_gaussians(splat: SplatParams) -> SceneGaussians:
+    """What the browser draws of a splat: colours (grey where it has none), opacities and covariances."""
     import torch
 
-    return torch.as_tensor(np.asarray(x, np.float64))
+    rot = quat_wxyz_to_rotmat(torch.as_tensor(np.asarray(splat.quats_wxyz, np.float64))).numpy()  # [N, 3, 3]
+    s2 = np.exp(2.0 * splat.log_scales.astype(np.float64))  # [N, 3]
+    cov = (rot * s2[:, None, :]) @ np.swapaxes(rot, -1, -2)  # [N, 3, 3]
+    return SceneGaussians(splat.means, splat.rgb(default=NO_COLOUR_GREY), splat.opacities(), cov)
 
 
 @dataclass
@@ -78,33 +65,6 @@ class LoadedScene:
 
 
 # --------------------------------------------------------------------------------------- loading
-def load_ply(path: Path) -> SplatParams:
-    """Read a 3DGS-layout .ply (x y z, f_dc_0..2, opacity, scale_0..2, rot_0..3: nerfstudio's
-    splatfacto export and the original 3DGS writer)."""
-    from plyfile import PlyData
-
-    ply = PlyData.read(str(path))
-    v = ply["vertex"].data
-    names = set(v.dtype.names)
-    need = {"x", "y", "z", "opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"}
-    if not need <= names:
-        raise InvalidInputError(
-            f"{path} is not a Gaussian-splat .ply (missing {sorted(need - names)}); export one with "
-            f"`ns-export gaussian-splat` or pass the run's config.yml"
-        )
-    col = lambda *k: np.stack([np.asarray(v[c], np.float32) for c in k], -1)
-    if {"f_dc_0", "f_dc_1", "f_dc_2"} <= names:
-        colors = np.clip(0.5 + SH_C0 * col("f_dc_0", "f_dc_1", "f_dc_2"), 0, 1)
-    elif {"red", "green", "blue"} <= names:
-        colors = col("red", "green", "blue") / 255.0
-    else:
-        colors = np.full((len(v), 3), 0.7, np.float32)
-    return SplatParams(
-        col("x", "y", "z"), col("rot_0", "rot_1", "rot_2", "rot_3"), col("scale_0", "scale_1", "scale_2"),
-        np.asarray(v["opacity"], np.float32), colors.astype(np.float32),
-    )
-
-
 def run_data_dir(config_path: Path) -> Optional[Path]:
     """The dataset directory of a nerfstudio run's config.yml (where the Render tab keeps camera_paths/)."""
     from cinenerf_ns.method.training_cameras import run_data_path
@@ -113,25 +73,6 @@ def run_data_dir(config_path: Path) -> Optional[Path]:
     if data is None:
         return None
     return data.parent if data.is_file() else data
-
-
-def splat_display(st: Any) -> SplatParams:
-    """Display parameters of a checkpoint / compact export (``method.checkpoint.SplatTensors``)."""
-    rgb = st.rgb()
-    n = len(st)
-    colors = np.full((n, 3), 0.7, np.float32) if rgb is None else rgb.detach().cpu().float().numpy()
-    np_ = lambda x: x.detach().cpu().float().numpy()  # noqa: E731
-    return SplatParams(np_(st.means), np_(st.quats), np_(st.scales), np_(st.opacities).reshape(-1), colors)
-
-
-def procedural_display(room: Any) -> SplatParams:
-    """Display parameters of a procedural room: objects in distinct colours, floor and walls grey."""
-    from cinenerf_ns.scenes import procedural_colours
-
-    colors = procedural_colours(room)
-    np_ = lambda x: x.detach().cpu().float().numpy()  # noqa: E731
-    return SplatParams(np_(room.means), np_(room.quats), np_(room.log_scales), np_(room.opacity_logits).reshape(-1),
-                       colors.astype(np.float32))
 
 
 def procedural_locate(room: Any) -> LocateFn:
@@ -184,10 +125,9 @@ def load_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optio
         from .demo import demo_scene
 
         d = demo_scene()
-        splat = SplatParams(d.means, d.quats_wxyz, d.log_scales, d.opacity_logits, d.colors)
         return LoadedScene(
-            splat, "demo", data_dir or Path("demo_output") / "cinesplat-viewer-demo", None,
-            locate=label_locate(d.means, d.labels, d.label_of), default_goto="red box", default_look_at="blue pillar",
+            d.splat, "demo", data_dir or Path("demo_output") / "cinesplat-viewer-demo", None,
+            locate=label_locate(d.splat.means, d.labels, d.label_of), default_goto="red box", default_look_at="blue pillar",
             semantics="labels", object_names=list(d.labels), scene_note="the tiny built-in demo scene has no training run",
         )
     if cli.procedural_spec(source) is not None:  # the explicit spec only, never a file name
@@ -195,7 +135,7 @@ def load_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optio
         room = ld.extra["room"]
         names = [o.name for o in room.objects]
         return LoadedScene(
-            procedural_display(room), source.replace(":", "-"), data_dir or Path("demo_output") / "cinesplat-viewer-procedural",
+            cli.procedural_params(room), source.replace(":", "-"), data_dir or Path("demo_output") / "cinesplat-viewer-procedural",
             None, locate=procedural_locate(room), default_goto=names[0], default_look_at=names[1 % len(names)],
             obstacles=ld.scene, start_region=ld.start_region, semantics="labels", object_names=names,
             scene_note=f"'{source}' is a generated test room with no training run",
@@ -207,19 +147,18 @@ def load_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optio
             f"'procedural[:N[:SEED]]' or 'demo')"
         )
     if path.suffix.lower() == ".ply":
-        return LoadedScene(load_ply(path), path.stem, data_dir or path.parent, None,
+        return LoadedScene(read_splat_ply(path), path.stem, data_dir or path.parent, None,
                            scene_note=f"{path.absolute()} is a .ply splat with no training run")
     if not (path.is_dir() or path.suffix.lower() in (".yml", ".yaml", ".ckpt", ".pt", ".npz")):
         raise InvalidInputError(f"--load-config {source}: expected a config.yml, run folder, .ckpt, compact export, "
                                 f".ply, 'procedural' or 'demo'")
     ld = cli.load_scene(str(path), scfg, device)
-    st = ld.extra["splat"]
     cfg_path = None if ld.config_path is None else Path(ld.config_path).absolute()
     data = run_data_dir(cfg_path) if cfg_path is not None else None
     name = data.name if data is not None else (path.stem if path.is_file() else path.name)
     sem = ld.extra.get("semantic")
     return LoadedScene(
-        splat_display(st), name, data_dir or data or (path if path.is_dir() else path.parent), cfg_path,
+        ld.extra["splat"].params, name, data_dir or data or (path if path.is_dir() else path.parent), cfg_path,
         locate=None if sem is None else semantic_locate(sem, ld.extra.get("label_names") or [],
                                                         ld.extra.get("free_text", True)),
         obstacles=ld.scene, start_region=ld.start_region, semantics="none" if sem is None else "relevancy",
@@ -260,10 +199,9 @@ class SplatPreviewer:
 
     def scene(self):
         if self._scene is None:
-            from cinenerf_ns.preview.render import scene_from_params
+            from cinenerf_ns.preview.render import scene_from_splat
 
-            sp = self.splat
-            self._scene = scene_from_params(sp.means, sp.quats_wxyz, sp.log_scales, sp.opacity_logits, sp.colors)
+            self._scene = scene_from_splat(self.splat, grey=NO_COLOUR_GREY)
         return self._scene
 
     def __call__(self, camera_path, out_dir: Path, name: str, width: int, height: int, fps: int) -> Path:
@@ -326,15 +264,12 @@ class StandaloneViewer:
 
         t0 = time.perf_counter()
         self.cfg = cfg
-        scfg = SceneConfig(camera_radius=cfg.camera_radius + cfg.safety_margin)
+        scfg = SceneConfig.with_margin(cfg.camera_radius, cfg.safety_margin)
         self.loaded = load_scene(cfg.load_config, cfg.data, scfg, cfg.device)
         sp = self.loaded.splat
         self.obstacles = self.loaded.obstacles
         if self.obstacles is None:
-            self.obstacles = EllipsoidScene.from_splat(
-                _t(sp.means).float(), _t(sp.quats_wxyz).float(), _t(sp.log_scales).float(),
-                _t(sp.opacity_logits).float(), scfg,
-            ).to(cfg.device)
+            self.obstacles = EllipsoidScene.from_params(sp, scfg).to(cfg.device)
         self.planner: Optional[PreparedPlanner] = None
         if plan_fn is None:
             self.planner = PreparedPlanner(self.obstacles, PlannerConfig(
@@ -344,7 +279,7 @@ class StandaloneViewer:
         else:
             planner_name = "injected planner"
         self.planner_name = planner_name
-        display = sp.display_gaussians()
+        display = display_gaussians(sp)
         locate = locate or self.loaded.locate
         self.backend = FunctionBackend(display, plan_fn, locate, self.loaded.name, planner_name)
         self.server = viser.ViserServer(host=cfg.host, port=cfg.port, verbose=False)

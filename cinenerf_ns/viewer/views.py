@@ -12,6 +12,8 @@ from typing import Optional, Tuple
 
 import numpy as np
 
+from cinenerf_ns.planner.camera_path import DEFAULT_FOV_DEG
+
 UP = np.array([0.0, 0.0, 1.0])
 
 
@@ -51,7 +53,7 @@ def opening_view(means: np.ndarray, start_region: Optional[Tuple[np.ndarray, np.
     return View(np.asarray(pos, np.float64), np.asarray(target, np.float64))
 
 
-def overview_view(means: np.ndarray, fov_deg: float = 50.0) -> View:
+def overview_view(means: np.ndarray, fov_deg: float = DEFAULT_FOV_DEG) -> View:
     """Top-down: above the scene box's centre, high enough that the box's footprint fits the vertical ``fov_deg``
     (a small tilt toward -y keeps the orbit controls' up vector defined)."""
     lo, hi = scene_box(means)

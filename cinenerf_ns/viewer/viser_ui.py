@@ -9,10 +9,12 @@ from __future__ import annotations
 import logging
 import threading
 from pathlib import Path
-from typing import Any, Dict, List, Optional
+from typing import Any, Dict, List, Optional, Tuple
 
 import numpy as np
 import viser
+
+from cinenerf_ns.planner.camera_path import DEFAULT_FOV_DEG, DEFAULT_PREVIEW_SIZE, DEFAULT_RENDER_SIZE
 
 from .backend import to_numpy
 from .conventions import VISER_NERFSTUDIO_SCALE_RATIO, nerfstudio_c2w_to_viser, viser_to_world
@@ -37,14 +39,15 @@ class ViserPanelUI:
         server: viser.ViserServer,
         scale: float = VISER_NERFSTUDIO_SCALE_RATIO,
         scene_extent: float = 2.0,
-        fov_deg: float = 50.0,
-        aspect: float = 16 / 9,
+        fov_deg: float = DEFAULT_FOV_DEG,
+        aspect: float = DEFAULT_RENDER_SIZE[0] / DEFAULT_RENDER_SIZE[1],
         default_goto: str = "",
         default_look_at: str = "",
         folder_label: str = "Cinematography",
         root: str = "/cine",
         n_candidates: int = 3,
         export_name: str = "shot",
+        preview_size: Tuple[int, int] = DEFAULT_PREVIEW_SIZE,
     ) -> None:
         self.server = server
         self.scale = float(scale)
@@ -91,7 +94,8 @@ class ViserPanelUI:
             self.export_button = gui.add_button("Export camera path", icon=viser.Icon.FILE_EXPORT)
             self.export_info = gui.add_markdown("", visible=False)
             self.preview_button = gui.add_button("Preview video", icon=viser.Icon.MOVIE, visible=False,
-                                                 hint="Render the selected candidate on the CPU (480x270)")
+                                                 hint="Render the selected candidate on the CPU "
+                                                      f"({preview_size[0]}x{preview_size[1]})")
             self.preview_download = gui.add_button("Download preview", icon=viser.Icon.DOWNLOAD, visible=False)
             with gui.add_folder("Details", expand_by_default=False):
                 self.details_md = gui.add_markdown("(plan first)")
@@ -357,7 +361,7 @@ def attach_cine_panel(
     ui = ViserPanelUI(server, scale=scale, scene_extent=extent, fov_deg=cfg.fov_deg,
                       aspect=cfg.render_width / cfg.render_height, default_goto=default_goto,
                       default_look_at=default_look_at, folder_label=folder_label, n_candidates=cfg.n_candidates,
-                      export_name=export_name)
+                      export_name=export_name, preview_size=(cfg.preview_width, cfg.preview_height))
     ui.gaussian_means = means
     if len(means):
         ui.home, ui.overview = opening_view(means, start_region), overview_view(means, cfg.fov_deg)

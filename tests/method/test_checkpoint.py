@@ -58,19 +58,21 @@ def test_load_from_config_yml_picks_latest(tmp_path):
     assert find_checkpoint(run / "config.yml").name == "step-000001999.ckpt"
     st = load_splat(run / "config.yml")
     assert st.step == 1999 and len(st) == 50
-    assert torch.equal(st.means, sd["_model.gauss_params.means"])
-    assert st.opacities.shape == (50,) and st.scales.shape == (50, 3) and st.quats.shape == (50, 4)
-    assert torch.equal(st.latents, sd["_model.gauss_params.latents"])
+    p = st.params
+    assert np.array_equal(p.means, sd["_model.gauss_params.means"].numpy())
+    assert p.opacity_logits.shape == (50,) and p.log_scales.shape == (50, 3) and p.quats_wxyz.shape == (50, 4)
+    assert np.array_equal(p.latents, sd["_model.gauss_params.latents"].numpy())
     x = torch.rand(4, 3)
     assert torch.allclose(st.codec.decode(x), codec.decode(x))
     assert st.info["label_names"] == ["a", "b"] and st.label_embeddings.shape == (2, 24)
-    assert torch.allclose(st.rgb(), (sd["_model.gauss_params.features_dc"] * 0.28209479177387814 + 0.5).clamp(0, 1))
+    assert torch.allclose(torch.as_tensor(p.rgb()),
+                          (sd["_model.gauss_params.features_dc"] * 0.28209479177387814 + 0.5).clamp(0, 1))
 
 
 def test_plain_splatfacto_checkpoint(tmp_path):
     run, sd, _ = _fake_run(tmp_path, with_semantics=False)
     st = load_splat(run)
-    assert st.latents is None and st.codec is None and len(st) == 50
+    assert st.params.latents is None and st.codec is None and len(st) == 50
 
 
 def test_errors(tmp_path):
@@ -89,10 +91,11 @@ def test_export_compact_roundtrip(tmp_path, suffix):
     st = load_splat(run)
     out = export_compact(st, tmp_path / f"scene{suffix}")
     back = load_splat(out)
-    assert torch.equal(back.means, st.means)  # positions stay float32
-    for name in ("quats", "scales", "opacities", "latents"):
-        assert torch.allclose(getattr(back, name), getattr(st, name), atol=2e-3, rtol=2e-3), name
-    assert torch.allclose(back.rgb(), st.rgb(), atol=2e-3)
+    assert np.array_equal(back.params.means, st.params.means)  # positions stay float32
+    for name in ("quats_wxyz", "log_scales", "opacity_logits", "latents"):
+        np.testing.assert_allclose(getattr(back.params, name), getattr(st.params, name), atol=2e-3, rtol=2e-3,
+                                   err_msg=name)
+    np.testing.assert_allclose(back.params.rgb(), st.params.rgb(), atol=2e-3, rtol=0)
     x = torch.rand(4, 3) * 2 - 1
     assert torch.allclose(back.codec.decode(x), st.codec.decode(x), atol=1e-6)
     assert back.info["label_names"] == ["a", "b"]

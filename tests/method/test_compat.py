@@ -115,12 +115,12 @@ def test_cached_mode_never_downloads(monkeypatch):
 
 
 def test_seed_points_load_without_open3d(tmp_path):
-    """transforms.json `ply_file_path` seeds load through plyfile with nerfstudio's exact transform."""
+    """transforms.json `ply_file_path` seeds load through the project's .ply reader with nerfstudio's exact transform."""
     pytest.importorskip("nerfstudio")
     from nerfstudio.data.dataparsers.nerfstudio_dataparser import Nerfstudio
-    from plyfile import PlyData, PlyElement
 
     import cinenerf_ns.method.datamanager  # noqa: F401  (installs the patch)
+    from cinenerf_ns.planner.ply import write_ply_vertices
 
     try:
         import open3d  # noqa: F401
@@ -136,7 +136,7 @@ def test_seed_points_load_without_open3d(tmp_path):
     for i, k in enumerate(("red", "green", "blue")):
         v[k] = rgb[:, i]
     path = tmp_path / "pc.ply"
-    PlyData([PlyElement.describe(v, "vertex")]).write(str(path))
+    write_ply_vertices(path, v)
     T = torch.tensor([[0.0, -1.0, 0.0, 0.5], [1.0, 0.0, 0.0, -0.2], [0.0, 0.0, 1.0, 0.1]])
     out = Nerfstudio._load_3D_points(None, path, T, 0.25)
     expect = (torch.from_numpy(xyz).double() @ T[:, :3].double().T + T[:, 3].double()) * 0.25

@@ -66,4 +66,4 @@ def test_eval_setup_loads_cinesplat_checkpoint(tmp_path, tiny_clip_models, tiny_
     from cinenerf_ns.method.checkpoint import load_splat
 
     st = load_splat(cfg.get_base_dir() / "config.yml")
-    assert torch.equal(st.latents, m0.gauss_params["latents"].detach().cpu())
+    assert np.array_equal(st.params.latents, m0.gauss_params["latents"].detach().cpu().numpy())

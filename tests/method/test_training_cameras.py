@@ -74,27 +74,24 @@ def test_add_camera_centres_script_keeps_the_arrays(tmp_path, suffix):
     import importlib.util
     from pathlib import Path
 
-    import torch
-
-    from cinenerf_ns.method.checkpoint import SplatTensors, export_compact, load_compact
+    from cinenerf_ns.method.checkpoint import SplatCheckpoint, export_compact, load_compact
+    from cinenerf_ns.planner.splat_params import SplatParams
 
     spec = importlib.util.spec_from_file_location("acc", Path(__file__).resolve().parents[2] / "scripts" / "add_camera_centres.py")
     acc = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(acc)
     rng = np.random.default_rng(1)
     n = 50
-    st_ = SplatTensors(means=torch.as_tensor(rng.normal(size=(n, 3)), dtype=torch.float32),
-                       quats=torch.as_tensor(rng.normal(size=(n, 4)), dtype=torch.float32),
-                       scales=torch.as_tensor(rng.normal(size=(n, 3)), dtype=torch.float32),
-                       opacities=torch.as_tensor(rng.normal(size=n), dtype=torch.float32), info={"label_names": ["a"]})
+    st_ = SplatCheckpoint(SplatParams.of(rng.normal(size=(n, 3)), rng.normal(size=(n, 4)), rng.normal(size=(n, 3)),
+                                         rng.normal(size=n)), info={"label_names": ["a"]})
     path = export_compact(st_, tmp_path / f"s{suffix}")
     before = load_compact(path)
     _write(tmp_path, rng.uniform(-2, 2, (6, 3)), np.concatenate([np.eye(3), np.zeros((3, 1))], 1), 0.5)
     acc.main(["--scene", str(path), "--transforms", str(tmp_path / "transforms.json"),
               "--dataparser-transforms", str(tmp_path / "dataparser_transforms.json")])
     after = load_compact(path)
-    for k in ("means", "quats", "scales", "opacities"):
-        assert torch.equal(getattr(before, k), getattr(after, k)), k
+    for k in ("means", "quats_wxyz", "log_scales", "opacity_logits"):
+        assert np.array_equal(getattr(before.params, k), getattr(after.params, k)), k
     want = camera_centres(tmp_path / "transforms.json", tmp_path / "dataparser_transforms.json")
     np.testing.assert_allclose(info_camera_centres(after.info), want)
     np.testing.assert_allclose(after.info["start_region"][0], want.min(0) - 0.1)

@@ -410,7 +410,7 @@ def test_mean_voxel_mask_gives_the_same_goals_as_the_box_query():
     from cinenerf_ns.synthetic.blobs import blob_scene
 
     b = blob_scene(20_000, seed=1)
-    scene = EllipsoidScene.from_splat(b.means, b.quats, b.log_scales, b.opacity_logits)
+    scene = EllipsoidScene.from_params(b.splat)
     pl = Planner(scene, PlannerConfig(up=b.up, candidate_workers=0))
     prep = pl.prepare()
     mv = mean_voxel_mask(scene, prep.grid)

@@ -66,3 +66,49 @@ def test_truncated(tmp_path):
     p.write_bytes(p.read_bytes()[:-10])
     with pytest.raises(InvalidInputError, match="truncated"):
         read_splat_ply(p)
+
+
+
+def rgb_ply(path, rgb):
+    """A splat .ply of len(rgb) Gaussians coloured with red/green/blue (uchar) instead of f_dc_*."""
+    names = ["x", "y", "z", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3", "opacity"]
+    dt = np.dtype([(n, "<f4") for n in names] + [(c, "u1") for c in ("red", "green", "blue")])
+    rec = np.zeros(len(rgb), dt)
+    rec["rot_0"], rec["opacity"] = 1.0, 2.0
+    rec["red"], rec["green"], rec["blue"] = np.asarray(rgb, np.uint8).T
+    head = f"ply\nformat binary_little_endian 1.0\nelement vertex {len(rgb)}\n"
+    head += "".join(f"property float {n}\n" for n in names)
+    head += "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n"
+    path.write_bytes(head.encode() + rec.tobytes())
+    return path
+
+
+def test_plain_rgb_colours_when_there_is_no_sh(tmp_path):
+    """red/green/blue are the colour of a .ply without f_dc_* (0..255 integers, or floats in [0, 1])."""
+    rgb = np.array([[255, 0, 0], [0, 128, 0], [10, 20, 30]], np.uint8)
+    sp = read_splat_ply(rgb_ply(tmp_path / "rgb.ply", rgb))
+    np.testing.assert_allclose(sp.rgb(), rgb / 255.0, atol=1e-6)
+    assert "red" not in sp.extra
+
+
+@pytest.mark.parametrize("text", [False, True])
+@pytest.mark.parametrize("byte_order", ["<", ">"])
+def test_reads_what_plyfile_writes_and_writes_what_plyfile_reads(tmp_path, text, byte_order):
+    """The project's reader and writer agree with an independent implementation (plyfile, a test dependency)."""
+    plyfile = pytest.importorskip("plyfile")
+    from cinenerf_ns.planner.ply import read_ply_vertices, write_ply_vertices
+
+    rng = np.random.default_rng(0)
+    v = np.empty(20, dtype=[("x", "f4"), ("y", "f8"), ("red", "u1"), ("k", "i4"), ("s", "i2")])
+    v["x"], v["y"] = rng.normal(size=20), rng.normal(size=20)
+    v["red"], v["k"], v["s"] = rng.integers(0, 256, 20), rng.integers(-1000, 1000, 20), rng.integers(-99, 99, 20)
+    theirs = tmp_path / "theirs.ply"
+    plyfile.PlyData([plyfile.PlyElement.describe(v, "vertex")], text=text, byte_order=byte_order).write(str(theirs))
+    back = read_ply_vertices(theirs)
+    for k in v.dtype.names:
+        np.testing.assert_array_equal(back[k], v[k], err_msg=k)
+    ours = write_ply_vertices(tmp_path / "ours.ply", v)
+    read = plyfile.PlyData.read(str(ours))["vertex"].data
+    for k in v.dtype.names:
+        np.testing.assert_array_equal(read[k], v[k], err_msg=k)
+        assert read[k].dtype.kind == v[k].dtype.kind and read[k].dtype.itemsize == v[k].dtype.itemsize

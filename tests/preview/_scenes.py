@@ -39,12 +39,12 @@ def intrinsics(width: int, height: int, fov_deg: float = 50.0):
 
 
 def random_splat(seed: int = 0, n: int = 300, spread: float = 1.0):
-    """A SplatTensors (log scales, logit opacities, SH DC colour) around the origin."""
-    from cinenerf_ns.method.checkpoint import SH_C0, SplatTensors
+    """A SplatParams (log scales, logit opacities, SH DC colour) around the origin."""
+    from cinenerf_ns.planner.splat_params import SH_C0, SplatParams
 
     m, q, s, o, c = random_gaussians(seed, n, spread=spread, depth=0.0, scale=(0.02, 0.2))
-    return SplatTensors(means=m.float(), quats=q.float(), scales=torch.log(s).float(),
-                        opacities=torch.logit(o.clamp(0.05, 0.99)).float(), features_dc=((c - 0.5) / SH_C0).float())
+    return SplatParams.of(m.float(), q.float(), torch.log(s).float(), torch.logit(o.clamp(0.05, 0.99)).float(),
+                          colors_dc=((c - 0.5) / SH_C0).float())
 
 
 def orbit_camera_path(n: int = 31, fps: float = 30.0, fov: float = 50.0, width: int = 1280, height: int = 720,

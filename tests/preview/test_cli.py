@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from cinenerf_ns.method.checkpoint import export_compact
+from cinenerf_ns.method.checkpoint import SplatCheckpoint, export_compact
 from cinenerf_ns.preview.cli import main
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -21,7 +21,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 @pytest.fixture
 def inputs(tmp_path):
-    scene = export_compact(random_splat(5), tmp_path / "scene.npz")
+    scene = export_compact(SplatCheckpoint(random_splat(5)), tmp_path / "scene.npz")
     cam = tmp_path / "shot.json"
     cam.write_text(json.dumps(orbit_camera_path(n=12)))
     return scene, cam

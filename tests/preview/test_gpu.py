@@ -29,9 +29,10 @@ pytestmark = pytest.mark.gpu
 
 def _room_path():
     """Two frames from a training camera of the bundled room, looking at the room's centre."""
-    splat = load_splat(DEMO_SCENE)
-    centres = np.asarray(splat.info["camera_centres"], dtype=np.float64)
-    target = splat.means.double().median(0).values.numpy()
+    ck = load_splat(DEMO_SCENE)
+    centres = np.asarray(ck.info["camera_centres"], dtype=np.float64)
+    splat = ck.params
+    target = torch.as_tensor(splat.means).double().median(0).values.numpy()
     pos = centres[:2]
     rot = look_at_rotations(pos, target)
     c2w = np.tile(np.eye(4), (2, 1, 1))

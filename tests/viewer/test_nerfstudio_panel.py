@@ -13,6 +13,7 @@ import pytest
 import torch
 from torch import nn
 
+from cinenerf_ns.planner.splat_params import SplatParams
 from cinenerf_ns.viewer.nerfstudio_panel import CinePanelControl, LockedBackend, SplatModelBackend
 from cinenerf_ns.viewer.panel import CinePanel, PanelBackend
 from cinenerf_ns.viewer.planner_backend import PreparedPlanner
@@ -119,8 +120,8 @@ def test_snapshot_is_a_copy_taken_under_the_lock_and_planning_does_not_hold_it()
     snap = backend._current("snapshot")
     with torch.no_grad():
         model.means.add_(1.0)  # training moves the Gaussians after the snapshot ...
-    assert torch.equal(snap.means + 1.0, model.means.detach())  # ... the snapshot is a copy
-    assert snap.means.dtype == torch.float32 and snap.opacities.shape == (300,)
+    assert np.array_equal(snap.splat.means + 1.0, model.means.detach().numpy())  # ... the snapshot is a copy
+    assert snap.splat.means.dtype == np.float32 and snap.splat.opacity_logits.shape == (300,)
     model.step = 1
     backend.gaussians()
     assert lock.acquired == 2  # a new step: a new snapshot, again under the lock
@@ -272,8 +273,8 @@ def test_model_semantic_scene_gets_the_training_cameras():
     n = 6
     model = SimpleNamespace(codec=Codec(), text_encoder=lambda: (lambda texts: torch.ones(len(texts), 3)),
                             cine_info={"label_names": ["a"]})
-    snap = ModelSnapshot(version=(0, n), means=torch.rand(n, 3), quats=torch.tensor([[1.0, 0, 0, 0]] * n),
-                         scales=torch.zeros(n, 3), opacities=torch.zeros(n), colors=None, latents=torch.rand(n, 3))
+    snap = ModelSnapshot(version=(0, n), splat=SplatParams.of(torch.rand(n, 3), torch.tensor([[1.0, 0, 0, 0]] * n),
+                                                              torch.zeros(n, 3), torch.zeros(n), latents=torch.rand(n, 3)))
     cams = np.array([[0.0, 0.0, 1.0], [1.0, 2.0, 3.0]])
     box = {"c": cams}
     build = model_semantic_scene(model, lambda: box["c"])
@@ -282,3 +283,12 @@ def test_model_semantic_scene_gets_the_training_cameras():
     assert build(snap).camera_centres is None
     assert model_semantic_scene(model)(snap).camera_centres is None
     assert model_semantic_scene(SimpleNamespace(codec=None))(snap) is None
+
+
+def test_model_backend_plans_with_the_safety_margin():
+    """The ns-viewer panel keeps cinesplat-plan's and cinesplat-viewer's distance from the scene: the camera radius
+    plus the safety margin (it planned with the bare radius)."""
+    from cinenerf_ns.planner.scene import DEFAULT_SAFETY_MARGIN, SceneConfig
+
+    scene, _ = SplatModelBackend(TinySplatModel(), Planners())._current("planner")
+    assert scene.camera_radius == pytest.approx(SceneConfig.camera_radius + DEFAULT_SAFETY_MARGIN)

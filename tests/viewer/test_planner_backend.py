@@ -135,11 +135,11 @@ def test_concurrent_plans_are_serialised(room):
 
 def test_label_locate_and_parse_point():
     d = demo_scene()
-    locate = label_locate(d.means, d.labels, d.label_of)
+    locate = label_locate(d.splat.means, d.labels, d.label_of)
     c, m, what = locate("the Red Box")
     assert what == "the label 'red box'"
     assert m.sum() == (d.label_of == 0).sum()
-    np.testing.assert_allclose(c, d.means[d.label_of == 0].mean(0), atol=1e-6)
+    np.testing.assert_allclose(c, d.splat.means[d.label_of == 0].mean(0), atol=1e-6)
     assert locate("pillar")[1].sum() == (d.label_of == 2).sum()
     with pytest.raises(NoMatchError, match="known: red box"):
         locate("sofa")

@@ -16,8 +16,9 @@ import torch
 import yaml
 
 from cinenerf_ns.planner.errors import InvalidInputError
+from cinenerf_ns.planner.splat_params import SH_C0, SplatParams
 from cinenerf_ns.viewer.demo import demo_scene
-from cinenerf_ns.viewer.standalone import SH_C0, StandaloneConfig, StandaloneViewer, load_scene
+from cinenerf_ns.viewer.standalone import StandaloneConfig, StandaloneViewer, display_gaussians, load_scene
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -29,35 +30,35 @@ def free_port() -> int:
 
 
 def write_3dgs_ply(path: Path, d) -> None:
-    from plyfile import PlyData, PlyElement
+    from cinenerf_ns.planner.ply import write_ply_vertices
 
     n = len(d.means)
     names = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",
              "rot_0", "rot_1", "rot_2", "rot_3"]
     arr = np.empty(n, dtype=[(k, "f4") for k in names])
-    dc = (d.colors - 0.5) / SH_C0
+    dc = (d.rgb() - 0.5) / SH_C0
     cols = [d.means[:, 0], d.means[:, 1], d.means[:, 2], dc[:, 0], dc[:, 1], dc[:, 2], d.opacity_logits,
             *d.log_scales.T, *d.quats_wxyz.T]
     for k, c in zip(names, cols):
         arr[k] = c
-    PlyData([PlyElement.describe(arr, "vertex")]).write(str(path))
+    write_ply_vertices(path, arr)
 
 
 def test_load_ply_round_trip(tmp_path):
-    d = demo_scene()
+    d = demo_scene().splat
     write_3dgs_ply(tmp_path / "scene.ply", d)
     sc = load_scene(str(tmp_path / "scene.ply"))
     np.testing.assert_allclose(sc.splat.means, d.means, atol=1e-6)
-    np.testing.assert_allclose(sc.splat.colors, d.colors, atol=1e-5)
+    np.testing.assert_allclose(sc.splat.rgb(), d.rgb(), atol=1e-5)
     np.testing.assert_allclose(sc.splat.log_scales, d.log_scales, atol=1e-6)
     assert sc.data_dir == tmp_path and sc.config_path is None and sc.locate is None
-    g = sc.splat.display_gaussians()
+    g = display_gaussians(sc.splat)
     i = 2000  # an isotropic object Gaussian: covariance = sigma^2 I
     np.testing.assert_allclose(g.covariances[i], np.eye(3) * np.exp(2 * d.log_scales[i, 0]), rtol=1e-4, atol=1e-9)
 
 
 def test_load_config_and_checkpoint(tmp_path):
-    d = demo_scene()
+    d = demo_scene().splat
     run = tmp_path / "outputs" / "scene" / "cinesplat" / "ts"
     (run / "nerfstudio_models").mkdir(parents=True)
     data = tmp_path / "data" / "myscene"
@@ -66,7 +67,7 @@ def test_load_config_and_checkpoint(tmp_path):
     (run / "config.yml").write_text(yaml.dump(cfg))
     sd = {f"_model.gauss_params.{k}": torch.as_tensor(v) for k, v in dict(
         means=d.means, quats=d.quats_wxyz, scales=d.log_scales, opacities=d.opacity_logits[:, None],
-        features_dc=(d.colors - 0.5) / SH_C0).items()}
+        features_dc=(d.rgb() - 0.5) / SH_C0).items()}
     torch.save({"pipeline": {k: v * 0 for k, v in sd.items()}}, run / "nerfstudio_models" / "step-000000099.ckpt")
     torch.save({"pipeline": sd}, run / "nerfstudio_models" / "step-000000999.ckpt")  # newest wins
     sc = load_scene(str(run / "config.yml"))
@@ -80,22 +81,19 @@ def test_bad_sources(tmp_path):
     (tmp_path / "x.txt").write_text("hi")
     with pytest.raises(InvalidInputError, match="expected a config.yml"):
         load_scene(str(tmp_path / "x.txt"))
-    from plyfile import PlyData, PlyElement
+    from cinenerf_ns.planner.ply import write_ply_vertices
 
-    arr = np.zeros(3, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")])
-    PlyData([PlyElement.describe(arr, "vertex")]).write(str(tmp_path / "pts.ply"))
-    with pytest.raises(InvalidInputError, match="not a Gaussian-splat .ply"):
+    write_ply_vertices(tmp_path / "pts.ply", np.zeros(3, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")]))
+    with pytest.raises(InvalidInputError, match="not a Gaussian splat .ply"):
         load_scene(str(tmp_path / "pts.ply"))
 
 
 def room_splat():
     from cinenerf_ns.planner.procedural import procedural_room
-    from cinenerf_ns.viewer.standalone import procedural_display
+    from cinenerf_ns.scenes import procedural_params
 
     room = procedural_room(2000, seed=0)
-    sp = procedural_display(room)
-    return room, SimpleNamespace(means=sp.means, quats_wxyz=sp.quats_wxyz, log_scales=sp.log_scales,
-                                 opacity_logits=sp.opacity_logits, colors=sp.colors)
+    return room, procedural_params(room)
 
 
 def viewer_for(source, tmp_path, **kw) -> StandaloneViewer:
@@ -156,7 +154,7 @@ def test_standalone_procedural_names_progress_and_errors(tmp_path):
 
 
 def test_standalone_compact_scene_answers_text_by_relevancy(tmp_path):
-    from cinenerf_ns.method.checkpoint import SplatTensors, export_compact
+    from cinenerf_ns.method.checkpoint import SplatCheckpoint, export_compact
     from cinenerf_ns.method.codec import CodecConfig, FeatureCodec
 
     room, sp = room_splat()
@@ -170,9 +168,8 @@ def test_standalone_compact_scene_answers_text_by_relevancy(tmp_path):
     names = ["armchair", *DEFAULT_NEGATIVES]  # offline: the relevancy negatives are labels too (no CLIP weights)
     with torch.no_grad():  # label embeddings = decoded codes: the armchair's code, the background's for the rest
         emb = codec.decode(torch.tensor([[0.9, -0.5, 0.3]] + [[0.0, 0.0, 0.0]] * len(DEFAULT_NEGATIVES)))
-    st = SplatTensors(
-        means=torch.as_tensor(sp.means), quats=torch.as_tensor(sp.quats_wxyz), scales=torch.as_tensor(sp.log_scales),
-        opacities=torch.as_tensor(sp.opacity_logits), features_dc=None, latents=latents, codec=codec,
+    st = SplatCheckpoint(
+        SplatParams.of(sp.means, sp.quats_wxyz, sp.log_scales, sp.opacity_logits, latents=latents), codec=codec,
         codec_state=codec.state_dict(), label_embeddings=emb,
         info={"feature_dim": 8, "codec_config": vars(CodecConfig(hidden_dim=8, train_steps=1)), "label_names": names,
               "clip": None},
