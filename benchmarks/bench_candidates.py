@@ -38,9 +38,9 @@ sys.path.insert(0, str(REPO))
 
 from benchmarks._results import append_results, device_name  # noqa: E402
 from benchmarks.scene_families import FAMILIES, given_starts, load_family  # noqa: E402
-from cinenerf_ns.planner.candidates import plan_candidates, score_shots  # noqa: E402
-from cinenerf_ns.planner.planner import Planner, PlannerConfig  # noqa: E402
-from cinenerf_ns.planner.scoring import ScoreConfig  # noqa: E402
+from cinenerf_ns.planner.shots.candidates import plan_candidates, score_shots  # noqa: E402
+from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig  # noqa: E402
+from cinenerf_ns.planner.shots.scoring import ScoreConfig  # noqa: E402
 
 
 def _sync(dev: torch.device) -> None:

@@ -21,9 +21,9 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from cinenerf_ns.planner.distance import clearance  # noqa: E402
-from cinenerf_ns.planner.planner import Planner, PlannerConfig  # noqa: E402
-from cinenerf_ns.planner.scene import SceneConfig  # noqa: E402
+from cinenerf_ns.planner.geometry.distance import clearance  # noqa: E402
+from cinenerf_ns.planner.scene.ellipsoids import SceneConfig  # noqa: E402
+from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig  # noqa: E402
 from cinenerf_ns.scenes import load_scene  # noqa: E402
 
 

@@ -23,12 +23,12 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from cinenerf_ns.planner import clearance_queries  # noqa: E402
-from cinenerf_ns.planner.candidates import plan_candidates  # noqa: E402
-from cinenerf_ns.planner.planner import Planner, PlannerConfig  # noqa: E402
-from cinenerf_ns.planner.procedural import procedural_room  # noqa: E402
-from cinenerf_ns.planner.scene import EllipsoidScene  # noqa: E402
-from cinenerf_ns.planner.scoring import scored_frames  # noqa: E402
+from cinenerf_ns.planner.geometry import clearance_queries  # noqa: E402
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene  # noqa: E402
+from cinenerf_ns.planner.scene.procedural import procedural_room  # noqa: E402
+from cinenerf_ns.planner.shots.candidates import plan_candidates  # noqa: E402
+from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig  # noqa: E402
+from cinenerf_ns.planner.shots.scoring import scored_frames  # noqa: E402
 
 
 def main() -> None:

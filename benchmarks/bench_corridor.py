@@ -22,12 +22,12 @@ import torch
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-import cinenerf_ns.planner.stages as planner_mod  # the leg builds its corridor there  # noqa: E402
-from cinenerf_ns.planner.corridor import build_corridor  # noqa: E402
-from cinenerf_ns.planner.planner import Planner, PlannerConfig  # noqa: E402
-from cinenerf_ns.planner.polytope_batched import safe_polytopes_batched  # noqa: E402
-from cinenerf_ns.planner.procedural import procedural_room  # noqa: E402
-from cinenerf_ns.planner.scene import EllipsoidScene  # noqa: E402
+import cinenerf_ns.planner.shots.stages as planner_mod  # the leg builds its corridor there  # noqa: E402
+from cinenerf_ns.planner.corridor.polytope_batched import safe_polytopes_batched  # noqa: E402
+from cinenerf_ns.planner.corridor.safe_corridor import build_corridor  # noqa: E402
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene  # noqa: E402
+from cinenerf_ns.planner.scene.procedural import procedural_room  # noqa: E402
+from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig  # noqa: E402
 
 
 def main() -> None:

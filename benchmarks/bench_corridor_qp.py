@@ -16,7 +16,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "planner"
 
 from test_trajectory import cvxpy_reference, random_corridor  # noqa: E402
 
-from cinenerf_ns.planner.trajectory import TrajectoryConfig, solve_corridor_qp  # noqa: E402
+from cinenerf_ns.planner.trajectory.qp import TrajectoryConfig, solve_corridor_qp  # noqa: E402
 
 
 def main() -> None:

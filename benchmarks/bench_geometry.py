@@ -16,11 +16,11 @@ import time
 
 import torch
 
-from cinenerf_ns.planner.collision import max_k_sphere, points_collide, segments_collide
-from cinenerf_ns.planner.distance import clearance
-from cinenerf_ns.planner.occupancy import build_occupancy
-from cinenerf_ns.planner.scene import EllipsoidScene, SceneConfig
-from cinenerf_ns.planner.spatial_index import GridIndex
+from cinenerf_ns.planner.geometry.collision import max_k_sphere, points_collide, segments_collide
+from cinenerf_ns.planner.geometry.distance import clearance
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
+from cinenerf_ns.planner.scene.occupancy import build_occupancy
+from cinenerf_ns.planner.scene.spatial_index import GridIndex
 
 
 def room_splat(n: int, seed: int = 0):

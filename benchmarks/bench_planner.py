@@ -37,8 +37,8 @@ sys.path.insert(0, str(REPO))
 
 from benchmarks._results import append_results, device_name  # noqa: E402
 from benchmarks.scene_families import FAMILIES, given_starts, load_family, request_fn  # noqa: E402
-from cinenerf_ns.planner.distance import clearance  # noqa: E402
-from cinenerf_ns.planner.planner import Planner, PlannerConfig  # noqa: E402
+from cinenerf_ns.planner.geometry.distance import clearance  # noqa: E402
+from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig  # noqa: E402
 
 
 def main() -> None:

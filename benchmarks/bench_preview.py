@@ -26,8 +26,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks._results import append_results, device_name  # noqa: E402
 from cinenerf_ns.method.checkpoint import load_splat  # noqa: E402
-from cinenerf_ns.planner.camera_path import read_camera_path  # noqa: E402
-from cinenerf_ns.planner.orientation import look_at_rotations  # noqa: E402
+from cinenerf_ns.planner.shots.camera_path import read_camera_path  # noqa: E402
+from cinenerf_ns.planner.trajectory.orientation import look_at_rotations  # noqa: E402
 from cinenerf_ns.preview import native, path_cameras, preview_camera_path, scene_from_splat  # noqa: E402
 from cinenerf_ns.preview.render import render_premultiplied  # noqa: E402
 

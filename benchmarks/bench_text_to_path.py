@@ -27,9 +27,9 @@ sys.path.insert(0, str(REPO))
 
 from benchmarks._results import append_results, device_name  # noqa: E402
 from cinenerf_ns.planner.errors import PlanningError  # noqa: E402
-from cinenerf_ns.planner.planner import PlannerConfig  # noqa: E402
-from cinenerf_ns.planner.scene import SceneConfig  # noqa: E402
-from cinenerf_ns.planner.timing import TimingConfig  # noqa: E402
+from cinenerf_ns.planner.scene.ellipsoids import SceneConfig  # noqa: E402
+from cinenerf_ns.planner.shots.planner import PlannerConfig  # noqa: E402
+from cinenerf_ns.planner.trajectory.timing import TimingConfig  # noqa: E402
 from cinenerf_ns.viewer.planner_backend import PreparedPlanner  # noqa: E402
 from cinenerf_ns.viewer.standalone import StandaloneConfig, load_scene, warm_semantics  # noqa: E402
 

@@ -31,8 +31,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks._results import device_name  # noqa: E402
-from cinenerf_ns.planner.planner import PlannerConfig  # noqa: E402
-from cinenerf_ns.planner.scene import SceneConfig  # noqa: E402
+from cinenerf_ns.planner.scene.ellipsoids import SceneConfig  # noqa: E402
+from cinenerf_ns.planner.shots.planner import PlannerConfig  # noqa: E402
 from cinenerf_ns.viewer.backend import FunctionBackend  # noqa: E402
 from cinenerf_ns.viewer.panel import PanelConfig  # noqa: E402
 from cinenerf_ns.viewer.planner_backend import PreparedPlanner  # noqa: E402

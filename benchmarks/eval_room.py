@@ -48,8 +48,8 @@ from benchmarks.eval_synthetic import (  # noqa: E402
 )
 from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY  # noqa: E402
 from cinenerf_ns.planner.errors import PlanningError  # noqa: E402
-from cinenerf_ns.planner.planner import Planner, PlannerConfig  # noqa: E402
-from cinenerf_ns.planner.scene import DEFAULT_SAFETY_MARGIN, SceneConfig  # noqa: E402
+from cinenerf_ns.planner.scene.ellipsoids import DEFAULT_SAFETY_MARGIN, SceneConfig  # noqa: E402
+from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig  # noqa: E402
 from cinenerf_ns.scenes import load_scene  # noqa: E402
 
 

@@ -1,6 +1,6 @@
 """Scene families and request starts for the planner benchmarks (issue 23: benchmarks that cannot flatter).
 
-    --family procedural   planner/procedural.py's room (z up, 2 x 2 x 1, thin discs, 6 objects on a jittered grid)
+    --family procedural   planner/scene/procedural.py's room (z up, 2 x 2 x 1, thin discs, 6 objects on a jittered grid)
     --family blobs        synthetic/blobs.py (y up, about [-1, 1]^3, 3 walls + floor, random round blobs, floaters)
     --family fox          ../shared/data/fox_cinesplat/fox3000.npz (a real capture's compact export)
     --family ply:PATH / npz:PATH   any Gaussian-splat .ply or compact export (.npz / .pt)
@@ -52,11 +52,11 @@ class Family:
 
 def load_family(spec: str, n_gaussians: int, seed: int, device: str = "cpu") -> Family:
     """--family spec -> Family (n_gaussians / seed only for the generated families)."""
-    from cinenerf_ns.planner.scene import EllipsoidScene, SceneConfig
+    from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
 
     dev = torch.device(device)
     if spec == "procedural":
-        from cinenerf_ns.planner.procedural import procedural_room
+        from cinenerf_ns.planner.scene.procedural import procedural_room
 
         room = procedural_room(n_gaussians, seed=seed)
         scene = EllipsoidScene.from_splat(room.means.to(dev), room.quats.to(dev), room.log_scales.to(dev),

@@ -12,8 +12,8 @@ import numpy as np
 from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY, OBJECT_CLUSTER, SMOOTH_NEIGHBORS
 from cinenerf_ns.method.training_cameras import camera_box, run_config_path, scene_camera_centres
 from cinenerf_ns.planner.errors import InvalidInputError
-from cinenerf_ns.planner.scene import EllipsoidScene, SceneConfig
-from cinenerf_ns.planner.splat_params import NO_COLOUR_GREY, SplatParams, rgb_to_dc
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
+from cinenerf_ns.planner.scene.splat_params import NO_COLOUR_GREY, SplatParams, rgb_to_dc
 
 ASSETS = Path(__file__).parent / "assets"
 DEMO_SCENE = ASSETS / "room0.npz"  # the bundled trained room (make demo, cinesplat-viewer's 'demo')
@@ -120,7 +120,7 @@ def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Opti
     """Scene file/spec -> obstacles + (optionally) a text locator."""
     proc = procedural_spec(spec)
     if proc is not None:
-        from cinenerf_ns.planner.procedural import procedural_room
+        from cinenerf_ns.planner.scene.procedural import procedural_room
 
         n, seed = proc
         room = procedural_room(n, seed=seed)
@@ -243,6 +243,6 @@ def preview_scene(loaded: LoadedScene):
         return scene_from_splat(loaded.extra["splat"].params)
     if "room" in loaded.extra:
         return scene_from_splat(procedural_params(loaded.extra["room"]))
-    from cinenerf_ns.planner.ply import read_splat_ply
+    from cinenerf_ns.planner.scene.ply import read_splat_ply
 
     return scene_from_splat(read_splat_ply(loaded.source), grey=NO_COLOUR_GREY)

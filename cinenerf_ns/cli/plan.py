@@ -6,7 +6,7 @@
     cinesplat-plan --scene procedural --go-to armchair --then-go-to sofa table --look-at "floor lamp" --max-angular-rate 45
 
 With random starts the candidates are planned, scored (occlusion of the look-at object, framing, clearance,
-smoothness, duration; planner/scoring.py) and ranked: rank 1 is written as ``<name>_0.json``, rank 2 as
+smoothness, duration; planner/shots/scoring.py) and ranked: rank 1 is written as ``<name>_0.json``, rank 2 as
 ``<name>_1.json``, ...; the table and the report state every score term.
 
 Targets are "x y z" points (scene units, nerfstudio's normalised coordinates for checkpoints) or text. Every option
@@ -31,7 +31,9 @@ from rich.table import Table
 from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY, OBJECT_CLUSTER, SMOOTH_NEIGHBORS
 from cinenerf_ns.options import check_number
 from cinenerf_ns.output_set import OutputSet, check_name, check_writable
-from cinenerf_ns.planner.camera_path import (
+from cinenerf_ns.planner.errors import InvalidInputError, PlanningError
+from cinenerf_ns.planner.scene.ellipsoids import DEFAULT_SAFETY_MARGIN, SceneConfig
+from cinenerf_ns.planner.shots.camera_path import (
     DEFAULT_FOV_DEG,
     DEFAULT_PREVIEW_FPS,
     DEFAULT_PREVIEW_SIZE,
@@ -39,15 +41,13 @@ from cinenerf_ns.planner.camera_path import (
     shot_to_camera_path,
     write_camera_path,
 )
-from cinenerf_ns.planner.candidates import RankedShot, plan_candidates, score_shots
-from cinenerf_ns.planner.dynamics import DynamicLimits, retime_shot
-from cinenerf_ns.planner.errors import InvalidInputError, PlanningError
-from cinenerf_ns.planner.multistop import plan_multistop
-from cinenerf_ns.planner.planner import GRID_RESOLUTION_RANGE, MAX_CANDIDATES, Planner, PlannerConfig
-from cinenerf_ns.planner.safety import plot_clearance, plot_paths_topdown
-from cinenerf_ns.planner.scene import DEFAULT_SAFETY_MARGIN, SceneConfig
-from cinenerf_ns.planner.scoring import ScoreConfig
-from cinenerf_ns.planner.timing import MAX_FPS, MIN_FPS, TimingConfig
+from cinenerf_ns.planner.shots.candidates import RankedShot, plan_candidates, score_shots
+from cinenerf_ns.planner.shots.multistop import plan_multistop
+from cinenerf_ns.planner.shots.planner import GRID_RESOLUTION_RANGE, MAX_CANDIDATES, Planner, PlannerConfig
+from cinenerf_ns.planner.shots.safety import plot_clearance, plot_paths_topdown
+from cinenerf_ns.planner.shots.scoring import ScoreConfig
+from cinenerf_ns.planner.trajectory.dynamics import DynamicLimits, retime_shot
+from cinenerf_ns.planner.trajectory.timing import MAX_FPS, MIN_FPS, TimingConfig
 from cinenerf_ns.scenes import LoadedScene, _word_match, load_scene, parse_point, resolve_match
 
 CONSOLE = Console()

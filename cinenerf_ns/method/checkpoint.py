@@ -32,7 +32,7 @@ from cinenerf_ns.method.scene_files import (
     compact_npz,
     torch_read,
 )
-from cinenerf_ns.planner.splat_params import SplatParams, rgb_to_dc
+from cinenerf_ns.planner.scene.splat_params import SplatParams, rgb_to_dc
 
 PREFIX = "_model.gauss_params."
 

@@ -181,7 +181,7 @@ _PLY_PATCHED = False
 def read_ply_points(path) -> tuple[torch.Tensor, torch.Tensor]:
     """(xyz [P, 3] float32, rgb [P, 3] uint8) of a point-cloud .ply (ascii or binary); rgb is grey when
     the file has no colour."""
-    from cinenerf_ns.planner.ply import read_ply_vertices
+    from cinenerf_ns.planner.scene.ply import read_ply_vertices
 
     v = read_ply_vertices(path)
     xyz = np.stack([np.asarray(v[k], dtype=np.float32) for k in ("x", "y", "z")], axis=1)  # [P, 3]

@@ -50,7 +50,7 @@ import torch
 from torch import Tensor
 
 from cinenerf_ns.planner.native import choose, hidden_voxels_c
-from cinenerf_ns.planner.scene import quat_wxyz_to_rotmat
+from cinenerf_ns.planner.scene.ellipsoids import quat_wxyz_to_rotmat
 
 ArrayLike = Union[Tensor, np.ndarray, Sequence]
 

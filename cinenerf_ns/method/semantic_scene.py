@@ -26,7 +26,7 @@ from cinenerf_ns.method.relevancy import (
     relevancy as relevancy_fn,
     relevancy_mask,
 )
-from cinenerf_ns.planner.splat_params import SplatParams
+from cinenerf_ns.planner.scene.splat_params import SplatParams
 
 TextEncoder = Callable[[Sequence[str]], Tensor]
 

@@ -15,17 +15,17 @@ import importlib
 from typing import Any
 
 _WHERE = {
-    "EllipsoidScene": "scene", "SceneConfig": "scene",
-    "Planner": "planner", "PlannerConfig": "planner", "PreparedScene": "prepared_scene", "MAX_CANDIDATES": "plan_request",
-    "plan_leg": "stages", "ReachableGoal": "reach", "reachable_goal": "reach",
-    "plan_candidates": "candidates", "RankedShot": "candidates", "score_shots": "candidate_scores",
-    "plan_multistop": "multistop", "MultiStopShot": "multistop",
-    "Shot": "shot", "TimingConfig": "timing", "TrajectoryConfig": "trajectory", "DynamicLimits": "dynamics",
-    "retime_shot": "dynamics", "ScoreConfig": "scoring",
-    "safety_report": "safety", "verify_shot": "safety", "plot_clearance": "safety", "plot_paths_topdown": "safety",
-    "shot_to_camera_path": "camera_path", "write_camera_path": "camera_path", "read_camera_path": "camera_path",
-    "clearance": "distance", "build_corridor": "corridor", "Corridor": "corridor",
-    "atomic_write": "atomic", "SplatParams": "splat_params",
+    "EllipsoidScene": "scene.ellipsoids", "SceneConfig": "scene.ellipsoids",
+    "Planner": "shots.planner", "PlannerConfig": "shots.planner", "PreparedScene": "shots.prepared_scene", "MAX_CANDIDATES": "shots.plan_request",
+    "plan_leg": "shots.stages", "ReachableGoal": "search.reach", "reachable_goal": "search.reach",
+    "plan_candidates": "shots.candidates", "RankedShot": "shots.candidates", "score_shots": "shots.candidate_scores",
+    "plan_multistop": "shots.multistop", "MultiStopShot": "shots.multistop",
+    "Shot": "shots.shot", "TimingConfig": "trajectory.timing", "TrajectoryConfig": "trajectory.qp", "DynamicLimits": "trajectory.dynamics",
+    "retime_shot": "trajectory.dynamics", "ScoreConfig": "shots.scoring",
+    "safety_report": "shots.safety", "verify_shot": "shots.safety", "plot_clearance": "shots.safety", "plot_paths_topdown": "shots.safety",
+    "shot_to_camera_path": "shots.camera_path", "write_camera_path": "shots.camera_path", "read_camera_path": "shots.camera_path",
+    "clearance": "geometry.distance", "build_corridor": "corridor.safe_corridor", "Corridor": "corridor.safe_corridor",
+    "atomic_write": "atomic", "SplatParams": "scene.splat_params",
     "PlanningError": "errors", "InvalidInputError": "errors", "GoalUnreachableError": "errors",
     "StartInCollisionError": "errors", "UnsafeTrajectoryError": "errors", "EmptySceneError": "errors",
 }

@@ -15,13 +15,13 @@ from typing import Any, Dict, Tuple
 
 import numpy as np
 
-from cinenerf_ns.planner.camera_path import (
+from cinenerf_ns.planner.errors import InvalidInputError
+from cinenerf_ns.planner.shots.camera_path import (
     DEFAULT_PREVIEW_FPS,
     DEFAULT_PREVIEW_SIZE,
     camera_path_poses,
     validate_camera_path,
 )
-from cinenerf_ns.planner.errors import InvalidInputError
 
 MIN_SIZE, MAX_SIZE = 16, 4096
 MIN_FPS, MAX_FPS = 1.0, 120.0

@@ -14,7 +14,7 @@ from typing import Optional, Sequence
 
 from rich.console import Console
 
-from cinenerf_ns.planner.camera_path import DEFAULT_PREVIEW_FPS, DEFAULT_PREVIEW_SIZE
+from cinenerf_ns.planner.shots.camera_path import DEFAULT_PREVIEW_FPS, DEFAULT_PREVIEW_SIZE
 from cinenerf_ns.preview.cameras import MAX_FPS, MAX_SIZE, MIN_FPS, MIN_SIZE
 
 
@@ -40,8 +40,8 @@ def _parser() -> argparse.ArgumentParser:
 
 def _check_args(ap: argparse.ArgumentParser, a: argparse.Namespace):
     """Validate everything before writing: returns (splat, camera-path dict); calls ap.error (exit 2) otherwise."""
-    from cinenerf_ns.planner.camera_path import read_camera_path
     from cinenerf_ns.planner.errors import InvalidInputError
+    from cinenerf_ns.planner.shots.camera_path import read_camera_path
     from cinenerf_ns.preview.cameras import path_cameras
 
     for opt, v in (("--width", a.width), ("--height", a.height)):

@@ -9,9 +9,9 @@ import numpy as np
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from cinenerf_ns.planner.camera_path import DEFAULT_PREVIEW_FPS, DEFAULT_PREVIEW_SIZE, read_camera_path
 from cinenerf_ns.planner.errors import InvalidInputError
-from cinenerf_ns.planner.splat_params import SplatParams
+from cinenerf_ns.planner.scene.splat_params import SplatParams
+from cinenerf_ns.planner.shots.camera_path import DEFAULT_PREVIEW_FPS, DEFAULT_PREVIEW_SIZE, read_camera_path
 
 from .cameras import PreviewCameras, path_cameras
 from .raster_torch import PreviewScene

@@ -12,7 +12,7 @@ import torch
 from torch import Tensor
 
 from cinenerf_ns.planner.errors import InvalidInputError
-from cinenerf_ns.planner.splat_params import SplatParams
+from cinenerf_ns.planner.scene.splat_params import SplatParams
 
 from . import native
 from .raster_torch import EPS2D, NEAR_PLANE, PreviewScene, make_scene, render_torch

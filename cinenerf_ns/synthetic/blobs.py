@@ -1,7 +1,7 @@
 """A second procedural scene family for benchmarks that cannot flatter the planner (issue 23): walls plus randomly
 placed round blobs of Gaussians, y up, about [-1, 1]^3.
 
-Different statistics from planner/procedural.py's room (z up, thin surface discs, 6 furniture objects on a grid):
+Different statistics from planner/scene/procedural.py's room (z up, thin surface discs, 6 furniture objects on a grid):
   - y is up: a floor at y = -1 and three walls (x = -1, x = +1, z = -1); the z = +1 side and the top are open, so the
     free space is not a closed room (the planner's component choice must rely on the start region);
   - blobs are volumes, not surfaces: each is a ball of Gaussians (70% in a noisy shell, 30% filling it) with random
@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from cinenerf_ns.planner.errors import InvalidInputError
-from cinenerf_ns.planner.splat_params import SplatParams
+from cinenerf_ns.planner.scene.splat_params import SplatParams
 
 
 @dataclass

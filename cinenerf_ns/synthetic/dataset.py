@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from PIL import Image
 
-from cinenerf_ns.planner.ply import read_ply_vertices, write_ply_vertices
+from cinenerf_ns.planner.scene.ply import read_ply_vertices, write_ply_vertices
 from cinenerf_ns.synthetic.cameras import CameraSamplingConfig, sample_cameras
 from cinenerf_ns.synthetic.generate import RoomConfig, generate_room
 from cinenerf_ns.synthetic.render import Intrinsics, RoomRenderer

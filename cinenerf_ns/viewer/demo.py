@@ -9,7 +9,7 @@ from typing import List, Tuple
 import numpy as np
 
 from cinenerf_ns.planner.errors import InvalidInputError
-from cinenerf_ns.planner.splat_params import SplatParams, rgb_to_dc
+from cinenerf_ns.planner.scene.splat_params import SplatParams, rgb_to_dc
 
 UP = np.array([0.0, 0.0, 1.0])
 

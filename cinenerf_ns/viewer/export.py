@@ -3,7 +3,7 @@
 Files go where nerfstudio's render panel writes them: ``<data>/camera_paths/<name>.json``
 (``nerfstudio/viewer/render_panel.py``), so the Render tab lists them.
 
-The JSON itself is the planner's (``cinenerf_ns.planner.camera_path``: one source of truth for the keys
+The JSON itself is the planner's (``cinenerf_ns.planner.shots.camera_path``: one source of truth for the keys
 nerfstudio reads: ``get_path_from_json``'s camera_path[i].camera_to_world/fov/aspect, render_height/width,
 camera_type, seconds; the Render tab's keyframes[i].matrix/fov/aspect and transitions); files are written
 atomically by its ``write_camera_path``.
@@ -36,14 +36,14 @@ def check_export_name(name: str) -> str:
 
 def default_exporter() -> Exporter:
     """The planner's camera-path exporter (shot, fov_deg, width, height, fps) -> dict."""
-    from cinenerf_ns.planner.camera_path import shot_to_camera_path
+    from cinenerf_ns.planner.shots.camera_path import shot_to_camera_path
 
     return lambda shot, fov, w, h, fps: shot_to_camera_path(shot, fov_deg=fov, width=w, height=h, fps=fps)
 
 def write_json_atomic(path: Path, data: Dict[str, Any]) -> Path:
     """Write JSON so readers never see a half-written file (the planner's ``write_camera_path``: serialised
     fully first, temp file beside it, fsync, ``os.replace``)."""
-    from cinenerf_ns.planner.camera_path import write_camera_path
+    from cinenerf_ns.planner.shots.camera_path import write_camera_path
 
     return write_camera_path(path, data)
 

@@ -35,8 +35,8 @@ import numpy as np
 import torch
 
 from cinenerf_ns.method.training_cameras import camera_box
-from cinenerf_ns.planner.scene import EllipsoidScene, SceneConfig
-from cinenerf_ns.planner.splat_params import SplatParams, rgb_to_dc
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
+from cinenerf_ns.planner.scene.splat_params import SplatParams, rgb_to_dc
 
 from .backend import LocateFn, SceneGaussians
 from .conventions import VISER_NERFSTUDIO_SCALE_RATIO
@@ -68,7 +68,7 @@ def attach_to_nerfstudio_viewer(
         cams = backend.camera_centres = train_camera_centres(viewer)  # the volume centre fills what no camera saw
         region = None if cams is None else camera_box(cams)
         if region is not None and getattr(backend.planner_config, "start_region", None) is None:
-            from cinenerf_ns.planner.planner import PlannerConfig
+            from cinenerf_ns.planner.shots.planner import PlannerConfig
 
             base = backend.planner_config or PlannerConfig(candidate_workers=0)  # PreparedPlanner's default
             if isinstance(base, PlannerConfig):

@@ -10,20 +10,20 @@ from typing import Any, Dict, List, Optional, Protocol, Sequence, Tuple, runtime
 
 import numpy as np
 
-from cinenerf_ns.planner.camera_path import (
+from cinenerf_ns.planner.shots.camera_path import (
     DEFAULT_FOV_DEG,
     DEFAULT_PREVIEW_FPS,
     DEFAULT_PREVIEW_SIZE,
     DEFAULT_RENDER_SIZE,
 )
-from cinenerf_ns.planner.timing import TimingConfig
+from cinenerf_ns.planner.trajectory.timing import TimingConfig
 
 from .backend import SceneGaussians
 
 
 @runtime_checkable
 class ShotLike(Protocol):
-    """What the panel reads from a planned shot (``cinenerf_ns.planner.shot.Shot`` satisfies it).
+    """What the panel reads from a planned shot (``cinenerf_ns.planner.shots.shot.Shot`` satisfies it).
 
     Required: ``times`` [T] seconds, increasing; ``positions`` [T, 3]; ``rotations`` [T, 3, 3]
     camera-to-world rotations, nerfstudio convention (camera looks along -z, y up).

@@ -1,4 +1,4 @@
-"""The real planner (``cinenerf_ns.planner.planner.Planner``) as the panel's ``plan`` callable.
+"""The real planner (``cinenerf_ns.planner.shots.planner.Planner``) as the panel's ``plan`` callable.
 
 One :class:`PreparedPlanner` per obstacle scene: ``prepare()`` (spatial index, occupancy grid, free
 components) runs once, optionally on a background thread so the viewer's UI stays responsive; the
@@ -18,8 +18,8 @@ from typing import Any, Callable, List, Optional
 import numpy as np
 
 from cinenerf_ns.planner.errors import PlanningError
-from cinenerf_ns.planner.planner import Planner, PlannerConfig
-from cinenerf_ns.planner.scene import EllipsoidScene
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
+from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
 
 StatusFn = Callable[[str, str], None]  # (text, level "busy" | "ok" | "error")
 
@@ -117,7 +117,7 @@ class PreparedPlanner:
         with self._plan_lock:
             if start is None and int(n_candidates) > 1:
                 # random starts: the batched candidates, ranked (best first) by the documented shot score
-                from cinenerf_ns.planner.candidates import plan_candidates
+                from cinenerf_ns.planner.shots.candidates import plan_candidates
 
                 ranked = plan_candidates(self.planner, pt(goal), pt(look_at), k=int(n_candidates), seed=int(seed))
                 shots = []

@@ -1,7 +1,7 @@
 """``cinesplat-viewer``: the cinematography panel on a plain viser server, no GPU needed.
 
 The splat is drawn client-side by the browser (viser's Gaussian-splat node); planning runs on the
-``--device`` (CPU by default) with the real planner (``cinenerf_ns.planner.planner.Planner``).
+``--device`` (CPU by default) with the real planner (``cinenerf_ns.planner.shots.planner.Planner``).
 
     cinesplat-viewer --load-config outputs/<run>/cinesplat/<ts>/config.yml   # or the run folder / a .ckpt
     cinesplat-viewer --load-config scene_compact.pt   # a compact export (method.checkpoint.export_compact)
@@ -26,11 +26,11 @@ from typing import Any, List, Optional, Tuple
 import numpy as np
 
 from cinenerf_ns.planner.errors import InvalidInputError, PlanningError
-from cinenerf_ns.planner.planner import PlannerConfig
-from cinenerf_ns.planner.ply import read_splat_ply
-from cinenerf_ns.planner.scene import DEFAULT_SAFETY_MARGIN, EllipsoidScene, SceneConfig, quat_wxyz_to_rotmat
-from cinenerf_ns.planner.splat_params import NO_COLOUR_GREY, SplatParams
-from cinenerf_ns.planner.timing import TimingConfig
+from cinenerf_ns.planner.scene.ellipsoids import DEFAULT_SAFETY_MARGIN, EllipsoidScene, SceneConfig, quat_wxyz_to_rotmat
+from cinenerf_ns.planner.scene.ply import read_splat_ply
+from cinenerf_ns.planner.scene.splat_params import NO_COLOUR_GREY, SplatParams
+from cinenerf_ns.planner.shots.planner import PlannerConfig
+from cinenerf_ns.planner.trajectory.timing import TimingConfig
 
 from .backend import FunctionBackend, LocateFn, PlanFn, SceneGaussians, label_locate, to_numpy
 from .conventions import VISER_NERFSTUDIO_SCALE_RATIO
@@ -255,8 +255,8 @@ class StandaloneViewer:
                  plan_fn: Optional[PlanFn] = None) -> None:
         import viser
 
-        from cinenerf_ns.planner.planner import PlannerConfig
-        from cinenerf_ns.planner.timing import TimingConfig
+        from cinenerf_ns.planner.shots.planner import PlannerConfig
+        from cinenerf_ns.planner.trajectory.timing import TimingConfig
 
         from .panel import PanelConfig
         from .planner_backend import PreparedPlanner
@@ -345,7 +345,7 @@ def check_config(cfg: StandaloneConfig) -> None:
     """The options' ranges, before the scene is loaded (messages name the option); the scene-relative checks (camera
     radius against the scene, grid against memory) follow in the planner, shown in the status line."""
     from cinenerf_ns.options import check_number
-    from cinenerf_ns.planner.planner import GRID_RESOLUTION_RANGE, MAX_CANDIDATES
+    from cinenerf_ns.planner.shots.planner import GRID_RESOLUTION_RANGE, MAX_CANDIDATES
 
     if not isinstance(cfg.load_config, str) or not cfg.load_config.strip():
         raise InvalidInputError("--load-config is empty: give a run's config.yml, a compact export, a .ply, "

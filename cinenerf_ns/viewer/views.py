@@ -12,7 +12,7 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from cinenerf_ns.planner.camera_path import DEFAULT_FOV_DEG
+from cinenerf_ns.planner.shots.camera_path import DEFAULT_FOV_DEG
 
 UP = np.array([0.0, 0.0, 1.0])
 

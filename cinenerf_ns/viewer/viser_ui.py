@@ -14,7 +14,7 @@ from typing import Any, Dict, List, Optional, Tuple
 import numpy as np
 import viser
 
-from cinenerf_ns.planner.camera_path import DEFAULT_FOV_DEG, DEFAULT_PREVIEW_SIZE, DEFAULT_RENDER_SIZE
+from cinenerf_ns.planner.shots.camera_path import DEFAULT_FOV_DEG, DEFAULT_PREVIEW_SIZE, DEFAULT_RENDER_SIZE
 
 from .backend import to_numpy
 from .conventions import VISER_NERFSTUDIO_SCALE_RATIO, nerfstudio_c2w_to_viser, viser_to_world

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from benchmarks.scene_families import GIVEN_CLEAR, GIVEN_FROM_GOAL, given_starts, load_family
-from cinenerf_ns.planner.planner import Planner, PlannerConfig
+from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
 
 
 @pytest.mark.parametrize("family", ["procedural", "blobs"])

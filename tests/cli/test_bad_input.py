@@ -92,8 +92,8 @@ def _scene_file_cases(tmp: Path):
     (tmp / "noise.ply").write_bytes(os.urandom(512))
     (tmp / "notes.txt").write_text("not a scene")
     (tmp / "empty_dir").mkdir()
-    from cinenerf_ns.planner.ply import write_splat_ply
-    from cinenerf_ns.planner.procedural import procedural_room
+    from cinenerf_ns.planner.scene.ply import write_splat_ply
+    from cinenerf_ns.planner.scene.procedural import procedural_room
 
     r = procedural_room(1000, seed=2)
     pts = write_splat_ply(tmp / "room.ply", r.means.numpy(), r.quats.numpy(), r.log_scales.numpy(),
@@ -146,8 +146,8 @@ def object_point():
     """A point deep inside one of the test room's Gaussians (a start in collision)."""
     import torch
 
-    from cinenerf_ns.planner.procedural import procedural_room
-    from cinenerf_ns.planner.scene import EllipsoidScene
+    from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
+    from cinenerf_ns.planner.scene.procedural import procedural_room
 
     s = procedural_room(3000, seed=1)
     e = EllipsoidScene.from_splat(s.means, s.quats, s.log_scales, s.opacity_logits)

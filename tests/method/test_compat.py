@@ -120,7 +120,7 @@ def test_seed_points_load_without_open3d(tmp_path):
     from nerfstudio.data.dataparsers.nerfstudio_dataparser import Nerfstudio
 
     import cinenerf_ns.method.datamanager  # noqa: F401  (installs the patch)
-    from cinenerf_ns.planner.ply import write_ply_vertices
+    from cinenerf_ns.planner.scene.ply import write_ply_vertices
 
     try:
         import open3d  # noqa: F401

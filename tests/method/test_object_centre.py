@@ -7,7 +7,7 @@ import torch
 from hypothesis import assume, example, given, settings, strategies as st
 
 from cinenerf_ns.method.object_centre import enclosed_voxels, neighbour_spacing, up_frame, volume_centroid
-from cinenerf_ns.planner.scene import quat_wxyz_to_rotmat
+from cinenerf_ns.planner.scene.ellipsoids import quat_wxyz_to_rotmat
 
 RAYS = [(1, 0), (2, 1), (1, 1), (1, 2), (0, 1), (-1, 2), (-1, 1), (-2, 1),
         (-1, 0), (-2, -1), (-1, -1), (-1, -2), (0, -1), (1, -2), (1, -1), (2, -1)]

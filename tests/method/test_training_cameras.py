@@ -75,7 +75,7 @@ def test_add_camera_centres_script_keeps_the_arrays(tmp_path, suffix):
     from pathlib import Path
 
     from cinenerf_ns.method.checkpoint import SplatCheckpoint, export_compact, load_compact
-    from cinenerf_ns.planner.splat_params import SplatParams
+    from cinenerf_ns.planner.scene.splat_params import SplatParams
 
     spec = importlib.util.spec_from_file_location("acc", Path(__file__).resolve().parents[2] / "scripts" / "add_camera_centres.py")
     acc = importlib.util.module_from_spec(spec)

@@ -30,7 +30,7 @@ def random_rotations(rng: np.random.Generator, n: int) -> np.ndarray:
 
 
 def make_scene(means, rotations, radii, camera_radius):
-    from cinenerf_ns.planner.scene import EllipsoidScene
+    from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
 
     means = torch.as_tensor(np.asarray(means), dtype=torch.float64)
     return EllipsoidScene(

@@ -5,7 +5,7 @@ import math
 
 import torch
 
-from cinenerf_ns.planner.scene import EllipsoidScene, quat_wxyz_to_rotmat
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, quat_wxyz_to_rotmat
 
 # The test box has 2 cores shared by several jobs: multi-threaded torch ops stall waiting for busy
 # threads (10-50x slower on small tensors). Geometry tests are small, so one thread.

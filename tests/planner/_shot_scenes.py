@@ -2,7 +2,7 @@
 import numpy as np
 import torch
 
-from cinenerf_ns.planner.scene import EllipsoidScene
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
 
 TARGET = np.array([0.5, 0.0, 0.3])
 TARGET_RADIUS = 0.08

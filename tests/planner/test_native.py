@@ -10,9 +10,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 from test_astar import check_path, random_case
 
-from cinenerf_ns.planner import coarse_path, native
-from cinenerf_ns.planner.astar import AStarGrid, SearchBudgetExhausted, astar, path_cost
+from cinenerf_ns.planner import native
 from cinenerf_ns.planner.errors import GoalUnreachableError
+from cinenerf_ns.planner.search import coarse_path
+from cinenerf_ns.planner.search.astar import AStarGrid, SearchBudgetExhausted, astar, path_cost
 
 SETTINGS = dict(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
@@ -63,8 +64,8 @@ def test_kept_workspace_gives_the_fresh_search_every_time():
     """Large grids search with a workspace kept between calls (astar26.c: search26_ws); stamps left by earlier
     searches (found, exhausted, Dijkstra to a set) must not change any later one: the same path as a fresh grid's
     Python A*, also across the generation wrap-around."""
-    from cinenerf_ns.planner.astar import WORKSPACE_MIN_VOXELS
-    from cinenerf_ns.planner.coarse_path import _mcp_path
+    from cinenerf_ns.planner.search.astar import WORKSPACE_MIN_VOXELS
+    from cinenerf_ns.planner.search.coarse_path import _mcp_path
 
     rng = np.random.default_rng(3)
     occ = rng.random((34, 33, 30)) < 0.3
@@ -155,8 +156,8 @@ def _run(code: str, **env) -> str:
 PROBE = (
     "import numpy as np\n"
     "from cinenerf_ns.planner import native\n"
-    "from cinenerf_ns.planner.astar import astar\n"
-    "from cinenerf_ns.planner.coarse_path import _mcp_path\n"
+    "from cinenerf_ns.planner.search.astar import astar\n"
+    "from cinenerf_ns.planner.search.coarse_path import _mcp_path\n"
     "occ = np.zeros((6, 6, 6), bool); occ[3, :, :5] = True\n"
     "print(len(astar(occ, (0, 0, 0), (5, 0, 0))), len(_mcp_path(np.where(occ, np.inf, 1.0), (0, 0, 0), np.array([[5, 0, 0]]))))\n"
     "print(native.astar26() is None, native.native_status().get('astar26'))\n"
@@ -173,9 +174,9 @@ def test_turned_off_falls_back_to_python(tmp_path):
 POLY_PROBE = (
     "import numpy as np, torch\n"
     "from cinenerf_ns.planner import native\n"
-    "from cinenerf_ns.planner.polytope import safe_polytope\n"
-    "from cinenerf_ns.planner.scene import EllipsoidScene\n"
-    "from cinenerf_ns.planner.spatial_index import GridIndex\n"
+    "from cinenerf_ns.planner.corridor.polytope import safe_polytope\n"
+    "from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene\n"
+    "from cinenerf_ns.planner.scene.spatial_index import GridIndex\n"
     "s = EllipsoidScene(torch.tensor([[0.3, 0, 0]]).double(), torch.eye(3)[None].double(), torch.full((1, 3), 0.1).double(),\n"
     "                   torch.ones(1).double(), 0.03)\n"
     "P = safe_polytope(np.zeros((1, 3)), s, GridIndex.build(s), -np.ones(3), np.ones(3))\n"

@@ -40,7 +40,7 @@ def intrinsics(width: int, height: int, fov_deg: float = 50.0):
 
 def random_splat(seed: int = 0, n: int = 300, spread: float = 1.0):
     """A SplatParams (log scales, logit opacities, SH DC colour) around the origin."""
-    from cinenerf_ns.planner.splat_params import SH_C0, SplatParams
+    from cinenerf_ns.planner.scene.splat_params import SH_C0, SplatParams
 
     m, q, s, o, c = random_gaussians(seed, n, spread=spread, depth=0.0, scale=(0.02, 0.2))
     return SplatParams.of(m.float(), q.float(), torch.log(s).float(), torch.logit(o.clamp(0.05, 0.99)).float(),
@@ -50,9 +50,9 @@ def random_splat(seed: int = 0, n: int = 300, spread: float = 1.0):
 def orbit_camera_path(n: int = 31, fps: float = 30.0, fov: float = 50.0, width: int = 1280, height: int = 720,
                       radius: float = 3.0, seed: int = 0):
     """Camera-path dict of n frames on a wobbly orbit looking at the origin (the planner's Shot export)."""
-    from cinenerf_ns.planner.camera_path import shot_to_camera_path
-    from cinenerf_ns.planner.orientation import look_at_rotations
-    from cinenerf_ns.planner.shot import Shot
+    from cinenerf_ns.planner.shots.camera_path import shot_to_camera_path
+    from cinenerf_ns.planner.shots.shot import Shot
+    from cinenerf_ns.planner.trajectory.orientation import look_at_rotations
 
     rng = np.random.default_rng(seed)
     t = np.arange(n) / fps

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from cinenerf_ns.planner.camera_path import camera_path_poses
 from cinenerf_ns.planner.errors import InvalidInputError
+from cinenerf_ns.planner.shots.camera_path import camera_path_poses
 from cinenerf_ns.preview.cameras import check_size, frame_indices, path_cameras, viewmat_from_c2w
 
 sys.path.insert(0, str(Path(__file__).parent))

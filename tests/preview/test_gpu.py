@@ -16,7 +16,7 @@ import pytest
 import torch
 
 from cinenerf_ns.method.checkpoint import load_splat
-from cinenerf_ns.planner.orientation import look_at_rotations
+from cinenerf_ns.planner.trajectory.orientation import look_at_rotations
 from cinenerf_ns.preview import native, path_cameras, preview_camera_path, scene_from_splat
 from cinenerf_ns.preview.render import render_gsplat, render_premultiplied
 from cinenerf_ns.scenes import DEMO_SCENE

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from cinenerf_ns.planner.errors import InvalidInputError
-from cinenerf_ns.planner.scene import quat_wxyz_to_rotmat
+from cinenerf_ns.planner.scene.ellipsoids import quat_wxyz_to_rotmat
 from cinenerf_ns.synthetic.blobs import blob_scene
 
 

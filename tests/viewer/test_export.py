@@ -9,7 +9,7 @@ import torch
 from viewer_fakes import line_shot
 
 from cinenerf_ns.planner.errors import InvalidInputError
-from cinenerf_ns.planner.shot import Shot
+from cinenerf_ns.planner.shots.shot import Shot
 from cinenerf_ns.viewer.export import check_export_name, default_exporter, render_command, write_json_atomic
 
 camera_path_from_shot = default_exporter()  # what the panel exports with (the planner's camera_path)

@@ -13,7 +13,7 @@ import pytest
 import torch
 from torch import nn
 
-from cinenerf_ns.planner.splat_params import SplatParams
+from cinenerf_ns.planner.scene.splat_params import SplatParams
 from cinenerf_ns.viewer.nerfstudio_panel import CinePanelControl, LockedBackend, SplatModelBackend
 from cinenerf_ns.viewer.panel import CinePanel, PanelBackend
 from cinenerf_ns.viewer.planner_backend import PreparedPlanner
@@ -149,7 +149,7 @@ def test_attach_gives_the_model_backend_the_training_cameras_as_start_region(tmp
     do; a backend whose planner config already has a region keeps it, and a viewer without cameras sets none."""
     import viser
 
-    from cinenerf_ns.planner.planner import PlannerConfig
+    from cinenerf_ns.planner.shots.planner import PlannerConfig
     from cinenerf_ns.viewer.nerfstudio_panel import attach_to_nerfstudio_viewer
 
     t = torch.tensor([[0.1, -0.2, 0.3], [0.5, 0.4, -0.1], [-0.3, 0.0, 0.2]])
@@ -288,7 +288,7 @@ def test_model_semantic_scene_gets_the_training_cameras():
 def test_model_backend_plans_with_the_safety_margin():
     """The ns-viewer panel keeps cinesplat-plan's and cinesplat-viewer's distance from the scene: the camera radius
     plus the safety margin (it planned with the bare radius)."""
-    from cinenerf_ns.planner.scene import DEFAULT_SAFETY_MARGIN, SceneConfig
+    from cinenerf_ns.planner.scene.ellipsoids import DEFAULT_SAFETY_MARGIN, SceneConfig
 
     scene, _ = SplatModelBackend(TinySplatModel(), Planners())._current("planner")
     assert scene.camera_radius == pytest.approx(SceneConfig.camera_radius + DEFAULT_SAFETY_MARGIN)

@@ -303,7 +303,7 @@ def test_candidate_labels_show_duration_clearance_and_optional_score(tmp_path):
 
     def ranked(*a, **k):
         shots = orig(*a, **k)
-        shots[1].score = 0.25  # a ranked planner (planner/candidates.py) sets .score; the others do not
+        shots[1].score = 0.25  # a ranked planner (planner/shots/candidates.py) sets .score; the others do not
         shots[2].clearance = None  # only the planner's dense verification
         shots[2].safety = {"min_exact_clearance": 0.0123, "safe": True}
         return shots

@@ -11,8 +11,8 @@ import pytest
 import torch
 
 from cinenerf_ns.planner.errors import InvalidInputError, StartInCollisionError
-from cinenerf_ns.planner.procedural import procedural_room
-from cinenerf_ns.planner.scene import EllipsoidScene, SceneConfig
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
+from cinenerf_ns.planner.scene.procedural import procedural_room
 from cinenerf_ns.viewer.backend import NoMatchError, label_locate, parse_point
 from cinenerf_ns.viewer.demo import demo_scene, look_at_rotation
 from cinenerf_ns.viewer.planner_backend import PreparedPlanner
@@ -41,7 +41,7 @@ def densify(pos, step=0.01):
 def room():
     r = procedural_room(2000, seed=0)
     scene = EllipsoidScene.from_splat(r.means, r.quats, r.log_scales, r.opacity_logits, SceneConfig())
-    from cinenerf_ns.planner.planner import PlannerConfig
+    from cinenerf_ns.planner.shots.planner import PlannerConfig
 
     cfg = PlannerConfig(grid_resolution=48, start_region=(r.free_lo + 0.03, r.free_hi - 0.03))
     statuses = []
@@ -103,7 +103,7 @@ def test_torch_inputs_and_errors_pass_through(room):
 
 
 def test_prepare_failure_is_reported_and_raised_by_plan():
-    from cinenerf_ns.planner.planner import PlannerConfig
+    from cinenerf_ns.planner.shots.planner import PlannerConfig
 
     r = procedural_room(500, seed=1)
     scene = EllipsoidScene.from_splat(r.means, r.quats, r.log_scales, r.opacity_logits, SceneConfig())

@@ -16,7 +16,7 @@ import torch
 import yaml
 
 from cinenerf_ns.planner.errors import InvalidInputError
-from cinenerf_ns.planner.splat_params import SH_C0, SplatParams
+from cinenerf_ns.planner.scene.splat_params import SH_C0, SplatParams
 from cinenerf_ns.viewer.demo import demo_scene
 from cinenerf_ns.viewer.standalone import StandaloneConfig, StandaloneViewer, display_gaussians, load_scene
 
@@ -30,7 +30,7 @@ def free_port() -> int:
 
 
 def write_3dgs_ply(path: Path, d) -> None:
-    from cinenerf_ns.planner.ply import write_ply_vertices
+    from cinenerf_ns.planner.scene.ply import write_ply_vertices
 
     n = len(d.means)
     names = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",
@@ -81,7 +81,7 @@ def test_bad_sources(tmp_path):
     (tmp_path / "x.txt").write_text("hi")
     with pytest.raises(InvalidInputError, match="expected a config.yml"):
         load_scene(str(tmp_path / "x.txt"))
-    from cinenerf_ns.planner.ply import write_ply_vertices
+    from cinenerf_ns.planner.scene.ply import write_ply_vertices
 
     write_ply_vertices(tmp_path / "pts.ply", np.zeros(3, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")]))
     with pytest.raises(InvalidInputError, match="not a Gaussian splat .ply"):
@@ -89,7 +89,7 @@ def test_bad_sources(tmp_path):
 
 
 def room_splat():
-    from cinenerf_ns.planner.procedural import procedural_room
+    from cinenerf_ns.planner.scene.procedural import procedural_room
     from cinenerf_ns.scenes import procedural_params
 
     room = procedural_room(2000, seed=0)
@@ -175,7 +175,7 @@ def test_standalone_compact_scene_answers_text_by_relevancy(tmp_path):
               "clip": None},
     )
     path = export_compact(st, tmp_path / "scene_compact.pt", half=False)
-    from cinenerf_ns.planner.scene import SceneConfig
+    from cinenerf_ns.planner.scene.ellipsoids import SceneConfig
     from cinenerf_ns.scenes import load_scene as cli_load
 
     v = viewer_for(str(path), tmp_path, data=tmp_path / "out")

@@ -7,7 +7,7 @@ from typing import Any, List, Optional
 
 import numpy as np
 
-from cinenerf_ns.planner.shot import Shot
+from cinenerf_ns.planner.shots.shot import Shot
 from cinenerf_ns.viewer.backend import NoMatchError, SceneGaussians
 from cinenerf_ns.viewer.demo import look_at_rotation
 

@@ -1,0 +1,52 @@
+"""How a planner's requests build their corridors: PlannerConfig.corridor_backend and grid_polytopes resolved for
+the prepared scene and this process, and the keyword arguments of corridor.build_corridor that follow from them.
+Functions of a prepared Planner (planner.py), which exposes them as methods."""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import torch
+
+from ..shots.workers import in_worker
+
+if TYPE_CHECKING:
+    from ..shots.planner import Planner
+
+GRID_POLYTOPE_MAX_VOXEL = 2.0
+"""PlannerConfig.grid_polytopes 'auto': grid polytopes when voxel_size <= this x camera_radius (between a ratio where
+they were a win and one where they were a loss: docs/PLANNER_DEFAULTS.md)."""
+
+
+def corridor_backend(planner: "Planner") -> str:
+    """config.corridor_backend resolved for this process: 'batched' or 'cpu' ('auto': batched on a CUDA scene; always
+    'cpu' inside a forked candidate worker, where CUDA cannot be used)."""
+    b = planner.config.corridor_backend
+    scene = planner.batch_scene
+    if in_worker() or (b == "batched" and scene.device.type == "cuda" and torch.cuda._is_in_bad_fork()):
+        return "cpu"
+    if b == "auto":
+        return "batched" if scene.device.type == "cuda" else "cpu"
+    return b
+
+
+def use_grid_polytopes(planner: "Planner") -> bool:
+    """config.grid_polytopes resolved for the prepared grid ('auto': voxel_size <= GRID_POLYTOPE_MAX_VOXEL x the
+    camera radius)."""
+    g = planner.config.grid_polytopes
+    if g == "auto":
+        return float(planner.ready().grid.voxel_size) <= GRID_POLYTOPE_MAX_VOXEL * float(planner.scene.camera_radius)
+    return bool(g)
+
+
+def corridor_kwargs(planner: "Planner") -> dict:
+    """Keyword arguments of build_corridor (after waypoints, scene, index) for the planner's requests: the box margin,
+    the planning region, the grid's voxels when grid polytopes are on, and the resolved corridor backend (the batched
+    one runs on ``batch_scene`` / its index; the corridor's polytopes end up on the request device)."""
+    prep = planner.ready()
+    kw = dict(box_margin=planner.config.box_margin, region=planner.region())
+    if use_grid_polytopes(planner):
+        kw["grid"] = prep.voxels
+    if corridor_backend(planner) == "batched":
+        bidx = prep.batch_index if prep.batch_index is not None else prep.index
+        kw.update(backend="batched", batch_scene=planner.batch_scene, batch_index=bidx)
+    return kw

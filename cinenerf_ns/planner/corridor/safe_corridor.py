@@ -1,0 +1,336 @@
+"""Safe flight corridor: one safe polytope per segment of a (shortcut) polyline (issue 3, item 5).
+
+Polytope m is seeded by the whole segment [w_m, w_{m+1}] (both endpoints, hence the segment, inside),
+in a local box = segment bounding box grown by ``box_margin``. Consecutive polytopes share the
+waypoint w_{m+1}, so their intersection is never empty; we also measure how much room it has
+(Chebyshev radius of P_m ∩ P_{m+1}: a cheap lower bound first, the LP only when that is small),
+because C1/C2 Bezier joins want control points on both sides of the junction. The straight polyline
+itself is always a feasible trajectory of the corridor, so a thin junction only costs smoothness,
+never safety or feasibility; it is reported (``thin_joints``) and warned about.
+
+A segment that no polytope can contain (it grazes an obstacle closer than the camera radius: the
+per-ellipsoid planes are tangent to the inflated ellipsoid, so for a segment outside every inflated
+ellipsoid this is rare) is split at its midpoint and retried, up to ``max_split_depth`` times.
+
+``backend="batched"`` builds the polytopes of all segments in one batched torch computation
+(polytope_batched.py; on a GPU scene + index this is one set of big kernels instead of a host loop per
+segment), possibly on another copy of the scene (``batch_scene``/``batch_index``, e.g. the planner's GPU
+scene while requests use a CPU mirror). Segments it flags (no polytope found around them) go through the
+host path above, splitting included, so both backends cover the same segments with the same guarantee.
+
+``grid`` (a grid_polytope.VoxelObstacles of the planner's occupancy grid): segments that lie in free voxels get a
+polytope built from the grid's surface voxels instead (grid_polytope.py: same guarantee, no Gaussian query, a
+fraction of the cost, up to about a voxel more conservative); only the other segments (typically the last one,
+ending next to the go-to object) need Prop-2 polytopes from either backend.
+"""
+from __future__ import annotations
+
+import inspect
+import warnings
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ..errors import InvalidInputError, PlanningError
+from .polytope import Polytope, SeedNotFreeError, chebyshev_center, safe_polytope
+from .polytope_batched import safe_polytopes_batched
+
+
+class CorridorError(PlanningError):
+    """A path segment stays within the camera radius of the scene even after splitting."""
+
+
+@dataclass
+class Corridor:
+    """Polytopes P_0..P_{M-1} around the segments of waypoints w_0..w_M (P_m contains [w_m, w_{m+1}])."""
+
+    polytopes: list[Polytope]
+    waypoints: Tensor  # [M+1, 3] float64
+    overlap_radius: Tensor = field(default=None)  # [M-1] lower bound of the Chebyshev radius of P_m ∩ P_{m+1}
+    thin_joints: list[int] = field(default_factory=list)  # m with overlap_radius[m] < min_overlap
+    n_splits: int = 0  # midpoint splits that were needed
+    n_host_segments: int = 0  # backend "batched": segments it flagged, built by the host path instead
+    n_grid_segments: int = 0  # segments whose polytope came from the occupancy grid (grid_polytope.py)
+    n_known_segments: int = 0  # segments that reused a ``known`` polytope (e.g. the goal's)
+    region: Optional[tuple] = None  # (lo [3], hi [3]) the planning region: every polytope is cut to it
+
+    def __len__(self) -> int:
+        return len(self.polytopes)
+
+    def constraints(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """[(A [F,3], b [F])] float64 numpy, one per segment (what the trajectory QP consumes). With a region each
+        polytope also gets the region's six faces: the curve (in the control points' hull) stays inside it."""
+        out = [p.to_numpy() for p in self.polytopes]
+        if self.region is None:
+            return out
+        lo, hi = (np.asarray(v, dtype=np.float64).reshape(3) for v in self.region)
+        box_a, box_b = np.vstack([np.eye(3), -np.eye(3)]), np.concatenate([hi, -lo])  # [6, 3], [6]
+        return [(np.vstack([a, box_a]), np.concatenate([b, box_b])) for a, b in out]
+
+    @property
+    def num_faces(self) -> list[int]:
+        return [p.num_faces for p in self.polytopes]
+
+
+def _segment_frame(p0: Tensor, p1: Tensor) -> Tensor:
+    """Orthonormal [3, 3] whose first column is the segment direction."""
+    u = p1 - p0
+    u = u / u.norm()
+    helper = torch.zeros_like(u)
+    helper[int(torch.argmin(u.abs()))] = 1.0
+    v = torch.linalg.cross(u, helper)
+    v = v / v.norm()
+    return torch.stack([u, v, torch.linalg.cross(u, v)], dim=1)
+
+
+def _segment_polytopes(p0, p1, scene, index, box_margin, depth, max_depth, kw, out, stats, seg_id, box):
+    seg = torch.stack([p0, p1])  # [2, 3]
+    if box == "oriented":
+        rot = _segment_frame(p0, p1)
+        sb = seg @ rot  # segment in box coordinates
+        lo, hi = sb.min(0).values - box_margin, sb.max(0).values + box_margin
+        kw = dict(kw, box_rotation=rot)
+    else:
+        lo = seg.min(0).values - box_margin
+        hi = seg.max(0).values + box_margin
+    try:
+        out.append((safe_polytope(seg, scene, index, lo, hi, **kw), p0, p1))
+        return
+    except SeedNotFreeError as e:
+        if depth >= max_depth:
+            raise CorridorError(
+                f"path segment {seg_id} ({p0.tolist()} -> {p1.tolist()}) passes within the camera radius of "
+                f"the scene (worst slack {e.min_slack:.3g}) even after {max_depth} splits; the initial path is "
+                f"not collision-free (check the occupancy grid / shortcut segment test)"
+            ) from e
+    stats["splits"] += 1
+    mid = 0.5 * (p0 + p1)
+    _segment_polytopes(p0, mid, scene, index, box_margin, depth + 1, max_depth, kw, out, stats, seg_id, box)
+    _segment_polytopes(mid, p1, scene, index, box_margin, depth + 1, max_depth, kw, out, stats, seg_id, box)
+
+
+def build_corridor(
+    waypoints,  # [K, 3]
+    scene,
+    index=None,
+    box_margin: float = 0.1,
+    *,
+    max_split_depth: int = 4,
+    min_overlap: float = 1e-3,
+    margin: float = 1e-6,
+    normal: str = "auto",
+    exact_overlap: bool = False,
+    box: str = "aabb",
+    backend: str = "cpu",
+    batch_scene=None,
+    batch_index=None,
+    grid=None,
+    known=(),
+    region=None,
+) -> Corridor:
+    """Corridor of safe polytopes along a polyline of camera centres.
+
+    waypoints: [K, 3] (K >= 2; repeated consecutive points are dropped). Returns a Corridor whose
+    ``waypoints`` [M+1, 3] include any midpoints added by splitting (M >= K-1 segments).
+    box_margin: each polytope lives in its segment's bounding box grown by this (scene units); larger
+    boxes give the QP more room but cost more planes.
+    min_overlap: junctions whose overlap (Chebyshev radius of P_m ∩ P_{m+1}) is below this are
+    reported in ``thin_joints`` with a warning. exact_overlap: always solve the LP (else only when the
+    cheap lower bound, the shared waypoint's distance to the nearest face of either polytope, is small).
+    box: "aabb" (segment bounding box + margin, axis-aligned) or "oriented" (box aligned with the
+    segment, margin on every side): far fewer candidate ellipsoids for long diagonal segments, so
+    faster, but less room for the trajectory away from the segment.
+    backend: "cpu" (one host ``safe_polytope`` per segment) or "batched" (``safe_polytopes_batched`` for
+    all segments at once on ``batch_scene`` / ``batch_index``, default ``scene`` / ``index``, which must
+    hold the same ellipsoids; flagged segments then take the host path with splitting; box "aabb" only).
+    grid: optional grid_polytope.VoxelObstacles; segments lying in its free voxels get grid polytopes (module
+    docstring), the rest go to the backend.
+    known: safe polytopes (of this scene) built earlier, e.g. the one the goal was projected onto; a segment with
+    both ends inside one of them (checked) takes it as its polytope, before the grid and the backend.
+    region: (lo [3], hi [3]) the planning region; Corridor.constraints() cuts every polytope to it.
+    Raises InvalidInputError (bad waypoints), CorridorError (a segment cannot be covered).
+    """
+    _check_options(box, box_margin, backend)
+    w = _prepared_waypoints(waypoints, scene.means.device)
+    kw = dict(margin=margin, normal=normal)
+    stats = {"splits": 0}
+    pre = _grid_polytopes([w], grid, box_margin, margin, box, known, stats)[0]
+    if backend == "batched":
+        batched = _batched_polytopes([w], scene, index, box_margin, margin, normal, batch_scene, batch_index, [pre])[0]
+        stats["host_segments"] = sum(p is None for p in batched)
+    else:
+        batched = pre
+    pieces = _path_pieces(w, batched, scene, index, box_margin, max_split_depth, kw, stats, box)
+    out = _assemble(pieces, stats, min_overlap, exact_overlap)
+    out.region = region
+    return out
+
+
+def build_corridors(waypoint_list, scene, index=None, **options) -> list:
+    """build_corridor for several polylines (the candidates of one request): a list, in order, of a Corridor or
+    the CorridorError that path raised. options: build_corridor's keyword arguments (box "aabb" only). With
+    backend "batched" the safe polytopes of ALL their segments come from ONE safe_polytopes_batched call (one GPU
+    computation for the whole request instead of one per candidate; each segment gets the polytope build_corridor
+    would give it alone); flagged segments take the host path with splitting, per path."""
+    defaults = {k: p.default for k, p in inspect.signature(build_corridor).parameters.items()
+                if p.default is not inspect.Parameter.empty and k != "index"}
+    unknown = set(options) - set(defaults)
+    if unknown:
+        raise InvalidInputError(f"build_corridors: unknown options {sorted(unknown)}")
+    o = {**defaults, **options}
+    if o["box"] != "aabb":
+        raise InvalidInputError("build_corridors supports box='aabb' only")
+    _check_options(o["box"], o["box_margin"], o["backend"])
+    ws = [_prepared_waypoints(wp, scene.means.device) for wp in waypoint_list]
+    kw = dict(margin=o["margin"], normal=o["normal"])
+    counts = [{} for _ in ws]
+    pre = _grid_polytopes(ws, o["grid"], o["box_margin"], o["margin"], "aabb", o["known"], counts)
+    if o["backend"] == "batched" and ws:
+        batched = _batched_polytopes(ws, scene, index, o["box_margin"], o["margin"], o["normal"], o["batch_scene"],
+                                     o["batch_index"], pre)
+    else:
+        batched = pre
+    out: list = []
+    for w, bp, cnt in zip(ws, batched, counts):
+        stats = {"splits": 0, "host_segments": sum(p is None for p in bp) if o["backend"] == "batched" else 0, **cnt}
+        try:
+            pieces = _path_pieces(w, bp, scene, index, o["box_margin"], o["max_split_depth"], kw, stats, "aabb")
+        except CorridorError as e:
+            out.append(e)
+            continue
+        cor = _assemble(pieces, stats, o["min_overlap"], o["exact_overlap"])
+        cor.region = o["region"]
+        out.append(cor)
+    return out
+
+
+def _check_options(box: str, box_margin: float, backend: str) -> None:
+    if box not in ("aabb", "oriented"):
+        raise InvalidInputError(f"box must be 'aabb' or 'oriented', got {box!r}")
+    if not (box_margin > 0):
+        raise InvalidInputError(f"box_margin must be > 0, got {box_margin}")
+    if backend not in ("cpu", "batched"):
+        raise InvalidInputError(f"corridor backend must be 'cpu' or 'batched', got {backend!r}")
+    if backend == "batched" and box != "aabb":
+        raise InvalidInputError("the batched corridor backend supports box='aabb' only")
+
+
+def _prepared_waypoints(waypoints, dev) -> Tensor:
+    """Waypoints [M+1, 3] float64 on dev, repeated consecutive points dropped; InvalidInputError if unusable."""
+    w = torch.as_tensor(waypoints, device=dev).to(torch.float64)
+    if w.ndim != 2 or w.shape[-1] != 3 or w.shape[0] < 2:
+        raise InvalidInputError(f"build_corridor needs waypoints [K>=2, 3], got {tuple(w.shape)}")
+    if not torch.isfinite(w).all():
+        raise InvalidInputError("build_corridor: waypoints contain NaN/inf")
+    keep = torch.ones(w.shape[0], dtype=torch.bool, device=dev)
+    keep[1:] = (w[1:] - w[:-1]).norm(dim=-1) > 1e-12
+    w = w[keep]
+    if w.shape[0] < 2:
+        raise InvalidInputError("build_corridor: all waypoints coincide (start == goal?)")
+    return w
+
+
+def _known_polytope(known, a: Tensor, b: Tensor):
+    """The first of the ``known`` polytopes that holds both ends of the segment a -> b (so the whole segment), or None."""
+    for p in known:
+        pa = p if p.A.device == a.device else p.to(a.device)
+        if bool(pa.contains(a)) and bool(pa.contains(b)):
+            return pa
+    return None
+
+
+def _grid_polytopes(ws, grid, box_margin, margin, box, known=(), stats=None) -> list:
+    """Per path, [Polytope | None] per segment: a ``known`` polytope holding the segment, else the grid polytope of
+    a segment that lies in free voxels of ``grid`` (None: neither; the segment needs an exact polytope). stats: a
+    dict (one path) or a list of dicts (one per path) that get the counts ``known_segments`` and ``grid_segments``."""
+    out = []
+    for k, w in enumerate(ws):
+        row = []
+        st = (stats[k] if isinstance(stats, list) else stats) if stats is not None else {}
+        st.setdefault("known_segments", 0)
+        st.setdefault("grid_segments", 0)
+        wn = w.detach().cpu().numpy()
+        for i in range(w.shape[0] - 1):
+            p = _known_polytope(known, w[i], w[i + 1]) if known else None
+            if p is not None:
+                st["known_segments"] += 1
+            elif grid is not None and box == "aabb":
+                p = grid.polytope(wn[i], wn[i + 1], box_margin, margin, device=w.device)
+                st["grid_segments"] += p is not None
+            row.append(p)
+        out.append(row)
+    return out
+
+
+def _batched_polytopes(ws, scene, index, box_margin, margin, normal, batch_scene, batch_index, pre=None) -> list:
+    """Per path, [Polytope | None] per segment (None: flagged, the host path decides it) from one
+    safe_polytopes_batched call over the segments of every path ws[i] [M_i+1, 3] that have no polytope in ``pre``
+    yet (per path, [Polytope | None] per segment; those given are kept as they are)."""
+    dev = scene.means.device
+    bscene = scene if batch_scene is None else batch_scene
+    bindex = index if batch_scene is None and batch_index is None else batch_index
+    pre = [[None] * (w.shape[0] - 1) for w in ws] if pre is None else pre
+    out = [list(p) for p in pre]
+    todo = [(i, m) for i, p in enumerate(pre) for m, q in enumerate(p) if q is None]
+    if not todo:
+        return out
+    bws = [w.to(bscene.means.device) for w in ws]
+    segs = torch.stack([torch.stack([bws[i][m], bws[i][m + 1]]) for i, m in todo])  # [T, 2, 3]
+    lo = torch.minimum(segs[:, 0], segs[:, 1]) - box_margin  # [T, 3] same boxes as the host path
+    hi = torch.maximum(segs[:, 0], segs[:, 1]) + box_margin
+    polys_b, _ = safe_polytopes_batched(segs, bscene, bindex, lo, hi, margin=margin, normal=normal, out_device=dev)
+    for (i, m), p in zip(todo, polys_b):
+        out[i][m] = p
+    return out
+
+
+def _path_pieces(w, batched, scene, index, box_margin, max_split_depth, kw, stats, box) -> list:
+    """(polytope, p0, p1) per segment of the path w [M+1, 3]: the polytope already built for it (grid or batched)
+    where there is one, else the host path (SeedNotFreeError -> split, as with backend "cpu")."""
+    pieces: list = []
+    for m in range(w.shape[0] - 1):
+        if batched[m] is not None:
+            pieces.append((batched[m], w[m], w[m + 1]))
+        else:
+            _segment_polytopes(w[m], w[m + 1], scene, index, box_margin, 0, max_split_depth, kw, pieces, stats, m, box)
+    return pieces
+
+
+def _assemble(pieces, stats, min_overlap: float, exact_overlap: bool) -> Corridor:
+    """The Corridor of a path's pieces, with the junctions' overlap radii (thin ones warned about)."""
+    polys = [p for p, _, _ in pieces]
+    wps = torch.stack([pieces[0][1]] + [p1 for _, _, p1 in pieces])  # [M+1, 3]
+
+    radii = []
+    thin = []
+    for m in range(len(polys) - 1):
+        wj = wps[m + 1]
+        lb = float(torch.minimum(polys[m].slack(wj), polys[m + 1].slack(wj)))
+        rad = lb
+        if exact_overlap or lb < min_overlap:
+            A = torch.cat([polys[m].A, polys[m + 1].A])
+            b = torch.cat([polys[m].b, polys[m + 1].b])
+            _, rad = chebyshev_center(A, b)
+            rad = max(rad, lb)
+        radii.append(rad)
+        if rad < min_overlap:
+            thin.append(m)
+    if thin:
+        warnings.warn(
+            f"corridor: {len(thin)} junction(s) have little room (overlap radius < {min_overlap:g}) at "
+            f"waypoints {[m + 1 for m in thin]}; the trajectory may slow down there",
+            stacklevel=3,
+        )
+    return Corridor(
+        polytopes=polys,
+        waypoints=wps,
+        overlap_radius=torch.tensor(radii, dtype=torch.float64),
+        thin_joints=thin,
+        n_splits=stats["splits"],
+        n_host_segments=stats.get("host_segments", 0),
+        n_grid_segments=stats.get("grid_segments", 0),
+        n_known_segments=stats.get("known_segments", 0),
+    )

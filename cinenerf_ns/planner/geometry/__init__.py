@@ -1,0 +1,4 @@
+"""Exact geometric queries: ellipsoid intersection, point and segment clearance, sight lines.
+
+Modules: clearance_queries, collision, distance, distance_fused, occlusion, ranges, voxel_traversal.
+"""

@@ -1,0 +1,140 @@
+"""How clear the camera ball is at camera centres, on a prepared planner's scene: the occupancy grid's proofs first
+(free voxels, the distance transform's lower bound), exact distance queries only where the grid cannot decide.
+Functions of a prepared Planner (planner.py), which exposes them as methods."""
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Optional
+
+import numpy as np
+import torch
+
+from ..shots.safety import DEFAULT_CLEARANCE_CAP, safety_report
+from .collision import points_collide
+from .distance import clearance as exact_clearance
+
+if TYPE_CHECKING:
+    from torch import Tensor
+
+    from ..shots.planner import Planner
+    from ..shots.prepared_scene import PreparedScene
+    from ..shots.shot import Shot
+
+
+def _grid_voxels(grid, points) -> tuple[np.ndarray, np.ndarray]:
+    """(points [P, 3] float64, their voxel indices [P, 3] int64; may lie outside the grid)."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    lo, vs = grid.lo.detach().cpu().double().numpy(), float(grid.voxel_size)
+    return pts, np.floor((pts - lo) / vs).astype(np.int64)
+
+
+def in_free_voxel(planner: "Planner", points) -> np.ndarray:
+    """bool [P]: the point [P, 3] lies in a free voxel of the (conservative) occupancy grid; False outside the grid."""
+    prep = planner.ready()
+    occ = prep.astar_grid._occ  # [X, Y, Z] bool
+    _, ijk = _grid_voxels(prep.grid, points)
+    shape = np.array(occ.shape)
+    inside = ((ijk >= 0) & (ijk < shape)).all(1)
+    c = np.clip(ijk, 0, shape - 1)
+    return inside & ~occ[c[:, 0], c[:, 1], c[:, 2]]
+
+
+def points_free(planner: "Planner", points) -> np.ndarray:
+    """bool [P]: camera ball at each point [P, 3] proven clear. Points in a free voxel of the occupancy grid are
+    proven by the grid (occupancy.py: every point of a free voxel keeps the ball clear, with slack for rounding); the
+    rest by the conservative Cor. 1 test. Both are conservative, never optimistic."""
+    prep = planner.ready()
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    free = in_free_voxel(planner, pts)
+    todo = np.flatnonzero(~free)
+    if todo.size:
+        p = torch.as_tensor(pts[todo], device=planner.scene.device)  # float64 points
+        free[todo] = (~points_collide(p, planner.scene, prep.index)).cpu().numpy()
+    return free
+
+
+def free_test(planner: "Planner", points: "Tensor") -> "Tensor":
+    """points_free of a tensor [P, 3], as a bool tensor (the acceptance test of goals and random starts)."""
+    # goal/start acceptance only needs a proof of freedom: the conservative test is exact enough
+    return torch.as_tensor(points_free(planner, points.detach().cpu().numpy()))
+
+
+def free_distance_transform(prep: "PreparedScene") -> np.ndarray:
+    """[X+2, Y+2, Z+2] distance (scene units) from each voxel centre of the grid padded by one ring to the nearest
+    occupied voxel centre (the ring outside the grid counts as occupied); computed once per prepared scene and kept
+    in ``prep.free_edt``."""
+    if prep.free_edt is None:
+        from scipy import ndimage
+
+        free = np.pad(~prep.astar_grid._occ, 1, constant_values=False)  # the ring outside the grid: occupied
+        prep.free_edt = ndimage.distance_transform_edt(free) * float(prep.grid.voxel_size)
+    return prep.free_edt
+
+
+def clearance_lower_bound(planner: "Planner", points) -> np.ndarray:
+    """A lower bound [P] of the clearance of camera centres [P, 3] from the occupancy grid alone (no
+    distance query). Every point of a free voxel keeps the camera ball clear (occupancy.py), so if the
+    ball B(p, D) lies in free voxels, the obstacles are >= D + radius away: clearance(p) >= D. With E the
+    distance from p's voxel centre to the nearest occupied voxel centre (Euclidean distance transform;
+    outside the grid counts as occupied) and h half a voxel diagonal, D = E - 2h (p and the nearest
+    occupied point each lie within h of their voxel centres); max(D, 0) in free voxels (their points are
+    proven clear); -inf (no information) in occupied voxels and outside the grid."""
+    prep = planner.ready()
+    grid = prep.grid
+    edt = free_distance_transform(prep)  # [X+2, Y+2, Z+2]
+    vs = float(grid.voxel_size)
+    _, ijk = _grid_voxels(grid, points)
+    inside = ((ijk >= 0) & (ijk < np.array(grid.shape))).all(1)
+    c = np.clip(ijk, 0, np.array(grid.shape) - 1) + 1  # into the padded array
+    e = edt[c[:, 0], c[:, 1], c[:, 2]]
+    # (1 + 1e-9): the transform is float64 and the bound must never be optimistic
+    d = e - math.sqrt(3.0) * vs * (1 + 1e-9)
+    return np.where(inside & (e > 0), np.maximum(d, 0.0), -np.inf)
+
+
+def distance_estimate(planner: "Planner", points: np.ndarray) -> np.ndarray:
+    """An estimate [P] of each camera centre's distance to the nearest ellipsoid from the occupancy grid, for the
+    exact clearance's first search box: clearance_lower_bound (which is ~2 half-diagonals below the grid's own
+    estimate) + half a voxel diagonal + the camera radius; 0 where the grid knows nothing. Not a bound in either
+    direction; it only changes how many search rounds and candidate pairs the exact answer takes (a full diagonal
+    more takes fewer rounds but bigger boxes with more pairs; benchmarks/bench_clearance_start.py compares them)."""
+    lb = clearance_lower_bound(planner, points)
+    vs = float(planner.ready().grid.voxel_size)
+    est = lb + 0.5 * math.sqrt(3.0) * vs + float(planner.scene.camera_radius)
+    return np.where(np.isfinite(lb), est, 0.0)
+
+
+def clearance(planner: "Planner", points, cap: Optional[float] = None, batch: bool = False) -> np.ndarray:
+    """Exact clearance [P] (camera radius included) of camera centres [P, 3]. ``cap``: clearances above it are not
+    searched for and reported as ``cap`` (a lower bound; much cheaper far from everything: points that the occupancy
+    grid already proves to be >= cap from every obstacle cost no distance query, see clearance_lower_bound).
+    ``batch``: many points (e.g. every frame of a shot): run on the scene's own device (a GPU when there is one)
+    instead of the request device."""
+    prep = planner.ready()
+    scene, index = planner.scene, prep.index
+    if batch and prep.batch_index is not None:
+        scene, index = planner.batch_scene, prep.batch_index
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    out = np.empty(len(pts))
+    todo = np.arange(len(pts))
+    if cap is not None:
+        far = clearance_lower_bound(planner, pts) >= float(cap)
+        out[far] = float(cap)
+        todo = np.flatnonzero(~far)
+    if todo.size:
+        p = torch.as_tensor(pts[todo], device=scene.device)
+        md = None if cap is None else float(cap) + float(scene.camera_radius)
+        # capped queries start from the grid's estimate (far fewer search rounds); uncapped ones keep the small
+        # default start: their far points would otherwise gather many more pairs (measured slower on the CPU)
+        start = None if cap is None else torch.as_tensor(distance_estimate(planner, pts[todo]), device=scene.device)
+        with planner.request_threads():
+            out[todo] = exact_clearance(p, scene, index, max_distance=md, start_radius=start).detach().cpu().numpy()
+    return out
+
+
+def clearance_report(planner: "Planner", shot: "Shot", max_spacing: float = 0.02, label: str = "",
+                     cap: float = DEFAULT_CLEARANCE_CAP) -> dict:
+    """safety.safety_report of a shot with this scene's exact clearance capped at ``cap`` (bounded work on any
+    scene: far from everything a sample is 'at least the cap')."""
+    return safety_report(shot, lambda p: clearance(planner, p, cap=cap, batch=True), max_spacing=max_spacing,
+                         label=label, clearance_cap=cap)

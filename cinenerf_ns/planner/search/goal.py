@@ -1,0 +1,529 @@
+"""Goal and start positions (issue 3, item 6).
+
+closest_safe_point (paper Sec. IV-C): the go-to target (e.g. an object's centroid) is usually inside
+the object. We grow a Prop-2 safe polytope around the target (it may exclude the target itself) and
+project the target onto it (a 3-variable QP: an active-set method, Clarabel as fallback); every point
+of that polytope is safe, so the projection is a safe goal as close to the target as that polytope
+allows. When the polytope is empty (target deep inside clutter) we fall back to the nearest free voxel
+of the occupancy grid that holds no Gaussian mean, verified with an exact point clearance test.
+
+sample_free_starts: seeded rejection sampling of camera centres in a region, pre-filtered by the
+grid's free voxels and accepted only after an exact clearance test.
+
+The grid is duck-typed: any object with ``occupied`` (bool [X, Y, Z]), ``lo`` [3], ``voxel_size``
+(float) and optionally ``voxel_to_world`` / ``world_to_voxel``; without those methods voxel (i,j,k)
+is the cube lo + [i, i+1) * voxel_size with centre lo + (i + 0.5) * voxel_size.
+"""
+from __future__ import annotations
+
+import math
+from typing import Callable, Optional, Sequence, Union
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ..corridor.polytope import candidate_ids, chebyshev_center, safe_polytope
+from ..corridor.polytope_planes import closest_t
+from ..errors import GoalUnreachableError, InvalidInputError, StartInCollisionError
+from ..scene.occupancy import OccupancyGrid
+
+INTERIOR_RADIUS = 1e-9
+"""_project_onto_polytope: a polytope counts as empty unless a ball of this radius (scene units) fits inside."""
+
+
+class NoFreeStartError(StartInCollisionError):
+    """No collision-free start position could be sampled in the requested region."""
+
+
+# ------------------------------------------------------------------------------------ grid helpers
+def _grid_arrays(grid):
+    occ = grid.occupied
+    occ = occ.detach().cpu().numpy() if isinstance(occ, Tensor) else np.asarray(occ)
+    lo = torch.as_tensor(grid.lo).detach().cpu().to(torch.float64).reshape(3)
+    vs = float(grid.voxel_size)
+    return np.asarray(occ, dtype=bool), lo, vs  # no copy of a bool grid (callers only read it)
+
+
+class ComponentMask:
+    """A ``reachable`` mask for closest_safe_point given lazily: voxel v is reachable iff labels[v] == comp (labels
+    [X, Y, Z] int, e.g. the free components of the A* grid). Indexing a window compares only that window, so a
+    request does not build the whole-grid mask; ``np.asarray`` gives the whole mask."""
+
+    def __init__(self, labels: np.ndarray, comp: int) -> None:
+        self.labels = labels
+        self.comp = comp
+
+    @property
+    def shape(self) -> tuple:
+        return tuple(self.labels.shape)
+
+    def __getitem__(self, idx) -> np.ndarray:
+        return np.asarray(self.labels[idx] == self.comp)
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        out = np.asarray(self.labels == self.comp)
+        return out if dtype is None else out.astype(dtype, copy=False)
+
+
+def _reachable_mask(reachable, shape):
+    """closest_safe_point's ``reachable`` (bool array or ComponentMask) checked against the grid's shape."""
+    if reachable is None:
+        return None
+    if not isinstance(reachable, ComponentMask):
+        reachable = np.asarray(reachable, dtype=bool)
+    if tuple(reachable.shape) != tuple(shape):
+        raise InvalidInputError(f"reachable mask {tuple(reachable.shape)} does not match the grid {tuple(shape)}")
+    return reachable
+
+
+def _voxel_to_world(grid, ijk: Tensor) -> Tensor:
+    if hasattr(grid, "voxel_to_world"):
+        return torch.as_tensor(grid.voxel_to_world(ijk)).detach().cpu().to(torch.float64)
+    _, lo, vs = _grid_arrays(grid)
+    return lo + (ijk.to(torch.float64) + 0.5) * vs
+
+
+def _voxel_centres(grid, ijk: np.ndarray, lo: np.ndarray, vs: float) -> np.ndarray:
+    """Voxel centres [K, 3] float64 numpy of indices ijk [K, 3]: OccupancyGrid.voxel_to_world's arithmetic (the same
+    floats) without torch's per-call cost, or the duck-typed grid's own voxel_to_world."""
+    if hasattr(grid, "voxel_to_world") and not isinstance(grid, OccupancyGrid):
+        return _voxel_to_world(grid, torch.as_tensor(ijk)).numpy()
+    return lo + (ijk.astype(np.float64) + 0.5) * vs
+
+
+def _world_to_voxel(grid, x: Tensor) -> Tensor:
+    if hasattr(grid, "world_to_voxel"):
+        return torch.as_tensor(grid.world_to_voxel(x)).detach().cpu().long()
+    _, lo, vs = _grid_arrays(grid)
+    return ((x.to(torch.float64) - lo) / vs).floor().long()
+
+
+# ------------------------------------------------------------------------------------ exact checks
+def points_clearance_lower(points: Tensor, scene, index=None) -> Tensor:
+    """Clearance min_j dist(x, E_j) - camera_radius of points [P, 3] -> [P] float64, over the
+    ellipsoids that can come within the camera radius of x (inflated bounding sphere holds x).
+
+    Sign-exact: when the true clearance is negative, the offending ellipsoid is examined and the value
+    returned is a lower bound of the truth (tight to the root-finder's tolerance): the closest-point
+    multiplier t is approached from below and |t w / (lambda + t)| grows with t. When it is >= 0 the
+    value is >= 0 but may exceed the true clearance (far ellipsoids are skipped; +inf when none is
+    near). Points inside an ellipsoid get -inf. "Is this camera centre free?" is all callers ask.
+    """
+    dev = scene.means.device
+    pts = torch.as_tensor(points, device=dev).to(torch.float64).reshape(-1, 3)
+    r = float(scene.camera_radius)
+    out = torch.full((pts.shape[0],), math.inf, dtype=torch.float64, device=dev)
+    for p in range(pts.shape[0]):
+        ids = candidate_ids(scene, index, pts[p], pts[p])
+        if ids.numel() == 0:
+            continue
+        mu = scene.means[ids].detach().cpu().double().numpy()
+        rot = scene.rotations[ids].detach().cpu().double().numpy()
+        lam = scene.radii[ids].detach().cpu().double().numpy() ** 2
+        w = np.einsum("kji,kj->ki", rot, pts[p].cpu().numpy() - mu)  # body frame [K, 3]
+        inside = (w**2 / lam).sum(-1) <= 1
+        t = closest_t(w**2, lam, iters=30)
+        d = np.linalg.norm(t[:, None] * w / (lam + t[:, None]), axis=-1)
+        d = np.where(inside, -math.inf, d)
+        out[p] = float(d.min()) - r
+    return out
+
+
+def _default_clear(scene, index, margin):
+    def clear(points: Tensor) -> Tensor:
+        return points_clearance_lower(points, scene, index) >= margin
+
+    return clear
+
+
+# ------------------------------------------------------------------------------------ goal
+def project_active_set(A: np.ndarray, b: np.ndarray, target: np.ndarray, x0: np.ndarray,
+                       max_iter: int = 60) -> Optional[np.ndarray]:
+    """argmin_x |x - target|^2 s.t. A x <= b (A [F, 3], b [F]) by the primal active-set method (Nocedal &
+    Wright, Alg. 16.3, Hessian I) from the feasible point x0 [3] -> x [3], or None when it does not
+    finish in ``max_iter`` steps (degenerate vertices can cycle; the caller then uses a QP solver).
+
+    Why not a QP solver: in 3 variables the working set holds at most 3 independent faces, so each step is a
+    3x3 solve, and the whole projection is a few steps of ~10 us where Clarabel's set-up and interior-point
+    iterations cost ~1 ms per goal. Exact up to rounding (the multipliers prove optimality); rounding can leave
+    A x - b at ~1e-16, which the caller removes.
+    """
+    A = np.asarray(A, dtype=np.float64)  # [F, 3]
+    b = np.asarray(b, dtype=np.float64)  # [F]
+    t = np.asarray(target, dtype=np.float64).reshape(3)
+    x = np.asarray(x0, dtype=np.float64).reshape(3).copy()
+    scale = 1.0 + float(np.abs(t).max()) + float(np.abs(x).max())
+    row_norm = np.sqrt(np.einsum("fi,fi->f", A, A))  # [F]
+    slack = b - A @ x  # [F]
+    W: list[int] = []  # working set: independent faces held with equality
+    for _ in range(max_iter):
+        r = t - x  # [3]
+        if len(W) == 1:
+            m = A[W[0]]
+            lam = np.array([float(m @ r) / float(m @ m)])
+            p = r - lam[0] * m
+        elif W:
+            M = A[W]  # [k, 3]
+            lam = np.linalg.solve(M @ M.T, M @ r)  # [k]  the multipliers when the step below vanishes
+            p = r - M.T @ lam if len(W) < 3 else np.zeros(3)  # 3 independent faces: a vertex
+        else:
+            p, lam = r, None
+        if float(np.abs(p).max()) <= 1e-13 * scale:
+            if lam is None or float(lam.min()) >= -1e-12 * scale:
+                return x  # KKT: x - t + M^T lam = 0 with lam >= 0
+            W.pop(int(np.argmin(lam)))  # a face that pulls the wrong way leaves the working set
+            continue
+        Ap = A @ p  # [F]
+        block = Ap > 1e-14 * float(np.sqrt(p @ p)) * row_norm
+        block[W] = False
+        alpha, j = 1.0, -1
+        ids = np.flatnonzero(block)
+        if len(ids) and W:
+            # a face whose normal lies in the span of the working set's (a repeated plane, or three planes through
+            # one line) has A p = 0 in exact arithmetic; rounding must not let it block and make the set dependent
+            M = A[W]  # [k, 3]
+            off_span = A[ids] - (A[ids] @ M.T) @ np.linalg.solve(M @ M.T, M)  # [c, 3]
+            ids = ids[np.sqrt(np.einsum("ci,ci->c", off_span, off_span)) > 1e-9 * row_norm[ids]]
+        if len(ids):
+            ratio = np.maximum(slack[ids], 0.0) / Ap[ids]
+            k = int(np.argmin(ratio))
+            if ratio[k] < 1.0:
+                alpha, j = float(ratio[k]), int(ids[k])
+        x = x + alpha * p
+        slack = slack - alpha * Ap
+        if j >= 0:
+            W.append(j)
+    return None
+
+
+def project_dual_active_set(A: np.ndarray, b: np.ndarray, target: np.ndarray,
+                            max_iter: Optional[int] = None) -> Union[np.ndarray, None, str]:
+    """argmin_x |x - target|^2 s.t. A x <= b (A [F, 3], b [F]) by the dual active-set method of Goldfarb & Idnani
+    (Math. Programming 27, 1983; Hessian I) -> x [3], None when the polytope is empty, or "unfinished" when it does
+    not finish in ``max_iter`` steps or a step is too ill-conditioned to trust (the caller then solves it another way).
+
+    Why: it needs no feasible start, so the projection of a target onto a polytope that may exclude it (or be empty:
+    closest_safe_point's target deep inside an object) costs a few 3x3 solves instead of an LP for the Chebyshev
+    centre followed by the primal method. It starts at the target (the unconstrained minimum) and adds the most
+    violated face at each step, keeping x the projection of the target onto the working set's faces with
+    nonnegative multipliers (dual feasible); the objective only grows, so faces cannot cycle in exact arithmetic.
+    Empty polytope: the violated face's normal lies in the span of the working set's and no multiplier can shrink
+    (Farkas: a nonnegative combination of faces proves A x <= b infeasible). Rounding leaves A x - b at ~1e-16
+    relative; callers tighten b when they need the point strictly inside."""
+    A = np.asarray(A, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    x = np.asarray(target, dtype=np.float64).reshape(3).copy()
+    F = A.shape[0]
+    if max_iter is None:
+        max_iter = 50 + 4 * F
+    row2 = np.einsum("fi,fi->f", A, A)  # [F] squared row norms
+    scale = 1.0 + float(np.abs(b).max(initial=0.0)) + float(np.abs(x).max())
+    tol = 1e-13 * scale
+    W: list = []  # working set (independent faces held with equality)
+    u = np.zeros(0)  # their multipliers, >= 0
+    it = 0
+    while True:
+        v = A @ x - b  # [F] violation
+        p = int(np.argmax(v)) if F else -1
+        if F == 0 or v[p] <= tol * max(1.0, float(np.sqrt(row2[p]))):
+            return x
+        up = 0.0  # multiplier of the face being added
+        while True:
+            it += 1
+            if it > max_iter:
+                return "unfinished"
+            a = A[p]
+            if W:
+                N = A[W]  # [k, 3]
+                G = N @ N.T
+                r = np.linalg.solve(G, N @ a)  # [k]  du_W = -s r per unit of u_p
+                z = N.T @ r - a  # [3]  dx per unit of u_p: minus a's part off the span of the working set
+            else:
+                r, z = np.zeros(0), -a
+            zz = float(z @ z)
+            dependent = zz <= 1e-18 * float(row2[p])
+            pos = np.flatnonzero(r > 1e-12 * (1.0 + np.abs(r).max(initial=0.0)))
+            t1, k = np.inf, -1
+            if pos.size:
+                ratios = u[pos] / r[pos]
+                j = int(np.argmin(ratios))
+                t1, k = float(ratios[j]), int(pos[j])
+            t2 = np.inf if dependent else float(a @ x - b[p]) / zz
+            if not np.isfinite(t1) and not np.isfinite(t2):
+                return None  # a nonnegative combination of the working set's faces and face p is infeasible
+            if t2 < 0:
+                return "unfinished"  # rounding: face p no longer violated after a partial step; restart is safer
+            s = min(t1, t2)
+            if np.isfinite(t2):
+                x = x + s * z
+            u = u - s * r
+            up += s
+            if s == t2:  # full step: face p joins the working set
+                W.append(p)
+                u = np.append(u, up)
+                break
+            W.pop(k)  # partial step: face k's multiplier reached 0, it leaves
+            u = np.delete(u, k)
+
+
+def _project_onto_polytope(A: np.ndarray, b: np.ndarray, target: np.ndarray,
+                           interior: Optional[np.ndarray] = None) -> Optional[np.ndarray]:
+    """argmin |x - target|^2 s.t. A x <= b, returned strictly inside in floating point (A x <= b holds), or None when
+    the polytope has no interior (its Chebyshev radius is at most INTERIOR_RADIUS).
+
+    With ``interior`` strictly inside (e.g. the polytope's seed): ``project_active_set`` from it (Clarabel when that
+    does not finish), then pulled exactly inside along the segment to it (ratio test). Without one:
+    ``project_dual_active_set`` onto the polytope tightened by INTERIOR_RADIUS (b - INTERIOR_RADIUS |a_f|: non-empty
+    exactly when a ball of that radius fits, the rule the Chebyshev centre applied; the point moves by ~that radius
+    and keeps that slack), so no LP is solved; the Chebyshev centre and the primal method only when it does not
+    finish."""
+    A = np.asarray(A, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    if interior is not None and float(np.min(b - A @ np.asarray(interior, dtype=np.float64))) > INTERIOR_RADIUS:
+        c = np.asarray(interior, dtype=np.float64)
+    else:
+        try:
+            y = project_dual_active_set(A, b - INTERIOR_RADIUS * np.sqrt(np.einsum("fi,fi->f", A, A)), target)
+        except np.linalg.LinAlgError:  # a working set that rounding made singular: the LP and primal method instead
+            y = "unfinished"
+        if y is None:
+            return None
+        if not isinstance(y, str) and (A @ y <= b).all():
+            return y
+        c, rad = chebyshev_center(A, b)
+        if not (rad > INTERIOR_RADIUS):
+            return None
+    target = np.asarray(target, dtype=np.float64)
+    try:
+        x = project_active_set(A, b, target, c)
+    except np.linalg.LinAlgError:  # a working set that rounding made singular: the QP solver instead
+        x = None
+    if x is None:
+        x = _project_clarabel(A, b, target, c)
+    viol = A @ x - b
+    if (viol > 0).any():
+        ax, ac = A @ x, A @ c
+        alpha = np.max(np.where(viol > 0, viol / np.maximum(ax - ac, 1e-300), 0.0))
+        x = x + min(1.0, alpha * (1 + 1e-9) + 1e-12) * (c - x)
+    return x if (A @ x <= b).all() else None
+
+
+def _project_clarabel(A: np.ndarray, b: np.ndarray, target: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """argmin |x - target|^2 s.t. A x <= b with Clarabel (``c`` when it does not solve)."""
+    import clarabel
+    from scipy import sparse
+
+    P = sparse.csc_matrix(2.0 * np.eye(3))
+    q = -2.0 * target
+    settings = clarabel.DefaultSettings()
+    settings.verbose = False
+    solver = clarabel.DefaultSolver(P, q, sparse.csc_matrix(A), b, [clarabel.NonnegativeConeT(len(b))], settings)
+    sol = solver.solve()
+    return np.asarray(sol.x, dtype=np.float64) if str(sol.status) in ("Solved", "AlmostSolved") else c.copy()
+
+
+def closest_safe_point(
+    target,  # [3]
+    scene,
+    index=None,
+    grid=None,
+    *,
+    box_half: Optional[float] = None,
+    margin: float = 1e-6,
+    reachable: Optional[np.ndarray] = None,
+    clearance_fn: Optional[Callable[[Tensor], Tensor]] = None,
+    max_fallback_candidates: int = 256,
+    mean_voxels: Optional[np.ndarray] = None,
+) -> Tensor:
+    """Safe camera centre closest to ``target`` (as far as the method below can tell) -> [3] float64.
+
+    1. target already safe (exact clearance >= margin) -> target.
+    2. Prop-2 polytope in the box target +- box_half (default 8 voxels, or 0.2 without a grid), target
+       projected onto it (QP), verified inside -> that point (safe by construction of the polytope).
+    3. fallback: free voxels of ``grid`` holding no Gaussian mean (and inside ``reachable`` [X,Y,Z]
+       if given, e.g. the start's connected component; a ComponentMask is compared per window), nearest first, the first whose centre passes
+       the exact clearance test.
+    Raises GoalUnreachableError when all three fail. ``clearance_fn(points[P,3]) -> bool[P]`` replaces
+    the built-in exact test (e.g. a closure over distance.clearance(...) >= 0). ``mean_voxels`` [X,Y,Z] bool:
+    mean_voxel_mask(scene, grid), computed once per scene (step 3 then gathers no Gaussians: the same voxels, without
+    a box query that grows with the window: ~40 ms of a request inside a blob of 200k Gaussians on the CPU box).
+    """
+    dev = scene.means.device
+    t = torch.as_tensor(target, device=dev).to(torch.float64).reshape(-1)
+    if t.shape != (3,) or not torch.isfinite(t).all():
+        raise InvalidInputError(f"goal target must be 3 finite numbers, got {t.tolist()}")
+    clear = clearance_fn or _default_clear(scene, index, margin)
+    if bool(torch.as_tensor(clear(t[None])).reshape(-1)[0]):
+        return t
+    if box_half is None:
+        box_half = 8 * float(grid.voxel_size) if grid is not None else 0.2
+    P = safe_polytope(t[None], scene, index, t - box_half, t + box_half, margin=margin, require_seed_inside=False)
+    A, b = P.to_numpy()
+    x = _project_onto_polytope(A, b, t.cpu().numpy())
+    if x is not None:
+        return torch.as_tensor(x, dtype=torch.float64, device=dev)
+    if grid is None:
+        raise GoalUnreachableError(
+            f"no safe camera position found near the goal {t.tolist()} (it is buried in the scene) and no "
+            f"occupancy grid was given for the fallback"
+        )
+    return _nearest_free_voxel_centre(t, scene, index, grid, reachable, clear, max_fallback_candidates,
+                                      mean_voxels).to(dev)
+
+
+def mean_voxel_mask(scene, grid) -> np.ndarray:
+    """bool [X, Y, Z]: the grid's voxels that hold at least one Gaussian mean of ``scene`` (never goals, see
+    closest_safe_point step 3). One pass over the means; computed once per prepared scene."""
+    occ, _, _ = _grid_arrays(grid)
+    v = _world_to_voxel(grid, scene.means.detach().cpu().to(torch.float64)).numpy()  # [N, 3]
+    v = v[((v >= 0) & (v < np.asarray(occ.shape))).all(1)]
+    out = np.zeros(occ.shape, dtype=bool)
+    out[v[:, 0], v[:, 1], v[:, 2]] = True
+    return out
+
+
+def _nearest_free_voxel_centre(t, scene, index, grid, reachable, clear, max_candidates, mean_voxels=None) -> Tensor:
+    occ, lo, vs = _grid_arrays(grid)
+    shape = np.asarray(occ.shape)
+    reachable = _reachable_mask(reachable, occ.shape)  # free and reachable voxels: computed per window below
+    tc = t.cpu()
+    t_np, lo_np = tc.numpy(), lo.numpy()
+    v = _world_to_voxel(grid, tc).numpy()
+    vc = np.clip(v, 0, shape - 1)
+    R = 2
+    while True:
+        a = np.maximum(vc - R, 0)
+        e = np.minimum(vc + R + 1, shape)
+        win = (slice(a[0], e[0]), slice(a[1], e[1]), slice(a[2], e[2]))
+        sub = ~occ[win]
+        if reachable is not None:
+            sub &= reachable[win]
+        covers_all = (a == 0).all() and (e == shape).all()
+        if sub.any():
+            # voxels holding a Gaussian mean are not goals (paper): mark them in this window only
+            if mean_voxels is not None:
+                sub &= ~mean_voxels[a[0]:e[0], a[1]:e[1], a[2]:e[2]]
+            ids = None
+            if mean_voxels is None:  # the means in the window's box, from the index
+                wlo = _voxel_to_world(grid, torch.as_tensor(a)) - 0.5 * vs
+                whi = _voxel_to_world(grid, torch.as_tensor(e - 1)) + 0.5 * vs
+                ids = candidate_ids(scene, index, wlo.to(scene.means.device), whi.to(scene.means.device))
+            if ids is not None and ids.numel():
+                mv = _world_to_voxel(grid, scene.means[ids].detach().cpu().to(torch.float64)).numpy() - a
+                ok = ((mv >= 0) & (mv < (e - a))).all(1)
+                mv = mv[ok]
+                sub[mv[:, 0], mv[:, 1], mv[:, 2]] = False
+            ijk = np.argwhere(sub) + a
+            if len(ijk) == 0:  # every free voxel of the window holds a mean: a wider window
+                if covers_all:
+                    break
+                R *= 2
+                continue
+            centres = _voxel_centres(grid, ijk, lo_np, vs)  # [K, 3] float64
+            d = np.sqrt(((centres - t_np) ** 2).sum(1))
+            # every voxel outside the window is at least R voxels away (target inside the grid)
+            if float(d.min()) <= R * vs or covers_all:
+                cand = torch.from_numpy(centres[np.argsort(d, kind="stable")[:max_candidates]])
+                for k in range(0, cand.shape[0], 16):  # nearest first, a few exact tests at a time
+                    ok = torch.as_tensor(clear(cand[k:k + 16].to(scene.means.device))).reshape(-1).cpu()
+                    if bool(ok.any()):
+                        return cand[k + int(torch.nonzero(ok)[0, 0])]
+                if covers_all:
+                    break
+        elif covers_all:
+            break
+        R *= 2
+    raise GoalUnreachableError(
+        f"no safe camera position found near the goal {t.tolist()}: the projection polytope is empty and "
+        f"no free voxel without Gaussian means passed the clearance test"
+    )
+
+
+# ------------------------------------------------------------------------------------ starts
+def sample_free_starts(
+    n: int,
+    scene,
+    index=None,
+    grid=None,
+    generator: Union[torch.Generator, int, None] = 0,
+    region_lo=None,
+    region_hi=None,
+    max_tries: int = 50,
+    *,
+    batch: Optional[int] = None,
+    margin: float = 1e-6,
+    reachable: Optional[np.ndarray] = None,
+    clearance_fn: Optional[Callable[[Tensor], Tensor]] = None,
+    away_from: Optional[Union[Tensor, np.ndarray, Sequence[float]]] = None,
+    away_fraction: float = 0.0,
+) -> Tensor:
+    """n collision-free camera centres [n, 3] float64, uniformly sampled in the region (seeded).
+
+    region_lo/hi default to the grid's extent (or the scene bounds without a grid); with a grid the
+    region is clipped to it and samples in occupied voxels (or outside ``reachable``) are rejected
+    before the exact clearance test. ``generator``: a torch.Generator (CPU) or an int seed; the same
+    seed gives the same starts. Raises NoFreeStartError (a StartInCollisionError) after ``max_tries``
+    batches without n free points.
+
+    ``away_from`` [3] (e.g. the look-at point) with ``away_fraction`` > 0: samples closer to it than
+    away_fraction x the region's longest side are rejected too (before the clearance test). Preferred, not
+    required: when ``max_tries`` batches give fewer than n such starts, the missing ones are drawn again
+    without this rule (same generator), so it never makes a request fail.
+    """
+    if int(n) != n or n < 1:
+        raise InvalidInputError(f"number of starts must be a positive integer, got {n}")
+    n = int(n)
+    if not (math.isfinite(float(away_fraction)) and 0.0 <= float(away_fraction) < 1.0):
+        raise InvalidInputError(f"away_fraction must be in [0, 1), got {away_fraction}")
+    dev = scene.means.device
+    gen = generator if isinstance(generator, torch.Generator) else torch.Generator().manual_seed(int(generator or 0))
+    occ = None
+    if grid is not None:
+        occ, glo, vs = _grid_arrays(grid)
+        ghi = glo + torch.as_tensor(occ.shape, dtype=torch.float64) * vs
+        if reachable is not None:
+            reachable = np.asarray(reachable, dtype=bool)
+            if reachable.shape != occ.shape:
+                raise InvalidInputError(f"reachable mask {reachable.shape} does not match the grid {occ.shape}")
+            occ = occ | ~reachable
+    else:
+        glo, ghi = (x.detach().cpu().to(torch.float64) for x in scene.bounds())
+    lo = glo if region_lo is None else torch.maximum(torch.as_tensor(region_lo, dtype=torch.float64).reshape(3), glo)
+    hi = ghi if region_hi is None else torch.minimum(torch.as_tensor(region_hi, dtype=torch.float64).reshape(3), ghi)
+    if not (torch.isfinite(lo).all() and torch.isfinite(hi).all()) or (hi <= lo).any():
+        raise InvalidInputError(f"start region is empty: lo={lo.tolist()} hi={hi.tolist()} (after clipping to the grid)")
+    clear = clearance_fn or _default_clear(scene, index, margin)
+    batch = batch or max(4 * n, 32)
+    away = None
+    if away_from is not None and float(away_fraction) > 0:
+        away = torch.as_tensor(np.asarray(away_from, dtype=np.float64)).reshape(3)
+        if not torch.isfinite(away).all():
+            raise InvalidInputError(f"away_from must be a finite 3-vector, got {away.tolist()}")
+        away_d = float(away_fraction) * float((hi - lo).max())
+    found = []
+    tried = 0
+    rounds = [True, False] if away is not None else [False]
+    for use_away in rounds:
+        for _ in range(max_tries):
+            x = lo + torch.rand(batch, 3, generator=gen, dtype=torch.float64) * (hi - lo)  # [B, 3]
+            tried += batch
+            if use_away:
+                x = x[(x - away).norm(dim=1) >= away_d]
+            if occ is not None:
+                v = _world_to_voxel(grid, x).numpy()
+                inside = ((v >= 0) & (v < np.asarray(occ.shape))).all(1)
+                vcl = np.clip(v, 0, np.asarray(occ.shape) - 1)
+                keep = inside & ~occ[vcl[:, 0], vcl[:, 1], vcl[:, 2]]
+                x = x[torch.as_tensor(keep)]
+            if x.shape[0] == 0:
+                continue
+            x = x[: max(2 * (n - len(found)), 8)]  # bound the exact checks per batch
+            ok = torch.as_tensor(clear(x.to(dev))).reshape(-1).cpu()
+            found.extend(x[ok])
+            if len(found) >= n:
+                return torch.stack(found[:n]).to(dev)
+    raise NoFreeStartError(
+        f"found only {len(found)} of {n} collision-free start positions after {tried} random samples in the "
+        f"region lo={lo.tolist()} hi={hi.tolist()}; widen the region or lower the camera radius"
+    )

@@ -1,0 +1,107 @@
+"""Where shots start: a user-given start checked against the planning region and the scene, or random free starts
+drawn in the free component the capture's cameras see (the start region's, or a closed room's interior).
+Functions of a prepared Planner (planner.py), which exposes them as methods."""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ..errors import InvalidInputError, StartInCollisionError
+from ..scene.planning_region import ArrayLike, format_point
+from .goal import sample_free_starts
+
+if TYPE_CHECKING:
+    from ..shots.planner import Planner
+    from ..shots.prepared_scene import PreparedScene
+
+ENCLOSED_COMPONENT_FRACTION = 0.2  # an enclosed free component this large is taken for the capture's room
+
+
+def preferred_component(labels: np.ndarray, counts: np.ndarray) -> int:
+    """Free component random starts come from when no start region is known. labels [X, Y, Z] (0 occupied), counts
+    [K+1] free voxels per label (counts[0] = 0). A component that touches the grid's faces is the space around the
+    scene; the largest one that does not (a closed room's interior) is preferred when it holds at least
+    ENCLOSED_COMPONENT_FRACTION of all free voxels: a room captured from inside is enclosed by its walls, floor and
+    ceiling, and the shell between them and the padded planning box can hold more voxels than the room (synthetic
+    room 2: starts outside the walls, shots under the floor). Smaller enclosed pockets (inside hollow objects) are
+    never preferred; an open scene has no large enclosed component and keeps the largest."""
+    faces = [labels[0], labels[-1], labels[:, 0], labels[:, -1], labels[:, :, 0], labels[:, :, -1]]
+    touching = np.unique(np.concatenate([f.ravel() for f in faces]))
+    enclosed = counts.copy()
+    enclosed[touching[touching < len(enclosed)]] = 0
+    if enclosed.max() > 0 and enclosed.max() >= ENCLOSED_COMPONENT_FRACTION * counts.sum():
+        return int(np.argmax(enclosed))
+    return int(np.argmax(counts))
+
+
+def start_component(prep: "PreparedScene", start_region) -> int:
+    """The free component random starts come from: the one with the most free voxels inside ``start_region``
+    ((lo [3], hi [3]) or None) when it holds any, else preferred_component's choice."""
+    labels = prep.astar_grid.labels  # [X, Y, Z] 0: occupied, k >= 1: free component k
+    if start_region is not None:
+        grid = prep.grid
+        lo, hi = (torch.as_tensor(np.asarray(v, dtype=np.float64), device=grid.device) for v in start_region)
+        a = grid.world_to_voxel(lo).cpu().numpy().clip(0, np.array(grid.shape) - 1)
+        b = grid.world_to_voxel(hi).cpu().numpy().clip(0, np.array(grid.shape) - 1)
+        sub = labels[a[0] : b[0] + 1, a[1] : b[1] + 1, a[2] : b[2] + 1]
+        counts = np.bincount(sub.ravel(), minlength=int(labels.max()) + 1)
+        counts[0] = 0
+        if counts.max() > 0:
+            return int(np.argmax(counts))
+    counts = np.bincount(labels.ravel())
+    counts[0] = 0
+    return preferred_component(labels, counts)
+
+
+def main_component(planner: "Planner") -> int:
+    """start_component of the planner's prepared scene and config.start_region. Constant per prepared scene and
+    start region: computed once (kept in PreparedScene.main_component_of), not per request."""
+    prep = planner.ready()
+    region = planner.config.start_region
+    cached = prep.main_component_of
+    if cached is not None and cached[0] is region:
+        return cached[1]
+    comp = start_component(prep, region)
+    prep.main_component_of = (region, comp)
+    return comp
+
+
+def random_starts(planner: "Planner", n: int, generator: torch.Generator, look_at: np.ndarray) -> Tensor:
+    """n random collision-free starts [n, 3] (goal.sample_free_starts) as every request draws them: in
+    config.start_region, in the main free component, config.start_look_distance away from ``look_at`` [3] where
+    the region allows."""
+    prep = planner.ready()
+    lo, hi = planner.config.start_region or (None, None)
+    return sample_free_starts(
+        n, planner.scene, prep.index, prep.grid, generator=generator, region_lo=lo, region_hi=hi,
+        reachable=prep.astar_grid.labels == main_component(planner), clearance_fn=planner.free_test,
+        away_from=look_at, away_fraction=planner.config.start_look_distance,
+    )
+
+
+def checked_start(planner: "Planner", start: ArrayLike, force: bool = False) -> np.ndarray:
+    """A user-given start [3] as float64: InvalidInputError when it lies outside the planning region (unless
+    ``force``: the region then grows to hold it, see Planner.grow_region), StartInCollisionError when the camera
+    would be inside the scene. Only the sign of the clearance is needed: a proof from the grid, else a capped
+    distance."""
+    s = planner.checked_point(start, "start point")
+    if planner.distance_outside(s) > 0:
+        if not force:
+            lo, hi = planner.region()
+            raise InvalidInputError(
+                f"the start point {format_point(s)} is outside the planning region {format_point(lo)}.."
+                f"{format_point(hi)} (the training cameras' box grown by region_padding, or the scene's box); pick a "
+                f"start inside it or force it (cinesplat-plan --force-start: the region then grows to hold the start)")
+        planner.grow_region(s)
+    if bool(planner.points_free(s[None])[0]):
+        return s
+    c = float(planner.clearance(s[None], cap=float(planner.ready().grid.voxel_size))[0])
+    if c < 0:
+        raise StartInCollisionError(
+            f"the start {np.round(s, 4).tolist()} puts the camera inside the scene (clearance {c:.4f}); "
+            f"pick another start or use a random start"
+        )
+    return s

@@ -1,0 +1,81 @@
+"""Scores of many candidate shots at once on a prepared planner (scoring.py's terms): one occlusion call and one
+exact-clearance call for all shots instead of one each. The expensive per-frame inputs (score_parts) can be computed
+where the shots are planned (a candidate worker process, on the CPU copy) and combined here (score_from_parts)."""
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Any, List, Optional
+
+import numpy as np
+import torch
+
+from ..errors import InvalidInputError
+from ..geometry.occlusion import sight_lines_blocked
+from ..scene.planning_region import as_point
+from .scoring import ScoreConfig, ShotScore, score_terms, scored_frames
+from .shot import Shot
+
+if TYPE_CHECKING:
+    from .planner import Planner
+
+
+def score_shots(
+    planner: "Planner",
+    shots: List[Shot],
+    look_at: Any,
+    config: Optional[ScoreConfig] = None,
+    object_radius: float = 0.1,
+    object_center: Optional[Any] = None,
+    object_samples: Optional[Any] = None,
+    exclude: Optional[torch.Tensor] = None,
+) -> List[ShotScore]:
+    """scoring.score_shot for several shots: one occlusion call and one exact-clearance call for all.
+
+    Clearance terms use the scored frames (the same <= config.occlusion_frames frames per shot as the
+    occlusion term); the shots' safety is established separately by the dense verification."""
+    cfg = config or ScoreConfig()
+    cfg.validate()
+    look = as_point(look_at, "look-at point")
+    parts = score_parts(planner, shots, look, cfg, object_radius, object_samples, exclude, batch=True)
+    return [score_from_parts(sh, part, look, cfg, object_radius, object_center) for sh, part in zip(shots, parts)]
+
+
+def score_parts(planner: "Planner", shots: List[Shot], look: np.ndarray, cfg: ScoreConfig, object_radius: float,
+                object_samples: Optional[Any], exclude: Optional[torch.Tensor], batch: bool) -> List[tuple]:
+    """The expensive per-frame inputs of each shot's score, one occlusion call and one exact-clearance call for all
+    shots: [(tested frame indices [T'], occluded [T', S] bool, clearance [T'] exact up to the cap)].
+
+    batch: on the scene's own device (a GPU when there is one: many frames x many Gaussians); False: on the request
+    device (the CPU copy of a GPU scene), where the compiled sight-line and capped-distance searches apply
+    (native/polytope.c): what the candidate worker processes use, since they cannot use CUDA. Both are exact: the
+    clearances agree to ~1e-13, the occlusion flags except for sight lines that graze an ellipsoid within rounding."""
+    if not (math.isfinite(object_radius) and object_radius >= 0):
+        raise InvalidInputError(f"object_radius must be finite and >= 0, got {object_radius}.")
+    prep = planner.ready()
+    targets = look[None] if object_samples is None else np.asarray(object_samples, np.float64).reshape(-1, 3)
+    idx = [scored_frames(sh.num_frames, cfg.occlusion_frames) for sh in shots]
+    pos = np.concatenate([sh.positions[i] for sh, i in zip(shots, idx)])  # [sum T', 3]
+    scene, index = planner.scene, prep.index
+    if batch:
+        scene = planner.batch_scene
+        index = prep.batch_index if prep.batch_index is not None else prep.index
+    if exclude is not None:
+        exclude = torch.as_tensor(exclude, device=scene.device)
+    occ = sight_lines_blocked(pos, targets, scene, index, exclude=exclude,
+                              stop_distance=object_radius).cpu().numpy()  # [sum T', S]
+    clr = planner.clearance(pos, cap=cfg.clearance_cap, batch=batch)  # [sum T'] exact up to the cap
+    out, o = [], 0
+    for i in idx:
+        n = len(i)
+        out.append((i, occ[o : o + n], clr[o : o + n]))
+        o += n
+    return out
+
+
+def score_from_parts(shot: Shot, part: tuple, look: np.ndarray, cfg: ScoreConfig, object_radius: float,
+                     object_center: Optional[Any]) -> ShotScore:
+    """A shot's ShotScore from its score_parts entry (scoring.score_terms; cheap)."""
+    i, occ, clr = part
+    sc = score_terms(shot, look, occ, clr, object_radius, object_center, cfg)
+    sc.tested_frame_index = i
+    return sc

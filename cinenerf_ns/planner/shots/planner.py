@@ -1,0 +1,376 @@
+"""The camera planner: go-to / look-at points in, verified safe shots out (paper Sec. IV).
+
+``Planner`` is a facade over one scene's prepared state (prepared_scene.py's ``PreparedScene``: spatial index,
+occupancy grid, free-space components, built once by ``prepare()`` and reported separately from per-plan cost). Its
+methods delegate to the modules that do the work:
+  planning_region.py   the planning region, its checks, user points against it
+  starts.py            given starts checked, random starts drawn in the main free component
+  clearance_queries.py free-voxel tests, conservative and exact clearance
+  corridor_options.py  corridor backend and grid polytopes resolved for this process
+  shortcut.py          the line-of-sight shortcut
+  plan_request.py      plan(): n shots, each a leg of stages.py (goal -> voxel path -> shortcut -> corridor -> QP ->
+                       timing + orientation -> verification), a failed random start replaced
+  workers.py           the forked candidate worker pool (candidates.py)
+"""
+from __future__ import annotations
+
+import contextlib
+import math
+from dataclasses import dataclass, field, replace
+from typing import Optional, Union
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ..corridor import corridor_options
+from ..corridor.corridor_options import GRID_POLYTOPE_MAX_VOXEL  # noqa: F401 (re-exported: PlannerConfig.grid_polytopes)
+from ..errors import InvalidInputError
+from ..geometry import clearance_queries
+from ..scene import planning_region
+from ..scene.ellipsoids import EllipsoidScene
+from ..scene.planning_region import GRID_BYTES_PER_VOXEL, ArrayLike  # noqa: F401 (GRID_BYTES_PER_VOXEL re-exported)
+from ..search import reach, shortcut, starts
+from ..search.starts import ENCLOSED_COMPONENT_FRACTION, preferred_component  # noqa: F401 (re-exported)
+from ..trajectory.qp import TrajectoryConfig
+from ..trajectory.timing import TimingConfig
+from .plan_request import MAX_CANDIDATES, plan_request  # noqa: F401 (MAX_CANDIDATES re-exported)
+from .prepared_scene import PreparedScene, prepare_scene
+from .safety import DEFAULT_CLEARANCE_CAP
+from .shot import Shot
+from .workers import CandidatePool, candidate_workers, pool_for, validate_workers
+
+GRID_RESOLUTION_RANGE = (8, 1024)
+"""Allowed PlannerConfig.grid_resolution (voxels along the planning region's longest side)."""
+
+
+@dataclass
+class PlannerConfig:
+    """Everything the planner needs besides the scene and the request."""
+
+    grid_resolution: int = 96
+    """Voxels along the longest side of the planning bounds (A* grid; conservative occupancy)."""
+    bounds: Optional[tuple] = None
+    """(lo[3], hi[3]) planning region in scene units; None: the scene bounds (robust, see prepare())."""
+    start_region: Optional[tuple] = None
+    """(lo[3], hi[3]) where random starts are drawn; None: the planning bounds (e.g. pass the
+    training cameras' bounding box for real captures). Without it, starts come from the largest free component that
+    does not touch the planning box when it holds >= ENCLOSED_COMPONENT_FRACTION of the free voxels (a closed room's
+    interior: the shell between its walls and the padded box can be larger), else from the largest."""
+    start_look_distance: float = 0.25
+    """Random starts (none given) are drawn at least this fraction of the start region's longest side away from the
+    look-at point, when the region has such free starts (else anywhere: it never fails a request). Why: a random
+    start is the shot's opening frame, and one pressed against the subject shows only its near surface; and the aim
+    is only as good as the subject's estimated centre: a centre off by e turns into up to asin(e / range) of aim
+    error, which grows fast at close range (docs/PLANNER_DEFAULTS.md). 0: starts anywhere (the paper's uniform random starts). User-given starts are never moved."""
+    up: tuple = (0.0, 0.0, 1.0)
+    """World up direction: cameras keep their y axis as close to it as possible."""
+    astar_weight: float = 1.0
+    """Heuristic weight of the initial voxel path's A* (1: minimum-cost path; w > 1: its cost is at most w x the
+    minimum, found with far fewer expansions; the path is only the corridor's seed and is shortcut first, so the
+    shot's safety does not depend on it). 1.0 stays the default: a larger weight's faster search is paid back by its
+    longer seed paths in shortcut + corridor (docs/PLANNER_DEFAULTS.md)."""
+    box_margin: float = 0.15
+    """Each corridor polytope lives in its segment's bounding box grown by this (scene units)."""
+    trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
+    """Bezier degree, continuity, cost and solver of the corridor QP."""
+    timing: TimingConfig = field(default_factory=TimingConfig)
+    """Speed cap, ramps and frame rate."""
+    verify_spacing: float = 0.005
+    """Max distance between clearance samples when verifying a trajectory (scene units)."""
+    robust_bounds_quantile: float = 0.01
+    """With bounds=None the grid spans these quantiles of the Gaussian means (floaters far away
+    would otherwise blow up the grid) grown by 10%."""
+    region_padding: float = 0.5
+    """With bounds=None and a start_region (a capture's training cameras), the planning region is the start region
+    grown by this fraction of its longest side on every side, cut to the robust scene box: a real capture's floaters
+    and open background far from the cameras do not stretch the grid. Paths never leave the planning region."""
+    memory_budget_mb: float = 4096.0
+    """Memory the voxel grid and its companions may take (MB); a finer --grid-resolution is refused, not swapped."""
+    far_limit: float = 1.0
+    """Targets and starts farther than this x the planning region's longest side from the region are errors (a typo
+    or a point in other units, never something to move silently)."""
+    max_attempts_per_candidate: int = 4
+    """Random starts tried per requested candidate before giving up on it."""
+    plan_cpu_threads: Optional[int] = 1
+    """torch intra-op threads while plan() runs its queries on the CPU (restored afterwards); None: leave
+    torch's setting alone. A request is thousands of small tensor ops, where thread hand-offs cost
+    more than they save (docs/PLANNER_DEFAULTS.md)."""
+    request_device: str = "auto"
+    """Where a request's collision / polytope / clearance queries run. 'auto': on the CPU when the scene
+    is on a GPU (the spatial index and the occupancy grid are still built there, then mirrored to the
+    CPU once in prepare()): a request is thousands of tiny queries whose kernel launches and syncs cost
+    more than they compute (docs/PLANNER_DEFAULTS.md). 'scene': on the scene's device. Batched scoring of many candidates (occlusion, clearance)
+    keeps using the scene's device (``Planner.batch_scene``)."""
+    grid_polytopes: Union[bool, str] = "auto"
+    """Corridor segments that lie in free voxels of the occupancy grid get polytopes built from the grid's surface
+    voxels (grid_polytope.py: the same safety guarantee without a Gaussian query, far cheaper, up to about one
+    voxel more distance from the scene); the others (usually the last one, next to the go-to object) get exact
+    Prop-2 polytopes from corridor_backend, and the shortcut prefers segments in free voxels (shortcut_way).
+    False: Prop-2 polytopes for every segment (the paper's corridor). 'auto': on when the grid's voxels are at most
+    GRID_POLYTOPE_MAX_VOXEL x the camera radius (fine voxels, where they make plans faster); off for coarse ones (a
+    real capture with far floaters, where they made plans slower; docs/PLANNER_DEFAULTS.md)."""
+    corridor_backend: str = "auto"
+    """How a request builds its corridor of safe polytopes. 'cpu': one host polytope per segment
+    (polytope.safe_polytope) on the request device's scene. 'batched': all segments' polytopes in one batched
+    torch computation (polytope_batched.py) on the scene's own device (``Planner.batch_scene`` and its index:
+    the GPU copy when the scene is on a GPU, even with request_device 'auto'); segments it cannot cover go
+    through the host path (with splitting). 'auto': 'batched' when the scene is on a CUDA device, else 'cpu'.
+    Candidate worker processes always use 'cpu' (no CUDA after fork). Same safety guarantee either way."""
+    candidate_workers: Optional[int] = None
+    """Worker processes that plan_candidates spreads its candidates over (workers.py: forked after prepare(),
+    sharing the prepared CPU state copy-on-write; each plans whole candidates single-threaded, the parent
+    samples starts, scores and ranks). None: auto, one per usable CPU (at most k busy per request)
+    when the 'fork' start method exists (Linux) and there are >= 4 CPUs, else 0. 0: plan in this process.
+    N: N workers. Workers are never used when requests run on a GPU (request_device 'scene' with a CUDA
+    scene): CUDA cannot be used after fork."""
+    worker_scoring: bool = True
+    """With candidate workers: each worker also computes its shot's score inputs (sight lines and exact clearance of
+    the scored frames, on the CPU copy with the compiled searches) and the parent only combines them. False: the
+    parent scores the shots (on the GPU when the scene is there) while the workers run. Same score terms (the
+    clearances agree to ~1e-13; occlusion flags can differ only for sight lines grazing an ellipsoid)."""
+
+    def validate(self) -> None:
+        """InvalidInputError naming the first field out of its range (Planner checks its config at construction)."""
+        if self.request_device not in ("auto", "scene"):
+            raise InvalidInputError(f"request_device must be 'auto' or 'scene', got {self.request_device!r}")
+        if self.corridor_backend not in ("auto", "cpu", "batched"):
+            raise InvalidInputError(
+                f"corridor_backend must be 'auto', 'cpu' or 'batched', got {self.corridor_backend!r}")
+        w = self.astar_weight
+        if isinstance(w, bool) or not isinstance(w, (int, float)) or not (math.isfinite(w) and w >= 1.0):
+            raise InvalidInputError(f"astar_weight must be a finite number >= 1, got {w!r}")
+        d = self.start_look_distance
+        if isinstance(d, bool) or not isinstance(d, (int, float)) or not (math.isfinite(d) and 0.0 <= d < 1.0):
+            raise InvalidInputError(f"start_look_distance must be a fraction in [0, 1) of the start region's longest "
+                                    f"side, got {d!r}")
+        validate_workers(self.candidate_workers)
+        lo_r, hi_r = GRID_RESOLUTION_RANGE
+        res = self.grid_resolution
+        if isinstance(res, bool) or not isinstance(res, (int, np.integer)) or not lo_r <= res <= hi_r:
+            raise InvalidInputError(f"grid_resolution (--grid-resolution) must be an integer in [{lo_r}, {hi_r}] voxels "
+                                    f"along the planning region's longest side, got {res!r}")
+        mb = self.memory_budget_mb
+        if isinstance(mb, bool) or not isinstance(mb, (int, float)) or not (math.isfinite(mb) and mb >= 64):
+            raise InvalidInputError(f"memory_budget_mb (--memory-budget-mb) must be a number >= 64, got {mb!r}")
+        for name, lo in (("region_padding", 0.0), ("far_limit", 1e-9)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v >= lo):
+                raise InvalidInputError(f"{name} must be a finite number >= {lo:g} (a fraction / multiple of the "
+                                        f"planning region's longest side), got {v!r}")
+        self.timing.validate()
+        if self.grid_polytopes not in (True, False, "auto"):
+            raise InvalidInputError(f"grid_polytopes must be True, False or 'auto', got {self.grid_polytopes!r}")
+
+
+class Planner:
+    """Plans camera shots through one scene. ``prepare()`` once, then ``plan()`` many times."""
+
+    def __init__(self, scene: EllipsoidScene, config: Optional[PlannerConfig] = None):
+        if len(scene) == 0:
+            from ..errors import EmptySceneError
+
+            raise EmptySceneError("the scene has no obstacles; nothing to plan around")
+        self.config = config or PlannerConfig()
+        self.config.validate()
+        self.batch_scene = scene  # the scene on its own device: big batched queries (candidate scoring)
+        self.scene = scene  # the scene on the request device (a CPU mirror after prepare() when 'auto' + GPU)
+        self.prepared: Optional[PreparedScene] = None
+        self._pool: Optional[tuple] = None  # (PreparedScene, processes, CandidatePool), see candidate_pool()
+
+    def _mirror_to_cpu(self) -> bool:
+        """Requests query a CPU mirror of the scene (request_device 'auto' and a scene off the CPU)."""
+        return self.config.request_device == "auto" and self.batch_scene.device.type != "cpu"
+
+    # ------------------------------------------------------------------ one-time work
+    def prepare(self) -> PreparedScene:
+        """Build the prepared scene (prepared_scene.prepare_scene: spatial index, occupancy grid, components, ...;
+        timed, one-time) for the planning region on the scene's device; with request_device 'auto' and a GPU scene,
+        requests then query a CPU mirror of scene, index and grid (``self.scene``)."""
+        self.scene = self.batch_scene
+        lo, hi = self.planning_bounds()
+        self.check_region(lo.cpu().numpy(), hi.cpu().numpy())  # before any expensive work
+        self.scene, self.prepared = prepare_scene(self.batch_scene, self.config.grid_resolution, lo, hi,
+                                                  mirror=self._mirror_to_cpu())
+        return self.prepared
+
+    def ready(self) -> PreparedScene:
+        """The prepared scene (prepare() on first use)."""
+        return self.prepared if self.prepared is not None else self.prepare()
+
+    def grow_region(self, point: np.ndarray) -> None:
+        """Grow the planning region to hold ``point`` [3] (with a voxel's room) and prepare again: a forced start."""
+        lo, hi = self.region()
+        room = 2.0 * float(self.ready().grid.voxel_size) + float(self.scene.camera_radius)
+        lo, hi = np.minimum(lo, point - room), np.maximum(hi, point + room)
+        self.close()
+        self.config = replace(self.config, bounds=(lo, hi))
+        self.prepared = None
+        self.prepare()
+
+    # ------------------------------------------------------------------ the planning region (planning_region.py)
+    def planning_bounds(self) -> tuple[Tensor, Tensor]:
+        """(lo [3], hi [3]) of the region prepare() will grid (planning_region.planning_bounds)."""
+        return planning_region.planning_bounds(self.scene, self.config)
+
+    def check_region(self, lo: np.ndarray, hi: np.ndarray) -> None:
+        """InvalidInputError when the camera sphere or the voxel grid does not fit the region [lo, hi]
+        (planning_region.check_region)."""
+        planning_region.check_region(self.config, float(self.scene.camera_radius), lo, hi)
+
+    def check_timing(self) -> None:
+        """InvalidInputError when a shot across the planning region would need more than config.timing.max_frames
+        frames (planning_region.check_timing)."""
+        lo, hi = self.region()
+        planning_region.check_timing(self.config.timing, lo, hi)
+
+    def region(self) -> tuple[np.ndarray, np.ndarray]:
+        """The prepared planning region (lo [3], hi [3]) float64: the occupancy grid's box. Paths stay inside it."""
+        return planning_region.grid_region(self.ready().grid)
+
+    def distance_outside(self, point: np.ndarray) -> float:
+        """Euclidean distance [scene units] from a point [3] to the planning region (0 inside)."""
+        lo, hi = self.region()
+        return planning_region.distance_outside(lo, hi, point)
+
+    def checked_point(self, point: ArrayLike, what: str) -> np.ndarray:
+        """A user point [3] as float64: finite and within config.far_limit region sizes of the planning region, else
+        InvalidInputError naming ``what`` and the allowed range (planning_region.checked_point)."""
+        lo, hi = self.region()
+        return planning_region.checked_point(point, what, lo, hi, self.config.far_limit)
+
+    def explain_goal(self, target: ArrayLike, reached: ArrayLike, tol: float = 1e-6) -> Optional[dict]:
+        """Why a shot ends away from its go-to target: None when it ends there, else {"from", "to", "distance",
+        "why"} (reach.explain_goal)."""
+        return reach.explain_goal(self, target, reached, tol)
+
+    # ------------------------------------------------------------------ candidate workers (workers.py)
+    def candidate_workers(self) -> int:
+        """Worker processes plan_candidates uses now (workers.candidate_workers)."""
+        return candidate_workers(self)
+
+    def candidate_pool(self) -> Optional[CandidatePool]:
+        """The forked worker pool for candidate_workers() > 0 (None for 0), created on first use and again
+        when prepare() has run since (the workers hold the planner as it was at the fork)."""
+        n = self.candidate_workers()
+        if n == 0:
+            return None
+        self.main_component()  # cached before the fork so that workers inherit it
+        self._pool = pool_for(self, self.ready(), n, self._pool)
+        return self._pool[2]
+
+    def close(self) -> None:
+        """Terminate the candidate worker pool if there is one (also done when the planner is garbage
+        collected and at interpreter exit). The planner stays usable: a later request forks a new pool."""
+        if self._pool is not None:
+            self._pool[2].close()
+            self._pool = None
+
+    # ------------------------------------------------------------------ corridors (corridor_options.py)
+    def corridor_backend(self) -> str:
+        """config.corridor_backend resolved for this process: 'batched' or 'cpu' (corridor_options.corridor_backend)."""
+        return corridor_options.corridor_backend(self)
+
+    def use_grid_polytopes(self) -> bool:
+        """config.grid_polytopes resolved for the prepared grid (corridor_options.use_grid_polytopes)."""
+        return corridor_options.use_grid_polytopes(self)
+
+    def corridor_kwargs(self) -> dict:
+        """Keyword arguments of build_corridor for this planner's requests (corridor_options.corridor_kwargs)."""
+        return corridor_options.corridor_kwargs(self)
+
+    # ------------------------------------------------------------------ clearance (clearance_queries.py)
+    def clearance(self, points: ArrayLike, cap: Optional[float] = None, batch: bool = False) -> np.ndarray:
+        """Exact clearance [P] (camera radius included) of camera centres [P, 3], capped at ``cap`` when given;
+        ``batch``: on the scene's own device (clearance_queries.clearance)."""
+        return clearance_queries.clearance(self, points, cap=cap, batch=batch)
+
+    def clearance_report(self, shot: Shot, max_spacing: float = 0.02, label: str = "",
+                         cap: float = DEFAULT_CLEARANCE_CAP) -> dict:
+        """safety.safety_report of a shot with this scene's exact clearance capped at ``cap``
+        (clearance_queries.clearance_report)."""
+        return clearance_queries.clearance_report(self, shot, max_spacing=max_spacing, label=label, cap=cap)
+
+    def clearance_lower_bound(self, points: ArrayLike) -> np.ndarray:
+        """A lower bound [P] of the clearance of camera centres [P, 3] from the occupancy grid alone
+        (clearance_queries.clearance_lower_bound)."""
+        return clearance_queries.clearance_lower_bound(self, points)
+
+    def points_free(self, points) -> np.ndarray:
+        """bool [P]: camera ball at each point [P, 3] proven clear, conservatively (clearance_queries.points_free)."""
+        return clearance_queries.points_free(self, points)
+
+    def in_free_voxel(self, points) -> np.ndarray:
+        """bool [P]: the point lies in a free voxel of the occupancy grid (clearance_queries.in_free_voxel)."""
+        return clearance_queries.in_free_voxel(self, points)
+
+    def free_test(self, points: Tensor) -> Tensor:
+        """points_free of a tensor [P, 3] as a bool tensor (clearance_queries.free_test)."""
+        return clearance_queries.free_test(self, points)
+
+    # ------------------------------------------------------------------ the shortcut (shortcut.py)
+    def segments_free(self, p0, p1) -> np.ndarray:
+        """bool [P]: segment p0[i] -> p1[i] proven collision-free for the camera ball (shortcut.segments_free)."""
+        return shortcut.segments_free(self, p0, p1)
+
+    def segments_off_grid(self, way: np.ndarray) -> int:
+        """Segments of a polyline [K, 3] that do not lie in free voxels (shortcut.segments_off_grid)."""
+        return shortcut.segments_off_grid(self, way)
+
+    def choose_way(self, grid_way: np.ndarray, any_way: Optional[np.ndarray]) -> np.ndarray:
+        """The cheaper corridor of two shortcuts of one path (shortcut.choose_way)."""
+        return shortcut.choose_way(self, grid_way, any_way)
+
+    def shortcut_way(self, way: np.ndarray) -> np.ndarray:
+        """The shortcut of one polyline [K, 3]: with grid polytopes, the grid rule's, unless it leaves more than
+        CLASSIC_SHORTCUT_AFTER segments off the grid; then also the classic shortcut, and the cheaper of the two
+        (choose_way)."""
+        return self.shortcut_ways([way])[0]
+
+    def shortcut_ways(self, ways: list) -> list:
+        """The shortcut of several polylines [K, 3] (shortcut.shortcut_ways)."""
+        return shortcut.shortcut_ways(self, ways)
+
+    # ------------------------------------------------------------------ starts (starts.py)
+    def main_component(self) -> int:
+        """The free component random starts come from (starts.main_component: the start region's, else
+        preferred_component's choice). Constant per prepared scene: computed once, not per request."""
+        return starts.main_component(self)
+
+    def random_starts(self, n: int, generator: torch.Generator, look_at: np.ndarray) -> Tensor:
+        """n random collision-free starts [n, 3] as every request draws them (starts.random_starts)."""
+        return starts.random_starts(self, n, generator, look_at)
+
+    def checked_start(self, start: ArrayLike, force: bool = False) -> np.ndarray:
+        """A user-given start [3] as float64, checked against the planning region (grown to hold it when ``force``)
+        and the scene (starts.checked_start)."""
+        return starts.checked_start(self, start, force)
+
+    # ------------------------------------------------------------------ planning
+    def plan(self, goal: ArrayLike, look_at: ArrayLike, start: Optional[ArrayLike] = None, seed: int = 0,
+             n_candidates: int = 1, force_start: bool = False) -> list[Shot]:
+        """Plan ``n_candidates`` shots ending as close as safely possible to ``goal`` and always
+        looking at ``look_at``. With ``start`` all candidates start there (n_candidates is then 1);
+        otherwise starts are sampled free and reachable with the seeded generator. A start outside the planning
+        region is an error unless ``force_start`` (the region then grows to hold it).
+
+        Raises InvalidInputError, StartInCollisionError, GoalUnreachableError (see messages).
+        Every returned shot's exact clearance along the densely sampled curve is >= 0; explain_goal says why a
+        shot ends away from ``goal``."""
+        with self.request_threads():
+            return plan_request(self, goal, look_at, start, seed, n_candidates, force_start)
+
+    @contextlib.contextmanager
+    def request_threads(self):
+        """torch CPU threads = config.plan_cpu_threads while a request runs (restored afterwards): a plan is
+        many small ops, for which extra threads cost more than they give."""
+        threads, old = self.config.plan_cpu_threads, torch.get_num_threads()
+        on_cpu = self.scene.device.type == "cpu" or self._mirror_to_cpu()  # the mirror exists once prepared
+        swap = threads is not None and on_cpu and int(threads) != old
+        if swap:
+            torch.set_num_threads(int(threads))
+        try:
+            yield
+        finally:
+            if swap:
+                torch.set_num_threads(old)

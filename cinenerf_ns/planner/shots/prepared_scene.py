@@ -1,0 +1,97 @@
+"""What a Planner builds once per scene and planning region (``PreparedScene``: spatial index, occupancy grid,
+free-space components, coarse grid, surface voxels, mean voxels, distance transform) and how (``prepare_scene``).
+Every request only reads it; the one-time cost is reported in ``timings_ms``, apart from per-plan cost."""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Optional, Tuple
+
+import numpy as np
+from torch import Tensor
+
+from ..corridor.grid_polytope import VoxelObstacles
+from ..corridor.polytope import prepare_native as prepare_native_polytope
+from ..errors import GoalUnreachableError
+from ..geometry.clearance_queries import free_distance_transform
+from ..native import grid_polytope_c as native_grid_polytope, search26 as native_search26
+from ..scene.ellipsoids import EllipsoidScene
+from ..scene.occupancy import OccupancyGrid, build_occupancy
+from ..scene.spatial_index import GridIndex
+from ..search.astar import AStarGrid
+from ..search.coarse_path import CoarseGrid
+from ..search.goal import mean_voxel_mask
+
+
+def preload_request_modules() -> None:
+    """Import now what requests import lazily (the goal's QP, polytope centres, the corridor QP's solvers; scipy.optimize's
+    import alone is a noticeable part of a first request), paid once per process instead of by the first request."""
+    import scipy.optimize  # noqa: F401
+    import scipy.sparse  # noqa: F401 - imported for its side effect (loaded once)
+
+    for name in ("clarabel", "osqp"):
+        try:
+            __import__(name)
+        except ImportError:  # optional solvers: the request reports what is missing
+            pass
+
+
+@dataclass
+class PreparedScene:
+    """What prepare() builds once per scene and planning region; every request reads it."""
+
+    index: GridIndex  # on the request device (Planner.scene's)
+    grid: OccupancyGrid
+    astar_grid: AStarGrid
+    timings_ms: dict
+    coarse: Optional[CoarseGrid] = None  # 2x-coarse blocks for hard path searches (coarse_path.py)
+    batch_index: Optional[GridIndex] = None  # the index on the scene's own device (Planner.batch_scene)
+    free_edt: Optional[np.ndarray] = None  # [X+2, Y+2, Z+2] see clearance_queries.free_distance_transform (lazy)
+    voxels: Optional[VoxelObstacles] = None  # the grid's occupied + surface voxels for grid polytopes
+    mean_voxels: Optional[np.ndarray] = None  # [X, Y, Z] bool voxels holding a Gaussian mean (goal.mean_voxel_mask)
+    main_component_of: Optional[tuple] = None  # (start_region, component) cached by starts.main_component
+
+
+def prepare_scene(scene: EllipsoidScene, grid_resolution: int, lo: Tensor, hi: Tensor,
+                  mirror: bool) -> Tuple[EllipsoidScene, PreparedScene]:
+    """Build the spatial index and the occupancy grid of ``scene`` over [lo [3], hi [3]] (``grid_resolution`` voxels
+    along the longest side) on the scene's device, then what requests need from them; with ``mirror``, scene, index
+    and grid are mirrored to the CPU first. Returns (the scene requests query: ``scene`` or its CPU mirror, the
+    PreparedScene). GoalUnreachableError when the grid has no free voxel."""
+    t0 = time.perf_counter()
+    index = GridIndex.build(scene)
+    t1 = time.perf_counter()
+    grid = build_occupancy(scene, index, grid_resolution, bounds=(lo, hi))
+    t2 = time.perf_counter()
+    batch_index = index
+    if mirror:
+        scene = scene.to("cpu")
+        index, grid = index.to("cpu"), grid.to("cpu")
+    t3 = time.perf_counter()
+    ag = AStarGrid(grid.numpy())
+    _ = ag.labels  # free-space components, used for reachability of goals and starts
+    coarse = CoarseGrid(ag)
+    t4 = time.perf_counter()
+    voxels = VoxelObstacles.from_occupied(ag._occ, grid.lo.detach().cpu().double().numpy(), grid.voxel_size)
+    t5 = time.perf_counter()
+    # compile / load the compiled path search and polytope now (cached on disk after the first time), before
+    # candidate worker processes fork: they inherit them instead of each loading them on first use
+    native_search26()
+    native_grid_polytope()
+    prepare_native_polytope(scene, index)
+    preload_request_modules()
+    t6 = time.perf_counter()
+    if not (~grid.occupied).any():
+        raise GoalUnreachableError(
+            "the occupancy grid has no free voxel: the camera radius is too large for this scene, or the "
+            "planning bounds hold no free space (raise --grid-resolution or check --bounds)"
+        )
+    prepared = PreparedScene(
+        index=index, grid=grid, astar_grid=ag, coarse=coarse, batch_index=batch_index, voxels=voxels,
+        mean_voxels=mean_voxel_mask(scene, grid),
+        timings_ms={"index_ms": 1e3 * (t1 - t0), "grid_ms": 1e3 * (t2 - t1), "mirror_ms": 1e3 * (t3 - t2) if mirror else 0.0,
+                    "components_ms": 1e3 * (t4 - t3), "surface_ms": 1e3 * (t5 - t4), "native_ms": 1e3 * (t6 - t5)},
+    )
+    free_distance_transform(prepared)  # once, off the request path (clearance_queries.clearance_lower_bound)
+    prepared.timings_ms["warm_ms"] = 1e3 * (time.perf_counter() - t6)  # mean voxels + distance transform
+    return scene, prepared

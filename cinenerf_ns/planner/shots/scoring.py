@@ -1,0 +1,214 @@
+"""A documented, configurable score of one shot (lower cost = better shot).
+
+Terms (each reported raw in ``ShotScore.to_dict()``, and weighted in ``costs``):
+  occluded_fraction   fraction of evaluated frames (x target samples) whose sight line to the look-at
+                      object is blocked by a scene ellipsoid (occlusion.py; exact count).
+  framing_size_error  |log(fill / target_fill)| averaged over frames, fill = projected diameter of the
+                      look-at object / frame height = 2 atan(object_radius / distance) / fov.
+  framing_offset      mean angle between the view axis and the direction to the object's centre,
+                      in units of the half field of view (0 = centred, 1 = at the frame edge).
+  min_clearance       smallest exact clearance over the frames (camera radius included; values above
+                      ScoreConfig.clearance_cap count as the cap);
+                      cost = relu(clearance_ref - min_clearance) / clearance_ref.
+  mean_clearance      mean exact clearance (reported); cost = mean over frames of
+                      relu(clearance_ref - clearance_t) / clearance_ref (time spent close to obstacles).
+  max_jerk, mean_jerk finite-difference jerk of the frame positions (units/s^3); cost = mean_jerk / jerk_ref.
+  max_angular_rate_deg, mean_angular_rate_deg   turn rate of the view direction (deg/s);
+                      cost = mean_angular_rate / angular_rate_ref.
+  duration_s          cost = duration / duration_ref.
+
+    total = sum_k weight_k * cost_k          (ShotScore.total; candidates are ranked by it, ascending)
+
+Occlusion frames: at most ``occlusion_frames`` evenly spaced frames are tested (first and last included),
+so the cost per shot is bounded on long shots; set it to 0 to test every frame.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Dict, Optional
+
+import numpy as np
+import torch
+
+from ..errors import InvalidInputError
+from ..geometry.occlusion import sight_lines_blocked
+from ..scene.ellipsoids import EllipsoidScene
+from ..trajectory.dynamics import frame_peaks, view_vectors
+from .camera_path import DEFAULT_FOV_DEG
+
+
+@dataclass
+class ScoreConfig:
+    """Weights and reference scales of the shot score (see the module docstring for the formula)."""
+
+    w_occlusion: float = 10.0
+    """Weight of the occluded fraction of frames (0..1): the dominant term, a hidden subject ruins a shot."""
+    w_framing_size: float = 1.0
+    """Weight of the mean |log(fill / target_fill)| of the object's projected size."""
+    w_framing_offset: float = 1.0
+    """Weight of the mean off-centre angle of the object (in half-fov units)."""
+    w_min_clearance: float = 2.0
+    """Weight of relu(clearance_ref - min clearance) / clearance_ref."""
+    w_mean_clearance: float = 1.0
+    """Weight of the frame mean of relu(clearance_ref - clearance_t) / clearance_ref."""
+    w_jerk: float = 0.5
+    """Weight of mean jerk / jerk_ref."""
+    w_angular_rate: float = 0.5
+    """Weight of mean view angular rate / angular_rate_ref."""
+    w_duration: float = 0.2
+    """Weight of duration / duration_ref."""
+    target_fill: float = 0.3
+    """Wanted projected object diameter as a fraction of the frame height."""
+    fov_deg: float = DEFAULT_FOV_DEG
+    """Vertical field of view of the camera, degrees (the exported camera's fov)."""
+    clearance_ref: float = 0.1
+    """Clearance (scene units) above which the clearance terms cost nothing."""
+    jerk_ref: float = 5.0
+    """Jerk scale, units/s^3."""
+    angular_rate_ref: float = 30.0
+    """View angular rate scale, deg/s."""
+    duration_ref: float = 5.0
+    """Duration scale, seconds."""
+    occlusion_frames: int = 64
+    """At most this many evenly spaced frames are tested for occlusion (0: all frames)."""
+    clearance_cap: Optional[float] = 0.1
+    """The exact clearance is only searched up to this value; larger clearances count as the cap, so the
+    min/mean clearance terms are those of min(clearance, cap). The costs only depend on values below
+    clearance_ref, so a cap >= clearance_ref leaves the total unchanged while skipping most of the
+    exact-distance work. None: uncapped exact clearance."""
+
+    def validate(self) -> None:
+        for k, v in self.__dict__.items():
+            if k == "clearance_cap" and v is None:
+                continue
+            if not (isinstance(v, (int, float)) and math.isfinite(v)):
+                raise InvalidInputError(f"ScoreConfig.{k} must be a finite number, got {v!r}.")
+            if k.startswith("w_") and v < 0:
+                raise InvalidInputError(f"ScoreConfig.{k} must be >= 0, got {v}.")
+        for k in ("target_fill", "fov_deg", "clearance_ref", "jerk_ref", "angular_rate_ref", "duration_ref"):
+            if getattr(self, k) <= 0:
+                raise InvalidInputError(f"ScoreConfig.{k} must be > 0, got {getattr(self, k)}.")
+        if self.fov_deg >= 180:
+            raise InvalidInputError(f"ScoreConfig.fov_deg must be < 180, got {self.fov_deg}.")
+        if self.clearance_cap is not None and self.clearance_cap <= 0:
+            raise InvalidInputError(f"ScoreConfig.clearance_cap must be > 0 or None, got {self.clearance_cap}.")
+        if self.occlusion_frames < 0:
+            raise InvalidInputError("ScoreConfig.occlusion_frames must be >= 0.")
+
+
+@dataclass
+class ShotScore:
+    """Every score term of one shot, the weighted costs and their sum (lower is better)."""
+
+    terms: Dict[str, float]
+    costs: Dict[str, float]
+    total: float
+    occluded_frames: Optional[np.ndarray] = field(default=None, repr=False)  # [T'] bool per tested frame
+    tested_frame_index: Optional[np.ndarray] = field(default=None, repr=False)  # [T'] frame indices tested
+
+    def to_dict(self) -> Dict[str, Any]:
+        return {"total": float(self.total), "terms": {k: float(v) for k, v in self.terms.items()},
+                "costs": {k: float(v) for k, v in self.costs.items()}}
+
+
+def scored_frames(num: int, cap: int) -> np.ndarray:
+    """Indices [T'] of the frames a score tests among ``num``: all of them, or ``cap`` evenly spaced ones (first and
+    last included) when there are more (ScoreConfig.occlusion_frames; cap <= 0: all)."""
+    if cap <= 0 or num <= cap:
+        return np.arange(num)
+    return np.unique(np.round(np.linspace(0, num - 1, cap)).astype(np.int64))
+
+
+def score_terms(shot, look_at: np.ndarray, occluded: np.ndarray, clearance: np.ndarray, object_radius: float,
+                object_center: Optional[np.ndarray], config: ScoreConfig) -> ShotScore:
+    """Combine precomputed per-frame quantities into a ShotScore (used by score_shot and the batched
+    candidate scorer, so both give identical numbers). occluded [T', S] bool, clearance [T]."""
+    pos = shot.positions
+    centre = look_at if object_center is None else np.asarray(object_center, np.float64)
+    dist = np.maximum(np.linalg.norm(centre[None] - pos, axis=1), 1e-9)  # [T]
+    fov = math.radians(config.fov_deg)
+    fill = 2 * np.arctan(max(object_radius, 1e-9) / dist) / fov
+    size_err = float(np.mean(np.abs(np.log(fill / config.target_fill))))
+    view = -shot.rotations[:, :, 2]
+    to_c = (centre[None] - pos) / dist[:, None]
+    off = np.arctan2(np.linalg.norm(np.cross(view, to_c), axis=1), (view * to_c).sum(1)) / (0.5 * fov)
+    pk = frame_peaks(pos, shot.times, view_vectors(pos, look_at))
+    occ = float(np.mean(occluded)) if occluded.size else 0.0
+    if config.clearance_cap is not None:
+        clearance = np.minimum(clearance, config.clearance_cap)
+    terms = {
+        "occluded_fraction": occ,
+        "framing_fill_mean": float(np.mean(fill)),
+        "framing_size_error": size_err,
+        "framing_offset": float(np.mean(off)),
+        "min_clearance": float(np.min(clearance)),
+        "mean_clearance": float(np.mean(clearance)),
+        "max_jerk": pk.jerk,
+        "mean_jerk": pk.mean_jerk,
+        "max_angular_rate_deg": pk.angular_rate_deg,
+        "mean_angular_rate_deg": pk.mean_angular_rate_deg,
+        "duration_s": float(shot.duration),
+    }
+    c = config
+    costs = {
+        "occlusion": c.w_occlusion * occ,
+        "framing_size": c.w_framing_size * size_err,
+        "framing_offset": c.w_framing_offset * terms["framing_offset"],
+        "min_clearance": c.w_min_clearance * max(0.0, c.clearance_ref - terms["min_clearance"]) / c.clearance_ref,
+        "mean_clearance": c.w_mean_clearance * float(np.mean(np.maximum(0.0, c.clearance_ref - clearance))) / c.clearance_ref,
+        "jerk": c.w_jerk * pk.mean_jerk / c.jerk_ref,
+        "angular_rate": c.w_angular_rate * pk.mean_angular_rate_deg / c.angular_rate_ref,
+        "duration": c.w_duration * terms["duration_s"] / c.duration_ref,
+    }
+    occ_frames = occluded.any(-1) if occluded.ndim == 2 else occluded
+    return ShotScore(terms, costs, float(sum(costs.values())), occ_frames)
+
+
+def score_shot(
+    shot,
+    scene: EllipsoidScene,
+    look_at: Any,
+    config: Optional[ScoreConfig] = None,
+    index=None,
+    object_radius: float = 0.1,
+    object_center: Optional[Any] = None,
+    object_samples: Optional[Any] = None,
+    exclude: Optional[torch.Tensor] = None,
+    clearance_fn=None,
+) -> ShotScore:
+    """Score one shot (see the module docstring).
+
+    look_at [3]: the point the frames aim at. object_radius: bounding-sphere radius of the look-at object
+    (framing size, and the sight lines stop at that sphere so the object does not hide itself).
+    object_center [3]: the object's centre for framing (default look_at). object_samples [S, 3]: extra
+    target points of the object for occlusion (default: look_at only). exclude [N] bool: Gaussians that
+    never occlude (the object's own). clearance_fn(points [P,3]) -> [P]: exact clearance (default
+    distance.clearance with ``index``); the shot's own ``clearance`` is used when present.
+    """
+    cfg = config or ScoreConfig()
+    cfg.validate()
+    look = np.asarray(look_at, np.float64).reshape(-1)
+    if look.shape != (3,) or not np.all(np.isfinite(look)):
+        raise InvalidInputError(f"look_at must be 3 finite numbers, got {look.tolist()}.")
+    if not (math.isfinite(object_radius) and object_radius >= 0):
+        raise InvalidInputError(f"object_radius must be finite and >= 0, got {object_radius}.")
+    from ..scene.spatial_index import GridIndex
+
+    index = index if index is not None else GridIndex.build(scene)
+    targets = look[None] if object_samples is None else np.asarray(object_samples, np.float64).reshape(-1, 3)
+    idx = scored_frames(shot.num_frames, cfg.occlusion_frames)
+    occ = sight_lines_blocked(shot.positions[idx], targets, scene, index, exclude=exclude,
+                              stop_distance=object_radius).cpu().numpy()
+    if shot.clearance is not None:
+        clr = shot.clearance
+    elif clearance_fn is not None:
+        clr = np.asarray(clearance_fn(shot.positions), np.float64).reshape(-1)
+    else:
+        from ..geometry.distance import clearance
+
+        cap = None if cfg.clearance_cap is None else cfg.clearance_cap + scene.camera_radius
+        clr = clearance(torch.as_tensor(shot.positions, device=scene.device), scene, index, max_distance=cap).cpu().numpy()
+    out = score_terms(shot, look, occ, clr, object_radius, object_center, cfg)
+    out.tested_frame_index = idx
+    return out

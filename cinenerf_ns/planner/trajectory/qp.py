@@ -1,0 +1,580 @@
+"""Smooth piecewise-Bezier trajectory through a corridor of convex polytopes: one sparse QP.
+
+Problem (paper Sec. IV-C; the same QP is written in cvxpy in tests/planner/trajectory/test_qp.py):
+
+Variables: all control points P_{k,i} (segment k = 0..M-1, i = 0..D), flattened as
+    x[(k * (D+1) + i) * 3 + c],  c = x/y/z.
+Segment k lasts d_k = max(|w_{k+1} - w_k| / nominal_speed, min_segment_duration) seconds (w = waypoints),
+so derivatives are with respect to time and continuity at joins accounts for unequal durations.
+
+Objective (exact, closed form in the control points):
+    J = smoothness_weight * sum_k integral_0^{d_k} |d^r p_k / dt^r|^2 dt          (r = smoothness_order)
+      + length_weight     * sum_k sum_{i<D} |P_{k,i+1} - P_{k,i}|^2                ("minimum length")
+With n = D - r, c_r = D!/(D-r)! and the Bernstein Gram matrix G_{jl} = integral_0^1 B_{j,n} B_{l,n} du
+= C(n,j) C(n,l) / ((2n+1) C(2n, j+l)), the first term of segment k is
+    c_r^2 / d_k^(2r-1) * sum_c (Delta^r P_{k,:,c})^T G (Delta^r P_{k,:,c}).
+The second term is the squared control polygon (a convex proxy of length: the control polygon bounds
+the curve, and squared lengths spread points evenly instead of bunching them).
+
+Constraints:
+  * corridor: A_k P_{k,i} <= b_k - margin * |rows of A_k| for every control point of segment k that is
+    not pinned below. By the convex-hull property of Bezier curves the whole segment then lies in
+    polytope k. The margin (scene units) absorbs solver tolerance so a returned control point is never
+    outside the true polytope; the result is checked against the unshrunk b before it is returned.
+  * continuity C0..C_continuity at every join, in time: d^r p_k/dt^r(end) = d^r p_{k+1}/dt^r(start).
+  * start/goal: P_{0,0} = start, P_{M-1,D} = goal; with rest_at_ends = q >= 1 also the first/last
+    q derivatives vanish there, i.e. P_{0,0..q} = start and P_{M-1,D-q..D} = goal.
+    Pinned points are checked against their polytope (unshrunk) up front instead of being constrained.
+
+Solved with Clarabel (interior point, default) or OSQP (ADMM + polishing), both called directly with
+matrices built here (scipy CSC, upper triangle of P). CPU numpy float64 throughout: the solvers are
+CPU libraries; torch inputs are accepted and converted.
+"""
+from __future__ import annotations
+
+import functools
+import math
+import time
+from dataclasses import dataclass, replace
+from typing import Any, List, Sequence, Tuple
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.linalg import cho_factor, cho_solve
+
+from ..errors import GoalUnreachableError, InvalidInputError, PlanningError
+from .bezier import BezierTrajectory, _to_numpy, difference_matrix
+
+
+class CorridorInfeasibleError(GoalUnreachableError):
+    """No trajectory of the requested smoothness fits inside the corridor."""
+
+
+RETRY_TOLERANCE = 1e-6  # Clarabel's tolerance for the one retry after a stalled solve (solve_corridor_qp)
+
+
+class TrajectorySolverError(PlanningError):
+    """The QP solver failed for numerical reasons or returned a point outside the corridor."""
+
+
+@dataclass
+class TrajectoryConfig:
+    """Shape, cost and solver of the corridor QP."""
+
+    degree: int = 5
+    """Bezier degree D of every segment (D+1 control points each)."""
+    continuity: int = 2
+    """Continuity order at joins: position and its first `continuity` time derivatives match (2 = C2)."""
+    smoothness_order: int = 3
+    """Which time derivative's squared integral is minimised: 2 = acceleration, 3 = jerk."""
+    smoothness_weight: float = 1.0
+    """Weight of the smoothness integral in the objective."""
+    length_weight: float = 1e-2
+    """Weight of the squared control-polygon length ("minimum length") in the objective."""
+    nominal_speed: float = 0.5
+    """Scene units per second used to turn waypoint distances into segment durations."""
+    min_segment_duration: float = 0.05
+    """Lower bound of a segment's duration in seconds (keeps very short segments well conditioned)."""
+    rest_at_ends: int = 1
+    """Number of time derivatives forced to zero at start and goal (0: none, 1: velocity, 2: + acceleration)."""
+    solver: str = "clarabel"
+    """QP solver: "clarabel" (interior point, robust, default) or "osqp" (ADMM with polishing)."""
+    margin: float = 1e-5
+    """Polytope offsets are shrunk by this distance (scene units) so solver tolerance cannot leave a point outside."""
+    osqp_margin: float = 1e-4
+    """The margin used with OSQP instead of `margin`: ADMM meets constraints only to ~eps * |b|, and its
+    polishing step often fails on this cost, so it needs more room."""
+
+    def effective_margin(self) -> float:
+        return self.osqp_margin if self.solver == "osqp" else self.margin
+    max_iter: int = 200
+    """Clarabel iteration limit (OSQP gets 100x this many ADMM iterations)."""
+    tolerance: float = 1e-8
+    """Clarabel feasibility/optimality tolerance (tol_feas, tol_gap_abs, tol_gap_rel)."""
+    iterative_refinement: bool = False
+    """Clarabel's iterative refinement of every KKT solve. Off about halves Clarabel's solve on corridor QPs with the
+    same optimum (objective within ~1e-7 relative, constraint violations far inside the margin); every control point
+    is still checked against its unshrunk polytope. The one retry after a stalled solve turns it on."""
+    osqp_tolerance: float = 1e-6
+    """OSQP eps_abs/eps_rel. ADMM converges slowly on this ill-conditioned cost (1/d^5 terms), so it gets
+    a looser tolerance than Clarabel; polishing usually sharpens it and the margin covers the rest."""
+
+    def validate(self) -> None:
+        if self.degree < 1:
+            raise InvalidInputError(f"Bezier degree must be >= 1, got {self.degree}.")
+        if not 0 <= self.continuity < self.degree:
+            raise InvalidInputError(
+                f"continuity order must be in [0, degree-1] = [0, {self.degree - 1}], got {self.continuity}."
+            )
+        if not 1 <= self.smoothness_order <= self.degree:
+            raise InvalidInputError(
+                f"smoothness_order must be in [1, degree] = [1, {self.degree}], got {self.smoothness_order}."
+            )
+        if self.rest_at_ends < 0 or 2 * (self.rest_at_ends + 1) > self.degree + 1:
+            raise InvalidInputError(
+                f"rest_at_ends={self.rest_at_ends} pins {self.rest_at_ends + 1} control points at each end, "
+                f"more than a degree-{self.degree} segment has; use a higher degree or fewer rest derivatives."
+            )
+        if self.smoothness_weight < 0 or self.length_weight < 0 or self.smoothness_weight + self.length_weight == 0:
+            raise InvalidInputError("cost weights must be >= 0 and not both zero.")
+        if self.nominal_speed <= 0 or self.min_segment_duration <= 0:
+            raise InvalidInputError("nominal_speed and min_segment_duration must be positive.")
+        if self.solver not in ("clarabel", "osqp"):
+            raise InvalidInputError(f'solver must be "clarabel" or "osqp", got "{self.solver}".')
+        if self.margin < 0 or self.osqp_margin < 0:
+            raise InvalidInputError(f"margins must be >= 0, got {self.margin}, {self.osqp_margin}.")
+
+
+# ---------------------------------------------------------------------------------------------- helpers
+@functools.lru_cache(maxsize=None)
+def bernstein_gram(n: int) -> np.ndarray:
+    """G_{jl} = integral_0^1 B_{j,n}(u) B_{l,n}(u) du, [n+1, n+1] (cached, read-only)."""
+    j = np.arange(n + 1)
+    cj = np.array([math.comb(n, k) for k in j], dtype=np.float64)
+    c2 = np.array([math.comb(2 * n, k) for k in range(2 * n + 1)], dtype=np.float64)
+    g = np.outer(cj, cj) / ((2 * n + 1) * c2[j[:, None] + j[None, :]])
+    g.flags.writeable = False
+    return g
+
+
+@functools.lru_cache(maxsize=None)
+def _difference(degree: int, order: int) -> np.ndarray:
+    diff = difference_matrix(degree, order)
+    diff.flags.writeable = False
+    return diff
+
+
+@functools.lru_cache(maxsize=None)
+def _unit_hessians(degree: int, order: int) -> Tuple[np.ndarray, np.ndarray]:
+    """(c_r^2 Delta_r^T G Delta_r, Delta_1^T Delta_1): smoothness Hessian for d = 1 and the length Hessian."""
+    c_r = math.factorial(degree) / math.factorial(degree - order)
+    diff = _difference(degree, order)
+    smooth = c_r**2 * diff.T @ bernstein_gram(degree - order) @ diff
+    d1 = _difference(degree, 1)
+    length = d1.T @ d1
+    smooth.flags.writeable = False
+    length.flags.writeable = False
+    return smooth, length
+
+
+def segment_hessians(degree: int, durations: np.ndarray, config: TrajectoryConfig) -> np.ndarray:
+    """H_k with cost_k = sum_c P_{k,:,c}^T H_k P_{k,:,c}: durations [M] -> [M, D+1, D+1] (symmetric PSD).
+
+    Smoothness scales as 1/d^(2r-1): d^r/dt^r brings d^-r twice and dt = d du brings d once.
+    """
+    r = config.smoothness_order
+    smooth, length = _unit_hessians(degree, r)
+    w = config.smoothness_weight / np.asarray(durations, dtype=np.float64) ** (2 * r - 1)  # [M]
+    return w[:, None, None] * smooth + config.length_weight * length
+
+
+def segment_durations(waypoints: np.ndarray, config: TrajectoryConfig) -> np.ndarray:
+    """[M+1, 3] waypoints -> [M] durations (seconds)."""
+    lengths = np.linalg.norm(np.diff(waypoints, axis=0), axis=1)
+    return np.maximum(lengths / config.nominal_speed, config.min_segment_duration)
+
+
+def _as_polytopes(polytopes: Sequence[Any]) -> List[Tuple[np.ndarray, np.ndarray]]:
+    out = []
+    for k, poly in enumerate(polytopes):
+        if hasattr(poly, "A") and hasattr(poly, "b"):
+            a, b = poly.A, poly.b
+        else:
+            try:
+                a, b = poly
+            except (TypeError, ValueError):
+                raise InvalidInputError(f"polytope {k} must be an (A, b) pair or have .A and .b") from None
+        a = _to_numpy(a)
+        b = _to_numpy(b).reshape(-1)
+        if a.ndim != 2 or a.shape[1] != 3 or a.shape[0] != b.shape[0] or a.shape[0] == 0:
+            raise InvalidInputError(
+                f"polytope {k}: A must be [F, 3] and b [F] with F >= 1, got A {a.shape}, b {b.shape}."
+            )
+        if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+            raise InvalidInputError(f"polytope {k} has NaN or inf coefficients.")
+        out.append((a, b))
+    return out
+
+
+def _point_violation(a: np.ndarray, b: np.ndarray, x: np.ndarray) -> float:
+    """Largest distance-normalised violation max_f (a_f.x - b_f)/|a_f| (<= 0 inside)."""
+    return float(np.max((a @ x - b) / np.linalg.norm(a, axis=1)))
+
+
+def _diagnose_infeasible(polys, margins) -> str:
+    """Name the first empty polytope or non-overlapping consecutive pair (small LPs, error path only)."""
+    from scipy.optimize import linprog
+
+    def empty(a, b):
+        res = linprog(np.zeros(3), A_ub=a, b_ub=b, bounds=[(None, None)] * 3, method="highs")
+        return res.status == 2
+
+    for k, ((a, b), m) in enumerate(zip(polys, margins)):
+        if empty(a, b - m):
+            return f"polytope {k} is empty (after shrinking by the margin)"
+    for k in range(len(polys) - 1):
+        a = np.vstack([polys[k][0], polys[k + 1][0]])
+        b = np.concatenate([polys[k][1] - margins[k], polys[k + 1][1] - margins[k + 1]])
+        if empty(a, b):
+            return f"polytopes {k} and {k + 1} do not overlap"
+    return "the corridor is too narrow for the requested continuity/degree"
+
+
+# ---------------------------------------------------------------------------------------------- QP
+class CorridorQP:
+    """The assembled QP: minimise 1/2 x^T P x subject to A_eq x = b_eq, A_in x <= b_in.
+
+    Stored in the forms the default path uses, so a plan pays for no scipy conversion it does not need (they took
+    over half of the QP stage; the stacked A takes one COO conversion): ``P_upper`` (the upper triangle of P, what
+    Clarabel reads), ``A`` (equalities stacked over inequalities) and ``eq_dense`` (A_eq as a dense array: the
+    post-solve equality projection is a small dense solve). ``P``, ``A_eq`` and ``A_in`` are built from these on
+    first use (OSQP, multi-stop, tests)."""
+
+    def __init__(self, P_upper: sp.csc_matrix, A: sp.csc_matrix, b: np.ndarray, n_eq: int, eq_dense: np.ndarray,
+                 durations: np.ndarray, degree: int, num_segments: int, polytopes: list):
+        self.P_upper = P_upper  # [n, n] upper triangle (diagonal included)
+        self.A = A  # [n_eq + n_in, n] CSC, equality rows first
+        self.b = b  # [n_eq + n_in]
+        self.n_eq = int(n_eq)
+        self.eq_dense = eq_dense  # [n_eq, n]
+        self.durations = durations  # [M]
+        self.degree = degree
+        self.num_segments = num_segments
+        self.polytopes = polytopes  # [(A [F,3], b [F])] numpy float64, unshrunk
+        self._cache: dict = {}
+
+    @classmethod
+    def from_matrices(cls, P, A_eq, b_eq, A_in, b_in, durations, degree, num_segments, polytopes) -> "CorridorQP":
+        """From a full symmetric P and separate equality / inequality blocks (any scipy sparse format)."""
+        A_eq = sp.csc_matrix(A_eq)
+        qp = cls(sp.triu(P, format="csc"), sp.vstack([A_eq, sp.csc_matrix(A_in)], format="csc"),
+                 np.concatenate([b_eq, b_in]), A_eq.shape[0], A_eq.toarray(), durations, degree, num_segments, polytopes)
+        qp._cache["P"] = sp.csc_matrix(P)
+        return qp
+
+    @property
+    def n(self) -> int:
+        return self.P_upper.shape[0]
+
+    @property
+    def P(self) -> sp.csc_matrix:
+        """[n, n] full symmetric."""
+        if "P" not in self._cache:
+            u = self.P_upper
+            self._cache["P"] = (u + u.T - sp.diags(u.diagonal())).tocsc()
+        return self._cache["P"]
+
+    @property
+    def A_eq(self) -> sp.csc_matrix:
+        if "A_eq" not in self._cache:
+            self._cache["A_eq"] = sp.csc_matrix(self.eq_dense)
+        return self._cache["A_eq"]
+
+    @property
+    def A_in(self) -> sp.csc_matrix:
+        if "A_in" not in self._cache:
+            self._cache["A_in"] = self.A[self.n_eq:].tocsc()
+        return self._cache["A_in"]
+
+    @property
+    def b_eq(self) -> np.ndarray:
+        return self.b[: self.n_eq]
+
+    @property
+    def b_in(self) -> np.ndarray:
+        return self.b[self.n_eq:]
+
+    @property
+    def n_in(self) -> int:
+        return self.A.shape[0] - self.n_eq
+
+    def objective(self, x: np.ndarray) -> float:
+        """1/2 x^T P x from the upper triangle (x^T P x = 2 x^T U x - sum diag(U) x^2)."""
+        u = self.P_upper
+        return float(x @ (u @ x) - 0.5 * (u.diagonal() * x * x).sum())
+
+
+@functools.lru_cache(maxsize=None)
+def _upper_block_pattern(npts: int) -> Tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """CSC pattern of the upper triangle of one segment's kron(H, I3) block: (rows [Z], i [Z], j [Z], indptr
+    [3 npts + 1]) in column order (column j * 3 + c holds rows i * 3 + c for i = 0..j; value H[i, j])."""
+    rows, ii, jj, ptr = [], [], [], [0]
+    for j in range(npts):
+        for c in range(3):
+            for i in range(j + 1):
+                rows.append(i * 3 + c)
+                ii.append(i)
+                jj.append(j)
+            ptr.append(len(rows))
+    return np.array(rows), np.array(ii), np.array(jj), np.array(ptr)
+
+
+def build_corridor_qp(polytopes, waypoints, start, goal, config: TrajectoryConfig) -> CorridorQP:
+    """Assemble the sparse QP matrices (see the module docstring). Validates the input."""
+    config.validate()
+    polys, wp, start, goal = _checked_qp_input(polytopes, waypoints, start, goal)
+    m = len(polys)
+    d = config.degree
+    npts = d + 1
+    n = m * npts * 3
+    durations = segment_durations(wp, config)
+    P_upper = _objective_upper(2.0 * segment_hessians(d, durations, config), n)
+    eq_rows, eq_cols, eq_vals, b_eq = _equalities(m, d, config, durations, start, goal)
+    n_eq = b_eq.size
+    eq_dense = np.zeros((n_eq, n))
+    eq_dense[eq_rows, eq_cols] = eq_vals
+    # pinned control points are fixed by the equalities and get no inequality rows
+    q = config.rest_at_ends
+    pinned = np.zeros((m, npts), dtype=bool)
+    pinned[0, : q + 1] = True
+    pinned[m - 1, d - q :] = True
+    in_rows, in_cols, in_vals, b_in, n_rows = _inequalities(polys, pinned, config.effective_margin(), n_eq)
+    rows, cols = np.concatenate([eq_rows] + in_rows), np.concatenate([eq_cols] + in_cols)
+    A = sp.csc_matrix((np.concatenate([eq_vals] + in_vals), (rows, cols)), shape=(n_rows, n))
+    return CorridorQP(P_upper, A, np.concatenate([b_eq] + b_in), n_eq, eq_dense, durations, d, m, polys)
+
+
+def _checked_qp_input(polytopes, waypoints, start, goal):
+    """(polytopes [(A, b)], waypoints [M+1, 3], start [3], goal [3]) as float64 numpy; InvalidInputError for bad
+    shapes or values, CorridorInfeasibleError when start / goal (pinned by equality) lie outside their polytope."""
+    polys = _as_polytopes(polytopes)
+    wp = _to_numpy(waypoints)
+    start = _to_numpy(start).reshape(-1)
+    goal = _to_numpy(goal).reshape(-1)
+    m = len(polys)
+    if m == 0:
+        raise InvalidInputError("the corridor has no polytopes.")
+    if wp.ndim != 2 or wp.shape != (m + 1, 3):
+        raise InvalidInputError(f"{m} polytopes need waypoints of shape [{m + 1}, 3], got {tuple(wp.shape)}.")
+    if start.shape != (3,) or goal.shape != (3,):
+        raise InvalidInputError("start and goal must be 3D points.")
+    if not (np.all(np.isfinite(wp)) and np.all(np.isfinite(start)) and np.all(np.isfinite(goal))):
+        raise InvalidInputError("waypoints, start and goal must be finite (found NaN or inf).")
+    # pinned points are fixed by equality; check them against their polytope now (unshrunk, tiny tol)
+    tol = 1e-9 * max(1.0, float(np.abs(wp).max()))
+    if _point_violation(*polys[0], start) > tol:
+        raise CorridorInfeasibleError(
+            f"the start point {np.round(start, 4).tolist()} lies outside the first corridor polytope."
+        )
+    if _point_violation(*polys[-1], goal) > tol:
+        raise CorridorInfeasibleError(
+            f"the goal point {np.round(goal, 4).tolist()} lies outside the last corridor polytope."
+        )
+    return polys, wp, start, goal
+
+
+def _objective_upper(hess: np.ndarray, n: int) -> sp.csc_matrix:
+    """Upper triangle [n, n] of the block-diagonal objective 2 * kron(H_k, I3) (hess [M, D+1, D+1] already doubled,
+    so that 1/2 x^T P x = sum_k cost_k), straight into CSC (the blocks are diagonal, columns in order): what
+    Clarabel reads."""
+    m, npts = hess.shape[0], hess.shape[1]
+    u_rows, u_i, u_j, u_ptr = _upper_block_pattern(npts)
+    seg = np.arange(m)[:, None]
+    return sp.csc_matrix(
+        (hess[:, u_i, u_j].ravel(), (seg * npts * 3 + u_rows[None]).ravel(),
+         np.concatenate([(seg * u_rows.size + u_ptr[None, :-1]).ravel(), [m * u_rows.size]])),
+        shape=(n, n),
+    )
+
+
+def _equalities(m: int, d: int, config: TrajectoryConfig, durations: np.ndarray, start: np.ndarray,
+                goal: np.ndarray) -> Tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(rows, cols, values, rhs [3 n_eq]) of the equalities: the pinned end points (rest_at_ends + 1 each), then the
+    C^continuity joins, first on points (one row per point-equation), then expanded over x/y/z."""
+    npts = d + 1
+    q = config.rest_at_ends
+    pin_rows = 2 * (q + 1)
+    pt_rows = [np.arange(pin_rows)]
+    pt_cols = [np.concatenate([np.arange(q + 1), (m - 1) * npts + d - np.arange(q + 1)])]
+    pt_vals = [np.ones(pin_rows)]
+    rhs_pts = np.concatenate([np.tile(start, (q + 1, 1)), np.tile(goal, (q + 1, 1))])  # [2(q+1), 3]
+    n_join = (m - 1) * (config.continuity + 1)
+    if m > 1:
+        joins = np.arange(m - 1)
+        for r in range(config.continuity + 1):
+            diff = _difference(d, r)
+            end_coef, start_coef = diff[-1], diff[0]  # Delta^r P at u=1 (last) and u=0 (first)
+            # d^r/dt^r = c_r/d^r Delta^r; c_r cancels; rows scaled by min(d)^r for conditioning
+            scale = np.minimum(durations[:-1], durations[1:]) ** r  # [M-1]
+            a_end = np.outer(scale / durations[:-1] ** r, end_coef)  # [M-1, D+1]
+            a_start = -np.outer(scale / durations[1:] ** r, start_coef)  # [M-1, D+1]
+            row_ids = pin_rows + joins * (config.continuity + 1) + r  # [M-1]
+            pt_rows += [np.repeat(row_ids, npts)] * 2
+            pt_cols += [(joins[:, None] * npts + np.arange(npts)).ravel(),
+                        ((joins[:, None] + 1) * npts + np.arange(npts)).ravel()]
+            pt_vals += [a_end.ravel(), a_start.ravel()]
+    pr, pc, pv = np.concatenate(pt_rows), np.concatenate(pt_cols), np.concatenate(pt_vals)
+    keep = pv != 0.0
+    pr, pc, pv = pr[keep], pc[keep], pv[keep]
+    eq_rows = (pr[:, None] * 3 + np.arange(3)).ravel()
+    eq_cols = (pc[:, None] * 3 + np.arange(3)).ravel()
+    return eq_rows, eq_cols, np.repeat(pv, 3), np.concatenate([rhs_pts.ravel(), np.zeros(3 * n_join)])
+
+
+def _inequalities(polys, pinned: np.ndarray, margin: float, row0: int):
+    """Inequality blocks, vectorised per segment, one block of F_k rows per free control point (pinned [M, D+1]),
+    rows from row0 on (they follow the equality rows in the stacked A) -> (rows, cols, values, rhs: lists of
+    arrays; the row count of the stacked A). Faces are shrunk by ``margin``."""
+    npts = pinned.shape[1]
+    blocks_r, blocks_c, blocks_v, b_in = [], [], [], []
+    for k, (a, b) in enumerate(polys):
+        free = np.flatnonzero(~pinned[k])  # [nf]
+        if free.size == 0:
+            continue
+        f = a.shape[0]
+        b_shrunk = b - margin * np.linalg.norm(a, axis=1)  # [F]
+        nf = free.size
+        # row index for (point p, face j) = row0 + p*F + j ; columns var(k, free[p], c)
+        rr = row0 + (np.arange(nf)[:, None, None] * f + np.arange(f)[None, :, None])  # [nf, F, 1]
+        cc = ((k * npts + free)[:, None, None] * 3 + np.arange(3)[None, None, :])  # [nf, 1, 3]
+        rr, cc = np.broadcast_arrays(rr, cc)
+        blocks_r.append(rr.ravel())
+        blocks_c.append(cc.ravel())
+        blocks_v.append(np.broadcast_to(a[None], (nf, f, 3)).ravel())
+        b_in.append(np.tile(b_shrunk, nf))
+        row0 += nf * f
+    # (no inequality row when every control point is pinned: one segment, 2(q+1) = D+1, the straight line)
+    return blocks_r, blocks_c, blocks_v, b_in, row0
+
+
+def _normalised(P: sp.csc_matrix) -> sp.csc_matrix:
+    """P / max(diag P): same minimiser, objective of order one (the solvers' absolute tolerances then mean
+    the same thing whatever the durations and weights)."""
+    return P / max(float(P.diagonal().max()), 1e-300)
+
+
+def _solve_clarabel(qp: CorridorQP, config: TrajectoryConfig):
+    import clarabel
+
+    settings = clarabel.DefaultSettings()
+    settings.verbose = False
+    settings.max_iter = config.max_iter
+    settings.tol_feas = config.tolerance
+    settings.tol_gap_abs = config.tolerance
+    settings.tol_gap_rel = config.tolerance
+    settings.iterative_refinement_enable = bool(config.iterative_refinement)
+    cones = [clarabel.ZeroConeT(qp.n_eq)]
+    if qp.n_in > 0:
+        cones.append(clarabel.NonnegativeConeT(qp.n_in))
+    solver = clarabel.DefaultSolver(qp.P_upper, np.zeros(qp.n), qp.A, qp.b, cones, settings)
+    sol = solver.solve()
+    status = str(sol.status)
+    if sol.status in (clarabel.SolverStatus.PrimalInfeasible, clarabel.SolverStatus.AlmostPrimalInfeasible):
+        return None, status, sol.iterations, "infeasible"
+    if sol.status not in (clarabel.SolverStatus.Solved, clarabel.SolverStatus.AlmostSolved):
+        return None, status, sol.iterations, "failed"
+    return np.asarray(sol.x, dtype=np.float64), status, sol.iterations, "ok"
+
+
+def _solve_osqp(qp: CorridorQP, config: TrajectoryConfig):
+    import osqp
+
+    lo = np.concatenate([qp.b_eq, np.full(qp.n_in, -np.inf)])
+    hi = qp.b
+    solver = osqp.OSQP()
+    solver.setup(
+        _normalised(qp.P_upper), np.zeros(qp.n), qp.A, lo, hi,
+        verbose=False, polishing=True, eps_abs=config.osqp_tolerance, eps_rel=config.osqp_tolerance,
+        max_iter=100 * config.max_iter,
+    )
+    res = solver.solve(raise_error=False)
+    status = str(res.info.status)
+    sv = res.info.status_val
+    if sv in (osqp.SolverStatus.OSQP_PRIMAL_INFEASIBLE, osqp.SolverStatus.OSQP_PRIMAL_INFEASIBLE_INACCURATE):
+        return None, status, res.info.iter, "infeasible"
+    if sv not in (osqp.SolverStatus.OSQP_SOLVED, osqp.SolverStatus.OSQP_SOLVED_INACCURATE):
+        return None, status, res.info.iter, "failed"
+    return np.asarray(res.x, dtype=np.float64), status, res.info.iter, "ok"
+
+
+def _project_equalities(x: np.ndarray, qp: CorridorQP) -> np.ndarray:
+    """Smallest correction making the equalities (ends, continuity) hold to rounding error.
+
+    The solvers meet equalities only to their tolerance (OSQP ~1e-6); the correction is of that size, far
+    below the corridor margin, and the corridor check after it still decides whether the result is kept.
+    Dense: A_eq is [3 (2 (q+1) + (M-1)(c+1)), n], a few hundred rows for the longest corridors.
+    """
+    a = qp.eq_dense  # [n_eq, n]
+    resid = a @ x - qp.b_eq
+    gram = a @ a.T  # [n_eq, n_eq] SPD when the equalities are independent
+    try:
+        corr = cho_solve(cho_factor(gram), resid)
+        if not np.all(np.isfinite(corr)):
+            raise np.linalg.LinAlgError("singular")
+    except np.linalg.LinAlgError:  # dependent equalities (unusual degree/continuity mixes): least squares
+        corr, *_ = np.linalg.lstsq(gram, resid, rcond=None)
+    return x - a.T @ corr
+
+
+def solve_corridor_qp(polytopes, waypoints, start, goal, config: TrajectoryConfig = None) -> BezierTrajectory:
+    """Smoothest piecewise-Bezier curve from start to goal inside the corridor.
+
+    polytopes: M polytopes, each an (A [F,3], b [F]) pair or an object with .A/.b (A x <= b);
+    waypoints [M+1, 3]: the path the corridor was built around (sets the segment durations);
+    start, goal [3]: must lie in the first / last polytope.
+    Returns a BezierTrajectory with M segments of degree config.degree whose control points all satisfy
+    their polytope's A x <= b (verified); `traj.info` holds solver, status, iterations, objective, timings.
+    Raises CorridorInfeasibleError (a GoalUnreachableError) when no such curve exists and
+    TrajectorySolverError on numerical failure.
+    """
+    config = config or TrajectoryConfig()
+    t0 = time.perf_counter()
+    qp = build_corridor_qp(polytopes, waypoints, start, goal, config)
+    t1 = time.perf_counter()
+    solve = _solve_clarabel if config.solver == "clarabel" else _solve_osqp
+    x, status, iters, outcome = solve(qp, config)
+    retry_tolerance = None
+    if outcome == "failed" and config.solver == "clarabel" and config.tolerance < RETRY_TOLERANCE:
+        # Why: a very short segment makes the cost ill-conditioned (its 1/d^5 terms), and Clarabel can stall
+        # (InsufficientProgress) short of 1e-8 on a QP that is plainly feasible (5 waypoints in a big box, one
+        # segment 0.04 long). At 1e-6 it converges; the margin (1e-5) absorbs that tolerance, and every control point
+        # is still verified against the true polytopes below.
+        retry_tolerance = RETRY_TOLERANCE
+        x, status, iters, outcome = solve(qp, replace(config, tolerance=RETRY_TOLERANCE, iterative_refinement=True))
+    t2 = time.perf_counter()
+    polys = qp.polytopes
+    if outcome == "infeasible":
+        margins = [config.effective_margin() * np.linalg.norm(a, axis=1) for a, _ in polys]
+        raise CorridorInfeasibleError(
+            "No smooth trajectory fits inside the safe corridor: "
+            f"{_diagnose_infeasible(polys, margins)}. Try a lower continuity order, a higher degree, "
+            "or a corridor with more overlap between consecutive polytopes."
+        )
+    if outcome == "failed":
+        raise TrajectorySolverError(f"The {config.solver} QP solver did not converge (status {status}).")
+
+    m, npts = qp.num_segments, qp.degree + 1
+    x = _project_equalities(x, qp)
+    cps = x.reshape(m, npts, 3).copy()
+    start = _to_numpy(start).reshape(3)
+    goal = _to_numpy(goal).reshape(3)
+    # pinned points exactly (the solver meets equalities only to its tolerance)
+    cps[0, : config.rest_at_ends + 1] = start
+    cps[-1, npts - 1 - config.rest_at_ends :] = goal
+    # verify every free control point against the true (unshrunk) polytope
+    worst = -np.inf  # stays -inf when no control point is free
+    for k, (a, b) in enumerate(polys):
+        lo = config.rest_at_ends + 1 if k == 0 else 0
+        hi = npts - 1 - config.rest_at_ends if k == m - 1 else npts
+        if hi > lo:
+            worst = max(worst, float(np.max(cps[k, lo:hi] @ a.T - b)))
+    if worst > 0:  # never return a point outside the true polytope
+        raise TrajectorySolverError(
+            f"The {config.solver} solution leaves the corridor by {worst:.2e}; increase TrajectoryConfig."
+            f"{'osqp_margin' if config.solver == 'osqp' else 'margin'} or use the clarabel solver."
+        )
+    traj = BezierTrajectory(cps, qp.durations)
+    traj.info = {
+        "solver": config.solver,
+        "status": status,
+        "iterations": int(iters),
+        "objective": qp.objective(x),
+        "num_variables": qp.n,
+        "num_inequalities": qp.n_in,
+        "num_equalities": qp.n_eq,
+        "build_ms": 1e3 * (t1 - t0),
+        "solve_ms": 1e3 * (t2 - t1),
+        "max_corridor_violation": worst,
+        "retry_tolerance": retry_tolerance,  # None, or the looser tolerance a stalled first solve was retried with
+    }
+    return traj

@@ -1,0 +1,278 @@
+"""grid_polytope: exact segment-cube closest points against a float64 brute force, the surface mask against its
+definition, and grid polytopes against an LP (no occupied cube meets the polytope) and dense sampling (every point
+of the polytope lies in a free voxel)."""
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import HealthCheck, given, settings, strategies as st
+from scipy.optimize import linprog
+
+from cinenerf_ns.planner.corridor.grid_polytope import (
+    VoxelObstacles,
+    grid_polytope_planes,
+    segment_box_closest,
+    surface_voxels,
+)
+from cinenerf_ns.planner.geometry.voxel_traversal import segments_in_free_voxels
+
+SETTINGS = dict(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+coord = st.floats(-4.0, 4.0, allow_nan=False, allow_infinity=False)
+point = st.tuples(coord, coord, coord).map(np.array)
+
+
+def brute_segment_cube_distance(u0, u1, v) -> float:
+    """Reference: min over t of dist(u0 + t d, cube [v, v + 1]) in float64: a dense grid of t, then golden-section
+    refinement around the best sample (the distance is convex in t)."""
+    d = u1 - u0
+
+    def f(t):
+        q = u0 + np.multiply.outer(t, d)
+        return np.linalg.norm(q - np.clip(q, v, v + 1.0), axis=-1)
+
+    t = np.linspace(0.0, 1.0, 4001)
+    k = int(np.argmin(f(t)))
+    lo, hi = t[max(k - 1, 0)], t[min(k + 1, len(t) - 1)]
+    g = (5 ** 0.5 - 1) / 2
+    for _ in range(80):
+        a, b = hi - g * (hi - lo), lo + g * (hi - lo)
+        if f(np.array(a)) <= f(np.array(b)):
+            hi = b
+        else:
+            lo = a
+    return float(min(f(np.array(0.5 * (lo + hi))), f(t).min()))
+
+
+@settings(**SETTINGS)
+@given(point, point, st.lists(st.tuples(*[st.integers(-4, 3)] * 3), min_size=1, max_size=6),
+       st.sampled_from(["free", "axis", "point"]))
+def test_segment_box_closest_is_exact(u0, u1, cubes, kind):
+    if kind == "axis":  # segment parallel to an axis (d_a = 0 on two axes): divisions by zero in the breakpoints
+        u1 = u0.copy()
+        u1[0] += 2.5
+    elif kind == "point":
+        u1 = u0.copy()
+    v = np.array(cubes, dtype=np.float64)
+    q, p, dist = segment_box_closest(u0, u1, v)
+    for k in range(len(v)):
+        ref = brute_segment_cube_distance(u0, u1, v[k])
+        assert dist[k] <= ref + 1e-12  # never farther than the true minimum
+        assert dist[k] >= ref - 1e-9  # and it is the minimum
+        # q on the segment, p in the cube, dist = |q - p|
+        assert np.all(p[k] >= v[k] - 1e-12) and np.all(p[k] <= v[k] + 1 + 1e-12)
+        # q on the segment: |q - u0| + |q - u1| = |u1 - u0|
+        assert np.linalg.norm(q[k] - u0) + np.linalg.norm(q[k] - u1) <= np.linalg.norm(u1 - u0) + 1e-9
+        assert abs(np.linalg.norm(q[k] - p[k]) - dist[k]) < 1e-12
+
+
+def test_surface_voxels_match_definition():
+    rng = np.random.default_rng(3)
+    occ = rng.random((7, 6, 5)) < 0.55
+    sur = surface_voxels(occ)
+    for i, j, k in itertools.product(*map(range, occ.shape)):
+        nb = occ[max(i - 1, 0):i + 2, max(j - 1, 0):j + 2, max(k - 1, 0):k + 2]
+        assert sur[i, j, k] == (occ[i, j, k] and bool((~nb).any()))
+
+
+def _max_slack_in_cube(A, b, v) -> float:
+    """max s such that A x + s <= b for some x in the closed cube [v, v + 1] (LP; < 0: the cube misses the
+    polytope by at least -s in every face's direction)."""
+    r = linprog(np.r_[0.0, 0.0, 0.0, -1.0], A_ub=np.c_[A, np.ones(len(b))], b_ub=b,
+                bounds=[(v[i], v[i] + 1) for i in range(3)] + [(None, None)], method="highs")
+    assert r.status == 0
+    return -float(r.fun)
+
+
+def _random_case(seed: int, fill: float, shape=(10, 9, 8)):
+    rng = np.random.default_rng(seed)
+    occ = rng.random(shape) < fill
+    free = np.argwhere(~occ)
+    if len(free) < 2:
+        return None
+    a = free[rng.integers(len(free))] + rng.random(3)
+    c = free[rng.integers(len(free))] + rng.random(3)
+    if rng.random() < 0.3:  # short segments inside one voxel / to a neighbour
+        c = a + rng.normal(size=3) * 0.7
+    return occ, a, c, rng.uniform(0.3, 3.0)
+
+
+def _extent(A, b, axis, sgn) -> float:
+    """max (sgn = 1) or min (sgn = -1) of x[axis] over A x <= b (LP)."""
+    cobj = np.zeros(3)
+    cobj[axis] = -sgn
+    r = linprog(cobj, A_ub=A, b_ub=b, bounds=[(None, None)] * 3, method="highs")
+    assert r.status == 0
+    return float(r.x[axis])
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.integers(0, 10_000), st.sampled_from([0.1, 0.25, 0.4]), st.sampled_from(["python", "auto"]))
+def test_grid_polytope_holds_the_segment_and_meets_no_occupied_voxel(seed, fill, backend):
+    """Both the Python construction and (auto) the compiled one (native/gridpoly.c), which must give the same
+    planes."""
+    case = _random_case(seed, fill)
+    if case is None:
+        return
+    occ, a, c, margin_box = case
+    if not segments_in_free_voxels(occ, np.zeros(3), 1.0, a[None], c[None])[0]:
+        return  # callers only ask for segments the voxel walk proves to lie in free voxels
+    planes = grid_polytope_planes(surface_voxels(occ), a, c, np.minimum(a, c) - margin_box,
+                                  np.maximum(a, c) + margin_box, 1e-9, backend=backend)
+    ref = grid_polytope_planes(surface_voxels(occ), a, c, np.minimum(a, c) - margin_box,
+                               np.maximum(a, c) + margin_box, 1e-9, backend="python")
+    assert (planes is None) == (ref is None)
+    if planes is not None:
+        assert planes[0].shape == ref[0].shape
+        np.testing.assert_allclose(planes[0], ref[0], atol=1e-12)
+        np.testing.assert_allclose(planes[1], ref[1], atol=1e-12)
+    if planes is None:  # allowed only when the segment comes within the margin of a surface cube
+        _, _, dist = segment_box_closest(a, c, np.argwhere(surface_voxels(occ)).astype(float))
+        assert dist.min() <= 1e-9
+        return
+    A, b = planes
+    assert np.allclose(np.linalg.norm(A, axis=1), 1.0)
+    assert (A @ a <= b).all() and (A @ c <= b).all()
+    # every occupied voxel of the grid (interior ones too) misses the polytope by the margin
+    for v in np.argwhere(occ):
+        assert _max_slack_in_cube(A, b, v) < -0.5e-9
+    for axis in range(3):  # and the polytope stays inside the grid
+        assert _extent(A, b, axis, -1) >= -1e-9
+        assert _extent(A, b, axis, 1) <= occ.shape[axis] + 1e-9
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.integers(0, 10_000))
+def test_points_of_grid_polytopes_lie_in_free_voxels(seed):
+    """Brute force: dense random points of the polytope (rejection in its box) are all in free voxels."""
+    case = _random_case(seed, 0.3)
+    if case is None:
+        return
+    occ, a, c, m = case
+    if not segments_in_free_voxels(occ, np.zeros(3), 1.0, a[None], c[None])[0]:
+        return
+    planes = grid_polytope_planes(surface_voxels(occ), a, c, np.minimum(a, c) - m, np.maximum(a, c) + m, 1e-9)
+    assert planes is not None  # a segment in free voxels always gets one (up to the 1e-9 margin)
+    A, b = planes
+    rng = np.random.default_rng(seed)
+    lo, hi = np.maximum(np.minimum(a, c) - m, 0), np.minimum(np.maximum(a, c) + m, occ.shape)
+    x = rng.uniform(lo, hi, (20000, 3))
+    x = x[(x @ A.T <= b).all(1)]
+    x = np.concatenate([x, a[None], c[None], 0.5 * (a + c)[None]])
+    ijk = np.floor(x).astype(int)
+    assert ((ijk >= 0) & (ijk < occ.shape)).all()
+    assert not occ[ijk[:, 0], ijk[:, 1], ijk[:, 2]].any()
+
+
+def test_surface_needs_26_neighbours():
+    """A diagonal free step next to an occupied voxel that touches the free region only along an edge: the
+    polytope must also keep out of that voxel (a 6-neighbour surface would miss it)."""
+    occ = np.ones((5, 5, 3), dtype=bool)
+    occ[1:4, 1:4, :] = False  # a free 3x3 hole through z
+    occ[2, 2, :] = True  # a pillar in the middle: its free neighbours touch it on faces
+    occ[3, 3, :] = True  # an occupied corner voxel: touches free voxel (2, 3) on a face, (2, 2) is occupied
+    a = np.array([1.2, 3.5, 1.5])
+    c = np.array([1.5, 1.2, 1.5])
+    assert segments_in_free_voxels(occ, np.zeros(3), 1.0, a[None], c[None])[0]
+    A, b = grid_polytope_planes(surface_voxels(occ), a, c, np.zeros(3), np.array([5.0, 5.0, 3.0]), 1e-9)
+    for v in np.argwhere(occ):
+        assert _max_slack_in_cube(A, b, v) < 0
+
+
+def test_voxel_obstacles_world_units_and_refusals():
+    occ = np.zeros((8, 8, 8), dtype=bool)
+    occ[4, :, :] = True  # a wall at x in [4, 5] voxels
+    lo, vs = np.array([-1.0, 2.0, 0.5]), 0.25
+    vo = VoxelObstacles.from_occupied(occ, lo, vs)
+    a = lo + vs * np.array([1.5, 2.0, 2.0])
+    c = lo + vs * np.array([3.0, 6.0, 5.0])
+    P = vo.polytope(a, c, box_margin=0.5)
+    assert P is not None and P.A.dtype == torch.float64
+    assert bool(P.contains(torch.as_tensor(a))) and bool(P.contains(torch.as_tensor(c)))
+    # world points just short of the wall are inside or not, but nothing at the wall's voxel is
+    wall_x = lo[0] + 4 * vs
+    ys = np.linspace(lo[1], lo[1] + 8 * vs, 30)
+    zs = np.linspace(lo[2], lo[2] + 8 * vs, 30)
+    pts = np.array([[wall_x + dx, y, z] for dx in (0.0, 0.1 * vs, 0.9 * vs) for y in ys for z in zs])
+    assert not bool(P.contains(torch.as_tensor(pts)).any())
+    # a segment through the wall: no grid polytope (the caller builds an exact one)
+    assert vo.polytope(a, lo + vs * np.array([6.0, 2.0, 2.0]), box_margin=0.5) is None
+    # box planes clipped to the grid: the polytope never leaves the grid
+    far = vo.polytope(a, c, box_margin=100.0)
+    hi = lo + vs * 8
+    for axis in range(3):
+        assert _extent(far.A.numpy(), far.b.numpy(), axis, -1) >= lo[axis] - 1e-9
+        assert _extent(far.A.numpy(), far.b.numpy(), axis, 1) <= hi[axis] + 1e-9
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_grid_polytopes_of_a_planned_shot_are_safe_for_the_ellipsoids(seed):
+    """End to end on a procedural room: the corridor's grid polytopes (and the goal's reused polytope) keep every
+    sampled camera centre at non-negative exact clearance; with grid_polytopes=False none is prebuilt."""
+    from cinenerf_ns.planner.geometry.distance import clearance
+    from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
+    from cinenerf_ns.planner.scene.procedural import procedural_room
+    from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
+
+    room = procedural_room(6000, seed=seed)
+    sc = EllipsoidScene.from_splat(room.means, room.quats, room.log_scales, room.opacity_logits)
+    pl = Planner(sc, PlannerConfig(grid_resolution=40, grid_polytopes=True))  # 'auto' is off for voxels this coarse
+    prep = pl.prepare()
+    objs = room.objects
+    shots = [pl.plan(objs[i].center, objs[(i + 1) % len(objs)].center, seed=seed * 10 + i)[0] for i in range(3)]
+    assert sum(sh.corridor.n_grid_segments for sh in shots) > 0
+    rng = np.random.default_rng(seed)
+    for sh in shots:
+        for P in sh.corridor.polytopes:
+            A, b = P.to_numpy()
+            lo, hi = -b[3:6], b[0:3]  # the first six rows are the box (+x, +y, +z, -x, -y, -z)
+            x = rng.uniform(lo, hi, (4000, 3))
+            x = x[(x @ A.T <= b).all(1)][:400]
+            if len(x):
+                c = clearance(torch.as_tensor(x), sc, prep.index)
+                assert float(c.min()) >= 0.0
+    pl0 = Planner(sc, PlannerConfig(grid_resolution=40, grid_polytopes=False))
+    sh0 = pl0.plan(objs[0].center, objs[1].center, seed=seed * 10)[0]
+    assert sh0.corridor.n_grid_segments == 0
+
+
+def test_known_polytope_is_reused_only_where_it_holds_the_segment():
+    from cinenerf_ns.planner.corridor.polytope import safe_polytope
+    from cinenerf_ns.planner.corridor.safe_corridor import build_corridor
+    from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
+    from cinenerf_ns.planner.scene.procedural import procedural_room
+    from cinenerf_ns.planner.scene.spatial_index import GridIndex
+
+    room = procedural_room(3000, seed=2)
+    sc = EllipsoidScene.from_splat(room.means, room.quats, room.log_scales, room.opacity_logits)
+    idx = GridIndex.build(sc)
+    c = torch.tensor([0.0, 0.0, 1.2], dtype=torch.float64)  # mid-air in the room
+    P = safe_polytope(c[None], sc, idx, c - 0.2, c + 0.2)
+    inside = c + torch.tensor([0.05, 0.0, 0.0], dtype=torch.float64)
+    far = c + torch.tensor([0.0, 0.6, 0.0], dtype=torch.float64)
+    cor = build_corridor(torch.stack([far, c, inside]), sc, idx, box_margin=0.1, known=[P])
+    assert cor.n_known_segments == 1 and cor.polytopes[1] is P
+    assert cor.polytopes[0] is not P  # far -> c leaves P: built on its own
+    cor0 = build_corridor(torch.stack([far, c, inside]), sc, idx, box_margin=0.1)
+    assert cor0.n_known_segments == 0
+
+
+def test_auto_resolves_by_voxel_size_against_the_camera_radius():
+    from cinenerf_ns.planner.errors import InvalidInputError
+    from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
+    from cinenerf_ns.planner.scene.procedural import procedural_room
+    from cinenerf_ns.planner.shots.planner import GRID_POLYTOPE_MAX_VOXEL, Planner, PlannerConfig
+
+    room = procedural_room(3000, seed=0)
+    sc = EllipsoidScene.from_splat(room.means, room.quats, room.log_scales, room.opacity_logits)
+    for res in (24, 96):
+        pl = Planner(sc, PlannerConfig(grid_resolution=res))
+        vs = pl.prepare().grid.voxel_size
+        assert pl.use_grid_polytopes() == (vs <= GRID_POLYTOPE_MAX_VOXEL * sc.camera_radius)
+        assert ("grid" in pl.corridor_kwargs()) == pl.use_grid_polytopes()
+    assert Planner(sc, PlannerConfig(grid_resolution=24, grid_polytopes=True)).use_grid_polytopes()
+    assert not Planner(sc, PlannerConfig(grid_resolution=96, grid_polytopes=False)).use_grid_polytopes()
+    with pytest.raises(InvalidInputError):
+        Planner(sc, PlannerConfig(grid_polytopes="yes"))

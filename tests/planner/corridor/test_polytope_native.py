@@ -1,0 +1,202 @@
+"""The compiled safe polytope (native/polytope.c) against float64 brute force and against the Python path.
+
+Safety is checked against ALL ellipsoids of the scene (exact support test, else an exact SOCP distance), never
+against the compiled code's own candidate gathering."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import HealthCheck, assume, given, settings, strategies as st
+
+from cinenerf_ns.planner.corridor.polytope import SeedNotFreeError, safe_polytope
+from cinenerf_ns.planner.errors import InvalidInputError
+from cinenerf_ns.planner.native import safe_polytope_c
+from cinenerf_ns.planner.scene.spatial_index import GridIndex
+
+sys.path.insert(0, str(Path(__file__).parents[1]))
+from _corridor_refs import clearance, make_scene, polytope_min_distance, random_rotations, random_scene  # noqa: E402
+
+pytestmark = pytest.mark.skipif(safe_polytope_c() is None, reason="no C compiler: the compiled polytope is not built")
+SETTINGS = dict(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+def _assert_safe(P, scene, seeds, box_lo, box_hi, box_rot=None):
+    """Seeds inside, polytope inside its box, and every inflated ellipsoid of the scene outside (float64)."""
+    A, b = P.to_numpy()
+    assert (seeds @ A.T <= b + 1e-12).all()
+    rot = np.eye(3) if box_rot is None else np.asarray(box_rot)
+    assert np.allclose(A[:3], rot.T) and np.allclose(A[3:6], -rot.T)  # the box's own 6 faces come first
+    assert np.allclose(b[:3], box_hi) and np.allclose(b[3:6], -np.asarray(box_lo))
+    r = scene.camera_radius
+    mu, R, a = (t.double().numpy() for t in (scene.means, scene.rotations, scene.radii))
+    nb = np.einsum("cji,fj->cfi", R, A)  # [C, F, 3]
+    gap = mu @ A.T - np.linalg.norm(a[:, None, :] * nb, axis=-1) - r  # [C, F] exact support function
+    rest = np.flatnonzero(~(gap >= b).any(1))
+    if rest.size:
+        d = polytope_min_distance(A, b, scene.subset(torch.as_tensor(rest)))
+        assert (d >= r - 1e-6).all(), (rest[d < r - 1e-6], d.min())
+
+
+def _segment_blocked(seeds, scene) -> bool:
+    """Exact: some point of the seed segment (or the point) is within the camera radius of an ellipsoid."""
+    t = np.linspace(0.0, 1.0, 200)[:, None]
+    pts = seeds[0] + t * (seeds[-1] - seeds[0])
+    return bool((clearance(pts, scene) < 0).any())
+
+
+@settings(**SETTINGS)
+@given(seed=st.integers(0, 2**31 - 1), n_seeds=st.sampled_from([1, 2]), oriented=st.booleans(),
+       dtype=st.sampled_from([torch.float32, torch.float64]), cell=st.sampled_from([None, 0.04, 0.25]),
+       pad=st.sampled_from([None, 0.0]), near=st.sampled_from([0.0, 0.5]), inside=st.booleans())
+def test_native_polytope_is_safe(seed, n_seeds, oriented, dtype, cell, pad, near, inside):
+    rng = np.random.default_rng(seed)
+    scene = random_scene(rng, 300, amin=0.005, amax=0.12, camera_radius=0.03)
+    big = make_scene(rng.uniform(-1, 1, (3, 3)), random_rotations(rng, 3), rng.uniform(0.3, 0.6, (3, 3)), 0.03)
+    # three huge ones: a coarser index level
+    scene = make_scene(torch.cat([scene.means, big.means]), torch.cat([scene.rotations, big.rotations]),
+                       torch.cat([scene.radii, big.radii]), scene.camera_radius)
+    scene = scene.to(dtype=dtype)
+    idx = GridIndex.build(scene, cell_size=cell, pad=pad)  # pad 0: the query grows by e = r (planes shifted)
+    seeds = rng.uniform(-0.6, 0.6, (n_seeds, 3))
+    if n_seeds == 2:
+        seeds[1] = seeds[0] + rng.normal(size=3) * 0.15
+    rot = None
+    if oriented:
+        rot = random_rotations(rng, 1)[0]
+        sb = seeds @ rot
+        lo, hi = sb.min(0) - rng.uniform(0.05, 0.3, 3), sb.max(0) + rng.uniform(0.05, 0.3, 3)
+    else:
+        lo, hi = seeds.min(0) - rng.uniform(0.05, 0.3, 3), seeds.max(0) + rng.uniform(0.05, 0.3, 3)
+    kw = dict(box_rotation=None if rot is None else torch.as_tensor(rot), two_pass=near > 0, near_fraction=near or 0.5,
+              require_seed_inside=inside)
+    blocked = _segment_blocked(seeds, scene.to(dtype=torch.float64))
+    try:
+        P = safe_polytope(seeds, scene, idx, lo, hi, backend="native", **kw)
+    except SeedNotFreeError as e:
+        assert inside
+        assert e.min_slack < 0 and e.ellipsoid_ids is not None and e.ellipsoid_ids.numel() > 0
+        # the Python path agrees that no polytope of these planes holds the seeds
+        with pytest.raises(SeedNotFreeError):
+            safe_polytope(seeds, scene, idx, lo, hi, backend="python", **kw)
+        return
+    assert not (inside and blocked)  # a seed within the camera radius of an ellipsoid can never be inside
+    if not inside:
+        A, b = P.to_numpy()
+        keep = (seeds @ A.T <= b + 1e-12).all()
+        assume(keep)  # without the requirement the planes may exclude the seeds; the safety check needs them inside
+    _assert_safe(P, scene.to(dtype=torch.float64), seeds, lo, hi, rot)
+
+
+@settings(**SETTINGS)
+@given(seed=st.integers(0, 2**31 - 1), n_seeds=st.sampled_from([1, 2]), normal=st.sampled_from(
+    ["auto", "prop2", "mahalanobis", "closest"]))
+def test_native_planes_equal_python_planes_when_each_ellipsoid_needs_its_own(seed, n_seeds, normal):
+    """Far-apart ellipsoids around the seed: no plane cuts another ellipsoid off, so both paths keep one plane per
+    ellipsoid, and the compiled normal rules (Prop. 2's s*, Mahalanobis, closest point, segment retries) must give
+    the Python path's planes."""
+    rng = np.random.default_rng(seed)
+    k = 4
+    dirs = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0]], dtype=np.float64)
+    means = dirs * rng.uniform(0.25, 0.4, (k, 1)) + rng.normal(size=(k, 3)) * 0.02
+    scene = make_scene(means, random_rotations(rng, k), rng.uniform(0.02, 0.08, (k, 3)), 0.03)
+    idx = GridIndex.build(scene)
+    seeds = rng.normal(size=(n_seeds, 3)) * 0.03
+    lo, hi = np.full(3, -0.6), np.full(3, 0.6)
+    try:
+        Pn = safe_polytope(seeds, scene, idx, lo, hi, normal=normal, backend="native")
+        Pp = safe_polytope(seeds, scene, idx, lo, hi, normal=normal, backend="python")
+    except SeedNotFreeError:
+        assume(False)
+    assume(Pp.num_faces == 6 + k)
+    assert Pn.num_faces == Pp.num_faces
+    order_n = torch.argsort(Pn.ellipsoid_ids).numpy()
+    order_p = torch.argsort(Pp.ellipsoid_ids).numpy()
+    assert torch.equal(Pn.ellipsoid_ids[order_n], Pp.ellipsoid_ids[order_p])
+    An, bn = Pn.to_numpy()
+    Ap, bp = Pp.to_numpy()
+    # s* is found by golden section to ~1e-3 in both; the same arithmetic gives planes equal to rounding
+    np.testing.assert_allclose(An[6:][order_n], Ap[6:][order_p], atol=1e-9)
+    np.testing.assert_allclose(bn[6:][order_n], bp[6:][order_p], atol=1e-9)
+
+
+def test_native_polytope_on_cell_aligned_boxes():
+    """AABB faces exactly on index cell faces (means and sizes on the cell lattice): the dedupe of the compiled
+    gather must keep one copy of each, so the polytope stays safe."""
+    cell = 0.1
+    rng = np.random.default_rng(3)
+    g = np.arange(-5, 6) * cell
+    means = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+    means = means[rng.random(len(means)) < 0.3]
+    n = len(means)
+    scene = make_scene(means, np.broadcast_to(np.eye(3), (n, 3, 3)).copy(), np.full((n, 3), 0.02), 0.03)
+    idx = GridIndex.build(scene, cell_size=cell)
+    for s in range(20):
+        p = rng.uniform(-0.45, 0.45, 3)
+        if _segment_blocked(p[None], scene):
+            continue
+        lo, hi = p - 0.3, p + 0.3
+        P = safe_polytope(p[None], scene, idx, lo, hi, backend="native")
+        _assert_safe(P, scene, p[None], lo, hi)
+
+
+def test_native_backend_refusals():
+    rng = np.random.default_rng(0)
+    scene = random_scene(rng, 50, amin=0.01, amax=0.05, camera_radius=0.03)
+    p = np.zeros((1, 3))
+    with pytest.raises(InvalidInputError, match="backend"):
+        safe_polytope(p, scene, GridIndex.build(scene), p[0] - 0.2, p[0] + 0.2, backend="fast")
+    with pytest.raises(RuntimeError, match="does not apply"):  # no index: only the Python path scans all
+        safe_polytope(p, scene, None, p[0] - 0.2, p[0] + 0.2, backend="native")
+    with pytest.raises(RuntimeError, match="does not apply"):  # three seeds
+        safe_polytope(np.zeros((3, 3)), scene, GridIndex.build(scene), p[0] - 0.2, p[0] + 0.2, backend="native")
+
+
+def test_native_segment_tangent_to_elongated_ellipsoid():
+    """polytope.py's Mahalanobis-normal case through the compiled path: the whole segment along a long thin
+    ellipsoid stays inside."""
+    scene = make_scene([[0.0, 0, 0]], np.eye(3)[None], [[0.5, 0.02, 0.02]], 0.03)
+    seg = np.array([[-0.45, 0.07, 0.0], [0.45, 0.07, 0.0]])
+    P = safe_polytope(seg, scene, GridIndex.build(scene), seg.min(0) - 0.2, seg.max(0) + 0.2, backend="native")
+    assert bool(P.contains(seg).all())
+
+
+
+@settings(**SETTINGS)
+@given(seed=st.integers(0, 2**31 - 1), dtype=st.sampled_from([torch.float32, torch.float64]),
+       cell=st.sampled_from([None, 0.04, 0.25]), pad=st.sampled_from([None, 0.0]), per_point=st.booleans())
+def test_native_points_collide_is_conservative_and_matches_python(seed, dtype, cell, pad, per_point):
+    """cn_points_collide: never "free" when the exact clearance (float64 brute force) is negative, and the same
+    answer as the Python points_collide (same pair rule) away from the 1e-6 decision margin."""
+    from cinenerf_ns.planner.geometry.collision import points_collide
+
+    rng = np.random.default_rng(seed)
+    scene = random_scene(rng, 200, amin=0.005, amax=0.12, camera_radius=0.03).to(dtype=dtype)
+    idx = GridIndex.build(scene, cell_size=cell, pad=pad)
+    pts = rng.uniform(-1.1, 1.1, (400, 3))
+    rad = torch.as_tensor(rng.uniform(0.0, 0.08, len(pts))) if per_point else None
+    hit_n = points_collide(torch.as_tensor(pts), scene, idx, radius=rad, backend="native").numpy()
+    hit_p = points_collide(torch.as_tensor(pts), scene, idx, radius=rad, backend="python").numpy()
+    s64 = scene.to(dtype=torch.float64)
+    from _corridor_refs import point_ellipsoid_distance
+
+    r = (np.full(len(pts), s64.camera_radius) if rad is None else rad.numpy())
+    exact = point_ellipsoid_distance(pts, s64).min(1) - r  # [P]
+    assert hit_n[exact < 0].all()  # conservative
+    clear = np.abs(exact) > 1e-4
+    assert (hit_n[clear] == hit_p[clear]).all()
+    assert (~hit_n).sum() > 0 and hit_n.sum() > 0  # both answers occur in these scenes
+
+
+def test_native_points_collide_refusals():
+    from cinenerf_ns.planner.geometry.collision import points_collide
+
+    rng = np.random.default_rng(0)
+    scene = random_scene(rng, 20, amin=0.01, amax=0.05, camera_radius=0.03)
+    with pytest.raises(InvalidInputError, match="backend"):
+        points_collide(torch.zeros(1, 3), scene, GridIndex.build(scene), backend="fast")
+    with pytest.raises(RuntimeError, match="does not apply"):
+        points_collide(torch.zeros(1, 3), scene, None, backend="native")

@@ -1,0 +1,201 @@
+"""Corridors (cinenerf_ns/planner/corridor/safe_corridor.py): coverage, safety, overlap, splitting."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import HealthCheck, given, settings, strategies as st
+
+import cinenerf_ns.planner.corridor.safe_corridor as corridor_mod
+from cinenerf_ns.planner.corridor.polytope import SeedNotFreeError, chebyshev_center, safe_polytope
+from cinenerf_ns.planner.corridor.safe_corridor import Corridor, CorridorError, build_corridor
+from cinenerf_ns.planner.errors import InvalidInputError
+
+sys.path.insert(0, str(Path(__file__).parents[1]))
+from _corridor_refs import clearance, make_scene, random_scene  # noqa: E402
+from test_polytope import vertices_and_interior  # noqa: E402
+
+
+def free_polyline(rng, scene, k, step=0.4, tries=200):
+    """Random polyline of k points whose segments keep exact clearance > 0.01 everywhere."""
+    pts = []
+    for _ in range(tries):
+        p = rng.uniform(-0.9, 0.9, 3)
+        if clearance(p[None], scene)[0] > 0.005:
+            pts = [p]
+            break
+    if not pts:
+        return None
+    while len(pts) < k:
+        for _ in range(tries):
+            q = pts[-1] + rng.normal(size=3) * step
+            # clearance is 1-Lipschitz: samples <= 0.02 apart all > 0.02 => the whole segment > 0.01
+            ts = np.linspace(0, 1, int(np.ceil(np.linalg.norm(q - pts[-1]) / 0.02)) + 1)[:, None]
+            if clearance(pts[-1] + ts * (q - pts[-1]), scene).min() > 0.02:
+                pts.append(q)
+                break
+        else:
+            return None
+    return np.asarray(pts)
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(1, 10), k=st.integers(2, 5),
+       box=st.sampled_from(["aabb", "oriented"]))
+def test_corridor_covers_path_and_is_safe(seed, n, k, box):
+    rng = np.random.default_rng(seed)
+    scene = random_scene(rng, n, amax=0.25, camera_radius=0.03)
+    wps = free_polyline(rng, scene, k)
+    if wps is None:
+        return
+    # every segment keeps clearance > 0.01 (Lipschitz-dense check), so exact-offset planes plus at most 4
+    # midpoint splits must cover it: a CorridorError here is a failure
+    cor = build_corridor(wps, scene, None, box_margin=0.15, min_overlap=0.0, exact_overlap=True, box=box)
+    assert isinstance(cor, Corridor)
+    assert len(cor) == cor.waypoints.shape[0] - 1 >= k - 1
+    assert torch.allclose(cor.waypoints[0], torch.as_tensor(wps[0])) and torch.allclose(cor.waypoints[-1], torch.as_tensor(wps[-1]))
+    for m, P in enumerate(cor.polytopes):
+        seg = cor.waypoints[m:m + 2]
+        assert bool(P.contains(seg).all())
+        pts = vertices_and_interior(P, rng, 15)
+        assert clearance(pts, scene).min() >= -1e-9
+    # overlaps: positive, and the reported value is the LP's Chebyshev radius (exact_overlap=True)
+    assert cor.overlap_radius.shape == (len(cor) - 1,)
+    for m in range(len(cor) - 1):
+        A = torch.cat([cor.polytopes[m].A, cor.polytopes[m + 1].A])
+        b = torch.cat([cor.polytopes[m].b, cor.polytopes[m + 1].b])
+        _, rad = chebyshev_center(A, b)
+        assert rad > 0
+        assert float(cor.overlap_radius[m]) == pytest.approx(rad, rel=1e-6, abs=1e-9)
+    As = cor.constraints()
+    assert len(As) == len(cor) and all(a.shape[1] == 3 and a.shape[0] == bb.shape[0] for a, bb in As)
+
+
+def test_overlap_lower_bound_is_below_lp():
+    rng = np.random.default_rng(5)
+    scene = random_scene(rng, 8, amax=0.2, camera_radius=0.03)
+    wps = free_polyline(rng, scene, 5)
+    fast = build_corridor(wps, scene, None, 0.15, min_overlap=0.0)
+    exact = build_corridor(wps, scene, None, 0.15, min_overlap=0.0, exact_overlap=True)
+    assert (fast.overlap_radius <= exact.overlap_radius + 1e-9).all()
+    assert (fast.overlap_radius > 0).all()
+
+
+def test_thin_slot_reports_thin_joint():
+    """Two walls leave a 4 mm slab of camera centres: the junction has little room."""
+    r, half_gap = 0.03, 0.002
+    walls = [[0.0, r + half_gap + 0.05, 0.0], [0.0, -(r + half_gap + 0.05), 0.0]]
+    scene = make_scene(walls, np.tile(np.eye(3), (2, 1, 1)), [[1.0, 0.05, 1.0]] * 2, r)
+    wps = np.array([[-0.5, 0.0, 0.0], [0.0, 0.001, 0.0], [0.5, 0.0, 0.0]])
+    with pytest.warns(UserWarning, match="little room"):
+        cor = build_corridor(wps, scene, None, 0.1, min_overlap=0.01)
+    assert cor.thin_joints == [0]
+    assert 0 < float(cor.overlap_radius[0]) < 0.0025
+    pts = np.vstack([vertices_and_interior(P, np.random.default_rng(0), 20) for P in cor.polytopes])
+    assert clearance(pts, scene).min() >= -1e-9
+
+
+def test_segment_through_obstacle_raises_corridor_error():
+    scene = make_scene([[0.0, 0, 0]], np.eye(3)[None], [[0.2, 0.2, 0.2]], 0.03)
+    with pytest.raises(CorridorError, match="segment 0"):
+        build_corridor([[-0.5, 0.0, 0.0], [0.5, 0.0, 0.0]], scene, None, 0.1, max_split_depth=3)
+
+
+def test_split_logic_with_a_length_limited_polytope(monkeypatch):
+    """Splitting: a fake polytope builder refusing segments longer than 0.3 forces midpoint splits."""
+    calls = []
+
+    def fake(seg, scene, index, lo, hi, **kw):
+        seg = torch.as_tensor(seg)
+        calls.append(float((seg[1] - seg[0]).norm()))
+        if calls[-1] > 0.3:
+            raise SeedNotFreeError("too long", min_slack=-1.0)
+        return safe_polytope(seg, scene, index, lo, hi, **kw)
+
+    monkeypatch.setattr(corridor_mod, "safe_polytope", fake)
+    scene = make_scene([[5.0, 5, 5]], np.eye(3)[None], [[0.2, 0.2, 0.2]], 0.03)
+    cor = build_corridor([[0.0, 0, 0], [1.0, 0, 0], [1.0, 0.2, 0]], scene, None, 0.1)
+    # [0,0,0]->[1,0,0] (length 1) needs 2 levels: 4 pieces of 0.25; the short one none
+    assert len(cor) == 5 and cor.n_splits == 3
+    xs = cor.waypoints[:, 0].tolist()
+    assert xs == pytest.approx([0.0, 0.25, 0.5, 0.75, 1.0, 1.0])
+    with pytest.raises(CorridorError):
+        build_corridor([[0.0, 0, 0], [1.0, 0, 0]], scene, None, 0.1, max_split_depth=1)
+
+
+def test_bad_waypoints():
+    scene = make_scene([[5.0, 5, 5]], np.eye(3)[None], [[0.2, 0.2, 0.2]], 0.03)
+    with pytest.raises(InvalidInputError):
+        build_corridor([[0.0, 0, 0]], scene)
+    with pytest.raises(InvalidInputError):
+        build_corridor([[0.0, 0, 0], [np.nan, 0, 0]], scene)
+    with pytest.raises(InvalidInputError):
+        build_corridor([[0.0, 0, 0], [0.0, 0, 0]], scene)
+    with pytest.raises(InvalidInputError):
+        build_corridor([[0.0, 0, 0], [1.0, 0, 0]], scene, box="sphere")
+    # duplicates are dropped
+    cor = build_corridor([[0.0, 0, 0], [0.0, 0, 0], [0.5, 0, 0]], scene)
+    assert len(cor) == 1
+
+
+def test_oriented_boxes_follow_the_segment():
+    scene = make_scene([[5.0, 5, 5]], np.eye(3)[None], [[0.2, 0.2, 0.2]], 0.03)
+    wps = np.array([[0.0, 0, 0], [1.0, 1.0, 1.0]])
+    cor = build_corridor(wps, scene, None, 0.1, box="oriented")
+    P = cor.polytopes[0]
+    V = vertices_and_interior(P, np.random.default_rng(0), 0)
+    u = (wps[1] - wps[0]) / np.linalg.norm(wps[1] - wps[0])
+    # every vertex within 0.1 * sqrt(2) of the segment's line and within the extended segment
+    along = (V - wps[0]) @ u
+    perp = np.linalg.norm((V - wps[0]) - along[:, None] * u, axis=1)
+    assert along.min() >= -0.1 - 1e-9 and along.max() <= np.sqrt(3) + 0.1 + 1e-9
+    assert perp.max() <= 0.1 * np.sqrt(2) + 1e-9
+
+
+def test_build_corridors_equals_one_call_per_path():
+    """build_corridors (one batched polytope computation for all paths) gives each path the corridor
+    build_corridor gives it alone, and reports a path that cannot be covered as its CorridorError."""
+    from cinenerf_ns.planner.corridor.safe_corridor import build_corridors
+
+    scene, index, ways = _corridor_paths()
+    for backend in ("batched", "cpu"):
+        many = build_corridors(ways, scene, index, box_margin=0.1, backend=backend)
+        for w, c in zip(ways, many):
+            one = build_corridor(w, scene, index, box_margin=0.1, backend=backend)
+            assert len(c) == len(one)
+            for p, q in zip(c.polytopes, one.polytopes):
+                assert torch.equal(p.A, q.A) and torch.equal(p.b, q.b)
+            assert torch.equal(c.waypoints, one.waypoints)
+
+
+def _corridor_paths(n_paths=5):
+    """A cluttered random scene, its grid index, and a few free polylines through it."""
+    from cinenerf_ns.planner.scene.spatial_index import GridIndex
+
+    rng = np.random.default_rng(11)
+    scene = random_scene(rng, 10, amax=0.25, camera_radius=0.03)
+    ways = []
+    while len(ways) < n_paths:
+        w = free_polyline(rng, scene, 4)
+        if w is not None:
+            ways.append(w)
+    return scene, GridIndex.build(scene), ways
+
+
+def test_build_corridors_options_and_errors():
+    """Unknown options and oriented boxes are refused; a blocked path comes back as its CorridorError while the
+    others are built."""
+    from cinenerf_ns.planner.corridor.safe_corridor import build_corridors
+
+    scene, index, ways = _corridor_paths(2)
+    with pytest.raises(InvalidInputError, match="unknown"):
+        build_corridors(ways, scene, index, box_margn=0.1)
+    with pytest.raises(InvalidInputError, match="aabb"):
+        build_corridors(ways, scene, index, box="oriented")
+    c = scene.means[0].double().numpy()
+    blocked = np.stack([c - [0.01, 0, 0], c + [0.01, 0, 0]])  # through an ellipsoid's centre
+    out = build_corridors([ways[0], blocked, ways[1]], scene, index, backend="batched")
+    assert isinstance(out[0], Corridor) and isinstance(out[1], CorridorError) and isinstance(out[2], Corridor)

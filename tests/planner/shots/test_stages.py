@@ -1,0 +1,108 @@
+"""The leg stages (stages.py): plan_leg is their composition, the batched legs_* stages equal their one-leg
+versions, a stop's way ends at the stop, unsafe reports are refused; candidates.py and multistop.py plan legs only
+through stages.py (no stage module called directly, no Planner private)."""
+import ast
+from pathlib import Path
+
+import numpy as np
+import pytest
+from _shot_scenes import GO_TO, TARGET, walled_target_scene
+
+from cinenerf_ns.planner.errors import UnsafeTrajectoryError
+from cinenerf_ns.planner.shots import stages
+from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
+
+STARTS = np.array([[0.7, 0.5, 0.5], [0.8, -0.6, 0.4], [-0.6, 0.6, 0.5], [0.3, 0.7, 0.7]])
+
+
+@pytest.fixture(scope="module")
+def planner():
+    pl = Planner(walled_target_scene(), PlannerConfig(grid_resolution=48))
+    pl.prepare()
+    return pl
+
+
+def _legs(pl):
+    """(start, goal, polyline to shortcut) of each start's leg to GO_TO."""
+    cache = {}
+    out = []
+    for s in STARTS:
+        goal, s_ijk = stages.leg_goal(pl, s, GO_TO, cache)
+        out.append((s, goal, stages.leg_way(pl, s, s_ijk, goal)))
+    return out
+
+
+def test_plan_leg_is_the_composition_of_the_stages(planner):
+    for s, goal, way in _legs(planner):
+        short = stages.leg_shortcut(planner, way, goal)
+        assert not stages.at_goal_already(short)
+        corridor = stages.leg_corridor(planner, short, goal.known())
+        traj = stages.leg_trajectory(planner, corridor, s, goal.point)
+        shot = stages.leg_shot(planner, traj, corridor, TARGET, GO_TO)
+        shot.safety = stages.leg_verify(planner, shot)
+        leg = stages.plan_leg(planner, s, GO_TO, TARGET, {})
+        np.testing.assert_array_equal(leg.positions, shot.positions)
+        np.testing.assert_array_equal(leg.rotations, shot.rotations)
+        assert leg.safety == shot.safety and np.array_equal(leg.goal_target, GO_TO)
+        for key in ("goal_ms", "astar_ms", "shortcut_ms", "corridor_ms", "qp_ms", "timing_ms", "verify_ms", "plan_ms"):
+            assert leg.timings[key] >= 0
+
+
+def test_batched_stages_equal_the_one_leg_stages(planner):
+    legs = _legs(planner)
+    ways = stages.legs_shortcut(planner, [w for _, _, w in legs], [g for _, g, _ in legs])
+    for (_, goal, way), w in zip(legs, ways):
+        np.testing.assert_array_equal(w, stages.leg_shortcut(planner, way, goal))
+    known = [p for _, g, _ in legs for p in g.known()][:1]
+    corridors = stages.legs_corridor(planner, ways, known=known)
+    shots = []
+    for (s, goal, _), w, c in zip(legs, ways, corridors):
+        one = stages.leg_corridor(planner, w, known)
+        assert len(c) == len(one)
+        np.testing.assert_allclose(c.waypoints.cpu().numpy(), one.waypoints.cpu().numpy(), rtol=0, atol=0)
+        shots.append(stages.leg_shot(planner, stages.leg_trajectory(planner, one, s, goal.point), one, TARGET, GO_TO))
+    for shot, rep in zip(shots, stages.legs_verify(planner, shots)):
+        one = stages.leg_verify(planner, shot)
+        for key in ("num_samples", "max_sample_spacing", "num_inconclusive", "safe"):
+            assert rep[key] == one[key]
+        assert (rep["min_exact_clearance"] is None) == (one["min_exact_clearance"] is None)
+        if one["min_exact_clearance"] is not None:
+            assert rep["min_exact_clearance"] == pytest.approx(one["min_exact_clearance"], abs=1e-12)
+
+
+def test_stop_way_ends_at_the_stop_and_leg_way_as_the_goal_says(planner):
+    s = STARTS[0]
+    s_ijk, comp = stages.start_voxel(planner, s)
+    stop = stages.component_goal(planner, np.array([-0.5, -0.5, 0.6]), comp)
+    way = stages.stop_way(planner, s, s_ijk, stop)
+    assert np.array_equal(way[0], s) and np.array_equal(way[-1], stop.point)
+    goal = stages.component_goal(planner, GO_TO, comp)
+    leg = stages.leg_way(planner, s, s_ijk, goal)
+    assert np.array_equal(leg, goal.way_to_shortcut(s, stages.voxel_centres(planner, s_ijk, goal.voxel)))
+    cache = {}
+    assert stages.component_goal(planner, GO_TO, comp, cache) is cache[comp]
+    assert stages.component_goal(planner, GO_TO, comp, cache) is cache[comp]  # found once per component
+
+
+def test_unsafe_reports_are_refused_with_the_curve_named():
+    ok = {"safe": True, "min_exact_clearance": None}
+    assert stages.refuse_unsafe(ok) is ok
+    with pytest.raises(UnsafeTrajectoryError, match=r"clearance -0\.001 < 0 on a candidate curve; this is a planner bug"):
+        stages.refuse_unsafe({"safe": False, "min_exact_clearance": -1e-3}, "a candidate curve")
+
+
+STAGE_INTERNALS = {
+    "coarse_path": {"voxel_path"}, "corridor": {"build_corridor", "build_corridors"}, "safety": {"verify_shot"},
+    "reach": {"reachable_goal", "free_voxel_near"}, "trajectory": {"solve_corridor_qp"}, "dynamics": {"retime_shot"},
+}
+
+
+@pytest.mark.parametrize("module", ["candidates.py", "multistop.py"])
+def test_legs_are_planned_only_through_stages(module):
+    """ONE shot pipeline: what a leg's stages call is reached through stages.py, and no Planner private is used."""
+    tree = ast.parse((Path(stages.__file__).parent / module).read_text())
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module in STAGE_INTERNALS:
+            assert not STAGE_INTERNALS[node.module] & {a.name for a in node.names}, (module, node.module)
+        if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "planner":
+            assert not node.attr.startswith("_"), (module, node.attr)

@@ -1,0 +1,124 @@
+"""Look-at rotations: aim, orthonormality, best possible up vector, and no NaN/flip at the poles."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings, strategies as st
+from hypothesis.extra.numpy import arrays
+
+from cinenerf_ns.planner.errors import InvalidInputError
+from cinenerf_ns.planner.trajectory.orientation import look_at_error_deg, look_at_rotations, view_directions
+
+
+def frame_step_deg(rot: np.ndarray) -> np.ndarray:
+    """Geodesic angle between consecutive rotations, [T-1] degrees."""
+    rel = np.einsum("tji,tjk->tik", rot[:-1], rot[1:])  # R_t^T R_{t+1}
+    cos = (np.trace(rel, axis1=1, axis2=2) - 1) / 2
+    return np.degrees(np.arccos(np.clip(cos, -1, 1)))
+
+
+def check_frames(rot: np.ndarray):
+    assert np.all(np.isfinite(rot))
+    np.testing.assert_allclose(np.einsum("tji,tjk->tik", rot, rot), np.broadcast_to(np.eye(3), rot.shape), atol=1e-10)
+    np.testing.assert_allclose(np.linalg.det(rot), 1.0, atol=1e-10)
+
+
+coords = st.floats(-10, 10, allow_nan=False, allow_infinity=False)
+
+
+@settings(max_examples=150, deadline=None)
+@given(arrays(np.float64, (7, 3), elements=coords), arrays(np.float64, (3,), elements=coords))
+def test_aims_at_target_and_is_orthonormal(pos, target):
+    far = np.linalg.norm(pos - target, axis=1) > 1e-3
+    pos = pos[far]
+    if len(pos) == 0:
+        return
+    rot = look_at_rotations(pos, target)
+    check_frames(rot)
+    np.testing.assert_allclose(look_at_error_deg(pos, rot, target), 0.0, atol=1e-5)
+    # independent check of the aim: -z column is the unit vector to the target
+    d = (target - pos) / np.linalg.norm(target - pos, axis=1, keepdims=True)
+    np.testing.assert_allclose(view_directions(rot), d, atol=1e-9)
+    # y has the largest up-component a frame with this view direction can have (regular frames)
+    up = np.array([0.0, 0, 1])
+    horiz = np.sqrt(np.clip(1 - (d @ up) ** 2, 0, None))
+    regular = horiz >= 0.2
+    np.testing.assert_allclose(rot[regular][:, :, 1] @ up, horiz[regular], atol=1e-9)
+    # x is horizontal (no roll)
+    np.testing.assert_allclose(rot[regular][:, :, 0] @ up, 0.0, atol=1e-9)
+
+
+def test_known_frame_nerfstudio_convention():
+    # camera at origin looking along +y with z up: x right = +x world, y = +z world
+    rot = look_at_rotations(np.zeros((1, 3)), np.array([0.0, 5.0, 0.0]))[0]
+    np.testing.assert_allclose(rot, [[1, 0, 0], [0, 0, -1], [0, 1, 0]], atol=1e-12)
+
+
+def test_per_frame_targets_and_other_up():
+    rng = np.random.default_rng(0)
+    pos = rng.normal(size=(20, 3))
+    tgt = rng.normal(size=(20, 3)) + 5
+    rot = look_at_rotations(pos, tgt, up=(0.0, 1.0, 0.0))
+    check_frames(rot)
+    np.testing.assert_allclose(look_at_error_deg(pos, rot, tgt), 0.0, atol=1e-5)
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_passing_under_or_over_target_has_no_flip(sign):
+    """The camera passes straight below (above) the target: the up-derived x axis would flip 180 deg
+    in one frame; the returned frames stay finite and turn by a bounded angle per frame."""
+    t = np.linspace(-1, 1, 401)
+    pos = np.stack([t, np.zeros_like(t), np.full_like(t, -sign)], 1)  # straight line through the pole
+    target = np.zeros(3)
+    rot = look_at_rotations(pos, target)
+    check_frames(rot)
+    np.testing.assert_allclose(look_at_error_deg(pos, rot, target), 0.0, atol=1e-5)
+    steps = frame_step_deg(rot)
+    assert steps.max() < 20.0, steps.max()
+    # the naive formula really does flip here (the test can fail)
+    naive = np.cross([0, 0, 1.0], pos - target)
+    naive /= np.linalg.norm(naive, axis=1, keepdims=True) + 1e-300
+    assert np.degrees(np.arccos(np.clip(np.sum(naive[199] * naive[201]), -1, 1))) > 170
+
+
+def test_exactly_vertical_first_frame_and_static_view():
+    pos = np.array([[0.0, 0, -1], [0.0, 0, -2], [0.0, 0, 3]])  # straight up, straight up, straight down
+    rot = look_at_rotations(pos, np.zeros(3))
+    check_frames(rot)
+    np.testing.assert_allclose(look_at_error_deg(pos, rot, np.zeros(3)), 0.0, atol=1e-6)
+
+
+def test_position_on_target_reuses_neighbour_and_all_on_target_raises():
+    pos = np.array([[0.0, 0, 0], [1.0, 0, 0], [2.0, 0, 0]])
+    rot = look_at_rotations(pos, np.array([1.0, 0, 0]))
+    check_frames(rot)
+    np.testing.assert_allclose(rot[1], rot[0])
+    with pytest.raises(InvalidInputError):
+        look_at_rotations(np.ones((2, 3)), np.ones(3))
+
+
+def test_bad_input():
+    with pytest.raises(InvalidInputError):
+        look_at_rotations(np.zeros((3, 2)), np.zeros(3))
+    with pytest.raises(InvalidInputError):
+        look_at_rotations(np.array([[np.nan, 0, 0]]), np.ones(3))
+    with pytest.raises(InvalidInputError):
+        look_at_rotations(np.zeros((1, 3)), np.ones(3), up=(0, 0, 0))
+    with pytest.raises(InvalidInputError):
+        look_at_rotations(np.zeros((2, 3)), np.ones((3, 3)))
+
+
+def test_torch_in_torch_out():
+    pos = torch.randn(5, 3, dtype=torch.float32)
+    rot = look_at_rotations(pos, torch.tensor([5.0, 5.0, 5.0]))
+    assert isinstance(rot, torch.Tensor) and rot.dtype == torch.float64 and rot.shape == (5, 3, 3)
+    np.testing.assert_allclose(rot.numpy(), look_at_rotations(pos.double().numpy(), np.full(3, 5.0)))
+
+
+def test_smooth_path_gives_smooth_rotations():
+    s = np.linspace(0, 2 * np.pi, 300)
+    pos = np.stack([np.cos(s) * 3, np.sin(s) * 3, 0.5 * np.sin(3 * s)], 1)
+    rot = look_at_rotations(pos, np.array([0.0, 0.0, 0.2]))
+    steps = frame_step_deg(rot)
+    assert steps.max() < 3.0  # ~1.2 deg of yaw per frame, no jumps
