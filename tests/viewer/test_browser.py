@@ -68,9 +68,21 @@ def fast_edits(b) -> None:
     click(b, "Plan")
 
 
-# viser's client (1.1.1) gives its Gaussian-splat quad a 2-component position attribute; three.js's frustum culling
-# then computes a NaN bounding sphere and logs this once per splat node. It is not ours to fix from the server.
-VISER_SPLAT_NAN = "computeBoundingSphere(): Computed radius is NaN"
+# The one console error a page may show, and only once: viser 1.1.1's own. Its client builds the Gaussian-splat mesh
+# (client/src/Splatting/GaussianSplatsHelpers.ts, createGaussianMeshProps) with a quad whose "position" attribute has
+# 2 components per vertex and leaves the mesh frustum-culled; three.js's culling reads x, y, z of each vertex, the
+# 4th vertex's z lies past the array's end (undefined -> NaN), and computeBoundingSphere logs this error the first
+# time the splat is drawn, whatever the splat holds. test_the_allowed_console_error_is_viser_s_own pins it on a bare
+# viser server; nothing the server sends changes it (the mesh has no server-side options).
+VISER_SPLAT_NAN = "THREE.BufferGeometry.computeBoundingSphere(): Computed radius is NaN"
+
+
+def console_errors(b) -> tuple:
+    """(ours, viser's): the page's console errors and uncaught exceptions, split into those we answer for and the
+    allowed viser splat-mesh message (see VISER_SPLAT_NAN)."""
+    errors = [c for c in b.console if c[0] in ("error", "exception", "assert")]
+    viser_own = [c for c in errors if c[0] == "error" and c[1].startswith(VISER_SPLAT_NAN)]
+    return [c for c in errors if c not in viser_own], viser_own
 
 
 def box_values(b) -> tuple:
@@ -107,10 +119,10 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
         b.wait_js("document.body && document.body.innerText.includes('Export camera path')", 60)
         assert viewer.server.get_clients(), "the browser did not connect"
         b.pump(3.0)  # the splat loads and the first frames render
-        errors = [c for c in b.console if c[0] in ("error", "exception", "assert")]
-        ours = [c for c in errors if VISER_SPLAT_NAN not in c[1]]
+        ours, viser_own = console_errors(b)
         assert ours == [], f"console errors on load: {ours}"
-        timings["console_errors_on_load"] = [c[1][:120] for c in errors]
+        assert len(viser_own) <= 1, viser_own  # one splat mesh: logged once
+        timings["console_errors_on_load"] = [c[1][:120] for c in ours + viser_own]
         b.screenshot(artifacts / "browser_first_view.png")
         lo, hi = viewer.loaded.start_region  # the opening view: inside the room (procedural start region)
         assert np.all(viewer.ui.home.position >= lo) and np.all(viewer.ui.home.position <= hi)
@@ -175,6 +187,8 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
 
         exports_preview_and_nonsense(b, viewer, tmp_path, timings)
         b.screenshot(artifacts / "browser_final.png")
+        ours, viser_own = console_errors(b)  # the whole session: planning, flying, exports, preview, a bad query
+        assert ours == [] and len(viser_own) <= 1, f"console errors during the session: {ours + viser_own}"
     finally:
         b.close()
         (artifacts / "timings.json").write_text(json.dumps(timings, indent=1))
@@ -222,3 +236,34 @@ def wait(pred, timeout=10.0):
             return True
         time.sleep(0.05)
     return False
+
+
+def test_the_allowed_console_error_is_viser_s_own():
+    """The console error the viewer tests allow comes from viser's client, not from what we send: a bare viser server
+    logs nothing, and after one valid 4-Gaussian splat (finite centres, isotropic covariances) it logs exactly that
+    message, once. When a viser release stops logging it, this fails: then drop the allowance (VISER_SPLAT_NAN)."""
+    import viser
+    from cdp import Chromium
+
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    b = None
+    try:
+        b = Chromium(f"http://127.0.0.1:{server.get_port()}")
+        b.wait_js("document.readyState === 'complete'", 60)
+        assert wait(lambda: len(server.get_clients()) == 1, 30), "the browser did not connect"
+        b.pump(3.0)
+        assert console_errors(b) == ([], []), b.console
+        centres = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [0.0, 0.5, 0.0], [0.0, 0.0, 0.5]], np.float32)
+        server.scene.add_gaussian_splats("/splat", centers=centres,
+                                         covariances=np.tile(np.eye(3, dtype=np.float32) * 0.01, (4, 1, 1)),
+                                         rgbs=np.full((4, 3), 0.5, np.float32), opacities=np.ones((4, 1), np.float32))
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline and not console_errors(b)[1]:
+            b.pump(0.5)
+        b.pump(2.0)
+        ours, viser_own = console_errors(b)
+        assert ours == [] and len(viser_own) == 1, b.console
+    finally:
+        if b is not None:
+            b.close()
+        server.stop()
