@@ -32,6 +32,7 @@ from cinenerf_ns.planner.timing import TimingConfig
 
 from .backend import FunctionBackend, LocateFn, PlanFn, SceneGaussians, label_locate, to_numpy
 from .conventions import VISER_NERFSTUDIO_SCALE_RATIO
+from .views import TrainingCameras
 
 SH_C0 = 0.28209479177387814  # degree-0 spherical-harmonic constant (3DGS colour = 0.5 + C0 * f_dc)
 
@@ -75,6 +76,7 @@ class LoadedScene:
     semantic: Optional[Any] = None  # the SemanticScene answering text ("relevancy" scenes), see warm_semantics
     free_text: bool = False  # whether free text (not only label names) means anything to ``semantic``
     scene_note: str = ""  # what the scene is when it has no run (said instead of an ns-render command)
+    cameras: Optional[TrainingCameras] = None  # the capture's training cameras (the opening view); None: generated scenes
 
 
 # --------------------------------------------------------------------------------------- loading
@@ -225,6 +227,7 @@ def load_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optio
         obstacles=ld.scene, start_region=ld.start_region, semantics="none" if sem is None else "relevancy",
         semantic=sem, free_text=bool(ld.extra.get("free_text", False)),
         scene_note="" if cfg_path is not None else f"{path.absolute()} is a compact export with no training run",
+        cameras=TrainingCameras.of(ld.extra.get("camera_centres"), ld.extra.get("camera_poses")),
     )
 
 
@@ -356,11 +359,13 @@ class StandaloneViewer:
                         scene_note=self.loaded.scene_note),
             scale=cfg.scale, default_goto=self.loaded.default_goto, default_look_at=self.loaded.default_look_at,
             previewer=SplatPreviewer(sp), export_name=f"{self.loaded.name}-shot", start_region=self.loaded.start_region,
+            cameras=self.loaded.cameras,
         )
         self.ui = self.panel.view
+        self.ui.use_home_as_initial_camera()  # browsers open (and "Reset View" returns) inside the captured region
 
         @self.server.on_client_connect
-        def _(client) -> None:  # the opening view: inside the captured region, not outside the walls
+        def _(client) -> None:  # the top-down overview when it is on (a client whose camera is unknown yet stays home)
             self.ui.go_to_view(self.ui.overview if self.ui.overview_box.value else self.ui.home, client)
 
         if locate is None:

@@ -20,7 +20,7 @@ from .panel import CinePanel, DisplayOptions, PanelBackend, PanelConfig, ShotLik
 from .panel_output import Previewer
 from .polytope_mesh import polytope_mesh
 from .shot_text import SCORE_RULE
-from .views import View, highlight_box, opening_view, overview_view
+from .views import TrainingCameras, View, highlight_box, opening_view, overview_view
 
 log = logging.getLogger(__name__)
 
@@ -167,7 +167,7 @@ class ViserPanelUI:
         event.client.send_file_download(path.name, path.read_bytes())
 
     def go_to_view(self, view: Optional[View], client: Any = None) -> None:
-        """Move ``client``'s camera (all clients when None) to ``view`` (scene units)."""
+        """Move ``client``'s camera (all clients when None) to ``view`` (scene units; its up becomes the orbit's up)."""
         if view is None:
             return
         clients = [client] if client is not None else list(self.server.get_clients().values())
@@ -176,8 +176,19 @@ class ViserPanelUI:
                 with c.atomic():
                     c.camera.position = np.asarray(view.position) * self.scale
                     c.camera.look_at = np.asarray(view.look_at) * self.scale
+                    c.camera.up_direction = np.asarray(view.up, np.float64)
             except Exception:
                 log.debug("moving client %s to a view failed", getattr(c, "client_id", "?"), exc_info=True)
+
+    def use_home_as_initial_camera(self) -> None:
+        """Make the opening view (``home``) viser's initial camera: where a browser that connects starts and where
+        its "Reset View" returns (the standalone viewer; inside ns-viewer, nerfstudio keeps its own)."""
+        if self.home is None:
+            return
+        cam = self.server.initial_camera
+        cam.up = np.asarray(self.home.up, np.float64)
+        cam.position = np.asarray(self.home.position, np.float64) * self.scale
+        cam.look_at = np.asarray(self.home.look_at, np.float64) * self.scale
 
     def show_candidates(self, labels: List[str], selected: int) -> None:
         opts = list(labels) or [_NO_CANDIDATES]
@@ -344,12 +355,14 @@ def attach_cine_panel(
     previewer: Optional[Previewer] = None,
     export_name: str = "shot",
     start_region=None,
+    cameras: Optional[TrainingCameras] = None,
 ) -> CinePanel:
     """Add the cinematography panel to ``server`` and return its :class:`CinePanel`.
 
     ``backend`` gives Gaussians / locate / plan (see :class:`PanelBackend`); coordinates are drawn at
     ``scale`` x scene units (10 inside nerfstudio's viewer). ``previewer`` enables "Preview video"; ``start_region``
-    (lo [3], hi [3]) places the opening view (``ui.home``) inside the captured region."""
+    (lo [3], hi [3]) and ``cameras`` (the scene's training cameras) place the opening view (``ui.home``) inside the
+    captured region (:func:`~.views.opening_view`)."""
     cfg = config or PanelConfig()
     g = backend.gaussians()
     means = to_numpy(g.means)
@@ -360,7 +373,7 @@ def attach_cine_panel(
                       export_name=export_name)
     ui.gaussian_means = means
     if len(means):
-        ui.home, ui.overview = opening_view(means, start_region), overview_view(means, cfg.fov_deg)
+        ui.home, ui.overview = opening_view(means, start_region, cameras), overview_view(means, cfg.fov_deg)
     panel = CinePanel(backend, ui, cfg, exporter, previewer)
     ui.attach(panel)
     return panel
