@@ -362,6 +362,7 @@ class StandaloneViewer:
             cameras=self.loaded.cameras,
         )
         self.ui = self.panel.view
+        self.ui.overview_hides.extend(self.splat_above)
         self.ui.use_home_as_initial_camera()  # browsers open (and "Reset View" returns) inside the captured region
 
         @self.server.on_client_connect
@@ -391,16 +392,28 @@ class StandaloneViewer:
             self.panel._set_status(f"{text} {self.loaded_message}", "busy" if level == "busy" else "info")
 
     def _draw_splat(self, g: SceneGaussians) -> None:
+        """The splat as viser Gaussian-splat nodes: "/splat", and with a start region its Gaussians whose centres lie
+        above the region's top as "/splat_above" (``splat_above``), which the top-down overview hides: a room's
+        ceiling lies up there (the training cameras' box +0.1, or a generated room's free space, stays below it) and
+        would hide the path from above."""
         n = len(g)
         idx = np.arange(n)
         if n > self.cfg.max_display_gaussians:
             idx = np.argsort(-g.opacities)[: self.cfg.max_display_gaussians]
+        region = self.loaded.start_region
+        above = np.zeros(len(idx), bool) if region is None else g.means[idx, 2] > float(np.asarray(region[1])[2])
         s = self.cfg.scale
-        self.server.scene.add_gaussian_splats(
-            "/splat", centers=(g.means[idx] * s).astype(np.float32),
-            covariances=(g.covariances[idx] * s * s).astype(np.float32),
-            rgbs=g.colors[idx].astype(np.float32), opacities=g.opacities[idx, None].astype(np.float32),
-        )
+        self.splat_above: List[Any] = []
+        for name, sel in (("/splat", idx[~above]), ("/splat_above", idx[above])):
+            if len(sel) == 0:
+                continue
+            h = self.server.scene.add_gaussian_splats(
+                name, centers=(g.means[sel] * s).astype(np.float32),
+                covariances=(g.covariances[sel] * s * s).astype(np.float32),
+                rgbs=g.colors[sel].astype(np.float32), opacities=g.opacities[sel, None].astype(np.float32),
+            )
+            if name == "/splat_above":
+                self.splat_above.append(h)
 
     @property
     def url(self) -> str:

@@ -161,7 +161,7 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
         assert all(" s, clearance " in o for o in viewer.ui.candidate.options), viewer.ui.candidate.options
         # the path node exists on the server and in the browser's scene tree
         names = [getattr(h, "name", "") for h in viewer.ui._nodes["shot"]]
-        assert "/cine/shot/path" in names
+        assert {"/cine/shot/path", "/cine/shot/start_label", "/cine/shot/end_label"} <= set(names)
         assert b.wait_js("document.body.innerText.includes('Planned')", 20)
         # the browser camera moves over time while the shot plays (autoplay at the shot's real speed)
         shots = []
@@ -181,9 +181,11 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
         assert len(moved) >= 2 and np.linalg.norm(moved[-1] - start_pos) > 1.0
 
         viewer.ui.overview_box.value = True  # the "Top-down overview" toggle (server side: the box is in a fold)
+        assert wait(lambda: not viewer.splat_above[0].visible, 10)  # what lies above the start region is cut away
         time.sleep(1.0)
         b.screenshot(artifacts / "browser_overview.png")
         viewer.ui.overview_box.value = False
+        assert wait(lambda: viewer.splat_above[0].visible, 10)
 
         exports_preview_and_nonsense(b, viewer, tmp_path, timings)
         b.screenshot(artifacts / "browser_final.png")
