@@ -269,3 +269,42 @@ def test_the_allowed_console_error_is_viser_s_own():
         if b is not None:
             b.close()
         server.stop()
+
+
+def test_the_bundled_room_opens_at_a_training_camera_without_console_errors(tmp_path, monkeypatch):
+    """`cinesplat-viewer` with no --load-config (the bundled room, 404,782 Gaussians): no console error but viser's own
+    splat-mesh message, and the browser's camera opens at the opening view, the position of one of the room's
+    training cameras (the export stores their centres)."""
+    from cdp import Chromium
+
+    from cinenerf_ns.viewer import standalone
+    from cinenerf_ns.viewer.standalone import StandaloneConfig, StandaloneViewer
+
+    # no text-query warm-up (about a minute of torch on a daemon thread here: still running when the test process
+    # exits, it aborts it, 'terminate called without an active exception')
+    monkeypatch.setattr(standalone, "warm_semantics", lambda loaded, background=True: None)
+    viewer = StandaloneViewer(StandaloneConfig(port=free_port(), host="127.0.0.1", data=tmp_path / "data"),
+                              plan_fn=lambda *a, **k: [])  # loading only: no planner preparation
+    b = None
+    try:
+        cams = viewer.loaded.cameras
+        assert cams is not None and len(cams.centres) == 150
+        np.testing.assert_allclose(viewer.ui.home.position, cams.centres[cams.typical()])
+        b = Chromium(viewer.url)
+        b.wait_js("document.body && document.body.innerText.includes('Export camera path')", 60)
+        assert wait(lambda: len(viewer.server.get_clients()) == 1, 30), "the browser did not connect"
+        client = next(iter(viewer.server.get_clients().values()))
+        s = viewer.cfg.scale
+        assert wait(lambda: np.allclose(client.camera.position, viewer.ui.home.position * s, atol=1e-6), 30), (
+            f"browser camera at {client.camera.position / s}, opening view {viewer.ui.home.position}")
+        np.testing.assert_allclose(client.camera.look_at, viewer.ui.home.look_at * s, atol=1e-6)
+        deadline = time.monotonic() + 60  # the first splat frame (software WebGL: seconds)
+        while time.monotonic() < deadline and not console_errors(b)[1]:
+            b.pump(0.5)
+        b.pump(3.0)
+        ours, viser_own = console_errors(b)
+        assert ours == [] and len(viser_own) <= 1, ours + viser_own
+    finally:
+        if b is not None:
+            b.close()
+        viewer.close()
