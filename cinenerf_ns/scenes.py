@@ -10,7 +10,7 @@ from typing import Any, Callable, Dict, List, Optional, Tuple
 import numpy as np
 
 from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY, OBJECT_CLUSTER, SMOOTH_NEIGHBORS
-from cinenerf_ns.method.training_cameras import camera_box, run_config_path, scene_camera_centres
+from cinenerf_ns.method.training_cameras import camera_box, run_config_path, scene_camera_centres, scene_camera_poses
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
 from cinenerf_ns.planner.scene.splat_params import NO_COLOUR_GREY, SplatParams, rgb_to_dc
@@ -192,8 +192,9 @@ def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Opti
     if region is None and st.info.get("start_region"):  # compact exports carry their training cameras' box
         lo, hi = (np.asarray(v, dtype=np.float64) for v in st.info["start_region"])
         region = (lo, hi)
-    return LoadedScene(scene, locate, "checkpoint", str(path), config_path=cfg_path, extra={"splat": st, **extra_sem},
-                       start_region=region)
+    poses = scene_camera_poses(cfg_path, st.info)  # [F, 3, 4] or None (the viewer's opening view)
+    return LoadedScene(scene, locate, "checkpoint", str(path), config_path=cfg_path,
+                       extra={"splat": st, "camera_centres": cams, "camera_poses": poses, **extra_sem}, start_region=region)
 
 
 def resolve_match(text: str, loaded: LoadedScene, what: str) -> Dict[str, Any]:

@@ -307,11 +307,11 @@ stage_room() {
 import sys, time
 from cinenerf_ns.method.checkpoint import export_compact, load_splat
 from pathlib import Path
-from cinenerf_ns.method.training_cameras import camera_info, training_camera_centres
+from cinenerf_ns.method.training_cameras import camera_info, training_camera_poses
 st = load_splat(sys.argv[1])
-c = training_camera_centres(Path(sys.argv[1]))  # where the training cameras were: free space for random starts,
-if c is not None:  # and what no camera saw fills an object's volume centre
-    st.info.update(camera_info(c))
+p = training_camera_poses(Path(sys.argv[1]))  # where the training cameras were: free space for random starts,
+if p is not None:  # what no camera saw fills an object's volume centre, and cinesplat-viewer opens at one of them
+    st.info.update(camera_info(p[:, :, 3], p))
 t = time.perf_counter(); p = export_compact(st, sys.argv[2], half=True)
 print("gaussians", len(st), "step", st.step, "labels", st.info.get("label_names"))
 print(f"compact export {p} {p.stat().st_size/2**20:.2f} MiB in {time.perf_counter()-t:.2f}s")

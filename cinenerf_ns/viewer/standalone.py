@@ -34,6 +34,7 @@ from cinenerf_ns.planner.trajectory.timing import TimingConfig
 
 from .backend import FunctionBackend, LocateFn, PlanFn, SceneGaussians, label_locate, to_numpy
 from .conventions import VISER_NERFSTUDIO_SCALE_RATIO
+from .views import TrainingCameras
 
 
 def display_gaussians(splat: SplatParams) -> SceneGaussians:
@@ -62,6 +63,7 @@ class LoadedScene:
     semantic: Optional[Any] = None  # the SemanticScene answering text ("relevancy" scenes), see warm_semantics
     free_text: bool = False  # whether free text (not only label names) means anything to ``semantic``
     scene_note: str = ""  # what the scene is when it has no run (said instead of an ns-render command)
+    cameras: Optional[TrainingCameras] = None  # the capture's training cameras (the opening view); None: generated scenes
 
 
 # --------------------------------------------------------------------------------------- loading
@@ -164,6 +166,7 @@ def load_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optio
         obstacles=ld.scene, start_region=ld.start_region, semantics="none" if sem is None else "relevancy",
         semantic=sem, free_text=bool(ld.extra.get("free_text", False)),
         scene_note="" if cfg_path is not None else f"{path.absolute()} is a compact export with no training run",
+        cameras=TrainingCameras.of(ld.extra.get("camera_centres"), ld.extra.get("camera_poses")),
     )
 
 
@@ -291,11 +294,14 @@ class StandaloneViewer:
                         scene_note=self.loaded.scene_note),
             scale=cfg.scale, default_goto=self.loaded.default_goto, default_look_at=self.loaded.default_look_at,
             previewer=SplatPreviewer(sp), export_name=f"{self.loaded.name}-shot", start_region=self.loaded.start_region,
+            cameras=self.loaded.cameras,
         )
         self.ui = self.panel.view
+        self.ui.overview_hides.extend(self.splat_above)
+        self.ui.use_home_as_initial_camera()  # browsers open (and "Reset View" returns) inside the captured region
 
         @self.server.on_client_connect
-        def _(client) -> None:  # the opening view: inside the captured region, not outside the walls
+        def _(client) -> None:  # the top-down overview when it is on (a client whose camera is unknown yet stays home)
             self.ui.go_to_view(self.ui.overview if self.ui.overview_box.value else self.ui.home, client)
 
         if locate is None:
@@ -321,16 +327,28 @@ class StandaloneViewer:
             self.panel._set_status(f"{text} {self.loaded_message}", "busy" if level == "busy" else "info")
 
     def _draw_splat(self, g: SceneGaussians) -> None:
+        """The splat as viser Gaussian-splat nodes: "/splat", and with a start region its Gaussians whose centres lie
+        above the region's top as "/splat_above" (``splat_above``), which the top-down overview hides: a room's
+        ceiling lies up there (the training cameras' box +0.1, or a generated room's free space, stays below it) and
+        would hide the path from above."""
         n = len(g)
         idx = np.arange(n)
         if n > self.cfg.max_display_gaussians:
             idx = np.argsort(-g.opacities)[: self.cfg.max_display_gaussians]
+        region = self.loaded.start_region
+        above = np.zeros(len(idx), bool) if region is None else g.means[idx, 2] > float(np.asarray(region[1])[2])
         s = self.cfg.scale
-        self.server.scene.add_gaussian_splats(
-            "/splat", centers=(g.means[idx] * s).astype(np.float32),
-            covariances=(g.covariances[idx] * s * s).astype(np.float32),
-            rgbs=g.colors[idx].astype(np.float32), opacities=g.opacities[idx, None].astype(np.float32),
-        )
+        self.splat_above: List[Any] = []
+        for name, sel in (("/splat", idx[~above]), ("/splat_above", idx[above])):
+            if len(sel) == 0:
+                continue
+            h = self.server.scene.add_gaussian_splats(
+                name, centers=(g.means[sel] * s).astype(np.float32),
+                covariances=(g.covariances[sel] * s * s).astype(np.float32),
+                rgbs=g.colors[sel].astype(np.float32), opacities=g.opacities[sel, None].astype(np.float32),
+            )
+            if name == "/splat_above":
+                self.splat_above.append(h)
 
     @property
     def url(self) -> str:

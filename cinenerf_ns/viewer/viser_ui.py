@@ -22,7 +22,7 @@ from .panel import CinePanel, DisplayOptions, PanelBackend, PanelConfig, ShotLik
 from .panel_output import Previewer
 from .polytope_mesh import polytope_mesh
 from .shot_text import SCORE_RULE
-from .views import View, highlight_box, opening_view, overview_view
+from .views import TrainingCameras, View, highlight_box, opening_view, overview_view
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +63,9 @@ class ViserPanelUI:
         self.home: Optional[View] = None  # the opening view (scene units); set by attach_cine_panel
         self.overview: Optional[View] = None  # the top-down overview
         self.preview_path: Optional[Path] = None
+        # scene nodes hidden while the top-down overview is on: the standalone viewer's Gaussians above the start
+        # region (a room's ceiling), which would hide the path and frustums from above (see draw_shot)
+        self.overview_hides: List[Any] = []
 
         gui = server.gui
         with gui.add_folder(folder_label):
@@ -128,8 +131,7 @@ class ViserPanelUI:
         self.preview_button.visible = p.previewer is not None
         self.preview_button.on_click(guarded(lambda e: p.preview(self.export_name.value)))
         self.preview_download.on_click(guarded(self._send_preview))
-        self.overview_box.on_update(guarded(lambda e: self.go_to_view(self.overview if self.overview_box.value
-                                                                      else self.home)))
+        self.overview_box.on_update(guarded(lambda e: self.show_overview(bool(self.overview_box.value))))
 
         @self.candidate.on_update
         def _(event: viser.GuiEvent) -> None:
@@ -171,7 +173,7 @@ class ViserPanelUI:
         event.client.send_file_download(path.name, path.read_bytes())
 
     def go_to_view(self, view: Optional[View], client: Any = None) -> None:
-        """Move ``client``'s camera (all clients when None) to ``view`` (scene units)."""
+        """Move ``client``'s camera (all clients when None) to ``view`` (scene units; its up becomes the orbit's up)."""
         if view is None:
             return
         clients = [client] if client is not None else list(self.server.get_clients().values())
@@ -180,8 +182,29 @@ class ViserPanelUI:
                 with c.atomic():
                     c.camera.position = np.asarray(view.position) * self.scale
                     c.camera.look_at = np.asarray(view.look_at) * self.scale
+                    c.camera.up_direction = np.asarray(view.up, np.float64)
             except Exception:
                 log.debug("moving client %s to a view failed", getattr(c, "client_id", "?"), exc_info=True)
+
+    def show_overview(self, on: bool) -> None:
+        """The "Top-down overview" toggle: every camera to the overview (``on``) or back home; ``overview_hides``
+        hidden while it is on."""
+        for h in self.overview_hides:
+            try:
+                h.visible = not on
+            except Exception:
+                log.debug("(un)hiding %s for the overview failed", getattr(h, "name", "?"), exc_info=True)
+        self.go_to_view(self.overview if on else self.home)
+
+    def use_home_as_initial_camera(self) -> None:
+        """Make the opening view (``home``) viser's initial camera: where a browser that connects starts and where
+        its "Reset View" returns (the standalone viewer; inside ns-viewer, nerfstudio keeps its own)."""
+        if self.home is None:
+            return
+        cam = self.server.initial_camera
+        cam.up = np.asarray(self.home.up, np.float64)
+        cam.position = np.asarray(self.home.position, np.float64) * self.scale
+        cam.look_at = np.asarray(self.home.look_at, np.float64) * self.scale
 
     def show_candidates(self, labels: List[str], selected: int) -> None:
         opts = list(labels) or [_NO_CANDIDATES]
@@ -267,6 +290,15 @@ class ViserPanelUI:
                 add(self.server.scene.add_label(f"{base}/label", f"{t.role}: {t.text}{what}", position=top * self.scale))
 
     def draw_shot(self, shot: Optional[ShotLike], options: DisplayOptions) -> None:
+        """The path (a spline), 8 camera frustums along it (white at the ends) and labels at its start and end; the
+        corridor and the closest approach when asked.
+
+        Draw order: viser 1.1.1 draws Gaussian splats after every other scene node (client renderOrders.ts,
+        SPLAT_RENDER_ORDER; depth-tested, not depth-writing) and gives lines, splines, frustums and meshes no render
+        order or depth-test option, so a splat Gaussian in front of the path covers it. Labels alone are drawn after
+        splats, with depth_test=False (LABEL_*_RENDER_ORDER): the shot's start and end are labelled that way, so they
+        show through anything in front; the top-down overview hides what lies above the start region (a ceiling,
+        ``overview_hides``)."""
         with self._draw_lock:
             self._clear("shot")
             if shot is None:
@@ -287,6 +319,9 @@ class ViserPanelUI:
                         f"{base}/frustum_{j}", fov=np.deg2rad(self.fov_deg), aspect=self.aspect,
                         scale=1.5 * self.unit, color=(255, 60, 200) if 0 < j < n_fr - 1 else (255, 255, 255),
                         wxyz=wxyz, position=p, thickness=1.5, thickness_units="screen"))
+                for end, i in (("start", 0), ("end", len(pos) - 1)):  # over the splat, whatever stands in front
+                    add(self.server.scene.add_label(f"{base}/{end}_label", f"shot {end}", position=pos[i] * self.scale,
+                                                    depth_test=False, anchor="bottom-center"))
             if options.show_corridor:
                 self._draw_corridor(shot, base)
             if options.show_clearance:  # one label, where it matters: the closest approach
@@ -348,12 +383,14 @@ def attach_cine_panel(
     previewer: Optional[Previewer] = None,
     export_name: str = "shot",
     start_region=None,
+    cameras: Optional[TrainingCameras] = None,
 ) -> CinePanel:
     """Add the cinematography panel to ``server`` and return its :class:`CinePanel`.
 
     ``backend`` gives Gaussians / locate / plan (see :class:`PanelBackend`); coordinates are drawn at
     ``scale`` x scene units (10 inside nerfstudio's viewer). ``previewer`` enables "Preview video"; ``start_region``
-    (lo [3], hi [3]) places the opening view (``ui.home``) inside the captured region."""
+    (lo [3], hi [3]) and ``cameras`` (the scene's training cameras) place the opening view (``ui.home``) inside the
+    captured region (:func:`~.views.opening_view`)."""
     cfg = config or PanelConfig()
     g = backend.gaussians()
     means = to_numpy(g.means)
@@ -364,7 +401,7 @@ def attach_cine_panel(
                       export_name=export_name, preview_size=(cfg.preview_width, cfg.preview_height))
     ui.gaussian_means = means
     if len(means):
-        ui.home, ui.overview = opening_view(means, start_region), overview_view(means, cfg.fov_deg)
+        ui.home, ui.overview = opening_view(means, start_region, cameras), overview_view(means, cfg.fov_deg)
     panel = CinePanel(backend, ui, cfg, exporter, previewer)
     ui.attach(panel)
     return panel

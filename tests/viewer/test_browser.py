@@ -68,9 +68,21 @@ def fast_edits(b) -> None:
     click(b, "Plan")
 
 
-# viser's client (1.1.1) gives its Gaussian-splat quad a 2-component position attribute; three.js's frustum culling
-# then computes a NaN bounding sphere and logs this once per splat node. It is not ours to fix from the server.
-VISER_SPLAT_NAN = "computeBoundingSphere(): Computed radius is NaN"
+# The one console error a page may show, and only once: viser 1.1.1's own. Its client builds the Gaussian-splat mesh
+# (client/src/Splatting/GaussianSplatsHelpers.ts, createGaussianMeshProps) with a quad whose "position" attribute has
+# 2 components per vertex and leaves the mesh frustum-culled; three.js's culling reads x, y, z of each vertex, the
+# 4th vertex's z lies past the array's end (undefined -> NaN), and computeBoundingSphere logs this error the first
+# time the splat is drawn, whatever the splat holds. test_the_allowed_console_error_is_viser_s_own pins it on a bare
+# viser server; nothing the server sends changes it (the mesh has no server-side options).
+VISER_SPLAT_NAN = "THREE.BufferGeometry.computeBoundingSphere(): Computed radius is NaN"
+
+
+def console_errors(b) -> tuple:
+    """(ours, viser's): the page's console errors and uncaught exceptions, split into those we answer for and the
+    allowed viser splat-mesh message (see VISER_SPLAT_NAN)."""
+    errors = [c for c in b.console if c[0] in ("error", "exception", "assert")]
+    viser_own = [c for c in errors if c[0] == "error" and c[1].startswith(VISER_SPLAT_NAN)]
+    return [c for c in errors if c not in viser_own], viser_own
 
 
 def box_values(b) -> tuple:
@@ -107,10 +119,10 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
         b.wait_js("document.body && document.body.innerText.includes('Export camera path')", 60)
         assert viewer.server.get_clients(), "the browser did not connect"
         b.pump(3.0)  # the splat loads and the first frames render
-        errors = [c for c in b.console if c[0] in ("error", "exception", "assert")]
-        ours = [c for c in errors if VISER_SPLAT_NAN not in c[1]]
+        ours, viser_own = console_errors(b)
         assert ours == [], f"console errors on load: {ours}"
-        timings["console_errors_on_load"] = [c[1][:120] for c in errors]
+        assert len(viser_own) <= 1, viser_own  # one splat mesh: logged once
+        timings["console_errors_on_load"] = [c[1][:120] for c in ours + viser_own]
         b.screenshot(artifacts / "browser_first_view.png")
         lo, hi = viewer.loaded.start_region  # the opening view: inside the room (procedural start region)
         assert np.all(viewer.ui.home.position >= lo) and np.all(viewer.ui.home.position <= hi)
@@ -132,15 +144,27 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
         type_into(b, "Look at", "sofa")
         assert wait(lambda: viewer.ui.goto.value == "potted plant" and viewer.ui.look_at.value == "sofa")
         viewer.panel.config.loop = False
-        viewer.panel.config.speed = 0.5  # a longer flight: screenshots must land while it is under way, even on a busy box
+        viewer.panel.config.speed = 0.25  # a longer flight: screenshots must land while it is under way, even on a busy box
         # the camera reports from here on belong to this flight: autoplay starts with the plan, and on a busy box the
         # flight can be over before the checks below begin (the end was then reported before they counted)
         n_before = len(reported)
         start_pos = np.array(client.camera.position)  # where the browser's camera was when Plan was clicked
         t0 = time.perf_counter()
         click(b, "Plan")
-        assert wait(lambda: "Planned" in viewer.panel.status, 60), viewer.panel.status
-        timings["plan_click_to_planned_s"] = time.perf_counter() - t0
+        # this plan's own status (the fast edits' plan may have left a 'Planned' one that the click has not yet replaced)
+        assert wait(lambda: "Planned" in viewer.panel.status and "go to 'potted plant'" in viewer.panel.status, 60), (
+            viewer.panel.status)
+        timings["plan_click_to_planned_s"] = t_planned = time.perf_counter() - t0
+        # the browser camera moves over time while the shot plays (autoplay at the shot's real speed): screenshots
+        # first, while the flight is surely under way (a screenshot takes seconds on a loaded 2-core box)
+        shots, states = [], []
+        for i in range(5):
+            time.sleep(0.3)
+            shots.append(b.screenshot(artifacts / f"browser_flight_{i}.png"))
+            states.append((round(time.perf_counter() - t0 - t_planned, 2), viewer.panel.state, viewer.panel.frames_sent))
+        timings["flight_screenshots_s_after_planned"] = [x[0] for x in states]
+        digests = {hashlib.sha1(p.read_bytes()).hexdigest() for p in shots}
+        assert len(digests) > 1, f"the rendered view did not change while flying (s after Planned, state, frames): {states}"
         assert box_values(b) == ("potted plant", "sofa")
         assert "go to 'potted plant' matched the object 'potted plant'" in viewer.panel.status
         assert "cinenerf_ns planner" in viewer.ui.details_md.content  # internals in the details fold
@@ -149,15 +173,8 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
         assert all(" s, clearance " in o for o in viewer.ui.candidate.options), viewer.ui.candidate.options
         # the path node exists on the server and in the browser's scene tree
         names = [getattr(h, "name", "") for h in viewer.ui._nodes["shot"]]
-        assert "/cine/shot/path" in names
+        assert {"/cine/shot/path", "/cine/shot/start_label", "/cine/shot/end_label"} <= set(names)
         assert b.wait_js("document.body.innerText.includes('Planned')", 20)
-        # the browser camera moves over time while the shot plays (autoplay at the shot's real speed)
-        shots = []
-        for i in range(5):
-            time.sleep(0.3)
-            shots.append(b.screenshot(artifacts / f"browser_flight_{i}.png"))
-        digests = {hashlib.sha1(p.read_bytes()).hexdigest() for p in shots}
-        assert len(digests) > 1, "the rendered view did not change while flying"
         shot = viewer.panel.shot
         end = shot.positions[-1] * viewer.cfg.scale  # viser coordinates
         # the browser reports its camera back (throttled by the client); it must reach the shot's end
@@ -169,12 +186,16 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
         assert len(moved) >= 2 and np.linalg.norm(moved[-1] - start_pos) > 1.0
 
         viewer.ui.overview_box.value = True  # the "Top-down overview" toggle (server side: the box is in a fold)
+        assert wait(lambda: not viewer.splat_above[0].visible, 10)  # what lies above the start region is cut away
         time.sleep(1.0)
         b.screenshot(artifacts / "browser_overview.png")
         viewer.ui.overview_box.value = False
+        assert wait(lambda: viewer.splat_above[0].visible, 10)
 
         exports_preview_and_nonsense(b, viewer, tmp_path, timings)
         b.screenshot(artifacts / "browser_final.png")
+        ours, viser_own = console_errors(b)  # the whole session: planning, flying, exports, preview, a bad query
+        assert ours == [] and len(viser_own) <= 1, f"console errors during the session: {ours + viser_own}"
     finally:
         b.close()
         (artifacts / "timings.json").write_text(json.dumps(timings, indent=1))
@@ -222,3 +243,73 @@ def wait(pred, timeout=10.0):
             return True
         time.sleep(0.05)
     return False
+
+
+def test_the_allowed_console_error_is_viser_s_own():
+    """The console error the viewer tests allow comes from viser's client, not from what we send: a bare viser server
+    logs nothing, and after one valid 4-Gaussian splat (finite centres, isotropic covariances) it logs exactly that
+    message, once. When a viser release stops logging it, this fails: then drop the allowance (VISER_SPLAT_NAN)."""
+    import viser
+    from cdp import Chromium
+
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    b = None
+    try:
+        b = Chromium(f"http://127.0.0.1:{server.get_port()}")
+        b.wait_js("document.readyState === 'complete'", 60)
+        assert wait(lambda: len(server.get_clients()) == 1, 30), "the browser did not connect"
+        b.pump(3.0)
+        assert console_errors(b) == ([], []), b.console
+        centres = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [0.0, 0.5, 0.0], [0.0, 0.0, 0.5]], np.float32)
+        server.scene.add_gaussian_splats("/splat", centers=centres,
+                                         covariances=np.tile(np.eye(3, dtype=np.float32) * 0.01, (4, 1, 1)),
+                                         rgbs=np.full((4, 3), 0.5, np.float32), opacities=np.ones((4, 1), np.float32))
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline and not console_errors(b)[1]:
+            b.pump(0.5)
+        b.pump(2.0)
+        ours, viser_own = console_errors(b)
+        assert ours == [] and len(viser_own) == 1, b.console
+    finally:
+        if b is not None:
+            b.close()
+        server.stop()
+
+
+def test_the_bundled_room_opens_at_a_training_camera_without_console_errors(tmp_path, monkeypatch):
+    """`cinesplat-viewer` with no --load-config (the bundled room, 404,782 Gaussians): no console error but viser's own
+    splat-mesh message, and the browser's camera opens at the opening view, the position of one of the room's
+    training cameras (the export stores their centres)."""
+    from cdp import Chromium
+
+    from cinenerf_ns.viewer import standalone
+    from cinenerf_ns.viewer.standalone import StandaloneConfig, StandaloneViewer
+
+    # no text-query warm-up (about a minute of torch on a daemon thread here: still running when the test process
+    # exits, it aborts it, 'terminate called without an active exception')
+    monkeypatch.setattr(standalone, "warm_semantics", lambda loaded, background=True: None)
+    viewer = StandaloneViewer(StandaloneConfig(port=free_port(), host="127.0.0.1", data=tmp_path / "data"),
+                              plan_fn=lambda *a, **k: [])  # loading only: no planner preparation
+    b = None
+    try:
+        cams = viewer.loaded.cameras
+        assert cams is not None and len(cams.centres) == 150
+        np.testing.assert_allclose(viewer.ui.home.position, cams.centres[cams.typical()])
+        b = Chromium(viewer.url)
+        b.wait_js("document.body && document.body.innerText.includes('Export camera path')", 60)
+        assert wait(lambda: len(viewer.server.get_clients()) == 1, 30), "the browser did not connect"
+        client = next(iter(viewer.server.get_clients().values()))
+        s = viewer.cfg.scale
+        assert wait(lambda: np.allclose(client.camera.position, viewer.ui.home.position * s, atol=1e-6), 30), (
+            f"browser camera at {client.camera.position / s}, opening view {viewer.ui.home.position}")
+        np.testing.assert_allclose(client.camera.look_at, viewer.ui.home.look_at * s, atol=1e-6)
+        deadline = time.monotonic() + 60  # the first splat frame (software WebGL: seconds)
+        while time.monotonic() < deadline and not console_errors(b)[1]:
+            b.pump(0.5)
+        b.pump(3.0)
+        ours, viser_own = console_errors(b)
+        assert ours == [] and len(viser_own) <= 1, ours + viser_own
+    finally:
+        if b is not None:
+            b.close()
+        viewer.close()

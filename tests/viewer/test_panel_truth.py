@@ -12,7 +12,7 @@ from viewer_fakes import FakeBackend, FakeView
 
 from cinenerf_ns.viewer.panel import CinePanel, PanelConfig, Target, same_place_warning
 from cinenerf_ns.viewer.shot_text import sort_by_score
-from cinenerf_ns.viewer.views import highlight_box, opening_view, overview_view
+from cinenerf_ns.viewer.views import TrainingCameras, highlight_box, opening_view, overview_view
 
 
 def make(tmp_path, config_path="config.yml", previewer=None, **kw):
@@ -200,12 +200,67 @@ def test_opening_view_is_inside_the_room():
     lo, hi = means.min(0), means.max(0)
     assert np.all(v.position > lo) and np.all(v.position < hi)  # inside, not outside the walls
     assert np.linalg.norm(v.look_at - v.position) > 0.1
-    c2w = np.c_[np.eye(3), [1.0, 1.0, 1.0]]  # a training camera: its own pose, looking along -z
-    t = opening_view(means, camera_c2w=c2w)
-    np.testing.assert_allclose(t.position, [1, 1, 1])
-    assert t.look_at[2] < 1.0
+    np.testing.assert_array_equal(v.up, [0, 0, 1])  # no training camera: the scene's up
     no_region = opening_view(means)
     assert np.all(no_region.position > lo) and np.all(no_region.position < hi)
+
+
+def camera_looking(position, forward, roll_deg=0.0) -> np.ndarray:
+    """[3, 4] a nerfstudio camera-to-world (OpenGL: x right, y up, looking along -z) at ``position`` looking along
+    ``forward``, z up, turned ``roll_deg`` about its view direction."""
+    f = np.asarray(forward, float) / np.linalg.norm(forward)
+    x = np.cross(f, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(x, f)
+    r = np.deg2rad(roll_deg)
+    x, y = np.cos(r) * x + np.sin(r) * y, -np.sin(r) * x + np.cos(r) * y
+    return np.c_[x, y, -f, position]
+
+
+def test_opening_view_is_the_typical_training_camera_s_pose():
+    """With training-camera poses: the pose of the camera nearest the cameras' median position -- its position, its
+    look direction (-z), its up (+y, roll included), the orbit point ahead of it near the splat's mass."""
+    means = room_means()
+    xs = [0.6, 1.2, 2.0, 2.8, 3.4]  # five cameras along the room; the middle one is the typical camera
+    c2w = np.stack([camera_looking([x, 0.4, 1.2], [0.1 * (i - 2), 1.0, -0.2], roll_deg=10.0 * i)
+                    for i, x in enumerate(xs)])
+    cams = TrainingCameras.of(None, c2w)
+    assert cams.typical() == 2
+    np.testing.assert_array_equal(cams.centres, c2w[:, :, 3])
+    v = opening_view(means, (np.array([0.5, 0.5, 0.3]), np.array([3.5, 2.5, 2.0])), cams)  # the region plays no part
+    np.testing.assert_allclose(v.position, [2.0, 0.4, 1.2])
+    d = (v.look_at - v.position) / np.linalg.norm(v.look_at - v.position)
+    np.testing.assert_allclose(d, -c2w[2, :, 2], atol=1e-12)  # looking where that camera looked
+    np.testing.assert_allclose(v.up, c2w[2, :, 1], atol=1e-12)  # with its up (20 deg of roll here)
+    assert np.rad2deg(np.arccos(v.up @ [0, 0, 1])) > 15
+    ahead = np.linalg.norm(v.look_at - v.position)  # the orbit point: nearest the median Gaussian along the view
+    median = np.median(means, axis=0)
+    np.testing.assert_allclose(ahead, (median - v.position) @ d)
+    behind = opening_view(means, cameras=TrainingCameras.of(None, camera_looking([2.0, 2.9, 1.2], [0, 1, 0])[None]))
+    assert np.linalg.norm(behind.look_at - behind.position) > 0  # the mass behind the camera: still a view ahead
+    np.testing.assert_allclose((behind.look_at - behind.position) / np.linalg.norm(behind.look_at - behind.position),
+                               [0, 1, 0], atol=1e-12)
+
+
+def test_opening_view_from_camera_centres_only():
+    """Centres without poses (compact exports made before the poses were stored): the typical camera's position,
+    looking at the median Gaussian, up the scene's up; no cameras at all (a generated scene): the start region."""
+    means = room_means()
+    centres = np.array([[0.8, 0.5, 1.5], [1.5, 2.5, 1.4], [3.0, 1.0, 1.6]])
+    cams = TrainingCameras.of(centres)
+    assert cams.c2w is None
+    v = opening_view(means, None, cams)
+    np.testing.assert_allclose(v.position, centres[cams.typical()])
+    np.testing.assert_allclose(v.look_at, np.median(means, axis=0))
+    np.testing.assert_array_equal(v.up, [0, 0, 1])
+    above = TrainingCameras.of(np.median(means, axis=0)[None] + [0.0, 0.0, 1.0])  # straight above the median
+    a = opening_view(means, None, above)
+    np.testing.assert_allclose(a.position, above.centres[0])  # still the camera's position, looking sideways
+    assert abs((a.look_at - a.position)[2]) < 1e-12 and np.linalg.norm(a.look_at - a.position) > 0.5
+    # nothing usable: no cameras (the opening view falls back to the start region)
+    assert TrainingCameras.of(None) is None and TrainingCameras.of(np.zeros((0, 3))) is None
+    assert TrainingCameras.of([[0.0, np.nan, 1.0]]) is None
+    assert TrainingCameras.of(centres, np.full((1, 3, 4), np.nan)).c2w is None  # bad poses: the centres still count
 
 
 def test_overview_sees_the_whole_floor_from_above():

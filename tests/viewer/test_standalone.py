@@ -205,6 +205,47 @@ def test_standalone_compact_scene_answers_text_by_relevancy(tmp_path):
         v.close()
 
 
+def test_the_overview_cuts_away_what_lies_above_the_start_region(tmp_path, monkeypatch):
+    """The splat is sent as two viser nodes, the Gaussians above the start region's top apart ("/splat_above": a
+    room's ceiling); the top-down overview hides that node, so the path and frustums show from above (viser draws
+    splats over lines, with no option against it). Without a start region (a .ply) the splat stays one node."""
+    import viser
+
+    sent = []
+    real = viser.SceneApi.add_gaussian_splats
+
+    def record(self, name, centers, covariances, rgbs, opacities, **kw):
+        sent.append((name, np.array(centers)))
+        return real(self, name, centers, covariances, rgbs, opacities, **kw)
+
+    monkeypatch.setattr(viser.SceneApi, "add_gaussian_splats", record)
+    v = StandaloneViewer(StandaloneConfig(load_config="procedural:2000", port=free_port(), host="127.0.0.1",
+                                          data=tmp_path), plan_fn=lambda *a, **k: [])
+    try:
+        top = float(v.loaded.start_region[1][2]) * v.cfg.scale
+        parts = dict(sent)
+        assert sorted(parts) == ["/splat", "/splat_above"]
+        assert parts["/splat"][:, 2].max() <= top < parts["/splat_above"][:, 2].min()
+        assert len(parts["/splat"]) + len(parts["/splat_above"]) == len(v.loaded.splat.means)
+        above = v.splat_above[0]
+        assert v.ui.overview_hides == [above] and above.visible
+        v.ui.overview_box.value = True  # the "Top-down overview" checkbox (set server side: its callback runs)
+        assert wait_for(lambda: not above.visible)
+        v.ui.overview_box.value = False
+        assert wait_for(lambda: above.visible)
+    finally:
+        v.close()
+    sent.clear()
+    room, sp = room_splat()
+    write_3dgs_ply(tmp_path / "scene.ply", sp)
+    v = StandaloneViewer(StandaloneConfig(load_config=str(tmp_path / "scene.ply"), port=free_port(), host="127.0.0.1",
+                                          data=tmp_path), plan_fn=lambda *a, **k: [])
+    try:
+        assert [name for name, _ in sent] == ["/splat"] and v.ui.overview_hides == []
+    finally:
+        v.close()
+
+
 def wait_for(pred, timeout=10.0):
     import time
 

@@ -107,3 +107,27 @@ def test_status_and_play_buttons(ui_panel):
     panel.pause()
     assert ui.play_button.visible and not ui.pause_button.visible
     assert ui.camera_position() is None and ui.set_camera(np.eye(4)[:3]) == 0  # no browser connected
+
+
+def test_shot_ends_are_labelled_over_the_splat(ui_panel, monkeypatch):
+    """viser 1.1.1 draws splats after lines, splines and frustums (and offers them no render order or depth test):
+    only labels with depth_test=False come after the splat. The shot's start and end get such labels."""
+    panel, ui = ui_panel
+    calls = []
+    real = ui.server.scene.add_label
+
+    def record(name, text, **kw):
+        calls.append((name, text, kw))
+        return real(name, text, **kw)
+
+    monkeypatch.setattr(ui.server.scene, "add_label", record)
+    assert panel.request_plan("thing", "0 -1 0").result(20) is not None, panel.status
+    ends = {name: (text, kw) for name, text, kw in calls if name in ("/cine/shot/start_label", "/cine/shot/end_label")}
+    assert sorted(ends) == ["/cine/shot/end_label", "/cine/shot/start_label"]
+    pos = np.asarray(panel.shot.positions)
+    for (text, kw), want in ((ends["/cine/shot/start_label"], pos[0]), (ends["/cine/shot/end_label"], pos[-1])):
+        assert kw["depth_test"] is False  # drawn over the splat
+        np.testing.assert_allclose(kw["position"], want * ui.scale)
+    assert ends["/cine/shot/start_label"][0] == "shot start" and ends["/cine/shot/end_label"][0] == "shot end"
+    panel.set_display(show_path=False)  # the labels go with the path
+    assert not any(x.endswith("_label") for x in names(ui))
