@@ -164,7 +164,8 @@ def shot_metrics(
         "n_samples": int(pos.shape[0]),
         "duration": float(torch.as_tensor(times)[-1] - torch.as_tensor(times)[0]) if len(times) else 0.0,
         "min_clearance": float(clr.min()),
-        "min_clearance_segment_bound": float(clearance_lower_bound(pos, clr).min()) if len(pos) > 1 else float(clr.min()),
+        "min_clearance_segment_bound": float(clearance_lower_bound(pos, clr).min()) if len(pos) > 1
+        else float(clr.min()),
         "safe": bool((clr > 0).all()),
         "clearance": clr,
     }

@@ -66,7 +66,8 @@ def test_go_to_equal_to_look_at_warns(tmp_path):
     assert any(s[1] == "busy" and "same place" in s[0] for s in view.statuses)  # said while planning too
     backend.plan = orig  # a planner that fails on it (the fake's last frame looks at its own position): still said
     assert panel.request_plan("lamp", "lamp").result(10) is None
-    assert view.last_status[1] == "error" and "position. Warning: 'Go to' and 'Look at' are the same place" in view.last_status[0]
+    assert view.last_status[1] == "error"
+    assert "position. Warning: 'Go to' and 'Look at' are the same place" in view.last_status[0]
     assert panel.request_plan("chair", "lamp").result(10).warning == ""
     assert view.last_status[1] == "ok"
     a = Target("Go to", "0 0 1", np.array([0.0, 0, 1]))

@@ -84,7 +84,8 @@ def line_shot(a, b, look_at, duration=1.0, n=31, clearance=0.05) -> Shot:
     t = np.linspace(0.0, duration, n)
     pos = a[None] + (t / duration)[:, None] * (b - a)[None]
     rot = np.stack([look_at_rotation(p, look_at) for p in pos])
-    return Shot(times=t, positions=pos, rotations=rot, look_at=look_at, goal=b, start=a, clearance=np.full(n, clearance))
+    return Shot(times=t, positions=pos, rotations=rot, look_at=look_at, goal=b, start=a,
+                clearance=np.full(n, clearance))
 
 
 class FakeBackend:

@@ -62,7 +62,8 @@ class PlannerConfig:
     look-at point, when the region has such free starts (else anywhere: it never fails a request). Why: a random
     start is the shot's opening frame, and one pressed against the subject shows only its near surface; and the aim
     is only as good as the subject's estimated centre: a centre off by e turns into up to asin(e / range) of aim
-    error, which grows fast at close range (docs/PLANNER_DEFAULTS.md). 0: starts anywhere (the paper's uniform random starts). User-given starts are never moved."""
+    error, which grows fast at close range (docs/PLANNER_DEFAULTS.md). 0: starts anywhere (the paper's uniform random
+    starts). User-given starts are never moved."""
     up: tuple = (0.0, 0.0, 1.0)
     """World up direction: cameras keep their y axis as close to it as possible."""
     astar_weight: float = 1.0
@@ -100,8 +101,8 @@ class PlannerConfig:
     """Where a request's collision / polytope / clearance queries run. 'auto': on the CPU when the scene
     is on a GPU (the spatial index and the occupancy grid are still built there, then mirrored to the
     CPU once in prepare()): a request is thousands of tiny queries whose kernel launches and syncs cost
-    more than they compute (docs/PLANNER_DEFAULTS.md). 'scene': on the scene's device. Batched scoring of many candidates (occlusion, clearance)
-    keeps using the scene's device (``Planner.batch_scene``)."""
+    more than they compute (docs/PLANNER_DEFAULTS.md). 'scene': on the scene's device. Batched scoring of many
+    candidates (occlusion, clearance) keeps using the scene's device (``Planner.batch_scene``)."""
     grid_polytopes: Union[bool, str] = "auto"
     """Corridor segments that lie in free voxels of the occupancy grid get polytopes built from the grid's surface
     voxels (grid_polytope.py: the same safety guarantee without a Gaussian query, far cheaper, up to about one
@@ -148,8 +149,8 @@ class PlannerConfig:
         lo_r, hi_r = GRID_RESOLUTION_RANGE
         res = self.grid_resolution
         if isinstance(res, bool) or not isinstance(res, (int, np.integer)) or not lo_r <= res <= hi_r:
-            raise InvalidInputError(f"grid_resolution (--grid-resolution) must be an integer in [{lo_r}, {hi_r}] voxels "
-                                    f"along the planning region's longest side, got {res!r}")
+            raise InvalidInputError(f"grid_resolution (--grid-resolution) must be an integer in [{lo_r}, {hi_r}] "
+                                    f"voxels along the planning region's longest side, got {res!r}")
         mb = self.memory_budget_mb
         if isinstance(mb, bool) or not isinstance(mb, (int, float)) or not (math.isfinite(mb) and mb >= 64):
             raise InvalidInputError(f"memory_budget_mb (--memory-budget-mb) must be a number >= 64, got {mb!r}")

@@ -156,7 +156,8 @@ def score_terms(shot, look_at: np.ndarray, occluded: np.ndarray, clearance: np.n
         "framing_size": c.w_framing_size * size_err,
         "framing_offset": c.w_framing_offset * terms["framing_offset"],
         "min_clearance": c.w_min_clearance * max(0.0, c.clearance_ref - terms["min_clearance"]) / c.clearance_ref,
-        "mean_clearance": c.w_mean_clearance * float(np.mean(np.maximum(0.0, c.clearance_ref - clearance))) / c.clearance_ref,
+        "mean_clearance": (c.w_mean_clearance * float(np.mean(np.maximum(0.0, c.clearance_ref - clearance)))
+                           / c.clearance_ref),
         "jerk": c.w_jerk * pk.mean_jerk / c.jerk_ref,
         "angular_rate": c.w_angular_rate * pk.mean_angular_rate_deg / c.angular_rate_ref,
         "duration": c.w_duration * terms["duration_s"] / c.duration_ref,
@@ -208,7 +209,8 @@ def score_shot(
         from ..geometry.distance import clearance
 
         cap = None if cfg.clearance_cap is None else cfg.clearance_cap + scene.camera_radius
-        clr = clearance(torch.as_tensor(shot.positions, device=scene.device), scene, index, max_distance=cap).cpu().numpy()
+        clr = clearance(torch.as_tensor(shot.positions, device=scene.device), scene, index,
+                        max_distance=cap).cpu().numpy()
     out = score_terms(shot, look, occ, clr, object_radius, object_center, cfg)
     out.tested_frame_index = idx
     return out

@@ -248,7 +248,8 @@ class CorridorQP:
         """From a full symmetric P and separate equality / inequality blocks (any scipy sparse format)."""
         A_eq = sp.csc_matrix(A_eq)
         qp = cls(sp.triu(P, format="csc"), sp.vstack([A_eq, sp.csc_matrix(A_in)], format="csc"),
-                 np.concatenate([b_eq, b_in]), A_eq.shape[0], A_eq.toarray(), durations, degree, num_segments, polytopes)
+                 np.concatenate([b_eq, b_in]), A_eq.shape[0], A_eq.toarray(), durations, degree, num_segments,
+                 polytopes)
         qp._cache["P"] = sp.csc_matrix(P)
         return qp
 
