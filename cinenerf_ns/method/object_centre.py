@@ -152,7 +152,7 @@ def hidden_voxels(
     backend: "auto" (the compiled kernel, planner/native/voxelrays.c, when it loads; same arithmetic, same result),
     "native" (it or RuntimeError) or "python" (numpy: voxels are tested camera by camera and dropped once one
     camera sees them, so most of the cost is the truly hidden voxels' rays, each ending at its first surface voxel;
-    benchmarks/bench_hidden_voxels.py, bundled room, 150 cameras: 0.1-2.1 s per object in numpy, 3-191 ms compiled)."""
+    benchmarks/bench_hidden_voxels.py compares the two)."""
     surf = np.asarray(surface, dtype=bool)
     cams = np.asarray(cameras, dtype=np.float64).reshape(-1, 3)
     if surf.ndim != 3 or np.shape(candidates) != surf.shape:

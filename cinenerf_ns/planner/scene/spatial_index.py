@@ -119,8 +119,8 @@ class GridIndex:
         origin = lo.min(0).values
         extent = (hi.max(0).values - origin).clamp_min(1e-9)  # [3]
         if cell_size is None:
-            # 0.75 x the median padded extent: measured on a 200k room scene, 0.5x gave the same query
-            # speed with 2x the build time (3.2M vs 2.0M entries), 1.0x slightly slower queries.
+            # 0.75 x the median padded extent: smaller cells only add build time and entries, larger ones slow
+            # the queries (docs/PLANNER_DEFAULTS.md)
             cell_size = 0.75 * float((hi - lo).max(-1).values.median())
             vol_cells = float(extent.prod()) / cell_size**3
             if vol_cells > max_cells:

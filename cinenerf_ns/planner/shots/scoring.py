@@ -73,10 +73,8 @@ class ScoreConfig:
     occlusion_frames: int = 64
     """At most this many evenly spaced frames are tested for occlusion (0: all frames)."""
     clearance_cap: Optional[float] = 0.1
-    """The exact clearance is only searched up to this value; larger clearances count as the cap, so the
-    min/mean clearance terms are those of min(clearance, cap). The costs only depend on values below
-    clearance_ref, so a cap >= clearance_ref leaves the total unchanged while skipping most of the
-    exact-distance work. None: uncapped exact clearance."""
+    """Exact clearance is searched up to this (larger counts as the cap); >= clearance_ref leaves every cost unchanged
+    and skips most of the distance work. None: uncapped."""
 
     def validate(self) -> None:
         for k, v in self.__dict__.items():

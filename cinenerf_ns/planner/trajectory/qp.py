@@ -92,9 +92,8 @@ class TrajectoryConfig:
     tolerance: float = 1e-8
     """Clarabel feasibility/optimality tolerance (tol_feas, tol_gap_abs, tol_gap_rel)."""
     iterative_refinement: bool = False
-    """Clarabel's iterative refinement of every KKT solve. Off about halves Clarabel's solve on corridor QPs with the
-    same optimum (objective within ~1e-7 relative, constraint violations far inside the margin); every control point
-    is still checked against its unshrunk polytope. The one retry after a stalled solve turns it on."""
+    """Clarabel's iterative refinement of each KKT solve; off: about half the solve time, same optimum (control points
+    are still checked against their polytopes). The retry after a stalled solve turns it on."""
     osqp_tolerance: float = 1e-6
     """OSQP eps_abs/eps_rel. ADMM converges slowly on this ill-conditioned cost (1/d^5 terms), so it gets
     a looser tolerance than Clarabel; polishing usually sharpens it and the margin covers the rest."""
