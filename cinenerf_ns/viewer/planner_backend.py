@@ -134,7 +134,7 @@ class PreparedPlanner:
                 if getattr(shot, "clearance", None) is None:
                     t0 = time.perf_counter()
                     # exact where it matters (near obstacles); capped far away: the uncapped search
-                    # dominated a Plan on large scenes (~2 s at 1M Gaussians on 2 cores)
+                    # would dominate a Plan on large scenes
                     shot.clearance = np.asarray(self.planner.clearance(shot.positions, cap=self.clearance_cap,
                                                                        batch=True),
                                                 dtype=np.float64).reshape(-1)
