@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from viewer_fakes import FakeBackend, FakeView
+from viewer_fakes import FakeBackend, FakeView, camera_looking
 
 from cinenerf_ns.viewer.panel import CinePanel, PanelConfig, Target, same_place_warning
 from cinenerf_ns.viewer.shot_text import sort_by_score
@@ -204,18 +204,6 @@ def test_opening_view_is_inside_the_room():
     np.testing.assert_array_equal(v.up, [0, 0, 1])  # no training camera: the scene's up
     no_region = opening_view(means)
     assert np.all(no_region.position > lo) and np.all(no_region.position < hi)
-
-
-def camera_looking(position, forward, roll_deg=0.0) -> np.ndarray:
-    """[3, 4] a nerfstudio camera-to-world (OpenGL: x right, y up, looking along -z) at ``position`` looking along
-    ``forward``, z up, turned ``roll_deg`` about its view direction."""
-    f = np.asarray(forward, float) / np.linalg.norm(forward)
-    x = np.cross(f, [0.0, 0.0, 1.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(x, f)
-    r = np.deg2rad(roll_deg)
-    x, y = np.cos(r) * x + np.sin(r) * y, -np.sin(r) * x + np.cos(r) * y
-    return np.c_[x, y, -f, position]
 
 
 def test_opening_view_is_the_typical_training_camera_s_pose():
