@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """K ranked candidates (planned + scored) in one batched call vs K sequential single-candidate plans.
 
-    python benchmarks/bench_candidates.py --device cuda --n-gaussians 1000000 --k 32 [--repeats 5] [--workers N] [--no-record]
+    python benchmarks/bench_candidates.py --device cuda --n-gaussians 1000000 --k 32 [--repeats 5] [--workers N]
+    [--no-record]
         [--family procedural|blobs|fox|ply:PATH|npz:PATH] [--start-mode random|given]
 
 Scene (--family, benchmarks/scene_families.py; default the procedural room, seeded) on --device; go to object 0, look
@@ -147,8 +148,8 @@ def main() -> None:
     w_keys = [k for k in w_stages[0] if k.endswith("_ms") and k != "total_ms"] if w_stages else []
     med_w = {k: statistics.median(s.get(k, 0.0) for s in w_stages) for k in w_keys}
     workers_rows = [
-        f"| batched plan_candidates, {n_workers} workers | {mw:.1f} | {spread(w_ms)} | {n_w} | {mw / max(n_w, 1):.1f} | "
-        f"{mb / mw:.2f} |"
+        f"| batched plan_candidates, {n_workers} workers | {mw:.1f} | {spread(w_ms)} | {n_w} | {mw / max(n_w, 1):.1f} "
+        f"| {mb / mw:.2f} |"
     ] if n_workers else []
     workers_notes = [
         f"- {n_workers}-worker stage medians (ms; per-stage sums of the workers' wall times, which overlap; pool = "
@@ -160,7 +161,8 @@ def main() -> None:
     try:
         import subprocess
 
-        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True).stdout.strip()
+        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True,
+                             text=True).stdout.strip()
     except OSError:
         rev = "?"
     lines = [
@@ -170,7 +172,8 @@ def main() -> None:
         "",
         f"family {args.family}: {fam.description}, {args.start_mode} starts (sequential row), K={args.k}, "
         f"grid {args.grid_resolution}, "
-        f"request_device {args.request_device}, corridor_backend {args.corridor_backend} -> {planner.corridor_backend()}, "
+        f"request_device {args.request_device}, corridor_backend {args.corridor_backend} -> "
+        f"{planner.corridor_backend()}, "
         f"repeats {args.repeats}, prepare {prep_s:.2f} s (not timed below), commit {rev or '?'}",
         "",
         "| variant (request total) | median ms | p95 / max ms | shots | ms / shot | x batched |",
@@ -183,7 +186,8 @@ def main() -> None:
         "- batched (in-process) stage medians (ms, summed over candidates): "
         + ", ".join(f"{k[:-3]} {v:.1f}" for k, v in med_stage.items()),
         *workers_notes,
-        "- sequential stage medians (ms, summed over its plans; " + ("the given starts" if starts is not None else "different random starts") + "): "
+        "- sequential stage medians (ms, summed over its plans; "
+        + ("the given starts" if starts is not None else "different random starts") + "): "
         + ", ".join(f"{k[:-3]} {v:.1f}" for k, v in med_seq.items()),
         f"- speed-up sequential / batched in-process: {msq / mb:.2f}x; target on H100 at 1M, K=32: batched <= 150 ms "
         f"and >= 5x",

@@ -63,8 +63,9 @@ def main() -> None:
         if not tms:
             print(f"grid_polytopes={mode}: no plan succeeded, failures {fails}")
             continue
-        print(f"grid_polytopes={mode}: {len(tms)}/{len(reqs)} ok, failures {fails}, plan median {np.median(tms):.1f} ms "
-              f"p95 {np.percentile(tms, 95):.1f}, min exact frame clearance {min(clr):.3g}, segments {segs} "
+        print(f"grid_polytopes={mode}: {len(tms)}/{len(reqs)} ok, failures {fails}, plan median "
+              f"{np.median(tms):.1f} ms p95 {np.percentile(tms, 95):.1f}, min exact frame clearance {min(clr):.3g}, "
+              f"segments {segs} "
               f"(grid or known {prebuilt}), path length median {np.median(lengths):.3f}, grid {prep.grid.shape} "
               f"voxel {prep.grid.voxel_size:.4f} ({prep.grid.voxel_size / scene.camera_radius:.2f} camera radii)")
 

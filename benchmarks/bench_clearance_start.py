@@ -1,4 +1,5 @@
-"""Capped exact clearance with different first search boxes (clearance_queries.distance_estimate): the records in RESULTS.md.
+"""Capped exact clearance with different first search boxes (clearance_queries.distance_estimate): the records in
+RESULTS.md.
 
     python benchmarks/bench_clearance_start.py [--device cuda] [--n-gaussians 1000000] [--k 32] [--cap 0.1]
 

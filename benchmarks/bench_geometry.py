@@ -45,9 +45,11 @@ def room_splat(n: int, seed: int = 0):
     counts = torch.distributions.Multinomial(n_surf, areas / areas.sum()).sample().long()
     for (o, u, v, nn), c in zip(rects, counts.tolist()):
         ab = torch.rand(c, 2, generator=g)
-        pts.append(torch.tensor(o) + ab[:, :1] * torch.tensor(u, dtype=torch.float) + ab[:, 1:] * torch.tensor(v, dtype=torch.float))
+        pts.append(torch.tensor(o) + ab[:, :1] * torch.tensor(u, dtype=torch.float) + ab[:, 1:]
+                   * torch.tensor(v, dtype=torch.float))
         normals.append(torch.tensor(nn, dtype=torch.float).expand(c, 3))
-    means = torch.cat(pts + [torch.rand(n_float, 3, generator=g) * torch.tensor([2.0, 2.0, 1.0]) - torch.tensor([1.0, 1.0, 0.0])])
+    means = torch.cat(pts + [torch.rand(n_float, 3, generator=g) * torch.tensor([2.0, 2.0, 1.0])
+                             - torch.tensor([1.0, 1.0, 0.0])])
     nrm = torch.cat(normals + [torch.randn(n_float, 3, generator=g)])
     nrm = nrm / nrm.norm(dim=-1, keepdim=True)
     # quaternion rotating z to the normal, plus a random spin about it
@@ -88,7 +90,8 @@ def main():
     if a.threads:
         torch.set_num_threads(a.threads)
     dev = a.device
-    res = {"n": a.n, "device": dev, "threads": torch.get_num_threads(), "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
+    res = {"n": a.n, "device": dev, "threads": torch.get_num_threads(),
+           "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
     means, q, ls, op = room_splat(a.n)
     scene = EllipsoidScene.from_splat(means.to(dev), q.to(dev), ls.to(dev), op.to(dev), SceneConfig())
     res["n_obstacles"] = len(scene)
@@ -115,8 +118,10 @@ def main():
     free = torch.nonzero(~grid.occupied.cpu())
     def free_points(k):
         pick = free[torch.randint(free.shape[0], (k,), generator=g)]
-        return (grid.lo.cpu() + (pick.double() + torch.rand(k, 3, generator=g, dtype=torch.float64)) * grid.voxel_size).to(dev)
-    any_points = lambda k: (torch.rand(k, 3, generator=g) * torch.tensor([2.0, 2.0, 1.0]) - torch.tensor([1.0, 1.0, 0.0])).to(dev)
+        return (grid.lo.cpu() + (pick.double() + torch.rand(k, 3, generator=g, dtype=torch.float64))
+                * grid.voxel_size).to(dev)
+    any_points = lambda k: (torch.rand(k, 3, generator=g) * torch.tensor([2.0, 2.0, 1.0])
+                            - torch.tensor([1.0, 1.0, 0.0])).to(dev)
     for k in (1, 100, 1000):
         p = any_points(k)
         res[f"points_collide_{k}_ms"] = timed(lambda: points_collide(p, scene, index), a.reps, dev)

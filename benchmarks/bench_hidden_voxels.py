@@ -76,7 +76,8 @@ def main(argv=None) -> None:
         table = "\n".join(f"| {r[0]} | {r[1]} | {r[2]} | {r[3]:.1f} | {r[4]:.1f} | {r[3] / r[4]:.1f} |" for r in rows)
         append_results(
             f"\n## bench_hidden_voxels ({datetime.date.today().isoformat()}, {device_name('cpu')})\n\n"
-            f"scene `{a.scene}`, {len(sem.camera_centres)} training cameras, median of {a.repeats}; same voxels from both\n\n"
+            f"scene `{a.scene}`, {len(sem.camera_centres)} training cameras, median of {a.repeats}; same voxels "
+            "from both\n\n"
             "| object | candidates | hidden | numpy ms | compiled ms | ratio |\n|---|---|---|---|---|---|\n"
             f"{table}\n| all | | | {tot_p:.0f} | {tot_n:.0f} | {tot_p / tot_n:.1f} |\n")
 

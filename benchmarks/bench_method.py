@@ -2,7 +2,8 @@
 """cinesplat benchmark (GPU): training step time and PSNR vs splatfacto, CLIP extraction, codec, relevancy.
 
     python benchmarks/bench_method.py --fox ../shared/data/fox [--steps 2000] [--downscale 2]
-        [--modes splatfacto,cinesplat,cinesplat-every2,cinesplat-fused,cinesplat-image] [--clip-random-weights] [--no-record]
+        [--modes splatfacto,cinesplat,cinesplat-every2,cinesplat-fused,cinesplat-image] [--clip-random-weights]
+        [--no-record]
 
 Training runs in-process with nerfstudio's own pipeline / optimizers / callbacks, the loop of
 ``Trainer.train_iteration`` without eval, saving or viewer. Every mode starts from the same seeds.
@@ -215,7 +216,8 @@ def main():
     ap.add_argument("--steps", type=int, default=2000)
     ap.add_argument("--downscale", type=int, default=2)
     ap.add_argument("--modes", default="splatfacto,cinesplat,cinesplat-every2,cinesplat-fused,cinesplat-image")
-    ap.add_argument("--clip-random-weights", action="store_true", help="no CLIP weights on this machine: random (same speed)")
+    ap.add_argument("--clip-random-weights", action="store_true",
+                    help="no CLIP weights on this machine: random (same speed)")
     ap.add_argument("--clip-images", type=int, default=50)
     ap.add_argument("--skip", default="", help="comma list of: train,clip,codec,relevancy")
     ap.add_argument("--no-record", action="store_true", help="do not append to benchmarks/RESULTS.md")
@@ -250,9 +252,11 @@ def main():
 
     base = next((r for r in runs if r["mode"] == "splatfacto"), None)
     lines = [
-        f"### bench_method.py  {results['date']}  {device}  torch {results['torch']}  gsplat {results.get('gsplat', '?')}",
+        f"### bench_method.py  {results['date']}  {device}  torch {results['torch']}  gsplat "
+        f"{results.get('gsplat', '?')}",
         "",
-        f"fox, --downscale-factor {args.downscale}, {args.steps} steps, same seeds; step time = median over steps >= 50 (CUDA-synced)",
+        f"fox, --downscale-factor {args.downscale}, {args.steps} steps, same seeds; step time = median over steps >= "
+        "50 (CUDA-synced)",
         "",
         "| mode | step ms (median) | step ms (mean) | x splatfacto | PSNR (eval) | dPSNR | Gaussians | setup s |",
         "|---|---|---|---|---|---|---|---|",
@@ -261,7 +265,8 @@ def main():
         ratio = r["step_ms_median"] / base["step_ms_median"] if base else float("nan")
         dpsnr = r["psnr"] - base["psnr"] if base else float("nan")
         lines.append(
-            f"| {r['mode']} | {r['step_ms_median']:.2f} | {r['step_ms_mean']:.2f} | {ratio:.3f} | {r['psnr']:.2f} | {dpsnr:+.2f} | {r['gaussians']} | {r['setup_s']:.1f} |"
+            f"| {r['mode']} | {r['step_ms_median']:.2f} | {r['step_ms_mean']:.2f} | {ratio:.3f} | {r['psnr']:.2f} | "
+            f"{dpsnr:+.2f} | {r['gaussians']} | {r['setup_s']:.1f} |"
         )
     lines.append("")
     for k, v in extra.items():
@@ -269,7 +274,8 @@ def main():
     for r in runs:
         if "codec_s" in r:
             lines.append(
-                f"- {r['mode']}: feature extraction {r.get('feature_s', 0):.1f}s (cache hit {r.get('feature_cache_hit')}), "
+                f"- {r['mode']}: feature extraction {r.get('feature_s', 0):.1f}s (cache hit "
+                f"{r.get('feature_cache_hit')}), "
                 f"codec fit {r['codec_s']:.1f}s, codec 1-cos {r['codec_1mcos']:.4f}"
             )
     lines.append("")

@@ -6,16 +6,16 @@ Usage: .venv/bin/python benchmarks/bench_planner.py [--device cpu|cuda] [--n-gau
 
 Scene (--family, benchmarks/scene_families.py): procedural_room(N) (floor, walls, 6 objects; the default), blobs
 (synthetic/blobs.py: y up, walls + random round blobs + floaters), or a file (the fox capture, any .ply / compact
-export; loaded with cinenerf_ns.scenes.load_scene, its start_region passed to PlannerConfig). Request k: go-to = a random
-object's centre (+ seeded jitter inside it), look-at = another object's centre (files: both uniform in the start
+export; loaded with cinenerf_ns.scenes.load_scene, its start_region passed to PlannerConfig). Request k: go-to = a
+random object's centre (+ seeded jitter inside it), look-at = another object's centre (files: both uniform in the start
 region); start (--start-mode): sampled by the planner with seed k (random: what the viewer does), or given: an explicit
 start drawn seeded before timing (>= 0.1 from every Gaussian centre, >= 0.5 from the go-to target, accepted by the
 planner's checks); Planner.plan then includes its start check (start_check stage). Reports success rate, the request
 total (wall time of Planner.plan: what the user waits for) with median / p95 / max, per-stage median / p95 / max of
 every key in Shot.timings, failures by exception type, and two clearances: the planner's own
 verification (every dense sample proven free by the conservative test, else the exact clearance of
-the inconclusive ones) and an independent exact clearance of every frame (not timed; on the scene's own device). On CUDA every
-timed region is bracketed by torch.cuda.synchronize(). Prints a rich table, writes
+the inconclusive ones) and an independent exact clearance of every frame (not timed; on the scene's own device). On CUDA
+every timed region is bracketed by torch.cuda.synchronize(). Prints a rich table, writes
 benchmarks/bench_planner_<device>_<N>.json and appends a summary to benchmarks/RESULTS.md.
 """
 from __future__ import annotations
@@ -51,7 +51,8 @@ def main() -> None:
     ap.add_argument("--request-device", default="auto", choices=["auto", "scene"],
                     help="PlannerConfig.request_device: auto = per-request queries on a CPU mirror of a GPU scene")
     ap.add_argument("--corridor-backend", default="auto", choices=["auto", "cpu", "batched"],
-                    help="PlannerConfig.corridor_backend: auto = batched polytopes on a CUDA scene, else host polytopes")
+                    help="PlannerConfig.corridor_backend: auto = batched polytopes on a CUDA scene, "
+                         "else host polytopes")
     ap.add_argument("--start-look-distance", type=float, default=None,
                     help="PlannerConfig.start_look_distance (default: PlannerConfig's; 0: uniform random starts)")
     ap.add_argument("--family", default="procedural", help=f"scene family: {FAMILIES}")
@@ -146,7 +147,8 @@ def main() -> None:
 
     def stat(v):
         a = np.asarray(v, dtype=np.float64)
-        return {"median": float(np.median(a)), "p95": float(np.percentile(a, 95)), "max": float(a.max())} if len(a) else None
+        return {"median": float(np.median(a)), "p95": float(np.percentile(a, 95)),
+                "max": float(a.max())} if len(a) else None
 
     n_ok = len(totals)
     stages = {"wall_total_ms": stat(totals), **{k: stat(v) for k, v in sorted(per_stage.items())}}
@@ -199,7 +201,8 @@ def main() -> None:
     print(f"failures: {dict(fails) or 'none'}  examples: {fail_examples}")
     print(
         f"min exact frame clearance {result['min_exact_frame_clearance']}, verified exact (inconclusive samples only) "
-        f"{result['min_verified_exact_clearance']}, shots with inconclusive samples {result['shots_with_inconclusive_samples']}"
+        f"{result['min_verified_exact_clearance']}, shots with inconclusive samples "
+        f"{result['shots_with_inconclusive_samples']}"
     )
     for sl in result["slowest_requests"]:
         print(f"slow request {sl['request']}: {sl['ms']:.1f} ms: "
@@ -220,7 +223,9 @@ def main() -> None:
                         "qp_ms", "timing_ms", "orientation_ms", "verify_ms") if k in stages]
     cmd = " ".join(["python benchmarks/bench_planner.py", *sys.argv[1:]])
     lines = [
-        f"### bench_planner.py  {result['date']}  {result['device']} ({args.device}, request_device {args.request_device}, corridor_backend {result['corridor_backend']}, torch threads {result['torch_threads']})"
+        f"### bench_planner.py  {result['date']}  {result['device']} ({args.device}, request_device "
+        f"{args.request_device}, corridor_backend {result['corridor_backend']}, torch threads "
+        f"{result['torch_threads']})"
         + (f"  {args.note}" if args.note else ""),
         "",
         f"`{cmd}`",
@@ -235,7 +240,8 @@ def main() -> None:
         "",
         "| ms | median | p95 | max |",
         "|---|---|---|---|",
-        f"| **request total (wall)** | {med('wall_total_ms'):.1f} | {p95('wall_total_ms'):.1f} | {mx('wall_total_ms'):.1f} |",
+        f"| **request total (wall)** | {med('wall_total_ms'):.1f} | {p95('wall_total_ms'):.1f} | "
+        f"{mx('wall_total_ms'):.1f} |",
         *[f"| {k.replace('_ms', '')} | {med(k):.1f} | {p95(k):.1f} | {mx(k):.1f} |" for k in keys],
         "",
     ]

@@ -1,6 +1,7 @@
 """CPU preview of a shot (cinenerf_ns.preview.preview_camera_path): per-frame and total time at 480x270, 15 fps.
 
-    python benchmarks/bench_preview.py [--camera-path demo_output/demo_0.json] [--fox ../shared/data/fox_cinesplat/fox3000.npz]
+    python benchmarks/bench_preview.py [--camera-path demo_output/demo_0.json]
+        [--fox ../shared/data/fox_cinesplat/fox3000.npz]
 
 Scenes: the bundled room (cinenerf_ns/assets/room0.npz) with the demo shot ("go to the red armchair, look at the
 floor lamp", planned with run_plan unless --camera-path is given), and the real fox capture (skipped with a message
@@ -73,7 +74,8 @@ def bench(splat, cam: dict, out_dir: Path, name: str, repeats: int) -> dict:
         totals.append(out["timings"]["total_s"])
         frames = out["frames"]
     ms = np.asarray(ms)
-    return {"frames": frames, "gaussians": len(splat), "median": float(np.median(ms)), "p95": float(np.percentile(ms, 95)),
+    return {"frames": frames, "gaussians": len(splat), "median": float(np.median(ms)),
+            "p95": float(np.percentile(ms, 95)),
             "max": float(ms.max()), "total": float(np.median(totals)), "totals": totals, "backend": out["backend"]}
 
 
@@ -99,17 +101,19 @@ def main(argv=None) -> None:
     torch_ms = (time.perf_counter() - t) * 1e3
     if a.fox.exists():
         fox = load_splat(a.fox)
-        rows.append(("fox capture (real), orbit", bench(fox.params, orbit_camera_path(np.asarray(fox.info["camera_centres"])),
+        rows.append(("fox capture (real), orbit",
+                     bench(fox.params, orbit_camera_path(np.asarray(fox.info["camera_centres"])),
                                                          tmp, "fox", a.repeats)))
     else:
         print(f"fox scene not found at {a.fox}: skipped")
     lines = [f"## bench_preview ({datetime.date.today()}, {device_name('cpu')})", "",
-             f"480x270, 15 fps, mp4 + contact sheet; {a.repeats} runs per scene, frame times pooled; load average at the "
-             f"end {os.getloadavg()[0]:.2f}; compiled kernel load {compile_s * 1e3:.0f} ms", "",
+             f"480x270, 15 fps, mp4 + contact sheet; {a.repeats} runs per scene, frame times pooled; load average at "
+             f"the end {os.getloadavg()[0]:.2f}; compiled kernel load {compile_s * 1e3:.0f} ms", "",
              "| scene | Gaussians | frames | backend | median ms/frame | p95 | max | total s (median of runs) |",
              "|---|---|---|---|---|---|---|---|"]
     for label, r in rows:
-        lines.append(f"| {label} | {r['gaussians']} | {r['frames']} | {r['backend']} | {r['median']:.0f} | {r['p95']:.0f} "
+        lines.append(f"| {label} | {r['gaussians']} | {r['frames']} | {r['backend']} | {r['median']:.0f} | "
+                     f"{r['p95']:.0f} "
                      f"| {r['max']:.0f} | {r['total']:.1f} ({', '.join(f'{x:.1f}' for x in r['totals'])}) |")
     lines += ["", f"pure-torch fallback, first frame of the room shot: {torch_ms:.0f} ms"]
     text = "\n".join(lines)

@@ -28,7 +28,8 @@ from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig  # noqa: E4
 from cinenerf_ns.scenes import load_scene  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
-DEFAULT_SCENES = [REPO.parent / "shared" / "data" / "fox_cinesplat" / "fox3000.npz", REPO / "cinenerf_ns" / "assets" / "room0.npz"]
+DEFAULT_SCENES = [REPO.parent / "shared" / "data" / "fox_cinesplat" / "fox3000.npz",
+                  REPO / "cinenerf_ns" / "assets" / "room0.npz"]
 
 
 def stats(ms) -> str:

@@ -104,11 +104,13 @@ def main() -> None:
     warm = "warmed" if th is not None else "not warmed (--no-warm)"
     lines = [
         f"\n### bench_text_to_path {datetime.date.today()} — {device_name(a.device)}",
-        f"`python benchmarks/bench_text_to_path.py --scene {a.scene} --requests {a.requests} --candidates {a.candidates}"
+        f"`python benchmarks/bench_text_to_path.py --scene {a.scene} --requests {a.requests} --candidates "
+        f"{a.candidates}"
         + (" --no-warm" if a.no_warm else "") + "`",
         "",
-        f"- scene `{a.scene}` ({ls.name}): {len(ls.obstacles)} obstacles, {len(names)} labels, load {load_s:.2f} s; planner "
-        f"prepared {prep_s:.2f} s and text queries {warm}: ready {ready_s:.2f} s after loading (background threads)",
+        f"- scene `{a.scene}` ({ls.name}): {len(ls.obstacles)} obstacles, {len(names)} labels, load {load_s:.2f} s; "
+        f"planner prepared {prep_s:.2f} s and text queries {warm}: ready {ready_s:.2f} s after loading "
+        "(background threads)",
         f"- {len(total)}/{len(pairs)} requests planned; first request {total[0]:.1f} ms (locate {loc[0]:.1f}, plan "
         f"{plan[0]:.1f})" if total else "- no request planned",
         f"- after the first: total {stats(total[1:])}; locate (two texts) {stats(loc[1:])}; plan {stats(plan[1:])}",

@@ -125,7 +125,8 @@ def main() -> None:
 
     dev = device_name(args.device)
     lines = [f"viewer latency, real planner: procedural:{args.n_gaussians} ({len(loaded.obstacles)} obstacles), "
-             f"device {args.device} [{dev}], request_device {args.request_device}, grid {args.grid_resolution}, {args.n_candidates} candidate(s)",
+             f"device {args.device} [{dev}], request_device {args.request_device}, grid {args.grid_resolution}, "
+             f"{args.n_candidates} candidate(s)",
              f"scene load {load_s:.3f} s; planner prepare (one-time) {prep_s:.3f} s"]
     if rows:
         med = [statistics.median(c) for c in zip(*rows)]

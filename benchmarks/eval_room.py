@@ -121,7 +121,8 @@ def evaluate_shots(loaded, gt, starts: int, camera_radius: float, grid_resolutio
             try:
                 shot = planner.plan(g, lk, seed=seed, n_candidates=1)[0]
             except PlanningError as e:
-                row.update(success=False, reason=f"{type(e).__name__}: {e}"[:200], plan_ms=1e3 * (time.perf_counter() - t0))
+                row.update(success=False, reason=f"{type(e).__name__}: {e}"[:200],
+                           plan_ms=1e3 * (time.perf_counter() - t0))
                 rows.append(row)
                 continue
             row["plan_ms"] = 1e3 * (time.perf_counter() - t0)
@@ -138,7 +139,8 @@ def evaluate_shots(loaded, gt, starts: int, camera_radius: float, grid_resolutio
             row.update(
                 success=bool(clr.min() > 0 and outside == 0), true_min_clearance=float(clr.min()),
                 true_clearance_bound=float(bound.min()), outside_room_samples=outside,
-                samples=len(pos), look_err_target_max_deg=float(err_target.max()), look_err_true_max_deg=float(err_true.max()),
+                samples=len(pos), look_err_target_max_deg=float(err_target.max()),
+                look_err_true_max_deg=float(err_true.max()),
                 look_err_true_median_deg=float(np.median(err_true)), frames=int(len(err_true)),
                 frames_look_err_true_le_2deg=int((err_true <= 2.0).sum()), min_range_to_look=float(rng_look.min()),
                 final_surface_dist=d["surface"], final_centre_dist=d["centre"], duration_s=shot.duration,
@@ -226,19 +228,24 @@ def unit_fraction(text: str) -> float:
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", required=True, help="compact export (.npz/.pt) or a run's config.yml")
-    ap.add_argument("--dataset", type=Path, required=True, help="folder with geometry.json + dataparser_transforms.json")
-    ap.add_argument("--dataparser-transforms", type=Path, default=None, help="default: <dataset>/dataparser_transforms.json")
+    ap.add_argument("--dataset", type=Path, required=True,
+                    help="folder with geometry.json + dataparser_transforms.json")
+    ap.add_argument("--dataparser-transforms", type=Path, default=None,
+                    help="default: <dataset>/dataparser_transforms.json")
     ap.add_argument("--starts", type=int, default=3, help="random starts per go-to/look-at pair")
     ap.add_argument("--camera-radius", type=float, default=SceneConfig.camera_radius)
-    ap.add_argument("--safety-margin", type=float, default=DEFAULT_SAFETY_MARGIN, help="planning margin on top of the radius (cinesplat-plan's default)")
+    ap.add_argument("--safety-margin", type=float, default=DEFAULT_SAFETY_MARGIN,
+                    help="planning margin on top of the radius (cinesplat-plan's default)")
     ap.add_argument("--grid-resolution", type=int, default=96)
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--start-look-distance", type=float, default=PlannerConfig.start_look_distance,
-                    help="PlannerConfig.start_look_distance (same default): random starts at least this fraction of the "
-                         "start region's longest side from the look-at point; 0: uniform starts (the paper's)")
+                    help="PlannerConfig.start_look_distance (same default): random starts at least this fraction of "
+                         "the start region's longest side from the look-at point; 0: uniform starts (the paper's)")
     ap.add_argument("--selection-only", action="store_true")
-    ap.add_argument("--semantic-smoothing", type=int, default=32, help="as cinesplat-plan --semantic-smoothing (same default)")
-    ap.add_argument("--object-cluster", type=float, default=0.02, help="as cinesplat-plan --object-cluster (same default)")
+    ap.add_argument("--semantic-smoothing", type=int, default=32,
+                    help="as cinesplat-plan --semantic-smoothing (same default)")
+    ap.add_argument("--object-cluster", type=float, default=0.02,
+                    help="as cinesplat-plan --object-cluster (same default)")
     ap.add_argument("--object-centre", choices=["volume", "surface"], default="volume",
                     help="as cinesplat-plan --object-centre (same default)")
     ap.add_argument("--keep-support", action="store_true", help="as cinesplat-plan --keep-support (default: dropped)")
@@ -266,21 +273,28 @@ def main(argv=None) -> dict:
     summary = summarise(sel, shots, gt)
     a.out.mkdir(parents=True, exist_ok=True)
     date, dev = datetime.date.today().isoformat(), device_name(a.device)
-    md = [f"# End-to-end evaluation: {a.scene}", "", f"{date}, {dev}, {len(loaded.scene)} Gaussians, prepare {prep_ms}", "",
+    md = [f"# End-to-end evaluation: {a.scene}", "", f"{date}, {dev}, {len(loaded.scene)} Gaussians, prepare {prep_ms}",
+          "",
           "## Object selection (text -> Gaussians) vs ground truth", "",
-          markdown_table(sel, ["object", "iou", "precision", "recall", "n_selected", "n_core", "n_true", "centroid_error_frac",
-                              "surface_centroid_error_frac", "selection_mean_error_frac", "truth_centroid_error_frac", "query_ms"]),
+          markdown_table(sel, ["object", "iou", "precision", "recall", "n_selected", "n_core", "n_true",
+                               "centroid_error_frac", "surface_centroid_error_frac", "selection_mean_error_frac",
+                               "truth_centroid_error_frac", "query_ms"]),
           "", "centroid_error_frac: the object centre the method returns (the planner's look-at target; "
-          f"--object-centre {a.object_centre}, estimated from the n_core selected Gaussians above relevancy {a.centre_relevancy:g}; {unseen}) "
-          "to the true volume centroid, / room size. surface_centroid: the opacity-weighted mean of that core; selection_mean: "
+          f"--object-centre {a.object_centre}, estimated from the n_core selected Gaussians above relevancy "
+          f"{a.centre_relevancy:g}; {unseen}) "
+          "to the true volume centroid, / room size. surface_centroid: the opacity-weighted mean of that core; "
+          "selection_mean: "
           "the plain mean of the whole selection; truth_centroid: the plain mean of the object's TRUE Gaussians.",
           "", "## Shots (true geometry)", "",
-          markdown_table(shots, ["go_to", "look_at", "seed", "success", "true_min_clearance", "true_clearance_bound", "outside_room_samples",
+          markdown_table(shots, ["go_to", "look_at", "seed", "success", "true_min_clearance", "true_clearance_bound",
+                                 "outside_room_samples",
                                  "look_err_target_max_deg", "look_err_true_max_deg", "look_err_true_median_deg",
-                                 "frames_look_err_true_le_2deg", "frames", "min_range_to_look", "final_surface_dist", "plan_ms", "reason"]),
+                                 "frames_look_err_true_le_2deg", "frames", "min_range_to_look", "final_surface_dist",
+                                 "plan_ms", "reason"]),
           "", "## Summary", "", "```", json.dumps(summary, indent=1), "```"]
     (a.out / "eval_room.md").write_text("\n".join(md) + "\n")
-    (a.out / "eval_room.json").write_text(json.dumps({"summary": summary, "selection": sel, "shots": shots, "prepare_ms": prep_ms},
+    (a.out / "eval_room.json").write_text(json.dumps({"summary": summary, "selection": sel, "shots": shots,
+                                                      "prepare_ms": prep_ms},
                                                      indent=1, default=float))
     if plots["paths"]:
         look_targets = {lbl: gt.object_centres()[lbl.split(" -> ")[1].rsplit(" #", 1)[0]] for lbl in plots["paths"]}
@@ -290,8 +304,13 @@ def main(argv=None) -> dict:
         plot_look_errors(plots["look"], centre_err, a.out / "eval_room_lookat.png")
     print("\n".join(md))
     if not a.no_record:
-        append_results(f"\n## eval_room ({date}, {dev})\n\nscene `{a.scene}`, {len(loaded.scene)} Gaussians, {a.starts} starts per pair "
-                    f"(start look distance {a.start_look_distance}), camera radius {a.camera_radius} (+ planning margin {a.safety_margin}), semantic smoothing {a.semantic_smoothing}, object cluster {a.object_cluster}, object centre {a.object_centre} (centre relevancy {a.centre_relevancy:g}; {unseen}), support layer {'kept' if a.keep_support else 'dropped'}; details in `{a.out}/eval_room.md`\n\n```\n{json.dumps(summary, indent=1)}\n```\n")
+        append_results(f"\n## eval_room ({date}, {dev})\n\nscene `{a.scene}`, {len(loaded.scene)} Gaussians, "
+                       f"{a.starts} starts per pair "
+                       f"(start look distance {a.start_look_distance}), camera radius {a.camera_radius} (+ planning "
+                       f"margin {a.safety_margin}), semantic smoothing {a.semantic_smoothing}, object cluster "
+                       f"{a.object_cluster}, object centre {a.object_centre} (centre relevancy {a.centre_relevancy:g}; "
+                       f"{unseen}), support layer {'kept' if a.keep_support else 'dropped'}; details in "
+                       f"`{a.out}/eval_room.md`\n\n```\n{json.dumps(summary, indent=1)}\n```\n")
     return summary
 
 

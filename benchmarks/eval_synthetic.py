@@ -45,6 +45,18 @@ GroundTruth = Room | GroundTruthNS
 # ----------------------------------------------------------------------------------------------
 # loading
 # ----------------------------------------------------------------------------------------------
+
+def _save_figure(fig, png) -> Path:
+    """Write ``fig`` to ``png`` (its folder made), close it and return the path."""
+    import matplotlib.pyplot as plt
+
+    png = Path(png)
+    png.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(png, dpi=130)
+    plt.close(fig)
+    return png
+
 def load_ground_truth(dataset: str | Path, dataparser_transforms: str | Path | None = None) -> GroundTruthNS:
     """Ground truth in nerfstudio coordinates. With ``dataparser_transforms`` (written by ns-train) the
     transform of the trained run is used; without it it is recomputed from transforms.json the way
@@ -164,7 +176,8 @@ def shot_metrics(
         "n_samples": int(pos.shape[0]),
         "duration": float(torch.as_tensor(times)[-1] - torch.as_tensor(times)[0]) if len(times) else 0.0,
         "min_clearance": float(clr.min()),
-        "min_clearance_segment_bound": float(clearance_lower_bound(pos, clr).min()) if len(pos) > 1 else float(clr.min()),
+        "min_clearance_segment_bound": float(clearance_lower_bound(pos, clr).min()) if len(pos) > 1
+        else float(clr.min()),
         "safe": bool((clr > 0).all()),
         "clearance": clr,
     }
@@ -235,12 +248,7 @@ def plot_topdown(
     ax.set_title(title + "  (o start, \u25a1 end)")
     if paths:
         ax.legend(fontsize=7, loc="best")
-    png = Path(png)
-    png.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(png, dpi=130)
-    plt.close(fig)
-    return png
+    return _save_figure(fig, png)
 
 
 def plot_clearance(
@@ -261,12 +269,7 @@ def plot_clearance(
     ax.set_ylabel("clearance (scene units)")
     ax.set_title(title)
     ax.legend(fontsize=7, loc="best")
-    png = Path(png)
-    png.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(png, dpi=130)
-    plt.close(fig)
-    return png
+    return _save_figure(fig, png)
 
 
 def markdown_table(rows: Sequence[Mapping], columns: Sequence[str] | None = None, floatfmt: str = ".4g") -> str:

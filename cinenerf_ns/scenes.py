@@ -114,7 +114,8 @@ def procedural_spec(spec: str) -> Optional[Tuple[int, int]]:
 
 
 def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Optional[float] = None,
-               smooth_neighbors: int = SMOOTH_NEIGHBORS, object_cluster: float = OBJECT_CLUSTER, object_centre: str = "volume",
+               smooth_neighbors: int = SMOOTH_NEIGHBORS, object_cluster: float = OBJECT_CLUSTER,
+               object_centre: str = "volume",
                up: Tuple[float, float, float] = (0.0, 0.0, 1.0), drop_support: bool = True,
                centre_relevancy: float = CENTRE_RELEVANCY, unseen_fill: bool = True) -> LoadedScene:
     """Scene file/spec -> obstacles + (optionally) a text locator."""
@@ -175,7 +176,8 @@ def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Opti
             best = float(r.relevancy.max())
             picked = "" if q == text.strip() else f" -> label '{q}'"
             core = "" if k == n else f", centre from the {k} above {sem.centre_relevancy:g}"
-            desc = (f"'{text.strip()}'{picked}: {n} Gaussians above relevancy {sem.threshold:g} (best {best:.3f}){core}, "
+            desc = (f"'{text.strip()}'{picked}: {n} Gaussians above relevancy {sem.threshold:g} (best "
+                    f"{best:.3f}){core}, "
                     f"centre ({', '.join(f'{v:.3f}' for v in c)})")
             return {"text": text.strip(), "query": q, "label": q if q in label_names else None, "gaussians": n,
                     "core_gaussians": k, "best_relevancy": best, "centre": c.tolist(), "description": desc, "point": c}
@@ -194,7 +196,8 @@ def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Opti
         region = (lo, hi)
     poses = scene_camera_poses(cfg_path, st.info)  # [F, 3, 4] or None (the viewer's opening view)
     return LoadedScene(scene, locate, "checkpoint", str(path), config_path=cfg_path,
-                       extra={"splat": st, "camera_centres": cams, "camera_poses": poses, **extra_sem}, start_region=region)
+                       extra={"splat": st, "camera_centres": cams, "camera_poses": poses, **extra_sem},
+                       start_region=region)
 
 
 def resolve_match(text: str, loaded: LoadedScene, what: str) -> Dict[str, Any]:
@@ -237,7 +240,8 @@ def procedural_params(room: Any) -> SplatParams:
 
 def preview_scene(loaded: LoadedScene):
     """The renderable splat (cinenerf_ns.preview PreviewScene, SH degree 0) of a loaded scene: a checkpoint's or compact
-    export's Gaussians, a .ply's (grey where it has no colour), a procedural room's (objects coloured, the rest grey)."""
+    export's Gaussians, a .ply's (grey where it has no colour), a procedural room's (objects coloured, the rest
+    grey)."""
     from cinenerf_ns.preview.render import scene_from_splat
 
     if "splat" in loaded.extra:

@@ -34,7 +34,8 @@ def main() -> None:
 
     st = load_splat(args.scene)
     # start region and the cameras the volume centre fills what they did not see with
-    st.info.update(camera_info(camera_centres(args.dataset / "transforms.json", args.dataset / "dataparser_transforms.json")))
+    st.info.update(camera_info(camera_centres(args.dataset / "transforms.json",
+                                              args.dataset / "dataparser_transforms.json")))
     n0 = len(st)
     out = args.out / f"{args.name}.npz"
     keep_frac = 1.0

@@ -8,7 +8,8 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 FOX = Path(os.environ.get("CINENERF_FOX", REPO.parent / "shared" / "data" / "fox"))
-FOX_SPLAT = Path(os.environ.get("CINENERF_FOX_SPLAT", REPO.parent / "shared" / "data" / "fox_cinesplat" / "fox3000.npz"))  # trained fox
+FOX_SPLAT = Path(os.environ.get("CINENERF_FOX_SPLAT",
+                                REPO.parent / "shared" / "data" / "fox_cinesplat" / "fox3000.npz"))  # trained fox
 
 
 def _cuda() -> bool:
@@ -27,7 +28,8 @@ def pytest_collection_modifyitems(config, items):
         if "gpu" in item.keywords and not has_cuda:
             item.add_marker(pytest.mark.skip(reason="needs a CUDA device (run scripts/gpu_check.sh on a GPU machine)"))
         if "fox" in item.keywords and not has_fox:
-            item.add_marker(pytest.mark.skip(reason=f"sample scene not found at {FOX} (../shared/data/fox beside the checkout)"))
+            item.add_marker(pytest.mark.skip(reason=f"sample scene not found at {FOX} "
+                                             "(../shared/data/fox beside the checkout)"))
 
 
 @pytest.fixture(scope="session")

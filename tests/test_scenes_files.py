@@ -143,7 +143,8 @@ def test_npz_non_finite(tmp_path):
 
 def test_npz_truncated_export(tmp_path):
     s = tiny_splat(200)
-    st = SplatCheckpoint(SplatParams.of(s["means"], s["quats"], s["scales"], s["opacities"], colors_dc=torch.randn(200, 3)),
+    st = SplatCheckpoint(SplatParams.of(s["means"], s["quats"], s["scales"], s["opacities"],
+                                        colors_dc=torch.randn(200, 3)),
                          info={"label_names": ["a"]})
     p = export_compact(st, tmp_path / "scene.npz")
     assert len(load_scene(str(p), SceneConfig()).scene) > 0  # the export itself loads
@@ -377,7 +378,8 @@ def test_run_with_malformed_camera_files_loads_without_cameras(tmp_path):
 
 
 def test_preview_of_a_ply_coloured_with_red_green_blue(tmp_path):
-    """The preview (cinesplat-plan --preview) draws a .ply's red/green/blue colours, as the viewer does (it drew grey)."""
+    """The preview (cinesplat-plan --preview) draws a .ply's red/green/blue colours, as the viewer does (it drew
+    grey)."""
     from cinenerf_ns.scenes import preview_scene
 
     rgb = np.array([[255, 0, 0], [0, 128, 0], [10, 20, 30]], np.float32)

@@ -44,13 +44,15 @@ def demo_preview(scene: str, camera_path: str, output_dir: Path, console: Consol
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--output-dir", type=Path, default=Path("demo_output"))
-    ap.add_argument("--scene", type=Path, default=DEMO_SCENE, help="compact scene / config.yml (default: the bundled room)")
+    ap.add_argument("--scene", type=Path, default=DEMO_SCENE,
+                    help="compact scene / config.yml (default: the bundled room)")
     ap.add_argument("--candidates", type=int, default=1)
     ap.add_argument("--no-preview", action="store_true", help="skip the mp4 preview of the planned shot")
     a = ap.parse_args(argv)
     console = Console(width=max(Console().width, 150))  # the candidates table has many columns
     args = demo_args(a.output_dir, a.scene, a.candidates)
-    console.print(f"[bold]cinenerf_ns demo[/bold]: scene {args.scene}\n  go to: {args.go_to!r}   look at: {args.look_at!r}")
+    console.print(f"[bold]cinenerf_ns demo[/bold]: scene {args.scene}\n  go to: {args.go_to!r}   look at: "
+                  f"{args.look_at!r}")
     t0 = time.perf_counter()
     summary = run_plan(args, console=console)
     cam = summary["candidates"][0]["camera_path"]
@@ -62,7 +64,8 @@ def main(argv=None) -> dict:
                   f"  clearance    {summary['plots']['clearance']}\n  top view     {summary['plots']['topdown']}")
     if preview is not None:
         console.print(f"  preview      {preview['paths']['mp4']} ({preview['frames']} frames, {preview['width']}x"
-                      f"{preview['height']} @ {preview['fps']:g} fps, rendered in {preview['timings']['total_s']:.1f} s)\n"
+                      f"{preview['height']} @ {preview['fps']:g} fps, "
+                      f"rendered in {preview['timings']['total_s']:.1f} s)\n"
                       f"  contact      {preview['paths']['contact_sheet']}")
     console.print("\nGo further (after `source .venv/bin/activate` when you used make):")
     console.print(f"  watch and re-plan in the browser:  cinesplat-viewer --load-config {args.scene}")

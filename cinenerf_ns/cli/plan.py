@@ -3,7 +3,8 @@
     cinesplat-plan --scene outputs/room/cinesplat/<run>/config.yml --go-to "armchair" --look-at "floor lamp"
     cinesplat-plan --scene scene.ply --go-to "0.1 0.2 0.3" --look-at "0 0 0.2" --candidates 4
     cinesplat-plan --scene procedural --go-to armchair --look-at "floor lamp"
-    cinesplat-plan --scene procedural --go-to armchair --then-go-to sofa table --look-at "floor lamp" --max-angular-rate 45
+    cinesplat-plan --scene procedural --go-to armchair --then-go-to sofa table --look-at "floor lamp" \\
+        --max-angular-rate 45
 
 With random starts the candidates are planned, scored (occlusion of the look-at object, framing, clearance,
 smoothness, duration; planner/shots/scoring.py) and ranked: rank 1 is written as ``<name>_0.json``, rank 2 as
@@ -86,7 +87,8 @@ class PlanArgs:
     name: str = "shot"
     """File name stem of the outputs (letters, digits, '.', '_', '-')."""
     preview: bool = False
-    """Also render each candidate as a video on the CPU (SH degree 0): <name>_<k>_preview.mp4 and a contact sheet PNG."""
+    """Also render each candidate as a video on the CPU (SH degree 0): <name>_<k>_preview.mp4 and a contact sheet
+    PNG."""
     preview_size: Tuple[int, int] = DEFAULT_PREVIEW_SIZE
     """Width and height of the preview videos, pixels (16-4096 each)."""
     preview_fps: float = DEFAULT_PREVIEW_FPS
@@ -243,7 +245,8 @@ def _limits(args: PlanArgs) -> Optional[DynamicLimits]:
     return DynamicLimits(
         max_speed=args.max_speed, fps=args.fps,
         max_acceleration=DynamicLimits.max_acceleration if args.max_acceleration is None else args.max_acceleration,
-        max_angular_rate_deg=DynamicLimits.max_angular_rate_deg if args.max_angular_rate is None else args.max_angular_rate,
+        max_angular_rate_deg=(DynamicLimits.max_angular_rate_deg if args.max_angular_rate is None
+                              else args.max_angular_rate),
     )
 
 
@@ -293,7 +296,8 @@ def _write_outputs(args: PlanArgs, out: OutputSet, planner: Planner, loaded: Loa
         scene = preview_scene(loaded)
         w, h = args.preview_size
         for k in range(len(shots)):
-            res = preview_camera_path(scene, out.path(f"{args.name}_{k}.json"), out.staging, name=f"{args.name}_{k}_preview",
+            res = preview_camera_path(scene, out.path(f"{args.name}_{k}.json"), out.staging,
+                                      name=f"{args.name}_{k}_preview",
                                       width=w, height=h, fps=args.preview_fps, progress=False)
             plots[f"preview_{k}"] = str(out.final(Path(res["paths"]["mp4"]).name))
             plots[f"preview_sheet_{k}"] = str(out.final(Path(res["paths"]["contact_sheet"]).name))
@@ -313,7 +317,8 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
     """Check the options, plan, and write the outputs all together; returns a summary dict (paths, per-candidate
     metrics). Raises InvalidInputError / PlanningError / CheckpointError with a message for the user."""
     check_args(args)
-    scfg = SceneConfig.with_margin(args.camera_radius, args.safety_margin, beta=args.beta, opacity_floor=args.opacity_floor)
+    scfg = SceneConfig.with_margin(args.camera_radius, args.safety_margin, beta=args.beta,
+                                   opacity_floor=args.opacity_floor)
     t_all = time.perf_counter()
     # auto_refresh=False: no refresh thread. plan_candidates forks worker processes, and a fork while another thread
     # holds an output lock can hang the child; the bar is redrawn at each stage instead (prog.update(refresh=True)).
@@ -331,17 +336,19 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
         stop_looks = [resolve_match(t, loaded, f"look-at {i + 2}")["point"] for i, t in enumerate(args.then_look_at)]
         prog.update(task, advance=1, description="preparing (index, occupancy grid)", refresh=True)
         pcfg = PlannerConfig(
-            grid_resolution=args.grid_resolution, up=tuple(args.up), timing=TimingConfig(max_speed=args.max_speed, fps=args.fps),
+            grid_resolution=args.grid_resolution, up=tuple(args.up),
+            timing=TimingConfig(max_speed=args.max_speed, fps=args.fps),
             start_region=loaded.start_region, candidate_workers=args.workers, memory_budget_mb=args.memory_budget_mb,
-            start_look_distance=args.start_look_distance, grid_polytopes={"auto": "auto", "on": True, "off": False}[args.grid_polytopes],
+            start_look_distance=args.start_look_distance,
+            grid_polytopes={"auto": "auto", "on": True, "off": False}[args.grid_polytopes],
         )
         planner = Planner(loaded.scene, pcfg)
         prep = planner.prepare()
         goal, look, start = _resolve(args, planner, gm, lm)
         prog.update(task, advance=1, description=f"planning {args.candidates} candidate(s)", refresh=True)
         batch_tm: Dict[str, float] = {}
-        shots, scores, multi, obj_r, score_cfg = _plan_shots(args, planner, loaded, goal, look, start, stops, stop_looks,
-                                                             batch_tm)
+        shots, scores, multi, obj_r, score_cfg = _plan_shots(args, planner, loaded, goal, look, start, stops,
+                                                             stop_looks, batch_tm)
         prog.update(task, advance=1, refresh=True, description="exact clearance report + plots"
                     + (" + preview videos" if args.preview else ""))
         reports = [planner.clearance_report(sh, max_spacing=0.02, label=f"rank {k + 1}") for k, sh in enumerate(shots)]
@@ -404,18 +411,21 @@ def _print_summary(args, console, loaded, gm, lm, shots, scores, multi, reports,
     for k, sh in enumerate(shots):
         sc = scores[k]
         dyn = getattr(sh, "dynamics", None) if multi is None else multi.dynamics
-        peaks = "-" if not dyn else f"{dyn['peak_speed']:.2f}/{dyn['peak_acceleration']:.2f}/{dyn['peak_angular_rate_deg']:.0f}"
+        peaks = ("-" if not dyn else
+                 f"{dyn['peak_speed']:.2f}/{dyn['peak_acceleration']:.2f}/{dyn['peak_angular_rate_deg']:.0f}")
         t = sc.terms if sc is not None else {}
         f = lambda key, fmt: "-" if key not in t else format(t[key], fmt)  # noqa: E731
         row = [str(k + 1), "-" if sc is None else f"{sc.total:.3f}", f("occluded_fraction", ".2f"),
-               f"{reports[k]['min_clearance']:.4f}", f"{sh.length:.2f}", f"{sh.duration:.1f}", peaks, Path(files[k]).name]
+               f"{reports[k]['min_clearance']:.4f}", f"{sh.length:.2f}", f"{sh.duration:.1f}", peaks,
+               Path(files[k]).name]
         if wide:
             row[3:3] = [f("framing_fill_mean", ".2f"), ",".join(f"{v:.2f}" for v in sh.start),
                         f"{reports[k]['mean_clearance']:.3f}", f("mean_jerk", ".1f"), f("mean_angular_rate_deg", ".0f")]
         table.add_row(*row)
     console.print(table)
-    console.print("score: lower is better (every term in the report); occl: occluded fraction of frames; clr/len in scene "
-                  "units; peak: speed / acceleration / view rotation deg/s" + ("" if wide else " (wider terminal: more columns)")
+    console.print("score: lower is better (every term in the report); occl: occluded fraction of frames; "
+                  "clr/len in scene units; peak: speed / acceleration / view rotation deg/s"
+                  + ("" if wide else " (wider terminal: more columns)")
                   + f"; files in {Path(args.output_dir).absolute()}/")
     if summary["stopped_by_time_budget"]:
         console.print(f"[yellow]note: {len(shots)} of {args.candidates} candidates planned within --time-budget "

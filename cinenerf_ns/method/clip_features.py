@@ -234,7 +234,8 @@ def _resnet_dense(visual, x: Tensor) -> Tensor:
     t = x.flatten(2).permute(0, 2, 1)  # [1, gh*gw, C]
     pos = ap.positional_embedding[1:].to(t.dtype)  # [G, C]
     g0 = int(round(math.sqrt(pos.shape[0])))
-    pos = F.interpolate(pos.reshape(1, g0, g0, -1).permute(0, 3, 1, 2).float(), size=(gh, gw), mode="bicubic", align_corners=False)
+    pos = F.interpolate(pos.reshape(1, g0, g0, -1).permute(0, 3, 1, 2).float(), size=(gh, gw), mode="bicubic",
+                        align_corners=False)
     t = t + pos.to(t.dtype)[0].permute(1, 2, 0).reshape(1, gh * gw, -1)
     t = ap.c_proj(ap.v_proj(t))
     return t[0].reshape(gh, gw, -1)

@@ -199,7 +199,8 @@ def train_codec(
     if progress:
         from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-        bar = Progress(TextColumn("[bold]codec (eq. 2)"), BarColumn(), TextColumn("{task.description}"), TimeRemainingColumn())
+        bar = Progress(TextColumn("[bold]codec (eq. 2)"), BarColumn(), TextColumn("{task.description}"),
+                       TimeRemainingColumn())
         bar.start()
         task = bar.add_task("", total=cfg.train_steps)
     codec.train()

@@ -63,8 +63,10 @@ class CineSplatDatamanager(FullImageDatamanager):
 
     config: CineSplatDatamanagerConfig
 
-    def __init__(self, config: CineSplatDatamanagerConfig, device="cpu", test_mode="val", world_size=1, local_rank=0, **kwargs):
-        super().__init__(config, device=device, test_mode=test_mode, world_size=world_size, local_rank=local_rank, **kwargs)
+    def __init__(self, config: CineSplatDatamanagerConfig, device="cpu", test_mode="val", world_size=1, local_rank=0,
+                 **kwargs):
+        super().__init__(config, device=device, test_mode=test_mode, world_size=world_size, local_rank=local_rank,
+                         **kwargs)
         self.latent_targets: List[torch.Tensor] = []  # per train image [h, w, 3]
         self.latent_valid: List[torch.Tensor] = []  # per train image [h, w, 1] bool
         self.semantic_stats: Dict = {}

@@ -210,13 +210,15 @@ def prepare_semantic_targets(
         settings["text"] = clip_config.spec()
         settings["feature_long_side"] = clip_config.feature_long_side
         settings["table"] = table_path.read_text() if table_path.is_file() else None
-        settings["label_files"] = sorted(_stat_entry(p) for p in label_dir_path.glob("*")) if label_dir_path.is_dir() else []
+        settings["label_files"] = (sorted(_stat_entry(p) for p in label_dir_path.glob("*"))
+                                   if label_dir_path.is_dir() else [])
         settings["label_transform"] = label_transform_key  # e.g. the cameras' distortion (undistortion changes ids)
 
         def compute() -> FeatureMaps:
             enc = make_text_encoder(clip_config, device)
             return compute_label_maps(
-                image_paths, image_sizes, clip_config.feature_long_side, label_dir_path, table_path, enc, label_transform
+                image_paths, image_sizes, clip_config.feature_long_side, label_dir_path, table_path, enc,
+                label_transform
             )
 
     else:

@@ -54,7 +54,8 @@ def find_label_map(labels_dir: Path, image_path: Path) -> Path:
         p = Path(labels_dir) / (Path(image_path).stem + ext)
         if p.is_file():
             return p
-    raise LabelDataError(f"no label map for image {Path(image_path).name} in {labels_dir} (expected {Path(image_path).stem}.png)")
+    raise LabelDataError(f"no label map for image {Path(image_path).name} in {labels_dir} (expected "
+                         f"{Path(image_path).stem}.png)")
 
 
 def load_label_map(path: Path) -> Tensor:
@@ -68,7 +69,8 @@ def load_label_map(path: Path) -> Tensor:
         img = Image.open(path)
         arr = np.array(img)
     if arr.ndim == 3:
-        if arr.shape[2] >= 3 and not (np.array_equal(arr[..., 0], arr[..., 1]) and np.array_equal(arr[..., 0], arr[..., 2])):
+        if arr.shape[2] >= 3 and not (np.array_equal(arr[..., 0], arr[..., 1])
+                                      and np.array_equal(arr[..., 0], arr[..., 2])):
             raise LabelDataError(f"label map {path} is a colour image; expected one integer id per pixel")
         arr = arr[..., 0]
     if arr.ndim != 2:

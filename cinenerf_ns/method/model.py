@@ -45,24 +45,19 @@ class CineSplatModelConfig(SplatfactoModelConfig):
 
     _target: Type = field(default_factory=lambda: CineSplatModel)
     latent_start_step: int = 0
-    """Step from which the latent distillation loss (eq. 3) is on. 0: joint with RGB from the start (the
-    latent pass uses detached geometry, so RGB quality is unaffected). Set it to e.g. 2/3 of the run to distil
-    only after the geometry has converged, as in the paper."""
+    """Step from which the latent loss (eq. 3) is on; 0: joint with RGB (detached geometry leaves RGB unaffected).
+    The paper distils after the geometry converged (e.g. 2/3 of the run)."""
     latent_loss_weight: float = 1.0
     """Weight of the latent L2 loss. Only the latents receive its gradient and they have their own Adam
     optimizer, so in "separate" mode this mostly scales the logged value."""
     latent_every: int = 1
     """Render the latent pass and add its loss every this many steps (>1 trades latent quality for speed)."""
     latent_render_mode: Literal["separate", "fused"] = "separate"
-    """"separate": one extra gsplat pass (3 channels) with detached geometry: exact eq. 3 gradients.
-    "fused": latents rendered as 3 extra channels of the RGB pass (one rasterization; faster) but then the
-    latent loss also reaches means/scales/quats/opacities (approximation of eq. 3; use a small weight)."""
+    """"separate": an extra 3-channel pass on detached geometry (exact eq. 3 gradients); "fused": 3 extra channels of
+    the RGB pass (faster, but the loss also reaches the geometry: use a small weight)."""
     latent_render_resolution: Literal["feature", "image"] = "image"
-    """"image": render at the RGB training resolution and area-downsample to the feature map (box filtered).
-    "feature": render directly at the feature-map resolution (intrinsics scaled). Fewer pixels, but slower on
-    a GPU: a 64-px map is a handful of 16x16 tiles, each holding most Gaussians, so the rasterizer runs on a
-    few thread blocks (H100, fox at 960x540: 14.4 ms/step vs 11.9-12.1 ms for "image").
-    "fused" mode always renders at the RGB resolution."""
+    """"image": render at the RGB resolution, area-downsample to the feature map; "feature": render at the map's size
+    (fewer pixels but slower on a GPU: a few crowded tiles). "fused" always renders at the RGB resolution."""
     lpips: Literal["auto", "cached", "off"] = "auto"
     """LPIPS eval metric: "auto" uses torchmetrics' LPIPS when its AlexNet weights are cached or downloadable,
     else skips it with one warning; "cached" never touches the network; "off" never builds it."""

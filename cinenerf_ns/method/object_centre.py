@@ -93,7 +93,8 @@ def _shifted(a: np.ndarray, sx: int, sy: int) -> np.ndarray:
     X, Y, _ = a.shape
     out = np.zeros_like(a)
     if abs(sx) < X and abs(sy) < Y:
-        out[max(0, -sx):X - max(0, sx), max(0, -sy):Y - max(0, sy)] = a[max(0, sx):X + min(0, sx), max(0, sy):Y + min(0, sy)]
+        out[max(0, -sx):X - max(0, sx), max(0, -sy):Y - max(0, sy)] = a[max(0, sx):X + min(0, sx),
+                                                                        max(0, sy):Y + min(0, sy)]
     return out
 
 
@@ -151,11 +152,12 @@ def hidden_voxels(
     backend: "auto" (the compiled kernel, planner/native/voxelrays.c, when it loads; same arithmetic, same result),
     "native" (it or RuntimeError) or "python" (numpy: voxels are tested camera by camera and dropped once one
     camera sees them, so most of the cost is the truly hidden voxels' rays, each ending at its first surface voxel;
-    benchmarks/bench_hidden_voxels.py, bundled room, 150 cameras: 0.1-2.1 s per object in numpy, 3-191 ms compiled)."""
+    benchmarks/bench_hidden_voxels.py compares the two)."""
     surf = np.asarray(surface, dtype=bool)
     cams = np.asarray(cameras, dtype=np.float64).reshape(-1, 3)
     if surf.ndim != 3 or np.shape(candidates) != surf.shape:
-        raise ValueError(f"hidden_voxels: surface {surf.shape} and candidates {np.shape(candidates)} must be one 3-D shape")
+        raise ValueError(f"hidden_voxels: surface {surf.shape} and candidates {np.shape(candidates)} must be one 3-D "
+                         "shape")
     if not (step > 0 and np.isfinite(cams).all()):
         raise ValueError("hidden_voxels: step must be > 0 and the cameras finite")
     fn = choose(backend, hidden_voxels_c, "voxelrays", "sight-line test")
@@ -237,7 +239,8 @@ def surface_voxels(
         big = np.flatnonzero(keep.max(1) > 0.5 * h)  # smaller ones touch ~one voxel
         if big.size:
             st = _unit_ball_stencil()
-            pts = np.concatenate([points_frame, (points_frame[big, None, :] + np.einsum("kij,sj->ksi", axes[big], st)).reshape(-1, 3)])
+            pts = np.concatenate([points_frame, (points_frame[big, None, :]
+                                                 + np.einsum("kij,sj->ksi", axes[big], st)).reshape(-1, 3)])
     lo = pts.min(0)  # the stencils may reach past the means (by <= max_extent_voxels voxels)
     ijk = np.floor((pts - lo) / h).astype(np.int64) + pad
     shape = tuple(ijk.max(0) + pad + 1)

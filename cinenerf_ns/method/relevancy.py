@@ -80,7 +80,8 @@ def relevancy(
     return torch.cat(out)
 
 
-def relevancy_mask(rel: Tensor, threshold: float = 0.5, opacities: Optional[Tensor] = None, min_opacity: float = 0.0) -> Tensor:
+def relevancy_mask(rel: Tensor, threshold: float = 0.5, opacities: Optional[Tensor] = None,
+                   min_opacity: float = 0.0) -> Tensor:
     """Gaussians that belong to the object: rel > threshold (and opacity >= min_opacity). -> bool [N]."""
     mask = rel > threshold
     if opacities is not None and min_opacity > 0:

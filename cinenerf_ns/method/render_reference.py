@@ -76,7 +76,8 @@ def render_reference(
     idx = torch.nonzero(keep).squeeze(1)[order]
     m2d, conic, op, col = m2d[idx], conic[idx], opacities[idx], colors[idx]
 
-    ys, xs = torch.meshgrid(torch.arange(height, dtype=d, device=J.device), torch.arange(width, dtype=d, device=J.device), indexing="ij")
+    ys, xs = torch.meshgrid(torch.arange(height, dtype=d, device=J.device),
+                            torch.arange(width, dtype=d, device=J.device), indexing="ij")
     pix = torch.stack([xs + 0.5, ys + 0.5], -1).reshape(-1, 2)  # [P, 2]
     delta = pix[:, None, :] - m2d[None]  # [P, N, 2]
     sigma = 0.5 * torch.einsum("pni,nij,pnj->pn", delta, conic, delta)

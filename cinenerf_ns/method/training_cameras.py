@@ -126,7 +126,7 @@ def info_camera_centres(info: Mapping[str, Any]) -> Optional[np.ndarray]:
 
 def info_camera_poses(info: Mapping[str, Any]) -> Optional[np.ndarray]:
     """[F, 3, 4] a compact export's ``info["camera_poses"]`` (written by :func:`camera_info` when given poses), or None
-    when absent or malformed (exports made before 2026-11-26 carry only the centres)."""
+    when absent or malformed (older exports carry only the centres)."""
     v = info.get("camera_poses") if info else None
     if v is None:
         return None

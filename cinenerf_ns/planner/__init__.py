@@ -3,11 +3,13 @@ Imports nothing of nerfstudio, gsplat or viser (tests/test_layering.py).
 
 The public names below load their module on first use (PEP 562), so ``import cinenerf_ns.planner.errors`` stays light.
 The flow, by module (docs/ARCHITECTURE.md draws it):
-  scene.py (EllipsoidScene) -> planner.py (Planner: a facade over prepared_scene.py's PreparedScene, delegating to
-  planning_region.py, starts.py, clearance_queries.py, corridor_options.py, plan_request.py) -> stages.py (one leg, the
-  only place a leg is planned: reach.py goal, coarse_path / astar voxel path, shortcut.py, corridor.py, trajectory.py
-  QP, shot.py timing + orientation, safety.py verification) -> candidates.py (ranked shots, candidate_scores.py) /
-  multistop.py (the stages chained over stops) -> camera_path.py (nerfstudio camera path).
+  scene/ellipsoids.py (EllipsoidScene) -> shots/planner.py (Planner: a facade over shots/prepared_scene.py's
+  PreparedScene, delegating to scene/planning_region.py, search/starts.py, geometry/clearance_queries.py,
+  corridor/corridor_options.py, shots/plan_request.py) -> shots/stages.py (one leg, the only place a leg is planned:
+  search/reach.py goal, search/coarse_path.py + search/astar.py voxel path, search/shortcut.py,
+  corridor/safe_corridor.py, trajectory/qp.py QP, shots/shot.py timing + orientation, shots/safety.py verification)
+  -> shots/candidates.py (ranked shots, shots/candidate_scores.py) / shots/multistop.py (the stages chained over
+  stops) -> shots/camera_path.py (nerfstudio camera path).
 """
 from __future__ import annotations
 
@@ -16,14 +18,18 @@ from typing import Any
 
 _WHERE = {
     "EllipsoidScene": "scene.ellipsoids", "SceneConfig": "scene.ellipsoids",
-    "Planner": "shots.planner", "PlannerConfig": "shots.planner", "PreparedScene": "shots.prepared_scene", "MAX_CANDIDATES": "shots.plan_request",
+    "Planner": "shots.planner", "PlannerConfig": "shots.planner", "PreparedScene": "shots.prepared_scene",
+    "MAX_CANDIDATES": "shots.plan_request",
     "plan_leg": "shots.stages", "ReachableGoal": "search.reach", "reachable_goal": "search.reach",
     "plan_candidates": "shots.candidates", "RankedShot": "shots.candidates", "score_shots": "shots.candidate_scores",
     "plan_multistop": "shots.multistop", "MultiStopShot": "shots.multistop",
-    "Shot": "shots.shot", "TimingConfig": "trajectory.timing", "TrajectoryConfig": "trajectory.qp", "DynamicLimits": "trajectory.dynamics",
+    "Shot": "shots.shot", "TimingConfig": "trajectory.timing", "TrajectoryConfig": "trajectory.qp",
+    "DynamicLimits": "trajectory.dynamics",
     "retime_shot": "trajectory.dynamics", "ScoreConfig": "shots.scoring",
-    "safety_report": "shots.safety", "verify_shot": "shots.safety", "plot_clearance": "shots.safety", "plot_paths_topdown": "shots.safety",
-    "shot_to_camera_path": "shots.camera_path", "write_camera_path": "shots.camera_path", "read_camera_path": "shots.camera_path",
+    "safety_report": "shots.safety", "verify_shot": "shots.safety", "plot_clearance": "shots.safety",
+    "plot_paths_topdown": "shots.safety",
+    "shot_to_camera_path": "shots.camera_path", "write_camera_path": "shots.camera_path",
+    "read_camera_path": "shots.camera_path",
     "clearance": "geometry.distance", "build_corridor": "corridor.safe_corridor", "Corridor": "corridor.safe_corridor",
     "atomic_write": "atomic", "SplatParams": "scene.splat_params",
     "PlanningError": "errors", "InvalidInputError": "errors", "GoalUnreachableError": "errors",

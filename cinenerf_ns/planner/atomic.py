@@ -13,7 +13,8 @@ FILE_MODE = 0o644  # what a plain open() gives under the usual umask; mkstemp al
 @contextlib.contextmanager
 def atomic_path(path: Union[str, Path]) -> Iterator[Path]:
     """Yield a temporary path beside ``path`` for a writer that needs a file name (ffmpeg, PIL); on success it gets
-    FILE_MODE and is renamed onto ``path`` (os.replace); on any exception it is removed and ``path`` is left as it was."""
+    FILE_MODE and is renamed onto ``path`` (os.replace); on any exception it is removed and ``path`` is left as it
+    was."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)

@@ -78,7 +78,8 @@ def frame_indices(n_path: int, seconds: float, fps: float) -> np.ndarray:
     return np.rint(np.linspace(0.0, n_path - 1, n)).astype(np.int64)
 
 
-def path_cameras(camera_path: Dict[str, Any], width: int = DEFAULT_PREVIEW_SIZE[0], height: int = DEFAULT_PREVIEW_SIZE[1],
+def path_cameras(camera_path: Dict[str, Any], width: int = DEFAULT_PREVIEW_SIZE[0],
+                 height: int = DEFAULT_PREVIEW_SIZE[1],
                  fps: float = DEFAULT_PREVIEW_FPS) -> PreviewCameras:
     """Preview cameras of a camera-path dict at ``width`` x ``height`` (the path's vertical fov is kept)."""
     validate_camera_path(camera_path)

@@ -23,12 +23,14 @@ def _parser() -> argparse.ArgumentParser:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", type=Path, required=True,
                     help="compact scene (.npz / .pt from export_compact), .ckpt, run folder or ns-train config.yml")
-    ap.add_argument("--camera-path", type=Path, required=True, help="nerfstudio camera-path JSON (cinesplat-plan, viewer)")
+    ap.add_argument("--camera-path", type=Path, required=True,
+                    help="nerfstudio camera-path JSON (cinesplat-plan, viewer)")
     ap.add_argument("--output-dir", type=Path, default=Path("renders"), help="folder of the outputs (default: renders)")
     ap.add_argument("--name", default=None, help="output file stem (default: the camera path's file stem)")
     w, h = DEFAULT_PREVIEW_SIZE
     ap.add_argument("--width", type=int, default=w, help=f"frame width in pixels, {MIN_SIZE}..{MAX_SIZE} (default {w})")
-    ap.add_argument("--height", type=int, default=h, help=f"frame height in pixels, {MIN_SIZE}..{MAX_SIZE} (default {h})")
+    ap.add_argument("--height", type=int, default=h,
+                    help=f"frame height in pixels, {MIN_SIZE}..{MAX_SIZE} (default {h})")
     ap.add_argument("--fps", type=float, default=DEFAULT_PREVIEW_FPS,
                     help=f"frames per second, {MIN_FPS:g}..{MAX_FPS:g} (default {DEFAULT_PREVIEW_FPS:g})")
     ap.add_argument("--gif", action="store_true", help="also write a small looping GIF")

@@ -71,7 +71,8 @@ def project(scene: PreviewScene, viewmat: Tensor, intrinsics: Tuple[float, float
     fx, fy, cx, cy = (torch.tensor(v, dtype=dt) for v in intrinsics)
     mc = scene.means @ R.T + t  # [N, 3]
     c = scene.cov3d
-    S = torch.stack([c[:, 0], c[:, 1], c[:, 2], c[:, 1], c[:, 3], c[:, 4], c[:, 2], c[:, 4], c[:, 5]], -1).reshape(-1, 3, 3)
+    S = torch.stack([c[:, 0], c[:, 1], c[:, 2], c[:, 1], c[:, 3], c[:, 4], c[:, 2], c[:, 4], c[:, 5]],
+                    -1).reshape(-1, 3, 3)
     C = R @ S @ R.T  # [N, 3, 3]
     x, y, z = mc.unbind(-1)
     W, H = torch.tensor(float(width), dtype=dt), torch.tensor(float(height), dtype=dt)
@@ -82,7 +83,8 @@ def project(scene: PreviewScene, viewmat: Tensor, intrinsics: Tuple[float, float
     tx = z * torch.minimum(torch.maximum(x * rz, -lxn), lxp)
     ty = z * torch.minimum(torch.maximum(y * rz, -lyn), lyp)
     j00, j02, j11, j12 = fx * rz, -fx * tx * rz * rz, fy * rz, -fy * ty * rz * rz
-    a0, a1, a2 = j00 * C[:, 0, 0] + j02 * C[:, 2, 0], j00 * C[:, 0, 1] + j02 * C[:, 2, 1], j00 * C[:, 0, 2] + j02 * C[:, 2, 2]
+    a0, a1, a2 = (j00 * C[:, 0, 0] + j02 * C[:, 2, 0], j00 * C[:, 0, 1] + j02 * C[:, 2, 1],
+                  j00 * C[:, 0, 2] + j02 * C[:, 2, 2])
     b1, b2 = j11 * C[:, 1, 1] + j12 * C[:, 2, 1], j11 * C[:, 1, 2] + j12 * C[:, 2, 2]
     sxx = a0 * j00 + a2 * j02 + eps2d
     sxy = a1 * j11 + a2 * j12

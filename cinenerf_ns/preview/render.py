@@ -1,6 +1,7 @@
 """Render preview frames of a splat: compiled CPU kernel, pure-torch tiled renderer or gsplat on CUDA.
 
-Colour is SH degree 0 (SplatParams.rgb(): 0.5 + C0 * sh_dc clamped to [0, 1]; a compact export's stored colour); the background is composited as ns-render does (rgb + (1 - alpha) * background, clamped to [0, 1]).
+Colour is SH degree 0 (SplatParams.rgb(): 0.5 + C0 * sh_dc clamped to [0, 1]; a compact export's stored colour); the
+background is composited as ns-render does (rgb + (1 - alpha) * background, clamped to [0, 1]).
 gsplat is imported only when the CUDA path is used.
 """
 from __future__ import annotations
@@ -22,7 +23,8 @@ NERFSTUDIO_BACKGROUND = (0.1490, 0.1647, 0.2157)
 BACKENDS = ("auto", "native", "torch", "gsplat")
 
 
-def scene_from_splat(splat: SplatParams, dtype: torch.dtype = torch.float32, grey: Optional[float] = None) -> PreviewScene:
+def scene_from_splat(splat: SplatParams, dtype: torch.dtype = torch.float32,
+                     grey: Optional[float] = None) -> PreviewScene:
     """Activated, SH-degree-0 scene of a splat's parameters (CPU). A splat without colour is drawn in ``grey``; with
     ``grey`` None it is refused (InvalidInputError)."""
     rgb = splat.rgb(default=grey)

@@ -85,7 +85,7 @@ class Mp4Writer:
             self.abort(ev)
 
 
-SHEET_TILE_WIDTH = 480  # contact-sheet tiles at most this wide: a 1280x720 sheet of 6 frames took ~1 s to write as PNG
+SHEET_TILE_WIDTH = 480  # contact-sheet tiles at most this wide: full-size tiles make the PNG slow to write
 
 
 def contact_sheet(frames: Sequence[np.ndarray], labels: Sequence[str], cols: int = 3, pad: int = 4,

@@ -1,4 +1,4 @@
-"""A second procedural scene family for benchmarks that cannot flatter the planner (issue 23): walls plus randomly
+"""A second procedural scene family for benchmarks that cannot flatter the planner: walls plus randomly
 placed round blobs of Gaussians, y up, about [-1, 1]^3.
 
 Different statistics from planner/scene/procedural.py's room (z up, thin surface discs, 6 furniture objects on a grid):

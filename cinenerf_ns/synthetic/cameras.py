@@ -48,7 +48,8 @@ def look_at_c2w(position: np.ndarray, target: np.ndarray, up=(0.0, 0.0, 1.0), ro
     return m
 
 
-def sample_cameras(room: Room, n: int, seed: int = 0, config: CameraSamplingConfig | None = None) -> tuple[Tensor, list[str]]:
+def sample_cameras(room: Room, n: int, seed: int = 0,
+                   config: CameraSamplingConfig | None = None) -> tuple[Tensor, list[str]]:
     """n camera-to-world matrices [n,4,4] (float64) in the room's free space, and what each looks at.
 
     Targets cycle over the objects (shuffled) so every object is seen from many sides; a fraction
@@ -78,7 +79,8 @@ def sample_cameras(room: Room, n: int, seed: int = 0, config: CameraSamplingConf
             order = list(rng.permutation(names))
         if rng.uniform() < cfg.centre_fraction:
             if rng.uniform() < 0.5:
-                target, label = room_centre + rng.uniform(-0.5, 0.5, 3) * [room.width / 2, room.depth / 2, 0.5], "room centre"
+                target = room_centre + rng.uniform(-0.5, 0.5, 3) * [room.width / 2, room.depth / 2, 0.5]
+                label = "room centre"
             else:
                 target = rng.uniform(room.interior_lo.numpy(), room.interior_hi.numpy())
                 ax = rng.integers(2)

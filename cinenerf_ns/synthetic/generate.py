@@ -52,7 +52,8 @@ def generate_room(config: RoomConfig, seed: int = 0) -> Room:
 
     rng = np.random.default_rng(seed)
     rest = [n for n in names if n not in config.required]
-    chosen = list(config.required) + [str(x) for x in rng.choice(rest, config.num_objects - len(config.required), replace=False)]
+    chosen = list(config.required) + [str(x) for x in rng.choice(rest, config.num_objects - len(config.required),
+                                                                 replace=False)]
     # place large objects first: they are the hard ones to fit
     specs = {n: furniture.CATALOGUE[n](rng) for n in chosen}
 

@@ -77,7 +77,8 @@ class PreparedPlanner:
 
     def _prepare(self) -> None:
         t0 = time.perf_counter()
-        self._status(f"Preparing the planner for {len(self.scene)} obstacles (spatial index, occupancy grid)...", "busy")
+        self._status(f"Preparing the planner for {len(self.scene)} obstacles (spatial index, occupancy grid)...",
+                     "busy")
         try:
             planner = Planner(self.scene, self.config)
             prep = planner.prepare()
@@ -126,14 +127,16 @@ class PreparedPlanner:
                     r.shot.score_terms = r.score.to_dict()
                     shots.append(r.shot)
             else:
-                shots = self.planner.plan(pt(goal), pt(look_at), start=pt(start), seed=int(seed), n_candidates=int(n_candidates))
+                shots = self.planner.plan(pt(goal), pt(look_at), start=pt(start), seed=int(seed),
+                                          n_candidates=int(n_candidates))
             for shot in shots:
                 shot.goal_moved = self.planner.explain_goal(pt(goal), shot.goal)  # said on screen, never silent
                 if getattr(shot, "clearance", None) is None:
                     t0 = time.perf_counter()
                     # exact where it matters (near obstacles); capped far away: the uncapped search
-                    # dominated a Plan on large scenes (~2 s at 1M Gaussians on 2 cores)
-                    shot.clearance = np.asarray(self.planner.clearance(shot.positions, cap=self.clearance_cap, batch=True),
+                    # would dominate a Plan on large scenes
+                    shot.clearance = np.asarray(self.planner.clearance(shot.positions, cap=self.clearance_cap,
+                                                                       batch=True),
                                                 dtype=np.float64).reshape(-1)
                     shot.timings["frame_clearance_ms"] = 1e3 * (time.perf_counter() - t0)
         return list(shots)

@@ -92,7 +92,8 @@ def goal_note(shot: Any) -> str:
     if not mv:
         return ""
     f = lambda p: "(" + ", ".join(f"{v:.3f}" for v in p) + ")"  # noqa: E731
-    return f" Note: the go-to point moved {mv['distance']:.3f} units, from {f(mv['from'])} to {f(mv['to'])}: {mv['why']}."
+    return (f" Note: the go-to point moved {mv['distance']:.3f} units, from {f(mv['from'])} to {f(mv['to'])}: "
+            f"{mv['why']}.")
 
 
 def candidate_label(i: int, shot: Any) -> str:

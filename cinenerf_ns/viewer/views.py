@@ -31,7 +31,7 @@ class View:
 class TrainingCameras:
     """A capture's training cameras in the scene's coordinates: ``centres`` [F, 3] and, when the scene carries them,
     ``c2w`` [F, 3, 4] camera-to-world poses (nerfstudio / OpenGL convention: x right, y up, looking along -z).
-    A compact export made before 2026-11-26 stores only the centres."""
+    An older compact export stores only the centres."""
 
     centres: np.ndarray
     c2w: Optional[np.ndarray] = None

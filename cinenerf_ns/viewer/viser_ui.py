@@ -287,7 +287,8 @@ class ViserPanelUI:
                                               **kw))
                 top = centre + np.array([0.0, 0.0, size[2] / 2])
                 what = f" ({t.count} Gaussians)" if t.count is not None else ""
-                add(self.server.scene.add_label(f"{base}/label", f"{t.role}: {t.text}{what}", position=top * self.scale))
+                add(self.server.scene.add_label(f"{base}/label", f"{t.role}: {t.text}{what}",
+                                                position=top * self.scale))
 
     def draw_shot(self, shot: Optional[ShotLike], options: DisplayOptions) -> None:
         """The path (a spline), 8 camera frustums along it (white at the ends) and labels at its start and end; the
@@ -333,7 +334,8 @@ class ViserPanelUI:
         polys = getattr(corridor, "polytopes", corridor) if corridor is not None else None
         if not polys:
             self._nodes["shot"].append(self.server.scene.add_label(
-                f"{base}/corridor_none", "(this planner gave no corridor)", position=to_numpy(shot.positions)[0] * self.scale))
+                f"{base}/corridor_none", "(this planner gave no corridor)",
+                position=to_numpy(shot.positions)[0] * self.scale))
             return
         for k, poly in enumerate(polys):
             A, b = (poly.A, poly.b) if hasattr(poly, "A") else poly
@@ -394,7 +396,8 @@ def attach_cine_panel(
     cfg = config or PanelConfig()
     g = backend.gaussians()
     means = to_numpy(g.means)
-    extent = float(np.linalg.norm(np.percentile(means, 98, axis=0) - np.percentile(means, 2, axis=0))) if len(means) else 2.0
+    extent = float(np.linalg.norm(np.percentile(means, 98, axis=0)
+                                  - np.percentile(means, 2, axis=0))) if len(means) else 2.0
     ui = ViserPanelUI(server, scale=scale, scene_extent=extent, fov_deg=cfg.fov_deg,
                       aspect=cfg.render_width / cfg.render_height, default_goto=default_goto,
                       default_look_at=default_look_at, folder_label=folder_label, n_candidates=cfg.n_candidates,

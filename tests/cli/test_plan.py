@@ -73,7 +73,8 @@ def test_ranked_candidates_with_limits_in_table_and_report(tmp_path):
     totals = [c["score"]["total"] for c in cands]
     assert totals == sorted(totals)
     for c in cands:
-        assert {"occluded_fraction", "framing_size_error", "min_clearance", "mean_jerk", "duration_s"} <= set(c["score"]["terms"])
+        assert {"occluded_fraction", "framing_size_error", "min_clearance", "mean_jerk",
+                "duration_s"} <= set(c["score"]["terms"])
         assert c["dynamics"]["peak_angular_rate_deg"] <= 40.0 and c["dynamics"]["peak_acceleration"] <= 0.4
         assert c["exact_clearance"]["min_clearance"] >= 0
     rep = json.loads(open(s["report"]).read())
@@ -102,7 +103,8 @@ def test_workers_option(tmp_path):
     a = run_plan(PlanArgs(output_dir=tmp_path / "a", workers=0, **kw))
     b = run_plan(PlanArgs(output_dir=tmp_path / "b", workers=2, **kw))
     assert [c["start"] for c in a["candidates"]] == [c["start"] for c in b["candidates"]]
-    assert [c["score"]["total"] for c in a["candidates"]] == pytest.approx([c["score"]["total"] for c in b["candidates"]])
+    totals = lambda r: [c["score"]["total"] for c in r["candidates"]]
+    assert totals(a) == pytest.approx(totals(b))
     with pytest.raises(InvalidInputError, match="--workers"):
         run_plan(PlanArgs(output_dir=tmp_path / "c", workers=-1, **kw))
 
@@ -133,7 +135,8 @@ def _load_scene_kwargs(monkeypatch, key: str, **plan_kw) -> list:
 
 def test_keep_support_reaches_the_locator(monkeypatch, tmp_path):
     """--keep-support turns the support-layer rule off in the scene's text locator (default: on)."""
-    seen = [_load_scene_kwargs(monkeypatch, "drop_support", output_dir=tmp_path, keep_support=keep) for keep in (False, True)]
+    seen = [_load_scene_kwargs(monkeypatch, "drop_support", output_dir=tmp_path, keep_support=keep)
+            for keep in (False, True)]
     assert seen == [[True], [False]]
 
 
@@ -182,7 +185,8 @@ def test_load_scene_passes_centre_relevancy():
 
 def test_no_unseen_fill_reaches_the_locator(monkeypatch, tmp_path):
     """--no-unseen-fill turns the volume centre's camera fill off (default: on)."""
-    seen = [_load_scene_kwargs(monkeypatch, "unseen_fill", output_dir=tmp_path / str(f), no_unseen_fill=f) for f in (False, True)]
+    seen = [_load_scene_kwargs(monkeypatch, "unseen_fill", output_dir=tmp_path / str(f), no_unseen_fill=f)
+            for f in (False, True)]
     assert seen == [[True], [False]]
 
 

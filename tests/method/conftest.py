@@ -22,10 +22,12 @@ def tiny_clip_models(tmp_path_factory):
 
     d = tmp_path_factory.mktemp("open_clip_cfg")
     (d / f"{TINY_VIT}.json").write_text(
-        json.dumps({"embed_dim": 32, "vision_cfg": {"image_size": 64, "layers": 2, "width": 64, "patch_size": 16}, "text_cfg": _TEXT})
+        json.dumps({"embed_dim": 32, "vision_cfg": {"image_size": 64, "layers": 2, "width": 64, "patch_size": 16},
+                    "text_cfg": _TEXT})
     )
     (d / f"{TINY_RN}.json").write_text(
-        json.dumps({"embed_dim": 32, "vision_cfg": {"image_size": 64, "layers": [1, 1, 1, 1], "width": 8, "patch_size": None}, "text_cfg": _TEXT})
+        json.dumps({"embed_dim": 32, "vision_cfg": {"image_size": 64, "layers": [1, 1, 1, 1], "width": 8,
+                                                    "patch_size": None}, "text_cfg": _TEXT})
     )
     open_clip.add_model_config(d)
     return TINY_VIT, TINY_RN

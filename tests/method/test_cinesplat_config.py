@@ -80,6 +80,7 @@ def test_ns_train_help_lists_cinesplat():
     exe = shutil.which("ns-train") or str(Path(sys.executable).parent / "ns-train")
     if not Path(exe).exists():
         pytest.skip("ns-train is not installed in this environment")
-    out = subprocess.run([exe, "--help"], capture_output=True, text=True, timeout=300, env={**os.environ, "COLUMNS": "200"})
+    out = subprocess.run([exe, "--help"], capture_output=True, text=True, timeout=300,
+                         env={**os.environ, "COLUMNS": "200"})
     assert out.returncode == 0, out.stderr[-2000:]
     assert "cinesplat" in out.stdout and "cinesplat-lite" in out.stdout

@@ -47,7 +47,8 @@ def test_weighted_training_on_few_distinct_vectors():
     g = torch.Generator().manual_seed(1)
     emb = F.normalize(torch.randn(7, 32, generator=g), dim=-1)
     for w in (None, torch.tensor([4.0, 3, 2, 1, 1, 1, 1])):
-        codec, stats = train_codec(emb, CodecConfig(train_steps=400, batch_size=256, hidden_dim=32, backend="torch"), progress=False, weights=w)
+        codec, stats = train_codec(emb, CodecConfig(train_steps=400, batch_size=256, hidden_dim=32, backend="torch"),
+                                   progress=False, weights=w)
         assert stats["error_after"] < 0.5 * stats["error_before"]
         dec = codec(emb)
         assert torch.equal(torch.argmax(dec @ emb.T, dim=1), torch.arange(7))

@@ -115,7 +115,8 @@ def test_cached_mode_never_downloads(monkeypatch):
 
 
 def test_seed_points_load_without_open3d(tmp_path):
-    """transforms.json `ply_file_path` seeds load through the project's .ply reader with nerfstudio's exact transform."""
+    """transforms.json `ply_file_path` seeds load through the project's .ply reader with nerfstudio's exact
+    transform."""
     pytest.importorskip("nerfstudio")
     from nerfstudio.data.dataparsers.nerfstudio_dataparser import Nerfstudio
 

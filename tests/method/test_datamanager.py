@@ -20,7 +20,8 @@ def _dm_config(fox_dir, tmp_path, model_name):
         dataparser=NerfstudioDataParserConfig(data=fox_dir, downscale_factor=4, load_3D_points=True),
         cache_images="gpu",  # "cpu" pins memory (needs CUDA); with device="cpu" "gpu" just keeps them on the CPU
         cache_images_type="uint8",
-        clip=ClipFeatureConfig(model_name=model_name, random_weights=True, input_long_sides=(64,), feature_long_side=16),
+        clip=ClipFeatureConfig(model_name=model_name, random_weights=True, input_long_sides=(64,),
+                               feature_long_side=16),
         codec=CodecConfig(train_steps=50, batch_size=1024, hidden_dim=16, backend="torch"),
         feature_cache_dir=tmp_path / "cache",
     )

@@ -51,7 +51,8 @@ def _run(tmp_path, paths, imgs, source, clip, logs):
 
 def test_clip_cache_hit_miss_invalidation(tmp_path, tiny_clip_models):
     paths, imgs = _scene(tmp_path)
-    clip = ClipFeatureConfig(model_name=tiny_clip_models[0], random_weights=True, input_long_sides=(64,), feature_long_side=10)
+    clip = ClipFeatureConfig(model_name=tiny_clip_models[0], random_weights=True, input_long_sides=(64,),
+                             feature_long_side=10)
     logs = []
     r1 = _run(tmp_path, paths, imgs, "clip", clip, logs)
     assert not r1.cache_hit and len(list((tmp_path / "cache").glob("clip-*.pt"))) == 1
@@ -66,7 +67,8 @@ def test_clip_cache_hit_miss_invalidation(tmp_path, tiny_clip_models):
     assert not _run(tmp_path, paths, imgs, "clip", clip, logs).cache_hit
     assert _run(tmp_path, paths, imgs, "clip", clip, logs).cache_hit
     # a setting changes -> miss
-    clip2 = ClipFeatureConfig(model_name=tiny_clip_models[0], random_weights=True, input_long_sides=(64,), feature_long_side=8)
+    clip2 = ClipFeatureConfig(model_name=tiny_clip_models[0], random_weights=True, input_long_sides=(64,),
+                              feature_long_side=8)
     r5 = _run(tmp_path, paths, imgs, "clip", clip2, logs)
     assert not r5.cache_hit and r5.latent_targets[0].shape == (5, 8, 3)
     assert any("reusing cached" in m for m in logs)
@@ -97,4 +99,5 @@ def test_labels_source_targets_and_invalidation(tmp_path, tiny_clip_models):
 
 def test_unknown_source(tmp_path):
     with pytest.raises(ValueError, match="feature_source"):
-        prepare_semantic_targets([], [], [], "depth", ClipFeatureConfig(), CodecConfig(), tmp_path, tmp_path, progress=False)
+        prepare_semantic_targets([], [], [], "depth", ClipFeatureConfig(), CodecConfig(), tmp_path, tmp_path,
+                                 progress=False)

@@ -26,7 +26,8 @@ def test_table_formats_and_errors(tmp_path):
     assert read_label_table(p) == {0: "floor", 7: "palm tree"}
     p.write_text(json.dumps([{"id": 2, "name": " chair "}]))
     assert read_label_table(p) == {2: "chair"}
-    for bad, msg in [("{}", "empty"), ('{"x": "a"}', "not an integer"), ('{"1": ""}', "no name"), ("{", "not valid JSON")]:
+    for bad, msg in [("{}", "empty"), ('{"x": "a"}', "not an integer"), ('{"1": ""}', "no name"),
+                     ("{", "not valid JSON")]:
         p.write_text(bad)
         with pytest.raises(LabelDataError, match=msg):
             read_label_table(p)
@@ -73,7 +74,8 @@ def test_load_label_maps_folder(tmp_path):
     (tmp_path / "labels").mkdir()
     Image.fromarray(np.array([[1, 2], [2, 2]], np.uint8)).save(tmp_path / "labels" / "frame_001.png")
     (tmp_path / "labels.json").write_text(json.dumps({"1": "sofa", "2": "rug"}))
-    ids, raw, names = load_label_maps([tmp_path / "images" / "frame_001.jpg"], tmp_path / "labels", tmp_path / "labels.json", [(2, 2)])
+    ids, raw, names = load_label_maps([tmp_path / "images" / "frame_001.jpg"], tmp_path / "labels",
+                                      tmp_path / "labels.json", [(2, 2)])
     assert names == ["sofa", "rug"] and ids[0].tolist() == [[0, 1], [1, 1]]
     with pytest.raises(LabelDataError, match="label folder not found"):
         load_label_maps([tmp_path / "x.jpg"], tmp_path / "nolabels", tmp_path / "labels.json", [(2, 2)])

@@ -22,7 +22,8 @@ def _meta(D=16):
         "codec_config": vars(CodecConfig(hidden_dim=16, train_steps=1)),
         "feature_long_side": 32,
         "source": "labels",
-        "clip": {"model_name": "RN50", "pretrained": "", "checkpoint_path": None, "random_weights": True, "random_seed": 0},
+        "clip": {"model_name": "RN50", "pretrained": "", "checkpoint_path": None, "random_weights": True,
+                 "random_seed": 0},
         "label_names": ["a", "b"],
     }
     return {META_CODEC_STATE: codec.state_dict(), META_INFO: info, "label_embeddings": torch.randn(2, D)}, codec
@@ -61,7 +62,8 @@ def test_state_roundtrip_resizes_latents_and_restores_codec():
 
 def test_loads_plain_splatfacto_state():
     m = _make(n=20)
-    sd = {k: v for k, v in m.state_dict().items() if "latents" not in k and k not in ("_extra_state", "label_embeddings")}
+    sd = {k: v for k, v in m.state_dict().items()
+          if "latents" not in k and k not in ("_extra_state", "label_embeddings")}
     m2 = _make(n=5)
     m2.load_state_dict(sd)
     assert m2.gauss_params["latents"].shape == (20, 3)
@@ -83,7 +85,8 @@ def test_latent_loss_masked_mse_and_metrics_without_lpips():
     valid = torch.ones(4, 6, 1, dtype=torch.bool)
     valid[0] = False  # one row ignored
     target[0] = 100.0  # would dominate if it were not masked
-    batch = {"image": (torch.rand(H * 4, W * 4, 3) * 255).to(torch.uint8), "latent_target": target, "latent_valid": valid}
+    batch = {"image": (torch.rand(H * 4, W * 4, 3) * 255).to(torch.uint8), "latent_target": target,
+             "latent_valid": valid}
     losses = m.get_loss_dict(outputs, batch)
     assert torch.allclose(losses["latent_loss"], torch.tensor(0.25))  # mean of 0.5^2 over valid pixels/channels
     losses["latent_loss"].backward()
@@ -92,7 +95,8 @@ def test_latent_loss_masked_mse_and_metrics_without_lpips():
     outputs["latent"] = torch.zeros(8, 12, 3)
     assert torch.allclose(m.get_loss_dict(outputs, batch)["latent_loss"], torch.tensor(0.25))
     m.eval()
-    metrics, images = m.get_image_metrics_and_images({"rgb": torch.rand(H, W, 3), "background": torch.zeros(3)}, {"image": torch.rand(H, W, 3)})
+    metrics, images = m.get_image_metrics_and_images({"rgb": torch.rand(H, W, 3), "background": torch.zeros(3)},
+                                                     {"image": torch.rand(H, W, 3)})
     assert "psnr" in metrics and ("lpips" in metrics) != isinstance(m.lpips, UnavailableLPIPS)
 
 

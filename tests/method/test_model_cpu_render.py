@@ -10,7 +10,8 @@ from cinenerf_ns.method.codec import CodecConfig, FeatureCodec
 from cinenerf_ns.method.render_reference import render_reference
 
 
-def fake_rasterization(means, quats, scales, opacities, colors, viewmats, Ks, width, height, render_mode="RGB", sh_degree=None, **kw):
+def fake_rasterization(means, quats, scales, opacities, colors, viewmats, Ks, width, height, render_mode="RGB",
+                       sh_degree=None, **kw):
     assert sh_degree is None, "tests use sh_degree=0 (colours, no SH evaluation)"
     vm = viewmats[0]
     if render_mode == "RGB+ED":
@@ -46,13 +47,16 @@ def _model(n=60, **kw):
     cc = CodecConfig(hidden_dim=16, backend="torch")
     codec = FeatureCodec(16, cc)
     meta = {META_CODEC_STATE: codec.state_dict(),
-            META_INFO: {"feature_dim": 16, "codec_config": vars(cc), "feature_long_side": 8, "source": "clip", "clip": None}}
+            META_INFO: {"feature_dim": 16, "codec_config": vars(cc), "feature_long_side": 8, "source": "clip",
+                        "clip": None}}
     kw.setdefault("num_downscales", 1)
     cfg = CineSplatModelConfig(random_init=True, num_random=n, lpips="off", sh_degree=0, background_color="black", **kw)
-    m = CineSplatModel(cfg, scene_box=SceneBox(aabb=torch.tensor([[-1.0, -1, -1], [1, 1, 1]])), num_train_data=2, metadata=meta)
+    m = CineSplatModel(cfg, scene_box=SceneBox(aabb=torch.tensor([[-1.0, -1, -1], [1, 1, 1]])), num_train_data=2,
+                       metadata=meta)
     g = torch.Generator().manual_seed(0)
     with torch.no_grad():
-        m.gauss_params["means"].copy_(torch.stack([torch.rand(n, generator=g) - 0.5, torch.rand(n, generator=g) - 0.5, -1.5 - torch.rand(n, generator=g)], -1))
+        m.gauss_params["means"].copy_(torch.stack([torch.rand(n, generator=g) - 0.5, torch.rand(n, generator=g) - 0.5,
+                                                   -1.5 - torch.rand(n, generator=g)], -1))
         m.gauss_params["scales"].copy_(torch.log(0.08 + 0.1 * torch.rand(n, 3, generator=g)))
         m.gauss_params["opacities"].fill_(2.0)
         m.gauss_params["latents"].copy_(torch.rand(n, 3, generator=g) * 2 - 1)
@@ -64,7 +68,8 @@ def _model(n=60, **kw):
 def _camera(w=16, h=12, f=30.0):
     from nerfstudio.cameras.cameras import Cameras, CameraType
 
-    return Cameras(camera_to_worlds=torch.eye(4)[:3][None], fx=f, fy=f, cx=w / 2, cy=h / 2, width=w, height=h, camera_type=CameraType.PERSPECTIVE)
+    return Cameras(camera_to_worlds=torch.eye(4)[:3][None], fx=f, fy=f, cx=w / 2, cy=h / 2, width=w, height=h,
+                   camera_type=CameraType.PERSPECTIVE)
 
 
 @pytest.mark.parametrize("resolution", ["feature", "image"])  # "image" is the default

@@ -14,7 +14,8 @@ from cinenerf_ns.method.model import CineSplatModel, CineSplatModelConfig
 
 def _model_and_opt(n=40, device="cpu"):
     cfg = CineSplatModelConfig(random_init=True, num_random=n, lpips="off")
-    m = CineSplatModel(cfg, scene_box=SceneBox(aabb=torch.tensor([[-1.0, -1, -1], [1, 1, 1]])), num_train_data=2, metadata={})
+    m = CineSplatModel(cfg, scene_box=SceneBox(aabb=torch.tensor([[-1.0, -1, -1], [1, 1, 1]])), num_train_data=2,
+                       metadata={})
     m.to(device)
     opts = Optimizers(make_cinesplat_config().optimizers, m.get_param_groups())
     return m, opts

@@ -24,11 +24,13 @@ def _model(n=40, seed=0, **cfg_kw):
         META_INFO: {"feature_dim": D, "codec_config": vars(cc), "feature_long_side": 8, "source": "clip", "clip": None},
     }
     cfg = CineSplatModelConfig(random_init=True, num_random=n, lpips="off", **cfg_kw)
-    m = CineSplatModel(cfg, scene_box=SceneBox(aabb=torch.tensor([[-1.0, -1, -1], [1, 1, 1]])), num_train_data=4, metadata=meta)
+    m = CineSplatModel(cfg, scene_box=SceneBox(aabb=torch.tensor([[-1.0, -1, -1], [1, 1, 1]])), num_train_data=4,
+                       metadata=meta)
     g = torch.Generator().manual_seed(seed)
     with torch.no_grad():
         # Gaussians in front of an OpenGL camera at the origin looking down -z
-        m.gauss_params["means"].copy_(torch.stack([torch.rand(n, generator=g) - 0.5, torch.rand(n, generator=g) - 0.5, -1.5 - 2 * torch.rand(n, generator=g)], -1))
+        m.gauss_params["means"].copy_(torch.stack([torch.rand(n, generator=g) - 0.5, torch.rand(n, generator=g) - 0.5,
+                                                   -1.5 - 2 * torch.rand(n, generator=g)], -1))
         m.gauss_params["scales"].copy_(torch.log(0.05 + 0.1 * torch.rand(n, 3, generator=g)))
         m.gauss_params["opacities"].copy_(torch.randn(n, 1, generator=g))
         m.gauss_params["latents"].copy_(torch.rand(n, 3, generator=g) * 2 - 1)
@@ -58,7 +60,8 @@ def test_latent_pass_matches_reference():
     vm, K = _viewmat_K(m, cam)
     img, alpha = m.render_latents(vm, K, 16, 16)
     ref, ref_a = render_reference(
-        m.means.detach(), m.quats.detach(), torch.exp(m.scales.detach()), torch.sigmoid(m.opacities.detach()).squeeze(-1),
+        m.means.detach(), m.quats.detach(), torch.exp(m.scales.detach()),
+        torch.sigmoid(m.opacities.detach()).squeeze(-1),
         m.latents.detach(), vm[0], K[0], 16, 16,
     )
     assert torch.allclose(alpha.double().cpu(), ref_a.cpu(), atol=2e-4)
@@ -82,7 +85,8 @@ def test_training_steps_densify_and_fit_latents():
 
     from cinenerf_ns.method.cinesplat_config import make_cinesplat_config
 
-    m = _model(n=200, warmup_length=5, refine_every=5, densify_grad_thresh=1e-7, stop_split_at=40, sh_degree=0, num_downscales=0)
+    m = _model(n=200, warmup_length=5, refine_every=5, densify_grad_thresh=1e-7, stop_split_at=40, sh_degree=0,
+               num_downscales=0)
     m.train()
     opts = Optimizers(make_cinesplat_config().optimizers, m.get_param_groups())
     target = torch.tensor([0.3, -0.5, 0.7], device="cuda").expand(8, 8, 3).contiguous()

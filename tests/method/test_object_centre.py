@@ -32,7 +32,8 @@ def _enclosed_reference(occ: np.ndarray, need: int) -> np.ndarray:
                     hit, step = False, 1
                     while not hit:
                         fx, fy = step * dx / n, step * dy / n
-                        cells = [(i + x, j + y) for x in {math.floor(fx), math.ceil(fx)} for y in {math.floor(fy), math.ceil(fy)}]
+                        cells = [(i + x, j + y) for x in {math.floor(fx), math.ceil(fx)}
+                                 for y in {math.floor(fy), math.ceil(fy)}]
                         inside = [(a, b) for a, b in cells if 0 <= a < X and 0 <= b < Y]
                         if not inside:
                             break
@@ -270,7 +271,8 @@ def test_neighbour_spacing_matches_brute_force():
 
 # --- the unseen fill (hidden_voxels): what no training camera sees is filled ------------------------------------
 
-def _hidden_reference(surface: np.ndarray, candidates: np.ndarray, cameras: np.ndarray, step: float = 0.5) -> np.ndarray:
+def _hidden_reference(surface: np.ndarray, candidates: np.ndarray, cameras: np.ndarray,
+                      step: float = 0.5) -> np.ndarray:
     """Brute force, one voxel and one camera at a time: sample n (n = 1, 2, ...) at distance n * step toward the camera,
     its voxel the nearest centre (half up); blocked when a sample's voxel is a surface voxel before the segment reaches
     the camera or leaves the grid. Hidden: a candidate (not a surface voxel) blocked toward every camera."""

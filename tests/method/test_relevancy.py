@@ -79,7 +79,8 @@ def test_range_and_negative_monotonicity(seed, t):
     r = relevancy_from_features(feats, q, negs, t)
     assert ((r >= 0) & (r <= 1)).all()
     # adding a negative can only lower (or keep) relevancy: it is a min over negatives
-    r_more = relevancy_from_features(feats, q, torch.cat([negs, torch.randn(1, 8, generator=g, dtype=torch.float64)]), t)
+    r_more = relevancy_from_features(feats, q, torch.cat([negs, torch.randn(1, 8, generator=g, dtype=torch.float64)]),
+                                     t)
     assert (r_more <= r + 1e-12).all()
 
 

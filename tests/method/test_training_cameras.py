@@ -1,4 +1,5 @@
-"""training_cameras.py: camera centres from a transforms.json + dataparser transform, a config.yml, or an export's info."""
+"""training_cameras.py: camera centres from a transforms.json + dataparser transform, a config.yml, or an export's
+info."""
 from __future__ import annotations
 
 import json
@@ -83,7 +84,8 @@ def test_camera_poses_are_nerfstudio_s_training_cameras(tmp_path, case):
     _random_dataset(data, 8, seed=3, **meta)
     if case == "legacy-colmap":
         (data / "colmap" / "sparse" / "0").mkdir(parents=True)
-    out = NerfstudioDataParserConfig(data=data, downscale_factor=1, eval_mode="all").setup().get_dataparser_outputs("train")
+    out = NerfstudioDataParserConfig(data=data, downscale_factor=1,
+                                     eval_mode="all").setup().get_dataparser_outputs("train")
     out.save_dataparser_transform(tmp_path / "run" / "dataparser_transforms.json")
     want = out.cameras.camera_to_worlds.double().numpy()  # [8, 3, 4]
     got = camera_poses(data / "transforms.json", tmp_path / "run" / "dataparser_transforms.json", data)
@@ -93,7 +95,8 @@ def test_camera_poses_are_nerfstudio_s_training_cameras(tmp_path, case):
     if case != "plain":  # the rule matters: the saved transform applied to the stored frames as they are is elsewhere
         dp = json.loads((tmp_path / "run" / "dataparser_transforms.json").read_text())
         stored = np.array([f["transform_matrix"] for f in json.loads((data / "transforms.json").read_text())["frames"]])
-        naive = (np.asarray(dp["transform"])[None, :, :3] @ stored[:, :3, 3:])[:, :, 0] + np.asarray(dp["transform"])[:, 3]
+        naive = ((np.asarray(dp["transform"])[None, :, :3] @ stored[:, :3, 3:])[:, :, 0]
+                 + np.asarray(dp["transform"])[:, 3])
         assert np.abs(naive * dp["scale"] - want[:, :, 3]).max() > 0.1
     # a run's config.yml finds the same poses through its data path
     (tmp_path / "run" / "config.yml").write_text(
@@ -121,7 +124,8 @@ def test_info_camera_centres_reads_only_well_formed_lists():
     assert info_camera_centres({"camera_centres": [[0, 1]]}) is None  # not [F, 3]
     assert info_camera_centres({"camera_centres": [[0, float("nan"), 1]]}) is None
     assert info_camera_centres({"camera_centres": "x"}) is None
-    np.testing.assert_array_equal(info_camera_centres({"camera_centres": [[0, 1, 2], [3, 4, 5]]}), [[0, 1, 2], [3, 4, 5]])
+    np.testing.assert_array_equal(info_camera_centres({"camera_centres": [[0, 1, 2], [3, 4, 5]]}),
+                                  [[0, 1, 2], [3, 4, 5]])
 
 
 def test_training_camera_centres_without_data_is_none(tmp_path):
@@ -146,7 +150,8 @@ def test_add_camera_centres_script_keeps_the_arrays(tmp_path, suffix):
     from cinenerf_ns.method.checkpoint import SplatCheckpoint, export_compact, load_compact
     from cinenerf_ns.planner.scene.splat_params import SplatParams
 
-    spec = importlib.util.spec_from_file_location("acc", Path(__file__).resolve().parents[2] / "scripts" / "add_camera_centres.py")
+    script = Path(__file__).resolve().parents[2] / "scripts" / "add_camera_centres.py"
+    spec = importlib.util.spec_from_file_location("acc", script)
     acc = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(acc)
     rng = np.random.default_rng(1)

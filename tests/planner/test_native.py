@@ -159,7 +159,8 @@ PROBE = (
     "from cinenerf_ns.planner.search.astar import astar\n"
     "from cinenerf_ns.planner.search.coarse_path import _mcp_path\n"
     "occ = np.zeros((6, 6, 6), bool); occ[3, :, :5] = True\n"
-    "print(len(astar(occ, (0, 0, 0), (5, 0, 0))), len(_mcp_path(np.where(occ, np.inf, 1.0), (0, 0, 0), np.array([[5, 0, 0]]))))\n"
+    "print(len(astar(occ, (0, 0, 0), (5, 0, 0))), "
+    "len(_mcp_path(np.where(occ, np.inf, 1.0), (0, 0, 0), np.array([[5, 0, 0]]))))\n"
     "print(native.astar26() is None, native.native_status().get('astar26'))\n"
 )
 
@@ -177,7 +178,8 @@ POLY_PROBE = (
     "from cinenerf_ns.planner.corridor.polytope import safe_polytope\n"
     "from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene\n"
     "from cinenerf_ns.planner.scene.spatial_index import GridIndex\n"
-    "s = EllipsoidScene(torch.tensor([[0.3, 0, 0]]).double(), torch.eye(3)[None].double(), torch.full((1, 3), 0.1).double(),\n"
+    "s = EllipsoidScene(torch.tensor([[0.3, 0, 0]]).double(), torch.eye(3)[None].double(), "
+    "torch.full((1, 3), 0.1).double(),\n"
     "                   torch.ones(1).double(), 0.03)\n"
     "P = safe_polytope(np.zeros((1, 3)), s, GridIndex.build(s), -np.ones(3), np.ones(3))\n"
     "print(P.num_faces, round(float(P.b[6]), 6))\n"

@@ -79,7 +79,8 @@ def test_frame_indices_single_frame_and_spread():
     assert len(idx) == 78 and idx[0] == 0 and idx[-1] == 154 and np.all(np.diff(idx) >= 1)
 
 
-@pytest.mark.parametrize("w,h,fps,opt", [(15, 100, 15, "--width"), (100, 4097, 15, "--height"), (100, 100, 0.5, "--fps"),
+@pytest.mark.parametrize("w,h,fps,opt",
+                         [(15, 100, 15, "--width"), (100, 4097, 15, "--height"), (100, 100, 0.5, "--fps"),
                                          (100, 100, 121, "--fps"), (100, 100, float("nan"), "--fps"),
                                          (100.5, 100, 15, "--width")])
 def test_bad_sizes_name_the_option_and_range(w, h, fps, opt):

@@ -41,7 +41,8 @@ def test_pyproject_installs_the_entry():
 
 def test_entry_runs_the_bundled_ffmpeg():
     r = subprocess.run([sys.executable, "-c", "from cinenerf_ns.ffmpeg_entry import main; main()", "-version"],
-                       cwd=REPO, capture_output=True, text=True, timeout=60, env={**os.environ, "PYTHONPATH": _pythonpath()})
+                       cwd=REPO, capture_output=True, text=True, timeout=60,
+                       env={**os.environ, "PYTHONPATH": _pythonpath()})
     assert r.returncode == 0 and r.stdout.startswith("ffmpeg version")
 
 

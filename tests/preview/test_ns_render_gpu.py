@@ -27,7 +27,8 @@ def _ffmpeg_script(bin_dir: Path) -> Path:
 
 
 def _env(bin_dir: Path) -> dict:
-    """PATH: our ffmpeg, the interpreter's bin (ns-train / ns-render / cinesplat-plan), the system's; no other ffmpeg."""
+    """PATH: our ffmpeg, the interpreter's bin (ns-train / ns-render / cinesplat-plan), the system's; no other
+    ffmpeg."""
     tool_dirs = {str(Path(shutil.which("ns-train")).parent)} if shutil.which("ns-train") else set()
     keep = [d for d in os.environ.get("PATH", "").split(os.pathsep)
             if d and (d in tool_dirs or not Path(d, "ffmpeg").exists())]

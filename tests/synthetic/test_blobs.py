@@ -30,6 +30,7 @@ def test_wall_discs_are_thin_along_the_wall_normal():
     walls = s.blob_ids < 0
     m = s.splat.means
     floor = walls & (np.abs(m[:, 1] + 1) < 0.02) & (np.abs(m[:, 0]) < 0.95) & (m[:, 2] > -0.95)  # not the other walls
-    rot = quat_wxyz_to_rotmat(torch.as_tensor(s.splat.quats_wxyz[floor]).double())  # [K, 3, 3], columns: the local axes in the world
+    # [K, 3, 3], columns: the local axes in the world
+    rot = quat_wxyz_to_rotmat(torch.as_tensor(s.splat.quats_wxyz[floor]).double())
     thin = rot[:, :, 2]  # local z: the disc's thin axis
     assert floor.sum() > 100 and (thin[:, 1].abs() > 0.999).all()  # the floor's normal is y (up)

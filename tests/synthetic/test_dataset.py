@@ -73,7 +73,8 @@ def test_nerfstudio_dataparser_loads_and_transform_helper_agrees(dataset):
         mine = tf.c2w_to_ns(torch.tensor(by_name[fname.name]))
         assert torch.allclose(mine.float(), outputs.cameras.camera_to_worlds[k], atol=1e-5)
     # the saved-json route (what ns-train writes) gives the same mapping
-    (out / "dp.json").write_text(json.dumps({"transform": outputs.dataparser_transform.tolist(), "scale": outputs.dataparser_scale}))
+    (out / "dp.json").write_text(json.dumps({"transform": outputs.dataparser_transform.tolist(),
+                                             "scale": outputs.dataparser_scale}))
     tf2 = NerfstudioTransform.from_dataparser_json(out / "dp.json")
     p = torch.randn(10, 3, dtype=torch.float64)
     assert torch.allclose(tf.points_to_ns(p), tf2.points_to_ns(p), atol=1e-6)

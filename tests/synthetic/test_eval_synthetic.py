@@ -29,7 +29,8 @@ def _splat_like_means(room, n_per=400):
     """Fake Gaussian centres: points on/in every object plus floor points."""
     pts = [room.object_points(o.name, n_per, seed=i) for i, o in enumerate(room.objects)]
     g = torch.Generator().manual_seed(0)
-    floor = room.interior_lo + torch.rand(2000, 3, generator=g, dtype=torch.float64) * (room.interior_hi - room.interior_lo)
+    floor = (room.interior_lo
+             + torch.rand(2000, 3, generator=g, dtype=torch.float64) * (room.interior_hi - room.interior_lo))
     floor[:, 2] = 0.0
     return torch.cat(pts + [floor])
 
@@ -129,7 +130,8 @@ def test_camera_path_roundtrip_cli_and_plots(room, tmp_path):
     xs = torch.linspace(-2.0, 2.0, 40, dtype=torch.float64)
     p = torch.stack([xs, torch.full_like(xs, 0.1), torch.full_like(xs, 2.2)], -1)
     c2w = _c2w_along(p, target)
-    cp = {"fps": 10, "seconds": 4.0, "camera_path": [{"camera_to_world": m.reshape(-1).tolist(), "fov": 60, "aspect": 1.33} for m in c2w]}
+    cp = {"fps": 10, "seconds": 4.0,
+          "camera_path": [{"camera_to_world": m.reshape(-1).tolist(), "fov": 60, "aspect": 1.33} for m in c2w]}
     (tmp_path / "shot0.json").write_text(json.dumps(cp))
     times, c2w_read = ev.read_camera_path(tmp_path / "shot0.json")
     assert torch.allclose(c2w_read, c2w) and times[1].item() == pytest.approx(0.1)
@@ -167,4 +169,5 @@ def test_inside_room_separates_the_interior_from_the_free_space_outside_the_slab
     assert torch.equal(gt_ns.inside_room(gt_ns.tf.points_to_ns(p)), ref)
     assert ref.any() and (~ref).any()
     out = torch.tensor([[hi[0] + 0.5, 0.0, 1.0]], dtype=torch.float64)  # 0.3 m beyond the 0.2 m wall slab
-    assert float(gt_ns.sdf(gt_ns.tf.points_to_ns(out))[0]) > 0 and not bool(gt_ns.inside_room(gt_ns.tf.points_to_ns(out))[0])
+    out_ns = gt_ns.tf.points_to_ns(out)
+    assert float(gt_ns.sdf(out_ns)[0]) > 0 and not bool(gt_ns.inside_room(out_ns)[0])

@@ -114,7 +114,8 @@ def test_ray_hit_is_first_surface_point(kind, c, a, b, cc, o, dvec, aim):
     elif kind == "sphere":
         t = prim.ray_sphere(O, D, t1(params["centre"]), t1(params["radius"]))[0, 0].item()
     else:
-        t = prim.ray_cylinder(O, D, t1(params["centre"]), t1(params["radius"]), t1(params["half_height"]))[0][0, 0].item()
+        hit = prim.ray_cylinder(O, D, t1(params["centre"]), t1(params["radius"]), t1(params["half_height"]))
+        t = hit[0][0, 0].item()
     # reference: sphere tracing with the exact SDF (never steps through a surface)
     s, tt = 0.0, 0.0
     hit_ref = math.inf

@@ -35,14 +35,19 @@ def test_cameras_in_free_space_looking_at_targets(setup):
             assert ang < 15.0  # target jitter is 0.15 m at >= 0.8 m
 
 
+def _tile_ids(height: int, width: int) -> torch.Tensor:
+    """[height * width] the 16x16 tile of every pixel, row-major (the renderer's culling tiles)."""
+    vv, uu = torch.meshgrid(torch.arange(height), torch.arange(width), indexing="ij")
+    return ((vv // 16) * (width // 16) + uu // 16).reshape(-1)
+
+
 def test_culled_cast_equals_brute_force(setup):
     room, c2w, _, r = setup
     intr = Intrinsics.from_fov(64, 48, 75)
     for i in range(3):
         o, d, _ = camera_rays(c2w[i], intr)
         o, d = o.reshape(-1, 3), d.reshape(-1, 3)
-        vv, uu = torch.meshgrid(torch.arange(48), torch.arange(64), indexing="ij")
-        tile = ((vv // 16) * 4 + uu // 16).reshape(-1)
+        tile = _tile_ids(48, 64)
         t1, p1, n1 = r.cast(o, d, tile)
         t0, p0, n0 = r.cast_reference(o, d)
         assert torch.equal(p1, p0)
@@ -58,8 +63,7 @@ def test_culled_cast_float32_matches_brute_force():
     for i in range(4):
         o, d, _ = camera_rays(c2w[i].float(), intr)
         o, d = o.reshape(-1, 3), d.reshape(-1, 3)
-        vv, uu = torch.meshgrid(torch.arange(72), torch.arange(96), indexing="ij")
-        tile = ((vv // 16) * 6 + uu // 16).reshape(-1)
+        tile = _tile_ids(72, 96)
         t1, p1, _ = r.cast(o, d, tile)
         t0, p0, _ = r.cast_reference(o, d)
         assert torch.equal(t1, t0)

@@ -76,7 +76,8 @@ def test_object_points_inside_and_centre_is_their_mean(room):
 
 def test_sdf_is_min_over_parts_and_walls_exact(room):
     g = torch.Generator().manual_seed(0)
-    pts = room.interior_lo + torch.rand(500, 3, generator=g, dtype=torch.float64) * (room.interior_hi - room.interior_lo)
+    pts = (room.interior_lo
+           + torch.rand(500, 3, generator=g, dtype=torch.float64) * (room.interior_hi - room.interior_lo))
     d = room_sdf(room, pts)
     assert torch.equal(d, room.part_sdf(pts).min(-1).values)
     # distance to the walls/floor/ceiling alone is the distance to the interior box faces

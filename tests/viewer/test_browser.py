@@ -48,7 +48,8 @@ def free_port() -> int:
 
 
 def type_into(b, label: str, text: str) -> None:
-    ok = b.js(f"(() => {{ const e = ({INPUT_FOR})({json.dumps(label)}); if (!e) return false; e.focus(); e.select(); return true; }})()")
+    ok = b.js(f"(() => {{ const e = ({INPUT_FOR})({json.dumps(label)}); if (!e) return false; "
+              "e.focus(); e.select(); return true; })()")
     assert ok, f"no input labelled {label}"
     b.insert_text(text)
     b.js(f"({INPUT_FOR})({json.dumps(label)}).blur()")
@@ -91,7 +92,8 @@ def box_values(b) -> tuple:
 
 def click(b, text: str) -> None:
     ok = b.js(
-        f"(() => {{ const e = [...document.querySelectorAll('button')].find(x => x.innerText.trim() === {json.dumps(text)});"
+        "(() => { const e = [...document.querySelectorAll('button')]"
+        f".find(x => x.innerText.trim() === {json.dumps(text)});"
         " if (!e) return false; e.click(); return true; })()"
     )
     assert ok, f"no button {text}"
@@ -144,14 +146,16 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
         type_into(b, "Look at", "sofa")
         assert wait(lambda: viewer.ui.goto.value == "potted plant" and viewer.ui.look_at.value == "sofa")
         viewer.panel.config.loop = False
-        viewer.panel.config.speed = 0.25  # a longer flight: screenshots must land while it is under way, even on a busy box
+        # a longer flight: screenshots must land while it is under way, even on a busy box
+        viewer.panel.config.speed = 0.25
         # the camera reports from here on belong to this flight: autoplay starts with the plan, and on a busy box the
         # flight can be over before the checks below begin (the end was then reported before they counted)
         n_before = len(reported)
         start_pos = np.array(client.camera.position)  # where the browser's camera was when Plan was clicked
         t0 = time.perf_counter()
         click(b, "Plan")
-        # this plan's own status (the fast edits' plan may have left a 'Planned' one that the click has not yet replaced)
+        # this plan's own status (the fast edits' plan may have left a 'Planned' one that the click has not yet
+        # replaced)
         assert wait(lambda: "Planned" in viewer.panel.status and "go to 'potted plant'" in viewer.panel.status, 60), (
             viewer.panel.status)
         timings["plan_click_to_planned_s"] = t_planned = time.perf_counter() - t0
@@ -161,10 +165,12 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
         for i in range(5):
             time.sleep(0.3)
             shots.append(b.screenshot(artifacts / f"browser_flight_{i}.png"))
-            states.append((round(time.perf_counter() - t0 - t_planned, 2), viewer.panel.state, viewer.panel.frames_sent))
+            states.append((round(time.perf_counter() - t0 - t_planned, 2), viewer.panel.state,
+                           viewer.panel.frames_sent))
         timings["flight_screenshots_s_after_planned"] = [x[0] for x in states]
         digests = {hashlib.sha1(p.read_bytes()).hexdigest() for p in shots}
-        assert len(digests) > 1, f"the rendered view did not change while flying (s after Planned, state, frames): {states}"
+        assert len(digests) > 1, ("the rendered view did not change while flying (s after Planned, state, frames): "
+                                  f"{states}")
         assert box_values(b) == ("potted plant", "sofa")
         assert "go to 'potted plant' matched the object 'potted plant'" in viewer.panel.status
         assert "cinenerf_ns planner" in viewer.ui.details_md.content  # internals in the details fold

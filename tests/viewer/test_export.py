@@ -24,7 +24,8 @@ def test_camera_path_is_read_by_nerfstudio():
     cams = get_path_from_json(data)
     assert cams.camera_to_worlds.shape == (31, 3, 4)
     np.testing.assert_allclose(cams.camera_to_worlds[0].numpy(), np.c_[shot.rotations[0], shot.positions[0]], atol=1e-6)
-    np.testing.assert_allclose(cams.camera_to_worlds[-1].numpy(), np.c_[shot.rotations[-1], shot.positions[-1]], atol=1e-6)
+    np.testing.assert_allclose(cams.camera_to_worlds[-1].numpy(), np.c_[shot.rotations[-1], shot.positions[-1]],
+                               atol=1e-6)
     assert int(cams.width[0]) == 64 and int(cams.height[0]) == 48
     # Render tab "Load Path": keyframes with 4x4 matrices; the spline lasts the shot's duration
     k = data["keyframes"]

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from viewer_fakes import camera_looking as camera_c2w
 
 from cinenerf_ns.method.training_cameras import camera_poses
 from cinenerf_ns.viewer.demo import demo_scene
@@ -42,14 +43,8 @@ def viewer_on(source: str, tmp_path: Path) -> StandaloneViewer:
 
 def camera_looking(position, forward, roll_deg=0.0) -> np.ndarray:
     """[4, 4] a camera-to-world as transforms.json stores it (OpenGL: x right, y up, looking along -z)."""
-    f = np.asarray(forward, float) / np.linalg.norm(forward)
-    x = np.cross(f, [0.0, 0.0, 1.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(x, f)
-    r = np.deg2rad(roll_deg)
-    x, y = np.cos(r) * x + np.sin(r) * y, -np.sin(r) * x + np.cos(r) * y
     m = np.eye(4)
-    m[:3] = np.c_[x, y, -f, position]
+    m[:3] = camera_c2w(position, forward, roll_deg)
     return m
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from viewer_fakes import FakeBackend, FakeView
+from viewer_fakes import FakeBackend, FakeView, camera_looking
 
 from cinenerf_ns.viewer.panel import CinePanel, PanelConfig, Target, same_place_warning
 from cinenerf_ns.viewer.shot_text import sort_by_score
@@ -66,7 +66,8 @@ def test_go_to_equal_to_look_at_warns(tmp_path):
     assert any(s[1] == "busy" and "same place" in s[0] for s in view.statuses)  # said while planning too
     backend.plan = orig  # a planner that fails on it (the fake's last frame looks at its own position): still said
     assert panel.request_plan("lamp", "lamp").result(10) is None
-    assert view.last_status[1] == "error" and "position. Warning: 'Go to' and 'Look at' are the same place" in view.last_status[0]
+    assert view.last_status[1] == "error"
+    assert "position. Warning: 'Go to' and 'Look at' are the same place" in view.last_status[0]
     assert panel.request_plan("chair", "lamp").result(10).warning == ""
     assert view.last_status[1] == "ok"
     a = Target("Go to", "0 0 1", np.array([0.0, 0, 1]))
@@ -203,18 +204,6 @@ def test_opening_view_is_inside_the_room():
     np.testing.assert_array_equal(v.up, [0, 0, 1])  # no training camera: the scene's up
     no_region = opening_view(means)
     assert np.all(no_region.position > lo) and np.all(no_region.position < hi)
-
-
-def camera_looking(position, forward, roll_deg=0.0) -> np.ndarray:
-    """[3, 4] a nerfstudio camera-to-world (OpenGL: x right, y up, looking along -z) at ``position`` looking along
-    ``forward``, z up, turned ``roll_deg`` about its view direction."""
-    f = np.asarray(forward, float) / np.linalg.norm(forward)
-    x = np.cross(f, [0.0, 0.0, 1.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(x, f)
-    r = np.deg2rad(roll_deg)
-    x, y = np.cos(r) * x + np.sin(r) * y, -np.sin(r) * x + np.cos(r) * y
-    return np.c_[x, y, -f, position]
 
 
 def test_opening_view_is_the_typical_training_camera_s_pose():

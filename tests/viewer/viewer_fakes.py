@@ -84,7 +84,8 @@ def line_shot(a, b, look_at, duration=1.0, n=31, clearance=0.05) -> Shot:
     t = np.linspace(0.0, duration, n)
     pos = a[None] + (t / duration)[:, None] * (b - a)[None]
     rot = np.stack([look_at_rotation(p, look_at) for p in pos])
-    return Shot(times=t, positions=pos, rotations=rot, look_at=look_at, goal=b, start=a, clearance=np.full(n, clearance))
+    return Shot(times=t, positions=pos, rotations=rot, look_at=look_at, goal=b, start=a,
+                clearance=np.full(n, clearance))
 
 
 class FakeBackend:
@@ -131,3 +132,15 @@ class FakeBackend:
             line_shot(a0 + [0, 0.1 * i + 0.01 * seed, 0], goal, look_at, duration=self.duration, clearance=0.05 + i)
             for i in range(n)
         ]
+
+
+def camera_looking(position, forward, roll_deg=0.0) -> np.ndarray:
+    """[3, 4] a nerfstudio camera-to-world (OpenGL: x right, y up, looking along -z) at ``position`` looking along
+    ``forward``, z up, turned ``roll_deg`` about its view direction."""
+    f = np.asarray(forward, float) / np.linalg.norm(forward)
+    x = np.cross(f, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(x, f)
+    r = np.deg2rad(roll_deg)
+    x, y = np.cos(r) * x + np.sin(r) * y, -np.sin(r) * x + np.cos(r) * y
+    return np.c_[x, y, -f, position]

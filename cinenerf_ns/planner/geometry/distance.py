@@ -306,7 +306,8 @@ def _bounds(w: Tensor, rad: Tensor, dist_c: Tensor) -> Tuple[Tensor, Tensor]:
     wk = w.gather(-1, k)[..., 0]
     ak = rad.gather(-1, k)[..., 0]
     lift = torch.where(wk < 0, -ak, ak) * torch.sqrt((1 - rho2).clamp_min(0))
-    x = torch.where((rho2 <= 1)[..., None], q.scatter(-1, k, lift[..., None]), q / torch.sqrt(rho2.clamp_min(1e-300))[..., None])
+    x = torch.where((rho2 <= 1)[..., None], q.scatter(-1, k, lift[..., None]),
+                    q / torch.sqrt(rho2.clamp_min(1e-300))[..., None])
     ub_flat = (w - x).norm(dim=-1)
     ub = torch.where(m > 1, torch.minimum(ub_radial, ub_flat), dist_c - rad.min(-1).values)
     return lb, ub
@@ -331,7 +332,8 @@ def _min_over_pairs(
     # [|p - mu| - a_max, |p - mu| - a_min] (E holds the ball of radius a_min, lies in the ball of a_max)
     rad0 = scene.radii.index_select(0, gi).double()  # [K, 3]
     dc = (pts.index_select(0, pi) - scene.means.index_select(0, gi).double()).norm(dim=-1)  # [K]
-    u0 = torch.full((P,), math.inf, dtype=torch.float64, device=dev).scatter_reduce(0, pi, dc - rad0.min(-1).values, "amin")
+    u0 = torch.full((P,), math.inf, dtype=torch.float64, device=dev).scatter_reduce(0, pi, dc - rad0.min(-1).values,
+                                                                                    "amin")
     if known_ub is not None:
         u0 = torch.minimum(u0, known_ub)
     near = torch.nonzero(dc - rad0.max(-1).values <= u0.index_select(0, pi) + 1e-12).squeeze(-1)

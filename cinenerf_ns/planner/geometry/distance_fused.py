@@ -1,9 +1,8 @@
 """One-kernel (Triton, CUDA only) version of ``distance._distance_local``: signed point-ellipsoid distance.
 
 Why: the eager torch version runs Newton + bisection rounds over the whole batch, each round ~45 kernel launches and
-one host sync, ~30-60 rounds per call. On a GPU that is launch- and sync-bound: ~5k pairs took 0.2-0.3 s on an H100
-(candidate scoring at 1M Gaussians, benchmarks/RESULTS.md). Here each lane solves its own pair in registers: one
-launch, no sync.
+one host sync, ~30-60 rounds per call: on a GPU that is launch- and sync-bound (candidate scoring at 1M Gaussians;
+docs/PLANNER_DEFAULTS.md has the numbers). Here each lane solves its own pair in registers: one launch, no sync.
 
 Same algorithm, term for term, as ``distance._distance_local`` (Eberly's scaled root finding, the degenerate s = -1
 branch, bracket + safeguarded Newton). The only difference: a lane stops updating once its own bracket has converged

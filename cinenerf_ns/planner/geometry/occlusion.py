@@ -112,7 +112,8 @@ def sight_lines_blocked(
     if exclude is not None:
         exclude = torch.as_tensor(exclude, device=dev)
         if exclude.dtype != torch.bool or exclude.shape != (len(scene),):
-            raise InvalidInputError(f"exclude must be a bool mask [N={len(scene)}], got {exclude.dtype} {tuple(exclude.shape)}")
+            raise InvalidInputError(f"exclude must be a bool mask [N={len(scene)}], got {exclude.dtype} "
+                                    f"{tuple(exclude.shape)}")
     T, S = cam.shape[0], tgt.shape[0]
     blocked = torch.zeros(T * S, dtype=torch.bool, device=dev)
     if T == 0 or S == 0:

@@ -196,7 +196,8 @@ class EllipsoidScene:
     def dtype(self) -> torch.dtype:
         return self.means.dtype
 
-    def to(self, device: Union[str, torch.device, None] = None, dtype: Optional[torch.dtype] = None) -> "EllipsoidScene":
+    def to(self, device: Union[str, torch.device, None] = None,
+           dtype: Optional[torch.dtype] = None) -> "EllipsoidScene":
         def mv(t: Optional[Tensor]) -> Optional[Tensor]:
             if t is None:
                 return None

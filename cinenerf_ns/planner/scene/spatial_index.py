@@ -119,8 +119,8 @@ class GridIndex:
         origin = lo.min(0).values
         extent = (hi.max(0).values - origin).clamp_min(1e-9)  # [3]
         if cell_size is None:
-            # 0.75 x the median padded extent: measured on a 200k room scene, 0.5x gave the same query
-            # speed with 2x the build time (3.2M vs 2.0M entries), 1.0x slightly slower queries.
+            # 0.75 x the median padded extent: smaller cells only add build time and entries, larger ones slow
+            # the queries (docs/PLANNER_DEFAULTS.md)
             cell_size = 0.75 * float((hi - lo).max(-1).values.median())
             vol_cells = float(extent.prod()) / cell_size**3
             if vol_cells > max_cells:
@@ -321,8 +321,10 @@ class GridIndex:
         A = torch.as_tensor(A, device=self.device).double().reshape(-1, 3)  # [F, 3]
         b = torch.as_tensor(b, device=self.device).double().reshape(-1)  # [F]
         if A.shape[0] != b.shape[0]:
-            raise InvalidInputError(f"plane normals [F, 3] and offsets [F] disagree: {tuple(A.shape)} vs {tuple(b.shape)}")
-        if not bool(torch.isfinite(lo).all() & torch.isfinite(hi).all() & torch.isfinite(A).all() & torch.isfinite(b).all()):
+            raise InvalidInputError(f"plane normals [F, 3] and offsets [F] disagree: {tuple(A.shape)} vs "
+                                    f"{tuple(b.shape)}")
+        if not bool(torch.isfinite(lo).all() & torch.isfinite(hi).all() & torch.isfinite(A).all()
+                    & torch.isfinite(b).all()):
             raise InvalidInputError("query box or planes contain NaN or inf")
         out = []
         for lv in self.levels:
@@ -334,7 +336,8 @@ class GridIndex:
             ax = [torch.arange(c0[i], c1[i] + 1, device=self.device) for i in range(3)]
             cells = torch.stack(torch.meshgrid(*ax, indexing="ij"), -1).reshape(-1, 3)  # [C, 3]
             cmin = self.origin + cells.double() * lv.cell  # [C, 3]
-            half = 0.5 * lv.cell * (1 + 1e-7) + 1e-12 * (1 + self.origin.abs().max() + cmin.abs().max(-1, keepdim=True).values)
+            half = 0.5 * lv.cell * (1 + 1e-7) + 1e-12 * (1 + self.origin.abs().max()
+                                                         + cmin.abs().max(-1, keepdim=True).values)
             centre = cmin + 0.5 * lv.cell  # [C, 3]
             low = centre @ A.T - half * A.abs().sum(-1)  # [C, F] min of A_f.x over the (grown) cell
             culled = (low > b + 1e-12 * (1 + b.abs())).any(-1)  # [C]

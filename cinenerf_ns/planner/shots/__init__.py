@@ -1,4 +1,5 @@
 """Shots end to end: the Planner facade, one leg's stages, candidates, multi-stop, scoring, export.
 
-Modules: camera_path, candidate_scores, candidates, multistop, plan_request, planner, prepared_scene, safety, scoring, shot, stages, workers.
+Modules: camera_path, candidate_scores, candidates, multistop, plan_request, planner, prepared_scene, safety, scoring,
+shot, stages, workers.
 """

@@ -446,9 +446,11 @@ def _checked_inputs(planner: Planner, goal: Any, look_at: Any, k: int, spare_fra
     """(k, go-to point [3], look-at point [3]) of a plan_candidates call; InvalidInputError for any input out of
     range, before any planning."""
     if int(k) != k or not 1 <= k <= MAX_CANDIDATES:
-        raise InvalidInputError(f"number of candidates (--candidates) must be an integer in [1, {MAX_CANDIDATES}], got {k}")
+        raise InvalidInputError(f"number of candidates (--candidates) must be an integer in [1, {MAX_CANDIDATES}], got "
+                                f"{k}")
     if time_budget_s is not None and not (math.isfinite(time_budget_s) and time_budget_s > 0):
-        raise InvalidInputError(f"the time budget (--time-budget) must be a positive number of seconds, got {time_budget_s}")
+        raise InvalidInputError("the time budget (--time-budget) must be a positive number of seconds, got "
+                                f"{time_budget_s}")
     planner.ready()
     goal_p = planner.checked_point(goal, "go-to point")
     look_p = planner.checked_point(look_at, "look-at point")

@@ -109,7 +109,8 @@ def _with_stops(qp: CorridorQP, config: TrajectoryConfig, stop_segments: List[in
             a, b = qp.polytopes[seg]
             tol = 1e-9 * max(1.0, float(np.abs(p).max()))
             if _point_violation(a, b, p) > tol:
-                raise CorridorInfeasibleError(f"stop {j + 1} {np.round(p, 4).tolist()} lies outside its corridor polytope.")
+                raise CorridorInfeasibleError(f"stop {j + 1} {np.round(p, 4).tolist()} lies outside its corridor "
+                                              "polytope.")
             if not pinned[seg, i]:
                 pos = int(np.flatnonzero(~pinned[seg]).tolist().index(i))
                 f = a.shape[0]
@@ -183,7 +184,8 @@ def _checked_stops(planner: Planner, stops: Sequence[Any], look_at: Any) -> Tupl
     elif la.shape == (len(targets), 3):
         looks = np.stack([planner.checked_point(p, f"look-at of stop {i + 1}") for i, p in enumerate(la)])
     else:
-        raise InvalidInputError(f"look_at must be one point [3] or one per stop [{len(targets)}, 3], got shape {la.shape}.")
+        raise InvalidInputError(f"look_at must be one point [3] or one per stop [{len(targets)}, 3], got shape "
+                                f"{la.shape}.")
     planner.check_timing()
     return targets, looks
 
@@ -205,7 +207,8 @@ def _stop_goals(planner: Planner, start: np.ndarray, targets: List[np.ndarray]) 
     return pts, ijks, reached
 
 
-def _chained_corridor(planner: Planner, ways: List[np.ndarray], pts: list, known: list) -> Tuple[list, np.ndarray, List[int]]:
+def _chained_corridor(planner: Planner, ways: List[np.ndarray], pts: list,
+                      known: list) -> Tuple[list, np.ndarray, List[int]]:
     """Every leg's corridor (stages.leg_corridor) concatenated: (polytopes, waypoints [M+1, 3] with the stops exactly
     at the legs' joins, the segment index each interior stop starts [S-1])."""
     polys, wps, stop_segments = [], [pts[0][None]], []
@@ -226,7 +229,8 @@ def _moving_look_at(traj: BezierTrajectory, stop_segments: List[int],
     towards stop j the look-at moves from stop j-1's look-at to stop j's with a smootherstep in the leg's arc-length
     fraction; the first leg keeps stop 1's."""
     tau_tab, s_tab = arc_length_table(traj)
-    stop_tau = np.concatenate([traj.segment_starts[stop_segments], [traj.total_duration]]) if stop_segments else np.array([traj.total_duration])
+    stop_tau = (np.concatenate([traj.segment_starts[stop_segments], [traj.total_duration]]) if stop_segments
+                else np.array([traj.total_duration]))
     frac = np.interp(stop_tau, tau_tab, s_tab) / s_tab[-1]  # [S] (last = 1)
     bounds = np.concatenate([[0.0], frac])
 

@@ -53,23 +53,16 @@ class PlannerConfig:
     bounds: Optional[tuple] = None
     """(lo[3], hi[3]) planning region in scene units; None: the scene bounds (robust, see prepare())."""
     start_region: Optional[tuple] = None
-    """(lo[3], hi[3]) where random starts are drawn; None: the planning bounds (e.g. pass the
-    training cameras' bounding box for real captures). Without it, starts come from the largest free component that
-    does not touch the planning box when it holds >= ENCLOSED_COMPONENT_FRACTION of the free voxels (a closed room's
-    interior: the shell between its walls and the padded box can be larger), else from the largest."""
+    """(lo[3], hi[3]) where random starts are drawn (a capture's training-camera box); None: the planning bounds,
+    preferring an enclosed free component (starts.preferred_component: a room's interior, not its outer shell)."""
     start_look_distance: float = 0.25
-    """Random starts (none given) are drawn at least this fraction of the start region's longest side away from the
-    look-at point, when the region has such free starts (else anywhere: it never fails a request). Why: a random
-    start is the shot's opening frame, and one pressed against the subject shows only its near surface; and the aim
-    is only as good as the subject's estimated centre: a centre off by e turns into up to asin(e / range) of aim
-    error, which grows fast at close range (docs/PLANNER_DEFAULTS.md). 0: starts anywhere (the paper's uniform random starts). User-given starts are never moved."""
+    """Random starts keep this fraction of the start region's longest side from the look-at point when they can:
+    aim error from an off centre grows as asin(e / range) up close. 0: anywhere (the paper's); given starts stay."""
     up: tuple = (0.0, 0.0, 1.0)
     """World up direction: cameras keep their y axis as close to it as possible."""
     astar_weight: float = 1.0
-    """Heuristic weight of the initial voxel path's A* (1: minimum-cost path; w > 1: its cost is at most w x the
-    minimum, found with far fewer expansions; the path is only the corridor's seed and is shortcut first, so the
-    shot's safety does not depend on it). 1.0 stays the default: a larger weight's faster search is paid back by its
-    longer seed paths in shortcut + corridor (docs/PLANNER_DEFAULTS.md)."""
+    """A* heuristic weight of the seed voxel path (w > 1: cost <= w x minimum, fewer expansions); 1.0 because longer
+    seed paths cost as much in shortcut + corridor as a weighted search saves."""
     box_margin: float = 0.15
     """Each corridor polytope lives in its segment's bounding box grown by this (scene units)."""
     trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
@@ -82,9 +75,8 @@ class PlannerConfig:
     """With bounds=None the grid spans these quantiles of the Gaussian means (floaters far away
     would otherwise blow up the grid) grown by 10%."""
     region_padding: float = 0.5
-    """With bounds=None and a start_region (a capture's training cameras), the planning region is the start region
-    grown by this fraction of its longest side on every side, cut to the robust scene box: a real capture's floaters
-    and open background far from the cameras do not stretch the grid. Paths never leave the planning region."""
+    """With bounds=None and a start_region: the planning region is the start region grown by this fraction of its
+    longest side, cut to the robust box, so far floaters and background do not stretch the grid."""
     memory_budget_mb: float = 4096.0
     """Memory the voxel grid and its companions may take (MB); a finer --grid-resolution is refused, not swapped."""
     far_limit: float = 1.0
@@ -93,42 +85,23 @@ class PlannerConfig:
     max_attempts_per_candidate: int = 4
     """Random starts tried per requested candidate before giving up on it."""
     plan_cpu_threads: Optional[int] = 1
-    """torch intra-op threads while plan() runs its queries on the CPU (restored afterwards); None: leave
-    torch's setting alone. A request is thousands of small tensor ops, where thread hand-offs cost
-    more than they save (docs/PLANNER_DEFAULTS.md)."""
+    """torch intra-op threads while plan() queries on the CPU (restored afterwards; None: untouched); 1 because
+    a request's thousands of small ops lose more to thread hand-offs than they gain."""
     request_device: str = "auto"
-    """Where a request's collision / polytope / clearance queries run. 'auto': on the CPU when the scene
-    is on a GPU (the spatial index and the occupancy grid are still built there, then mirrored to the
-    CPU once in prepare()): a request is thousands of tiny queries whose kernel launches and syncs cost
-    more than they compute (docs/PLANNER_DEFAULTS.md). 'scene': on the scene's device. Batched scoring of many candidates (occlusion, clearance)
-    keeps using the scene's device (``Planner.batch_scene``)."""
+    """Where a request's small queries run. 'auto': on prepare()'s CPU mirror of a GPU scene (tiny kernels cost more
+    to launch than to run); 'scene': on the scene's device. Batched scoring always uses ``Planner.batch_scene``."""
     grid_polytopes: Union[bool, str] = "auto"
-    """Corridor segments that lie in free voxels of the occupancy grid get polytopes built from the grid's surface
-    voxels (grid_polytope.py: the same safety guarantee without a Gaussian query, far cheaper, up to about one
-    voxel more distance from the scene); the others (usually the last one, next to the go-to object) get exact
-    Prop-2 polytopes from corridor_backend, and the shortcut prefers segments in free voxels (shortcut_way).
-    False: Prop-2 polytopes for every segment (the paper's corridor). 'auto': on when the grid's voxels are at most
-    GRID_POLYTOPE_MAX_VOXEL x the camera radius (fine voxels, where they make plans faster); off for coarse ones (a
-    real capture with far floaters, where they made plans slower; docs/PLANNER_DEFAULTS.md)."""
+    """Polytopes from the occupancy grid for segments in free voxels (grid_polytope.py: same guarantee, cheaper);
+    False: Prop-2 for all (the paper's). 'auto': on for voxels <= GRID_POLYTOPE_MAX_VOXEL x camera radius."""
     corridor_backend: str = "auto"
-    """How a request builds its corridor of safe polytopes. 'cpu': one host polytope per segment
-    (polytope.safe_polytope) on the request device's scene. 'batched': all segments' polytopes in one batched
-    torch computation (polytope_batched.py) on the scene's own device (``Planner.batch_scene`` and its index:
-    the GPU copy when the scene is on a GPU, even with request_device 'auto'); segments it cannot cover go
-    through the host path (with splitting). 'auto': 'batched' when the scene is on a CUDA device, else 'cpu'.
-    Candidate worker processes always use 'cpu' (no CUDA after fork). Same safety guarantee either way."""
+    """Corridor polytopes: 'cpu' one host polytope per segment; 'batched' all in one torch batch on the scene's own
+    device; 'auto': 'batched' on a CUDA scene, else 'cpu' (workers always 'cpu'). Same guarantee either way."""
     candidate_workers: Optional[int] = None
-    """Worker processes that plan_candidates spreads its candidates over (workers.py: forked after prepare(),
-    sharing the prepared CPU state copy-on-write; each plans whole candidates single-threaded, the parent
-    samples starts, scores and ranks). None: auto, one per usable CPU (at most k busy per request)
-    when the 'fork' start method exists (Linux) and there are >= 4 CPUs, else 0. 0: plan in this process.
-    N: N workers. Workers are never used when requests run on a GPU (request_device 'scene' with a CUDA
-    scene): CUDA cannot be used after fork."""
+    """Forked processes plan_candidates spreads candidates over (workers.py). None: one per CPU with 'fork' and
+    >= 4 CPUs, else 0; 0: in this process. Never with requests on a GPU (no CUDA after fork)."""
     worker_scoring: bool = True
-    """With candidate workers: each worker also computes its shot's score inputs (sight lines and exact clearance of
-    the scored frames, on the CPU copy with the compiled searches) and the parent only combines them. False: the
-    parent scores the shots (on the GPU when the scene is there) while the workers run. Same score terms (the
-    clearances agree to ~1e-13; occlusion flags can differ only for sight lines grazing an ellipsoid)."""
+    """With candidate workers, each also computes its shot's score inputs (sight lines, exact clearance); False:
+    the parent scores them (on the GPU when the scene is there) while the workers run. Same score terms."""
 
     def validate(self) -> None:
         """InvalidInputError naming the first field out of its range (Planner checks its config at construction)."""
@@ -148,8 +121,8 @@ class PlannerConfig:
         lo_r, hi_r = GRID_RESOLUTION_RANGE
         res = self.grid_resolution
         if isinstance(res, bool) or not isinstance(res, (int, np.integer)) or not lo_r <= res <= hi_r:
-            raise InvalidInputError(f"grid_resolution (--grid-resolution) must be an integer in [{lo_r}, {hi_r}] voxels "
-                                    f"along the planning region's longest side, got {res!r}")
+            raise InvalidInputError(f"grid_resolution (--grid-resolution) must be an integer in [{lo_r}, {hi_r}] "
+                                    f"voxels along the planning region's longest side, got {res!r}")
         mb = self.memory_budget_mb
         if isinstance(mb, bool) or not isinstance(mb, (int, float)) or not (math.isfinite(mb) and mb >= 64):
             raise InvalidInputError(f"memory_budget_mb (--memory-budget-mb) must be a number >= 64, got {mb!r}")

@@ -24,8 +24,9 @@ from ..search.goal import mean_voxel_mask
 
 
 def preload_request_modules() -> None:
-    """Import now what requests import lazily (the goal's QP, polytope centres, the corridor QP's solvers; scipy.optimize's
-    import alone is a noticeable part of a first request), paid once per process instead of by the first request."""
+    """Import now what requests import lazily (the goal's QP, polytope centres, the corridor QP's solvers;
+    scipy.optimize's import alone is a noticeable part of a first request), paid once per process instead of by the
+    first request."""
     import scipy.optimize  # noqa: F401
     import scipy.sparse  # noqa: F401 - imported for its side effect (loaded once)
 
@@ -89,7 +90,8 @@ def prepare_scene(scene: EllipsoidScene, grid_resolution: int, lo: Tensor, hi: T
     prepared = PreparedScene(
         index=index, grid=grid, astar_grid=ag, coarse=coarse, batch_index=batch_index, voxels=voxels,
         mean_voxels=mean_voxel_mask(scene, grid),
-        timings_ms={"index_ms": 1e3 * (t1 - t0), "grid_ms": 1e3 * (t2 - t1), "mirror_ms": 1e3 * (t3 - t2) if mirror else 0.0,
+        timings_ms={"index_ms": 1e3 * (t1 - t0), "grid_ms": 1e3 * (t2 - t1),
+                    "mirror_ms": 1e3 * (t3 - t2) if mirror else 0.0,
                     "components_ms": 1e3 * (t4 - t3), "surface_ms": 1e3 * (t5 - t4), "native_ms": 1e3 * (t6 - t5)},
     )
     free_distance_transform(prepared)  # once, off the request path (clearance_queries.clearance_lower_bound)

@@ -73,10 +73,8 @@ class ScoreConfig:
     occlusion_frames: int = 64
     """At most this many evenly spaced frames are tested for occlusion (0: all frames)."""
     clearance_cap: Optional[float] = 0.1
-    """The exact clearance is only searched up to this value; larger clearances count as the cap, so the
-    min/mean clearance terms are those of min(clearance, cap). The costs only depend on values below
-    clearance_ref, so a cap >= clearance_ref leaves the total unchanged while skipping most of the
-    exact-distance work. None: uncapped exact clearance."""
+    """Exact clearance is searched up to this (larger counts as the cap); >= clearance_ref leaves every cost unchanged
+    and skips most of the distance work. None: uncapped."""
 
     def validate(self) -> None:
         for k, v in self.__dict__.items():
@@ -156,7 +154,8 @@ def score_terms(shot, look_at: np.ndarray, occluded: np.ndarray, clearance: np.n
         "framing_size": c.w_framing_size * size_err,
         "framing_offset": c.w_framing_offset * terms["framing_offset"],
         "min_clearance": c.w_min_clearance * max(0.0, c.clearance_ref - terms["min_clearance"]) / c.clearance_ref,
-        "mean_clearance": c.w_mean_clearance * float(np.mean(np.maximum(0.0, c.clearance_ref - clearance))) / c.clearance_ref,
+        "mean_clearance": (c.w_mean_clearance * float(np.mean(np.maximum(0.0, c.clearance_ref - clearance)))
+                           / c.clearance_ref),
         "jerk": c.w_jerk * pk.mean_jerk / c.jerk_ref,
         "angular_rate": c.w_angular_rate * pk.mean_angular_rate_deg / c.angular_rate_ref,
         "duration": c.w_duration * terms["duration_s"] / c.duration_ref,
@@ -208,7 +207,8 @@ def score_shot(
         from ..geometry.distance import clearance
 
         cap = None if cfg.clearance_cap is None else cfg.clearance_cap + scene.camera_radius
-        clr = clearance(torch.as_tensor(shot.positions, device=scene.device), scene, index, max_distance=cap).cpu().numpy()
+        clr = clearance(torch.as_tensor(shot.positions, device=scene.device), scene, index,
+                        max_distance=cap).cpu().numpy()
     out = score_terms(shot, look, occ, clr, object_radius, object_center, cfg)
     out.tested_frame_index = idx
     return out

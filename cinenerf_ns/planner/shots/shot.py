@@ -57,7 +57,8 @@ class Shot:
                 f"Shot needs times [T], positions [T,3], rotations [T,3,3]; got {self.times.shape}, "
                 f"{self.positions.shape}, {self.rotations.shape}."
             )
-        if not (np.all(np.isfinite(self.times)) and np.all(np.isfinite(self.positions)) and np.all(np.isfinite(self.rotations))):
+        if not (np.all(np.isfinite(self.times)) and np.all(np.isfinite(self.positions))
+                and np.all(np.isfinite(self.rotations))):
             raise InvalidInputError("Shot frames contain NaN or inf.")
         if t > 1 and np.any(np.diff(self.times) <= 0):
             raise InvalidInputError("Shot times must be strictly increasing.")

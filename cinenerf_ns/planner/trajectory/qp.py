@@ -92,9 +92,8 @@ class TrajectoryConfig:
     tolerance: float = 1e-8
     """Clarabel feasibility/optimality tolerance (tol_feas, tol_gap_abs, tol_gap_rel)."""
     iterative_refinement: bool = False
-    """Clarabel's iterative refinement of every KKT solve. Off about halves Clarabel's solve on corridor QPs with the
-    same optimum (objective within ~1e-7 relative, constraint violations far inside the margin); every control point
-    is still checked against its unshrunk polytope. The one retry after a stalled solve turns it on."""
+    """Clarabel's iterative refinement of each KKT solve; off: about half the solve time, same optimum (control points
+    are still checked against their polytopes). The retry after a stalled solve turns it on."""
     osqp_tolerance: float = 1e-6
     """OSQP eps_abs/eps_rel. ADMM converges slowly on this ill-conditioned cost (1/d^5 terms), so it gets
     a looser tolerance than Clarabel; polishing usually sharpens it and the margin covers the rest."""
@@ -248,7 +247,8 @@ class CorridorQP:
         """From a full symmetric P and separate equality / inequality blocks (any scipy sparse format)."""
         A_eq = sp.csc_matrix(A_eq)
         qp = cls(sp.triu(P, format="csc"), sp.vstack([A_eq, sp.csc_matrix(A_in)], format="csc"),
-                 np.concatenate([b_eq, b_in]), A_eq.shape[0], A_eq.toarray(), durations, degree, num_segments, polytopes)
+                 np.concatenate([b_eq, b_in]), A_eq.shape[0], A_eq.toarray(), durations, degree, num_segments,
+                 polytopes)
         qp._cache["P"] = sp.csc_matrix(P)
         return qp
 

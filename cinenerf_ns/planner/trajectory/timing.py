@@ -63,7 +63,8 @@ class TimingConfig:
     def validate(self) -> None:
         if not (self.max_speed > 0 and math.isfinite(self.max_speed)):
             raise InvalidInputError(f"max_speed must be positive, got {self.max_speed}.")
-        if self.max_acceleration is not None and not (self.max_acceleration > 0 and math.isfinite(self.max_acceleration)):
+        if self.max_acceleration is not None and not (self.max_acceleration > 0
+                                                      and math.isfinite(self.max_acceleration)):
             raise InvalidInputError(f"max_acceleration must be positive or None, got {self.max_acceleration}.")
         if not (MIN_FPS <= self.fps <= MAX_FPS):
             raise InvalidInputError(f"fps must be in [{MIN_FPS:g}, {MAX_FPS:g}] frames per second, got {self.fps}.")
@@ -108,8 +109,10 @@ def arc_length_table(traj: BezierTrajectory, samples_per_segment: int = 64, with
     return (tau, s, speed_all[q.size:]) if with_speed else (tau, s)
 
 
-def _hermite_guess(tau_tab: np.ndarray, s_tab: np.ndarray, v_tab: np.ndarray, i: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """tau [T] where the cubic Hermite model of s(tau) on table interval i [T] (values s_tab, slopes v_tab) reaches s [T].
+def _hermite_guess(tau_tab: np.ndarray, s_tab: np.ndarray, v_tab: np.ndarray, i: np.ndarray,
+                   s: np.ndarray) -> np.ndarray:
+    """tau [T] where the cubic Hermite model of s(tau) on table interval i [T] (values s_tab, slopes v_tab)
+    reaches s [T].
 
     Why: the curve rests at its ends (speed 0), where s(tau) is quadratic and a linear table guess sends Newton on
     S(tau) into slow, linear convergence (4 steps left frame 1 ~1e-4 s of curve time off). The cubic has the right
@@ -141,7 +144,8 @@ def invert_arc_length(traj: BezierTrajectory, tau_tab: np.ndarray, s_tab: np.nda
     nodes, weights = _GL5
     i = np.clip(np.searchsorted(s_tab, s, side="right") - 1, 0, len(s_tab) - 2)  # [T] bracket
     lo, hi = tau_tab[i], tau_tab[i + 1]
-    tau = np.interp(s, s_tab, tau_tab) if v_tab is None else np.clip(_hermite_guess(tau_tab, s_tab, v_tab, i, s), lo, hi)
+    tau = np.interp(s, s_tab, tau_tab) if v_tab is None else np.clip(_hermite_guess(tau_tab, s_tab, v_tab, i, s),
+                                                                     lo, hi)
     tol = 1e-11 * max(1.0, traj.total_duration)
     n = tau.shape[0]
     for _ in range(8):

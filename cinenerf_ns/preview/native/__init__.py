@@ -26,7 +26,8 @@ _VARIANTS = {"float32": ["-DREAL=float"], "float64": ["-DREAL=double", "-DREAL_I
 
 
 def _compile(variant: str) -> Optional[Path]:
-    lib, why = compile_library(_HERE / "raster.c", f"preview_raster_{variant}", ["-O3", "-pthread", *_VARIANTS[variant]])
+    lib, why = compile_library(_HERE / "raster.c", f"preview_raster_{variant}",
+                               ["-O3", "-pthread", *_VARIANTS[variant]])
     if lib is None:
         _STATUS[variant] = why
     return lib
@@ -88,7 +89,8 @@ def render_native(
     dt = np.dtype(means.dtype)
     fn = fn or render_fn(dt.name)
     if fn is None:
-        raise RuntimeError(f"the compiled preview rasteriser did not load: {native_status().get(dt.name, 'not loaded')}")
+        raise RuntimeError("the compiled preview rasteriser did not load: "
+                           f"{native_status().get(dt.name, 'not loaded')}")
     arrs = [np.ascontiguousarray(a, dtype=dt) for a in (means, cov3d, opacities, colors, viewmat)]
     n = arrs[0].shape[0]
     assert arrs[1].shape == (n, 6) and arrs[2].shape == (n,) and arrs[3].shape == (n, 3) and arrs[4].shape == (4, 4)

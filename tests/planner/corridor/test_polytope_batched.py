@@ -232,7 +232,8 @@ def test_cuda_batched_polytopes_match_cpu_and_plan():
         if gpu_p[m].num_faces == cpu_p[m].num_faces:
             assert torch.allclose(gpu_p[m].b, cpu_p[m].b, atol=1e-9)
     room = procedural_room(50_000, seed=3)
-    e = EllipsoidScene.from_splat(room.means.cuda(), room.quats.cuda(), room.log_scales.cuda(), room.opacity_logits.cuda())
+    e = EllipsoidScene.from_splat(room.means.cuda(), room.quats.cuda(), room.log_scales.cuda(),
+                                  room.opacity_logits.cuda())
     pl = Planner(e, PlannerConfig(candidate_workers=0))  # auto: batched on the GPU scene, requests on the CPU mirror
     pl.prepare()
     assert pl.corridor_backend() == "batched" and pl.scene.device.type == "cpu"

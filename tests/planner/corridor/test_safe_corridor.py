@@ -56,7 +56,8 @@ def test_corridor_covers_path_and_is_safe(seed, n, k, box):
     cor = build_corridor(wps, scene, None, box_margin=0.15, min_overlap=0.0, exact_overlap=True, box=box)
     assert isinstance(cor, Corridor)
     assert len(cor) == cor.waypoints.shape[0] - 1 >= k - 1
-    assert torch.allclose(cor.waypoints[0], torch.as_tensor(wps[0])) and torch.allclose(cor.waypoints[-1], torch.as_tensor(wps[-1]))
+    assert torch.allclose(cor.waypoints[0], torch.as_tensor(wps[0]))
+    assert torch.allclose(cor.waypoints[-1], torch.as_tensor(wps[-1]))
     for m, P in enumerate(cor.polytopes):
         seg = cor.waypoints[m:m + 2]
         assert bool(P.contains(seg).all())

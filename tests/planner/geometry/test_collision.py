@@ -109,7 +109,8 @@ def test_sphere_boundary_cases():
     sc.rotations.copy_(torch.eye(3, dtype=F64))
     sc.radii.copy_(torch.tensor([[0.5, 0.3, 0.2]], dtype=F64))
     eps = 1e-5
-    pts = torch.tensor([[0.6 - eps, 0, 0], [0.6 + eps, 0, 0], [0, 0, 0.3 + eps], [0, 0, 0], [0, 0.4 - eps, 0]], dtype=F64)
+    pts = torch.tensor([[0.6 - eps, 0, 0], [0.6 + eps, 0, 0], [0, 0, 0.3 + eps], [0, 0, 0], [0, 0.4 - eps, 0]],
+                       dtype=F64)
     assert points_collide(pts, sc).tolist() == [True, False, False, True, True]
     with pytest.raises(InvalidInputError):
         points_collide(torch.tensor([[float("nan"), 0, 0]]), sc)

@@ -195,7 +195,8 @@ def test_cuda_clearance_matches_cpu():
 
 
 @settings(max_examples=40, deadline=None)
-@given(seed=st.integers(0, 100_000), cap=st.sampled_from([0.02, 0.1, 0.4, 3.0]), dtype=st.sampled_from([F64, torch.float32]),
+@given(seed=st.integers(0, 100_000), cap=st.sampled_from([0.02, 0.1, 0.4, 3.0]),
+       dtype=st.sampled_from([F64, torch.float32]),
        spread=st.sampled_from([0.5, 1.5, 4.0]))
 def test_compiled_capped_clearance_is_the_brute_force_one(seed, cap, dtype, spread):
     """clearance's compiled path (native/polytope.c: cn_points_distance; a finite max_distance, a CPU GridIndex)

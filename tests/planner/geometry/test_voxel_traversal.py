@@ -41,7 +41,8 @@ snapped = st.one_of(coord, st.integers(-6, 6).map(float), st.integers(-12, 12).m
 
 
 @settings(**SETTINGS)
-@given(st.lists(st.tuples(st.tuples(snapped, snapped, snapped), st.tuples(snapped, snapped, snapped)), min_size=1, max_size=6))
+@given(st.lists(st.tuples(st.tuples(snapped, snapped, snapped), st.tuples(snapped, snapped, snapped)), min_size=1,
+                max_size=6))
 def test_pieces_are_the_exact_voxels(segs):
     u0 = np.array([s[0] for s in segs])
     u1 = np.array([s[1] for s in segs])
@@ -120,8 +121,10 @@ def test_straight_lines_and_points():
     occ[2, 2, 2] = True
     lo, vs = np.zeros(3), 1.0
     # through the occupied voxel's centre, along an axis, diagonal, a point
-    p0 = np.array([[0.5, 2.5, 2.5], [0.5, 0.5, 0.5], [0.5, 0.5, 0.5], [1.5, 1.5, 1.5], [2.5, 2.5, 2.5], [0.5, 0.5, 0.5]])
-    p1 = np.array([[3.5, 2.5, 2.5], [3.5, 0.5, 0.5], [3.5, 3.5, 3.5], [1.5, 1.5, 1.5], [2.5, 2.5, 2.5], [4.5, 0.5, 0.5]])
+    p0 = np.array([[0.5, 2.5, 2.5], [0.5, 0.5, 0.5], [0.5, 0.5, 0.5], [1.5, 1.5, 1.5], [2.5, 2.5, 2.5],
+                   [0.5, 0.5, 0.5]])
+    p1 = np.array([[3.5, 2.5, 2.5], [3.5, 0.5, 0.5], [3.5, 3.5, 3.5], [1.5, 1.5, 1.5], [2.5, 2.5, 2.5],
+                   [4.5, 0.5, 0.5]])
     assert segments_in_free_voxels(occ, lo, vs, p0, p1).tolist() == [False, True, False, True, False, False]
     # along the occupied voxel's edge: every point also lies in a free closed voxel, but the walk refuses what
     # passes within EPS of an occupied voxel (conservative); 0.01 away it is proven

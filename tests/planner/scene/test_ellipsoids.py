@@ -41,7 +41,8 @@ def test_covariance_and_aabb_exact():
 
 def test_from_ply_matches_from_splat(tmp_path):
     rng = np.random.default_rng(0)
-    m, q, s, o = rng.normal(size=(30, 3)), rng.normal(size=(30, 4)), rng.normal(size=(30, 3)) - 3, rng.normal(size=30) + 1
+    m, q = rng.normal(size=(30, 3)), rng.normal(size=(30, 4))
+    s, o = rng.normal(size=(30, 3)) - 3, rng.normal(size=30) + 1
     p = write_splat_ply(tmp_path / "s.ply", m, q, s, o)
     cfg = SceneConfig(camera_radius=0.05, opacity_floor=0.2)
     a = EllipsoidScene.from_ply(p, cfg)

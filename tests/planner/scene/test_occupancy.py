@@ -71,7 +71,8 @@ def test_nearest_free_voxel_brute_force():
     allowed[tuple(free[7].tolist())] = True
     assert grid.nearest_free_voxel(torch.zeros(3), allowed).tolist() == free[7].tolist()
     with pytest.raises(GoalUnreachableError):
-        OccupancyGrid(torch.zeros(3, dtype=F64), 0.1, torch.ones(2, 2, 2, dtype=torch.bool)).nearest_free_voxel(torch.zeros(3))
+        OccupancyGrid(torch.zeros(3, dtype=F64), 0.1,
+                      torch.ones(2, 2, 2, dtype=torch.bool)).nearest_free_voxel(torch.zeros(3))
     with pytest.raises(InvalidInputError):
         grid.nearest_free_voxel(torch.tensor([float("nan"), 0, 0]))
 

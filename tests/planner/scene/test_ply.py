@@ -51,7 +51,8 @@ def test_big_endian_and_ascii(tmp_path):
 def test_missing_file_and_properties(tmp_path):
     with pytest.raises(InvalidInputError, match="not found"):
         read_splat_ply(tmp_path / "nope.ply")
-    head = "ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
+    head = ("ply\nformat binary_little_endian 1.0\nelement vertex 1\n"
+            "property float x\nproperty float y\nproperty float z\nend_header\n")
     (tmp_path / "pts.ply").write_bytes(head.encode() + np.zeros(3, "<f4").tobytes())
     with pytest.raises(InvalidInputError, match="missing"):
         read_splat_ply(tmp_path / "pts.ply")

@@ -81,7 +81,8 @@ def test_float32_scene_and_per_point_radius():
     rad = torch.rand(50) * 0.2
     pi, gi = idx.query_points(pts, rad)
     p64 = pts.double()
-    assert set(zip(pi.tolist(), gi.tolist())) == _brute_pairs(idx, p64 - rad.double()[:, None], p64 + rad.double()[:, None])
+    assert set(zip(pi.tolist(), gi.tolist())) == _brute_pairs(idx, p64 - rad.double()[:, None],
+                                                              p64 + rad.double()[:, None])
 
 
 @pytest.mark.gpu

@@ -29,7 +29,8 @@ def grid_graph(occ: np.ndarray):
                         rows.append((i * Y + j) * Z + k)
                         cols.append((a * Y + b) * Z + c)
                         w.append(math.sqrt(di * di + dj * dj + dk * dk))
-    return coo_matrix((np.asarray(w, float), (np.asarray(rows, int), np.asarray(cols, int))), shape=(occ.size,) * 2).tocsr()
+    return coo_matrix((np.asarray(w, float), (np.asarray(rows, int), np.asarray(cols, int))),
+                      shape=(occ.size,) * 2).tocsr()
 
 
 def random_case(seed, shape, density):
@@ -41,7 +42,8 @@ def random_case(seed, shape, density):
     if len(free) == 0:
         return None
     s, g = free[rng.integers(len(free))], free[rng.integers(len(free))]
-    ref = dijkstra(grid_graph(occ), indices=np.ravel_multi_index(tuple(s), shape))[np.ravel_multi_index(tuple(g), shape)]
+    dist = dijkstra(grid_graph(occ), indices=np.ravel_multi_index(tuple(s), shape))
+    ref = dist[np.ravel_multi_index(tuple(g), shape)]
     return occ, s, g, ref
 
 

@@ -48,7 +48,8 @@ def test_voxel_path_is_safe_and_complete(seed, shape, density, budget, window):
     if len(free) == 0:
         return
     s, g = free[rng.integers(len(free))], free[rng.integers(len(free))]
-    ref = dijkstra(grid_graph(occ), indices=np.ravel_multi_index(tuple(s), shape))[np.ravel_multi_index(tuple(g), shape)]
+    dist = dijkstra(grid_graph(occ), indices=np.ravel_multi_index(tuple(s), shape))
+    ref = dist[np.ravel_multi_index(tuple(g), shape)]
     ag = AStarGrid(occ)
     cg = CoarseGrid(ag)
     if not np.isfinite(ref):

@@ -362,7 +362,8 @@ def test_sample_free_starts_away_from_keeps_the_distance_and_falls_back():
                                away_from=look, away_fraction=0.4)
     assert torch.equal(away, again)
     # 0 (or no point) leaves the sampling exactly as it was
-    zero = sample_free_starts(40, scene, None, grid, generator=3, region_lo=lo, region_hi=hi, away_from=look, away_fraction=0.0)
+    zero = sample_free_starts(40, scene, None, grid, generator=3, region_lo=lo, region_hi=hi, away_from=look,
+                              away_fraction=0.0)
     assert torch.equal(zero, plain)
     # nowhere far enough (a small region around the point): still n free starts, drawn without the rule
     p = plain[0].numpy()  # a free start: the region around it has free starts, none 0.9 x 0.04 from p
@@ -400,8 +401,8 @@ def test_sample_free_starts_away_from_property(point, fraction, seed):
 
 
 def test_mean_voxel_mask_gives_the_same_goals_as_the_box_query():
-    """closest_safe_point's fallback with the precomputed voxels-holding-a-mean mask picks exactly the goal the per-window
-    box query picks (targets buried inside the volume blobs of synthetic/blobs.py), and the goal is free."""
+    """closest_safe_point's fallback with the precomputed voxels-holding-a-mean mask picks exactly the goal the
+    per-window box query picks (targets buried inside the volume blobs of synthetic/blobs.py), and the goal is free."""
     import numpy as np
 
     from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene

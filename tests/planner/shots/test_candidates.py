@@ -21,7 +21,8 @@ STOP = TARGET_RADIUS + 0.03
 
 @pytest.fixture(scope="module")
 def planner():
-    pl = Planner(walled_target_scene(), PlannerConfig(grid_resolution=48, start_region=([-0.9, -0.9, 0.1], [0.9, 0.9, 0.9])))
+    pl = Planner(walled_target_scene(),
+                 PlannerConfig(grid_resolution=48, start_region=([-0.9, -0.9, 0.1], [0.9, 0.9, 0.9])))
     pl.prepare()
     return pl
 
@@ -63,7 +64,8 @@ def test_candidates_are_safe_and_aim(planner, ranked):
         assert float(c.min()) >= 0
         assert np.max(x.shot.look_at_errors_deg()) < 0.01
         assert np.linalg.norm(x.shot.positions[-1] - x.shot.goal) < 1e-9
-    for k in ("start_sample_ms", "astar_ms", "shortcut_ms", "corridor_ms", "qp_ms", "verify_ms", "score_ms", "total_ms"):
+    for k in ("start_sample_ms", "astar_ms", "shortcut_ms", "corridor_ms", "qp_ms", "verify_ms", "score_ms",
+              "total_ms"):
         assert tm[k] >= 0
     d = r[0].to_dict()
     assert d["rank"] == 1 and "terms" in d["score"] and d["verification"]["safe"]
@@ -126,4 +128,5 @@ def test_gpu_scene_candidates_score_on_the_gpu_and_match_cpu(ranked):
     assert len(r) == len(cpu)
     assert all(x.shot.safety["safe"] for x in r)
     # same starts (seeded) and the same scores up to float rounding
-    np.testing.assert_allclose(sorted(x.score.total for x in r), sorted(x.score.total for x in cpu), rtol=1e-4, atol=1e-6)
+    np.testing.assert_allclose(sorted(x.score.total for x in r), sorted(x.score.total for x in cpu), rtol=1e-4,
+                               atol=1e-6)

@@ -218,7 +218,8 @@ def test_points_free_grid_filter_is_never_optimistic(seed, res):
     # and points just outside the inflated surfaces, where a wrong voxel test would show
     j = torch.randint(0, len(sc), (1000,), generator=g)
     d = torch.nn.functional.normalize(torch.randn(1000, 3, generator=g, dtype=torch.float64), dim=-1)
-    near = sc.means[j].double() + d * (sc.radii[j].double().max(-1).values + 0.03 + 0.02 * torch.rand(1000, generator=g, dtype=torch.float64))[:, None]
+    near = sc.means[j].double() + d * (sc.radii[j].double().max(-1).values + 0.03 + 0.02
+                                       * torch.rand(1000, generator=g, dtype=torch.float64))[:, None]
     pts = torch.cat([pts, near])
     exact = point_ellipsoid_distance(pts, sc.means, sc.rotations, sc.radii).min(-1).values - 0.03
     grid_free = torch.as_tensor(pl.in_free_voxel(pts.numpy()))

@@ -17,7 +17,8 @@ from cinenerf_ns.planner.trajectory.timing import TimingConfig
 
 def _scene(radius=0.03):
     s = procedural_room(4000, seed=1)
-    return s, EllipsoidScene.from_splat(s.means, s.quats, s.log_scales, s.opacity_logits, SceneConfig(camera_radius=radius))
+    return s, EllipsoidScene.from_splat(s.means, s.quats, s.log_scales, s.opacity_logits,
+                                        SceneConfig(camera_radius=radius))
 
 
 @pytest.fixture(scope="module")

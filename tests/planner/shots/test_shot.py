@@ -110,7 +110,8 @@ def test_resampled_stays_on_curve_and_keeps_roll(fps):
     # every new frame is a point of the Bezier curve at the interpolated curve time
     np.testing.assert_allclose(r.positions, shot.trajectory.evaluate(r.curve_times), atol=1e-12)
     assert r.look_at_errors_deg().max() < 1e-6
-    np.testing.assert_allclose(np.einsum("tij,tik->tjk", r.rotations, r.rotations), np.broadcast_to(np.eye(3), r.rotations.shape), atol=1e-9)
+    np.testing.assert_allclose(np.einsum("tij,tik->tjk", r.rotations, r.rotations),
+                               np.broadcast_to(np.eye(3), r.rotations.shape), atol=1e-9)
     assert np.linalg.det(r.rotations).min() > 0.999
     # at times both shots have, the frames agree (roll preserved)
     common = np.isclose(r.times[:, None], shot.times[None], atol=1e-9)

@@ -87,7 +87,8 @@ def test_stop_way_ends_at_the_stop_and_leg_way_as_the_goal_says(planner):
 def test_unsafe_reports_are_refused_with_the_curve_named():
     ok = {"safe": True, "min_exact_clearance": None}
     assert stages.refuse_unsafe(ok) is ok
-    with pytest.raises(UnsafeTrajectoryError, match=r"clearance -0\.001 < 0 on a candidate curve; this is a planner bug"):
+    with pytest.raises(UnsafeTrajectoryError,
+                       match=r"clearance -0\.001 < 0 on a candidate curve; this is a planner bug"):
         stages.refuse_unsafe({"safe": False, "min_exact_clearance": -1e-3}, "a candidate curve")
 
 

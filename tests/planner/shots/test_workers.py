@@ -60,11 +60,13 @@ def test_workers_give_the_same_ranked_shots(planners, monkeypatch, worker_scorin
     r0 = plan_candidates(p0, GO_TO, TARGET, k=10, seed=3, object_radius=STOP, timings=t0)
     calls = []
     real = candidates.score_shots
-    monkeypatch.setattr(candidates, "score_shots", lambda pl, shots, *a: calls.append(len(shots)) or real(pl, shots, *a))
+    monkeypatch.setattr(candidates, "score_shots",
+                        lambda pl, shots, *a: calls.append(len(shots)) or real(pl, shots, *a))
     r2 = plan_candidates(p2, GO_TO, TARGET, k=10, seed=3, object_radius=STOP, timings=t2)
     if worker_scoring:  # the workers computed every shot's score inputs: nothing is scored here
         assert calls == []
-    else:  # shots that came back early were scored while the other workers ran (chunks of max(4, k // 4)), the rest after
+    else:  # shots that came back early were scored while the other workers ran (chunks of max(4, k // 4)),
+        # the rest after
         assert len(calls) >= 2 and sum(calls) == 10 and calls[0] == 4
     assert len(r0) == 10
     _assert_same(r0, r2)

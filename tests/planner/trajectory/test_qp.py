@@ -181,7 +181,8 @@ def test_all_points_pinned_gives_straight_line(solver):
     # one cubic segment resting at both ends: P0 = P1 = start, P2 = P3 = goal, no free point
     wp = np.array([[0.0, 0, 0], [1.0, 2.0, 0.5]])
     box = (np.vstack([np.eye(3), -np.eye(3)]), np.full(6, 3.0))
-    traj = solve_corridor_qp([box], wp, wp[0], wp[-1], TrajectoryConfig(degree=3, continuity=1, smoothness_order=2, solver=solver))
+    traj = solve_corridor_qp([box], wp, wp[0], wp[-1],
+                             TrajectoryConfig(degree=3, continuity=1, smoothness_order=2, solver=solver))
     np.testing.assert_allclose(traj.control_points[0], [wp[0], wp[0], wp[1], wp[1]], atol=1e-12)
 
 

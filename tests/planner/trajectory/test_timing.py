@@ -67,7 +67,8 @@ def test_frames_sit_at_their_arc_length_also_where_the_curve_rests(seed):
     # curve moves; the Hermite start is what makes the rest frames exact
     t_tab, s_tab, v_tab = arc_length_table(traj, with_speed=True)
     s = path.arc_length[2:-2]
-    np.testing.assert_allclose(invert_arc_length(traj, t_tab, s_tab, s, v_tab), invert_arc_length(traj, t_tab, s_tab, s),
+    np.testing.assert_allclose(invert_arc_length(traj, t_tab, s_tab, s, v_tab),
+                               invert_arc_length(traj, t_tab, s_tab, s),
                                atol=1e-6)
 
 

@@ -1,0 +1,70 @@
+"""Check that every module path and name a doc mentions exists: backticked names, and the x/y.py paths of its drawings.
+
+    python scripts/check_doc_names.py docs/ARCHITECTURE.md README.md
+
+A name counts as existing when some file under cinenerf_ns/, scripts/, benchmarks/, tests/ or the repository root
+defines it (def, class, an assignment or a dataclass field) or, for paths, when a file or folder ends with that path.
+Names of files a run reads or writes (.json, .yml, .mp4, ...) are skipped. Exit status 1 lists the missing ones.
+"""
+from __future__ import annotations
+
+import re
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SOURCES = [p for d in ("cinenerf_ns", "scripts", "benchmarks", "tests") for p in (REPO / d).rglob("*")
+           if p.is_file() and p.suffix in (".py", ".c", ".md", ".toml", ".npz")]
+SOURCES += [p for p in REPO.iterdir() if p.is_file()]
+TEXT = "\n".join(p.read_text(errors="ignore") for p in SOURCES if p.suffix in (".py", ".c", ".toml"))
+PATHS = ["/" + str(p.relative_to(REPO)) for p in SOURCES] + ["/" + str(p.relative_to(REPO)) + "/" for p in
+                                                              (REPO / "cinenerf_ns").rglob("*") if p.is_dir()]
+
+
+EXTERNAL = {"ViewerControl",  # nerfstudio's
+            "bin/", "demo_output/"}  # made by `make` and the demo
+
+
+def path_exists(name: str) -> bool:
+    name = name.strip("/")
+    return any(p.endswith("/" + name) or p.endswith("/" + name + "/") for p in PATHS)
+
+
+def name_exists(name: str) -> bool:
+    last = name.split(".")[-1]
+    n = re.escape(last)
+    defined = rf"^\s*(def|class)\s+{n}\b|^\s*(self\.)?{n}\s*[:=]|\"{n}\""
+    return name in EXTERNAL or (len(name.split(".")) > 1 and name in TEXT) or bool(re.search(defined, TEXT, re.M))
+
+
+def check(doc: Path) -> list:
+    text = doc.read_text()
+    missing = []
+    words = set(re.findall(r"`([^`\s]+)`", text))
+    words |= set(re.findall(r"\b[\w/]+\.(?:py|c)\b", text))
+    for w in sorted(words):
+        w = re.sub(r"\(.*$", "", w).rstrip(",;:")
+        if not w or w.startswith(("-", "$", "~", ".", "http")) or "=" in w or w.startswith("ns-"):
+            continue
+        if re.search(r"\.(json|yml|yaml|mp4|png|gif|ckpt|ply|npz|pt)$", w) or "<" in w or "*" in w:
+            continue  # files a run reads or writes, not files of the repository
+        if w in EXTERNAL:
+            continue
+        if re.search(r"\.(py|c|md|toml)$", w) or w.endswith("/"):
+            ok = path_exists(w)
+        elif re.fullmatch(r"[A-Za-z_][\w.]*", w):
+            parts = w.split(".")
+            ok = name_exists(w) or path_exists("/".join(parts) + ".py") or path_exists("/".join(parts) + "/")
+        else:
+            continue
+        if not ok:
+            missing.append(w)
+    return missing
+
+
+if __name__ == "__main__":
+    bad = {d: check(Path(d)) for d in sys.argv[1:]}
+    for d, m in bad.items():
+        for w in m:
+            print(f"{d}: {w}")
+    sys.exit(1 if any(bad.values()) else 0)
