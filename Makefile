@@ -1,5 +1,6 @@
 # Two set-up commands: `make demo` and `make test` (both create .venv and install on first use).
-# `make test` runs `make lint` (ruff, pinned in the dev extra; configured in pyproject.toml) before pytest.
+# `make test` runs `make lint` (ruff, pinned in the dev extra and configured in pyproject.toml; the docs' names checked
+# by scripts/check_doc_names.py) before pytest.
 PY ?= python3
 VENV ?= .venv
 VPY := $(VENV)/bin/python
@@ -31,6 +32,7 @@ demo: install
 
 lint: install
 	$(VPY) -m ruff check cinenerf_ns tests benchmarks scripts
+	$(VPY) scripts/check_doc_names.py docs/ARCHITECTURE.md README.md docs/PLANNER_DEFAULTS.md cinenerf_ns/planner/__init__.py
 
 test: install lint
 	$(VPY) -m pytest $(PYTEST_ARGS)
