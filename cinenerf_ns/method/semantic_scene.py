@@ -289,23 +289,40 @@ class SemanticScene:
                     self._smoothed = smooth_latents(self.means, self.opacities, self._raw_latents, self.smooth_neighbors)
         return self._smoothed
 
-    def warm(self, labels: bool = True, negatives: bool = False) -> Dict[str, float]:
+    def warm(self, labels: bool = True, negatives: bool = False,
+             stop: Optional[threading.Event] = None) -> Dict[str, float]:
         """Compute what does not depend on a query's text now, off the request path (the standalone viewer calls
         this on a background thread after loading; the CLI, which asks one or two queries, leaves it lazy): the latent
         smoothing, the scene's robust extent, and with ``labels`` the answer of every label name of the scene at the
         default threshold (a label fully determines it: same embedding, same contrast against the other labels), up to
         the cache's size; with ``negatives`` the generic negatives' embedding (may load the CLIP text tower; a failure
         is left for the first free-text query to report). Safe to call while queries run (they wait for the one
-        computation in progress, then find their answer cached). Returns the seconds each part took."""
+        computation in progress, then find their answer cached). Returns the seconds each part took.
+        stop: set it to end the warm-up early (a viewer shutting down): checked before each part and between labels, so
+        the warm-up returns within one part's time (a part is never interrupted; what is done stays cached); the
+        result then has "stopped": 1.0 and no entry for the parts not run."""
         import time
 
         out: Dict[str, float] = {}
+
+        def stopped() -> bool:
+            if stop is not None and stop.is_set():
+                out["stopped"] = 1.0
+                return True
+            return False
+
+        if stopped():
+            return out
         t0 = time.perf_counter()
         _ = self.latents
         out["smooth_s"] = time.perf_counter() - t0
+        if stopped():
+            return out
         t0 = time.perf_counter()
         self._extent()
         out["extent_s"] = time.perf_counter() - t0
+        if stopped():
+            return out
         if negatives and self._neg_emb is None:
             t0 = time.perf_counter()
             try:
@@ -318,6 +335,8 @@ class SemanticScene:
         if labels:
             t0 = time.perf_counter()
             for name in self.label_names[: self.cache_size]:
+                if stopped():
+                    return out
                 try:
                     self.locate_full(name)
                 except QueryError:  # a label nothing in the scene carries: the query itself will say so

@@ -170,17 +170,19 @@ def load_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optio
     )
 
 
-def warm_semantics(loaded: LoadedScene, background: bool = True) -> Optional[threading.Thread]:
+def warm_semantics(loaded: LoadedScene, background: bool = True,
+                   stop: Optional[threading.Event] = None) -> Optional[threading.Thread]:
     """Compute the text-independent part of text queries (SemanticScene.warm: latent smoothing, every label's answer)
     once per scene, off the request path: on a daemon thread when ``background`` (returned; None when the scene has no
-    relevancy semantics). A query typed meanwhile waits for the computation in progress, never repeats it."""
+    relevancy semantics). A query typed meanwhile waits for the computation in progress, never repeats it.
+    ``stop``: setting it ends the warm-up after the part in progress (StandaloneViewer.close sets it and joins)."""
     sem = loaded.semantic
     if sem is None:
         return None
 
     def work() -> None:
         try:
-            sem.warm(labels=True, negatives=loaded.free_text)
+            sem.warm(labels=True, negatives=loaded.free_text, stop=stop)
         except Exception:  # noqa: BLE001 - warming is an optimisation: the query itself reports any error
             pass
 
@@ -318,7 +320,9 @@ class StandaloneViewer:
         if self.planner is not None:
             self.planner.on_status = self._prepare_status
             self.planner.start(background=True)
-        self.warm_thread = warm_semantics(self.loaded)  # text queries' smoothing and labels, off the request path
+        self.warm_stop = threading.Event()  # close() ends the warm-up with it
+        # text queries' smoothing and labels, off the request path
+        self.warm_thread = warm_semantics(self.loaded, stop=self.warm_stop)
 
     def _prepare_status(self, text: str, level: str) -> None:
         """Progress of the planner's one-time preparation, shown until the first Plan owns the status line (a Plan that
@@ -354,9 +358,24 @@ class StandaloneViewer:
     def url(self) -> str:
         return f"http://localhost:{self.server.get_port()}"
 
-    def close(self) -> None:
+    def close(self, join_s: float = 10.0) -> bool:
+        """Stop the server and the text-query warm-up; wait up to ``join_s`` for the warm-up to end (it stops after the
+        part in progress: one label's answer). True when no background computation of the viewer is still running (the
+        warm-up, the planner's preparation): a process must not exit while one runs torch / scipy code on a daemon
+        thread, the C++ runtime can abort it ('terminate called without an active exception')."""
+        self.warm_stop.set()
         self.panel.close()
         self.server.stop()
+        deadline = time.monotonic() + max(float(join_s), 0.0)
+        for th in self.background_threads():
+            th.join(max(deadline - time.monotonic(), 0.0))
+        return not any(th.is_alive() for th in self.background_threads())
+
+    def background_threads(self) -> List[threading.Thread]:
+        """The viewer's computations on daemon threads still running: the text-query warm-up, the planner's
+        preparation (not interruptible: a few seconds)."""
+        prep = None if self.planner is None else self.planner._thread
+        return [th for th in (self.warm_thread, prep) if th is not None and th.is_alive()]
 
 
 def check_config(cfg: StandaloneConfig) -> None:
@@ -380,22 +399,48 @@ def check_config(cfg: StandaloneConfig) -> None:
         raise InvalidInputError(f"--device must be 'cpu' or 'cuda', got {cfg.device!r}")
 
 
+# How long Ctrl+C waits for the viewer's background computations (the text-query warm-up stops after its current label,
+# the planner's preparation finishes) before the process exits without the interpreter's shutdown.
+SHUTDOWN_JOIN_S = 5.0
+
+
 def main(cfg: StandaloneConfig) -> None:
+    """Serve until Ctrl+C (then exit status 0; a Ctrl+C while the scene loads: 130, no traceback either way)."""
     from rich.console import Console
 
     check_config(cfg)
-    viewer = StandaloneViewer(cfg)
-    Console().print(f"[bold green]cinesplat-viewer[/] running at {viewer.url}  (Ctrl+C to stop)\n{viewer.panel.status}")
-    if viewer.planner is not None:
-        viewer.planner.wait_ready()
-        Console().print(viewer.panel.status)
+    viewer = None
     try:
+        viewer = StandaloneViewer(cfg)
+        Console().print(f"[bold green]cinesplat-viewer[/] running at {viewer.url}  (Ctrl+C to stop)\n"
+                        f"{viewer.panel.status}")
+        if viewer.planner is not None:
+            viewer.planner.wait_ready()
+            Console().print(viewer.panel.status)
         while True:
             time.sleep(1.0)
     except KeyboardInterrupt:
         pass
     finally:
-        viewer.close()
+        if viewer is not None and not viewer.close(SHUTDOWN_JOIN_S):
+            _exit_now(0)  # a computation still runs on a daemon thread: the interpreter's shutdown could abort
+    if viewer is None:  # interrupted while loading
+        _exit_now(130)
+
+
+def _exit_now(code: int) -> None:
+    """Exit without the interpreter's shutdown (os._exit after flushing the output): the way out while torch / scipy
+    code runs on a daemon thread, whose C++ runtime can abort a normal exit ('terminate called without an active
+    exception', status 134)."""
+    import os
+    import sys
+
+    for f in (sys.stdout, sys.stderr):
+        try:
+            f.flush()
+        except Exception:  # noqa: BLE001 - a closed pipe: nothing left to say
+            pass
+    os._exit(code)
 
 
 def entrypoint(argv: Optional[List[str]] = None) -> None:
