@@ -273,7 +273,7 @@ def model_semantic_scene(model: Any, camera_centres: Optional[Callable[[], Optio
         # checked per snapshot: ns-viewer builds the codec when it loads the checkpoint, after construction
         if snap.splat.latents is None or getattr(model, "codec", None) is None or not hasattr(model, "text_encoder"):
             return None
-        from cinenerf_ns.method.semantic_scene import OBJECT_CLUSTER, SemanticScene
+        from cinenerf_ns.method.semantic_scene import OBJECT_CLUSTER, SMOOTH_NEIGHBORS, SemanticScene
 
         if state.get("codec_src") is not model.codec:  # frozen: one copy on the planning device
             state["codec"] = copy.deepcopy(model.codec).to(snap.device).eval()
@@ -285,7 +285,9 @@ def model_semantic_scene(model: Any, camera_centres: Optional[Callable[[], Optio
                       threshold=float(cfg.relevancy_threshold))
         return SemanticScene.from_params(snap.splat, state["codec"], model.text_encoder(), snap.device,
                                          label_names=(getattr(model, "cine_info", None) or {}).get("label_names"),
-                                         cluster_fraction=OBJECT_CLUSTER,  # one object per query, as cinesplat-plan's
+                                         # the text settings of cinesplat-plan and cinesplat-viewer (scenes.load_scene):
+                                         # the same text selects the same object in every viewer
+                                         smooth_neighbors=SMOOTH_NEIGHBORS, cluster_fraction=OBJECT_CLUSTER,
                                          camera_centres=None if camera_centres is None else camera_centres(), **kw)
 
     return build

@@ -292,3 +292,42 @@ def test_model_backend_plans_with_the_safety_margin():
 
     scene, _ = SplatModelBackend(TinySplatModel(), Planners())._current("planner")
     assert scene.camera_radius == pytest.approx(SceneConfig.camera_radius + DEFAULT_SAFETY_MARGIN)
+
+
+def test_model_semantic_scene_answers_text_as_cinesplat_plan_and_the_standalone_viewer(tmp_path):
+    """The ns-viewer panel's text queries use the settings of cinesplat-plan / cinesplat-viewer (scenes.load_scene:
+    latents smoothed over SMOOTH_NEIGHBORS neighbours, the heaviest OBJECT_CLUSTER cluster...): the same text picks
+    the same Gaussians and centre in both viewers (the panel did no smoothing)."""
+    import re
+
+    from test_standalone import compact_scene_with_labels
+
+    from cinenerf_ns.method.checkpoint import load_compact
+    from cinenerf_ns.method.relevancy import QueryError
+    from cinenerf_ns.method.semantic_scene import SMOOTH_NEIGHBORS
+    from cinenerf_ns.planner.scene.ellipsoids import SceneConfig
+    from cinenerf_ns.scenes import load_scene
+    from cinenerf_ns.viewer.nerfstudio_panel import ModelSnapshot, model_semantic_scene
+
+    path = compact_scene_with_labels(tmp_path / "scene_compact.pt", 4)
+    cli = load_scene(str(path), SceneConfig()).extra["semantic"]
+    st = load_compact(path)
+    names = st.info["label_names"]
+    model = SimpleNamespace(codec=st.codec, text_encoder=lambda: cli.text_encoder, cine_info={"label_names": names})
+    panel = model_semantic_scene(model)(ModelSnapshot(version=(0, len(st.params.means)), splat=st.params))
+    settings = ("smooth_neighbors", "cluster_fraction", "centre", "drop_support", "centre_relevancy", "threshold",
+                "temperature", "negatives", "up", "min_opacity")
+    assert {k: getattr(panel, k) for k in settings} == {k: getattr(cli, k) for k in settings}
+    assert panel.smooth_neighbors == SMOOTH_NEIGHBORS > 1
+    answered = 0
+    for name in names:
+        try:
+            b = cli.locate_full(name)
+        except QueryError as e:  # matches nothing: the panel says the same
+            with pytest.raises(QueryError, match=re.escape(str(e))):
+                panel.locate_full(name)
+            continue
+        a = panel.locate_full(name)
+        assert torch.equal(a.mask, b.mask) and torch.allclose(a.centroid, b.centroid)
+        answered += 1
+    assert answered >= 1
