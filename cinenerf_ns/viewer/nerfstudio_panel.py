@@ -181,7 +181,8 @@ class SplatModelBackend:
         self.device = torch.device(device)
         self.lock = lock
         self.camera_centres: Optional[np.ndarray] = None  # [F, 3] the training cameras (set when the panel installs)
-        self.semantic_fn = semantic_fn if semantic_fn is not None else model_semantic_scene(model, lambda: self.camera_centres)
+        self.semantic_fn = (semantic_fn if semantic_fn is not None
+                            else model_semantic_scene(model, lambda: self.camera_centres))
         self.planner_name = "cinenerf_ns planner" if make_planner is None else None
         self.snapshots_taken = 0
         self._cache: Dict[str, Any] = {}
@@ -257,7 +258,9 @@ class SplatModelBackend:
                     if isinstance(getattr(s, "timings", None), dict):
                         s.timings["prepare_ms"] = 1e3 * prep
             return shots
-        t = lambda x: None if x is None else torch.as_tensor(np.asarray(x), dtype=scene.dtype, device=scene.device)  # noqa: E731
+        def t(x):
+            return None if x is None else torch.as_tensor(np.asarray(x), dtype=scene.dtype, device=scene.device)
+
         return list(planner.plan(t(goal), t(look_at), start=t(start), seed=seed, n_candidates=n_candidates))
 
 
@@ -293,12 +296,14 @@ def model_semantic_scene(model: Any, camera_centres: Optional[Callable[[], Optio
     return build
 
 
-def cinesplat_backend(model: Any, device: Union[str, torch.device] = "cpu", planner_config: Any = None) -> SplatModelBackend:
+def cinesplat_backend(model: Any, device: Union[str, torch.device] = "cpu",
+                      planner_config: Any = None) -> SplatModelBackend:
     """The backend ``CineSplatModel`` installs: real planner + its semantics, planning on ``device``."""
     return SplatModelBackend(model, planner_config=planner_config, device=device)
 
 
 def attach(model: Any) -> CinePanelControl:
     """The ``cine_panel`` viewer extension of a CineSplatModel (entry point group cinenerf_ns.viewer_extensions): the
-    panel's backend (a snapshot under the train lock, the real planner, semantics) is built when the viewer sets it up."""
+    panel's backend (a snapshot under the train lock, the real planner, semantics) is built when the viewer sets it
+    up."""
     return CinePanelControl(lambda: cinesplat_backend(model, device=model.config.viewer_planner_device))

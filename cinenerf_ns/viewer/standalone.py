@@ -63,7 +63,8 @@ class LoadedScene:
     semantic: Optional[Any] = None  # the SemanticScene answering text ("relevancy" scenes), see warm_semantics
     free_text: bool = False  # whether free text (not only label names) means anything to ``semantic``
     scene_note: str = ""  # what the scene is when it has no run (said instead of an ns-render command)
-    cameras: Optional[TrainingCameras] = None  # the capture's training cameras (the opening view); None: generated scenes
+    # the capture's training cameras (the opening view); None: generated scenes
+    cameras: Optional[TrainingCameras] = None
 
 
 # --------------------------------------------------------------------------------------- loading
@@ -119,7 +120,8 @@ def load_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optio
         from cinenerf_ns.scenes import DEMO_SCENE
 
         if DEMO_SCENE.exists():
-            ls = load_scene(str(DEMO_SCENE), data_dir or Path("demo_output") / "cinesplat-viewer-demo", scene_config, device)
+            ls = load_scene(str(DEMO_SCENE), data_dir or Path("demo_output") / "cinesplat-viewer-demo", scene_config,
+                            device)
             ls.default_goto, ls.default_look_at = "red armchair", "floor lamp"
             return ls
         source = "demo-tiny"
@@ -129,15 +131,17 @@ def load_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optio
         d = demo_scene()
         return LoadedScene(
             d.splat, "demo", data_dir or Path("demo_output") / "cinesplat-viewer-demo", None,
-            locate=label_locate(d.splat.means, d.labels, d.label_of), default_goto="red box", default_look_at="blue pillar",
-            semantics="labels", object_names=list(d.labels), scene_note="the tiny built-in demo scene has no training run",
+            locate=label_locate(d.splat.means, d.labels, d.label_of), default_goto="red box",
+            default_look_at="blue pillar", semantics="labels", object_names=list(d.labels),
+            scene_note="the tiny built-in demo scene has no training run",
         )
     if cli.procedural_spec(source) is not None:  # the explicit spec only, never a file name
         ld = cli.load_scene(source, scfg, device)
         room = ld.extra["room"]
         names = [o.name for o in room.objects]
         return LoadedScene(
-            cli.procedural_params(room), source.replace(":", "-"), data_dir or Path("demo_output") / "cinesplat-viewer-procedural",
+            cli.procedural_params(room), source.replace(":", "-"),
+            data_dir or Path("demo_output") / "cinesplat-viewer-procedural",
             None, locate=procedural_locate(room), default_goto=names[0], default_look_at=names[1 % len(names)],
             obstacles=ld.scene, start_region=ld.start_region, semantics="labels", object_names=names,
             scene_note=f"'{source}' is a generated test room with no training run",
@@ -292,8 +296,8 @@ class StandaloneViewer:
         self._draw_splat(display)
         self.panel = attach_cine_panel(
             self.server, self.backend,
-            PanelConfig(data_dir=self.loaded.data_dir, config_path=self.loaded.config_path, n_candidates=cfg.n_candidates,
-                        scene_note=self.loaded.scene_note),
+            PanelConfig(data_dir=self.loaded.data_dir, config_path=self.loaded.config_path,
+                        n_candidates=cfg.n_candidates, scene_note=self.loaded.scene_note),
             scale=cfg.scale, default_goto=self.loaded.default_goto, default_look_at=self.loaded.default_look_at,
             previewer=SplatPreviewer(sp), export_name=f"{self.loaded.name}-shot", start_region=self.loaded.start_region,
             cameras=self.loaded.cameras,
@@ -307,7 +311,8 @@ class StandaloneViewer:
             self.ui.go_to_view(self.ui.overview if self.ui.overview_box.value else self.ui.home, client)
 
         if locate is None:
-            text = "Text queries need a trained cinesplat scene (semantic latents + codec); this scene has none: type targets as x y z."
+            text = ("Text queries need a trained cinesplat scene (semantic latents + codec); this scene has none: "
+                    "type targets as x y z.")
         elif self.loaded.semantics == "relevancy":
             text = "Text queries: relevancy of the distilled CLIP latents (or x y z)."
         else:

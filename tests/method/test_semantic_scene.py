@@ -34,7 +34,8 @@ def enc(texts):
 
 def _scene(**kw):
     # 4 "chair" Gaussians around (1, 2, 0), 3 "tree" Gaussians around (-5, 0, 0), 1 faint chair one far away
-    means = torch.tensor([[1.0, 2, 0], [1.2, 2, 0], [0.8, 2, 0], [1.0, 2.4, 0], [-5, 0, 0], [-5, 1, 0], [-5, 0, 1], [50, 50, 50]])
+    means = torch.tensor([[1.0, 2, 0], [1.2, 2, 0], [0.8, 2, 0], [1.0, 2.4, 0], [-5, 0, 0], [-5, 1, 0], [-5, 0, 1],
+                          [50, 50, 50]])
     lat = torch.tensor([[1.0, 0, 0]] * 4 + [[0, 1.0, 0]] * 3 + [[1.0, 0, 0]])
     opac = torch.tensor([1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.01])
     return SemanticScene(means, opac, lat, IdentityCodec(), enc, **kw)
@@ -117,7 +118,8 @@ def test_label_query_is_contrasted_against_the_other_labels():
     lat = torch.cat([emb[0].expand(10, D), emb[1].expand(10, D)])
     means = torch.randn(20, 3)
     plain = SemanticScene(means, torch.ones(20), lat, IdentityCodec(), enc, negatives=["object"])
-    labelled = SemanticScene(means, torch.ones(20), lat, IdentityCodec(), enc, negatives=["object"], label_names=["a", "b", "c"])
+    labelled = SemanticScene(means, torch.ones(20), lat, IdentityCodec(), enc, negatives=["object"],
+                             label_names=["a", "b", "c"])
     r_plain, r_lab = plain.query("b"), labelled.query("b")
     # with the other labels as negatives, the 'a' Gaussians fall below 0.5 and the 'b' ones stay above
     assert (r_lab[:10] < 0.5).all() and (r_lab[10:] > 0.5).all()
@@ -183,7 +185,8 @@ def test_locate_with_clusters_picks_one_instance():
 
     g = torch.Generator().manual_seed(1)
     # two chairs 1 unit apart (30 and 10 Gaussians) and floor Gaussians that are 'object'
-    chairs = torch.cat([torch.randn(30, 3, generator=g) * 0.02, torch.randn(10, 3, generator=g) * 0.02 + torch.tensor([1.0, 0, 0])])
+    chairs = torch.cat([torch.randn(30, 3, generator=g) * 0.02,
+                        torch.randn(10, 3, generator=g) * 0.02 + torch.tensor([1.0, 0, 0])])
     floor = torch.rand(60, 3, generator=g) * 2 - 1
     means = torch.cat([chairs, floor])
     lat = torch.cat([emb[0].expand(40, 4), emb[1].expand(60, 4)])
@@ -208,7 +211,8 @@ def test_locate_volume_centre_is_the_default_and_keeps_the_surface_centroid():
 
 
 def test_volume_centre_uses_gaussian_extents_and_validates():
-    means = torch.tensor([[1.0, 2, 0], [1.2, 2, 0], [0.8, 2, 0], [1.0, 2.4, 0], [-5, 0, 0], [-5, 1, 0], [-5, 0, 1], [50, 50, 50]])
+    means = torch.tensor([[1.0, 2, 0], [1.2, 2, 0], [0.8, 2, 0], [1.0, 2.4, 0], [-5, 0, 0], [-5, 1, 0], [-5, 0, 1],
+                          [50, 50, 50]])
     lat = torch.tensor([[1.0, 0, 0]] * 4 + [[0, 1.0, 0]] * 3 + [[1.0, 0, 0]])
     opac = torch.tensor([1.0] * 7 + [0.01])
     quats = torch.tensor([[1.0, 0, 0, 0]] * 8)

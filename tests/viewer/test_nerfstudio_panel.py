@@ -135,7 +135,8 @@ def test_attach_gives_the_train_lock_to_the_model_backend(tmp_path):
     model, lock = TinySplatModel(), RecordingLock()
     server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
     try:
-        viewer = SimpleNamespace(viser_server=server, datapath=tmp_path, log_filename=tmp_path / "log.txt", train_lock=lock)
+        viewer = SimpleNamespace(viser_server=server, datapath=tmp_path, log_filename=tmp_path / "log.txt",
+                                 train_lock=lock)
         panel = attach_to_nerfstudio_viewer(viewer, SplatModelBackend(model, Planners()))
         assert isinstance(panel.backend, SplatModelBackend) and panel.backend.lock is lock
         assert lock.acquired == 1  # the panel read the Gaussians (scene extent) through a locked snapshot
@@ -145,8 +146,9 @@ def test_attach_gives_the_train_lock_to_the_model_backend(tmp_path):
 
 
 def test_attach_gives_the_model_backend_the_training_cameras_as_start_region(tmp_path):
-    """In ns-train / ns-viewer the panel's random starts come from the training cameras' box (+ 0.1), as cinesplat-plan's
-    do; a backend whose planner config already has a region keeps it, and a viewer without cameras sets none."""
+    """In ns-train / ns-viewer the panel's random starts come from the training cameras' box (+ 0.1), as
+    cinesplat-plan's do; a backend whose planner config already has a region keeps it, and a viewer without cameras
+    sets none."""
     import viser
 
     from cinenerf_ns.planner.shots.planner import PlannerConfig
@@ -159,7 +161,8 @@ def test_attach_gives_the_model_backend_the_training_cameras_as_start_region(tmp
     server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
     try:
         got, cams_seen = [], []
-        for pipe, cfg in ((pipeline, None), (pipeline, PlannerConfig(start_region=([0, 0, 0], [1, 1, 1]))), (None, None)):
+        with_region = PlannerConfig(start_region=([0, 0, 0], [1, 1, 1]))
+        for pipe, cfg in ((pipeline, None), (pipeline, with_region), (None, None)):
             viewer = SimpleNamespace(viser_server=server, datapath=tmp_path, log_filename=tmp_path / "log.txt",
                                      train_lock=RecordingLock(), **({} if pipe is None else {"pipeline": pipe}))
             backend = SplatModelBackend(TinySplatModel(), Planners(), planner_config=cfg)
@@ -273,8 +276,9 @@ def test_model_semantic_scene_gets_the_training_cameras():
     n = 6
     model = SimpleNamespace(codec=Codec(), text_encoder=lambda: (lambda texts: torch.ones(len(texts), 3)),
                             cine_info={"label_names": ["a"]})
-    snap = ModelSnapshot(version=(0, n), splat=SplatParams.of(torch.rand(n, 3), torch.tensor([[1.0, 0, 0, 0]] * n),
-                                                              torch.zeros(n, 3), torch.zeros(n), latents=torch.rand(n, 3)))
+    splat = SplatParams.of(torch.rand(n, 3), torch.tensor([[1.0, 0, 0, 0]] * n), torch.zeros(n, 3), torch.zeros(n),
+                           latents=torch.rand(n, 3))
+    snap = ModelSnapshot(version=(0, n), splat=splat)
     cams = np.array([[0.0, 0.0, 1.0], [1.0, 2.0, 3.0]])
     box = {"c": cams}
     build = model_semantic_scene(model, lambda: box["c"])
