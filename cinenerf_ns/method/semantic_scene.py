@@ -31,7 +31,8 @@ from cinenerf_ns.planner.scene.splat_params import SplatParams
 TextEncoder = Callable[[Sequence[str]], Tensor]
 
 
-def build_text_encoder(info: Dict, label_embeddings: Optional[Tensor] = None, device: torch.device | str = "cpu") -> TextEncoder:
+def build_text_encoder(info: Dict, label_embeddings: Optional[Tensor] = None,
+                       device: torch.device | str = "cpu") -> TextEncoder:
     """Texts equal (case-insensitively) to a trained label name use that label's stored embedding (exact,
     needs no CLIP weights); other texts go through the CLIP text tower named in ``info["clip"]``,
     loaded on first use (raises ClipWeightsError with instructions when weights are missing)."""
@@ -117,7 +118,8 @@ def dominant_cluster(means: Tensor, mask: Tensor, weights: Tensor, voxel: float)
 
 @dataclass
 class LocateResult:
-    centroid: Tensor  # [3] the object's centre: the estimated volume centroid, or the surface one (SemanticScene.centre)
+    # [3] the object's centre: the estimated volume centroid, or the surface one (SemanticScene.centre)
+    centroid: Tensor
     mask: Tensor  # [N] bool
     lo: Tensor  # [3] axis-aligned extent of the masked means
     hi: Tensor  # [3]
@@ -206,8 +208,8 @@ class SemanticScene:
             cr = float("nan")
         if not 0.0 <= cr < 1.0:
             raise ValueError(
-                f"SemanticScene: centre_relevancy must be a number in [0, 1) (relevancies lie in (0, 1); at or below the "
-                f"selection threshold the confident-core rule is off), got {centre_relevancy!r}"
+                f"SemanticScene: centre_relevancy must be a number in [0, 1) (relevancies lie in (0, 1); "
+                f"at or below the selection threshold the confident-core rule is off), got {centre_relevancy!r}"
             )
         for nm, t, d in (("log_scales", log_scales, 3), ("quats", quats, 4)):
             if t is not None and tuple(t.shape) != (n, d):
@@ -253,7 +255,8 @@ class SemanticScene:
         """Of a splat's parameters (with latents): its means, opacities, latents, log-scales and rotations as tensors
         on ``device``; ``kwargs`` as the constructor's."""
         if params.latents is None:
-            raise QueryError("the splat has no semantic latents (a splatfacto scene?); train it with ns-train cinesplat")
+            raise QueryError("the splat has no semantic latents (a splatfacto scene?); "
+                             "train it with ns-train cinesplat")
         means, quats, log_scales, logits = params.tensors(device)
         kwargs.setdefault("log_scales", log_scales)
         kwargs.setdefault("quats", quats)
@@ -268,7 +271,8 @@ class SemanticScene:
 
         st = load_splat(path, device=device)
         if st.params.latents is None or st.codec is None:
-            raise QueryError(f"{path} has no semantic latents (a splatfacto checkpoint?); train it with ns-train cinesplat")
+            raise QueryError(f"{path} has no semantic latents (a splatfacto checkpoint?); "
+                             "train it with ns-train cinesplat")
         enc = build_text_encoder(st.info, st.label_embeddings, device=device)
         kwargs.setdefault("label_names", st.info.get("label_names"))
         if "camera_centres" not in kwargs:  # the run's training cameras, else what a compact export carries
@@ -286,26 +290,44 @@ class SemanticScene:
         if self._smoothed is None:
             with self._compute_lock:  # a query during warm() waits for its smoothing instead of doing it twice
                 if self._smoothed is None:
-                    self._smoothed = smooth_latents(self.means, self.opacities, self._raw_latents, self.smooth_neighbors)
+                    self._smoothed = smooth_latents(self.means, self.opacities, self._raw_latents,
+                                                    self.smooth_neighbors)
         return self._smoothed
 
-    def warm(self, labels: bool = True, negatives: bool = False) -> Dict[str, float]:
+    def warm(self, labels: bool = True, negatives: bool = False,
+             stop: Optional[threading.Event] = None) -> Dict[str, float]:
         """Compute what does not depend on a query's text now, off the request path (the standalone viewer calls
         this on a background thread after loading; the CLI, which asks one or two queries, leaves it lazy): the latent
         smoothing, the scene's robust extent, and with ``labels`` the answer of every label name of the scene at the
         default threshold (a label fully determines it: same embedding, same contrast against the other labels), up to
         the cache's size; with ``negatives`` the generic negatives' embedding (may load the CLIP text tower; a failure
         is left for the first free-text query to report). Safe to call while queries run (they wait for the one
-        computation in progress, then find their answer cached). Returns the seconds each part took."""
+        computation in progress, then find their answer cached). Returns the seconds each part took.
+        stop: set it to end the warm-up early (a viewer shutting down): checked before each part and between labels, so
+        the warm-up returns within one part's time (a part is never interrupted; what is done stays cached); the
+        result then has "stopped": 1.0 and no entry for the parts not run."""
         import time
 
         out: Dict[str, float] = {}
+
+        def stopped() -> bool:
+            if stop is not None and stop.is_set():
+                out["stopped"] = 1.0
+                return True
+            return False
+
+        if stopped():
+            return out
         t0 = time.perf_counter()
         _ = self.latents
         out["smooth_s"] = time.perf_counter() - t0
+        if stopped():
+            return out
         t0 = time.perf_counter()
         self._extent()
         out["extent_s"] = time.perf_counter() - t0
+        if stopped():
+            return out
         if negatives and self._neg_emb is None:
             t0 = time.perf_counter()
             try:
@@ -318,6 +340,8 @@ class SemanticScene:
         if labels:
             t0 = time.perf_counter()
             for name in self.label_names[: self.cache_size]:
+                if stopped():
+                    return out
                 try:
                     self.locate_full(name)
                 except QueryError:  # a label nothing in the scene carries: the query itself will say so

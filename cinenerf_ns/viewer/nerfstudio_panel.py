@@ -181,7 +181,8 @@ class SplatModelBackend:
         self.device = torch.device(device)
         self.lock = lock
         self.camera_centres: Optional[np.ndarray] = None  # [F, 3] the training cameras (set when the panel installs)
-        self.semantic_fn = semantic_fn if semantic_fn is not None else model_semantic_scene(model, lambda: self.camera_centres)
+        self.semantic_fn = (semantic_fn if semantic_fn is not None
+                            else model_semantic_scene(model, lambda: self.camera_centres))
         self.planner_name = "cinenerf_ns planner" if make_planner is None else None
         self.snapshots_taken = 0
         self._cache: Dict[str, Any] = {}
@@ -257,7 +258,9 @@ class SplatModelBackend:
                     if isinstance(getattr(s, "timings", None), dict):
                         s.timings["prepare_ms"] = 1e3 * prep
             return shots
-        t = lambda x: None if x is None else torch.as_tensor(np.asarray(x), dtype=scene.dtype, device=scene.device)  # noqa: E731
+        def t(x):
+            return None if x is None else torch.as_tensor(np.asarray(x), dtype=scene.dtype, device=scene.device)
+
         return list(planner.plan(t(goal), t(look_at), start=t(start), seed=seed, n_candidates=n_candidates))
 
 
@@ -273,7 +276,7 @@ def model_semantic_scene(model: Any, camera_centres: Optional[Callable[[], Optio
         # checked per snapshot: ns-viewer builds the codec when it loads the checkpoint, after construction
         if snap.splat.latents is None or getattr(model, "codec", None) is None or not hasattr(model, "text_encoder"):
             return None
-        from cinenerf_ns.method.semantic_scene import OBJECT_CLUSTER, SemanticScene
+        from cinenerf_ns.method.semantic_scene import OBJECT_CLUSTER, SMOOTH_NEIGHBORS, SemanticScene
 
         if state.get("codec_src") is not model.codec:  # frozen: one copy on the planning device
             state["codec"] = copy.deepcopy(model.codec).to(snap.device).eval()
@@ -285,18 +288,22 @@ def model_semantic_scene(model: Any, camera_centres: Optional[Callable[[], Optio
                       threshold=float(cfg.relevancy_threshold))
         return SemanticScene.from_params(snap.splat, state["codec"], model.text_encoder(), snap.device,
                                          label_names=(getattr(model, "cine_info", None) or {}).get("label_names"),
-                                         cluster_fraction=OBJECT_CLUSTER,  # one object per query, as cinesplat-plan's
+                                         # the text settings of cinesplat-plan and cinesplat-viewer (scenes.load_scene):
+                                         # the same text selects the same object in every viewer
+                                         smooth_neighbors=SMOOTH_NEIGHBORS, cluster_fraction=OBJECT_CLUSTER,
                                          camera_centres=None if camera_centres is None else camera_centres(), **kw)
 
     return build
 
 
-def cinesplat_backend(model: Any, device: Union[str, torch.device] = "cpu", planner_config: Any = None) -> SplatModelBackend:
+def cinesplat_backend(model: Any, device: Union[str, torch.device] = "cpu",
+                      planner_config: Any = None) -> SplatModelBackend:
     """The backend ``CineSplatModel`` installs: real planner + its semantics, planning on ``device``."""
     return SplatModelBackend(model, planner_config=planner_config, device=device)
 
 
 def attach(model: Any) -> CinePanelControl:
     """The ``cine_panel`` viewer extension of a CineSplatModel (entry point group cinenerf_ns.viewer_extensions): the
-    panel's backend (a snapshot under the train lock, the real planner, semantics) is built when the viewer sets it up."""
+    panel's backend (a snapshot under the train lock, the real planner, semantics) is built when the viewer sets it
+    up."""
     return CinePanelControl(lambda: cinesplat_backend(model, device=model.config.viewer_planner_device))

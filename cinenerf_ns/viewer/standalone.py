@@ -63,7 +63,8 @@ class LoadedScene:
     semantic: Optional[Any] = None  # the SemanticScene answering text ("relevancy" scenes), see warm_semantics
     free_text: bool = False  # whether free text (not only label names) means anything to ``semantic``
     scene_note: str = ""  # what the scene is when it has no run (said instead of an ns-render command)
-    cameras: Optional[TrainingCameras] = None  # the capture's training cameras (the opening view); None: generated scenes
+    # the capture's training cameras (the opening view); None: generated scenes
+    cameras: Optional[TrainingCameras] = None
 
 
 # --------------------------------------------------------------------------------------- loading
@@ -119,7 +120,8 @@ def load_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optio
         from cinenerf_ns.scenes import DEMO_SCENE
 
         if DEMO_SCENE.exists():
-            ls = load_scene(str(DEMO_SCENE), data_dir or Path("demo_output") / "cinesplat-viewer-demo", scene_config, device)
+            ls = load_scene(str(DEMO_SCENE), data_dir or Path("demo_output") / "cinesplat-viewer-demo", scene_config,
+                            device)
             ls.default_goto, ls.default_look_at = "red armchair", "floor lamp"
             return ls
         source = "demo-tiny"
@@ -129,15 +131,17 @@ def load_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optio
         d = demo_scene()
         return LoadedScene(
             d.splat, "demo", data_dir or Path("demo_output") / "cinesplat-viewer-demo", None,
-            locate=label_locate(d.splat.means, d.labels, d.label_of), default_goto="red box", default_look_at="blue pillar",
-            semantics="labels", object_names=list(d.labels), scene_note="the tiny built-in demo scene has no training run",
+            locate=label_locate(d.splat.means, d.labels, d.label_of), default_goto="red box",
+            default_look_at="blue pillar", semantics="labels", object_names=list(d.labels),
+            scene_note="the tiny built-in demo scene has no training run",
         )
     if cli.procedural_spec(source) is not None:  # the explicit spec only, never a file name
         ld = cli.load_scene(source, scfg, device)
         room = ld.extra["room"]
         names = [o.name for o in room.objects]
         return LoadedScene(
-            cli.procedural_params(room), source.replace(":", "-"), data_dir or Path("demo_output") / "cinesplat-viewer-procedural",
+            cli.procedural_params(room), source.replace(":", "-"),
+            data_dir or Path("demo_output") / "cinesplat-viewer-procedural",
             None, locate=procedural_locate(room), default_goto=names[0], default_look_at=names[1 % len(names)],
             obstacles=ld.scene, start_region=ld.start_region, semantics="labels", object_names=names,
             scene_note=f"'{source}' is a generated test room with no training run",
@@ -170,17 +174,19 @@ def load_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optio
     )
 
 
-def warm_semantics(loaded: LoadedScene, background: bool = True) -> Optional[threading.Thread]:
+def warm_semantics(loaded: LoadedScene, background: bool = True,
+                   stop: Optional[threading.Event] = None) -> Optional[threading.Thread]:
     """Compute the text-independent part of text queries (SemanticScene.warm: latent smoothing, every label's answer)
     once per scene, off the request path: on a daemon thread when ``background`` (returned; None when the scene has no
-    relevancy semantics). A query typed meanwhile waits for the computation in progress, never repeats it."""
+    relevancy semantics). A query typed meanwhile waits for the computation in progress, never repeats it.
+    ``stop``: setting it ends the warm-up after the part in progress (StandaloneViewer.close sets it and joins)."""
     sem = loaded.semantic
     if sem is None:
         return None
 
     def work() -> None:
         try:
-            sem.warm(labels=True, negatives=loaded.free_text)
+            sem.warm(labels=True, negatives=loaded.free_text, stop=stop)
         except Exception:  # noqa: BLE001 - warming is an optimisation: the query itself reports any error
             pass
 
@@ -290,8 +296,8 @@ class StandaloneViewer:
         self._draw_splat(display)
         self.panel = attach_cine_panel(
             self.server, self.backend,
-            PanelConfig(data_dir=self.loaded.data_dir, config_path=self.loaded.config_path, n_candidates=cfg.n_candidates,
-                        scene_note=self.loaded.scene_note),
+            PanelConfig(data_dir=self.loaded.data_dir, config_path=self.loaded.config_path,
+                        n_candidates=cfg.n_candidates, scene_note=self.loaded.scene_note),
             scale=cfg.scale, default_goto=self.loaded.default_goto, default_look_at=self.loaded.default_look_at,
             previewer=SplatPreviewer(sp), export_name=f"{self.loaded.name}-shot", start_region=self.loaded.start_region,
             cameras=self.loaded.cameras,
@@ -305,7 +311,8 @@ class StandaloneViewer:
             self.ui.go_to_view(self.ui.overview if self.ui.overview_box.value else self.ui.home, client)
 
         if locate is None:
-            text = "Text queries need a trained cinesplat scene (semantic latents + codec); this scene has none: type targets as x y z."
+            text = ("Text queries need a trained cinesplat scene (semantic latents + codec); this scene has none: "
+                    "type targets as x y z.")
         elif self.loaded.semantics == "relevancy":
             text = "Text queries: relevancy of the distilled CLIP latents (or x y z)."
         else:
@@ -318,7 +325,9 @@ class StandaloneViewer:
         if self.planner is not None:
             self.planner.on_status = self._prepare_status
             self.planner.start(background=True)
-        self.warm_thread = warm_semantics(self.loaded)  # text queries' smoothing and labels, off the request path
+        self.warm_stop = threading.Event()  # close() ends the warm-up with it
+        # text queries' smoothing and labels, off the request path
+        self.warm_thread = warm_semantics(self.loaded, stop=self.warm_stop)
 
     def _prepare_status(self, text: str, level: str) -> None:
         """Progress of the planner's one-time preparation, shown until the first Plan owns the status line (a Plan that
@@ -354,9 +363,24 @@ class StandaloneViewer:
     def url(self) -> str:
         return f"http://localhost:{self.server.get_port()}"
 
-    def close(self) -> None:
+    def close(self, join_s: float = 10.0) -> bool:
+        """Stop the server and the text-query warm-up; wait up to ``join_s`` for the warm-up to end (it stops after the
+        part in progress: one label's answer). True when no background computation of the viewer is still running (the
+        warm-up, the planner's preparation): a process must not exit while one runs torch / scipy code on a daemon
+        thread, the C++ runtime can abort it ('terminate called without an active exception')."""
+        self.warm_stop.set()
         self.panel.close()
         self.server.stop()
+        deadline = time.monotonic() + max(float(join_s), 0.0)
+        for th in self.background_threads():
+            th.join(max(deadline - time.monotonic(), 0.0))
+        return not any(th.is_alive() for th in self.background_threads())
+
+    def background_threads(self) -> List[threading.Thread]:
+        """The viewer's computations on daemon threads still running: the text-query warm-up, the planner's
+        preparation (not interruptible: a few seconds)."""
+        prep = None if self.planner is None else self.planner._thread
+        return [th for th in (self.warm_thread, prep) if th is not None and th.is_alive()]
 
 
 def check_config(cfg: StandaloneConfig) -> None:
@@ -380,22 +404,48 @@ def check_config(cfg: StandaloneConfig) -> None:
         raise InvalidInputError(f"--device must be 'cpu' or 'cuda', got {cfg.device!r}")
 
 
+# How long Ctrl+C waits for the viewer's background computations (the text-query warm-up stops after its current label,
+# the planner's preparation finishes) before the process exits without the interpreter's shutdown.
+SHUTDOWN_JOIN_S = 5.0
+
+
 def main(cfg: StandaloneConfig) -> None:
+    """Serve until Ctrl+C (then exit status 0; a Ctrl+C while the scene loads: 130, no traceback either way)."""
     from rich.console import Console
 
     check_config(cfg)
-    viewer = StandaloneViewer(cfg)
-    Console().print(f"[bold green]cinesplat-viewer[/] running at {viewer.url}  (Ctrl+C to stop)\n{viewer.panel.status}")
-    if viewer.planner is not None:
-        viewer.planner.wait_ready()
-        Console().print(viewer.panel.status)
+    viewer = None
     try:
+        viewer = StandaloneViewer(cfg)
+        Console().print(f"[bold green]cinesplat-viewer[/] running at {viewer.url}  (Ctrl+C to stop)\n"
+                        f"{viewer.panel.status}")
+        if viewer.planner is not None:
+            viewer.planner.wait_ready()
+            Console().print(viewer.panel.status)
         while True:
             time.sleep(1.0)
     except KeyboardInterrupt:
         pass
     finally:
-        viewer.close()
+        if viewer is not None and not viewer.close(SHUTDOWN_JOIN_S):
+            _exit_now(0)  # a computation still runs on a daemon thread: the interpreter's shutdown could abort
+    if viewer is None:  # interrupted while loading
+        _exit_now(130)
+
+
+def _exit_now(code: int) -> None:
+    """Exit without the interpreter's shutdown (os._exit after flushing the output): the way out while torch / scipy
+    code runs on a daemon thread, whose C++ runtime can abort a normal exit ('terminate called without an active
+    exception', status 134)."""
+    import os
+    import sys
+
+    for f in (sys.stdout, sys.stderr):
+        try:
+            f.flush()
+        except Exception:  # noqa: BLE001 - a closed pipe: nothing left to say
+            pass
+    os._exit(code)
 
 
 def entrypoint(argv: Optional[List[str]] = None) -> None:

@@ -430,3 +430,25 @@ def test_warm_in_a_thread_while_querying():
     r = s.locate_full("palm tree")
     th.join()
     assert s.locate_full("palm tree") is r and r.mask.sum() == 3
+
+
+def test_warm_stops_between_labels_when_asked():
+    """warm(stop=event): a viewer shutting down sets the event; the warm-up returns after the part in progress."""
+    import threading
+
+    s = _scene(smooth_neighbors=3, label_names=["red chair", "palm tree"])
+    stop = threading.Event()
+    stop.set()
+    assert s.warm(stop=stop) == {"stopped": 1.0} and s._smoothed is None and not s._cache
+    seen = []
+    real = s._locate_uncached
+
+    def first_label_then_stop(text, threshold=None):
+        seen.append(text)
+        stop.set()
+        return real(text, threshold)
+
+    stop.clear()
+    s._locate_uncached = first_label_then_stop
+    t = s.warm(stop=stop)
+    assert seen == ["red chair"] and t["stopped"] == 1.0 and "labels_s" not in t and len(s._cache) == 1

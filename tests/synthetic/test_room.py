@@ -103,3 +103,31 @@ def test_impossible_layout_is_a_clear_error():
         generate_room(RoomConfig(width=2.0, depth=2.0, num_objects=10, max_restarts=3), 0)
     with pytest.raises(ValueError, match="not in the catalogue"):
         generate_room(RoomConfig(required=("piano",)), 0)
+
+
+def test_walls_of_a_long_room_bound_its_own_sides():
+    """A 4 x 1 room (not square, unlike the bundled ones): the walls at x = +-W/2 are D x H slabs, those at y = +-D/2
+    W x H (procedural_room once swapped these two areas; structure_parts has them right). Every wall's inner face
+    lies on the interior box and the corners are closed."""
+    from cinenerf_ns.synthetic.room import SLAB, structure_parts
+
+    w, d, h = 4.0, 1.0, 2.5
+    room = Room(w, d, h, True, structure_parts(w, d, h, True), [])
+    walls = [p for p in room.parts if p.object == "wall"]
+    x_walls = [p for p in walls if abs(abs(p.params["centre"][0]) - (w / 2 + SLAB / 2)) < 1e-12]
+    y_walls = [p for p in walls if abs(abs(p.params["centre"][1]) - (d / 2 + SLAB / 2)) < 1e-12]
+    assert len(x_walls) == len(y_walls) == 2
+    for p in x_walls:  # D x H (+ the slabs at the corners, floor and ceiling)
+        assert p.params["half"][:2] == [SLAB / 2, d / 2 + SLAB]
+    for p in y_walls:  # W x H
+        assert p.params["half"][:2] == [w / 2, SLAB / 2]
+    g = torch.linspace(-0.49, 0.49, 9, dtype=torch.float64)
+    z = torch.full_like(g, 1.0)
+    faces = torch.cat([torch.stack([torch.full_like(g, s * w / 2), g * d, z], -1) for s in (-1, 1)]
+                      + [torch.stack([g * w, torch.full_like(g, s * d / 2), z], -1) for s in (-1, 1)])
+    assert room.sdf(faces).abs().max() < 1e-9  # on every wall's inner face
+    corners = torch.tensor([[s * (w / 2 + SLAB / 2), t * (d / 2 + SLAB / 2), 1.0] for s in (-1, 1) for t in (-1, 1)],
+                           dtype=torch.float64)
+    assert (room.sdf(corners) < 0).all()  # closed corners: inside a wall
+    inside = torch.tensor([[1.9, 0.0, 1.0], [0.0, 0.45, 1.0]], dtype=torch.float64)
+    assert torch.allclose(room.sdf(inside), torch.tensor([0.1, 0.05], dtype=torch.float64), atol=1e-9)

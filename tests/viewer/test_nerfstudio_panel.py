@@ -135,7 +135,8 @@ def test_attach_gives_the_train_lock_to_the_model_backend(tmp_path):
     model, lock = TinySplatModel(), RecordingLock()
     server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
     try:
-        viewer = SimpleNamespace(viser_server=server, datapath=tmp_path, log_filename=tmp_path / "log.txt", train_lock=lock)
+        viewer = SimpleNamespace(viser_server=server, datapath=tmp_path, log_filename=tmp_path / "log.txt",
+                                 train_lock=lock)
         panel = attach_to_nerfstudio_viewer(viewer, SplatModelBackend(model, Planners()))
         assert isinstance(panel.backend, SplatModelBackend) and panel.backend.lock is lock
         assert lock.acquired == 1  # the panel read the Gaussians (scene extent) through a locked snapshot
@@ -145,8 +146,9 @@ def test_attach_gives_the_train_lock_to_the_model_backend(tmp_path):
 
 
 def test_attach_gives_the_model_backend_the_training_cameras_as_start_region(tmp_path):
-    """In ns-train / ns-viewer the panel's random starts come from the training cameras' box (+ 0.1), as cinesplat-plan's
-    do; a backend whose planner config already has a region keeps it, and a viewer without cameras sets none."""
+    """In ns-train / ns-viewer the panel's random starts come from the training cameras' box (+ 0.1), as
+    cinesplat-plan's do; a backend whose planner config already has a region keeps it, and a viewer without cameras
+    sets none."""
     import viser
 
     from cinenerf_ns.planner.shots.planner import PlannerConfig
@@ -159,7 +161,8 @@ def test_attach_gives_the_model_backend_the_training_cameras_as_start_region(tmp
     server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
     try:
         got, cams_seen = [], []
-        for pipe, cfg in ((pipeline, None), (pipeline, PlannerConfig(start_region=([0, 0, 0], [1, 1, 1]))), (None, None)):
+        with_region = PlannerConfig(start_region=([0, 0, 0], [1, 1, 1]))
+        for pipe, cfg in ((pipeline, None), (pipeline, with_region), (None, None)):
             viewer = SimpleNamespace(viser_server=server, datapath=tmp_path, log_filename=tmp_path / "log.txt",
                                      train_lock=RecordingLock(), **({} if pipe is None else {"pipeline": pipe}))
             backend = SplatModelBackend(TinySplatModel(), Planners(), planner_config=cfg)
@@ -273,8 +276,9 @@ def test_model_semantic_scene_gets_the_training_cameras():
     n = 6
     model = SimpleNamespace(codec=Codec(), text_encoder=lambda: (lambda texts: torch.ones(len(texts), 3)),
                             cine_info={"label_names": ["a"]})
-    snap = ModelSnapshot(version=(0, n), splat=SplatParams.of(torch.rand(n, 3), torch.tensor([[1.0, 0, 0, 0]] * n),
-                                                              torch.zeros(n, 3), torch.zeros(n), latents=torch.rand(n, 3)))
+    splat = SplatParams.of(torch.rand(n, 3), torch.tensor([[1.0, 0, 0, 0]] * n), torch.zeros(n, 3), torch.zeros(n),
+                           latents=torch.rand(n, 3))
+    snap = ModelSnapshot(version=(0, n), splat=splat)
     cams = np.array([[0.0, 0.0, 1.0], [1.0, 2.0, 3.0]])
     box = {"c": cams}
     build = model_semantic_scene(model, lambda: box["c"])
@@ -292,3 +296,42 @@ def test_model_backend_plans_with_the_safety_margin():
 
     scene, _ = SplatModelBackend(TinySplatModel(), Planners())._current("planner")
     assert scene.camera_radius == pytest.approx(SceneConfig.camera_radius + DEFAULT_SAFETY_MARGIN)
+
+
+def test_model_semantic_scene_answers_text_as_cinesplat_plan_and_the_standalone_viewer(tmp_path):
+    """The ns-viewer panel's text queries use the settings of cinesplat-plan / cinesplat-viewer (scenes.load_scene:
+    latents smoothed over SMOOTH_NEIGHBORS neighbours, the heaviest OBJECT_CLUSTER cluster...): the same text picks
+    the same Gaussians and centre in both viewers (the panel did no smoothing)."""
+    import re
+
+    from test_standalone import compact_scene_with_labels
+
+    from cinenerf_ns.method.checkpoint import load_compact
+    from cinenerf_ns.method.relevancy import QueryError
+    from cinenerf_ns.method.semantic_scene import SMOOTH_NEIGHBORS
+    from cinenerf_ns.planner.scene.ellipsoids import SceneConfig
+    from cinenerf_ns.scenes import load_scene
+    from cinenerf_ns.viewer.nerfstudio_panel import ModelSnapshot, model_semantic_scene
+
+    path = compact_scene_with_labels(tmp_path / "scene_compact.pt", 4)
+    cli = load_scene(str(path), SceneConfig()).extra["semantic"]
+    st = load_compact(path)
+    names = st.info["label_names"]
+    model = SimpleNamespace(codec=st.codec, text_encoder=lambda: cli.text_encoder, cine_info={"label_names": names})
+    panel = model_semantic_scene(model)(ModelSnapshot(version=(0, len(st.params.means)), splat=st.params))
+    settings = ("smooth_neighbors", "cluster_fraction", "centre", "drop_support", "centre_relevancy", "threshold",
+                "temperature", "negatives", "up", "min_opacity")
+    assert {k: getattr(panel, k) for k in settings} == {k: getattr(cli, k) for k in settings}
+    assert panel.smooth_neighbors == SMOOTH_NEIGHBORS > 1
+    answered = 0
+    for name in names:
+        try:
+            b = cli.locate_full(name)
+        except QueryError as e:  # matches nothing: the panel says the same
+            with pytest.raises(QueryError, match=re.escape(str(e))):
+                panel.locate_full(name)
+            continue
+        a = panel.locate_full(name)
+        assert torch.equal(a.mask, b.mask) and torch.allclose(a.centroid, b.centroid)
+        answered += 1
+    assert answered >= 1

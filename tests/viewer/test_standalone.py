@@ -285,3 +285,80 @@ def test_viewer_options_are_checked_before_anything_starts(argv, regex, capsys):
     assert ei.value.code == 2
     err = " ".join(capsys.readouterr().err.split())
     assert "Traceback" not in err and re.search(regex, err), err
+
+
+def compact_scene_with_labels(path: Path, n_labels: int) -> Path:
+    """A compact export of the small procedural room whose latents answer ``n_labels`` label names (offline)."""
+    from cinenerf_ns.method.checkpoint import SplatCheckpoint, export_compact
+    from cinenerf_ns.method.codec import CodecConfig, FeatureCodec
+
+    _, sp = room_splat()
+    torch.manual_seed(0)
+    codec = FeatureCodec(8, CodecConfig(hidden_dim=8, train_steps=1))
+    codes = torch.randn(n_labels, 3)
+    latents = codes[torch.arange(len(sp.means)) % n_labels]
+    with torch.no_grad():
+        emb = codec.decode(codes)
+    st = SplatCheckpoint(
+        SplatParams.of(sp.means, sp.quats_wxyz, sp.log_scales, sp.opacity_logits, latents=latents), codec=codec,
+        codec_state=codec.state_dict(), label_embeddings=emb,
+        info={"feature_dim": 8, "codec_config": vars(CodecConfig(hidden_dim=8, train_steps=1)),
+              "label_names": [f"thing {i}" for i in range(n_labels)], "clip": None},
+    )
+    return export_compact(st, path, half=False)
+
+
+# The viewer's command line with each label of the warm-up slowed down by torch work on the warm-up's thread (the
+# bundled room's warm-up takes about a minute of such work on a loaded 2-core box). Prints a line per label warmed.
+SLOW_WARM_DRIVER = """
+import sys, time, torch
+import cinenerf_ns.method.semantic_scene as ss
+real = ss.SemanticScene._locate_uncached
+def slow(self, text, threshold=None):
+    print('warming', text, file=sys.stderr, flush=True)
+    a, t0 = torch.randn(256, 256), time.perf_counter()
+    while time.perf_counter() - t0 < 0.3:
+        a = torch.tanh(a @ a)
+    return real(self, text, threshold)
+ss.SemanticScene._locate_uncached = slow
+from cinenerf_ns.viewer.standalone import entrypoint
+entrypoint(sys.argv[1:])
+print('viewer exited', flush=True)
+"""
+
+
+def test_ctrl_c_during_the_text_query_warm_up_exits_cleanly(tmp_path):
+    """Ctrl+C while the text-query warm-up still runs on its thread: the warm-up stops after its current label, the
+    process exits with status 0, no traceback, no C++ abort ('terminate called without an active exception', 134:
+    the interpreter's shutdown while the thread ran torch code)."""
+    import signal
+    import threading
+    import time
+
+    scene = compact_scene_with_labels(tmp_path / "scene_compact.pt", 40)
+    env = dict(os.environ, PYTHONPATH=str(REPO), PYTHONUNBUFFERED="1")
+    p = subprocess.Popen([sys.executable, "-c", SLOW_WARM_DRIVER, "--load-config", str(scene), "--port",
+                          str(free_port()), "--host", "127.0.0.1", "--data", str(tmp_path / "data"),
+                          "--grid-resolution", "48"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    err: list = []
+    reader = threading.Thread(target=lambda: err.extend(p.stderr), daemon=True)
+    reader.start()
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and not any(line.startswith("warming") for line in err):
+            assert p.poll() is None, "".join(err)
+            time.sleep(0.05)
+        assert any(line.startswith("warming") for line in err), "".join(err)
+        p.send_signal(signal.SIGINT)
+        out, _ = p.communicate(timeout=60)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    reader.join(10)
+    text = out + "".join(err)
+    assert p.returncode == 0, text
+    assert "terminate called" not in text and "Traceback" not in text, text
+    assert "viewer exited" in out, text  # a normal return: the warm-up stopped (no os._exit fallback)
+    warmed = sum(line.startswith("warming") for line in err)
+    assert warmed < 40, text  # stopped early, not after every label

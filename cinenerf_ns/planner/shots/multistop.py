@@ -256,8 +256,9 @@ def plan_multistop(planner: Planner, stops: Sequence[Any], look_at: Any, start: 
     targets, looks = _checked_stops(planner, stops, look_at)
     cfg = planner.config
     if limits is None:
-        limits = DynamicLimits(max_speed=cfg.timing.max_speed, max_acceleration=cfg.timing.max_acceleration or 0.5,
-                               fps=cfg.timing.fps)
+        acc = cfg.timing.max_acceleration  # None (no timing cap): the exported frames' default cap
+        limits = DynamicLimits(max_speed=cfg.timing.max_speed, fps=cfg.timing.fps,
+                               max_acceleration=DynamicLimits.max_acceleration if acc is None else acc)
     tm: Dict[str, float] = {}
     t0 = time.perf_counter()
     if start is not None:

@@ -78,3 +78,31 @@ def test_bad_input(planner):
         plan_multistop(planner, [STOPS[0], [np.nan, 0, 0]], TARGET)
     with pytest.raises(StartInCollisionError):
         plan_multistop(planner, STOPS, TARGET, start=[0.0, 0.0, 0.5])  # inside the wall
+
+
+@pytest.mark.parametrize("acc", [None, 0.8])
+def test_default_limits_come_from_the_planners_timing(planner, monkeypatch, acc):
+    """Without ``limits``: the planner's speed / fps / acceleration; with no acceleration cap in its timing, the
+    frames' default cap (DynamicLimits' one definition, not a second literal)."""
+    import dataclasses
+
+    import cinenerf_ns.planner.shots.multistop as ms_mod
+
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def spy(traj, look_of, limits, up=None):
+        seen.append(limits)
+        raise Stop
+
+    monkeypatch.setattr(ms_mod, "retime", spy)
+    monkeypatch.setattr(DynamicLimits, "max_acceleration", 0.37)  # the definition moves: the default follows
+    timing = dataclasses.replace(planner.config.timing, max_acceleration=acc, max_speed=0.45)
+    monkeypatch.setattr(planner, "config", dataclasses.replace(planner.config, timing=timing))
+    with pytest.raises(Stop):
+        plan_multistop(planner, STOPS[:1], LOOKS[0], start=[0.7, 0.5, 0.5])
+    (lim,) = seen
+    assert lim.max_speed == 0.45 and lim.fps == timing.fps
+    assert lim.max_acceleration == (0.37 if acc is None else 0.8)
