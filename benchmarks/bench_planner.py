@@ -51,8 +51,8 @@ def main() -> None:
     ap.add_argument("--request-device", default="auto", choices=["auto", "scene"],
                     help="PlannerConfig.request_device: auto = per-request queries on a CPU mirror of a GPU scene")
     ap.add_argument("--corridor-backend", default="auto", choices=["auto", "cpu", "batched"],
-                    help="PlannerConfig.corridor_backend: auto = batched polytopes on a CUDA scene, "
-                         "else host polytopes")
+                    help="PlannerConfig.corridor_backend: auto = host polytopes per request, batched for candidate "
+                         "batches on CUDA")
     ap.add_argument("--start-look-distance", type=float, default=None,
                     help="PlannerConfig.start_look_distance (default: PlannerConfig's; 0: uniform random starts)")
     ap.add_argument("--family", default="procedural", help=f"scene family: {FAMILIES}")

@@ -17,15 +17,20 @@ GRID_POLYTOPE_MAX_VOXEL = 2.0
 they were a win and one where they were a loss: docs/PLANNER_DEFAULTS.md)."""
 
 
-def corridor_backend(planner: "Planner") -> str:
-    """config.corridor_backend resolved for this process: 'batched' or 'cpu' ('auto': batched on a CUDA scene; always
-    'cpu' inside a forked candidate worker, where CUDA cannot be used)."""
+def corridor_backend(planner: "Planner", many: bool = False) -> str:
+    """config.corridor_backend resolved for this process: 'batched' or 'cpu'. 'auto': for one request's corridor
+    (``many`` False) 'cpu', the compiled host polytopes on the request scene (the CPU mirror of a CUDA scene), unless
+    requests themselves run on a CUDA scene (request_device 'scene'), then 'batched'; for a many-corridor batch
+    (``many``: stages.legs_corridor, the candidates' two-phase rounds) 'batched' on a CUDA scene, else 'cpu'. One
+    request's handful of segments is cheaper on the host than in GPU kernel launches and syncs, in median and tail
+    (docs/PLANNER_DEFAULTS.md). Always 'cpu' inside a forked candidate worker, where CUDA cannot be used."""
     b = planner.config.corridor_backend
     scene = planner.batch_scene
     if in_worker() or (b == "batched" and scene.device.type == "cuda" and torch.cuda._is_in_bad_fork()):
         return "cpu"
     if b == "auto":
-        return "batched" if scene.device.type == "cuda" else "cpu"
+        on_cuda = (scene if many else planner.scene).device.type == "cuda"
+        return "batched" if on_cuda else "cpu"
     return b
 
 
@@ -38,15 +43,16 @@ def use_grid_polytopes(planner: "Planner") -> bool:
     return bool(g)
 
 
-def corridor_kwargs(planner: "Planner") -> dict:
+def corridor_kwargs(planner: "Planner", many: bool = False) -> dict:
     """Keyword arguments of build_corridor (after waypoints, scene, index) for the planner's requests: the box margin,
-    the planning region, the grid's voxels when grid polytopes are on, and the resolved corridor backend (the batched
-    one runs on ``batch_scene`` / its index; the corridor's polytopes end up on the request device)."""
+    the planning region, the grid's voxels when grid polytopes are on, and the resolved corridor backend
+    (corridor_backend; ``many``: for build_corridors over many ways; the batched one runs on ``batch_scene`` / its
+    index; the corridor's polytopes end up on the request device)."""
     prep = planner.ready()
     kw = dict(box_margin=planner.config.box_margin, region=planner.region())
     if use_grid_polytopes(planner):
         kw["grid"] = prep.voxels
-    if corridor_backend(planner) == "batched":
+    if corridor_backend(planner, many) == "batched":
         bidx = prep.batch_index if prep.batch_index is not None else prep.index
         kw.update(backend="batched", batch_scene=planner.batch_scene, batch_index=bidx)
     return kw

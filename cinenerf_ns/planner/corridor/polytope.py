@@ -100,6 +100,10 @@ class Polytope:
 
 
 NORMAL_RULES = ("auto", "prop2", "closest", "mahalanobis")
+EMPTY_PROBE_FRACTION = 0.125
+"""PolytopeOptions.stop_when_empty: the probe pass's near box is this x the first pass's (native/polytope.c uses
+the same): in a dense blob the first pass's box holds thousands of ellipsoids while the planes of a far smaller box
+already prove the polytope empty (docs/PLANNER_DEFAULTS.md)."""
 
 
 @dataclass(frozen=True)
@@ -125,6 +129,15 @@ class PolytopeOptions:
     give safe polytopes holding the seeds with the same normal rules and exact offsets; the compiled one visits
     ellipsoids in buckets of ~16 by distance instead of chunks of ``chunk``, so its planes can differ a little
     (native/polytope.c's header); two_pass and near_fraction apply to both.
+    stop_when_empty: None, or a radius rho >= 0 (with require_seed_inside False and two_pass): a probe pass first
+    decides the ellipsoids in a much smaller box around the seeds (EMPTY_PROBE_FRACTION) and stops there when the
+    box and its planes hold no ball of radius rho (else the probe's planes are dropped: the passes below give the
+    same polytope as without the option); when the box and the first pass's planes hold no such ball, the second
+    pass is skipped (more planes only shrink the
+    polytope, so the full one holds no such ball either) and the polytope returned is made explicitly empty (one
+    more plane contradicting a box face; scene id -1). closest_safe_point's projection counts a polytope without a
+    ball of its INTERIOR_RADIUS as empty, so it asks for this. The proof: the compiled LP (native/polytope.c
+    cn_planes_empty) on the compiled path, the Chebyshev radius (HiGHS, chebyshev_center) on the Python one.
     """
 
     margin: float = 1e-6
@@ -135,10 +148,13 @@ class PolytopeOptions:
     two_pass: bool = True
     near_fraction: float = 0.5
     backend: str = "auto"
+    stop_when_empty: Optional[float] = None
 
     def __post_init__(self):
         if self.normal not in NORMAL_RULES:
             raise InvalidInputError(f"unknown normal rule {self.normal!r}")
+        if self.stop_when_empty is not None and (self.require_seed_inside or not self.stop_when_empty >= 0):
+            raise InvalidInputError("stop_when_empty needs a radius >= 0 and require_seed_inside=False")
 
 
 _OPTION_NAMES = frozenset(f.name for f in dataclasses.fields(PolytopeOptions))
@@ -248,9 +264,14 @@ class _Box:
     A: np.ndarray  # [6, 3] its faces as planes A x <= b (float64 numpy, the first six planes of the polytope)
     b: np.ndarray  # [6] (hi, -lo)
 
-    def polytope(self, n: list, b: list, kept: Tensor, seeds_t: Tensor) -> Polytope:
-        """The box's six faces then the planes n [f, 3], b [f] of each list entry; kept [F - 6] their scene ids."""
+    def polytope(self, n: list, b: list, kept: Tensor, seeds_t: Tensor, empty: bool = False) -> Polytope:
+        """The box's six faces then the planes n [f, 3], b [f] of each list entry; kept [F - 6] their scene ids.
+        empty: one more plane (scene id -1), the first box axis <= lo - (hi - lo), contradicting the face >= lo."""
         dev = self.lo.device
+        if empty:
+            n = n + [self.A[:1]]
+            b = b + [np.array([-self.b[3] - (self.b[0] + self.b[3])])]
+            kept = torch.cat([kept, torch.full((1,), -1, dtype=kept.dtype, device=kept.device)])
         A = np.vstack([self.A] + n)
         b = np.concatenate([self.b] + b)
         return Polytope(torch.as_tensor(A, device=dev), torch.as_tensor(b, device=dev), seeds_t, kept)
@@ -310,12 +331,13 @@ def _native_polytope(fn, scene, index, seeds_t: Tensor, box: _Box, opts: Polytop
     dev = scene.means.device
     seeds, r = _np(seeds_t), float(scene.camera_radius)
     lo, hi = -box.b[3:], box.b[:3]  # b = (hi, -lo): the box in float64 numpy
-    n, b, ids, bad_ids, bad_slack = native_safe_polytope(
+    shrink = -1.0 if opts.stop_when_empty is None else float(opts.stop_when_empty)
+    n, b, ids, bad_ids, bad_slack, stopped = native_safe_polytope(
         fn, scene, index, seeds, lo, hi, None if box.rot is None else _np(box.rot), r, opts.margin,
-        opts.normal, opts.require_seed_inside, opts.near_fraction if opts.two_pass else 0.0)
+        opts.normal, opts.require_seed_inside, opts.near_fraction if opts.two_pass else 0.0, shrink)
     if bad_slack.size:
         raise _seed_not_free(seeds, r, torch.as_tensor(bad_ids, device=dev), bad_slack)
-    return box.polytope([n], [b], torch.as_tensor(ids, device=dev), seeds_t)
+    return box.polytope([n], [b], torch.as_tensor(ids, device=dev), seeds_t, empty=stopped)
 
 
 # ---------------------------------------------------------------------------------------- python path
@@ -366,6 +388,7 @@ class _PlaneSet:
         self.ids: list = []
         # (scene ids [J] cpu, mu, rot, axes, slack) of ellipsoids whose own planes all cut the seeds
         self.bad: list = []
+        self.stopped = False  # stop_when_empty: the planes kept so far hold no ball of that radius
 
     def add(self, ids: Tensor, mu_all: np.ndarray, amax: np.ndarray) -> None:
         """Decide candidates ids [K] (means [K, 3], bounding radii [K]): each is either cut off
@@ -439,7 +462,7 @@ class _PlaneSet:
     def polytope(self, box: _Box, seeds_t: Tensor) -> Polytope:
         dev = self.scene.means.device
         kept = torch.cat(self.ids) if self.ids else torch.zeros(0, dtype=torch.long, device=dev)  # [F - 6]
-        return box.polytope(self.n, self.b, kept, seeds_t)
+        return box.polytope(self.n, self.b, kept, seeds_t, empty=self.stopped)
 
 
 def _near_box(seeds: np.ndarray, seeds_t: Tensor, box: _Box, near_fraction: float) -> tuple[np.ndarray, np.ndarray]:
@@ -457,15 +480,36 @@ def _near_box(seeds: np.ndarray, seeds_t: Tensor, box: _Box, near_fraction: floa
     return np.vstack([box.A, frame.T, -frame.T]), np.concatenate([box.b, t_hi, -t_lo])
 
 
+def _proven_empty(planes: _PlaneSet, box: _Box, rho: float) -> bool:
+    """The box and the kept planes hold no ball of radius rho (Chebyshev radius, HiGHS; float64 reference of
+    native/polytope.c cn_planes_empty)."""
+    if not planes.n:
+        return False
+    return not chebyshev_center(np.vstack([box.A] + planes.n), np.concatenate([box.b] + planes.b))[1] >= rho
+
+
 def _add_two_pass(planes: _PlaneSet, scene, index, box: _Box, seeds_t: Tensor) -> None:
     """Pass 1: the ellipsoids near the seeds (``_near_box``) give the planes that bound the polytope in practice.
     Pass 2: only ellipsoids in index cells that are not entirely beyond one of those planes (or the box) can still
     meet the polytope; all others are excluded by planes that are kept, so the result is as safe as deciding every
-    ellipsoid of the box (see query_box_in_planes)."""
+    ellipsoid of the box (see query_box_in_planes). stop_when_empty: first a probe (pass 0) in a near box
+    EMPTY_PROBE_FRACTION x smaller whose planes are kept only when they prove the polytope empty (as
+    native/polytope.c)."""
+    rho = planes.opts.stop_when_empty
+    if rho is not None:
+        probe = _PlaneSet(planes.seeds, scene, planes.opts)
+        near0 = _near_box(planes.seeds, seeds_t, box, planes.opts.near_fraction * EMPTY_PROBE_FRACTION)
+        probe.add(*_candidates(scene, index, box.lo, box.hi, box.rot, planes=near0))
+        if _proven_empty(probe, box, rho):
+            planes.n, planes.b, planes.ids, planes.stopped = probe.n, probe.b, probe.ids, True
+            return
     near = _near_box(planes.seeds, seeds_t, box, planes.opts.near_fraction)
     ids0, mu0, am0 = _candidates(scene, index, box.lo, box.hi, box.rot, planes=near)
     planes.add(ids0, mu0, am0)
     kept = (np.vstack([box.A] + planes.n), np.concatenate([box.b] + planes.b))
+    if rho is not None and _proven_empty(planes, box, rho):
+        planes.stopped = True  # no ball of radius rho fits already: more planes keep it so
+        return
     ids1, mu1, am1 = _candidates(scene, index, box.lo, box.hi, box.rot, planes=kept)
     if ids0.numel() and ids1.numel():
         new1 = ~torch.isin(ids1, ids0)

@@ -99,22 +99,25 @@ def native_arrays(scene, index) -> dict:
 
 
 def native_safe_polytope(fn, scene, index, seeds: np.ndarray, lo: np.ndarray, hi: np.ndarray, rot, r: float,
-                         margin: float, normal: str, require_seed_inside: bool, near_fraction: float):
+                         margin: float, normal: str, require_seed_inside: bool, near_fraction: float,
+                         empty_shrink: float = -1.0):
     """One cn_safe_polytope call (float64 seeds [S, 3], box lo / hi [3], rot [3, 3] or None; near_fraction 0: one
-    pass) -> (normals [F, 3], offsets [F], scene ids [F] of the planes, scene ids [J] and slacks [J] of the
-    ellipsoids that cut the seeds; J > 0 only when ``require_seed_inside``)."""
+    pass; empty_shrink >= 0: stop after the first pass when its planes hold no ball of that radius) -> (normals
+    [F, 3], offsets [F], scene ids [F] of the planes, scene ids [J] and slacks [J] of the ellipsoids that cut the
+    seeds; J > 0 only when ``require_seed_inside``; stopped: True when the second pass was skipped that way)."""
     arr = native_arrays(scene, index)
     sd = np.ascontiguousarray(seeds, dtype=np.float64)
     lo_c, hi_c = np.ascontiguousarray(lo, dtype=np.float64), np.ascontiguousarray(hi, dtype=np.float64)
     rot_c = None if rot is None else np.ascontiguousarray(rot, dtype=np.float64)
-    info = np.zeros(4, dtype=np.int64)
+    info = np.zeros(5, dtype=np.int64)
     cap = 512
     while True:
         n = np.empty((cap, 3)), np.empty(cap), np.empty(cap, dtype=np.int64), np.empty(cap, dtype=np.int64), np.empty(cap)
         F = int(fn(
             *arr["args"], sd.ctypes.data, sd.shape[0], lo_c.ctypes.data, hi_c.ctypes.data,
             None if rot_c is None else rot_c.ctypes.data, r, float(margin), NORMAL_CODE[normal],
-            int(bool(require_seed_inside)), float(near_fraction), cap, *(a.ctypes.data for a in n), info.ctypes.data))
+            int(bool(require_seed_inside)), float(near_fraction), float(empty_shrink), cap, *(a.ctypes.data for a in n),
+            info.ctypes.data))
         if F == -2:  # more planes than ``cap``: info[2] says how many
             cap = int(info[2]) + 1
             continue
@@ -124,4 +127,15 @@ def native_safe_polytope(fn, scene, index, seeds: np.ndarray, lo: np.ndarray, hi
     n_planes, b_planes, ids_planes, bad_ids, bad_slack = n
     nbad = int(info[0])
     perm = arr["perm"]  # the compiled ids are positions in spatial order
-    return n_planes[:F], b_planes[:F], perm[ids_planes[:F]], perm[bad_ids[:nbad]], bad_slack[:nbad]
+    return n_planes[:F], b_planes[:F], perm[ids_planes[:F]], perm[bad_ids[:nbad]], bad_slack[:nbad], bool(info[4])
+
+
+def planes_empty_native(fn, A: np.ndarray, b: np.ndarray, shrink: float, centre: np.ndarray, half: float) -> bool:
+    """cn_planes_empty: True when {x : A x <= b - shrink |A_f|} (A [F, 3], b [F]) has no point in the cube
+    |x - centre|_inf <= half (an exact-arithmetic proof up to rounding that errs towards False)."""
+    A_c, b_c = np.ascontiguousarray(A, dtype=np.float64), np.ascontiguousarray(b, dtype=np.float64)
+    c_c = np.ascontiguousarray(centre, dtype=np.float64)
+    res = int(fn(A_c.ctypes.data, b_c.ctypes.data, A_c.shape[0], float(shrink), c_c.ctypes.data, float(half)))
+    if res < 0:
+        raise MemoryError("the compiled emptiness proof ran out of memory")
+    return bool(res)

@@ -176,9 +176,14 @@ def safe_polytope_c():
         "polytope", "cn_safe_polytope",
         [*_SCENE_INDEX,
          _P, _I32, _P, _P, _P,  # seeds, count, box lo, hi, rotation (or NULL)
-         _F64, _F64, _I32, _I32, _F64,  # camera radius, margin, normal rule, seed must be inside, near fraction
+         _F64, _F64, _I32, _I32, _F64, _F64,  # camera radius, margin, normal rule, seed inside, near fraction, shrink
          _I64, _P, _P, _P, _P, _P, _P],  # cap, planes n, b, ids, bad ids, bad slacks, info
         _I64)
+
+
+def planes_empty_c():
+    """The compiled emptiness proof of a polytope's planes (polytope.c: cn_planes_empty), or None."""
+    return _function("polytope", "cn_planes_empty", [_P, _P, _I64, _F64, _P, _F64], _I64)
 
 
 def points_collide_c():

@@ -514,21 +514,161 @@ out:
     return rc;
 }
 
+/* ---------------------------------------------------------------- emptiness proof (safe_polytope's stop_when_empty)
+   Seidel's incremental LP in 3D (then 2D on a plane, 1D on a line): minimize c.x over {a_f.x <= b_f - shrink |a_f|}
+   inside the cube |x - centre|_inf <= M (the caller's cube holds its box, so the cube changes no answer). When the
+   current optimum violates constraint i, any optimum of the constraints up to i lies on its plane, so an empty
+   restriction to that plane proves the constraints up to i (hence all) empty. Rounding errs towards "not empty":
+   a constraint counts as violated only beyond a tolerance and a 1D interval is empty only beyond it. */
+static int lp2(const double *G, const double *h, int64_t m, const double c[2], double M, double tol, double y[2]) {
+    y[0] = c[0] > 0 ? -M : M;
+    y[1] = c[1] > 0 ? -M : M;
+    for (int64_t j = 0; j < m; j++) {
+        const double *g = G + 2 * j;
+        double gn = hypot(g[0], g[1]);
+        if (g[0] * y[0] + g[1] * y[1] <= h[j] + tol * gn) continue;
+        if (gn < 1e-12) {
+            if (h[j] < -tol) return 0;  /* 0 <= h[j] fails for every y */
+            continue;
+        }
+        double q[2] = {g[0] * h[j] / (gn * gn), g[1] * h[j] / (gn * gn)}, d[2] = {-g[1] / gn, g[0] / gn};
+        double lo = -INFINITY, hi = INFINITY;
+        for (int i = 0; i < 2; i++) {  /* -M <= q_i + lam d_i <= M */
+            if (fabs(d[i]) > 1e-15) {
+                double t0 = (-M - q[i]) / d[i], t1 = (M - q[i]) / d[i];
+                lo = fmax(lo, fmin(t0, t1));
+                hi = fmin(hi, fmax(t0, t1));
+            } else if (fabs(q[i]) > M + tol) {
+                return 0;
+            }
+        }
+        for (int64_t k = 0; k < j; k++) {
+            const double *e = G + 2 * k;
+            double en = hypot(e[0], e[1]), ed = e[0] * d[0] + e[1] * d[1];
+            double rhs = h[k] - (e[0] * q[0] + e[1] * q[1]);
+            if (fabs(ed) <= 1e-12 * en) {
+                if (rhs < -tol * (1.0 + en)) return 0;  /* parallel to the line and the line is outside */
+                continue;
+            }
+            if (ed > 0) hi = fmin(hi, rhs / ed);
+            else lo = fmax(lo, rhs / ed);
+        }
+        if (lo > hi + tol) return 0;
+        double cd = c[0] * d[0] + c[1] * d[1];
+        double lam = lo > hi ? 0.5 * (lo + hi) : (cd > 0 ? lo : hi);
+        y[0] = q[0] + lam * d[0];
+        y[1] = q[1] + lam * d[1];
+    }
+    return 1;
+}
+
+/* 1 when {x : n_f.x <= b_f - shrink |n_f|, f < F} has no point in the cube |x - centre|_inf <= M (proven as above),
+   0 when it has one (as far as rounding tells), -1 out of memory. */
+int64_t cn_planes_empty(const double *pn, const double *pb, int64_t F, double shrink, const double *centre,
+                        double M) {
+    const double c[3] = {1.0, 0.7548776662466927, 0.5698402909980532};
+    double scale = 1.0 + M + fmax(fabs(centre[0]), fmax(fabs(centre[1]), fabs(centre[2])));
+    double tol = 1e-12 * scale;
+    int64_t n = F + 6;
+    double *A = (double *)malloc(n * 3 * sizeof(double)), *B = (double *)malloc(n * sizeof(double));
+    double *G = (double *)malloc(n * 2 * sizeof(double)), *H = (double *)malloc(n * sizeof(double));
+    int64_t *ord = (int64_t *)malloc(F * sizeof(int64_t) + 1);
+    int64_t res = -1;
+    if (!A || !B || !G || !H || !ord) goto out;
+    /* the cube's six planes first, then the planes (unit normals) in a fixed pseudo-random order */
+    for (int a = 0; a < 3; a++) {
+        for (int i = 0; i < 3; i++) { A[3 * a + i] = (i == a); A[3 * (a + 3) + i] = -(double)(i == a); }
+        B[a] = centre[a] + M;
+        B[a + 3] = M - centre[a];
+    }
+    for (int64_t f = 0; f < F; f++) ord[f] = f;
+    uint64_t rs = 0x9E3779B97F4A7C15ull;
+    for (int64_t f = F - 1; f > 0; f--) {
+        rs = rs * 6364136223846793005ull + 1442695040888963407ull;
+        int64_t j = (int64_t)((rs >> 33) % (uint64_t)(f + 1)), t = ord[f];
+        ord[f] = ord[j];
+        ord[j] = t;
+    }
+    int64_t m = 6;
+    for (int64_t k = 0; k < F; k++) {
+        const double *a = pn + 3 * ord[k];
+        double an = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+        if (!(an > 0)) {  /* 0 <= b - 0: a zero row is empty only when its offset is negative */
+            if (pb[ord[k]] < -tol) { res = 1; goto out; }
+            continue;
+        }
+        for (int i = 0; i < 3; i++) A[3 * m + i] = a[i] / an;
+        B[m++] = pb[ord[k]] / an - shrink;
+    }
+    double x[3];
+    for (int i = 0; i < 3; i++) x[i] = centre[i] + (c[i] > 0 ? -M : M);
+    double M2 = 2.0 * sqrt(3.0) * M * (1.0 + 1e-9) + tol;
+    for (int64_t i = 6; i < m; i++) {
+        const double *a = A + 3 * i;
+        if (a[0] * x[0] + a[1] * x[1] + a[2] * x[2] <= B[i] + tol) continue;
+        /* orthonormal u, v with a: u = a x (the axis least aligned with a), v = a x u */
+        int ax = fabs(a[0]) <= fabs(a[1]) ? (fabs(a[0]) <= fabs(a[2]) ? 0 : 2) : (fabs(a[1]) <= fabs(a[2]) ? 1 : 2);
+        double e[3] = {ax == 0, ax == 1, ax == 2};
+        double u[3] = {a[1] * e[2] - a[2] * e[1], a[2] * e[0] - a[0] * e[2], a[0] * e[1] - a[1] * e[0]};
+        double un = sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
+        for (int t = 0; t < 3; t++) u[t] /= un;
+        double v[3] = {a[1] * u[2] - a[2] * u[1], a[2] * u[0] - a[0] * u[2], a[0] * u[1] - a[1] * u[0]};
+        double off = B[i] - (a[0] * centre[0] + a[1] * centre[1] + a[2] * centre[2]);
+        double p0[3] = {centre[0] + off * a[0], centre[1] + off * a[1], centre[2] + off * a[2]};
+        for (int64_t j = 0; j < i; j++) {
+            const double *aj = A + 3 * j;
+            G[2 * j] = aj[0] * u[0] + aj[1] * u[1] + aj[2] * u[2];
+            G[2 * j + 1] = aj[0] * v[0] + aj[1] * v[1] + aj[2] * v[2];
+            H[j] = B[j] - (aj[0] * p0[0] + aj[1] * p0[1] + aj[2] * p0[2]);
+        }
+        double c2[2] = {c[0] * u[0] + c[1] * u[1] + c[2] * u[2], c[0] * v[0] + c[1] * v[1] + c[2] * v[2]}, y[2];
+        if (!lp2(G, H, i, c2, M2, tol, y)) { res = 1; goto out; }
+        for (int t = 0; t < 3; t++) x[t] = p0[t] + y[0] * u[t] + y[1] * v[t];
+    }
+    res = 0;
+out:
+    free(A); free(B); free(G); free(H); free(ord);
+    return res;
+}
+
+/* safe_polytope's pass 0 shrinks the first pass's near box by this factor (polytope.EMPTY_PROBE_FRACTION) */
+#define EMPTY_PROBE_FRACTION 0.125
+
+/* cn_planes_empty of the box's six planes and the kept ones */
+static int64_t planes_empty_with_box(const State *st, const double *box_n, const double *box_b, double shrink,
+                                     const double *centre, double M) {
+    double *n = (double *)malloc((6 + st->F) * 3 * sizeof(double)), *b = (double *)malloc((6 + st->F) * sizeof(double));
+    int64_t res = -1;
+    if (n && b) {
+        memcpy(n, box_n, 18 * sizeof(double));
+        memcpy(b, box_b, 6 * sizeof(double));
+        memcpy(n + 18, st->pn, 3 * st->F * sizeof(double));
+        memcpy(b + 6, st->pb, st->F * sizeof(double));
+        res = cn_planes_empty(n, b, 6 + st->F, shrink, centre, M);
+    }
+    free(n); free(b);
+    return res;
+}
+
 /* Returns the number of planes F (>= 0), or a negative status: -1 out of memory, -2 an output buffer of ``cap``
    rows is too small (info[2] = rows needed). info (out, int64[4]): n bad ellipsoids, n candidates decided, rows
    needed, index entries visited. box_rot: NULL or a row-major [3, 3] whose columns are the box axes (the box is
    lo <= R^T x <= hi). mode: 0 auto, 1 prop2, 2 mahalanobis, 3 closest. near_fraction: the first pass gathers the
    ellipsoids near the seeds (their bounding box grown by near_fraction x the seeds' smallest distance to the box's
    faces), the second pass every other one of the box in index cells that no plane kept by then culls (<= 0: one
-   pass). */
+   pass). empty_shrink >= 0 (two passes): first a probe pass 0 in a box EMPTY_PROBE_FRACTION x the first pass's;
+   when the box and its planes hold no ball of radius empty_shrink (cn_planes_empty) the call stops there, else its
+   planes are dropped and the two passes run; when the box and the first pass's planes hold no such ball the second
+   pass is skipped. Stopped: info[4] = 1 (the planes returned prove the polytope has no such ball; the caller makes
+   it explicitly empty). */
 int64_t cn_safe_polytope(
     const void *means, const void *rots, const void *radii, const float *pack, int32_t f32,
     const double *origin, int32_t n_levels, const double *cells, const int64_t *dims,
     const int64_t *const *offsets, const int64_t *const *ids, double pad,
     const double *seeds, int32_t S, const double *box_lo, const double *box_hi, const double *box_rot,
-    double r, double margin, int32_t mode, int32_t require_inside, double near_fraction,
+    double r, double margin, int32_t mode, int32_t require_inside, double near_fraction, double empty_shrink,
     int64_t cap, double *out_n, double *out_b, int64_t *out_id, int64_t *bad_id, double *bad_slack, int64_t *info) {
-    info[0] = info[1] = info[2] = info[3] = 0;
+    info[0] = info[1] = info[2] = info[3] = info[4] = 0;
     State st;
     memset(&st, 0, sizeof st);
     st.means = means; st.rots = rots; st.radii = radii; st.pack = pack; st.f32 = f32;
@@ -574,7 +714,28 @@ int64_t cn_safe_polytope(
             rho = fmin(rho, fmin(p - box_lo[i], box_hi[i] - p));
         }
     int two = near_fraction > 0 && isfinite(rho) && rho > 0;
-    if (two) {
+    double wc[3], M = sqrt(bh[0] * bh[0] + bh[1] * bh[1] + bh[2] * bh[2]) * (1.0 + 1e-9);  /* cube around the box */
+    for (int i = 0; i < 3; i++) wc[i] = Rb[3 * i] * bc[0] + Rb[3 * i + 1] * bc[1] + Rb[3 * i + 2] * bc[2];
+    if (two && empty_shrink >= 0) {
+        /* pass 0 (a probe): the planes of the ellipsoids in a much smaller box around the seeds usually prove a seed
+           deep in clutter has an empty polytope; when they do not, they are dropped and the passes below run as
+           without the probe (same planes) */
+        double r0 = rho * near_fraction * EMPTY_PROBE_FRACTION;
+        for (int i = 0; i < 3; i++) {
+            nlo[i] = fmax(fmin(seeds[i], seeds[3 * (S - 1) + i]) - r0, qlo[i]);
+            nhi[i] = fmin(fmax(seeds[i], seeds[3 * (S - 1) + i]) + r0, qhi[i]);
+        }
+        if (gather(&st, nlo, nhi, NULL, NULL, NULL, NULL, 0)) goto done;
+        decided += st.K;
+        if (decide(&st)) goto done;
+        if (st.F > 0) {
+            int64_t em = planes_empty_with_box(&st, box_n, box_b, empty_shrink, wc, M);
+            if (em < 0) goto done;
+            info[4] = em;
+        }
+        if (!info[4]) st.F = 0;
+    }
+    if (two && !info[4]) {
         rho *= near_fraction;
         for (int i = 0; i < 3; i++) {
             nlo[i] = fmin(seeds[i], seeds[3 * (S - 1) + i]) - rho;
@@ -586,6 +747,7 @@ int64_t cn_safe_polytope(
         decided += st.K;
         if (decide(&st)) goto done;
     }
+    if (info[4]) goto finish;
     /* pass 2 (or the only pass): the rest of the box, in cells not culled by the box's planes or the kept ones */
     cull_n = (double *)malloc((6 + st.F) * 3 * sizeof(double));
     cull_b = (double *)malloc((6 + st.F) * sizeof(double));
@@ -594,9 +756,18 @@ int64_t cn_safe_polytope(
     memcpy(cull_b, box_b, sizeof box_b);
     memcpy(cull_n + 18, st.pn, 3 * st.F * sizeof(double));
     memcpy(cull_b + 6, st.pb, st.F * sizeof(double));
-    if (gather(&st, qlo, qhi, two ? nlo : NULL, two ? nhi : NULL, cull_n, cull_b, 6 + st.F)) goto done;
-    decided += st.K;
-    if (decide(&st)) goto done;
+    if (two && empty_shrink >= 0 && st.F > 0) {
+        /* the box and pass 1's planes already hold no ball of radius empty_shrink: more planes keep it so */
+        int64_t em = cn_planes_empty(cull_n, cull_b, 6 + st.F, empty_shrink, wc, M);
+        if (em < 0) goto done;
+        info[4] = em;
+    }
+    if (!info[4]) {
+        if (gather(&st, qlo, qhi, two ? nlo : NULL, two ? nhi : NULL, cull_n, cull_b, 6 + st.F)) goto done;
+        decided += st.K;
+        if (decide(&st)) goto done;
+    }
+finish:
     /* a bad ellipsoid (no plane of its own keeps the seeds) is fatal only if no kept plane cuts it off */
     {
         int64_t nb2 = 0;

@@ -8,10 +8,12 @@ from typing import TYPE_CHECKING, Optional
 
 import numpy as np
 import torch
+from torch import Tensor
 
 from ..corridor.polytope import Polytope, safe_polytope
 from ..errors import GoalUnreachableError, PlanningError
 from ..geometry.collision import segments_collide
+from ..geometry.ranges import group_ranks
 from .goal import ComponentMask, _project_onto_polytope, closest_safe_point
 
 if TYPE_CHECKING:
@@ -77,16 +79,65 @@ def free_voxel_near(planner: "Planner", p: np.ndarray, comp: Optional[int], max_
             cen = centres[order[lo_:hi_]]
             if cen.shape[0] == 0:
                 break
-            # float64 ends (the test runs in float64): rounding them to a float32 scene's dtype
-            # could move a segment by ~1e-7, more than the collision margin covers
-            coll = segments_collide(pt.expand_as(cen), cen, planner.scene, prep.index)
-            free = torch.nonzero(~coll).squeeze(-1)
-            if free.numel():
-                return cand[int(order[lo_ + int(free[0])])]
+            k = _first_free_segment(planner, pt, cen)
+            if k is not None:
+                return cand[int(order[lo_ + k])]
     raise GoalUnreachableError(
         f"no free grid voxel can be reached in a straight line from {np.round(p, 4).tolist()}; the point is "
         f"walled in at this grid resolution (raise --grid-resolution)"
     )
+
+
+BLOCKED_PROOF_SPACING = 0.5
+"""_segments_proven_blocked: sample spacing along a segment, in camera radii."""
+
+
+def _segments_proven_blocked(planner: "Planner", p: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """bool [K]: segment p -> ends[k] ([K, 3] float64) certainly collides: a sample point on it lies inside an
+    ellipsoid or closer than the camera radius to one (the compiled exact distance, capped at the radius; a margin
+    of 1e-9 relative keeps rounding out of the proof). All False where the compiled search does not apply."""
+    from ..corridor.polytope_native import native_applies
+    from ..geometry.distance import _native_capped_distance
+    from ..native import points_distance_c
+
+    scene, index = planner.scene, planner.ready().index
+    out = np.zeros(len(ends), dtype=bool)
+    fn = points_distance_c() if native_applies(scene, index) else None
+    if fn is None or not len(ends):
+        return out
+    r = float(scene.camera_radius)
+    n = np.maximum(1, np.ceil(np.linalg.norm(ends - p, axis=1) / (BLOCKED_PROOF_SPACING * r)).astype(np.int64))
+    owner, k = group_ranks(n)
+    pts = p + ((k + 1) / n[owner])[:, None] * (ends[owner] - p)  # (k + 1) / n: the far end included, p not
+    d = _native_capped_distance(fn, torch.from_numpy(pts), scene, index, r).numpy()
+    np.logical_or.at(out, owner, np.isnan(d) | (d < r * (1 - 1e-9)))  # NaN: inside an ellipsoid
+    return out
+
+
+def _first_free_segment(planner: "Planner", p: Tensor, ends: Tensor) -> Optional[int]:
+    """Index of the first segment p -> ends[k] ([K, 3], float64) that the swept-capsule test
+    (collision.segments_collide) proves collision-free, or None; the same answer as that test on all K, cheaper.
+
+    Two cheap tests bound its work: the conservative proof of Planner.segments_free (the occupancy grid's voxel
+    walk, then the compiled point tests of short pieces) accepts a segment (that one is returned when the capsule
+    test accepts none before it: both are conservative, so it is collision-free either way), and a sample inside
+    the camera radius of an ellipsoid rejects one for certain (_segments_proven_blocked: the capsule test could
+    not accept it either). The capsule test, a Python query of every segment's box, runs only on the segments
+    before the first accepted one that are not rejected."""
+    ends_np = ends.detach().cpu().numpy()
+    p_np = p.detach().cpu().numpy()
+    proven = np.flatnonzero(planner.segments_free(np.broadcast_to(p_np, ends_np.shape), ends_np))
+    first = int(proven[0]) if proven.size else ends.shape[0]
+    todo = np.flatnonzero(~_segments_proven_blocked(planner, p_np, ends_np[:first]))
+    if todo.size:
+        # float64 ends (the test runs in float64): rounding them to a float32 scene's dtype
+        # could move a segment by ~1e-7, more than the collision margin covers
+        head = ends[torch.as_tensor(todo, device=ends.device)]
+        coll = segments_collide(p.expand_as(head), head, planner.scene, planner.ready().index)
+        free = torch.nonzero(~coll).squeeze(-1)
+        if free.numel():
+            return int(todo[int(free[0])])
+    return first if proven.size else None
 
 
 def reachable_goal(planner: "Planner", target: np.ndarray, comp: int) -> "ReachableGoal":

@@ -47,8 +47,8 @@ agree to rounding, the two searches being exact). The workers are forked after p
 state (the CPU mirror of a GPU scene, index, grids) copy-on-write, so they add little memory. Fork only: on macOS /
 Windows (no 'fork' start method) candidates are planned in this process.
 
-When this process builds corridors with the batched backend (PlannerConfig.corridor_backend, a CUDA scene by
-default) and grid polytopes are off (Planner.use_grid_polytopes), each worker round has two phases around ONE
+When this process builds many-corridor batches with the batched backend (PlannerConfig.corridor_backend, a CUDA
+scene by default) and grid polytopes are off (Planner.use_grid_polytopes), each worker round has two phases around ONE
 batched corridor computation for all its candidates (stages.legs_corridor; the workers cannot use CUDA). With grid
 polytopes (the default) nearly every segment's polytope comes from the occupancy grid or is the goal's (corridor.py),
 cheap CPU work that the workers do themselves, so whole candidates run in the workers. With workers, ``timings``'
@@ -436,7 +436,7 @@ def _round_strategy(req: _CandidateRequest) -> Callable[[_CandidateRequest, List
     planner = req.planner
     if req.pool is None:
         return _round_in_process
-    if planner.corridor_backend() == "batched" and not planner.use_grid_polytopes():
+    if planner.corridor_backend(many=True) == "batched" and not planner.use_grid_polytopes():
         return _round_two_phase
     return _round_in_workers
 

@@ -95,7 +95,9 @@ class PlannerConfig:
     False: Prop-2 for all (the paper's). 'auto': on for voxels <= GRID_POLYTOPE_MAX_VOXEL x camera radius."""
     corridor_backend: str = "auto"
     """Corridor polytopes: 'cpu' one host polytope per segment; 'batched' all in one torch batch on the scene's own
-    device; 'auto': 'batched' on a CUDA scene, else 'cpu' (workers always 'cpu'). Same guarantee either way."""
+    device; 'auto': 'cpu' for one request's corridor (the CPU mirror's compiled polytopes beat GPU launches) unless
+    requests run on a CUDA scene, 'batched' for many-corridor batches on a CUDA scene (corridor_options; workers
+    always 'cpu'). Same guarantee either way."""
     candidate_workers: Optional[int] = None
     """Forked processes plan_candidates spreads candidates over (workers.py). None: one per CPU with 'fork' and
     >= 4 CPUs, else 0; 0: in this process. Never with requests on a GPU (no CUDA after fork)."""
@@ -240,17 +242,19 @@ class Planner:
             self._pool = None
 
     # ------------------------------------------------------------------ corridors (corridor_options.py)
-    def corridor_backend(self) -> str:
-        """config.corridor_backend resolved for this process: 'batched' or 'cpu' (corridor_options.corridor_backend)."""
-        return corridor_options.corridor_backend(self)
+    def corridor_backend(self, many: bool = False) -> str:
+        """config.corridor_backend resolved for this process and one request's corridor (``many``: a batch of many
+        corridors): 'batched' or 'cpu' (corridor_options.corridor_backend)."""
+        return corridor_options.corridor_backend(self, many)
 
     def use_grid_polytopes(self) -> bool:
         """config.grid_polytopes resolved for the prepared grid (corridor_options.use_grid_polytopes)."""
         return corridor_options.use_grid_polytopes(self)
 
-    def corridor_kwargs(self) -> dict:
-        """Keyword arguments of build_corridor for this planner's requests (corridor_options.corridor_kwargs)."""
-        return corridor_options.corridor_kwargs(self)
+    def corridor_kwargs(self, many: bool = False) -> dict:
+        """Keyword arguments of build_corridor for this planner's requests (``many``: of build_corridors over many
+        ways; corridor_options.corridor_kwargs)."""
+        return corridor_options.corridor_kwargs(self, many)
 
     # ------------------------------------------------------------------ clearance (clearance_queries.py)
     def clearance(self, points: ArrayLike, cap: Optional[float] = None, batch: bool = False) -> np.ndarray:

@@ -105,7 +105,8 @@ def leg_corridor(planner: "Planner", way: np.ndarray, known=()) -> Corridor:
 def legs_corridor(planner: "Planner", ways: Sequence[np.ndarray], known=()) -> List[Union[Corridor, CorridorError]]:
     """leg_corridor of several polylines [K, 3] in ONE batched computation (corridor.build_corridors: the batched
     backend's polytopes of every leg at once); a leg whose corridor fails gets its CorridorError in its place."""
-    return build_corridors(list(ways), planner.scene, planner.ready().index, known=known, **planner.corridor_kwargs())
+    return build_corridors(list(ways), planner.scene, planner.ready().index, known=known,
+                           **planner.corridor_kwargs(many=True))
 
 
 # ---------------------------------------------------------------- QP, timing + orientation

@@ -234,8 +234,10 @@ def test_cuda_batched_polytopes_match_cpu_and_plan():
     room = procedural_room(50_000, seed=3)
     e = EllipsoidScene.from_splat(room.means.cuda(), room.quats.cuda(), room.log_scales.cuda(),
                                   room.opacity_logits.cuda())
-    pl = Planner(e, PlannerConfig(candidate_workers=0))  # auto: batched on the GPU scene, requests on the CPU mirror
+    pl = Planner(e, PlannerConfig(candidate_workers=0))  # requests on the CPU mirror
     pl.prepare()
-    assert pl.corridor_backend() == "batched" and pl.scene.device.type == "cpu"
+    # auto: host polytopes on the CPU mirror for one request, batched for many corridors
+    assert pl.corridor_backend() == "cpu" and pl.corridor_backend(many=True) == "batched"
+    assert pl.scene.device.type == "cpu"
     sh = pl.plan(room.objects[0].center, room.objects[1].center, seed=0)[0]
     assert sh.safety["safe"] and all(P.A.device.type == "cpu" for P in sh.corridor.polytopes)

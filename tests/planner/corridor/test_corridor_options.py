@@ -1,0 +1,53 @@
+"""corridor_options.corridor_backend's resolution, on fake planners whose scenes claim a CUDA device (no GPU needed)."""
+from types import SimpleNamespace
+
+import pytest
+import torch
+
+from cinenerf_ns.planner.corridor import corridor_options
+from cinenerf_ns.planner.shots import candidates
+from cinenerf_ns.planner.shots.planner import PlannerConfig
+
+
+def _fake(backend: str, batch_dev: str, request_dev: str):
+    cfg = PlannerConfig(corridor_backend=backend)
+    return SimpleNamespace(config=cfg, batch_scene=SimpleNamespace(device=torch.device(batch_dev)),
+                           scene=SimpleNamespace(device=torch.device(request_dev)))
+
+
+@pytest.mark.parametrize("batch_dev,request_dev,one,many", [
+    ("cpu", "cpu", "cpu", "cpu"),           # CPU scene
+    ("cuda", "cpu", "cpu", "batched"),      # CUDA scene, requests on its CPU mirror (request_device 'auto')
+    ("cuda", "cuda", "batched", "batched"),  # requests on the CUDA scene itself (request_device 'scene')
+])
+def test_auto_host_polytopes_for_one_request_batched_for_many(monkeypatch, batch_dev, request_dev, one, many):
+    monkeypatch.setattr(corridor_options, "in_worker", lambda: False)
+    monkeypatch.setattr(torch.cuda, "_is_in_bad_fork", lambda: False)
+    pl = _fake("auto", batch_dev, request_dev)
+    assert corridor_options.corridor_backend(pl) == one
+    assert corridor_options.corridor_backend(pl, many=True) == many
+    for b in ("cpu", "batched"):  # explicit choices are kept
+        assert corridor_options.corridor_backend(_fake(b, batch_dev, request_dev)) == b
+        assert corridor_options.corridor_backend(_fake(b, batch_dev, request_dev), many=True) == b
+
+
+def test_worker_and_bad_fork_always_cpu(monkeypatch):
+    monkeypatch.setattr(corridor_options, "in_worker", lambda: True)
+    for b in ("auto", "batched"):
+        assert corridor_options.corridor_backend(_fake(b, "cuda", "cuda"), many=True) == "cpu"
+    monkeypatch.setattr(corridor_options, "in_worker", lambda: False)
+    monkeypatch.setattr(torch.cuda, "_is_in_bad_fork", lambda: True)
+    assert corridor_options.corridor_backend(_fake("batched", "cuda", "cpu"), many=True) == "cpu"
+
+
+def test_candidates_two_phase_rounds_follow_the_many_corridor_backend(monkeypatch):
+    monkeypatch.setattr(corridor_options, "in_worker", lambda: False)
+    for batch_dev, grid, want in (("cuda", False, candidates._round_two_phase),
+                                  ("cuda", True, candidates._round_in_workers),
+                                  ("cpu", False, candidates._round_in_workers)):
+        pl = _fake("auto", batch_dev, "cpu")
+        pl.corridor_backend = lambda many=False, pl=pl: corridor_options.corridor_backend(pl, many)
+        pl.use_grid_polytopes = lambda grid=grid: grid
+        req = SimpleNamespace(planner=pl, pool=object())
+        assert candidates._round_strategy(req) is want
+    assert candidates._round_strategy(SimpleNamespace(planner=pl, pool=None)) is candidates._round_in_process
