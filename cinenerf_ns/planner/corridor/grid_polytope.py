@@ -19,7 +19,8 @@ Construction (greedy, nearest first, as Prop. 2's): in voxel units voxel v is th
 the alive surface cube nearest to S is taken, with the exact closest points q (on S) and p (on the cube)
 (segment_box_closest: the squared distance is convex and piecewise quadratic in the segment parameter, so its
 minimum is at a breakpoint or at a stationary point of one piece; computed lazily, for the cubes at the front
-of an order by a cheap lower bound, which proves the taken cube the nearest). The plane with normal n = (p - q) / |p - q| through the
+of an order by a cheap lower bound, which proves the taken cube the nearest). The plane with normal
+n = (p - q) / |p - q| through the
 cube's nearest corner-side, b = min over the cube of n.y - margin, separates the cube from S (p is the
 projection of q onto the cube, q of p onto S). Cubes entirely beyond an added plane are dropped. S must
 satisfy every plane (checked in floating point: if rounding breaks it, no polytope is returned and the

@@ -112,7 +112,8 @@ def native_safe_polytope(fn, scene, index, seeds: np.ndarray, lo: np.ndarray, hi
     info = np.zeros(5, dtype=np.int64)
     cap = 512
     while True:
-        n = np.empty((cap, 3)), np.empty(cap), np.empty(cap, dtype=np.int64), np.empty(cap, dtype=np.int64), np.empty(cap)
+        n = (np.empty((cap, 3)), np.empty(cap), np.empty(cap, dtype=np.int64), np.empty(cap, dtype=np.int64),
+             np.empty(cap))
         F = int(fn(
             *arr["args"], sd.ctypes.data, sd.shape[0], lo_c.ctypes.data, hi_c.ctypes.data,
             None if rot_c is None else rot_c.ctypes.data, r, float(margin), NORMAL_CODE[normal],

@@ -22,7 +22,8 @@ def k_sphere(w2: np.ndarray, lam: np.ndarray, kappa: float, s: np.ndarray) -> np
 
 def argmax_k(w2: np.ndarray, lam: np.ndarray, kappa: float, n_samples: int = 64, iters: int = 6) -> np.ndarray:
     """s* = argmax_{s in (0,1)} K(s) per row [K]: K is concave in s, so a coarse grid then golden
-    section inside the best bracket converges to the maximiser (~1e-3 in s; only the normal uses it, never the offset)."""
+    section inside the best bracket converges to the maximiser (~1e-3 in s; only the normal uses it, never the
+    offset)."""
     k = w2.shape[0]
     grid = np.linspace(0.0, 1.0, n_samples + 2)[1:-1]  # [T]
     vals = k_sphere(w2, lam, kappa, np.broadcast_to(grid, (k, n_samples)))  # [K, T]
@@ -121,7 +122,8 @@ def _segment_closest_u(w0: np.ndarray, dw: np.ndarray, lam: np.ndarray, iters: i
         lo = np.where(left, lo, x1)
         nx = np.where(left, hi - g * (hi - lo), lo + g * (hi - lo))
         fn = dist(nx)
-        x1, x2, f1, f2 = (np.where(left, nx, x2), np.where(left, x1, nx), np.where(left, fn, f2), np.where(left, f1, fn))
+        x1, x2 = np.where(left, nx, x2), np.where(left, x1, nx)
+        f1, f2 = np.where(left, fn, f2), np.where(left, f1, fn)
     return 0.5 * (lo + hi)
 
 

@@ -234,7 +234,8 @@ def _prepared_waypoints(waypoints, dev) -> Tensor:
 
 
 def _known_polytope(known, a: Tensor, b: Tensor):
-    """The first of the ``known`` polytopes that holds both ends of the segment a -> b (so the whole segment), or None."""
+    """The first of the ``known`` polytopes that holds both ends of the segment a -> b (so the whole segment), or
+    None."""
     for p in known:
         pa = p if p.A.device == a.device else p.to(a.device)
         if bool(pa.contains(a)) and bool(pa.contains(b)):

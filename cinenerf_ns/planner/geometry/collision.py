@@ -193,7 +193,8 @@ def candidate_pairs(points: Tensor, scene: EllipsoidScene, index, radius: Tensor
     chunk = max(1, 4_000_000 // max(1, len(scene)))
     for i in range(0, points.shape[0], chunk):
         p = points[i : i + chunk]
-        m = ((p[:, None, :] - mu[None]).abs() <= h[None] * (1 + 1e-9) + radius[i : i + chunk, None, None] + 1e-12).all(-1)
+        reach = h[None] * (1 + 1e-9) + radius[i : i + chunk, None, None] + 1e-12
+        m = ((p[:, None, :] - mu[None]).abs() <= reach).all(-1)
         pi, gi = torch.nonzero(m, as_tuple=True)
         out_p.append(pi + i)
         out_g.append(gi)

@@ -111,9 +111,9 @@ def load(name: str) -> Optional[ctypes.CDLL]:
 
 
 def choose(backend: str, loader, lib: str, what: str, applies: bool = True, needs: str = ""):
-    """The compiled function a caller with a ``backend`` argument ("auto" | "native" | "python") should use: ``loader()``
-    when it applies and loads, else None (the Python path). Raises InvalidInputError for an unknown backend and
-    RuntimeError when "native" was asked for and cannot be had (``needs``: what the compiled path needs)."""
+    """The compiled function a caller with a ``backend`` argument ("auto" | "native" | "python") should use:
+    ``loader()`` when it applies and loads, else None (the Python path). Raises InvalidInputError for an unknown
+    backend and RuntimeError when "native" was asked for and cannot be had (``needs``: what the compiled path needs)."""
     if backend not in ("auto", "native", "python"):
         raise InvalidInputError(f"{what} backend must be 'auto', 'native' or 'python', got {backend!r}")
     fn = loader() if backend != "python" and applies else None

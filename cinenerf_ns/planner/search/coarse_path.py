@@ -55,7 +55,8 @@ def _mcp_path(costs: np.ndarray, start, ends: np.ndarray, grid: Optional[AStarGr
     from skimage.graph import MCP_Geometric
 
     mcp = MCP_Geometric(costs, fully_connected=True)
-    cum, _ = mcp.find_costs([tuple(int(v) for v in start)], [tuple(int(v) for v in e) for e in ends], find_all_ends=False)
+    ends_t = [tuple(int(v) for v in e) for e in ends]
+    cum, _ = mcp.find_costs([tuple(int(v) for v in start)], ends_t, find_all_ends=False)
     ce = cum[tuple(np.asarray(ends).T)]  # [E]
     k = int(np.argmin(ce))
     if not np.isfinite(ce[k]):

@@ -342,8 +342,8 @@ def closest_safe_point(
     2. Prop-2 polytope in the box target +- box_half (default 8 voxels, or 0.2 without a grid), target
        projected onto it (QP), verified inside -> that point (safe by construction of the polytope).
     3. fallback: free voxels of ``grid`` holding no Gaussian mean (and inside ``reachable`` [X,Y,Z]
-       if given, e.g. the start's connected component; a ComponentMask is compared per window), nearest first, the first whose centre passes
-       the exact clearance test.
+       if given, e.g. the start's connected component; a ComponentMask is compared per window), nearest first,
+       the first whose centre passes the exact clearance test.
     Raises GoalUnreachableError when all three fail. ``clearance_fn(points[P,3]) -> bool[P]`` replaces
     the built-in exact test (e.g. a closure over distance.clearance(...) >= 0). ``mean_voxels`` [X,Y,Z] bool:
     mean_voxel_mask(scene, grid), computed once per scene (step 3 then gathers no Gaussians: the same voxels, without
@@ -495,7 +495,8 @@ def sample_free_starts(
     lo = glo if region_lo is None else torch.maximum(torch.as_tensor(region_lo, dtype=torch.float64).reshape(3), glo)
     hi = ghi if region_hi is None else torch.minimum(torch.as_tensor(region_hi, dtype=torch.float64).reshape(3), ghi)
     if not (torch.isfinite(lo).all() and torch.isfinite(hi).all()) or (hi <= lo).any():
-        raise InvalidInputError(f"start region is empty: lo={lo.tolist()} hi={hi.tolist()} (after clipping to the grid)")
+        raise InvalidInputError(f"start region is empty: lo={lo.tolist()} hi={hi.tolist()} "
+                                "(after clipping to the grid)")
     clear = clearance_fn or _default_clear(scene, index, margin)
     batch = batch or max(4 * n, 32)
     away = None

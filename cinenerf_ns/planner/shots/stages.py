@@ -34,7 +34,8 @@ def start_voxel(planner: "Planner", start: np.ndarray) -> Tuple[np.ndarray, int]
     return s_ijk, int(planner.ready().astar_grid.labels[tuple(s_ijk)])
 
 
-def component_goal(planner: "Planner", target: np.ndarray, comp: int, goal_cache: Optional[dict] = None) -> ReachableGoal:
+def component_goal(planner: "Planner", target: np.ndarray, comp: int,
+                   goal_cache: Optional[dict] = None) -> ReachableGoal:
     """The closest safe point to ``target`` [3] that free component ``comp`` reaches (reach.reachable_goal), found
     once per component when a ``goal_cache`` (component -> ReachableGoal, one target) is given."""
     if goal_cache is None:
@@ -44,7 +45,8 @@ def component_goal(planner: "Planner", target: np.ndarray, comp: int, goal_cache
     return goal_cache[comp]
 
 
-def leg_goal(planner: "Planner", start: np.ndarray, target: np.ndarray, goal_cache: dict) -> Tuple[ReachableGoal, np.ndarray]:
+def leg_goal(planner: "Planner", start: np.ndarray, target: np.ndarray,
+             goal_cache: dict) -> Tuple[ReachableGoal, np.ndarray]:
     """(where the leg ends, the free voxel [3] it starts in): the goal is found once per free component of the start
     (``goal_cache``: component -> ReachableGoal, shared by the candidates of one request)."""
     s_ijk, comp = start_voxel(planner, start)
@@ -166,7 +168,8 @@ def legs_verify(planner: "Planner", shots: Sequence[Shot]) -> List[dict]:
         out.append({
             "num_samples": int(n), "max_sample_spacing": float(spacing), "num_inconclusive": nb,
             "min_exact_clearance": mn, "safe": bool(mn is None or mn >= 0.0),
-            "method": "conservative test on every sample (occupancy grid, then Cor.1), exact distance where inconclusive (batched over candidates)",
+            "method": "conservative test on every sample (occupancy grid, then Cor.1), exact distance where "
+                      "inconclusive (batched over candidates)",
         })
         o += n
     return out
