@@ -25,6 +25,8 @@ from .ellipsoids import EllipsoidScene
 if TYPE_CHECKING:  # numpy is imported where it is used (morton_order); the annotation only names it
     import numpy as np
 
+SCAN_CELLS_PER_TEST = 8  # query_points scans all N boxes once the grid lookup would visit this many cells per test
+
 
 @dataclass
 class _Level:
@@ -304,7 +306,19 @@ class GridIndex:
             rad = rad.expand(points.shape[0])
         if rad.shape != (points.shape[0],) or bool((rad < 0).any()) or not bool(torch.isfinite(rad).all()):
             raise InvalidInputError(f"query radius must be finite, >= 0, scalar or [P]; got shape {tuple(rad.shape)}")
-        return self.query_boxes(points - rad[:, None], points + rad[:, None])
+        qlo, qhi = points - rad[:, None], points + rad[:, None]
+        # the grid lookup visits every cell of every box: when the boxes are large next to the cells (a growing
+        # search far from a scene of tiny ellipsoids), the scan's Q x N box tests are far cheaper; same pairs
+        method = "scan" if self._visited_cells(qlo, qhi) > SCAN_CELLS_PER_TEST * qlo.shape[0] * len(self) else "grid"
+        return self.query_boxes(qlo, qhi, method=method)
+
+    def _visited_cells(self, qlo: Tensor, qhi: Tensor) -> float:
+        """Cells the grid lookup of boxes [Q, 3] would visit, over all levels (one host sync)."""
+        total = torch.zeros((), dtype=torch.float64, device=self.device)
+        for lv in self.levels:
+            span = (torch.floor((qhi - self.origin) / lv.cell) - torch.floor((qlo - self.origin) / lv.cell) + 1)
+            total = total + torch.minimum(span.clamp_min(0), lv.dims.to(span.dtype)).prod(-1).sum()
+        return float(total)
 
     def query_box_in_planes(self, lo: Tensor, hi: Tensor, A: Tensor, b: Tensor, max_cells: int = 4_000_000) -> Tensor:
         """Ids [K] (ascending) of ellipsoids whose padded AABB meets the box [lo, hi]; every ellipsoid

@@ -5,6 +5,7 @@ from hypothesis import given, settings, strategies as st
 
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.geometry.distance import point_ellipsoid_distance
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
 from cinenerf_ns.planner.scene.spatial_index import GridIndex
 
 
@@ -28,6 +29,29 @@ def test_query_points_equals_brute_force(seed, n, cell, radius, huge):
     assert len(got) == len(set(got)), "duplicate pairs"
     assert pi.tolist() == sorted(pi.tolist())
     assert set(got) == _brute_pairs(idx, pts - radius, pts + radius)
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 10_000), tiny=st.sampled_from([1e-4, 1e-3]), radius=st.floats(0.5, 2.0))
+def test_query_points_scans_when_boxes_dwarf_the_cells(seed, tiny, radius):
+    """A few tiny ellipsoids (cells of ~1e-3) and boxes 1-4 units wide: the grid lookup would walk millions of
+    cells, so query_points scans instead; the pairs are the grid lookup's and the brute-force test's."""
+    g = torch.Generator().manual_seed(seed)
+    means = torch.rand(5, 3, generator=g, dtype=torch.float64) * 0.2
+    sc = EllipsoidScene(means, torch.eye(3, dtype=torch.float64).expand(5, 3, 3).clone(),
+                        torch.full((5, 3), tiny, dtype=torch.float64), torch.ones(5, dtype=torch.float64))
+    idx = GridIndex.build(sc)
+    pts = torch.rand(20, 3, generator=g, dtype=torch.float64) * 0.8 - 0.3  # every box covers the whole grid
+    scans = []
+    real_scan = idx._scan_boxes
+    idx._scan_boxes = lambda *a, **k: scans.append(1) or real_scan(*a, **k)  # a spy on this index only
+    pi, gi = idx.query_points(pts, radius)
+    assert scans, "the grid lookup was used for boxes that visit far more cells than Q x N tests"
+    got = set(zip(pi.tolist(), gi.tolist()))
+    assert got == _brute_pairs(idx, pts - radius, pts + radius)
+    gq, gg = idx.query_boxes(pts - radius, pts + radius, method="grid")
+    assert got == set(zip(gq.tolist(), gg.tolist()))
+    assert pi.tolist() == sorted(pi.tolist())
 
 
 @settings(max_examples=40, deadline=None)
