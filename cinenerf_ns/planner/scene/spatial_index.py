@@ -259,10 +259,13 @@ class GridIndex:
         """Sum over boxes [Q, 3] of _estimated_entries (one host sync)."""
         est = torch.zeros((), dtype=torch.float64, device=self.device)
         for lv in self.levels:
-            span = (torch.floor((qhi - self.origin) / lv.cell) - torch.floor((qlo - self.origin) / lv.cell) + 1)
-            span = torch.minimum(span.clamp_min(0), lv.dims.to(span.dtype))  # [Q, 3]
-            est = est + span.prod(-1).sum() * (lv.ids.numel() / max(1, int(lv.dims.prod())))
+            est = est + self._cells_spanned(qlo, qhi, lv).sum() * (lv.ids.numel() / max(1, int(lv.dims.prod())))
         return float(est)
+
+    def _cells_spanned(self, qlo: Tensor, qhi: Tensor, lv: "_Level") -> Tensor:
+        """Cells [Q] of level ``lv`` that each box [Q, 3] spans (clipped to the grid's size per axis)."""
+        span = (torch.floor((qhi - self.origin) / lv.cell) - torch.floor((qlo - self.origin) / lv.cell) + 1)
+        return torch.minimum(span.clamp_min(0), lv.dims.to(span.dtype)).prod(-1)
 
     def query_box(self, lo: Tensor, hi: Tensor, method: str = "auto") -> Tensor:
         """Ids [K] (ascending) of the ellipsoids whose padded AABB meets the box [lo, hi].
@@ -314,11 +317,7 @@ class GridIndex:
 
     def _visited_cells(self, qlo: Tensor, qhi: Tensor) -> float:
         """Cells the grid lookup of boxes [Q, 3] would visit, over all levels (one host sync)."""
-        total = torch.zeros((), dtype=torch.float64, device=self.device)
-        for lv in self.levels:
-            span = (torch.floor((qhi - self.origin) / lv.cell) - torch.floor((qlo - self.origin) / lv.cell) + 1)
-            total = total + torch.minimum(span.clamp_min(0), lv.dims.to(span.dtype)).prod(-1).sum()
-        return float(total)
+        return float(sum(self._cells_spanned(qlo, qhi, lv).sum() for lv in self.levels))
 
     def query_box_in_planes(self, lo: Tensor, hi: Tensor, A: Tensor, b: Tensor, max_cells: int = 4_000_000) -> Tensor:
         """Ids [K] (ascending) of ellipsoids whose padded AABB meets the box [lo, hi]; every ellipsoid
