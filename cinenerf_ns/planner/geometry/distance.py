@@ -129,7 +129,7 @@ PRUNE_SLACK = 1e-6
 finding, dropping the nearest one reported inf."""
 
 
-def _native_capped_distance(fn, pts: Tensor, scene: EllipsoidScene, index, cap: float) -> Tensor:
+def native_capped_distance(fn, pts: Tensor, scene: EllipsoidScene, index, cap: float) -> Tensor:
     """min(cap, distance to the nearest ellipsoid) [P] through native/polytope.c (NaN where a point is inside one)."""
     from ..corridor.polytope_native import native_arrays
 
@@ -181,7 +181,7 @@ def clearance(
                 and native_applies(scene, index),
                 needs="a finite max_distance, no return_index, a CPU scene and a GridIndex on the CPU")
     if fn is not None:
-        d = _native_capped_distance(fn, pts, scene, index, float(max_distance))  # [P]
+        d = native_capped_distance(fn, pts, scene, index, float(max_distance))  # [P]
         inside = torch.nonzero(torch.isnan(d)).squeeze(-1)
         if inside.numel():
             inner = clearance(pts[inside], scene, index, max_distance=max_distance, backend="python")

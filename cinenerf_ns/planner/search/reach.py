@@ -97,7 +97,7 @@ def _segments_proven_blocked(planner: "Planner", p: np.ndarray, ends: np.ndarray
     ellipsoid or closer than the camera radius to one (the compiled exact distance, capped at the radius; a margin
     of 1e-9 relative keeps rounding out of the proof). All False where the compiled search does not apply."""
     from ..corridor.polytope_native import native_applies
-    from ..geometry.distance import _native_capped_distance
+    from ..geometry.distance import native_capped_distance
     from ..native import points_distance_c
 
     scene, index = planner.scene, planner.ready().index
@@ -109,7 +109,7 @@ def _segments_proven_blocked(planner: "Planner", p: np.ndarray, ends: np.ndarray
     n = np.maximum(1, np.ceil(np.linalg.norm(ends - p, axis=1) / (BLOCKED_PROOF_SPACING * r)).astype(np.int64))
     owner, k = group_ranks(n)
     pts = p + ((k + 1) / n[owner])[:, None] * (ends[owner] - p)  # (k + 1) / n: the far end included, p not
-    d = _native_capped_distance(fn, torch.from_numpy(pts), scene, index, r).numpy()
+    d = native_capped_distance(fn, torch.from_numpy(pts), scene, index, r).numpy()
     np.logical_or.at(out, owner, np.isnan(d) | (d < r * (1 - 1e-9)))  # NaN: inside an ellipsoid
     return out
 
