@@ -10,6 +10,8 @@ TORCH_SPEC ?= torch==2.14.1 torchvision==0.29.1
 NERFSTUDIO_SPEC ?= nerfstudio==1.1.5
 PIP := $(VPY) -m pip --disable-pip-version-check
 PYTEST_ARGS ?=
+# one pytest worker per core; tests that open network ports run in one worker (tests/conftest.py)
+PYTEST_PARALLEL ?= -n auto --dist loadgroup
 
 .PHONY: install demo lint test test-fast bench clean-venv
 
@@ -35,10 +37,10 @@ lint: install
 	$(VPY) scripts/check_doc_names.py docs/ARCHITECTURE.md README.md docs/PLANNER_DEFAULTS.md cinenerf_ns/planner/__init__.py
 
 test: install lint
-	$(VPY) -m pytest $(PYTEST_ARGS)
+	$(VPY) -m pytest $(PYTEST_PARALLEL) $(PYTEST_ARGS)
 
 test-fast: install
-	$(VPY) -m pytest -m "not slow and not browser" $(PYTEST_ARGS)
+	$(VPY) -m pytest $(PYTEST_PARALLEL) -m "not slow and not browser" $(PYTEST_ARGS)
 
 bench: install
 	$(VPY) benchmarks/bench_planner.py

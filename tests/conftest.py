@@ -25,6 +25,10 @@ def pytest_collection_modifyitems(config, items):
     has_cuda = _cuda()
     has_fox = (FOX / "transforms.json").exists()
     for item in items:
+        # `make test` runs pytest-xdist workers; tests that bind a port (their module defines free_port) share one
+        # worker so two workers never race for the same free port
+        if getattr(getattr(item, "module", None), "free_port", None) is not None:
+            item.add_marker(pytest.mark.xdist_group("ports"))
         if "gpu" in item.keywords and not has_cuda:
             item.add_marker(pytest.mark.skip(reason="needs a CUDA device (run scripts/gpu_check.sh on a GPU machine)"))
         if "fox" in item.keywords and not has_fox:
