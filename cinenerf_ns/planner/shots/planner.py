@@ -23,6 +23,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ..blas_threads import blas_threads
 from ..corridor import corridor_options
 from ..corridor.corridor_options import GRID_POLYTOPE_MAX_VOXEL  # noqa: F401 (re-exported: PlannerConfig.grid_polytopes)
 from ..errors import InvalidInputError
@@ -85,7 +86,7 @@ class PlannerConfig:
     max_attempts_per_candidate: int = 4
     """Random starts tried per requested candidate before giving up on it."""
     plan_cpu_threads: Optional[int] = 1
-    """torch intra-op threads while plan() queries on the CPU (restored afterwards; None: untouched); 1 because
+    """torch intra-op and BLAS threads while a request runs (restored afterwards; None: untouched); 1 because
     a request's thousands of small ops lose more to thread hand-offs than they gain."""
     request_device: str = "auto"
     """Where a request's small queries run. 'auto': on prepare()'s CPU mirror of a GPU scene (tiny kernels cost more
@@ -340,14 +341,16 @@ class Planner:
     @contextlib.contextmanager
     def request_threads(self):
         """torch CPU threads = config.plan_cpu_threads while a request runs (restored afterwards): a plan is
-        many small ops, for which extra threads cost more than they give."""
+        many small ops, for which extra threads cost more than they give. numpy's / scipy's BLAS threads are capped
+        the same way (blas_threads), on any device: the QP's linear algebra always runs on the CPU."""
         threads, old = self.config.plan_cpu_threads, torch.get_num_threads()
         on_cpu = self.scene.device.type == "cpu" or self._mirror_to_cpu()  # the mirror exists once prepared
         swap = threads is not None and on_cpu and int(threads) != old
         if swap:
             torch.set_num_threads(int(threads))
         try:
-            yield
+            with blas_threads(threads):
+                yield
         finally:
             if swap:
                 torch.set_num_threads(old)

@@ -37,6 +37,7 @@ from typing import Any, Callable, Iterable, Iterator, List, Optional
 
 import torch
 
+from ..blas_threads import set_blas_threads
 from ..errors import InvalidInputError
 
 # the planner a worker serves; set in the child by _init_worker (inherited through fork, never pickled)
@@ -115,6 +116,7 @@ def _preload() -> None:
 def _init_worker(planner_ref: "weakref.ref") -> None:
     global _PLANNER
     torch.set_num_threads(1)
+    set_blas_threads(1)
     _PLANNER = planner_ref()
 
 
