@@ -351,3 +351,24 @@ def test_goal_from_the_small_box_is_as_close_as_from_the_full_box(room, monkeypa
                 np.testing.assert_allclose(goal.point, ref, atol=1e-9)
     if first_box < 1:
         assert n_second > 0
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), grid_rule=st.booleans(), n=st.integers(1, 40))
+def test_shortcut_test_is_the_grid_sight_and_proof_rule(room, seed, grid_rule, n):
+    """search.shortcut.shortcut_test asks in its cheapest order; its answer is the rule written plainly: grid sight AND
+    (grid rule with both ends in free voxels: the exact voxel walk; otherwise segments_free)."""
+    from cinenerf_ns.planner.search.shortcut import free_voxels, grid_sight, segments_free, shortcut_test
+
+    s, e, pl = room
+    rng = np.random.default_rng(seed)
+    lo, hi = pl.region()
+    a = rng.uniform(lo, hi, (n, 3))
+    b = a + rng.normal(0, 0.4, (n, 3)) * rng.choice([0.1, 1.0], (n, 1))  # short and long segments
+    sight = grid_sight(pl, a, b)
+    fv = free_voxels(pl)
+    walk = pl.ready().voxels.segments_free(a, b)
+    proof = segments_free(pl, a, b)
+    ends_free = fv.contains(a) & fv.contains(b)
+    want = sight & np.where(grid_rule & ends_free, walk, proof)
+    assert np.array_equal(shortcut_test(pl, a, b, grid_rule), want)
