@@ -14,6 +14,7 @@ with the forward differences (Delta^r P)_j = sum_i (-1)^(r-i) C(r, i) P_{j+i}.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any, Tuple
@@ -67,6 +68,24 @@ def difference_matrix(degree: int, order: int) -> np.ndarray:
         for i in range(order + 1):
             mat[j, j + i] = (-1.0) ** (order - i) * math.comb(order, i)
     return mat
+
+
+@functools.lru_cache(maxsize=None)
+def _bernstein_to_power(n: int) -> np.ndarray:
+    """[n+1, n+1] matrix M with power coefficients c = M P of a degree-n Bernstein polynomial with coefficients P:
+    M[j, i] = C(n, j) C(j, i) (-1)^(j - i) (cached, read-only)."""
+    m = np.zeros((n + 1, n + 1))
+    for j in range(n + 1):
+        for i in range(j + 1):
+            m[j, i] = math.comb(n, j) * math.comb(j, i) * (-1.0) ** (j - i)
+    m.setflags(write=False)
+    return m
+
+
+def power_coefficients(points: np.ndarray) -> np.ndarray:
+    """Bernstein control points [M, n+1, 3] -> power-basis coefficients [M, n+1, 3] (segment k is
+    sum_j c[k, j] u^j on u in [0, 1])."""
+    return np.einsum("ji,mic->mjc", _bernstein_to_power(points.shape[1] - 1), points)
 
 
 def derivative_control_points(control_points: np.ndarray, durations: np.ndarray, order: int) -> np.ndarray:
@@ -167,6 +186,22 @@ class BezierTrajectory:
         basis = bernstein_basis(pts.shape[1] - 1, u)  # [T, n+1]
         out = np.einsum("tj,tjc->tc", basis, pts[seg])  # [T, 3]
         return _like(out, t)
+
+    def speed(self, t: Any) -> np.ndarray:
+        """|p'(t)| at global times t [T] -> [T] numpy, for the timing's arc-length integrals (many thousand times per
+        shot). Horner's rule on the power-basis coefficients of p' (cached): about twice as fast as derivative(t, 1)
+        and equal to its norm up to rounding (~1e-13 relative), but not exactly 0 where the curve rests."""
+        seg, u = self.segment_of(t)
+        hit = self._dcp.get("power1")
+        if hit is None or hit[0] is not self.control_points or hit[1] is not self.durations:
+            hit = (self.control_points, self.durations, power_coefficients(self._derivative_points(1)))
+            self._dcp["power1"] = hit
+        c = hit[2][seg]  # [T, n+1, 3]: c_0 + c_1 u + ... + c_n u^n per point
+        out = c[:, -1].copy()
+        for j in range(c.shape[1] - 2, -1, -1):
+            out *= u[:, None]
+            out += c[:, j]
+        return np.sqrt(np.einsum("tc,tc->t", out, out))
 
     def _derivative_points(self, order: int) -> np.ndarray:
         """derivative_control_points(order) [M, D+1-order, 3], cached (see __post_init__)."""

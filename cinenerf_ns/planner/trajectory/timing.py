@@ -102,7 +102,7 @@ def arc_length_table(traj: BezierTrajectory, samples_per_segment: int = 64, with
     q = (0.5 * (a + b))[:, None] + half[:, None] * nodes[None, :]  # [K-1, 5] quadrature points
     # evaluate each quadrature point inside the segment its interval belongs to (no join ambiguity)
     pts = np.concatenate([q.ravel(), tau]) if with_speed else q.ravel()
-    speed_all = np.linalg.norm(traj.derivative(pts, 1), axis=1)
+    speed_all = traj.speed(pts)
     speed = speed_all[: q.size].reshape(q.shape)  # [K-1, 5]
     ds = half * (speed @ weights)  # [K-1]
     s = np.concatenate([[0.0], np.cumsum(ds)])
@@ -152,7 +152,7 @@ def invert_arc_length(traj: BezierTrajectory, tau_tab: np.ndarray, s_tab: np.nda
         half = 0.5 * (tau - lo)
         q = (lo + half)[:, None] + half[:, None] * nodes[None, :]  # [T, 5]
         # one derivative evaluation for the quadrature points and tau itself
-        sq = np.linalg.norm(traj.derivative(np.concatenate([q.ravel(), tau]), 1), axis=1)  # [5T + T]
+        sq = traj.speed(np.concatenate([q.ravel(), tau]))  # [5T + T]
         speed_q, speed = sq[: 5 * n].reshape(q.shape), sq[5 * n:]
         s_here = s_tab[i] + half * (speed_q @ weights)
         step = np.where(speed > 1e-12, (s_here - s) / np.maximum(speed, 1e-12), 0.0)

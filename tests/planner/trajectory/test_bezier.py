@@ -135,3 +135,17 @@ def test_derivative_above_degree_is_zero():
 def test_bad_input_raises(cps, durs):
     with pytest.raises(InvalidInputError):
         BezierTrajectory(cps, durs)
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), m=st.integers(1, 6), degree=st.integers(1, 7),
+       scale=st.sampled_from([1e-3, 1.0, 50.0]))
+def test_speed_is_the_norm_of_the_first_derivative(seed, m, degree, scale):
+    """BezierTrajectory.speed (Horner on power coefficients) against |derivative(t, 1)| (Bernstein basis), in float64,
+    at random times, joins and both ends."""
+    rng = np.random.default_rng(seed)
+    traj = BezierTrajectory(scale * rng.normal(size=(m, degree + 1, 3)), rng.uniform(0.05, 2.0, m))
+    t = np.concatenate([rng.uniform(0, traj.total_duration, 50), traj.segment_starts, [traj.total_duration]])
+    want = np.linalg.norm(traj.derivative(t, 1), axis=1)
+    bound = 1e-12 * max(1.0, float(np.abs(traj._derivative_points(1)).max()))
+    assert np.abs(traj.speed(t) - want).max() <= bound
