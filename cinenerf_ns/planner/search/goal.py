@@ -460,6 +460,7 @@ def sample_free_starts(
     clearance_fn: Optional[Callable[[Tensor], Tensor]] = None,
     away_from: Optional[Union[Tensor, np.ndarray, Sequence[float]]] = None,
     away_fraction: float = 0.0,
+    blocked: Optional[np.ndarray] = None,
 ) -> Tensor:
     """n collision-free camera centres [n, 3] float64, uniformly sampled in the region (seeded).
 
@@ -473,6 +474,9 @@ def sample_free_starts(
     away_fraction x the region's longest side are rejected too (before the clearance test). Preferred, not
     required: when ``max_tries`` batches give fewer than n such starts, the missing ones are drawn again
     without this rule (same generator), so it never makes a request fail.
+
+    ``blocked`` [X,Y,Z] bool: occupied | ~reachable when the caller keeps it (starts.random_starts, once per
+    prepared scene); it replaces both masks.
     """
     if int(n) != n or n < 1:
         raise InvalidInputError(f"number of starts must be a positive integer, got {n}")
@@ -485,7 +489,11 @@ def sample_free_starts(
     if grid is not None:
         occ, glo, vs = _grid_arrays(grid)
         ghi = glo + torch.as_tensor(occ.shape, dtype=torch.float64) * vs
-        if reachable is not None:
+        if blocked is not None:
+            if blocked.shape != occ.shape:
+                raise InvalidInputError(f"blocked mask {blocked.shape} does not match the grid {occ.shape}")
+            occ = blocked
+        elif reachable is not None:
             reachable = np.asarray(reachable, dtype=bool)
             if reachable.shape != occ.shape:
                 raise InvalidInputError(f"reachable mask {reachable.shape} does not match the grid {occ.shape}")

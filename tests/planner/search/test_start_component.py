@@ -93,3 +93,24 @@ def test_random_starts_in_a_closed_room_without_a_start_region_are_inside_it():
     shot = pl.plan(np.array([0.6, 0.5, 0.25]), np.array([-0.5, -0.5, 0.1]), seed=1)[0]
     assert (np.abs(shot.positions[:, :2]) < w / 2).all() and (shot.positions[:, 2] > 0).all()
     assert (shot.positions[:, 2] < h).all()
+
+
+def test_random_starts_with_the_cached_blocked_mask_are_those_of_both_masks():
+    """starts.random_starts passes one cached mask (occupied | outside the main component); the starts are those that
+    sample_free_starts draws from the occupancy grid and the reachable mask, and the mask is built once."""
+    from cinenerf_ns.planner.search.goal import sample_free_starts
+    from cinenerf_ns.planner.search.starts import start_blocked
+
+    pl = Planner(_closed_room(2.0, 0.5), PlannerConfig(grid_resolution=48))
+    prep = pl.prepare()
+    look = np.array([0.5, 0.0, 0.25])
+    for seed in range(4):
+        got = pl.random_starts(6, torch.Generator().manual_seed(seed), look)
+        want = sample_free_starts(
+            6, pl.scene, prep.index, prep.grid, generator=torch.Generator().manual_seed(seed),
+            reachable=prep.astar_grid.labels == pl.main_component(), clearance_fn=pl.free_test,
+            away_from=look, away_fraction=pl.config.start_look_distance)
+        assert torch.equal(got, want)
+    assert start_blocked(pl) is start_blocked(pl)
+    occ = np.asarray(prep.grid.occupied.cpu().numpy() if torch.is_tensor(prep.grid.occupied) else prep.grid.occupied)
+    assert np.array_equal(start_blocked(pl), occ | (prep.astar_grid.labels != pl.main_component()))
