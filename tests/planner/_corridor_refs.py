@@ -81,8 +81,10 @@ def point_ellipsoid_distance(points, scene) -> np.ndarray:
     """[P, N] exact Euclidean distance (float64) from each point to each ellipsoid; -1 inside.
 
     Vectorised bisection on f(t) = sum_i lam_i w_i^2 / (lam_i + t)^2 - 1 over [0, a_max |w|]
-    (f(0) > 0 outside, f(a_max |w|) <= 0), 200 halvings: the bracket shrinks below float64
-    resolution, so the root is exact to rounding (no Newton: independent of the package's solver)."""
+    (f(0) > 0 outside, f(a_max |w|) <= 0), up to 200 halvings: the bracket shrinks below float64
+    resolution, so the root is exact to rounding (no Newton: independent of the package's solver).
+    Only the pairs outside are bisected, and a pair leaves the loop once a halving leaves its bracket unchanged: the
+    halving is a fixed map of (lo, hi), so every later one would too (bit-for-bit the result of 200 full halvings)."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     mu = scene.means.double().numpy()
     R = scene.rotations.double().numpy()
@@ -90,17 +92,36 @@ def point_ellipsoid_distance(points, scene) -> np.ndarray:
     lam = (a * a)[None]  # [1, N, 3]
     w = np.einsum("nji,pnj->pni", R, pts[:, None, :] - mu[None])  # body frame [P, N, 3]
     inside = (w * w / lam).sum(-1) <= 1.0
-    lo = np.zeros(w.shape[:2])
-    hi = a.max(-1)[None] * np.linalg.norm(w, axis=-1) + 1e-300
-    c = lam * w * w
+    pi, ni = np.nonzero(~inside)  # the K pairs outside
+    wo = w[pi, ni]  # [K, 3]
+    lam_o = np.broadcast_to(lam, w.shape)[pi, ni]  # [K, 3]
+    c = lam_o * wo * wo
+    l0, l1, l2 = (np.ascontiguousarray(lam_o[:, k]) for k in range(3))
+    c0, c1, c2 = (np.ascontiguousarray(c[:, k]) for k in range(3))
+    lo_all = np.zeros(pi.size)
+    hi_all = a[ni].max(-1) * np.linalg.norm(wo, axis=-1) + 1e-300
+    act = np.arange(pi.size)  # pairs whose bracket still moves
+    lo, hi = lo_all.copy(), hi_all.copy()
     for _ in range(200):
+        if act.size == 0:
+            break
         mid = 0.5 * (lo + hi)
-        pos = (c / (lam + mid[..., None]) ** 2).sum(-1) > 1.0
-        lo = np.where(pos, mid, lo)
-        hi = np.where(pos, hi, mid)
-    t = 0.5 * (lo + hi)
-    d = np.linalg.norm(w - lam * w / (lam + t[..., None]), axis=-1)
-    return np.where(inside, -1.0, d)
+        pos = c0 / (l0 + mid) ** 2 + c1 / (l1 + mid) ** 2 + c2 / (l2 + mid) ** 2 > 1.0
+        nlo = np.where(pos, mid, lo)
+        nhi = np.where(pos, hi, mid)
+        moved = (nlo != lo) | (nhi != hi)
+        lo, hi = nlo, nhi
+        if not moved.all():  # fixed points: store and drop them
+            lo_all[act[~moved]] = lo[~moved]
+            hi_all[act[~moved]] = hi[~moved]
+            act, lo, hi = act[moved], lo[moved], hi[moved]
+            l0, l1, l2, c0, c1, c2 = l0[moved], l1[moved], l2[moved], c0[moved], c1[moved], c2[moved]
+    lo_all[act] = lo
+    hi_all[act] = hi
+    t = 0.5 * (lo_all + hi_all)
+    out = np.full(w.shape[:2], -1.0)
+    out[pi, ni] = np.linalg.norm(wo - lam_o * wo / (lam_o + t[:, None]), axis=-1)
+    return out
 
 
 def clearance(points, scene) -> np.ndarray:
