@@ -6,8 +6,9 @@ within ``INITIAL_DISTANCE`` of the segment between its two waypoints (always the
 relaxation, checks every free control point against *all* shrunk faces, adds the violated ones (and those within
 ``NEAR_DISTANCE`` of being violated) and solves again, until no face is violated. The result is then the exact optimum
 of the full QP: it is the optimum of a relaxation (fewer constraints, so its objective is <= the full optimum) and
-feasible for the full problem (so its objective is >= it); the objective is strictly convex on the feasible set, so
-the minimiser is the same. A relaxation that is infeasible proves the full QP infeasible (it has fewer constraints).
+feasible for the full problem (so its objective is >= it); the cost is strictly convex where the equalities hold
+(its only flat directions, segment translations, are fixed by the pinned ends and C0 joins), so the minimiser is the
+same. A relaxation that is infeasible proves the full QP infeasible (it has fewer constraints).
 After ``MAX_ROUNDS`` relaxations, or when a relaxation fails numerically, the last round uses all faces. The module
 knows nothing of the QP's matrices: the caller passes ``build(faces)`` and ``solve(qp)``.
 """
