@@ -52,3 +52,19 @@ def test_voxel_centres_numpy_matches_grid(path, lo0, vs):
     ref = grid.voxel_to_world(torch.as_tensor(path)).cpu().numpy()
     new = lo + (path.astype(np.float64) + 0.5) * vs
     assert ref.shape == new.shape and np.array_equal(ref.view(np.int64), new.view(np.int64))
+
+
+@settings(max_examples=100, deadline=None)
+@given(hnp.arrays(np.float64, st.integers(1, 8), elements=st.floats(1e-3, 50.0)), st.integers(2, 80))
+def test_arc_length_grid_matches_per_segment_loop(durations, n):
+    """timing.arc_length_table's broadcast grid of curve times equals the former per-segment loop bit for bit."""
+    from cinenerf_ns.planner.trajectory.bezier import BezierTrajectory
+    from cinenerf_ns.planner.trajectory.timing import arc_length_table
+
+    cp = np.random.default_rng(n).normal(size=(len(durations), 4, 3))
+    traj = BezierTrajectory(cp, durations)
+    taus = [traj.segment_starts[k] + traj.durations[k] * np.linspace(0.0, 1.0, n + 1)[:-1]
+            for k in range(traj.num_segments)]
+    ref = np.concatenate(taus + [[traj.total_duration]])
+    tau, _ = arc_length_table(traj, n)
+    assert np.array_equal(ref.view(np.int64), tau.view(np.int64))

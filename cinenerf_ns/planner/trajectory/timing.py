@@ -93,11 +93,10 @@ def arc_length_table(traj: BezierTrajectory, samples_per_segment: int = 64, with
     """(tau [K], s [K]): cumulative arc length at a dense grid of curve times (monotone, s[0] = 0).
     with_speed: also the speed |p'(tau)| [K] at the grid times (same derivative evaluation; for invert_arc_length)."""
     nodes, weights = _GL5
-    taus = []
-    for k in range(traj.num_segments):
-        t0 = traj.segment_starts[k]
-        taus.append(t0 + traj.durations[k] * np.linspace(0.0, 1.0, samples_per_segment + 1)[:-1])
-    tau = np.concatenate(taus + [[traj.total_duration]])  # [K]
+    lin = np.linspace(0.0, 1.0, samples_per_segment + 1)[:-1]
+    # per segment start + duration * lin, all segments in one broadcast (the same float64 operations)
+    grid = traj.segment_starts[:, None] + traj.durations[:, None] * lin[None, :]  # [M, samples]
+    tau = np.concatenate([grid.ravel(), [traj.total_duration]])  # [K]
     a, b = tau[:-1], tau[1:]
     half = 0.5 * (b - a)  # [K-1]
     q = (0.5 * (a + b))[:, None] + half[:, None] * nodes[None, :]  # [K-1, 5] quadrature points
