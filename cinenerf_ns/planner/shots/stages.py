@@ -59,6 +59,9 @@ def voxel_centres(planner: "Planner", a_ijk: np.ndarray, b_ijk: np.ndarray) -> n
     hard cases on the coarse grid: coarse_path.voxel_path)."""
     prep = planner.ready()
     path = voxel_path(prep.astar_grid, prep.coarse, a_ijk, b_ijk, astar_weight=planner.config.astar_weight)  # [K, 3]
+    if prep.voxels is not None and prep.grid.device.type == "cpu":
+        # OccupancyGrid.voxel_to_world's arithmetic in numpy (the same float64 operations, so the same centres)
+        return prep.voxels.lo + (np.asarray(path).astype(np.float64) + 0.5) * prep.voxels.voxel_size
     return prep.grid.voxel_to_world(torch.as_tensor(path, device=prep.grid.device)).cpu().numpy()
 
 
