@@ -83,6 +83,10 @@ def test_long_grazing_segment_is_split_and_stays_safe():
     # build_corridors splits the same way, per path
     many = build_corridors([way, way[::-1].copy()], scene, index, box_margin=0.1, grid=grid, split_long=0.2)
     assert torch.equal(many[0].waypoints, cor.waypoints) and len(many[1]) == len(cor)
+    # the batched backend gets the same pieces (the split comes before either backend)
+    bat = build_corridor(way, scene, index, box_margin=0.1, grid=grid, split_long=0.2, backend="batched")
+    assert torch.equal(bat.waypoints, cor.waypoints) and bat.n_long_pieces == cor.n_long_pieces
+    check_corridor(bat, way, scene, np.random.default_rng(2))
 
 
 def test_no_split_without_grid_or_when_short():
