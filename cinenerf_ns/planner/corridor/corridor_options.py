@@ -16,6 +16,11 @@ GRID_POLYTOPE_MAX_VOXEL = 2.0
 """PlannerConfig.grid_polytopes 'auto': grid polytopes when voxel_size <= this x camera_radius (between a ratio where
 they were a win and one where they were a loss: docs/PLANNER_DEFAULTS.md)."""
 
+SPLIT_LONG_MARGINS = 2.0
+"""With grid polytopes, build_corridor's ``split_long`` is this x the box margin: a longer segment that needs a Prop-2
+polytope is split so that its free runs take grid polytopes and its Prop-2 boxes stay small (safe_corridor.py;
+docs/PLANNER_DEFAULTS.md)."""
+
 
 def corridor_backend(planner: "Planner", many: bool = False) -> str:
     """config.corridor_backend resolved for this process: 'batched' or 'cpu'. 'auto': for one request's corridor
@@ -52,6 +57,7 @@ def corridor_kwargs(planner: "Planner", many: bool = False) -> dict:
     kw = dict(box_margin=planner.config.box_margin, region=planner.region())
     if use_grid_polytopes(planner):
         kw["grid"] = prep.voxels
+        kw["split_long"] = SPLIT_LONG_MARGINS * float(planner.config.box_margin)
     if corridor_backend(planner, many) == "batched":
         bidx = prep.batch_index if prep.batch_index is not None else prep.index
         kw.update(backend="batched", batch_scene=planner.batch_scene, batch_index=bidx)

@@ -22,6 +22,14 @@ host path above, splitting included, so both backends cover the same segments wi
 polytope built from the grid's surface voxels instead (grid_polytope.py: same guarantee, no Gaussian query, a
 fraction of the cost, up to about a voxel more conservative); only the other segments (typically the last one,
 ending next to the go-to object) need Prop-2 polytopes from either backend.
+
+``split_long`` (with ``grid``): a segment longer than this that neither a known nor a grid polytope covers is bisected
+(exact midpoints on the segment, so the polyline keeps its shape) until each piece is in free voxels or no longer
+than ``split_long``; consecutive free pieces are merged back into one grid polytope. A Prop-2 polytope's box is the
+segment's bounding box plus the margin, so the ellipsoids it must decide grow with the segment's length: a long
+shortcut segment that grazes one occupied voxel cost a single 1.5-long Prop-2 polytope of 327k candidate ellipsoids
+(16 ms at 1M Gaussians); split, it is a few grid polytopes and one or two short Prop-2 ones (4 ms). Each piece's
+polytope holds the piece, so the guarantee is the same; the corridor only has more, smaller polytopes there.
 """
 from __future__ import annotations
 
@@ -55,6 +63,7 @@ class Corridor:
     n_host_segments: int = 0  # backend "batched": segments it flagged, built by the host path instead
     n_grid_segments: int = 0  # segments whose polytope came from the occupancy grid (grid_polytope.py)
     n_known_segments: int = 0  # segments that reused a ``known`` polytope (e.g. the goal's)
+    n_long_pieces: int = 0  # extra segments from splitting long off-grid segments (``split_long``)
     region: Optional[tuple] = None  # (lo [3], hi [3]) the planning region: every polytope is cut to it
 
     def __len__(self) -> int:
@@ -130,6 +139,7 @@ def build_corridor(
     grid=None,
     known=(),
     region=None,
+    split_long: Optional[float] = None,
 ) -> Corridor:
     """Corridor of safe polytopes along a polyline of camera centres.
 
@@ -151,6 +161,8 @@ def build_corridor(
     known: safe polytopes (of this scene) built earlier, e.g. the one the goal was projected onto; a segment with
     both ends inside one of them (checked) takes it as its polytope, before the grid and the backend.
     region: (lo [3], hi [3]) the planning region; Corridor.constraints() cuts every polytope to it.
+    split_long: with ``grid`` and box "aabb", long segments that need a Prop-2 polytope are split first (module
+    docstring); None: never.
     Raises InvalidInputError (bad waypoints), CorridorError (a segment cannot be covered).
     """
     _check_options(box, box_margin, backend)
@@ -158,6 +170,8 @@ def build_corridor(
     kw = dict(margin=margin, normal=normal)
     stats = {"splits": 0}
     pre = _grid_polytopes([w], grid, box_margin, margin, box, known, stats)[0]
+    if split_long is not None and box == "aabb":
+        w, pre = _split_long_segments(w, pre, grid, split_long, box_margin, margin, stats)
     if backend == "batched":
         batched = _batched_polytopes([w], scene, index, box_margin, margin, normal, batch_scene, batch_index, [pre])[0]
         stats["host_segments"] = sum(p is None for p in batched)
@@ -188,6 +202,10 @@ def build_corridors(waypoint_list, scene, index=None, **options) -> list:
     kw = dict(margin=o["margin"], normal=o["normal"])
     counts = [{} for _ in ws]
     pre = _grid_polytopes(ws, o["grid"], o["box_margin"], o["margin"], "aabb", o["known"], counts)
+    if o["split_long"] is not None:
+        split = [_split_long_segments(w, p, o["grid"], o["split_long"], o["box_margin"], o["margin"], c)
+                 for w, p, c in zip(ws, pre, counts)]
+        ws, pre = [x[0] for x in split], [x[1] for x in split]
     if o["backend"] == "batched" and ws:
         batched = _batched_polytopes(ws, scene, index, o["box_margin"], o["margin"], o["normal"], o["batch_scene"],
                                      o["batch_index"], pre)
@@ -266,6 +284,64 @@ def _grid_polytopes(ws, grid, box_margin, margin, box, known=(), stats=None) -> 
     return out
 
 
+def _free_pieces(a: np.ndarray, b: np.ndarray, grid, split_long: float, depth: int = 0) -> list:
+    """[(p0, p1, free)] covering the segment a -> b [3] in order: bisected (exact midpoints) until each piece lies in
+    free voxels of ``grid`` or is no longer than ``split_long`` (at most 12 levels)."""
+    free = bool(grid.segments_free(a[None], b[None])[0])
+    if free or depth >= 12 or float(np.linalg.norm(b - a)) <= split_long:
+        return [(a, b, free)]
+    mid = 0.5 * (a + b)
+    return _free_pieces(a, mid, grid, split_long, depth + 1) + _free_pieces(mid, b, grid, split_long, depth + 1)
+
+
+def _merged_runs(pieces: list) -> list:
+    """_free_pieces' pieces grouped: each run of consecutive free pieces is one group, every other piece its own;
+    [[(p0, p1, free)]] in order."""
+    out: list = []
+    for q in pieces:
+        if q[2] and out and out[-1][-1][2]:
+            out[-1].append(q)
+        else:
+            out.append([q])
+    return out
+
+
+def _long_pieces(a: np.ndarray, b: np.ndarray, grid, split_long, box_margin, margin, dev) -> list:
+    """[(p0, p1, Polytope | None)] for a long segment a -> b that needs a Prop-2 polytope: each run of free pieces gets
+    one grid polytope (a run whose merged polytope fails its check gets its pieces' ones), other pieces None."""
+    out = []
+    for run in _merged_runs(_free_pieces(a, b, grid, split_long)):
+        p0, p1, free = run[0][0], run[-1][1], run[0][2]
+        poly = grid.polytope(p0, p1, box_margin, margin, device=dev) if free else None
+        if free and poly is None and len(run) > 1:
+            out += [(q0, q1, grid.polytope(q0, q1, box_margin, margin, device=dev)) for q0, q1, _ in run]
+        else:
+            out.append((p0, p1, poly))
+    return out
+
+
+def _split_long_segments(w: Tensor, pre: list, grid, split_long: float, box_margin: float, margin: float,
+                         stats: dict) -> tuple:
+    """(waypoints [M'+1, 3], [Polytope | None] per segment): w [M+1, 3] and its pre-built polytopes ``pre`` with each
+    segment longer than ``split_long`` that has none split by _long_pieces (stats["long_pieces"]: segments added)."""
+    stats.setdefault("long_pieces", 0)
+    if grid is None or not any(p is None for p in pre):
+        return w, pre
+    wn = w.detach().cpu().numpy()
+    pts, polys = [w[0]], []
+    for m, p in enumerate(pre):
+        if p is not None or float(np.linalg.norm(wn[m + 1] - wn[m])) <= split_long:
+            pts.append(w[m + 1])
+            polys.append(p)
+            continue
+        parts = _long_pieces(wn[m], wn[m + 1], grid, split_long, box_margin, margin, w.device)
+        for k, (_, q1, q) in enumerate(parts):
+            pts.append(w[m + 1] if k == len(parts) - 1 else torch.as_tensor(q1, dtype=w.dtype, device=w.device))
+            polys.append(q)
+        stats["long_pieces"] += len(parts) - 1
+    return torch.stack(pts), polys
+
+
 def _batched_polytopes(ws, scene, index, box_margin, margin, normal, batch_scene, batch_index, pre=None) -> list:
     """Per path, [Polytope | None] per segment (None: flagged, the host path decides it) from one
     safe_polytopes_batched call over the segments of every path ws[i] [M_i+1, 3] that have no polytope in ``pre``
@@ -300,6 +376,32 @@ def _path_pieces(w, batched, scene, index, box_margin, max_split_depth, kw, stat
     return pieces
 
 
+OVERLAP_PROBE_STEPS = (1.0, 2.0, 4.0, 8.0, 16.0, 32.0)  # x min_overlap: how far the probes go from the junction
+
+
+def _probed_overlap(p0: Polytope, p1: Polytope, w_prev: Tensor, wj: Tensor, w_next: Tensor,
+                    min_overlap: float) -> float:
+    """A lower bound of the Chebyshev radius of p0 ∩ p1 (both hold the junction wj [3]) without an LP: the largest
+    min over both polytopes' faces of (b - a.c) / |a| at probe points c = wj + t d, d along the two segments, their
+    sum, and away from the faces nearly tight at wj (each such value is the radius of a ball at c inside both).
+    The LP (chebyshev_center, ~1.2-2 ms of HiGHS set-up on the CPU box) is then only needed when no probe shows
+    min_overlap of room."""
+    A = torch.cat([p0.A, p1.A])  # [F, 3]
+    b = torch.cat([p0.b, p1.b])
+    norms = A.norm(dim=-1).clamp_min(1e-300)
+    dirs = [w_prev - wj, w_next - wj]
+    dirs = [d / d.norm().clamp_min(1e-300) for d in dirs]
+    dirs.append(dirs[0] + dirs[1])
+    tight = (b - A @ wj) / norms < 2.0 * min_overlap
+    away = -(A[tight] / norms[tight, None]).sum(0)
+    dirs += [away, away + dirs[0], away + dirs[1], away + dirs[2]]
+    D = torch.stack(dirs)
+    D = D / D.norm(dim=-1, keepdim=True).clamp_min(1e-300)  # [8, 3] (a zero direction stays zero: c = wj)
+    t = torch.as_tensor(OVERLAP_PROBE_STEPS, dtype=A.dtype, device=A.device) * min_overlap
+    c = wj + (t[:, None, None] * D[None]).reshape(-1, 3)  # [T * 8, 3]
+    return float(((b - c @ A.T) / norms).min(dim=-1).values.max())
+
+
 def _assemble(pieces, stats, min_overlap: float, exact_overlap: bool) -> Corridor:
     """The Corridor of a path's pieces, with the junctions' overlap radii (thin ones warned about)."""
     polys = [p for p, _, _ in pieces]
@@ -310,6 +412,8 @@ def _assemble(pieces, stats, min_overlap: float, exact_overlap: bool) -> Corrido
     for m in range(len(polys) - 1):
         wj = wps[m + 1]
         lb = float(torch.minimum(polys[m].slack(wj), polys[m + 1].slack(wj)))
+        if lb < min_overlap and not exact_overlap:
+            lb = max(lb, _probed_overlap(polys[m], polys[m + 1], wps[m], wj, wps[m + 2], min_overlap))
         rad = lb
         if exact_overlap or lb < min_overlap:
             A = torch.cat([polys[m].A, polys[m + 1].A])
@@ -334,4 +438,5 @@ def _assemble(pieces, stats, min_overlap: float, exact_overlap: bool) -> Corrido
         n_host_segments=stats.get("host_segments", 0),
         n_grid_segments=stats.get("grid_segments", 0),
         n_known_segments=stats.get("known_segments", 0),
+        n_long_pieces=stats.get("long_pieces", 0),
     )

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -200,3 +201,55 @@ def test_build_corridors_options_and_errors():
     blocked = np.stack([c - [0.01, 0, 0], c + [0.01, 0, 0]])  # through an ellipsoid's centre
     out = build_corridors([ways[0], blocked, ways[1]], scene, index, backend="batched")
     assert isinstance(out[0], Corridor) and isinstance(out[1], CorridorError) and isinstance(out[2], Corridor)
+
+
+def _random_polytope_at(rng, wj, n_planes, tight):
+    """Polytope of a box around wj [3] and n_planes random unit planes, ``tight`` of them through wj (slack 0), the
+    others with slack in (0, 0.05): wj is inside, on faces of the tight ones."""
+    from cinenerf_ns.planner.corridor.polytope import Polytope
+
+    n = rng.normal(size=(n_planes, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    slack = np.where(np.arange(n_planes) < tight, 0.0, rng.uniform(1e-4, 0.05, n_planes))
+    A = np.vstack([np.eye(3), -np.eye(3), n])
+    b = np.concatenate([wj + 0.2, 0.2 - wj, n @ wj + slack])
+    return Polytope(torch.as_tensor(A), torch.as_tensor(b), torch.as_tensor(wj[None]))
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), n0=st.integers(1, 12), n1=st.integers(1, 12), tight=st.integers(0, 3),
+       min_overlap=st.sampled_from([1e-3, 1e-2, 0.05]))
+def test_probed_overlap_is_a_lower_bound_of_the_lp(seed, n0, n1, tight, min_overlap):
+    """Junctions on faces of either polytope (the case that needed the LP): the probes that spare it
+    (_probed_overlap) never exceed the LP's Chebyshev radius of P0 ∩ P1 (float64 HiGHS reference), and _assemble's
+    thin joints are the LP's."""
+    rng = np.random.default_rng(seed)
+    wj = rng.uniform(-1, 1, 3)
+    w_prev, w_next = wj + rng.normal(size=3) * 0.1, wj + rng.normal(size=3) * 0.1
+    p0 = _random_polytope_at(rng, wj, n0, min(tight, n0))
+    p1 = _random_polytope_at(rng, wj, n1, min(tight, n1))
+    _, rad = chebyshev_center(torch.cat([p0.A, p1.A]), torch.cat([p0.b, p1.b]))
+    w = [torch.as_tensor(x) for x in (w_prev, wj, w_next)]
+    probe = corridor_mod._probed_overlap(p0, p1, *w, min_overlap)
+    assert probe <= rad + 1e-12
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        cor = corridor_mod._assemble([(p0, w[0], w[1]), (p1, w[1], w[2])], {"splits": 0}, min_overlap, False)
+    assert float(cor.overlap_radius[0]) <= rad + 1e-12
+    assert cor.thin_joints == ([0] if rad < min_overlap else [])
+
+
+def test_probed_overlap_spares_the_lp_at_a_face(monkeypatch):
+    """The junction lies on a face of one polytope (slack 0) but the two overlap widely: no LP is solved, and the
+    radius reported is a positive lower bound of the LP's."""
+    from cinenerf_ns.planner.corridor.polytope import Polytope
+
+    box = lambda lo, hi: Polytope(torch.as_tensor(np.vstack([np.eye(3), -np.eye(3)])),  # noqa: E731
+                                  torch.as_tensor(np.concatenate([hi, -np.asarray(lo)])), torch.zeros(1, 3))
+    p0, p1 = box([-1.0, -0.5, -0.5], [0.0, 0.5, 0.5]), box([-0.5, -0.5, -0.5], [1.0, 0.5, 0.5])
+    w = [torch.tensor(x, dtype=torch.float64) for x in ([-0.8, 0, 0], [0.0, 0, 0], [0.8, 0, 0])]
+    calls = []
+    monkeypatch.setattr(corridor_mod, "chebyshev_center", lambda A, b: calls.append(1) or chebyshev_center(A, b))
+    cor = corridor_mod._assemble([(p0, w[0], w[1]), (p1, w[1], w[2])], {"splits": 0}, 1e-3, False)
+    assert calls == [] and cor.thin_joints == []
+    assert 1e-3 <= float(cor.overlap_radius[0]) <= 0.25 + 1e-12  # the LP's radius: 0.25
