@@ -89,8 +89,8 @@ def main() -> None:
     for k, (go, look) in enumerate(pairs):
         t0 = time.perf_counter()
         try:
-            g, _ = ls.locate(go)
-            la, _ = ls.locate(look)
+            g = ls.locate(go)[0]  # (centre, mask, what it matched)
+            la = ls.locate(look)[0]
             t1 = time.perf_counter()
             planner.plan(g, la, seed=a.seed + k, n_candidates=a.candidates)
         except (PlanningError, ValueError) as e:  # QueryError is a ValueError
@@ -119,6 +119,8 @@ def main() -> None:
     print("\n".join(lines))
     if a.append:
         append_results("\n".join(lines))
+    if not total:
+        sys.exit("bench_text_to_path: no request was planned (see the failures above)")
 
 
 if __name__ == "__main__":
