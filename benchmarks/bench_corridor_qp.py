@@ -12,9 +12,9 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "planner"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "planner" / "trajectory"))
 
-from test_trajectory import cvxpy_reference, random_corridor  # noqa: E402
+from test_qp import cvxpy_reference, random_corridor  # noqa: E402
 
 from cinenerf_ns.planner.trajectory.qp import TrajectoryConfig, solve_corridor_qp  # noqa: E402
 
