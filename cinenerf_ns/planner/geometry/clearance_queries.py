@@ -72,6 +72,18 @@ def free_distance_transform(prep: "PreparedScene") -> np.ndarray:
     return prep.free_edt
 
 
+def free_voxel_grid(planner: "Planner") -> tuple:
+    """(occupancy uint8 [X, Y, Z] C order, grid lo float64 [3], voxel size, dims int64 [3]) of the prepared scene, for
+    the compiled sight-line test's free-voxel proof (occlusion.sight_lines_blocked's free_grid); kept in
+    ``prep.free_voxels``."""
+    prep = planner.ready()
+    if prep.free_voxels is None:
+        occ = np.ascontiguousarray(prep.astar_grid._occ, dtype=np.uint8)
+        lo = np.ascontiguousarray(prep.grid.lo.detach().cpu().double().numpy())
+        prep.free_voxels = (occ, lo, float(prep.grid.voxel_size), np.ascontiguousarray(occ.shape, dtype=np.int64))
+    return prep.free_voxels
+
+
 def clearance_lower_bound(planner: "Planner", points) -> np.ndarray:
     """A lower bound [P] of the clearance of camera centres [P, 3] from the occupancy grid alone (no
     distance query). Every point of a free voxel keeps the camera ball clear (occupancy.py), so if the

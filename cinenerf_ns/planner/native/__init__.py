@@ -209,7 +209,8 @@ def segments_blocked_c():
     return _function(
         "polytope", "cn_segments_blocked",
         [*_SCENE_INDEX,
-         _P, _P, _I64, _F64, _P, _P],  # p0 [L, 3], p1 [L, 3], L, piece length, skip [N] uint8 or NULL, out [L]
+         _P, _P, _I64, _F64, _P, _P,  # p0 [L, 3], p1 [L, 3], L, piece length, skip [N] uint8 or NULL, out [L]
+         _P, _P, _F64, _P],  # free-voxel proof or NULLs: occ uint8 [X, Y, Z], grid lo [3], voxel size, dims [3]
         _I64)
 
 
