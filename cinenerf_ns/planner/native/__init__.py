@@ -214,6 +214,14 @@ def segments_blocked_c():
         _I64)
 
 
+def box_distance_c():
+    """The compiled distance to the nearest occupied voxel box (polytope.c: cn_box_distance), or None."""
+    return _function(
+        "polytope", "cn_box_distance",
+        [_P, _P, _F64, _P, _P, _I64, _I64, _F64, _P],  # occ, grid lo, voxel size, dims, points, P, window, cap, out
+        _I64)
+
+
 def segments_free_c():
     """The compiled voxel walk (gridpoly.c: cn_segments_free), or None."""
     return _function("gridpoly", "cn_segments_free", [_P, _P, _P, _F64, _P, _P, _I64, _F64, _P], _I64)

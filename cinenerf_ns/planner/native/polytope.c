@@ -984,9 +984,16 @@ int64_t cn_points_distance(
     const int64_t *const *offsets, const int64_t *const *ids, double pad,
     const double *points, int64_t P, double max_d, double *out) {
     if (!(max_d >= 0) || !isfinite(max_d)) return -1;
+    const double *prev = NULL;  /* the last point with an exact distance below max_d, and that distance */
+    double prev_d = 0.0;
     for (int64_t q = 0; q < P; q++) {
         const double *p = points + 3 * q;
         double best = max_d, bound = max_d;  /* best: smallest exact distance (or max_d); bound >= the answer */
+        if (prev) {  /* 1-Lipschitz: d(p) <= d(prev) + |p - prev| (widened for rounding): a smaller first cube */
+            double e0 = p[0] - prev[0], e1 = p[1] - prev[1], e2 = p[2] - prev[2];
+            double ub = (prev_d + sqrt(e0 * e0 + e1 * e1 + e2 * e2)) * (1.0 + 1e-9) + 1e-12;
+            if (ub < bound) bound = ub;
+        }
         int inside = 0;
         for (int L = 0; L < n_levels && !inside; L++) {
             double cell = cells[L];
@@ -1061,6 +1068,40 @@ int64_t cn_points_distance(
             }
         }
         out[q] = inside ? NAN : best;
+        if (!inside && best < max_d) { prev = p; prev_d = best; }
+    }
+    return 0;
+}
+
+/* out[p] = min(cap, the distance from point p to the nearest occupied voxel box of occ (uint8 [vdims] C order, voxel
+   (i, j, k) = vlo + vs [i, i + 1] x [j, j + 1] x [k, k + 1]; voxels outside the grid count as occupied)), over the
+   voxels within w of p's voxel in every index axis (the caller takes w with (w - 1) vs >= cap); the float64 sum of
+   squared gaps, its sqrt (clearance_queries.box_clearance_bound widens it). */
+int64_t cn_box_distance(const uint8_t *occ, const double *vlo, double vs, const int64_t *vdims, const double *points,
+                        int64_t P, int64_t w, double cap, double *out) {
+    if (!(vs > 0) || w < 0) return -1;
+    for (int64_t q = 0; q < P; q++) {
+        const double *p = points + 3 * q;
+        int64_t c[3];
+        for (int i = 0; i < 3; i++) c[i] = (int64_t)floor((p[i] - vlo[i]) / vs);
+        double best2 = cap * cap;
+        for (int64_t x = c[0] - w; x <= c[0] + w; x++) {
+            double gx = fmax(fmax(vlo[0] + x * vs - p[0], p[0] - (vlo[0] + x * vs + vs)), 0.0);
+            if (gx * gx >= best2) continue;
+            for (int64_t y = c[1] - w; y <= c[1] + w; y++) {
+                double gy = fmax(fmax(vlo[1] + y * vs - p[1], p[1] - (vlo[1] + y * vs + vs)), 0.0);
+                double g2 = gx * gx + gy * gy;
+                if (g2 >= best2) continue;
+                for (int64_t z = c[2] - w; z <= c[2] + w; z++) {
+                    double gz = fmax(fmax(vlo[2] + z * vs - p[2], p[2] - (vlo[2] + z * vs + vs)), 0.0);
+                    double d2 = g2 + gz * gz;
+                    if (d2 >= best2) continue;
+                    int in = x >= 0 && y >= 0 && z >= 0 && x < vdims[0] && y < vdims[1] && z < vdims[2];
+                    if (!in || occ[(x * vdims[1] + y) * vdims[2] + z]) best2 = d2;
+                }
+            }
+        }
+        out[q] = sqrt(best2);
     }
     return 0;
 }

@@ -88,3 +88,40 @@ def test_score_parts_on_the_cpu_copy_match_reference():
     exact = pl.clearance(pos[i])  # uncapped
     assert np.array_equal(clr, np.minimum(exact, cfg.clearance_cap)) or np.allclose(
         clr, np.minimum(exact, cfg.clearance_cap), rtol=0, atol=1e-12)
+
+
+def _old_capped_clearance(pl, pts, cap):
+    """clearance(pts, cap) as it was before the voxel-box bound and the chained search: the EDT bound, then the
+    compiled search one point at a time (no earlier point's distance to start from)."""
+    from cinenerf_ns.planner.geometry.distance import clearance as exact_clearance
+
+    out = np.full(len(pts), float(cap))
+    todo = np.flatnonzero(clearance_queries.clearance_lower_bound(pl, pts) < cap)
+    md = float(cap) + float(pl.scene.camera_radius)
+    for i in todo:
+        out[i] = exact_clearance(torch.as_tensor(pts[i:i + 1]), pl.scene, pl.ready().index, max_distance=md).item()
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+@pytest.mark.parametrize("cap", [0.05, 0.1, 0.2])
+def test_capped_clearance_is_unchanged_and_box_bound_is_a_lower_bound(seed, cap):
+    from cinenerf_ns.planner.geometry.distance import point_ellipsoid_distance
+
+    pl = _random_planner(seed, 60)
+    rng = np.random.default_rng(200 + seed)
+    # a wandering path (consecutive points near each other: the chained search's case) and scattered points
+    walk = np.cumsum(rng.normal(scale=0.02, size=(300, 3)), 0) + rng.uniform(-0.5, 0.5, 3)
+    pts = np.concatenate([walk, rng.uniform(-1.3, 1.3, (200, 3))])
+    new = pl.clearance(pts, cap=cap)
+    assert np.array_equal(new, _old_capped_clearance(pl, pts, cap))
+    s = pl.scene
+    exact = point_ellipsoid_distance(torch.as_tensor(pts), s.means, s.rotations, s.radii).min(1).values.numpy()
+    exact = exact - float(s.camera_radius)
+    lb = clearance_queries.box_clearance_bound(pl, pts, cap)
+    proven = lb >= cap
+    assert np.all(exact[proven] >= cap)  # never optimistic where it decides
+    assert np.all(lb[exact > 0] <= exact[exact > 0] + 1e-12)  # a lower bound wherever the camera is clear
+    edt = clearance_queries.clearance_lower_bound(pl, pts) >= cap
+    assert (proven & ~edt).any()  # it proves points the centre-to-centre bound does not
+    assert np.allclose(np.minimum(exact, cap)[exact > 0], new[exact > 0], rtol=0, atol=1e-9)
