@@ -1044,6 +1044,11 @@ int64_t cn_points_distance(
                                         m2 += w[i] * w[i] / E.lam[i];
                                     }
                                     if (!(m2 > 1.0)) { inside = 1; break; }
+                                    /* the body lies in its box |x_i| <= a_i: the distance to the box (widened) is a
+                                       lower bound; no closer than the bound: the exact distance cannot lower best */
+                                    double gb = 0.0;
+                                    for (int i = 0; i < 3; i++) { double e = fmax(fabs(w[i]) - E.a[i], 0.0); gb += e * e; }
+                                    if (sqrt(gb) * (1.0 - 1e-12) - 1e-15 >= bound) continue;
                                     double d = ell_dist_exact(w, E.lam);
                                     if (d < best) best = d;
                                     if (d < bound) {
