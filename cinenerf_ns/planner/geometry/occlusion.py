@@ -70,7 +70,7 @@ def _local(x: Tensor, scene: EllipsoidScene, g: Tensor, translate: bool) -> Tens
 
 
 def _native_blocked(fn, a: Tensor, b: Tensor, scene: EllipsoidScene, index, piece_len: float,
-                    exclude: Optional[Tensor]) -> Tensor:
+                    exclude: Optional[Tensor], free_grid: Optional[tuple] = None) -> Tensor:
     """bool [L]: segment a[l] -> b[l] meets an ellipsoid (not excluded), through native/polytope.c."""
     from ..corridor.polytope_native import native_arrays
 
@@ -81,8 +81,14 @@ def _native_blocked(fn, a: Tensor, b: Tensor, scene: EllipsoidScene, index, piec
     if exclude is not None:  # the compiled code's ids are positions in Morton order (native_arrays' "perm")
         skip = np.ascontiguousarray(exclude.cpu().numpy()[arr["perm"]], dtype=np.uint8)
     out = np.zeros(p0.shape[0], dtype=np.uint8)
+    occ = vlo = dims = None
+    vs = 0.0
+    if free_grid is not None:
+        occ, vlo, vs, dims = free_grid
     fn(*arr["args"], p0.ctypes.data, p1.ctypes.data, p0.shape[0], float(piece_len),
-       None if skip is None else skip.ctypes.data, out.ctypes.data)
+       None if skip is None else skip.ctypes.data, out.ctypes.data,
+       None if occ is None else occ.ctypes.data, None if vlo is None else vlo.ctypes.data, float(vs),
+       None if dims is None else dims.ctypes.data)
     return torch.from_numpy(out.astype(bool)).to(a.device)
 
 
@@ -95,6 +101,7 @@ def sight_lines_blocked(
     stop_distance: float = 0.0,
     chunk_pieces: int = 200_000,
     backend: str = "auto",
+    free_grid: Optional[tuple] = None,
 ) -> Tensor:
     """bool [T, S]: True where the sight line camera t -> target s passes through an ellipsoid.
 
@@ -103,7 +110,9 @@ def sight_lines_blocked(
     (scene units; lines shorter than it are never blocked). Runs on the scene's device.
     backend: "auto" (a CPU scene with a GridIndex on the CPU: the compiled test, native/polytope.c's
     cn_segments_blocked: the same pieces and the same piece test, one line at a time, stopping at its first hit),
-    "native" (error if it does not apply) or "python"."""
+    "native" (error if it does not apply) or "python". free_grid: the scene's occupancy grid as
+    clearance_queries.free_voxel_grid gives it (the compiled test then skips the pieces that lie in free voxels: they
+    cannot meet an ellipsoid; the same answer, cheaper); only for the occupancy grid of this very scene."""
     dev = scene.device
     cam = _as_points(cameras, "camera positions", dev)  # [T, 3]
     tgt = _as_points(targets, "target points", dev)  # [S, 3]
@@ -134,7 +143,7 @@ def sight_lines_blocked(
                 needs="a CPU scene and a GridIndex on the CPU")
     if fn is not None:
         blocked[live] = _native_blocked(fn, p[live], p[live] + t_end[live, None] * (q - p)[live], scene, index,
-                                        piece_len, exclude)
+                                        piece_len, exclude, free_grid)
         return blocked.reshape(T, S)
     n_pieces = torch.clamp(torch.ceil(length[live] * t_end[live] / piece_len), min=1).long()  # [L']
     ends = torch.cumsum(n_pieces, 0)

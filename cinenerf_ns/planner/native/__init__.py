@@ -209,7 +209,16 @@ def segments_blocked_c():
     return _function(
         "polytope", "cn_segments_blocked",
         [*_SCENE_INDEX,
-         _P, _P, _I64, _F64, _P, _P],  # p0 [L, 3], p1 [L, 3], L, piece length, skip [N] uint8 or NULL, out [L]
+         _P, _P, _I64, _F64, _P, _P,  # p0 [L, 3], p1 [L, 3], L, piece length, skip [N] uint8 or NULL, out [L]
+         _P, _P, _F64, _P],  # free-voxel proof or NULLs: occ uint8 [X, Y, Z], grid lo [3], voxel size, dims [3]
+        _I64)
+
+
+def box_distance_c():
+    """The compiled distance to the nearest occupied voxel box (polytope.c: cn_box_distance), or None."""
+    return _function(
+        "polytope", "cn_box_distance",
+        [_P, _P, _F64, _P, _P, _I64, _I64, _F64, _P],  # occ, grid lo, voxel size, dims, points, P, window, cap, out
         _I64)
 
 

@@ -984,9 +984,16 @@ int64_t cn_points_distance(
     const int64_t *const *offsets, const int64_t *const *ids, double pad,
     const double *points, int64_t P, double max_d, double *out) {
     if (!(max_d >= 0) || !isfinite(max_d)) return -1;
+    const double *prev = NULL;  /* the last point with an exact distance below max_d, and that distance */
+    double prev_d = 0.0;
     for (int64_t q = 0; q < P; q++) {
         const double *p = points + 3 * q;
         double best = max_d, bound = max_d;  /* best: smallest exact distance (or max_d); bound >= the answer */
+        if (prev) {  /* 1-Lipschitz: d(p) <= d(prev) + |p - prev| (widened for rounding): a smaller first cube */
+            double e0 = p[0] - prev[0], e1 = p[1] - prev[1], e2 = p[2] - prev[2];
+            double ub = (prev_d + sqrt(e0 * e0 + e1 * e1 + e2 * e2)) * (1.0 + 1e-9) + 1e-12;
+            if (ub < bound) bound = ub;
+        }
         int inside = 0;
         for (int L = 0; L < n_levels && !inside; L++) {
             double cell = cells[L];
@@ -1037,6 +1044,11 @@ int64_t cn_points_distance(
                                         m2 += w[i] * w[i] / E.lam[i];
                                     }
                                     if (!(m2 > 1.0)) { inside = 1; break; }
+                                    /* the body lies in its box |x_i| <= a_i: the distance to the box (widened) is a
+                                       lower bound; no closer than the bound: the exact distance cannot lower best */
+                                    double gb = 0.0;
+                                    for (int i = 0; i < 3; i++) { double e = fmax(fabs(w[i]) - E.a[i], 0.0); gb += e * e; }
+                                    if (sqrt(gb) * (1.0 - 1e-12) - 1e-15 >= bound) continue;
                                     double d = ell_dist_exact(w, E.lam);
                                     if (d < best) best = d;
                                     if (d < bound) {
@@ -1061,6 +1073,40 @@ int64_t cn_points_distance(
             }
         }
         out[q] = inside ? NAN : best;
+        if (!inside && best < max_d) { prev = p; prev_d = best; }
+    }
+    return 0;
+}
+
+/* out[p] = min(cap, the distance from point p to the nearest occupied voxel box of occ (uint8 [vdims] C order, voxel
+   (i, j, k) = vlo + vs [i, i + 1] x [j, j + 1] x [k, k + 1]; voxels outside the grid count as occupied)), over the
+   voxels within w of p's voxel in every index axis (the caller takes w with (w - 1) vs >= cap); the float64 sum of
+   squared gaps, its sqrt (clearance_queries.box_clearance_bound widens it). */
+int64_t cn_box_distance(const uint8_t *occ, const double *vlo, double vs, const int64_t *vdims, const double *points,
+                        int64_t P, int64_t w, double cap, double *out) {
+    if (!(vs > 0) || w < 0) return -1;
+    for (int64_t q = 0; q < P; q++) {
+        const double *p = points + 3 * q;
+        int64_t c[3];
+        for (int i = 0; i < 3; i++) c[i] = (int64_t)floor((p[i] - vlo[i]) / vs);
+        double best2 = cap * cap;
+        for (int64_t x = c[0] - w; x <= c[0] + w; x++) {
+            double gx = fmax(fmax(vlo[0] + x * vs - p[0], p[0] - (vlo[0] + x * vs + vs)), 0.0);
+            if (gx * gx >= best2) continue;
+            for (int64_t y = c[1] - w; y <= c[1] + w; y++) {
+                double gy = fmax(fmax(vlo[1] + y * vs - p[1], p[1] - (vlo[1] + y * vs + vs)), 0.0);
+                double g2 = gx * gx + gy * gy;
+                if (g2 >= best2) continue;
+                for (int64_t z = c[2] - w; z <= c[2] + w; z++) {
+                    double gz = fmax(fmax(vlo[2] + z * vs - p[2], p[2] - (vlo[2] + z * vs + vs)), 0.0);
+                    double d2 = g2 + gz * gz;
+                    if (d2 >= best2) continue;
+                    int in = x >= 0 && y >= 0 && z >= 0 && x < vdims[0] && y < vdims[1] && z < vdims[2];
+                    if (!in || occ[(x * vdims[1] + y) * vdims[2] + z]) best2 = d2;
+                }
+            }
+        }
+        out[q] = sqrt(best2);
     }
     return 0;
 }
@@ -1070,14 +1116,31 @@ typedef struct {
     int f32;
     const uint8_t *skip;
     const double *a0, *d;
-    double t0, t1;
+    double t0, t1, dd;  /* dd = |d|^2 */
+    const float *pack;
 } SightCtx;
+
+/* the piece a0 + t d, t in [t0, t1], stays farther than the bounding sphere of packed entry pk (its float32 mean,
+   its max semi-axis rounded up, with the slack of cn_points_distance): it cannot meet the ellipsoid, whatever the
+   exact test below would round to (it reads only the entry's 48 packed bytes, not the ellipsoid's rotation). */
+static int piece_misses_sphere(const SightCtx *c, const float *pk) {
+    const double *a0 = c->a0, *d = c->d;
+    double m[3] = {(double)pk[6] - a0[0], (double)pk[7] - a0[1], (double)pk[8] - a0[2]};
+    double t = c->dd > 0 ? (m[0] * d[0] + m[1] * d[1] + m[2] * d[2]) / c->dd : c->t0;
+    t = fmin(fmax(t, c->t0), c->t1);
+    double e2 = 0.0;
+    for (int i = 0; i < 3; i++) { double e = m[i] - t * d[i]; e2 += e * e; }
+    double slack = 1e-6 * (1.0 + fmax(fabs(pk[6]), fmax(fabs(pk[7]), fabs(pk[8]))));
+    double r = (double)pk[9] + slack;
+    return e2 > r * r * (1.0 + 1e-9);
+}
 
 /* the piece a0 + t d, t in [t0, t1], meets ellipsoid g: its closest point to the centre, in the ellipsoid's unit
    coordinates, is within 1 */
 static int sight_hits(void *ctx, int64_t g) {
     const SightCtx *c = (const SightCtx *)ctx;
     if (c->skip && c->skip[g]) return 0;
+    if (piece_misses_sphere(c, c->pack + 12 * g)) return 0;
     Ell E;
     double mu[3] = {ld(c->means, 3 * g, c->f32), ld(c->means, 3 * g + 1, c->f32), ld(c->means, 3 * g + 2, c->f32)};
     load_ell(&E, g, mu, c->rots, c->radii, c->f32);
@@ -1100,18 +1163,39 @@ static int sight_hits(void *ctx, int64_t g) {
    ellipsoids with skip[id] set excepted (skip: NULL or uint8 [N] in this file's id order). As
    occlusion.sight_lines_blocked: the segment is cut into pieces no longer than piece_len; each piece's candidates are
    the index entries whose padded AABB meets the piece's box; a piece meets an ellipsoid when the closest point of
-   the piece to its centre, in the ellipsoid's unit coordinates, is within 1. A line stops at its first hit. */
+   the piece to its centre, in the ellipsoid's unit coordinates, is within 1. A line stops at its first hit.
+   occ (NULL: unused): the occupancy grid, uint8 [vdims] C order, voxel (i, j, k) = [vlo + (i, j, k) vs, + vs]; a
+   piece whose box lies in free voxels only (occ 0) is skipped: every point of a free voxel keeps the camera ball
+   clear (occupancy.py), so the piece is >= the camera radius from every ellipsoid and cannot meet one (the same
+   answer, without the candidates' query). */
+static int box_in_free_voxels(const double qlo[3], const double qhi[3], const uint8_t *occ, const double *vlo,
+                              double vs, const int64_t *vdims) {
+    int64_t a[3], b[3];
+    for (int i = 0; i < 3; i++) {
+        double u = (qlo[i] - vlo[i]) / vs, v = (qhi[i] - vlo[i]) / vs;
+        if (!(u >= 1e-6) || !(v < (double)vdims[i] - 1e-6)) return 0;  /* outside the grid (or NaN): not proven */
+        a[i] = (int64_t)floor(u - 1e-6);  /* widened: a box corner on a voxel face takes both voxels */
+        b[i] = (int64_t)floor(v + 1e-6);
+    }
+    for (int64_t x = a[0]; x <= b[0]; x++)
+        for (int64_t y = a[1]; y <= b[1]; y++)
+            for (int64_t z = a[2]; z <= b[2]; z++)
+                if (occ[(x * vdims[1] + y) * vdims[2] + z]) return 0;
+    return 1;
+}
+
 int64_t cn_segments_blocked(
     const void *means, const void *rots, const void *radii, const float *pack, int32_t f32,
     const double *origin, int32_t n_levels, const double *cells, const int64_t *dims,
     const int64_t *const *offsets, const int64_t *const *ids, double pad,
-    const double *p0, const double *p1, int64_t Lines, double piece_len, const uint8_t *skip, uint8_t *blocked) {
+    const double *p0, const double *p1, int64_t Lines, double piece_len, const uint8_t *skip, uint8_t *blocked,
+    const uint8_t *occ, const double *vlo, double vs, const int64_t *vdims) {
     (void)pad;
     if (!(piece_len > 0) || !isfinite(piece_len)) return -1;
     for (int64_t l = 0; l < Lines; l++) {
         const double *a0 = p0 + 3 * l, *a1 = p1 + 3 * l;
         double d[3] = {a1[0] - a0[0], a1[1] - a0[1], a1[2] - a0[2]};
-        double len = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+        double dd = d[0] * d[0] + d[1] * d[1] + d[2] * d[2], len = sqrt(dd);
         int64_t n = (int64_t)ceil(len / piece_len);
         if (n < 1) n = 1;
         int hit = 0;
@@ -1122,7 +1206,8 @@ int64_t cn_segments_blocked(
                 qlo[i] = fmin(u, v);
                 qhi[i] = fmax(u, v);
             }
-            SightCtx c = {means, rots, radii, f32, skip, a0, d, t0, t1};
+            if (occ && box_in_free_voxels(qlo, qhi, occ, vlo, vs, vdims)) continue;
+            SightCtx c = {means, rots, radii, f32, skip, a0, d, t0, t1, dd, pack};
             hit = for_each_in_box(pack, origin, n_levels, cells, dims, offsets, ids, qlo, qhi, 1, sight_hits, &c);
         }
         blocked[l] = (uint8_t)hit;

@@ -10,6 +10,7 @@ import numpy as np
 import torch
 
 from ..errors import InvalidInputError
+from ..geometry import clearance_queries
 from ..geometry.occlusion import sight_lines_blocked
 from ..scene.planning_region import as_point
 from .scoring import ScoreConfig, ShotScore, score_terms, scored_frames
@@ -61,8 +62,9 @@ def score_parts(planner: "Planner", shots: List[Shot], look: np.ndarray, cfg: Sc
         index = prep.batch_index if prep.batch_index is not None else prep.index
     if exclude is not None:
         exclude = torch.as_tensor(exclude, device=scene.device)
-    occ = sight_lines_blocked(pos, targets, scene, index, exclude=exclude,
-                              stop_distance=object_radius).cpu().numpy()  # [sum T', S]
+    free_grid = None if batch else clearance_queries.free_voxel_grid(planner)  # the CPU copy's compiled test
+    occ = sight_lines_blocked(pos, targets, scene, index, exclude=exclude, stop_distance=object_radius,
+                              free_grid=free_grid).cpu().numpy()  # [sum T', S]
     clr = planner.clearance(pos, cap=cfg.clearance_cap, batch=batch)  # [sum T'] exact up to the cap
     out, o = [], 0
     for i in idx:

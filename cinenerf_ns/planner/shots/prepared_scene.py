@@ -48,6 +48,7 @@ class PreparedScene:
     coarse: Optional[CoarseGrid] = None  # 2x-coarse blocks for hard path searches (coarse_path.py)
     batch_index: Optional[GridIndex] = None  # the index on the scene's own device (Planner.batch_scene)
     free_edt: Optional[np.ndarray] = None  # [X+2, Y+2, Z+2] see clearance_queries.free_distance_transform (lazy)
+    free_voxels: Optional[tuple] = None  # see clearance_queries.free_voxel_grid (lazy)
     voxels: Optional[VoxelObstacles] = None  # the grid's occupied + surface voxels for grid polytopes
     mean_voxels: Optional[np.ndarray] = None  # [X, Y, Z] bool voxels holding a Gaussian mean (goal.mean_voxel_mask)
     main_component_of: Optional[tuple] = None  # (start_region, component) cached by starts.main_component
