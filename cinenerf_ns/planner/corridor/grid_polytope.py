@@ -35,7 +35,6 @@ import numpy as np
 import torch
 from scipy import ndimage
 
-from ..fastnp import clip
 from ..geometry.voxel_traversal import segments_in_free_voxels
 from .polytope import Polytope
 
@@ -61,7 +60,7 @@ def segment_box_closest(u0: np.ndarray, u1: np.ndarray, v: np.ndarray) -> tuple[
     K = v.shape[0]
     with np.errstate(divide="ignore", invalid="ignore"):
         tb = np.concatenate([(v - u0) / d, (v + 1.0 - u0) / d], axis=1)  # [K, 6] (inf / nan where d_a = 0)
-    tb = np.where(np.isfinite(tb), clip(tb, 0.0, 1.0), 0.0)
+    tb = np.where(np.isfinite(tb), np.clip(tb, 0.0, 1.0), 0.0)
     T = np.sort(np.concatenate([np.zeros((K, 1)), np.ones((K, 1)), tb], axis=1), axis=1)  # [K, 8]
     mid = 0.5 * (T[:, :-1] + T[:, 1:])  # [K, 7]
     qm = u0 + mid[..., None] * d  # [K, 7, 3]
@@ -72,10 +71,10 @@ def segment_box_closest(u0: np.ndarray, u1: np.ndarray, v: np.ndarray) -> tuple[
     den = (dd * dd).sum(-1)
     with np.errstate(divide="ignore", invalid="ignore"):
         ts = np.where(den > 0, -(c * dd).sum(-1) / den, mid)
-    ts = clip(ts, T[:, :-1], T[:, 1:])  # [K, 7]
+    ts = np.clip(ts, T[:, :-1], T[:, 1:])  # [K, 7]
     cand = np.concatenate([T, ts], axis=1)  # [K, 15]
     q = u0 + cand[..., None] * d  # [K, 15, 3]
-    p = clip(q, vb, vb + 1.0)
+    p = np.clip(q, vb, vb + 1.0)
     f = ((q - p) ** 2).sum(-1)  # [K, 15]
     k = np.argmin(f, axis=1)
     rows = np.arange(K)
@@ -100,8 +99,8 @@ def grid_polytope_planes(
 
     fn = choose(backend, grid_polytope_c, "gridpoly", "grid polytope")
     shape = np.array(surface.shape)
-    blo = clip(np.asarray(box_lo, dtype=np.float64), 0.0, shape.astype(np.float64))
-    bhi = clip(np.asarray(box_hi, dtype=np.float64), 0.0, shape.astype(np.float64))
+    blo = np.clip(np.asarray(box_lo, dtype=np.float64), 0.0, shape.astype(np.float64))
+    bhi = np.clip(np.asarray(box_hi, dtype=np.float64), 0.0, shape.astype(np.float64))
     u0 = np.asarray(u0, dtype=np.float64).reshape(3)
     u1 = np.asarray(u1, dtype=np.float64).reshape(3)
     seg = np.stack([u0, u1])  # [2, 3]
@@ -138,7 +137,7 @@ def grid_polytope_planes(
         d = u1 - u0
         dd = float(d @ d)
         cen = v + 0.5
-        t = clip((cen - u0) @ d / dd, 0.0, 1.0) if dd > 0 else np.zeros(len(v))
+        t = np.clip((cen - u0) @ d / dd, 0.0, 1.0) if dd > 0 else np.zeros(len(v))
         lb = np.linalg.norm(u0 + t[:, None] * d - cen, axis=1) - 0.5 * np.sqrt(3.0)
         order = np.argsort(lb, kind="stable")
         v, lb = v[order], lb[order]

@@ -9,7 +9,6 @@ from typing import TYPE_CHECKING, Optional
 import numpy as np
 import torch
 
-from ..fastnp import clip
 from ..shots.safety import DEFAULT_CLEARANCE_CAP, safety_report
 from .collision import points_collide
 from .distance import clearance as exact_clearance
@@ -36,7 +35,7 @@ def in_free_voxel(planner: "Planner", points) -> np.ndarray:
     _, ijk = _grid_voxels(prep.grid, points)
     shape = np.array(occ.shape)
     inside = ((ijk >= 0) & (ijk < shape)).all(1)
-    c = clip(ijk, 0, shape - 1)
+    c = np.clip(ijk, 0, shape - 1)
     return inside & ~occ[c[:, 0], c[:, 1], c[:, 2]]
 
 
@@ -98,7 +97,7 @@ def clearance_lower_bound(planner: "Planner", points) -> np.ndarray:
     vs = float(grid.voxel_size)
     _, ijk = _grid_voxels(grid, points)
     inside = ((ijk >= 0) & (ijk < np.array(grid.shape))).all(1)
-    c = clip(ijk, 0, np.array(grid.shape) - 1) + 1  # into the padded array
+    c = np.clip(ijk, 0, np.array(grid.shape) - 1) + 1  # into the padded array
     e = edt[c[:, 0], c[:, 1], c[:, 2]]
     # (1 + 1e-9): the transform is float64 and the bound must never be optimistic
     d = e - math.sqrt(3.0) * vs * (1 + 1e-9)

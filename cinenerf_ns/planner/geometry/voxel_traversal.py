@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..fastnp import clip
 from .ranges import group_ranks
 
 EPS = 1e-9  # voxel units: a point this close to a voxel counts as touching it (see the module docstring)
@@ -56,7 +55,7 @@ def segment_voxels(u0: np.ndarray, u1: np.ndarray, eps: float = EPS) -> tuple[np
         owner, rank = group_ranks(c)
         k = first[owner, a] + rank  # the integer planes  [C]
         pos = col[owner] + rank
-        t[owner, pos] = clip((k - u0[owner, a]) / d[owner, a], 0.0, 1.0)
+        t[owner, pos] = np.clip((k - u0[owner, a]) / d[owner, a], 0.0, 1.0)
         col += c
     t[np.arange(P), col] = 1.0
     t.sort(axis=1)
@@ -103,7 +102,7 @@ def segments_in_free_voxels(occupied: np.ndarray, lo: np.ndarray, voxel_size: fl
     owner, vox = segment_voxels((a - lo) / voxel_size, (b - lo) / voxel_size)
     shape = np.asarray(occupied.shape)
     inside = ((vox >= 0) & (vox < shape)).all(1)
-    c = clip(vox, 0, shape - 1)
+    c = np.clip(vox, 0, shape - 1)
     bad = ~inside | occupied[c[:, 0], c[:, 1], c[:, 2]]
     blocked = np.zeros(a.shape[0], dtype=bool)
     np.logical_or.at(blocked, owner, bad)

@@ -12,7 +12,6 @@ from torch import Tensor
 
 from ..corridor.polytope import Polytope, safe_polytope
 from ..errors import GoalUnreachableError, PlanningError
-from ..fastnp import clip
 from ..geometry.collision import segments_collide
 from ..geometry.ranges import group_ranks
 from .goal import ComponentMask, _project_onto_polytope, closest_safe_point
@@ -65,7 +64,7 @@ def free_voxel_near(planner: "Planner", p: np.ndarray, comp: Optional[int], max_
         if labels[i, j, k] > 0 and (comp is None or labels[i, j, k] == comp):
             return np.array([i, j, k])
     # search growing windows for free voxels, nearest first, whose segment from p is free
-    c = clip(ijk.cpu().numpy(), 0, shape - 1)
+    c = np.clip(ijk.cpu().numpy(), 0, shape - 1)
     for R in (r for r in (1, 2, 4, 8, 16) if r <= max_window):
         a = np.maximum(c - R, 0)
         e = np.minimum(c + R + 1, shape)
@@ -212,7 +211,7 @@ def nearest_component_voxel(planner: "Planner", target: np.ndarray, comp: int) -
     grid, labels = prep.grid, prep.astar_grid.labels
     shape = np.array(grid.shape)
     lo, vs = grid.lo.detach().cpu().double().numpy(), float(grid.voxel_size)
-    c = clip(np.floor((target - lo) / vs).astype(np.int64), 0, shape - 1)
+    c = np.clip(np.floor((target - lo) / vs).astype(np.int64), 0, shape - 1)
     R = 2
     while True:
         a, e = np.maximum(c - R, 0), np.minimum(c + R + 1, shape)

@@ -22,7 +22,6 @@ from typing import Any, Tuple
 import numpy as np
 
 from ..errors import InvalidInputError
-from ..fastnp import clip
 
 try:  # torch is a dependency of the package, but the curve itself does not need it
     import torch
@@ -167,10 +166,10 @@ class BezierTrajectory:
         Times outside [0, total_duration] are clamped to the ends (the curve is held there). At a join
         the later segment is chosen (u = 0), except at the very end (last segment, u = 1).
         """
-        tt = clip(_to_numpy(t).reshape(-1), 0.0, self.total_duration)  # [T]
+        tt = np.clip(_to_numpy(t).reshape(-1), 0.0, self.total_duration)  # [T]
         seg = np.searchsorted(self._starts, tt, side="right") - 1
-        seg = clip(seg, 0, self.num_segments - 1)  # [T]
-        u = clip((tt - self._starts[seg]) / self.durations[seg], 0.0, 1.0)  # [T]
+        seg = np.clip(seg, 0, self.num_segments - 1)  # [T]
+        u = np.clip((tt - self._starts[seg]) / self.durations[seg], 0.0, 1.0)  # [T]
         u[tt >= self.total_duration] = 1.0  # exact end point despite rounding of the cumulative sum
         return seg, u
 

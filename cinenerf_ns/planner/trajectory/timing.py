@@ -24,7 +24,6 @@ from typing import Optional
 import numpy as np
 
 from ..errors import InvalidInputError
-from ..fastnp import clip
 from .bezier import BezierTrajectory
 
 _GL5 = np.polynomial.legendre.leggauss(5)  # 5-point Gauss-Legendre nodes/weights on [-1, 1]
@@ -122,13 +121,13 @@ def _hermite_guess(tau_tab: np.ndarray, s_tab: np.ndarray, v_tab: np.ndarray, i:
     s0, s1 = s_tab[i], s_tab[i + 1]
     m0, m1 = v_tab[i] * h, v_tab[i + 1] * h  # slopes in the unit parameter u
     ds = s1 - s0
-    u = clip(np.where(ds > 0, (s - s0) / np.where(ds > 0, ds, 1.0), 0.0), 0.0, 1.0)
+    u = np.clip(np.where(ds > 0, (s - s0) / np.where(ds > 0, ds, 1.0), 0.0), 0.0, 1.0)
     # H(u) = s0 + m0 u + (3 ds - 2 m0 - m1) u^2 + (m0 + m1 - 2 ds) u^3
     c2, c3 = 3 * ds - 2 * m0 - m1, m0 + m1 - 2 * ds
     for _ in range(6):
         f = s0 + u * (m0 + u * (c2 + u * c3)) - s
         df = m0 + u * (2 * c2 + 3 * u * c3)
-        u = clip(u - np.where(df > 1e-300, f / np.where(df > 1e-300, df, 1.0), 0.0), 0.0, 1.0)
+        u = np.clip(u - np.where(df > 1e-300, f / np.where(df > 1e-300, df, 1.0), 0.0), 0.0, 1.0)
     return t0 + u * h
 
 
@@ -142,9 +141,9 @@ def invert_arc_length(traj: BezierTrajectory, tau_tab: np.ndarray, s_tab: np.nda
     S(tau) = s_tab[i] + integral_{tau_i}^{tau} |p'| (5-point Gauss-Legendre) brings it to ~1e-12.
     """
     nodes, weights = _GL5
-    i = clip(np.searchsorted(s_tab, s, side="right") - 1, 0, len(s_tab) - 2)  # [T] bracket
+    i = np.clip(np.searchsorted(s_tab, s, side="right") - 1, 0, len(s_tab) - 2)  # [T] bracket
     lo, hi = tau_tab[i], tau_tab[i + 1]
-    tau = np.interp(s, s_tab, tau_tab) if v_tab is None else clip(_hermite_guess(tau_tab, s_tab, v_tab, i, s),
+    tau = np.interp(s, s_tab, tau_tab) if v_tab is None else np.clip(_hermite_guess(tau_tab, s_tab, v_tab, i, s),
                                                                      lo, hi)
     tol = 1e-11 * max(1.0, traj.total_duration)
     n = tau.shape[0]
@@ -156,7 +155,7 @@ def invert_arc_length(traj: BezierTrajectory, tau_tab: np.ndarray, s_tab: np.nda
         speed_q, speed = sq[: 5 * n].reshape(q.shape), sq[5 * n:]
         s_here = s_tab[i] + half * (speed_q @ weights)
         step = np.where(speed > 1e-12, (s_here - s) / np.maximum(speed, 1e-12), 0.0)
-        tau = clip(tau - step, lo, hi)
+        tau = np.clip(tau - step, lo, hi)
         if np.abs(step).max() <= tol:  # quadratic convergence from the Hermite start: usually 2 steps
             break
     return tau
@@ -168,7 +167,7 @@ def _profile(length: float, cfg: TimingConfig):
     amax = cfg.max_acceleration
     if amax is None:
         dur = length / vmax
-        return dur, (lambda t: clip(vmax * t, 0.0, length)), (lambda t: np.full_like(t, vmax))
+        return dur, (lambda t: np.clip(vmax * t, 0.0, length)), (lambda t: np.full_like(t, vmax))
     # ramp of duration T_r reaching speed v: raised cosine peaks at accel pi v / (2 T_r); linear at v / T_r
     k = math.pi / 2 if cfg.ease else 1.0
     ramp_len = lambda v: 0.5 * v * (k * v / amax)  # distance covered by one ramp to speed v
@@ -190,17 +189,17 @@ def _profile(length: float, cfg: TimingConfig):
     d_r = ramp_len(v)
 
     def s_of_t(t):
-        t = clip(t, 0.0, dur)
+        t = np.clip(t, 0.0, dur)
         out = np.where(t < t_r, ramp_s(np.minimum(t, t_r)), d_r + v * (t - t_r))
         back = dur - t
-        out = np.where(back < t_r, length - ramp_s(clip(back, 0.0, t_r)), out)
-        return clip(out, 0.0, length)
+        out = np.where(back < t_r, length - ramp_s(np.clip(back, 0.0, t_r)), out)
+        return np.clip(out, 0.0, length)
 
     def v_of_t(t):
-        t = clip(t, 0.0, dur)
+        t = np.clip(t, 0.0, dur)
         out = np.where(t < t_r, ramp_v(np.minimum(t, t_r)), v)
         back = dur - t
-        return np.where(back < t_r, ramp_v(clip(back, 0.0, t_r)), out)
+        return np.where(back < t_r, ramp_v(np.clip(back, 0.0, t_r)), out)
 
     return dur, s_of_t, v_of_t
 

@@ -6,9 +6,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 from _shot_scenes import GO_TO, TARGET, walled_target_scene
+from hypothesis import given, settings, strategies as st
+from hypothesis.extra import numpy as hnp
 
 from cinenerf_ns.planner.errors import UnsafeTrajectoryError
+from cinenerf_ns.planner.scene.occupancy import OccupancyGrid
 from cinenerf_ns.planner.shots import stages
 from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
 
@@ -107,3 +111,16 @@ def test_legs_are_planned_only_through_stages(module):
             assert not STAGE_INTERNALS[node.module] & {a.name for a in node.names}, (module, node.module)
         if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "planner":
             assert not node.attr.startswith("_"), (module, node.attr)
+
+
+@settings(max_examples=100, deadline=None)
+@given(hnp.arrays(np.int64, (st.integers(0, 30)), elements=st.integers(-3, 200)).map(lambda a: a.reshape(-1, 3) if
+       a.size % 3 == 0 else a[: a.size - a.size % 3].reshape(-1, 3)),
+       st.floats(-100, 100), st.floats(1e-3, 10.0))
+def test_voxel_centres_numpy_matches_grid(path, lo0, vs):
+    """stages.voxel_centres' numpy spelling of OccupancyGrid.voxel_to_world gives the same bits."""
+    lo = np.array([lo0, -0.37 * lo0, 0.1 + lo0 / 7])
+    grid = OccupancyGrid(torch.as_tensor(lo), vs, torch.zeros(2, 2, 2, dtype=torch.bool))
+    ref = grid.voxel_to_world(torch.as_tensor(path)).cpu().numpy()
+    new = lo + (path.astype(np.float64) + 0.5) * vs
+    assert ref.shape == new.shape and np.array_equal(ref.view(np.int64), new.view(np.int64))

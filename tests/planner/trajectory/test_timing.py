@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
+from hypothesis.extra import numpy as hnp
 
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.trajectory.bezier import BezierTrajectory
@@ -156,3 +157,16 @@ def test_zero_length_curve():
 def test_bad_config(kwargs):
     with pytest.raises(InvalidInputError):
         time_parametrize(random_curve(0), TimingConfig(**kwargs))
+
+
+@settings(max_examples=100, deadline=None)
+@given(hnp.arrays(np.float64, st.integers(1, 8), elements=st.floats(1e-3, 50.0)), st.integers(2, 80))
+def test_arc_length_grid_matches_per_segment_loop(durations, n):
+    """timing.arc_length_table's broadcast grid of curve times equals the former per-segment loop bit for bit."""
+    cp = np.random.default_rng(n).normal(size=(len(durations), 4, 3))
+    traj = BezierTrajectory(cp, durations)
+    taus = [traj.segment_starts[k] + traj.durations[k] * np.linspace(0.0, 1.0, n + 1)[:-1]
+            for k in range(traj.num_segments)]
+    ref = np.concatenate(taus + [[traj.total_duration]])
+    tau, _ = arc_length_table(traj, n)
+    assert np.array_equal(ref.view(np.int64), tau.view(np.int64))
