@@ -159,7 +159,7 @@ def clearance(planner: "Planner", points, cap: Optional[float] = None, batch: bo
         if todo.size:  # the voxel-box bound proves more of them; the value the exact search would give there
             boxed = todo[box_clearance_bound(planner, pts[todo], float(cap)) >= float(cap)]
             r = float(scene.camera_radius)
-            out[boxed] = (torch.tensor(float(cap) + r, dtype=torch.float64) - r).item()  # as exact_clearance's sum
+            out[boxed] = (float(cap) + r) - r  # rounded as exact_clearance's (cap + r) - r, in float64
             todo = np.setdiff1d(todo, boxed)
     if todo.size:
         p = torch.as_tensor(pts[todo], device=scene.device)
