@@ -34,6 +34,7 @@ polytope holds the piece, so the guarantee is the same; the corridor only has mo
 from __future__ import annotations
 
 import inspect
+import math
 import warnings
 from dataclasses import dataclass, field
 from typing import Optional
@@ -165,7 +166,7 @@ def build_corridor(
     docstring); None: never.
     Raises InvalidInputError (bad waypoints), CorridorError (a segment cannot be covered).
     """
-    _check_options(box, box_margin, backend)
+    _check_options(box, box_margin, backend, split_long)
     w = _prepared_waypoints(waypoints, scene.means.device)
     kw = dict(margin=margin, normal=normal)
     stats = {"splits": 0}
@@ -197,7 +198,7 @@ def build_corridors(waypoint_list, scene, index=None, **options) -> list:
     o = {**defaults, **options}
     if o["box"] != "aabb":
         raise InvalidInputError("build_corridors supports box='aabb' only")
-    _check_options(o["box"], o["box_margin"], o["backend"])
+    _check_options(o["box"], o["box_margin"], o["backend"], o["split_long"])
     ws = [_prepared_waypoints(wp, scene.means.device) for wp in waypoint_list]
     kw = dict(margin=o["margin"], normal=o["normal"])
     counts = [{} for _ in ws]
@@ -225,7 +226,9 @@ def build_corridors(waypoint_list, scene, index=None, **options) -> list:
     return out
 
 
-def _check_options(box: str, box_margin: float, backend: str) -> None:
+def _check_options(box: str, box_margin: float, backend: str, split_long: Optional[float] = None) -> None:
+    if split_long is not None and not (math.isfinite(float(split_long)) and float(split_long) > 0):
+        raise InvalidInputError(f"split_long must be None or a finite length > 0, got {split_long}")
     if box not in ("aabb", "oriented"):
         raise InvalidInputError(f"box must be 'aabb' or 'oriented', got {box!r}")
     if not (box_margin > 0):

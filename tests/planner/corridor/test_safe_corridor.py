@@ -12,7 +12,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 
 import cinenerf_ns.planner.corridor.safe_corridor as corridor_mod
 from cinenerf_ns.planner.corridor.polytope import SeedNotFreeError, chebyshev_center, safe_polytope
-from cinenerf_ns.planner.corridor.safe_corridor import Corridor, CorridorError, build_corridor
+from cinenerf_ns.planner.corridor.safe_corridor import Corridor, CorridorError, build_corridor, build_corridors
 from cinenerf_ns.planner.errors import InvalidInputError
 
 sys.path.insert(0, str(Path(__file__).parents[1]))
@@ -138,6 +138,11 @@ def test_bad_waypoints():
         build_corridor([[0.0, 0, 0], [0.0, 0, 0]], scene)
     with pytest.raises(InvalidInputError):
         build_corridor([[0.0, 0, 0], [1.0, 0, 0]], scene, box="sphere")
+    for bad in (0.0, -0.1, np.nan, np.inf):  # split_long: a length, or bisection would run to its depth limit
+        with pytest.raises(InvalidInputError, match="split_long"):
+            build_corridor([[0.0, 0, 0], [1.0, 0, 0]], scene, split_long=bad)
+        with pytest.raises(InvalidInputError, match="split_long"):
+            build_corridors([[[0.0, 0, 0], [1.0, 0, 0]]], scene, split_long=bad)
     # duplicates are dropped
     cor = build_corridor([[0.0, 0, 0], [0.0, 0, 0], [0.5, 0, 0]], scene)
     assert len(cor) == 1
