@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import torch
 
-from ..shots.workers import in_worker
+from ..shots.workers import in_worker, usable_cpus
 
 if TYPE_CHECKING:
     from ..shots.planner import Planner
@@ -20,6 +20,20 @@ SPLIT_LONG_MARGINS = 2.0
 """With grid polytopes, build_corridor's ``split_long`` is this x the box margin: a longer segment that needs a Prop-2
 polytope is split so that its free runs take grid polytopes and its Prop-2 boxes stay small (safe_corridor.py;
 docs/PLANNER_DEFAULTS.md)."""
+
+
+CORRIDOR_THREADS_MAX = 8
+"""PlannerConfig.corridor_threads None: at most this many threads build a request's polytopes (a request has a few to
+a dozen polytopes to build; docs/PLANNER_DEFAULTS.md)."""
+
+
+def corridor_threads(planner: "Planner") -> int:
+    """config.corridor_threads resolved for this process: 1 in a candidate worker, the value given, else one per
+    usable CPU up to CORRIDOR_THREADS_MAX."""
+    if in_worker():
+        return 1
+    t = planner.config.corridor_threads
+    return int(t) if t is not None else max(1, min(CORRIDOR_THREADS_MAX, usable_cpus()))
 
 
 def corridor_backend(planner: "Planner", many: bool = False) -> str:
@@ -50,11 +64,11 @@ def use_grid_polytopes(planner: "Planner") -> bool:
 
 def corridor_kwargs(planner: "Planner", many: bool = False) -> dict:
     """Keyword arguments of build_corridor (after waypoints, scene, index) for the planner's requests: the box margin,
-    the planning region, the grid's voxels when grid polytopes are on, and the resolved corridor backend
-    (corridor_backend; ``many``: for build_corridors over many ways; the batched one runs on ``batch_scene`` / its
-    index; the corridor's polytopes end up on the request device)."""
+    the planning region, the polytope threads (corridor_threads), the grid's voxels when grid polytopes are on, and
+    the resolved corridor backend (corridor_backend; ``many``: for build_corridors over many ways; the batched one
+    runs on ``batch_scene`` / its index; the corridor's polytopes end up on the request device)."""
     prep = planner.ready()
-    kw = dict(box_margin=planner.config.box_margin, region=planner.region())
+    kw = dict(box_margin=planner.config.box_margin, region=planner.region(), threads=corridor_threads(planner))
     if use_grid_polytopes(planner):
         kw["grid"] = prep.voxels
         kw["split_long"] = SPLIT_LONG_MARGINS * float(planner.config.box_margin)

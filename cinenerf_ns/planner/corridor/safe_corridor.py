@@ -44,6 +44,7 @@ import torch
 from torch import Tensor
 
 from ..errors import InvalidInputError, PlanningError
+from ..host_pool import ordered_map
 from .polytope import Polytope, SeedNotFreeError, chebyshev_center, safe_polytope
 from .polytope_batched import safe_polytopes_batched
 
@@ -141,6 +142,7 @@ def build_corridor(
     known=(),
     region=None,
     split_long: Optional[float] = None,
+    threads: int = 1,
 ) -> Corridor:
     """Corridor of safe polytopes along a polyline of camera centres.
 
@@ -164,9 +166,11 @@ def build_corridor(
     region: (lo [3], hi [3]) the planning region; Corridor.constraints() cuts every polytope to it.
     split_long: with ``grid`` and box "aabb", long segments that need a Prop-2 polytope are split first (module
     docstring); None: never.
+    threads: how many Prop-2 (host) polytopes may be built at once (host_pool.ordered_map: their compiled kernel
+    releases the GIL); the same polytopes, in the same order, whatever the number.
     Raises InvalidInputError (bad waypoints), CorridorError (a segment cannot be covered).
     """
-    _check_options(box, box_margin, backend, split_long)
+    _check_options(box, box_margin, backend, split_long, threads)
     w = _prepared_waypoints(waypoints, scene.means.device)
     kw = dict(margin=margin, normal=normal)
     stats = {"splits": 0}
@@ -178,7 +182,7 @@ def build_corridor(
         stats["host_segments"] = sum(p is None for p in batched)
     else:
         batched = pre
-    pieces = _path_pieces(w, batched, scene, index, box_margin, max_split_depth, kw, stats, box)
+    pieces = _path_pieces(w, batched, scene, index, box_margin, max_split_depth, kw, stats, box, threads)
     out = _assemble(pieces, stats, min_overlap, exact_overlap)
     out.region = region
     return out
@@ -198,7 +202,7 @@ def build_corridors(waypoint_list, scene, index=None, **options) -> list:
     o = {**defaults, **options}
     if o["box"] != "aabb":
         raise InvalidInputError("build_corridors supports box='aabb' only")
-    _check_options(o["box"], o["box_margin"], o["backend"], o["split_long"])
+    _check_options(o["box"], o["box_margin"], o["backend"], o["split_long"], o["threads"])
     ws = [_prepared_waypoints(wp, scene.means.device) for wp in waypoint_list]
     kw = dict(margin=o["margin"], normal=o["normal"])
     counts = [{} for _ in ws]
@@ -216,7 +220,8 @@ def build_corridors(waypoint_list, scene, index=None, **options) -> list:
     for w, bp, cnt in zip(ws, batched, counts):
         stats = {"splits": 0, "host_segments": sum(p is None for p in bp) if o["backend"] == "batched" else 0, **cnt}
         try:
-            pieces = _path_pieces(w, bp, scene, index, o["box_margin"], o["max_split_depth"], kw, stats, "aabb")
+            pieces = _path_pieces(w, bp, scene, index, o["box_margin"], o["max_split_depth"], kw, stats, "aabb",
+                                  o["threads"])
         except CorridorError as e:
             out.append(e)
             continue
@@ -226,7 +231,10 @@ def build_corridors(waypoint_list, scene, index=None, **options) -> list:
     return out
 
 
-def _check_options(box: str, box_margin: float, backend: str, split_long: Optional[float] = None) -> None:
+def _check_options(box: str, box_margin: float, backend: str, split_long: Optional[float] = None,
+                   threads: int = 1) -> None:
+    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
+        raise InvalidInputError(f"threads must be an integer >= 1, got {threads!r}")
     if split_long is not None and not (math.isfinite(float(split_long)) and float(split_long) > 0):
         raise InvalidInputError(f"split_long must be None or a finite length > 0, got {split_long}")
     if box not in ("aabb", "oriented"):
@@ -267,7 +275,8 @@ def _known_polytope(known, a: Tensor, b: Tensor):
 def _grid_polytopes(ws, grid, box_margin, margin, box, known=(), stats=None) -> list:
     """Per path, [Polytope | None] per segment: a ``known`` polytope holding the segment, else the grid polytope of
     a segment that lies in free voxels of ``grid`` (None: neither; the segment needs an exact polytope). stats: a
-    dict (one path) or a list of dicts (one per path) that get the counts ``known_segments`` and ``grid_segments``."""
+    dict (one path) or a list of dicts (one per path) that get the counts ``known_segments`` and ``grid_segments``.
+    Built one after the other: a grid polytope takes ~0.2 ms, about what handing it to a thread costs."""
     out = []
     for k, w in enumerate(ws):
         row = []
@@ -367,15 +376,27 @@ def _batched_polytopes(ws, scene, index, box_margin, margin, normal, batch_scene
     return out
 
 
-def _path_pieces(w, batched, scene, index, box_margin, max_split_depth, kw, stats, box) -> list:
+def _path_pieces(w, batched, scene, index, box_margin, max_split_depth, kw, stats, box, threads: int = 1) -> list:
     """(polytope, p0, p1) per segment of the path w [M+1, 3]: the polytope already built for it (grid or batched)
-    where there is one, else the host path (SeedNotFreeError -> split, as with backend "cpu")."""
+    where there is one, else the host path (SeedNotFreeError -> split, as with backend "cpu"); up to ``threads``
+    host segments are built at once (host_pool.ordered_map), and a CorridorError is that of the first failing
+    segment, as in a serial loop."""
+    todo = [m for m in range(w.shape[0] - 1) if batched[m] is None]
+
+    def host(m):
+        got, st = [], {"splits": 0}
+        _segment_polytopes(w[m], w[m + 1], scene, index, box_margin, 0, max_split_depth, kw, got, st, m, box)
+        return got, st["splits"]
+
+    built = dict(zip(todo, ordered_map(host, todo, threads)))
     pieces: list = []
     for m in range(w.shape[0] - 1):
         if batched[m] is not None:
             pieces.append((batched[m], w[m], w[m + 1]))
         else:
-            _segment_polytopes(w[m], w[m + 1], scene, index, box_margin, 0, max_split_depth, kw, pieces, stats, m, box)
+            got, splits = built[m]
+            pieces += got
+            stats["splits"] += splits
     return pieces
 
 

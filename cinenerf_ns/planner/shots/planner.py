@@ -103,6 +103,10 @@ class PlannerConfig:
     candidate_workers: Optional[int] = None
     """Forked processes plan_candidates spreads candidates over (workers.py). None: one per CPU with 'fork' and
     >= 4 CPUs, else 0; 0: in this process. Never with requests on a GPU (no CUDA after fork)."""
+    corridor_threads: Optional[int] = None
+    """How many corridor polytopes a request builds at once (threads: their compiled kernels release the GIL; the
+    same corridor whatever the number). None: one per usable CPU, at most CORRIDOR_THREADS_MAX; always 1 inside a
+    candidate worker (one process per core already)."""
     worker_scoring: bool = True
     """With candidate workers, each also computes its shot's score inputs (sight lines, exact clearance); False:
     the parent scores them (on the GPU when the scene is there) while the workers run. Same score terms."""
@@ -122,6 +126,9 @@ class PlannerConfig:
             raise InvalidInputError(f"start_look_distance must be a fraction in [0, 1) of the start region's longest "
                                     f"side, got {d!r}")
         validate_workers(self.candidate_workers)
+        t = self.corridor_threads
+        if t is not None and (isinstance(t, bool) or not isinstance(t, (int, np.integer)) or t < 1):
+            raise InvalidInputError(f"corridor_threads must be None (auto) or an integer >= 1, got {t!r}")
         lo_r, hi_r = GRID_RESOLUTION_RANGE
         res = self.grid_resolution
         if isinstance(res, bool) or not isinstance(res, (int, np.integer)) or not lo_r <= res <= hi_r:

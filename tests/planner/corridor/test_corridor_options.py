@@ -51,3 +51,24 @@ def test_candidates_two_phase_rounds_follow_the_many_corridor_backend(monkeypatc
         req = SimpleNamespace(planner=pl, pool=object())
         assert candidates._round_strategy(req) is want
     assert candidates._round_strategy(SimpleNamespace(planner=pl, pool=None)) is candidates._round_in_process
+
+
+def test_corridor_threads_resolution(monkeypatch):
+    monkeypatch.setattr(corridor_options, "in_worker", lambda: False)
+    monkeypatch.setattr(corridor_options, "usable_cpus", lambda: 16)
+    assert corridor_options.corridor_threads(_fake("auto", "cpu", "cpu")) == corridor_options.CORRIDOR_THREADS_MAX
+    monkeypatch.setattr(corridor_options, "usable_cpus", lambda: 2)
+    assert corridor_options.corridor_threads(_fake("auto", "cpu", "cpu")) == 2
+    pl = _fake("auto", "cpu", "cpu")
+    pl.config.corridor_threads = 3
+    assert corridor_options.corridor_threads(pl) == 3
+    monkeypatch.setattr(corridor_options, "in_worker", lambda: True)  # one process per core already
+    assert corridor_options.corridor_threads(pl) == 1
+
+
+@pytest.mark.parametrize("bad", [0, -2, 1.5, True, "4"])
+def test_corridor_threads_is_validated(bad):
+    from cinenerf_ns.planner.errors import InvalidInputError
+
+    with pytest.raises(InvalidInputError, match="corridor_threads must be None"):
+        PlannerConfig(corridor_threads=bad).validate()
