@@ -164,6 +164,17 @@ def search26_ws():
                      [_P, _I64, _I64, _I64, _I64, _I64, _P, _F64, _I64, _P, _I64, _P, _I64, _P, _P], _I64)
 
 
+def search26_ws_lm():
+    """search26_ws with landmark tables (astar26.c: search26_ws_lm; search/landmarks.py), or None."""
+    return _function("astar26", "search26_ws_lm",
+                     [_P, _I64, _I64, _I64, _I64, _I64, _P, _F64, _I64, _P, _I64, _P, _I64, _P, _P, _P, _I64], _I64)
+
+
+def dist26():
+    """The compiled shortest-path distances from one voxel to all (astar26.c: dist26), or None."""
+    return _function("astar26", "dist26", [_P, _I64, _I64, _I64, _I64, _P], _I64)
+
+
 _I32 = ctypes.c_int32
 # the scene and index arguments every polytope.c entry point starts with (polytope_native.native_arrays' "args")
 _SCENE_INDEX = [_P, _P, _P, _P, _I32,  # scene: means, rotations, radii, packed rows [N, 12] float32, float32 flag

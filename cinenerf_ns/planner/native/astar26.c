@@ -8,6 +8,14 @@
  *
  * search26 also answers "shortest path to the nearest of a set of voxels" (Dijkstra, for coarse_path.py).
  *
+ * Landmarks (ALT: A*, landmarks, triangle inequality), search26_ws_lm: with the exact shortest-path distances D_l of
+ * a few landmark voxels (dist26, float32 tables), |D_l(goal) - D_l(n)| <= dist(n, goal) for every n, so the largest
+ * of these and the octile distance is still a lower bound of the remaining cost (and consistent, up to the float32
+ * rounding, which is taken off: each table value is within 2^-24 relative of the float64 distance, so subtracting
+ * (D_l(goal) + D_l(n)) 2^-23 keeps the bound below the true distance). Around walls the octile distance is far below
+ * the true cost and A* floods the free space in front of the wall; the landmark bound sees the detour. The result
+ * is still a minimum-cost path (among equal-cost paths it may pick another one than plain A*).
+ *
  * blocked: uint8 [X+2][Y+2][Z+2], C order, the grid padded with a ring of occupied voxels (no bounds checks).
  * Returns the number of path voxels written to out (flat padded indices, start first), or
  *   -1 no path (the free component of the start is exhausted), -2 more than max_expansions expansions,
@@ -72,9 +80,12 @@ static item_t pop(item_t *hp, int64_t *size) {
 
 /* target == NULL: A* from start to goal. target != NULL (uint8, same layout as blocked): Dijkstra (no
  * heuristic, goal ignored) from start to the nearest voxel whose target byte is set. */
+#define LM_MAX 16
+#define LM_REL 1.1920928955078125e-07 /* 2^-23 */
+
 static int64_t search_core(const uint8_t *blocked, int64_t PX, int64_t PY, int64_t PZ, int64_t start, int64_t goal,
                            const uint8_t *target, double weight, int64_t max_expansions, int64_t *out, int64_t out_cap,
-                           uint32_t *stamp, uint32_t gen, double *g, int64_t *parent) {
+                           uint32_t *stamp, uint32_t gen, double *g, int64_t *parent, const float *lm, int64_t L) {
     const uint32_t OPEN = 2u * gen, CLOSED = 2u * gen + 1u;
     const double SQ2 = sqrt(2.0), SQ3 = sqrt(3.0);
     const double c1 = weight * (SQ2 - 1.0), c2 = weight * (SQ3 - SQ2);
@@ -94,7 +105,19 @@ static int64_t search_core(const uint8_t *blocked, int64_t PX, int64_t PY, int64
                 dk_[m] = dk;
                 m++;
             }
-    (void)N;
+    /* landmarks whose table reaches the goal (a landmark in another free component has +inf there) */
+    const float *lt[LM_MAX];
+    double lg[LM_MAX];
+    int nl = 0;
+    if (!target && lm)
+        for (int64_t l = 0; l < L && nl < LM_MAX; l++) {
+            const float *t = lm + l * N;
+            if (isfinite(t[goal])) {
+                lt[nl] = t;
+                lg[nl] = (double)t[goal];
+                nl++;
+            }
+        }
     int64_t cap = 1024, size = 0;
     item_t *heap = (item_t *)malloc((size_t)cap * sizeof(item_t));
     int64_t result = -1;
@@ -144,6 +167,12 @@ static int64_t search_core(const uint8_t *blocked, int64_t PX, int64_t PY, int64
                 double lo = a < b ? (a < e ? a : e) : (b < e ? b : e);
                 /* same expression and order as astar.py: wgt*hi + c1*(a+b+e-hi-lo) + c2*lo */
                 double h = target ? 0.0 : weight * hi + c1 * (a + b + e - hi - lo) + c2 * lo;
+                for (int l = 0; l < nl; l++) {
+                    double dn = (double)lt[l][n];
+                    if (!isfinite(dn)) continue;
+                    double v = weight * (fabs(lg[l] - dn) - (lg[l] + dn) * LM_REL);
+                    if (v > h) h = v;
+                }
                 item_t ni = {ng + h, h, n};
                 if (push(&heap, &size, &cap, ni)) {
                     result = -4;
@@ -181,7 +210,7 @@ int64_t search26(const uint8_t *blocked, int64_t PX, int64_t PY, int64_t PZ, int
     int64_t r = -4;
     if (stamp && g && parent)
         r = search_core(blocked, PX, PY, PZ, start, goal, target, weight, max_expansions, out, out_cap, stamp, 1u, g,
-                        parent);
+                        parent, NULL, 0);
     free(stamp);
     free(g);
     free(parent);
@@ -196,7 +225,76 @@ int64_t search26_ws(const uint8_t *blocked, int64_t PX, int64_t PY, int64_t PZ, 
                     uint32_t *stamp, int64_t gen, double *g, int64_t *parent) {
     if (gen < 1 || gen >= 2147483647LL) return -5;
     return search_core(blocked, PX, PY, PZ, start, goal, target, weight, max_expansions, out, out_cap, stamp,
-                       (uint32_t)gen, g, parent);
+                       (uint32_t)gen, g, parent, NULL, 0);
+}
+
+/* search26_ws with landmark tables lm float32 [L][PX PY PZ] (dist26's output per landmark; see the header): the same
+ * minimum cost, fewer expansions around walls. Only the A* (target NULL) reads them. */
+int64_t search26_ws_lm(const uint8_t *blocked, int64_t PX, int64_t PY, int64_t PZ, int64_t start, int64_t goal,
+                       const uint8_t *target, double weight, int64_t max_expansions, int64_t *out, int64_t out_cap,
+                       uint32_t *stamp, int64_t gen, double *g, int64_t *parent, const float *lm, int64_t L) {
+    if (gen < 1 || gen >= 2147483647LL) return -5;
+    return search_core(blocked, PX, PY, PZ, start, goal, target, weight, max_expansions, out, out_cap, stamp,
+                       (uint32_t)gen, g, parent, lm, L);
+}
+
+/* Shortest 26-connected path cost (1, sqrt 2, sqrt 3 per step) from start to every voxel, as float32 dist
+ * [PX PY PZ] (+inf: occupied or not reachable); Dijkstra in float64. Returns the number of voxels reached, -4 out
+ * of memory. */
+int64_t dist26(const uint8_t *blocked, int64_t PX, int64_t PY, int64_t PZ, int64_t start, float *dist) {
+    const int64_t sy = PZ, sx = PY * PZ, N = PX * PY * PZ;
+    int64_t off[26];
+    double cost[26];
+    int m = 0;
+    for (int di = -1; di <= 1; di++)
+        for (int dj = -1; dj <= 1; dj++)
+            for (int dk = -1; dk <= 1; dk++) {
+                if (!(di || dj || dk)) continue;
+                off[m] = di * sx + dj * sy + dk;
+                cost[m] = sqrt((double)(di * di + dj * dj + dk * dk));
+                m++;
+            }
+    double *g = (double *)malloc((size_t)N * sizeof(double));
+    uint8_t *done = (uint8_t *)calloc((size_t)N, 1);
+    int64_t cap = 1024, size = 0, reached = -4;
+    item_t *heap = (item_t *)malloc((size_t)cap * sizeof(item_t));
+    if (!g || !done || !heap) goto out;
+    for (int64_t i = 0; i < N; i++) g[i] = INFINITY;
+    reached = 0;
+    if (!blocked[start]) {
+        g[start] = 0.0;
+        item_t s0 = {0.0, 0.0, start};
+        if (push(&heap, &size, &cap, s0)) {
+            reached = -4;
+            goto out;
+        }
+    }
+    while (size > 0) {
+        item_t it = pop(heap, &size);
+        int64_t cur = it.n;
+        if (done[cur]) continue;
+        done[cur] = 1;
+        reached++;
+        for (int q = 0; q < 26; q++) {
+            int64_t n = cur + off[q];
+            if (blocked[n] || done[n]) continue;
+            double ng = g[cur] + cost[q];
+            if (ng < g[n]) {
+                g[n] = ng;
+                item_t ni = {ng, 0.0, n};
+                if (push(&heap, &size, &cap, ni)) {
+                    reached = -4;
+                    goto out;
+                }
+            }
+        }
+    }
+    for (int64_t i = 0; i < N; i++) dist[i] = (float)g[i];
+out:
+    free(g);
+    free(done);
+    free(heap);
+    return reached;
 }
 
 int64_t astar26(const uint8_t *blocked, int64_t PX, int64_t PY, int64_t PZ, int64_t start, int64_t goal,

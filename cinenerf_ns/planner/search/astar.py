@@ -8,7 +8,9 @@ heuristic and a closed set returns a minimum-cost path.
 
 Two implementations of the same search (same costs, heuristic and tie-breaking, hence the same path):
 the compiled one (native/astar26.c, built with the system C compiler on first use; ~50x faster) when it
-is available, else the pure-Python one below (``backend`` chooses; tests compare them).
+is available, else the pure-Python one below (``backend`` chooses; tests compare them). A grid with ``landmarks``
+(landmarks.py; coarse_path.py sets them on its block grid) adds their bound in the compiled search only: the same
+minimum cost, possibly another of several equal-cost paths.
 
 Speed in pure Python: flat indices into a zero-padded occupancy (`bytes`: no bounds checks, the
 border is occupied), precomputed neighbour offsets, heapq, dicts for g / parents (only touched
@@ -31,6 +33,7 @@ from ..native import (
     native_status,
     search26 as native_search26,
     search26_ws as native_search26_ws,
+    search26_ws_lm as native_search26_ws_lm,
 )
 
 _SQ2, _SQ3 = math.sqrt(2.0), math.sqrt(3.0)
@@ -91,24 +94,32 @@ class AStarGrid:
         self._occ = occ
         self._labels: Optional[np.ndarray] = None
         self._local = threading.local()  # one search workspace per thread (viewer callbacks run in threads)
+        # float32 [L, padded voxels] landmark distance tables (search/landmarks.py) the compiled A* may use, or None
+        self.landmarks: Optional[np.ndarray] = None
 
     def native_search(self, start: int, goal: int, target: Optional[np.ndarray] = None, weight: float = 1.0,
                       limit: int = -1) -> tuple[int, np.ndarray]:
-        """One compiled search (native/astar26.c) between flat padded indices: A* to ``goal``, or with ``target``
-        (uint8, the padded layout) Dijkstra to the nearest marked voxel. -> (k, out): k >= 0 path voxels
-        out[:k] (flat, start first; valid until this thread's next search on this grid), else the C status.
-        Needs the compiled library (callers check native.search26())."""
+        """One compiled search (native/astar26.c) between flat padded indices: A* to ``goal`` (guided by
+        ``self.landmarks`` too when set: the same minimum cost, fewer expansions), or with ``target`` (uint8, the
+        padded layout) Dijkstra to the nearest marked voxel. -> (k, out): k >= 0 path voxels out[:k] (flat, start
+        first; valid until this thread's next search on this grid), else the C status. Needs the compiled library
+        (callers check native.search26())."""
         tgt = None if target is None else target.ctypes.data
         args = (self._blocked_np.ctypes.data, *self.padded_shape, int(start), int(goal), tgt, float(weight), int(limit))
-        ws_fn = native_search26_ws() if self._blocked_np.size >= WORKSPACE_MIN_VOXELS else None
+        lm_fn = native_search26_ws_lm() if self.landmarks is not None and target is None else None
+        ws_fn = native_search26_ws() if self._blocked_np.size >= WORKSPACE_MIN_VOXELS or lm_fn else None
         if ws_fn is None:
             out = np.empty(self._blocked_np.size, dtype=np.int64)
             return int(native_search26()(*args, out.ctypes.data, out.size)), out
         ws = getattr(self._local, "ws", None)
         if ws is None:
             ws = self._local.ws = _SearchWorkspace(self._blocked_np.size)
-        k = int(ws_fn(*args, ws.out.ctypes.data, ws.out.size, ws.stamp.ctypes.data, ws.gen, ws.g.ctypes.data,
-                      ws.parent.ctypes.data))
+        ws_args = (*args, ws.out.ctypes.data, ws.out.size, ws.stamp.ctypes.data, ws.gen, ws.g.ctypes.data,
+                   ws.parent.ctypes.data)
+        if lm_fn is not None:
+            k = int(lm_fn(*ws_args, self.landmarks.ctypes.data, self.landmarks.shape[0]))
+        else:
+            k = int(ws_fn(*ws_args))
         ws.advance()
         return k, ws.out
 

@@ -35,6 +35,7 @@ import numpy as np
 from ..errors import GoalUnreachableError
 from ..native import search26 as native_search26
 from .astar import AStarGrid, SearchBudgetExhausted, astar
+from .landmarks import landmark_tables
 
 FINE_BUDGET = 800  # fine A* expansions before the coarse route (see voxel_path)
 
@@ -96,6 +97,8 @@ class CoarseGrid:
         self.costs = np.where(self.occupied, np.inf, 1.0)  # [X2, Y2, Z2]
         self.block_grid = AStarGrid(self.occupied)  # padded once for the compiled block search
         self.labels = self.block_grid.labels  # 26-connected components of free blocks
+        # landmark bounds for the block A* (landmarks.py: same minimum cost, far fewer expansions round walls)
+        self.block_grid.landmarks = landmark_tables(self.block_grid)
 
     def _to_free_block(self, v: np.ndarray, window: int) -> Optional[np.ndarray]:
         """Fine path int64 [K, 3] from free fine voxel v to the nearest fine voxel (within ``window``
