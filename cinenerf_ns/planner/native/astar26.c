@@ -80,6 +80,24 @@ static item_t pop(item_t *hp, int64_t *size) {
 
 /* target == NULL: A* from start to goal. target != NULL (uint8, same layout as blocked): Dijkstra (no
  * heuristic, goal ignored) from start to the nearest voxel whose target byte is set. */
+/* The 26 moves: flat offsets (strides sx, sy, 1), step costs 1, sqrt 2, sqrt 3, and (when di != NULL) the moves. */
+static void moves26(int64_t sx, int64_t sy, int64_t *off, double *cost, int *di_, int *dj_, int *dk_) {
+    int m = 0;
+    for (int di = -1; di <= 1; di++)
+        for (int dj = -1; dj <= 1; dj++)
+            for (int dk = -1; dk <= 1; dk++) {
+                if (!(di || dj || dk)) continue;
+                off[m] = di * sx + dj * sy + dk;
+                cost[m] = sqrt((double)(di * di + dj * dj + dk * dk));
+                if (di_) {
+                    di_[m] = di;
+                    dj_[m] = dj;
+                    dk_[m] = dk;
+                }
+                m++;
+            }
+}
+
 #define LM_MAX 16
 #define LM_REL 1.1920928955078125e-07 /* 2^-23 */
 
@@ -93,18 +111,7 @@ static int64_t search_core(const uint8_t *blocked, int64_t PX, int64_t PY, int64
     int64_t off[26];
     double cost[26];
     int di_[26], dj_[26], dk_[26];
-    int m = 0;
-    for (int di = -1; di <= 1; di++)
-        for (int dj = -1; dj <= 1; dj++)
-            for (int dk = -1; dk <= 1; dk++) {
-                if (!(di || dj || dk)) continue;
-                off[m] = di * sx + dj * sy + dk;
-                cost[m] = sqrt((double)(di * di + dj * dj + dk * dk));
-                di_[m] = di;
-                dj_[m] = dj;
-                dk_[m] = dk;
-                m++;
-            }
+    moves26(sx, sy, off, cost, di_, dj_, dk_);
     /* landmarks whose table reaches the goal (a landmark in another free component has +inf there) */
     const float *lt[LM_MAX];
     double lg[LM_MAX];
@@ -245,15 +252,7 @@ int64_t dist26(const uint8_t *blocked, int64_t PX, int64_t PY, int64_t PZ, int64
     const int64_t sy = PZ, sx = PY * PZ, N = PX * PY * PZ;
     int64_t off[26];
     double cost[26];
-    int m = 0;
-    for (int di = -1; di <= 1; di++)
-        for (int dj = -1; dj <= 1; dj++)
-            for (int dk = -1; dk <= 1; dk++) {
-                if (!(di || dj || dk)) continue;
-                off[m] = di * sx + dj * sy + dk;
-                cost[m] = sqrt((double)(di * di + dj * dj + dk * dk));
-                m++;
-            }
+    moves26(sx, sy, off, cost, NULL, NULL, NULL);
     double *g = (double *)malloc((size_t)N * sizeof(double));
     uint8_t *done = (uint8_t *)calloc((size_t)N, 1);
     int64_t cap = 1024, size = 0, reached = -4;
