@@ -4,7 +4,13 @@
    every piece between consecutive face crossings, each claiming every voxel within EPS of it), stopping at a
    segment's first occupied probe voxel. cn_grid_polytope: grid_polytope.grid_polytope_planes (greedy, nearest
    surface cube first with exact segment-to-cube closest points; cubes entirely beyond a kept plane dropped).
+   Contraction into fused multiply-adds would round differently from numpy: it is turned off.
    The proofs of safety are in those modules' docstrings; this file only repeats their arithmetic in C. */
+#if defined(__clang__)
+#pragma clang fp contract(off)
+#elif defined(__GNUC__)
+#pragma GCC optimize("fp-contract=off")
+#endif
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
@@ -15,69 +21,68 @@ static int cmp_double(const void *x, const void *y) {
     return (a > b) - (a < b);
 }
 
-/* 1 when every probe voxel of the segment u0 -> u1 (voxel units) is inside the grid and free */
-static int segment_free(const uint8_t *occ, const int64_t *shape, const double u0[3], const double u1[3], double eps,
-                        double **buf, int64_t *cap) {
-    double d[3], lo[3], hi[3], first[3];
-    int64_t count[3], m = 0;
+/* 1 when every voxel within eps of the probe u0 + tm d (voxel units) is inside the grid and free */
+static int probe_free(const uint8_t *occ, const int64_t *shape, const double u0[3], const double d[3], double tm,
+                      double eps) {
+    int64_t va[3], vb[3];
     for (int a = 0; a < 3; a++) {
-        d[a] = u1[a] - u0[a];
-        lo[a] = fmin(u0[a], u1[a]);
-        hi[a] = fmax(u0[a], u1[a]);
-        first[a] = floor(lo[a]) + 1.0;
-        double c = ceil(hi[a]) - first[a];
-        count[a] = c > 0 ? (int64_t)c : 0;
-        m += count[a];
+        double u = u0[a] + tm * d[a];
+        va[a] = (int64_t)floor(u - eps);
+        vb[a] = (int64_t)floor(u + eps);
     }
-    if (m + 2 > *cap) {
-        int64_t nc = 2 * (m + 2);
-        double *nb = (double *)realloc(*buf, nc * sizeof(double));
-        if (!nb) return -1;
-        *buf = nb;
-        *cap = nc;
-    }
-    double *t = *buf;
-    int64_t n = 0;
-    t[n++] = 0.0;
-    for (int a = 0; a < 3; a++)
-        for (int64_t j = 0; j < count[a]; j++) t[n++] = fmin(fmax((first[a] + (double)j - u0[a]) / d[a], 0.0), 1.0);
-    t[n++] = 1.0;
-    qsort(t, n, sizeof(double), cmp_double);
-    for (int64_t j = 0; j + 1 < n; j++) {
-        double tm = 0.5 * (t[j] + t[j + 1]);
-        int64_t va[3], vb[3];
-        for (int a = 0; a < 3; a++) {
-            double u = u0[a] + tm * d[a];
-            va[a] = (int64_t)floor(u - eps);
-            vb[a] = (int64_t)floor(u + eps);
-        }
-        for (int c = 0; c < 8; c++) {
-            int64_t v[3] = {c & 4 ? vb[0] : va[0], c & 2 ? vb[1] : va[1], c & 1 ? vb[2] : va[2]};
-            if (v[0] < 0 || v[1] < 0 || v[2] < 0 || v[0] >= shape[0] || v[1] >= shape[1] || v[2] >= shape[2]) return 0;
-            if (occ[(v[0] * shape[1] + v[1]) * shape[2] + v[2]]) return 0;
-        }
+    for (int c = 0; c < 8; c++) {
+        int64_t v[3] = {c & 4 ? vb[0] : va[0], c & 2 ? vb[1] : va[1], c & 1 ? vb[2] : va[2]};
+        if (v[0] < 0 || v[1] < 0 || v[2] < 0 || v[0] >= shape[0] || v[1] >= shape[1] || v[2] >= shape[2]) return 0;
+        if (occ[(v[0] * shape[1] + v[1]) * shape[2] + v[2]]) return 0;
     }
     return 1;
 }
 
+/* 1 when every probe voxel of the segment u0 -> u1 (voxel units) is inside the grid and free. The probes are the
+   midpoints of consecutive t of the sorted list [0, face crossings, 1] (voxel_traversal.segment_voxels). Each axis'
+   crossings, clamped to [0, 1], form a monotone run (increasing in the plane index when d > 0, decreasing when
+   d < 0), so merging the three runs walks that sorted list in order: no sort, and the walk stops at the first
+   occupied probe. */
+static int segment_free(const uint8_t *occ, const int64_t *shape, const double u0[3], const double u1[3],
+                        double eps) {
+    double d[3], first[3], head[3];
+    int64_t count[3], used[3] = {0, 0, 0};
+    for (int a = 0; a < 3; a++) {
+        d[a] = u1[a] - u0[a];
+        double lo = fmin(u0[a], u1[a]), hi = fmax(u0[a], u1[a]);
+        first[a] = floor(lo) + 1.0;
+        double c = ceil(hi) - first[a];
+        count[a] = c > 0 ? (int64_t)c : 0;
+    }
+#define CROSSING(a, k) fmin(fmax((first[a] + (double)(d[a] > 0 ? (k) : count[a] - 1 - (k)) - u0[a]) / d[a], 0.0), 1.0)
+    for (int a = 0; a < 3; a++) head[a] = count[a] > 0 ? CROSSING(a, 0) : INFINITY;
+    double prev = 0.0;
+    for (;;) {
+        int a = head[0] <= head[1] ? 0 : 1;
+        if (head[2] < head[a]) a = 2;
+        int last = head[a] == INFINITY;  /* every crossing used: the last piece ends at t = 1 */
+        double t = last ? 1.0 : head[a];
+        if (!probe_free(occ, shape, u0, d, 0.5 * (prev + t), eps)) return 0;
+        if (last) return 1;
+        prev = t;
+        used[a]++;
+        head[a] = used[a] < count[a] ? CROSSING(a, used[a]) : INFINITY;
+    }
+#undef CROSSING
+}
+
 /* out[i] = 1 when segment p0[i] -> p1[i] (world, [P, 3]) lies in free voxels of occ ([X, Y, Z] uint8, voxel v spans
-   lo + vs [v, v + 1]). Returns 0, or -1 out of memory. */
+   lo + vs [v, v + 1]). Returns 0. */
 int64_t cn_segments_free(const uint8_t *occ, const int64_t *shape, const double *lo, double vs, const double *p0,
                          const double *p1, int64_t P, double eps, uint8_t *out) {
-    int64_t cap = 64;
-    double *buf = (double *)malloc(cap * sizeof(double));
-    if (!buf) return -1;
     for (int64_t i = 0; i < P; i++) {
         double u0[3], u1[3];
         for (int a = 0; a < 3; a++) {
             u0[a] = (p0[3 * i + a] - lo[a]) / vs;
             u1[a] = (p1[3 * i + a] - lo[a]) / vs;
         }
-        int r = segment_free(occ, shape, u0, u1, eps, &buf, &cap);
-        if (r < 0) { free(buf); return -1; }
-        out[i] = (uint8_t)r;
+        out[i] = (uint8_t)segment_free(occ, shape, u0, u1, eps);
     }
-    free(buf);
     return 0;
 }
 
