@@ -5,9 +5,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Optional
 
 import numpy as np
-import torch
 
-from ..geometry.collision import points_collide
+from ..geometry.collision import points_collide_arrays
 from ..geometry.ranges import group_ranks
 from .astar import batched_shortcut
 
@@ -45,18 +44,15 @@ def segments_free_by_pieces(planner: "Planner", a: np.ndarray, b: np.ndarray) ->
     prep = planner.ready()
     r = planner.scene.camera_radius
     piece = max(r, 0.5 * prep.grid.voxel_size)
-    n = np.maximum(1, np.ceil(np.linalg.norm(b - a, axis=1) / piece).astype(np.int64))  # [P]
+    L = np.linalg.norm(b - a, axis=1)  # [P]
+    n = np.maximum(1, np.ceil(L / piece).astype(np.int64))  # [P]
     owner, k = group_ranks(n)
     frac = (k + 0.5) / n[owner]  # (k + 1/2) / n per piece
-    mids = a[owner] + frac[:, None] * (b - a)[owner]
-    half = 0.5 * np.linalg.norm(b - a, axis=1)[owner] / n[owner]
-    dev = planner.scene.device
-    hit = points_collide(
-        torch.as_tensor(mids, device=dev), planner.scene, prep.index,  # float64: no rounding of the pieces
-        radius=torch.as_tensor(r + half, device=dev),
-    ).cpu().numpy()
+    mids = a[owner] + frac[:, None] * (b - a)[owner]  # float64: no rounding of the pieces
+    half = 0.5 * L[owner] / n[owner]
+    hit = points_collide_arrays(mids, planner.scene, prep.index, r + half)  # [pieces]
     bad = np.zeros(len(a), dtype=bool)
-    np.logical_or.at(bad, owner, hit)
+    bad[owner[hit]] = True
     return ~bad
 
 
