@@ -4,6 +4,7 @@
    every piece between consecutive face crossings, each claiming every voxel within EPS of it), stopping at a
    segment's first occupied probe voxel. cn_grid_polytope: grid_polytope.grid_polytope_planes (greedy, nearest
    surface cube first with exact segment-to-cube closest points; cubes entirely beyond a kept plane dropped).
+   cn_shortcut_rounds: the grid part of the line-of-sight shortcut's rounds (search/shortcut.py: shortcut_pass).
    Contraction into fused multiply-adds would round differently from numpy: it is turned off.
    The proofs of safety are in those modules' docstrings; this file only repeats their arithmetic in C. */
 #if defined(__clang__)
@@ -82,6 +83,82 @@ int64_t cn_segments_free(const uint8_t *occ, const int64_t *shape, const double 
             u1[a] = (p1[3 * i + a] - lo[a]) / vs;
         }
         out[i] = (uint8_t)segment_free(occ, shape, u0, u1, eps);
+    }
+    return 0;
+}
+
+/* shortcut.FreeVoxels.contains for one world point: its voxel floor((p - lo) / vs) is inside the grid and free */
+static int point_free(const uint8_t *occ, const int64_t *shape, const double *lo, double vs, const double p[3]) {
+    int64_t v[3];
+    for (int a = 0; a < 3; a++) {
+        double f = floor((p[a] - lo[a]) / vs);
+        if (!(f >= 0.0 && f < (double)shape[a])) return 0;
+        v[a] = (int64_t)f;
+    }
+    return !occ[(v[0] * shape[1] + v[1]) * shape[2] + v[2]];
+}
+
+/* shortcut.grid_sight for one world segment p0 -> p1: every sample p0 + (k / (n - 1)) (p1 - p0), n = max(2,
+   ceil(L / (vs / 2)) + 1), farther than one voxel from both ends, lies in a free voxel (numpy's arithmetic in its
+   order: L = sqrt((x*x + y*y) + z*z)) */
+static int grid_sight(const uint8_t *occ, const int64_t *shape, const double *lo, double vs, const double p0[3],
+                      const double p1[3]) {
+    double d[3] = {p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2]};
+    double L = sqrt((d[0] * d[0] + d[1] * d[1]) + d[2] * d[2]);
+    double c = ceil(L / (0.5 * vs));
+    if (!(c < 4e18)) return 1;  /* NaN or infinite length: numpy's cast makes n = 2 (no sample); the pieces decide */
+    int64_t n = (int64_t)c + 1;
+    if (n < 2) n = 2;
+    for (int64_t k = 1; k + 1 < n; k++) {  /* the ends (frac 0 and 1) are never farther than a voxel from both */
+        double frac = (double)k / (double)(n - 1);
+        if (!(fmin(frac, 1.0 - frac) * L > vs)) continue;
+        double q[3] = {p0[0] + frac * d[0], p0[1] + frac * d[1], p0[2] + frac * d[2]};
+        if (!point_free(occ, shape, lo, vs, q)) return 0;
+    }
+    return 1;
+}
+
+/* Greedy shortcut rounds (search/astar.py: batched_shortcut with search/shortcut.py: shortcut_test) for W polylines
+   laid end to end in pts ([N, 3] world; polyline w is rows off[w] .. off[w + 1] - 1), up to the Corollary-1 pieces,
+   which stay in Python. keep [N] holds polyline w's kept indices (local, increasing) from off[w], nkeep[w] of them
+   (>= 1; the last one is the current point). A round from current point c asks j = K - 1 down to c + 2: the voxel
+   walk (grid walk_*) accepting j ends the round at j; a refused j whose ends are not both in free voxels of grid
+   free_* (or any refused j when grid_rule is 0) and that has grid sight is a candidate for the pieces. A round
+   without candidates beyond its walk's answer jumps there (or to c + 1) and the next round starts; a round with
+   candidates stops the polyline: cand[off[w] ..] = those j (decreasing), ncand[w] = their count, best[w] = the
+   walk's answer (or c + 1); the caller jumps to the first candidate the pieces prove free, else best[w], and calls
+   again. ncand[w] = 0: polyline w is finished (its last kept index is K - 1). Returns 0. */
+int64_t cn_shortcut_rounds(const uint8_t *walk_occ, const int64_t *walk_shape, const double *walk_lo, double walk_vs,
+                           double eps, const uint8_t *free_occ, const int64_t *free_shape, const double *free_lo,
+                           double free_vs, int64_t grid_rule, const double *pts, const int64_t *off, int64_t W,
+                           int64_t *keep, int64_t *nkeep, int64_t *best, int64_t *cand, int64_t *ncand) {
+    for (int64_t w = 0; w < W; w++) {
+        const double *P = pts + 3 * off[w];
+        int64_t K = off[w + 1] - off[w];
+        int64_t *kw = keep + off[w];
+        ncand[w] = 0;
+        while (kw[nkeep[w] - 1] < K - 1) {
+            int64_t c = kw[nkeep[w] - 1], jump = c + 1, nc = 0;
+            double u0[3];
+            for (int a = 0; a < 3; a++) u0[a] = (P[3 * c + a] - walk_lo[a]) / walk_vs;
+            int c_free = grid_rule ? point_free(free_occ, free_shape, free_lo, free_vs, P + 3 * c) : 0;
+            for (int64_t j = K - 1; j >= c + 2; j--) {
+                double u1[3];
+                for (int a = 0; a < 3; a++) u1[a] = (P[3 * j + a] - walk_lo[a]) / walk_vs;
+                if (segment_free(walk_occ, walk_shape, u0, u1, eps)) {
+                    jump = j;
+                    break;
+                }
+                if (c_free && point_free(free_occ, free_shape, free_lo, free_vs, P + 3 * j)) continue;
+                if (grid_sight(free_occ, free_shape, free_lo, free_vs, P + 3 * c, P + 3 * j)) cand[off[w] + nc++] = j;
+            }
+            if (nc) {
+                best[w] = jump;
+                ncand[w] = nc;
+                break;
+            }
+            kw[nkeep[w]++] = jump;
+        }
     }
     return 0;
 }
