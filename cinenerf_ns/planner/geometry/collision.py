@@ -284,6 +284,34 @@ def points_collide(
     return hit
 
 
+def points_collide_arrays(points, scene: EllipsoidScene, index, radius, margin: float = DEFAULT_MARGIN):
+    """points_collide (backend "auto") for numpy points [P, 3] and radii (scalar or [P]), answered as numpy bool [P].
+    When the compiled test applies it reads the float64 arrays directly: no torch round trip for callers that ask a
+    few hundred points at a time (the shortcut's Corollary-1 pieces). Same answers as points_collide."""
+    import numpy as np
+
+    from ..corridor.polytope_native import native_applies, native_arrays
+    from ..native import points_collide_c
+
+    fn = points_collide_c() if native_applies(scene, index) else None
+    if fn is None:
+        rad = torch.as_tensor(radius, device=scene.device)
+        return points_collide(torch.as_tensor(points, device=scene.device), scene, index, radius=rad,
+                              margin=margin).cpu().numpy()
+    p = np.ascontiguousarray(points, dtype=np.float64)
+    if p.ndim != 2 or p.shape[-1] != 3:
+        raise InvalidInputError(f"points must be [P, 3], got {tuple(p.shape)}")
+    if not np.isfinite(p).all():
+        raise InvalidInputError("points contain NaN or inf")
+    r = np.asarray(radius, dtype=np.float64)
+    if r.ndim and r.shape != (p.shape[0],):
+        raise InvalidInputError(f"radius must be a scalar or [P]={p.shape[0]}, got {tuple(r.shape)}")
+    rr = np.ascontiguousarray(np.broadcast_to(r, (p.shape[0],)))  # [P]
+    hit = np.zeros(p.shape[0], dtype=np.uint8)
+    fn(*native_arrays(scene, index)["args"], p.ctypes.data, rr.ctypes.data, p.shape[0], float(margin), hit.ctypes.data)
+    return hit.view(bool)
+
+
 def k_segment_sphere(w0: Tensor, dw: Tensor, radii: Tensor, r: Tensor, s: Tensor) -> Tensor:
     """min over t in [0, 1] of Corollary 1's K(s) at the point w0 + t dw (ellipsoid frame).
 

@@ -238,6 +238,16 @@ def segments_free_c():
     return _function("gridpoly", "cn_segments_free", [_P, _P, _P, _F64, _P, _P, _I64, _F64, _P], _I64)
 
 
+def shortcut_rounds_c():
+    """The compiled shortcut rounds up to the Corollary-1 pieces (gridpoly.c: cn_shortcut_rounds), or None."""
+    return _function("gridpoly", "cn_shortcut_rounds",
+                     [_P, _P, _P, _F64, _F64,  # walk grid: occ uint8 [X, Y, Z], dims [3], lo [3], voxel size; eps
+                      _P, _P, _P, _F64, _I64,  # free-voxel grid: occ, dims, lo, voxel size; grid rule flag
+                      _P, _P, _I64,  # points [N, 3], offsets [W + 1], W
+                      _P, _P, _P, _P, _P],  # keep [N], nkeep [W], best [W], cand [N], ncand [W] (int64, in/out)
+                     _I64)
+
+
 def grid_polytope_c():
     """The compiled grid polytope planes (gridpoly.c: cn_grid_polytope), or None."""
     return _function("gridpoly", "cn_grid_polytope", [_P, _P, _P, _P, _P, _P, _F64, _I64, _P, _P], _I64)

@@ -4,7 +4,14 @@
    every piece between consecutive face crossings, each claiming every voxel within EPS of it), stopping at a
    segment's first occupied probe voxel. cn_grid_polytope: grid_polytope.grid_polytope_planes (greedy, nearest
    surface cube first with exact segment-to-cube closest points; cubes entirely beyond a kept plane dropped).
+   cn_shortcut_rounds: the grid part of the line-of-sight shortcut's rounds (search/shortcut.py: shortcut_pass).
+   Contraction into fused multiply-adds would round differently from numpy: it is turned off.
    The proofs of safety are in those modules' docstrings; this file only repeats their arithmetic in C. */
+#if defined(__clang__)
+#pragma clang fp contract(off)
+#elif defined(__GNUC__)
+#pragma GCC optimize("fp-contract=off")
+#endif
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
@@ -15,69 +22,144 @@ static int cmp_double(const void *x, const void *y) {
     return (a > b) - (a < b);
 }
 
-/* 1 when every probe voxel of the segment u0 -> u1 (voxel units) is inside the grid and free */
-static int segment_free(const uint8_t *occ, const int64_t *shape, const double u0[3], const double u1[3], double eps,
-                        double **buf, int64_t *cap) {
-    double d[3], lo[3], hi[3], first[3];
-    int64_t count[3], m = 0;
+/* 1 when every voxel within eps of the probe u0 + tm d (voxel units) is inside the grid and free */
+static int probe_free(const uint8_t *occ, const int64_t *shape, const double u0[3], const double d[3], double tm,
+                      double eps) {
+    int64_t va[3], vb[3];
     for (int a = 0; a < 3; a++) {
-        d[a] = u1[a] - u0[a];
-        lo[a] = fmin(u0[a], u1[a]);
-        hi[a] = fmax(u0[a], u1[a]);
-        first[a] = floor(lo[a]) + 1.0;
-        double c = ceil(hi[a]) - first[a];
-        count[a] = c > 0 ? (int64_t)c : 0;
-        m += count[a];
+        double u = u0[a] + tm * d[a];
+        va[a] = (int64_t)floor(u - eps);
+        vb[a] = (int64_t)floor(u + eps);
     }
-    if (m + 2 > *cap) {
-        int64_t nc = 2 * (m + 2);
-        double *nb = (double *)realloc(*buf, nc * sizeof(double));
-        if (!nb) return -1;
-        *buf = nb;
-        *cap = nc;
-    }
-    double *t = *buf;
-    int64_t n = 0;
-    t[n++] = 0.0;
-    for (int a = 0; a < 3; a++)
-        for (int64_t j = 0; j < count[a]; j++) t[n++] = fmin(fmax((first[a] + (double)j - u0[a]) / d[a], 0.0), 1.0);
-    t[n++] = 1.0;
-    qsort(t, n, sizeof(double), cmp_double);
-    for (int64_t j = 0; j + 1 < n; j++) {
-        double tm = 0.5 * (t[j] + t[j + 1]);
-        int64_t va[3], vb[3];
-        for (int a = 0; a < 3; a++) {
-            double u = u0[a] + tm * d[a];
-            va[a] = (int64_t)floor(u - eps);
-            vb[a] = (int64_t)floor(u + eps);
-        }
-        for (int c = 0; c < 8; c++) {
-            int64_t v[3] = {c & 4 ? vb[0] : va[0], c & 2 ? vb[1] : va[1], c & 1 ? vb[2] : va[2]};
-            if (v[0] < 0 || v[1] < 0 || v[2] < 0 || v[0] >= shape[0] || v[1] >= shape[1] || v[2] >= shape[2]) return 0;
-            if (occ[(v[0] * shape[1] + v[1]) * shape[2] + v[2]]) return 0;
-        }
+    for (int c = 0; c < 8; c++) {
+        int64_t v[3] = {c & 4 ? vb[0] : va[0], c & 2 ? vb[1] : va[1], c & 1 ? vb[2] : va[2]};
+        if (v[0] < 0 || v[1] < 0 || v[2] < 0 || v[0] >= shape[0] || v[1] >= shape[1] || v[2] >= shape[2]) return 0;
+        if (occ[(v[0] * shape[1] + v[1]) * shape[2] + v[2]]) return 0;
     }
     return 1;
 }
 
+/* 1 when every probe voxel of the segment u0 -> u1 (voxel units) is inside the grid and free. The probes are the
+   midpoints of consecutive t of the sorted list [0, face crossings, 1] (voxel_traversal.segment_voxels). Each axis'
+   crossings, clamped to [0, 1], form a monotone run (increasing in the plane index when d > 0, decreasing when
+   d < 0), so merging the three runs walks that sorted list in order: no sort, and the walk stops at the first
+   occupied probe. */
+static int segment_free(const uint8_t *occ, const int64_t *shape, const double u0[3], const double u1[3],
+                        double eps) {
+    double d[3], first[3], head[3];
+    int64_t count[3], used[3] = {0, 0, 0};
+    for (int a = 0; a < 3; a++) {
+        d[a] = u1[a] - u0[a];
+        double lo = fmin(u0[a], u1[a]), hi = fmax(u0[a], u1[a]);
+        first[a] = floor(lo) + 1.0;
+        double c = ceil(hi) - first[a];
+        count[a] = c > 0 ? (int64_t)c : 0;
+    }
+#define CROSSING(a, k) fmin(fmax((first[a] + (double)(d[a] > 0 ? (k) : count[a] - 1 - (k)) - u0[a]) / d[a], 0.0), 1.0)
+    for (int a = 0; a < 3; a++) head[a] = count[a] > 0 ? CROSSING(a, 0) : INFINITY;
+    double prev = 0.0;
+    for (;;) {
+        int a = head[0] <= head[1] ? 0 : 1;
+        if (head[2] < head[a]) a = 2;
+        int last = head[a] == INFINITY;  /* every crossing used: the last piece ends at t = 1 */
+        double t = last ? 1.0 : head[a];
+        if (!probe_free(occ, shape, u0, d, 0.5 * (prev + t), eps)) return 0;
+        if (last) return 1;
+        prev = t;
+        used[a]++;
+        head[a] = used[a] < count[a] ? CROSSING(a, used[a]) : INFINITY;
+    }
+#undef CROSSING
+}
+
 /* out[i] = 1 when segment p0[i] -> p1[i] (world, [P, 3]) lies in free voxels of occ ([X, Y, Z] uint8, voxel v spans
-   lo + vs [v, v + 1]). Returns 0, or -1 out of memory. */
+   lo + vs [v, v + 1]). Returns 0. */
 int64_t cn_segments_free(const uint8_t *occ, const int64_t *shape, const double *lo, double vs, const double *p0,
                          const double *p1, int64_t P, double eps, uint8_t *out) {
-    int64_t cap = 64;
-    double *buf = (double *)malloc(cap * sizeof(double));
-    if (!buf) return -1;
     for (int64_t i = 0; i < P; i++) {
         double u0[3], u1[3];
         for (int a = 0; a < 3; a++) {
             u0[a] = (p0[3 * i + a] - lo[a]) / vs;
             u1[a] = (p1[3 * i + a] - lo[a]) / vs;
         }
-        int r = segment_free(occ, shape, u0, u1, eps, &buf, &cap);
-        if (r < 0) { free(buf); return -1; }
-        out[i] = (uint8_t)r;
+        out[i] = (uint8_t)segment_free(occ, shape, u0, u1, eps);
     }
-    free(buf);
+    return 0;
+}
+
+/* shortcut.FreeVoxels.contains for one world point: its voxel floor((p - lo) / vs) is inside the grid and free */
+static int point_free(const uint8_t *occ, const int64_t *shape, const double *lo, double vs, const double p[3]) {
+    int64_t v[3];
+    for (int a = 0; a < 3; a++) {
+        double f = floor((p[a] - lo[a]) / vs);
+        if (!(f >= 0.0 && f < (double)shape[a])) return 0;
+        v[a] = (int64_t)f;
+    }
+    return !occ[(v[0] * shape[1] + v[1]) * shape[2] + v[2]];
+}
+
+/* shortcut.grid_sight for one world segment p0 -> p1: every sample p0 + (k / (n - 1)) (p1 - p0), n = max(2,
+   ceil(L / (vs / 2)) + 1), farther than one voxel from both ends, lies in a free voxel (numpy's arithmetic in its
+   order: L = sqrt((x*x + y*y) + z*z)) */
+static int grid_sight(const uint8_t *occ, const int64_t *shape, const double *lo, double vs, const double p0[3],
+                      const double p1[3]) {
+    double d[3] = {p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2]};
+    double L = sqrt((d[0] * d[0] + d[1] * d[1]) + d[2] * d[2]);
+    double c = ceil(L / (0.5 * vs));
+    if (!(c < 4e18)) return 1;  /* NaN or infinite length: numpy's cast makes n = 2 (no sample); the pieces decide */
+    int64_t n = (int64_t)c + 1;
+    if (n < 2) n = 2;
+    for (int64_t k = 1; k + 1 < n; k++) {  /* the ends (frac 0 and 1) are never farther than a voxel from both */
+        double frac = (double)k / (double)(n - 1);
+        if (!(fmin(frac, 1.0 - frac) * L > vs)) continue;
+        double q[3] = {p0[0] + frac * d[0], p0[1] + frac * d[1], p0[2] + frac * d[2]};
+        if (!point_free(occ, shape, lo, vs, q)) return 0;
+    }
+    return 1;
+}
+
+/* Greedy shortcut rounds (search/astar.py: batched_shortcut with search/shortcut.py: shortcut_test) for W polylines
+   laid end to end in pts ([N, 3] world; polyline w is rows off[w] .. off[w + 1] - 1), up to the Corollary-1 pieces,
+   which stay in Python. keep [N] holds polyline w's kept indices (local, increasing) from off[w], nkeep[w] of them
+   (>= 1; the last one is the current point). A round from current point c asks j = K - 1 down to c + 2: the voxel
+   walk (grid walk_*) accepting j ends the round at j; a refused j whose ends are not both in free voxels of grid
+   free_* (or any refused j when grid_rule is 0) and that has grid sight is a candidate for the pieces. A round
+   without candidates beyond its walk's answer jumps there (or to c + 1) and the next round starts; a round with
+   candidates stops the polyline: cand[off[w] ..] = those j (decreasing), ncand[w] = their count, best[w] = the
+   walk's answer (or c + 1); the caller jumps to the first candidate the pieces prove free, else best[w], and calls
+   again. ncand[w] = 0: polyline w is finished (its last kept index is K - 1). Returns 0. */
+int64_t cn_shortcut_rounds(const uint8_t *walk_occ, const int64_t *walk_shape, const double *walk_lo, double walk_vs,
+                           double eps, const uint8_t *free_occ, const int64_t *free_shape, const double *free_lo,
+                           double free_vs, int64_t grid_rule, const double *pts, const int64_t *off, int64_t W,
+                           int64_t *keep, int64_t *nkeep, int64_t *best, int64_t *cand, int64_t *ncand) {
+    for (int64_t w = 0; w < W; w++) {
+        const double *P = pts + 3 * off[w];
+        int64_t K = off[w + 1] - off[w];
+        int64_t *kw = keep + off[w];
+        ncand[w] = 0;
+        while (kw[nkeep[w] - 1] < K - 1) {
+            int64_t c = kw[nkeep[w] - 1], jump = c + 1, nc = 0;
+            double u0[3];
+            for (int a = 0; a < 3; a++) u0[a] = (P[3 * c + a] - walk_lo[a]) / walk_vs;
+            int c_free = grid_rule ? point_free(free_occ, free_shape, free_lo, free_vs, P + 3 * c) : 0;
+            for (int64_t j = K - 1; j >= c + 2; j--) {
+                double u1[3];
+                for (int a = 0; a < 3; a++) u1[a] = (P[3 * j + a] - walk_lo[a]) / walk_vs;
+                if (segment_free(walk_occ, walk_shape, u0, u1, eps)) {
+                    jump = j;
+                    break;
+                }
+                if (c_free && point_free(free_occ, free_shape, free_lo, free_vs, P + 3 * j)) continue;
+                if (grid_sight(free_occ, free_shape, free_lo, free_vs, P + 3 * c, P + 3 * j)) cand[off[w] + nc++] = j;
+            }
+            if (nc) {
+                best[w] = jump;
+                ncand[w] = nc;
+                break;
+            }
+            kw[nkeep[w]++] = jump;
+        }
+    }
     return 0;
 }
 

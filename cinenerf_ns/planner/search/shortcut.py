@@ -5,10 +5,10 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Optional
 
 import numpy as np
-import torch
 
-from ..geometry.collision import points_collide
+from ..geometry.collision import points_collide_arrays
 from ..geometry.ranges import group_ranks
+from ..geometry.voxel_traversal import EPS
 from .astar import batched_shortcut
 
 if TYPE_CHECKING:
@@ -45,18 +45,15 @@ def segments_free_by_pieces(planner: "Planner", a: np.ndarray, b: np.ndarray) ->
     prep = planner.ready()
     r = planner.scene.camera_radius
     piece = max(r, 0.5 * prep.grid.voxel_size)
-    n = np.maximum(1, np.ceil(np.linalg.norm(b - a, axis=1) / piece).astype(np.int64))  # [P]
+    L = np.linalg.norm(b - a, axis=1)  # [P]
+    n = np.maximum(1, np.ceil(L / piece).astype(np.int64))  # [P]
     owner, k = group_ranks(n)
     frac = (k + 0.5) / n[owner]  # (k + 1/2) / n per piece
-    mids = a[owner] + frac[:, None] * (b - a)[owner]
-    half = 0.5 * np.linalg.norm(b - a, axis=1)[owner] / n[owner]
-    dev = planner.scene.device
-    hit = points_collide(
-        torch.as_tensor(mids, device=dev), planner.scene, prep.index,  # float64: no rounding of the pieces
-        radius=torch.as_tensor(r + half, device=dev),
-    ).cpu().numpy()
+    mids = a[owner] + frac[:, None] * (b - a)[owner]  # float64: no rounding of the pieces
+    half = 0.5 * L[owner] / n[owner]
+    hit = points_collide_arrays(mids, planner.scene, prep.index, r + half)  # [pieces]
     bad = np.zeros(len(a), dtype=bool)
-    np.logical_or.at(bad, owner, hit)
+    bad[owner[hit]] = True
     return ~bad
 
 
@@ -70,7 +67,7 @@ class FreeVoxels:
         self.free = ~np.ascontiguousarray(occupied, dtype=bool).reshape(-1)  # [X * Y * Z]
         self.shape = np.asarray(occupied.shape, dtype=np.int64)
         self.strides = np.array([occupied.shape[1] * occupied.shape[2], occupied.shape[2], 1], dtype=np.int64)
-        self.lo = np.asarray(lo, dtype=np.float64).reshape(3)
+        self.lo = np.ascontiguousarray(np.asarray(lo, dtype=np.float64).reshape(3))
         self.voxel_size = float(voxel_size)
 
     def contains(self, points: np.ndarray) -> np.ndarray:
@@ -169,15 +166,75 @@ def choose_way(planner: "Planner", grid_way: np.ndarray, any_way: Optional[np.nd
     return any_way if cost(any_way) < cost(grid_way) else grid_way
 
 
+def shortcut_pass(planner: "Planner", ways: list, grid_rule: bool, backend: str = "auto") -> list:
+    """batched_shortcut(ways, shortcut_test(planner, ., ., grid_rule)): the same polylines, with the grid part of
+    every round in one compiled call (gridpoly.c: cn_shortcut_rounds). A round asks its segments farthest first and
+    stops at the first one the voxel walk accepts (nearer ones cannot change the farthest free point), so only the
+    farther segments that grid sight lets through go to the Corollary-1 pieces, one segments_free_by_pieces call per
+    round for all polylines. backend: "auto" (compiled when it loads), "native" or "python" (batched_shortcut)."""
+    from ..native import choose, shortcut_rounds_c
+
+    fn = choose(backend, shortcut_rounds_c, "gridpoly", "shortcut rounds")
+    if fn is None or not ways or any(len(w) == 0 for w in ways):
+        return batched_shortcut(ways, lambda p0, p1: shortcut_test(planner, p0, p1, grid_rule))
+    grid = _rounds_grid(planner)
+    pts = np.ascontiguousarray(np.concatenate([np.asarray(w, dtype=np.float64).reshape(-1, 3) for w in ways]))  # [N, 3]
+    W, N = len(ways), len(pts)
+    o_keep, o_cand, o_nkeep = W + 1, W + 1 + N, W + 1 + 2 * N  # one int64 buffer: off, keep, cand, nkeep, best, ncand
+    o_best, o_ncand = o_nkeep + W, o_nkeep + 2 * W
+    ibuf = np.zeros(o_ncand + W, dtype=np.int64)
+    off, keep, cand = ibuf[:W + 1], ibuf[o_keep:o_cand], ibuf[o_cand:o_nkeep]
+    nkeep, best, ncand = ibuf[o_nkeep:o_best], ibuf[o_best:o_ncand], ibuf[o_ncand:]
+    off[1:] = np.cumsum([len(w) for w in ways])
+    nkeep[:] = 1  # keep[off[w]] = 0: the start
+    at = lambda o: ibuf.ctypes.data + ibuf.itemsize * o  # noqa: E731
+    args = (*grid[0], int(grid_rule), pts.ctypes.data, at(0), W, at(o_keep), at(o_nkeep), at(o_best), at(o_cand),
+            at(o_ncand))
+    while True:
+        fn(*args)
+        stopped = np.flatnonzero(ncand)  # polylines whose round waits for the pieces
+        if not stopped.size:
+            break
+        owner, rank = group_ranks(ncand[stopped])
+        poly = stopped[owner]
+        j = cand[off[poly] + rank]  # candidate ends, farthest first per polyline  [C]
+        c = keep[off[poly] + nkeep[poly] - 1]  # their current points
+        free = np.flatnonzero(segments_free_by_pieces(planner, pts[off[poly] + c], pts[off[poly] + j]))
+        for i in stopped:
+            hit = free[poly[free] == i]
+            keep[off[i] + nkeep[i]] = j[hit[0]] if hit.size else best[i]  # the farthest proven free, else best
+            nkeep[i] += 1
+    return [w[keep[off[i]:off[i] + nkeep[i]]] for i, w in enumerate(ways)]
+
+
+def _rounds_grid(planner: "Planner") -> tuple:
+    """cn_shortcut_rounds' grid arguments (the walk's grid, EPS, the free-voxel grid) and the arrays they point into,
+    built once per prepared scene (kept on the PreparedScene with the occupancy arrays they came from)."""
+    prep = planner.ready()
+    vox, fv = prep.voxels, free_voxels(planner)
+    cached = getattr(prep, "_shortcut_rounds_grid", None)
+    if cached is not None and cached[1][0] is vox and cached[1][1] is vox.occupied and cached[1][2] is fv:
+        return cached
+    walk_occ = np.ascontiguousarray(vox.occupied, dtype=bool).view(np.uint8)
+    walk_shape = np.asarray(vox.occupied.shape, dtype=np.int64)
+    walk_lo = np.ascontiguousarray(vox.lo, dtype=np.float64)
+    free_occ = np.ascontiguousarray(fv.occupied, dtype=bool).view(np.uint8)
+    keep = (vox, vox.occupied, fv, walk_occ, walk_shape, walk_lo, free_occ)
+    args = (walk_occ.ctypes.data, walk_shape.ctypes.data, walk_lo.ctypes.data, float(vox.voxel_size), EPS,
+            free_occ.ctypes.data, fv.shape.ctypes.data, fv.lo.ctypes.data, fv.voxel_size)
+    prep._shortcut_rounds_grid = (args, keep)
+    return prep._shortcut_rounds_grid
+
+
 def shortcut_ways(planner: "Planner", ways: list) -> list:
-    """shortcut_way for several polylines, each rule as one lock-step batched_shortcut (the same result as
+    """shortcut_way for several polylines, each rule as one lock-step pass (shortcut_pass: the same result as
     astar.shortcut path by path)."""
-    a = batched_shortcut(ways, lambda p0, p1: shortcut_free(planner, p0, p1))
+    a = shortcut_pass(planner, ways, planner.use_grid_polytopes())
     if not planner.use_grid_polytopes():
         return a
     redo = [i for i, w in enumerate(a) if segments_off_grid(planner, w) > CLASSIC_SHORTCUT_AFTER]
     if redo:
-        b = batched_shortcut([ways[i] for i in redo], lambda p0, p1: shortcut_free_any(planner, p0, p1))
+        b = shortcut_pass(planner, [ways[i] for i in redo], False)
         for i, w in zip(redo, b):
             a[i] = choose_way(planner, a[i], w)
     return a

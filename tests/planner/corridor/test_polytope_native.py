@@ -200,3 +200,35 @@ def test_native_points_collide_refusals():
         points_collide(torch.zeros(1, 3), scene, GridIndex.build(scene), backend="fast")
     with pytest.raises(RuntimeError, match="does not apply"):
         points_collide(torch.zeros(1, 3), scene, None, backend="native")
+
+
+@settings(**SETTINGS)
+@given(seed=st.integers(0, 2**31 - 1), dtype=st.sampled_from([torch.float32, torch.float64]),
+       per_point=st.booleans(), with_index=st.booleans())
+def test_points_collide_arrays_is_points_collide(seed, dtype, per_point, with_index):
+    """collision.points_collide_arrays (numpy in and out; the compiled test on the arrays directly, or points_collide
+    without a GridIndex) == points_collide, bit for bit."""
+    from cinenerf_ns.planner.geometry.collision import points_collide, points_collide_arrays
+
+    rng = np.random.default_rng(seed)
+    scene = random_scene(rng, 200, amin=0.005, amax=0.12, camera_radius=0.03).to(dtype=dtype)
+    idx = GridIndex.build(scene) if with_index else None
+    pts = rng.uniform(-1.1, 1.1, (int(rng.integers(0, 300)), 3))
+    rad = rng.uniform(0.0, 0.08, len(pts)) if per_point else 0.05
+    got = points_collide_arrays(pts, scene, idx, rad)
+    want = points_collide(torch.as_tensor(pts), scene, idx, radius=torch.as_tensor(rad)).numpy()
+    assert isinstance(got, np.ndarray) and got.dtype == bool and np.array_equal(got, want)
+
+
+def test_points_collide_arrays_refusals():
+    from cinenerf_ns.planner.geometry.collision import points_collide_arrays
+
+    rng = np.random.default_rng(0)
+    scene = random_scene(rng, 20, amin=0.01, amax=0.05, camera_radius=0.03)
+    idx = GridIndex.build(scene)
+    with pytest.raises(InvalidInputError, match="NaN"):
+        points_collide_arrays(np.array([[0.0, np.nan, 0.0]]), scene, idx, 0.1)
+    with pytest.raises(InvalidInputError, match=r"\[P, 3\]"):
+        points_collide_arrays(np.zeros((2, 2)), scene, idx, 0.1)
+    with pytest.raises(InvalidInputError, match="radius"):
+        points_collide_arrays(np.zeros((2, 3)), scene, idx, np.ones(3))

@@ -5,6 +5,7 @@ import math
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 import torch
 from hypothesis import given, settings, strategies as st
 
@@ -85,3 +86,81 @@ def test_free_voxels_is_cached_per_grid():
     assert free_voxels(pl) is fv
     pl.ready().astar_grid._occ = occ.copy()  # another grid: rebuilt
     assert free_voxels(pl) is not fv
+
+
+def rounds_planner(occ: np.ndarray, lo: np.ndarray, vs: float):
+    """fake_planner with the voxel walk's grid too (PreparedScene.voxels), as shortcut_pass reads it."""
+    from cinenerf_ns.planner.corridor.grid_polytope import VoxelObstacles
+
+    pl = fake_planner(occ, lo, vs)
+    pl.ready().voxels = VoxelObstacles.from_occupied(occ, lo, vs)
+    return pl
+
+
+def pieces_oracle(pl, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """A stand-in for the Corollary-1 pieces: a fixed pseudo-random answer per segment (any per-segment rule will do:
+    shortcut_pass must ask it the segments whose answer can matter and combine the answers as the reference does)."""
+    h = np.sin(a @ [12.9898, 78.233, 37.719] + b @ [93.989, 67.345, 11.135]) * 43758.5453
+    return (h - np.floor(h)) < 0.4
+
+
+def random_polylines(rng, occ: np.ndarray, lo: np.ndarray, vs: float, n: int) -> list:
+    """Voxel-path-like polylines (26-neighbour walks over voxel centres, free ones mostly), some with a start and an
+    end off the centres (a user's start, a goal point), some with repeated points; lengths 1 to ~30."""
+    steps = np.array([d for d in np.ndindex(3, 3, 3) if d != (1, 1, 1)]) - 1
+    out = []
+    for _ in range(n):
+        v = rng.integers(0, occ.shape)
+        path = [v]
+        for _ in range(rng.integers(0, 30)):
+            nxt = path[-1] + steps[rng.integers(len(steps))] * rng.integers(0, 2)
+            if ((nxt >= 0) & (nxt < occ.shape)).all() and (not occ[tuple(nxt)] or rng.random() < 0.1):
+                path.append(nxt)
+        w = lo + (np.array(path) + 0.5) * vs
+        if rng.random() < 0.5:
+            w[0] += rng.uniform(-0.5, 0.5, 3) * vs
+        if rng.random() < 0.5:
+            w[-1] += rng.uniform(-1.5, 1.5, 3) * vs
+        out.append(w if rng.random() < 0.8 else w.astype(np.float32))
+    return out
+
+
+@settings(max_examples=150, deadline=None)
+@given(spec=grids, n=st.integers(1, 5), grid_rule=st.booleans())
+def test_compiled_shortcut_pass_is_batched_shortcut_of_shortcut_test(spec, n, grid_rule):
+    """shortcut_pass (gridpoly.c: cn_shortcut_rounds, farthest segment first, pieces only past the walk's answer) gives
+    batched_shortcut with shortcut_test's answers (the plain reference: every segment of every round asked), for
+    several polylines at once."""
+    import cinenerf_ns.planner.search.shortcut as S
+    from cinenerf_ns.planner import native
+    from cinenerf_ns.planner.search.astar import batched_shortcut
+
+    rng, occ, lo, vs = make_grid(spec)
+    occ &= rng.random(occ.shape) < 0.5  # sparser: long free jumps happen
+    pl = rounds_planner(occ, lo, vs)
+    ways = random_polylines(rng, occ, lo, vs, n)
+    backends = ["python"] + (["native"] if native.shortcut_rounds_c() is not None else [])
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(S, "segments_free_by_pieces", pieces_oracle)
+        want = batched_shortcut(ways, lambda p0, p1: S.shortcut_test(pl, p0, p1, grid_rule))
+        for backend in backends:
+            got = S.shortcut_pass(pl, ways, grid_rule, backend=backend)
+            assert len(got) == len(want)
+            for g, w, way in zip(got, want, ways):
+                assert g.dtype == way.dtype and np.array_equal(g, w)
+
+
+def test_shortcut_pass_edge_cases(monkeypatch):
+    """No polylines, one-point and two-point polylines, and a polyline with all points equal."""
+    import cinenerf_ns.planner.search.shortcut as S
+
+    monkeypatch.setattr(S, "segments_free_by_pieces", pieces_oracle)
+    occ = np.zeros((4, 4, 4), dtype=bool)
+    pl = rounds_planner(occ, np.zeros(3), 0.5)
+    assert S.shortcut_pass(pl, [], True) == []
+    ways = [np.array([[0.3, 0.3, 0.3]]), np.array([[0.3, 0.3, 0.3], [1.2, 1.2, 1.2]]), np.full((5, 3), 0.7),
+            np.array([[0.25, 0.25, 0.25], [0.75, 0.75, 0.75], [1.25, 0.75, 0.75], [1.75, 1.75, 1.75]])]
+    for grid_rule in (True, False):
+        got = S.shortcut_pass(pl, ways, grid_rule)
+        assert [g.tolist() for g in got] == [ways[0].tolist(), ways[1].tolist(), ways[2][[0, 4]].tolist(),
+                                             ways[3][[0, 3]].tolist()]

@@ -373,3 +373,27 @@ def test_shortcut_test_is_the_grid_sight_and_proof_rule(room, seed, grid_rule, n
     ends_free = fv.contains(a) & fv.contains(b)
     want = sight & np.where(grid_rule & ends_free, walk, proof)
     assert np.array_equal(shortcut_test(pl, a, b, grid_rule), want)
+
+
+@pytest.mark.parametrize("grid_rule", [True, False])
+def test_compiled_shortcut_pass_is_the_reference_on_a_scene(room, grid_rule):
+    """search.shortcut.shortcut_pass with the compiled rounds and the real Corollary-1 pieces == batched_shortcut of
+    shortcut_test (every segment of every round asked), for voxel paths with starts and ends off the voxel centres."""
+    from cinenerf_ns.planner import native
+    from cinenerf_ns.planner.search.astar import batched_shortcut
+    from cinenerf_ns.planner.search.shortcut import shortcut_pass, shortcut_test
+
+    if native.shortcut_rounds_c() is None:
+        pytest.skip("the compiled shortcut rounds did not load")
+    s, e, pl = room
+    rng = np.random.default_rng(7)
+    vs = float(pl.prepared.grid.voxel_size)
+    ways = [p for p in _random_voxel_paths(pl, rng, 24) if len(p) >= 2]
+    for w in ways[::2]:  # a start and a goal point off the centres, possibly in occupied voxels
+        w[0] += rng.uniform(-0.5, 0.5, 3) * vs
+        w[-1] += rng.uniform(-1.5, 1.5, 3) * vs
+    want = batched_shortcut(ways, lambda p0, p1: shortcut_test(pl, p0, p1, grid_rule))
+    for batch in (ways, ways[:1]):
+        got = shortcut_pass(pl, batch, grid_rule, backend="native")
+        assert all(np.array_equal(g, w) for g, w in zip(got, want))
+    assert any(len(w) < len(p) for w, p in zip(want, ways))
