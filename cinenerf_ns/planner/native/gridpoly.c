@@ -266,15 +266,15 @@ int64_t cn_grid_polytope(const uint8_t *surface, const int64_t *shape, const dou
     qsort(cubes, K, sizeof(Cube), cmp_cube);
     double *dist = (double *)malloc((K ? K : 1) * sizeof(double));
     double *qs = (double *)malloc((K ? K : 1) * 3 * sizeof(double)), *ps = (double *)malloc((K ? K : 1) * 3 * sizeof(double));
-    uint8_t *alive = (uint8_t *)malloc(K ? K : 1);
-    int64_t F = 0, status;
-    if (!dist || !qs || !ps || !alive) { status = -1; goto done; }
-    for (int64_t i = 0; i < K; i++) { dist[i] = NAN; alive[i] = 1; }
+    int64_t *live = (int64_t *)malloc((K ? K : 1) * sizeof(int64_t)); /* alive cubes, ascending lower bound */
+    int64_t F = 0, status, nlive = K;
+    if (!dist || !qs || !ps || !live) { status = -1; goto done; }
+    for (int64_t i = 0; i < K; i++) { dist[i] = NAN; live[i] = i; }
     for (;;) {
         /* the nearest alive cube, exactly: lower bounds in ascending order stop the scan */
         int64_t best = -1;
-        for (int64_t i = 0; i < K; i++) {
-            if (!alive[i]) continue;
+        for (int64_t r = 0; r < nlive; r++) {
+            int64_t i = live[r];
             if (best >= 0 && dist[best] <= cubes[i].lb) break;
             if (isnan(dist[i])) dist[i] = seg_cube_closest(u0, d, cubes[i].v, qs + 3 * i, ps + 3 * i);
             if (best < 0 || dist[i] < dist[best]) best = i;
@@ -294,14 +294,16 @@ int64_t cn_grid_polytope(const uint8_t *surface, const int64_t *shape, const dou
         memcpy(out_n + 3 * F, n, sizeof n);
         out_b[F] = off;
         F++;
-        for (int64_t i = 0; i < K; i++) {
-            if (!alive[i]) continue;
-            const double *v = cubes[i].v;
-            if (v[0] * n[0] + v[1] * n[1] + v[2] * n[2] + neg >= off) alive[i] = 0;
+        /* drop the cubes entirely beyond the plane; the rest stay in order (the scan above only visits them) */
+        int64_t kept = 0;
+        for (int64_t r = 0; r < nlive; r++) {
+            const double *v = cubes[live[r]].v;
+            if (!(v[0] * n[0] + v[1] * n[1] + v[2] * n[2] + neg >= off)) live[kept++] = live[r];
         }
+        nlive = kept;
     }
     status = F;
 done:
-    free(cubes); free(dist); free(qs); free(ps); free(alive);
+    free(cubes); free(dist); free(qs); free(ps); free(live);
     return status;
 }
