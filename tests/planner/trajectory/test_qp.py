@@ -379,3 +379,25 @@ def test_direct_csc_build_falls_back_when_a_join_scale_underflows():
         fast = _build(polys, wp, wp[0], wp[-1], cfg)
     assert np.count_nonzero(ref.eq_dense) < 3 * _equality_pattern(2, cfg.degree, cfg.rest_at_ends, 3).coef.size
     _assert_same_qp(fast, ref)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_clarabel_from_lists_matches_scipy_input(seed):
+    """_solve_clarabel hands Clarabel the matrices as lists (_CscLists): the same iterates as the scipy matrices."""
+    import clarabel
+
+    from cinenerf_ns.planner.trajectory.qp import _solve_clarabel, build_corridor_qp
+
+    cfg = TrajectoryConfig()
+    polys, wp = random_corridor(seed, m=4)
+    qp = build_corridor_qp(polys, wp, wp[0], wp[-1], cfg)
+    settings = clarabel.DefaultSettings()
+    settings.verbose = False
+    settings.iterative_refinement_enable = False
+    for name in ("tol_feas", "tol_gap_abs", "tol_gap_rel"):
+        setattr(settings, name, cfg.tolerance)
+    cones = [clarabel.ZeroConeT(qp.n_eq), clarabel.NonnegativeConeT(qp.n_in)]
+    ref = clarabel.DefaultSolver(qp.P_upper, np.zeros(qp.n), qp.A, qp.b, cones, settings).solve()
+    x, _, iters, outcome = _solve_clarabel(qp, cfg)
+    assert outcome == "ok" and iters == ref.iterations
+    np.testing.assert_array_equal(x, np.asarray(ref.x))
