@@ -401,3 +401,37 @@ def test_clarabel_from_lists_matches_scipy_input(seed):
     x, _, iters, outcome = _solve_clarabel(qp, cfg)
     assert outcome == "ok" and iters == ref.iterations
     np.testing.assert_array_equal(x, np.asarray(ref.x))
+
+
+def _project_reference(x, qp):
+    """The plain projection: scipy's cho_factor / cho_solve, least squares when the Gram matrix is singular."""
+    from scipy.linalg import LinAlgError, cho_factor, cho_solve
+
+    a = qp.eq_dense
+    resid = a @ x - qp.b_eq
+    gram = a @ a.T
+    try:
+        corr = cho_solve(cho_factor(gram), resid)
+    except LinAlgError:
+        corr, *_ = np.linalg.lstsq(gram, resid, rcond=None)
+    return x - a.T @ corr
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), m=st.integers(1, 6), degree=st.integers(3, 7), dependent=st.booleans())
+def test_project_equalities_matches_scipy_cholesky(seed, m, degree, dependent):
+    """_project_equalities (LAPACK potrf / potrs directly) gives the plain scipy projection bit for bit; with a
+    repeated equality row (singular Gram matrix) both take the same branch (least squares when potrf fails, which
+    rounding decides)."""
+    import scipy.sparse as sp
+
+    from cinenerf_ns.planner.trajectory.qp import CorridorQP, _project_equalities, build_corridor_qp
+
+    polys, wp = random_corridor(seed % 1000, m=m)
+    qp = build_corridor_qp(polys, wp, wp[0], wp[-1], TrajectoryConfig(degree=degree, continuity=2))
+    if dependent:
+        a_eq = sp.vstack([qp.A_eq, qp.A_eq[-1]])
+        qp = CorridorQP.from_matrices(qp.P, a_eq, np.append(qp.b_eq, qp.b_eq[-1]), qp.A_in, qp.b_in, qp.durations,
+                                      qp.degree, qp.num_segments, qp.polytopes)
+    x = np.random.default_rng(seed).normal(size=qp.n)
+    np.testing.assert_array_equal(_project_equalities(x, qp), _project_reference(x, qp))
