@@ -79,7 +79,7 @@ class Corridor:
             return out
         lo, hi = (np.asarray(v, dtype=np.float64).reshape(3) for v in self.region)
         box_a, box_b = np.vstack([np.eye(3), -np.eye(3)]), np.concatenate([hi, -lo])  # [6, 3], [6]
-        return [(np.vstack([a, box_a]), np.concatenate([b, box_b])) for a, b in out]
+        return [(np.concatenate((a, box_a)), np.concatenate((b, box_b))) for a, b in out]  # (vstack: ~1.5 us more each)
 
     @property
     def num_faces(self) -> list[int]:

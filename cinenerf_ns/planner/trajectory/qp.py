@@ -35,15 +35,15 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass, replace
-from typing import Any, List, Sequence, Tuple
+from typing import Any, List, NamedTuple, Sequence, Tuple
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.linalg import cho_factor, cho_solve
+from scipy.linalg.lapack import dpotrf, dpotrs
 
 from ..errors import GoalUnreachableError, InvalidInputError, PlanningError
 from .bezier import BezierTrajectory, _to_numpy, difference_matrix
-from .working_set import free_ranges, solve_with_working_set
+from .working_set import face_norms, free_ranges, solve_with_working_set
 
 
 class CorridorInfeasibleError(GoalUnreachableError):
@@ -192,7 +192,7 @@ def _as_polytopes(polytopes: Sequence[Any]) -> List[Tuple[np.ndarray, np.ndarray
             raise InvalidInputError(
                 f"polytope {k}: A must be [F, 3] and b [F] with F >= 1, got A {a.shape}, b {b.shape}."
             )
-        if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+        if not (np.isfinite(a).all() and np.isfinite(b).all()):  # (methods: ~1 us less than np.all per call)
             raise InvalidInputError(f"polytope {k} has NaN or inf coefficients.")
         out.append((a, b))
     return out
@@ -227,7 +227,7 @@ class CorridorQP:
     """The assembled QP: minimise 1/2 x^T P x subject to A_eq x = b_eq, A_in x <= b_in.
 
     Stored in the forms the default path uses, so a plan pays for no scipy conversion it does not need (they took
-    over half of the QP stage; the stacked A takes one COO conversion): ``P_upper`` (the upper triangle of P, what
+    over half of the QP stage; ``_build`` writes A straight in CSC): ``P_upper`` (the upper triangle of P, what
     Clarabel reads), ``A`` (equalities stacked over inequalities) and ``eq_dense`` (A_eq as a dense array: the
     post-solve equality projection is a small dense solve). ``P``, ``A_eq`` and ``A_in`` are built from these on
     first use (OSQP, multi-stop, tests)."""
@@ -319,7 +319,143 @@ def build_corridor_qp(polytopes, waypoints, start, goal, config: TrajectoryConfi
     return _build(*_checked_qp_input(polytopes, waypoints, start, goal), config, faces)
 
 
-def _build(polys, wp, start, goal, config: TrajectoryConfig, faces=None) -> CorridorQP:
+def _build(polys, wp, start, goal, config: TrajectoryConfig, faces=None, shrunk=None) -> CorridorQP:
+    """The QP's matrices, A straight in CSC from cached patterns (``_build_coo`` is the plain construction it is tested
+    against: the same arrays bit for bit). shrunk: per polytope b - margin * |rows of A| for all its faces (the
+    working set passes it so the norms are taken once per request; None: computed here)."""
+    m = len(polys)
+    d = config.degree
+    npts = d + 1
+    n = m * npts * 3
+    durations = segment_durations(wp, config)
+    pat = _equality_pattern(m, d, config.rest_at_ends, config.continuity)
+    pv = _join_factors(durations, config.continuity)[pat.factor] * pat.coef  # [E] point-level equality values
+    if not pv.all():  # a join factor underflowed to 0 (absurd duration ratios): the COO path drops those entries
+        return _build_coo(polys, wp, start, goal, config, faces)
+    P_upper = _objective_upper(2.0 * segment_hessians(d, durations, config), n)
+    margin = config.effective_margin()
+    if shrunk is None:
+        shrunk = [b - margin * np.linalg.norm(a, axis=1) for a, b in polys]
+    if faces is None:
+        in_polys = [(a, bs) for (a, _), bs in zip(polys, shrunk)]
+    else:
+        in_polys = [(a[f], bs[f]) for (a, _), bs, f in zip(polys, shrunk, faces)]
+    n_faces = np.array([a.shape[0] for a, _ in in_polys])  # [M]
+    counts = pat.eq_count + np.repeat(n_faces[:, None] * pat.free, 3)  # [n] entries per column
+    indptr = np.zeros(n + 1, dtype=np.int32)
+    np.cumsum(counts, out=indptr[1:])
+    nnz = int(indptr[-1])
+    data = np.empty(nnz)
+    indices = np.empty(nnz, dtype=np.int32)
+    eq_pos = indptr[pat.eq_col] + pat.eq_rank  # equality rows come first in every column
+    eq_vals = pv[pat.eq_entry]
+    data[eq_pos] = eq_vals
+    indices[eq_pos] = pat.eq_row
+    # inequalities, in column order: segment k, free point p, coordinate c, then its F_k faces (rows row0 + p F_k + j)
+    vals, rows, b_in, row0 = [], [], [pat.b_eq(start, goal)], pat.n_eq
+    for (a, bs), nf in zip(in_polys, pat.num_free):
+        f = a.shape[0]
+        if nf == 0 or f == 0:
+            continue
+        # (ndarray.repeat rather than np.tile / np.broadcast_to: a C call each, ~5x less overhead per segment)
+        vals.append(a.T[None].repeat(nf, axis=0).ravel())  # [nf * 3 * F]
+        rows.append(np.arange(row0, row0 + nf * f, dtype=np.int32).reshape(nf, 1, f).repeat(3, axis=1).ravel())
+        b_in.append(bs[None].repeat(nf, axis=0).ravel())  # [nf * F]
+        row0 += nf * f
+    if vals:
+        ineq = np.ones(nnz, dtype=bool)
+        ineq[eq_pos] = False
+        data[ineq] = np.concatenate(vals)
+        indices[ineq] = np.concatenate(rows)
+    A = sp.csc_matrix((data, indices, indptr), shape=(row0, n))
+    eq_dense = np.zeros((pat.n_eq, n))
+    eq_dense[pat.eq_row, pat.eq_col] = eq_vals
+    return CorridorQP(P_upper, A, np.concatenate(b_in), pat.n_eq, eq_dense, durations, d, m, polys)
+
+
+class _EqualityPattern(NamedTuple):
+    """Where the equalities sit in the stacked CSC A (depends on M, D, rest_at_ends and continuity only)."""
+
+    n_eq: int
+    factor: np.ndarray  # [E] per point-level entry (sorted by column, then row): index into _join_factors
+    coef: np.ndarray  # [E] its difference coefficient (sign included)
+    eq_entry: np.ndarray  # [3E] per entry of A's equality block in CSC order: its point-level entry
+    eq_row: np.ndarray  # [3E] its row
+    eq_col: np.ndarray  # [3E] its column
+    eq_rank: np.ndarray  # [3E] its position in the column
+    eq_count: np.ndarray  # [n] equality entries per column
+    free: np.ndarray  # [M, D+1] 1 where the control point gets inequality rows (not pinned)
+    num_free: List[int]  # [M] free control points per segment
+    pins: int  # rest_at_ends + 1
+
+    def b_eq(self, start: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        """[n_eq] right-hand side: the pinned points, then zeros for the joins."""
+        out = np.zeros(self.n_eq)
+        pins = out[: 6 * self.pins].reshape(2, self.pins, 3)
+        pins[0] = start
+        pins[1] = goal
+        return out
+
+
+@functools.lru_cache(maxsize=256)
+def _equality_pattern(m: int, d: int, q: int, continuity: int) -> _EqualityPattern:
+    """The equalities of ``_equalities`` as a pattern: the same point-level entries (pins, then per order r the end and
+    start coefficients of every join, zeros dropped), their values as factor * coef, sorted into CSC order."""
+    npts = d + 1
+    pin_rows = 2 * (q + 1)
+    rows = [np.arange(pin_rows)]
+    cols = [np.concatenate([np.arange(q + 1), (m - 1) * npts + d - np.arange(q + 1)])]
+    factor = [np.zeros(pin_rows, dtype=np.int64)]
+    coef = [np.ones(pin_rows)]
+    if m > 1:
+        joins = np.arange(m - 1)
+        for r in range(continuity + 1):
+            diff = _difference(d, r)
+            row_ids = np.repeat(pin_rows + joins * (continuity + 1) + r, npts)
+            rows += [row_ids, row_ids]
+            cols += [(joins[:, None] * npts + np.arange(npts)).ravel(),
+                     ((joins[:, None] + 1) * npts + np.arange(npts)).ravel()]
+            factor += [np.repeat(1 + 2 * r * (m - 1) + joins, npts), np.repeat(1 + (2 * r + 1) * (m - 1) + joins, npts)]
+            coef += [np.tile(diff[-1], m - 1), np.tile(-diff[0], m - 1)]
+    pr, pc, fi, cf = (np.concatenate(v) for v in (rows, cols, factor, coef))
+    keep = cf != 0.0
+    pr, pc, fi, cf = pr[keep], pc[keep], fi[keep], cf[keep]
+    order = np.lexsort((pr, pc))
+    pr, pc, fi, cf = pr[order], pc[order], fi[order], cf[order]
+    per_point = np.bincount(pc, minlength=m * npts)  # [M (D+1)]
+    start = np.concatenate([[0], np.cumsum(per_point)[:-1]])
+    entry, row, col, rank = [], [], [], []
+    for p in range(m * npts):
+        e = np.arange(start[p], start[p] + per_point[p])
+        for c in range(3):
+            entry.append(e)
+            row.append(pr[e] * 3 + c)
+            col.append(np.full(e.size, p * 3 + c))
+            rank.append(np.arange(e.size))
+    free = np.ones((m, npts), dtype=np.int64)
+    free[0, : q + 1] = 0
+    free[m - 1, d - q:] = 0
+    out = _EqualityPattern(
+        3 * (pin_rows + (m - 1) * (continuity + 1)), fi, cf, *(np.concatenate(v) for v in (entry, row, col, rank)),
+        np.repeat(per_point, 3), free, free.sum(axis=1).tolist(), q + 1)
+    for v in out:
+        if isinstance(v, np.ndarray):
+            v.flags.writeable = False
+    return out
+
+
+def _join_factors(durations: np.ndarray, continuity: int) -> np.ndarray:
+    """[1 + 2 (c+1) (M-1)]: 1 (pins), then per order r the end and start row scales of every join, as in
+    ``_equalities`` (d^r/dt^r = c_r/d^r Delta^r; c_r cancels; rows scaled by min(d)^r)."""
+    out = [np.ones(1)]
+    for r in range(continuity + 1):
+        scale = np.minimum(durations[:-1], durations[1:]) ** r  # [M-1]
+        out += [scale / durations[:-1] ** r, scale / durations[1:] ** r]
+    return np.concatenate(out)
+
+
+def _build_coo(polys, wp, start, goal, config: TrajectoryConfig, faces=None) -> CorridorQP:
+    """The plain construction (COO triplets -> scipy CSC): the reference ``_build`` is tested against."""
     m = len(polys)
     d = config.degree
     npts = d + 1
@@ -356,7 +492,7 @@ def _checked_qp_input(polytopes, waypoints, start, goal):
         raise InvalidInputError(f"{m} polytopes need waypoints of shape [{m + 1}, 3], got {tuple(wp.shape)}.")
     if start.shape != (3,) or goal.shape != (3,):
         raise InvalidInputError("start and goal must be 3D points.")
-    if not (np.all(np.isfinite(wp)) and np.all(np.isfinite(start)) and np.all(np.isfinite(goal))):
+    if not (np.isfinite(wp).all() and np.isfinite(start).all() and np.isfinite(goal).all()):
         raise InvalidInputError("waypoints, start and goal must be finite (found NaN or inf).")
     # pinned points are fixed by equality; check them against their polytope now (unshrunk, tiny tol)
     tol = 1e-9 * max(1.0, float(np.abs(wp).max()))
@@ -376,13 +512,21 @@ def _objective_upper(hess: np.ndarray, n: int) -> sp.csc_matrix:
     so that 1/2 x^T P x = sum_k cost_k), straight into CSC (the blocks are diagonal, columns in order): what
     Clarabel reads."""
     m, npts = hess.shape[0], hess.shape[1]
-    u_rows, u_i, u_j, u_ptr = _upper_block_pattern(npts)
+    _, u_i, u_j, _ = _upper_block_pattern(npts)
+    indices, indptr = _objective_pattern(m, npts)
+    return sp.csc_matrix((hess[:, u_i, u_j].ravel(), indices.copy(), indptr.copy()), shape=(n, n))
+
+
+@functools.lru_cache(maxsize=256)
+def _objective_pattern(m: int, npts: int) -> Tuple[np.ndarray, np.ndarray]:
+    """(indices, indptr) int32 of ``_objective_upper``'s CSC for M segments (cached, read-only: callers copy)."""
+    u_rows, _, _, u_ptr = _upper_block_pattern(npts)
     seg = np.arange(m)[:, None]
-    return sp.csc_matrix(
-        (hess[:, u_i, u_j].ravel(), (seg * npts * 3 + u_rows[None]).ravel(),
-         np.concatenate([(seg * u_rows.size + u_ptr[None, :-1]).ravel(), [m * u_rows.size]])),
-        shape=(n, n),
-    )
+    indices = (seg * npts * 3 + u_rows[None]).ravel().astype(np.int32)
+    indptr = np.concatenate([(seg * u_rows.size + u_ptr[None, :-1]).ravel(), [m * u_rows.size]]).astype(np.int32)
+    indices.flags.writeable = False
+    indptr.flags.writeable = False
+    return indices, indptr
 
 
 def _equalities(m: int, d: int, config: TrajectoryConfig, durations: np.ndarray, start: np.ndarray,
@@ -451,6 +595,23 @@ def _normalised(P: sp.csc_matrix) -> sp.csc_matrix:
     return P / max(float(P.diagonal().max()), 1e-300)
 
 
+class _CscLists(NamedTuple):
+    """A CSC matrix as Python lists, what clarabel.DefaultSolver gets. Why: its binding (pinned clarabel 0.11.1,
+    src/python/cscmatrix_py.rs) reads ``data`` / ``indices`` / ``indptr`` / ``shape`` / ``has_canonical_format`` by
+    attribute and extracts the arrays element by element, one numpy scalar per element; from lists that is ~80 us less
+    of a ~300 us set-up (captured 1M-Gaussian QPs), the same matrix and the same solve."""
+
+    data: list
+    indices: list
+    indptr: list
+    shape: Tuple[int, int]
+    has_canonical_format: bool
+
+    @classmethod
+    def of(cls, m: sp.csc_matrix) -> "_CscLists":
+        return cls(m.data.tolist(), m.indices.tolist(), m.indptr.tolist(), m.shape, bool(m.has_canonical_format))
+
+
 def _solve_clarabel(qp: CorridorQP, config: TrajectoryConfig):
     import clarabel
 
@@ -464,7 +625,8 @@ def _solve_clarabel(qp: CorridorQP, config: TrajectoryConfig):
     cones = [clarabel.ZeroConeT(qp.n_eq)]
     if qp.n_in > 0:
         cones.append(clarabel.NonnegativeConeT(qp.n_in))
-    solver = clarabel.DefaultSolver(qp.P_upper, np.zeros(qp.n), qp.A, qp.b, cones, settings)
+    solver = clarabel.DefaultSolver(_CscLists.of(qp.P_upper), [0.0] * qp.n, _CscLists.of(qp.A), qp.b.tolist(), cones,
+                                    settings)
     sol = solver.solve()
     status = str(sol.status)
     if sol.status in (clarabel.SolverStatus.PrimalInfeasible, clarabel.SolverStatus.AlmostPrimalInfeasible):
@@ -504,12 +666,14 @@ def _project_equalities(x: np.ndarray, qp: CorridorQP) -> np.ndarray:
     """
     a = qp.eq_dense  # [n_eq, n]
     resid = a @ x - qp.b_eq
+    if not np.isfinite(resid).all():
+        raise TrajectorySolverError("the QP solver returned a non-finite point.")
     gram = a @ a.T  # [n_eq, n_eq] SPD when the equalities are independent
-    try:
-        corr = cho_solve(cho_factor(gram), resid)
-        if not np.all(np.isfinite(corr)):
-            raise np.linalg.LinAlgError("singular")
-    except np.linalg.LinAlgError:  # dependent equalities (unusual degree/continuity mixes): least squares
+    # the LAPACK calls of scipy's cho_factor / cho_solve (upper factor), without their per-call input checks (~35 us)
+    factor, info = dpotrf(gram, lower=0, clean=0)
+    if info == 0:
+        corr, info = dpotrs(factor, resid, lower=0)
+    if info != 0 or not np.isfinite(corr).all():  # dependent equalities (unusual degree/continuity mixes)
         corr, *_ = np.linalg.lstsq(gram, resid, rcond=None)
     return x - a.T @ corr
 
@@ -530,13 +694,16 @@ def solve_corridor_qp(polytopes, waypoints, start, goal, config: TrajectoryConfi
     polys, wp, start, goal = _checked_qp_input(polytopes, waypoints, start, goal)
     m, npts = len(polys), config.degree + 1
     free = free_ranges(m, npts, config.rest_at_ends)
-    build = functools.partial(_build, polys, wp, start, goal, config)
+    norms = face_norms(polys)  # once per QP: every working-set round and build uses them
+    margin = config.effective_margin()
+    build = functools.partial(_build, polys, wp, start, goal, config,
+                              shrunk=[b - margin * norm for (_, b), norm in zip(polys, norms)])
     solve = functools.partial(_solve_with_retry, config=config)
     qp, (x, status, iters, outcome, retry_tolerance), rounds = solve_with_working_set(
-        polys, wp, config.effective_margin(), free, npts, build, solve,
-        enabled=config.working_set and config.solver == "clarabel")
+        polys, wp, margin, free, npts, build, solve, enabled=config.working_set and config.solver == "clarabel",
+        norms=norms)
     if outcome == "infeasible":
-        margins = [config.effective_margin() * np.linalg.norm(a, axis=1) for a, _ in polys]
+        margins = [margin * norm for norm in norms]
         raise CorridorInfeasibleError(
             "No smooth trajectory fits inside the safe corridor: "
             f"{_diagnose_infeasible(polys, margins)}. Try a lower continuity order, a higher degree, "

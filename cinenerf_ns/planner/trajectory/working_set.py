@@ -35,13 +35,20 @@ def reach(waypoints: np.ndarray) -> np.ndarray:
     return np.maximum(np.maximum(padded[:-2], padded[1:-1]), padded[2:])
 
 
+def face_norms(polys: Sequence[Tuple[np.ndarray, np.ndarray]]) -> List[np.ndarray]:
+    """Per polytope the [F] norms of its face normals (rows of A): taken once per QP, every round uses them."""
+    return [np.linalg.norm(a, axis=1) for a, _ in polys]
+
+
 def initial_faces(polys: Sequence[Tuple[np.ndarray, np.ndarray]], waypoints: np.ndarray,
-                  distance: np.ndarray) -> List[np.ndarray]:
+                  distance: np.ndarray, norms: Optional[List[np.ndarray]] = None) -> List[np.ndarray]:
     """Per polytope k, the indices of the faces within distance[k] of the segment waypoints[k] -> waypoints[k+1]
-    (a face's distance to a segment inside it is the smaller of its ends' distances), always the nearest face."""
+    (a face's distance to a segment inside it is the smaller of its ends' distances), always the nearest face.
+    norms: face_norms(polys) (None: computed here)."""
+    norms = face_norms(polys) if norms is None else norms
     faces = []
-    for k, (a, b) in enumerate(polys):
-        slack = ((b - waypoints[k: k + 2] @ a.T) / np.linalg.norm(a, axis=1)).min(axis=0)  # [F]
+    for k, ((a, b), norm) in enumerate(zip(polys, norms)):
+        slack = ((b - waypoints[k: k + 2] @ a.T) / norm).min(axis=0)  # [F]
         keep = slack <= distance[k]
         keep[np.argmin(slack)] = True
         faces.append(np.flatnonzero(keep))
@@ -59,18 +66,18 @@ def free_ranges(num_segments: int, npts: int, rest_at_ends: int) -> List[Tuple[i
 
 
 def add_violated(cps: np.ndarray, polys, faces: List[np.ndarray], margin: float, free: List[Tuple[int, int]],
-                 near: np.ndarray) -> Tuple[List[np.ndarray], int]:
+                 near: np.ndarray, norms: Optional[List[np.ndarray]] = None) -> Tuple[List[np.ndarray], int]:
     """Check the free control points cps [M, D+1, 3] against every face shrunk by ``margin``: (faces with the violated
-    ones, and those within near[k] of it, added; the number of violated faces, 0 when cps is feasible)."""
+    ones, and those within near[k] of it, added; the number of violated faces, 0 when cps is feasible). norms:
+    face_norms(polys) (None: computed here)."""
+    norms = face_norms(polys) if norms is None else norms
     out, violated = [], 0
-    for k, ((a, b), (lo, hi)) in enumerate(zip(polys, free)):
+    for k, ((a, b), (lo, hi), norm) in enumerate(zip(polys, free, norms)):
         if hi <= lo:
             out.append(faces[k])
             continue
-        norms = np.linalg.norm(a, axis=1)
-        excess = ((cps[k, lo:hi] @ a.T).max(axis=0) - b) / norms + margin  # [F] distance past the shrunk face
-        outside = np.zeros(a.shape[0], dtype=bool)
-        outside[excess > 0] = True
+        excess = ((cps[k, lo:hi] @ a.T).max(axis=0) - b) / norm + margin  # [F] distance past the shrunk face
+        outside = excess > 0
         outside[faces[k]] = False  # faces in the set hold to the solver's tolerance; not re-added
         violated += int(outside.sum())
         close = excess > -near[k]
@@ -81,13 +88,17 @@ def add_violated(cps: np.ndarray, polys, faces: List[np.ndarray], margin: float,
 
 def solve_with_working_set(polys, waypoints: np.ndarray, margin: float, free: List[Tuple[int, int]], npts: int,
                            build: Callable[[Optional[List[np.ndarray]]], object], solve: Callable,
-                           enabled: bool = True):
+                           enabled: bool = True, norms: Optional[List[np.ndarray]] = None):
     """Constraint generation (module docstring). ``build(faces)`` assembles the QP with only those faces per polytope
     (None: all), ``solve(qp)`` returns (x, status, iterations, outcome, retry_tolerance) with outcome "ok",
     "infeasible" or "failed". Returns (qp, solve's result, info: rounds, build and solve seconds). enabled=False: one
-    solve with all faces."""
-    scale = reach(waypoints)
-    faces: Optional[List[np.ndarray]] = initial_faces(polys, waypoints, INITIAL_DISTANCE * scale) if enabled else None
+    solve with all faces. norms: face_norms(polys) when the caller has them."""
+    if not enabled:
+        faces = None
+    else:
+        norms = face_norms(polys) if norms is None else norms
+        scale = reach(waypoints)
+        faces = initial_faces(polys, waypoints, INITIAL_DISTANCE * scale, norms)
     info = {"qp_rounds": 0, "build_s": 0.0, "solve_s": 0.0}
     while True:
         if faces is not None and (info["qp_rounds"] >= MAX_ROUNDS
@@ -107,6 +118,6 @@ def solve_with_working_set(polys, waypoints: np.ndarray, margin: float, free: Li
             faces = None
             continue
         cps = x.reshape(len(polys), npts, 3)
-        faces, violated = add_violated(cps, polys, faces, margin, free, NEAR_DISTANCE * scale)
+        faces, violated = add_violated(cps, polys, faces, margin, free, NEAR_DISTANCE * scale, norms)
         if violated == 0:  # optimal for a relaxation and feasible for the full QP: its optimum
             return qp, result, info

@@ -258,3 +258,28 @@ def test_probed_overlap_spares_the_lp_at_a_face(monkeypatch):
     cor = corridor_mod._assemble([(p0, w[0], w[1]), (p1, w[1], w[2])], {"splits": 0}, 1e-3, False)
     assert calls == [] and cor.thin_joints == []
     assert 1e-3 <= float(cor.overlap_radius[0]) <= 0.25 + 1e-12  # the LP's radius: 0.25
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), m=st.integers(1, 8), region=st.booleans(),
+       dtype=st.sampled_from([torch.float32, torch.float64]))
+def test_constraints_match_per_polytope_conversion(seed, m, region, dtype):
+    """Corridor.constraints gives the per-polytope Polytope.to_numpy (+ the region's six faces stacked below, np.vstack)
+    bit for bit, float64 whatever the polytopes' dtype."""
+    from cinenerf_ns.planner.corridor.polytope import Polytope
+
+    g = torch.Generator().manual_seed(seed)
+    polys = [Polytope(torch.randn(f, 3, generator=g, dtype=dtype), torch.randn(f, generator=g, dtype=dtype),
+                      torch.zeros(1, 3, dtype=dtype)) for f in torch.randint(1, 20, (m,), generator=g).tolist()]
+    box = (np.array([-1.0, -2.0, -3.0]), np.array([1.0, 2.5, 3.5])) if region else None
+    cor = Corridor(polys, torch.zeros(m + 1, 3, dtype=torch.float64), region=box)
+    ref = [p.to_numpy() for p in polys]
+    if box is not None:
+        box_a, box_b = np.vstack([np.eye(3), -np.eye(3)]), np.concatenate([box[1], -box[0]])
+        ref = [(np.vstack([a, box_a]), np.concatenate([b, box_b])) for a, b in ref]
+    got = cor.constraints()
+    assert len(got) == m
+    for (a, b), (ra, rb) in zip(got, ref):
+        assert a.dtype == ra.dtype == np.float64 and b.dtype == np.float64
+        np.testing.assert_array_equal(a, ra)
+        np.testing.assert_array_equal(b, rb)

@@ -325,3 +325,113 @@ def test_assembled_qp_matches_a_dense_reference(seed, m, degree):
     np.testing.assert_allclose(again.A.toarray(), qp.A.toarray(), rtol=0, atol=0)
     np.testing.assert_allclose(again.P_upper.toarray(), qp.P_upper.toarray(), rtol=0, atol=0)
     np.testing.assert_array_equal(again.b, qp.b)
+
+
+# ------------------------------------------------------------------ direct CSC assembly vs the plain COO one
+def _same_csc(a, b):
+    assert a.shape == b.shape
+    for name in ("indptr", "indices", "data"):
+        x, y = getattr(a, name), getattr(b, name)
+        assert x.dtype == y.dtype, name
+        np.testing.assert_array_equal(x, y, err_msg=name)
+
+
+def _assert_same_qp(fast, ref):
+    _same_csc(fast.P_upper, ref.P_upper)
+    _same_csc(fast.A, ref.A)
+    np.testing.assert_array_equal(fast.b, ref.b)
+    np.testing.assert_array_equal(fast.eq_dense, ref.eq_dense)
+    np.testing.assert_array_equal(fast.durations, ref.durations)
+    assert fast.n_eq == ref.n_eq and fast.A.has_canonical_format
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), m=st.integers(1, 6), degree=st.integers(1, 7), data=st.data())
+def test_direct_csc_build_matches_coo_reference(seed, m, degree, data):
+    """qp._build (A straight in CSC from cached patterns) gives the arrays of qp._build_coo bit for bit: any degree,
+    continuity, rest_at_ends, face counts, working-set face subsets (None: all) and solver margin."""
+    from cinenerf_ns.planner.trajectory.qp import _build, _build_coo
+
+    continuity = data.draw(st.integers(0, degree - 1))
+    rest = data.draw(st.integers(0, (degree + 1) // 2 - 1))
+    cfg = TrajectoryConfig(degree=degree, continuity=continuity, rest_at_ends=rest,
+                           smoothness_order=data.draw(st.integers(1, degree)),
+                           solver=data.draw(st.sampled_from(["clarabel", "osqp"])))
+    rng = np.random.default_rng(seed)
+    wp = np.cumsum(rng.normal(size=(m + 1, 3)) * rng.choice([1e-3, 1.0, 10.0], size=(m + 1, 1)), axis=0)
+    polys = [(rng.normal(size=(f, 3)), rng.normal(size=f)) for f in rng.integers(1, 13, size=m)]
+    faces = None
+    if data.draw(st.booleans()):
+        faces = [np.flatnonzero(rng.random(a.shape[0]) < 0.5) for a, _ in polys]
+    fast = _build(polys, wp, wp[0], wp[-1], cfg, faces)
+    _assert_same_qp(fast, _build_coo(polys, wp, wp[0], wp[-1], cfg, faces))
+
+
+def test_direct_csc_build_falls_back_when_a_join_scale_underflows():
+    """A duration ratio whose cube underflows to 0 makes the COO path drop that entry; _build hands over to it."""
+    from cinenerf_ns.planner.trajectory.qp import _build, _build_coo, _equality_pattern
+
+    wp = np.array([[0.0, 0, 0], [0.01, 0, 0], [1e107, 0, 0]])  # durations 0.05 and 2e107: (0.05 / 2e107)^3 = 0
+    polys = [(np.eye(3), np.ones(3))] * 2
+    cfg = TrajectoryConfig(continuity=3)
+    with np.errstate(over="ignore"):  # the smoothness weight of the 2e107 s segment is 1 / inf = 0
+        ref = _build_coo(polys, wp, wp[0], wp[-1], cfg)
+        fast = _build(polys, wp, wp[0], wp[-1], cfg)
+    assert np.count_nonzero(ref.eq_dense) < 3 * _equality_pattern(2, cfg.degree, cfg.rest_at_ends, 3).coef.size
+    _assert_same_qp(fast, ref)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_clarabel_from_lists_matches_scipy_input(seed):
+    """_solve_clarabel hands Clarabel the matrices as lists (_CscLists): the same iterates as the scipy matrices."""
+    import clarabel
+
+    from cinenerf_ns.planner.trajectory.qp import _solve_clarabel, build_corridor_qp
+
+    cfg = TrajectoryConfig()
+    polys, wp = random_corridor(seed, m=4)
+    qp = build_corridor_qp(polys, wp, wp[0], wp[-1], cfg)
+    settings = clarabel.DefaultSettings()
+    settings.verbose = False
+    settings.iterative_refinement_enable = False
+    for name in ("tol_feas", "tol_gap_abs", "tol_gap_rel"):
+        setattr(settings, name, cfg.tolerance)
+    cones = [clarabel.ZeroConeT(qp.n_eq), clarabel.NonnegativeConeT(qp.n_in)]
+    ref = clarabel.DefaultSolver(qp.P_upper, np.zeros(qp.n), qp.A, qp.b, cones, settings).solve()
+    x, _, iters, outcome = _solve_clarabel(qp, cfg)
+    assert outcome == "ok" and iters == ref.iterations
+    np.testing.assert_array_equal(x, np.asarray(ref.x))
+
+
+def _project_reference(x, qp):
+    """The plain projection: scipy's cho_factor / cho_solve, least squares when the Gram matrix is singular."""
+    from scipy.linalg import LinAlgError, cho_factor, cho_solve
+
+    a = qp.eq_dense
+    resid = a @ x - qp.b_eq
+    gram = a @ a.T
+    try:
+        corr = cho_solve(cho_factor(gram), resid)
+    except LinAlgError:
+        corr, *_ = np.linalg.lstsq(gram, resid, rcond=None)
+    return x - a.T @ corr
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), m=st.integers(1, 6), degree=st.integers(3, 7), dependent=st.booleans())
+def test_project_equalities_matches_scipy_cholesky(seed, m, degree, dependent):
+    """_project_equalities (LAPACK potrf / potrs directly) gives the plain scipy projection bit for bit; with a
+    repeated equality row (singular Gram matrix) both take the same branch (least squares when potrf fails, which
+    rounding decides)."""
+    import scipy.sparse as sp
+
+    from cinenerf_ns.planner.trajectory.qp import CorridorQP, _project_equalities, build_corridor_qp
+
+    polys, wp = random_corridor(seed % 1000, m=m)
+    qp = build_corridor_qp(polys, wp, wp[0], wp[-1], TrajectoryConfig(degree=degree, continuity=2))
+    if dependent:
+        a_eq = sp.vstack([qp.A_eq, qp.A_eq[-1]])
+        qp = CorridorQP.from_matrices(qp.P, a_eq, np.append(qp.b_eq, qp.b_eq[-1]), qp.A_in, qp.b_in, qp.durations,
+                                      qp.degree, qp.num_segments, qp.polytopes)
+    x = np.random.default_rng(seed).normal(size=qp.n)
+    np.testing.assert_array_equal(_project_equalities(x, qp), _project_reference(x, qp))

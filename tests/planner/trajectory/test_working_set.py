@@ -11,7 +11,7 @@ from test_qp import check_solution, random_corridor  # this folder is on sys.pat
 
 from cinenerf_ns.planner.trajectory import working_set
 from cinenerf_ns.planner.trajectory.qp import CorridorInfeasibleError, TrajectoryConfig, solve_corridor_qp
-from cinenerf_ns.planner.trajectory.working_set import add_violated, free_ranges, initial_faces, reach
+from cinenerf_ns.planner.trajectory.working_set import add_violated, face_norms, free_ranges, initial_faces, reach
 
 # Control points of the working-set and all-faces solves may differ by more than rounding: both are Clarabel optima
 # to a 1e-8 gap, and along flat directions of the cost (curvature lam) a gap g moves x by up to sqrt(2 g / lam).
@@ -91,6 +91,11 @@ def test_first_relaxation_alone_would_leave_the_corridor(monkeypatch):
     free = free_ranges(len(pp), npts, cfg.rest_at_ends)
     grown, violated = add_violated(x.reshape(len(pp), npts, 3), pp, faces, cfg.margin, free, np.zeros(len(pp)))
     assert violated > 0 and sum(g.size for g in grown) > sum(f.size for f in faces)
+    # the face norms solve_corridor_qp takes once and hands to every round: the same sets as computing them here
+    norms = face_norms(pp)
+    assert all(np.array_equal(f, g) for f, g in zip(faces, initial_faces(pp, wp, np.zeros(len(pp)), norms)))
+    again, n = add_violated(x.reshape(len(pp), npts, 3), pp, faces, cfg.margin, free, np.zeros(len(pp)), norms)
+    assert n == violated and all(np.array_equal(f, g) for f, g in zip(grown, again))
 
 
 def test_max_rounds_falls_back_to_all_faces(monkeypatch):
