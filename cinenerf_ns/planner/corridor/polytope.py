@@ -49,6 +49,7 @@ import torch
 from torch import Tensor
 
 from ..errors import InvalidInputError, PlanningError
+from ..tensor_pickle import NumpyPickled
 from .polytope_native import native_applies, native_arrays, native_safe_polytope
 from .polytope_planes import cut_by, plane_candidates, segment_frame_np, support_gap
 
@@ -66,8 +67,8 @@ class SeedNotFreeError(PlanningError):
 
 
 @dataclass
-class Polytope:
-    """Convex polytope {x : A x <= b} with unit-norm rows of A."""
+class Polytope(NumpyPickled):
+    """Convex polytope {x : A x <= b} with unit-norm rows of A. Pickles its CPU tensors as numpy (tensor_pickle.py)."""
 
     A: Tensor  # [F, 3] unit outward normals
     b: Tensor  # [F]

@@ -45,6 +45,7 @@ from torch import Tensor
 
 from ..errors import InvalidInputError, PlanningError
 from ..host_pool import ordered_map
+from ..tensor_pickle import NumpyPickled
 from .polytope import Polytope, SeedNotFreeError, chebyshev_center, safe_polytope
 from .polytope_batched import safe_polytopes_batched
 
@@ -54,8 +55,9 @@ class CorridorError(PlanningError):
 
 
 @dataclass
-class Corridor:
-    """Polytopes P_0..P_{M-1} around the segments of waypoints w_0..w_M (P_m contains [w_m, w_{m+1}])."""
+class Corridor(NumpyPickled):
+    """Polytopes P_0..P_{M-1} around the segments of waypoints w_0..w_M (P_m contains [w_m, w_{m+1}]). Pickles its
+    CPU tensors as numpy (tensor_pickle.py)."""
 
     polytopes: list[Polytope]
     waypoints: Tensor  # [M+1, 3] float64
