@@ -103,10 +103,10 @@ class PlannerConfig:
     candidate_workers: Optional[int] = None
     """Forked processes plan_candidates spreads candidates over (workers.py). None: one per CPU with 'fork' and
     >= 4 CPUs, else 0; 0: in this process. Never with requests on a GPU (no CUDA after fork)."""
-    corridor_threads: Optional[int] = None
-    """How many corridor polytopes a request builds at once (threads: their compiled kernels release the GIL; the
-    same corridor whatever the number). None: one per usable CPU, at most CORRIDOR_THREADS_MAX; always 1 inside a
-    candidate worker (one process per core already)."""
+    corridor_threads: Optional[int] = 1
+    """How many Prop-2 corridor polytopes a request builds at once (threads: their compiled kernel releases the GIL;
+    the same corridor whatever the number). None: one per usable CPU, at most CORRIDOR_THREADS_MAX; always 1 inside a
+    candidate worker. 1 because threads cut the corridor's p95 but lost on its median (docs/PLANNER_DEFAULTS.md)."""
     worker_scoring: bool = True
     """With candidate workers, each also computes its shot's score inputs (sight lines, exact clearance); False:
     the parent scores them (on the GPU when the scene is there) while the workers run. Same score terms."""

@@ -54,11 +54,14 @@ def test_candidates_two_phase_rounds_follow_the_many_corridor_backend(monkeypatc
 
 
 def test_corridor_threads_resolution(monkeypatch):
+    assert PlannerConfig().corridor_threads == 1  # the default (docs/PLANNER_DEFAULTS.md)
     monkeypatch.setattr(corridor_options, "in_worker", lambda: False)
     monkeypatch.setattr(corridor_options, "usable_cpus", lambda: 16)
-    assert corridor_options.corridor_threads(_fake("auto", "cpu", "cpu")) == corridor_options.CORRIDOR_THREADS_MAX
+    auto = _fake("auto", "cpu", "cpu")
+    auto.config.corridor_threads = None
+    assert corridor_options.corridor_threads(auto) == corridor_options.CORRIDOR_THREADS_MAX
     monkeypatch.setattr(corridor_options, "usable_cpus", lambda: 2)
-    assert corridor_options.corridor_threads(_fake("auto", "cpu", "cpu")) == 2
+    assert corridor_options.corridor_threads(auto) == 2
     pl = _fake("auto", "cpu", "cpu")
     pl.config.corridor_threads = 3
     assert corridor_options.corridor_threads(pl) == 3
