@@ -233,18 +233,18 @@ def _candidate_finish_task(planner: Planner, config, corridor, start: np.ndarray
     return {"shot": sh, "error": None, "timings": tm}
 
 
-def _with_request_threads(fn):
-    """Run fn(planner, ...) under the planner's request thread setting (Planner.request_threads)."""
+def _in_request_scope(fn):
+    """Run fn(planner, ...) under the planner's request settings (Planner.request_scope)."""
 
     @functools.wraps(fn)
     def wrapper(planner: Planner, *args, **kwargs):
-        with planner.request_threads():
+        with planner.request_scope():
             return fn(planner, *args, **kwargs)
 
     return wrapper
 
 
-@_with_request_threads
+@_in_request_scope
 def plan_candidates(
     planner: Planner,
     goal: Any,
