@@ -164,3 +164,23 @@ def test_shortcut_pass_edge_cases(monkeypatch):
         got = S.shortcut_pass(pl, ways, grid_rule)
         assert [g.tolist() for g in got] == [ways[0].tolist(), ways[1].tolist(), ways[2][[0, 4]].tolist(),
                                              ways[3][[0, 3]].tolist()]
+
+
+def test_grid_sight_sample_exactly_one_voxel_from_an_end_does_not_count(monkeypatch):
+    """Grid sight counts only samples farther than one voxel from both ends (strictly). Segment (0.5 -> 4.5) along x
+    with voxel size 1: its samples are 0.5 apart, the one at x = 1.5 is exactly one voxel from the start, and voxel 1
+    is occupied. The walk refuses the segment, grid sight must let it through to the pieces (here: all free), so both
+    backends jump from the first point to the last; counting that sample would keep the middle point."""
+    import cinenerf_ns.planner.search.shortcut as S
+    from cinenerf_ns.planner import native
+    from cinenerf_ns.planner.search.astar import batched_shortcut
+
+    monkeypatch.setattr(S, "segments_free_by_pieces", lambda pl, a, b: np.ones(len(a), dtype=bool))
+    occ = np.zeros((6, 2, 2), dtype=bool)
+    occ[1, 0, 0] = True
+    pl = rounds_planner(occ, np.zeros(3), 1.0)
+    way = np.array([[0.5, 0.5, 0.5], [2.5, 0.5, 0.5], [4.5, 0.5, 0.5]])
+    want = [way[[0, 2]].tolist()]
+    assert [w.tolist() for w in batched_shortcut([way], lambda p0, p1: S.shortcut_test(pl, p0, p1, False))] == want
+    for backend in ["python"] + (["native"] if native.shortcut_rounds_c() is not None else []):
+        assert [w.tolist() for w in S.shortcut_pass(pl, [way], False, backend=backend)] == want
