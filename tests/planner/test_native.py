@@ -220,3 +220,19 @@ def test_backend_errors():
     occ = np.zeros((4, 4, 4), bool)
     with pytest.raises(Exception, match="backend"):
         astar(occ, (0, 0, 0), (3, 3, 3), backend="fast")
+
+
+@settings(max_examples=200, deadline=None)
+@given(lb=st.lists(st.sampled_from([-0.8, 0.0, 0.25, 1.0, 1.5, 3.0]) | st.floats(-1.0, 50.0), max_size=200),
+       depth=st.sampled_from([0, 1, 3, 64]), pattern=st.sampled_from(["as drawn", "sorted", "reversed", "equal"]))
+def test_native_cube_sort_is_lexsort(lb, depth, pattern):
+    """gridpoly.c's cube sort (quicksort, insertion sort for small runs, qsort past the depth limit): the order of
+    numpy's lexsort by (lower bound, then index), which the Python grid polytope visits (a stable argsort)."""
+    fn = native.sort_cubes_c()
+    if fn is None:
+        pytest.skip("the compiled grid polytope does not load here")
+    x = np.asarray(lb, dtype=np.float64)
+    x = {"sorted": np.sort(x), "reversed": np.sort(x)[::-1].copy(), "equal": np.zeros_like(x)}.get(pattern, x)
+    out = np.empty(len(x), dtype=np.int64)
+    assert fn(x.ctypes.data, len(x), depth, out.ctypes.data) == 0
+    assert np.array_equal(out, np.lexsort((np.arange(len(x)), x)))

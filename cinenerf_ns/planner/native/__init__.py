@@ -248,6 +248,11 @@ def shortcut_rounds_c():
                      _I64)
 
 
+def sort_cubes_c():
+    """The grid polytope's cube sort on its own (gridpoly.c: cn_sort_cubes; for its test), or None."""
+    return _function("gridpoly", "cn_sort_cubes", [_P, _I64, _I64, _P], _I64)
+
+
 def grid_polytope_c():
     """The compiled grid polytope planes (gridpoly.c: cn_grid_polytope), or None."""
     return _function("gridpoly", "cn_grid_polytope", [_P, _P, _P, _P, _P, _P, _F64, _I64, _P, _P], _I64)

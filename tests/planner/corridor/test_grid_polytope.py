@@ -276,3 +276,19 @@ def test_auto_resolves_by_voxel_size_against_the_camera_radius():
     assert not Planner(sc, PlannerConfig(grid_resolution=96, grid_polytopes=False)).use_grid_polytopes()
     with pytest.raises(InvalidInputError):
         Planner(sc, PlannerConfig(grid_polytopes="yes"))
+
+
+def test_ties_pick_the_same_cube_in_both_constructions():
+    """Two walls at the same distance from a segment: every nearest cube has twins on the other wall and along the
+    segment. The compiled construction must visit the cubes in the Python one's order (lower bound, then scan order;
+    native/gridpoly.c sorts them itself) and so keep the same planes, ties included."""
+    occ = np.zeros((12, 5, 5), dtype=bool)
+    occ[:, 0, :] = True
+    occ[:, 4, :] = True
+    a, c = np.array([1.5, 2.5, 2.5]), np.array([10.5, 2.5, 2.5])
+    for margin_box in (1.0, 2.5, 6.0):
+        lo, hi = np.minimum(a, c) - margin_box, np.maximum(a, c) + margin_box
+        got = grid_polytope_planes(surface_voxels(occ), a, c, lo, hi, 1e-9, backend="auto")
+        ref = grid_polytope_planes(surface_voxels(occ), a, c, lo, hi, 1e-9, backend="python")
+        assert got is not None and ref is not None
+        assert np.array_equal(got[0], ref[0]) and np.array_equal(got[1], ref[1])
