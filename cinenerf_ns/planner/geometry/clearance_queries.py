@@ -167,7 +167,7 @@ def clearance(planner: "Planner", points, cap: Optional[float] = None, batch: bo
         # capped queries start from the grid's estimate (far fewer search rounds); uncapped ones keep the small
         # default start: their far points would otherwise gather many more pairs
         start = None if cap is None else torch.as_tensor(distance_estimate(planner, pts[todo]), device=scene.device)
-        with planner.request_scope():
+        with planner.request_threads():
             out[todo] = exact_clearance(p, scene, index, max_distance=md, start_radius=start).detach().cpu().numpy()
     return out
 

@@ -233,18 +233,18 @@ def _candidate_finish_task(planner: Planner, config, corridor, start: np.ndarray
     return {"shot": sh, "error": None, "timings": tm}
 
 
-def _in_request_scope(fn):
-    """Run fn(planner, ...) under the planner's request settings (Planner.request_scope)."""
+def _with_request_threads(fn):
+    """Run fn(planner, ...) under the planner's request thread setting (Planner.request_threads)."""
 
     @functools.wraps(fn)
     def wrapper(planner: Planner, *args, **kwargs):
-        with planner.request_scope():
+        with planner.request_threads():
             return fn(planner, *args, **kwargs)
 
     return wrapper
 
 
-@_in_request_scope
+@_with_request_threads
 def plan_candidates(
     planner: Planner,
     goal: Any,

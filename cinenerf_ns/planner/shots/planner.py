@@ -28,7 +28,6 @@ from ..blas_threads import blas_threads, warm_blas_controller
 from ..corridor import corridor_options
 from ..corridor.corridor_options import GRID_POLYTOPE_MAX_VOXEL  # noqa: F401 (re-exported: PlannerConfig.grid_polytopes)
 from ..errors import InvalidInputError
-from ..gc_pause import paused_gc
 from ..geometry import clearance_queries
 from ..scene import planning_region
 from ..scene.ellipsoids import EllipsoidScene
@@ -87,9 +86,6 @@ class PlannerConfig:
     or a point in other units, never something to move silently)."""
     max_attempts_per_candidate: int = 4
     """Random starts tried per requested candidate before giving up on it."""
-    pause_gc: bool = True
-    """Python's cyclic garbage collector is paused while a request runs (gc_pause.py: a prepared 1M scene leaves
-    ~210k tracked objects for each collection to walk); False: untouched."""
     plan_cpu_threads: Optional[int] = 1
     """torch intra-op and BLAS threads while a request runs (restored afterwards; None: untouched); 1 because
     a request's thousands of small ops lose more to thread hand-offs than they gain."""
@@ -130,8 +126,6 @@ class PlannerConfig:
             raise InvalidInputError(f"start_look_distance must be a fraction in [0, 1) of the start region's longest "
                                     f"side, got {d!r}")
         validate_workers(self.candidate_workers)
-        if not isinstance(self.pause_gc, bool):
-            raise InvalidInputError(f"pause_gc must be True or False, got {self.pause_gc!r}")
         t = self.corridor_threads
         if t is not None and (isinstance(t, bool) or not isinstance(t, (int, np.integer)) or t < 1):
             raise InvalidInputError(f"corridor_threads must be None (auto) or an integer >= 1, got {t!r}")
@@ -184,7 +178,7 @@ class Planner:
                                                   mirror=self._mirror_to_cpu())
         if self.config.plan_cpu_threads is not None:
             t = time.perf_counter()
-            warm_blas_controller()  # what request_scope's first use would build, off the request path
+            warm_blas_controller()  # what request_threads' first use would build, off the request path
             self.prepared.timings_ms["blas_ms"] = 1e3 * (time.perf_counter() - t)
         return self.prepared
 
@@ -353,22 +347,21 @@ class Planner:
         Raises InvalidInputError, StartInCollisionError, GoalUnreachableError (see messages).
         Every returned shot's exact clearance along the densely sampled curve is >= 0; explain_goal says why a
         shot ends away from ``goal``."""
-        with self.request_scope():
+        with self.request_threads():
             return plan_request(self, goal, look_at, start, seed, n_candidates, force_start)
 
     @contextlib.contextmanager
-    def request_scope(self):
-        """What every request runs under (restored afterwards): torch CPU threads = config.plan_cpu_threads (a plan
-        is many small ops, for which extra threads cost more than they give), numpy's / scipy's BLAS threads capped the
-        same way (blas_threads, on any device: the QP's linear algebra always runs on the CPU), and Python's cyclic
-        garbage collector paused when config.pause_gc (gc_pause.py)."""
+    def request_threads(self):
+        """torch CPU threads = config.plan_cpu_threads while a request runs (restored afterwards): a plan is
+        many small ops, for which extra threads cost more than they give. numpy's / scipy's BLAS threads are capped
+        the same way (blas_threads), on any device: the QP's linear algebra always runs on the CPU."""
         threads, old = self.config.plan_cpu_threads, torch.get_num_threads()
         on_cpu = self.scene.device.type == "cpu" or self._mirror_to_cpu()  # the mirror exists once prepared
         swap = threads is not None and on_cpu and int(threads) != old
         if swap:
             torch.set_num_threads(int(threads))
         try:
-            with blas_threads(threads), paused_gc(self.config.pause_gc):
+            with blas_threads(threads):
                 yield
         finally:
             if swap:

@@ -39,7 +39,6 @@ import torch
 
 from ..blas_threads import set_blas_threads
 from ..errors import InvalidInputError
-from ..gc_pause import paused_gc
 
 # the planner a worker serves; set in the child by _init_worker (inherited through fork, never pickled)
 _PLANNER: Any = None
@@ -128,8 +127,7 @@ def _task(fn: Callable, args: tuple) -> bytes:
 
 def _call(task: bytes) -> bytes:
     fn, args = pickle.loads(task)
-    with paused_gc(bool(getattr(_PLANNER.config, "pause_gc", True))):  # as Planner.request_scope does
-        return pickle.dumps(fn(_PLANNER, *args), protocol=pickle.HIGHEST_PROTOCOL)
+    return pickle.dumps(fn(_PLANNER, *args), protocol=pickle.HIGHEST_PROTOCOL)
 
 
 __all__ = ["BrokenProcessPool", "CandidatePool", "candidate_workers", "default_workers", "fork_available", "pool_for",
