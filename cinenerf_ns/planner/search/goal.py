@@ -362,8 +362,8 @@ def closest_safe_point(
     # already (half the projection's INTERIOR_RADIUS: a proof the projection's own emptiness rule agrees with)
     P = safe_polytope(t[None], scene, index, t - box_half, t + box_half, margin=margin, require_seed_inside=False,
                       stop_when_empty=0.5 * INTERIOR_RADIUS)
-    A, b = P.to_numpy()
-    x = _project_onto_polytope(A, b, t.cpu().numpy())
+    # a proven-empty polytope has no point to project onto (the projection would answer None after ~0.25 ms)
+    x = None if P.proven_empty else _project_onto_polytope(*P.to_numpy(), t.cpu().numpy())
     if x is not None:
         return torch.as_tensor(x, dtype=torch.float64, device=dev)
     if grid is None:
@@ -384,6 +384,27 @@ def mean_voxel_mask(scene, grid) -> np.ndarray:
     out = np.zeros(occ.shape, dtype=bool)
     out[v[:, 0], v[:, 1], v[:, 2]] = True
     return out
+
+
+def _nearest_chunks(centres: np.ndarray, d: np.ndarray, limit: int, chunk: int):
+    """(k, centres [<= chunk, 3] as a tensor) of the ``limit`` nearest centres (distances d [K]) in chunks, in the order
+    of a stable argsort of d. The first chunk is selected by a partition (usually the only one looked at: a full sort
+    of a large window cost ~0.1 ms a goal); the rest by the full sort."""
+    limit = min(limit, len(d))
+    k0 = min(chunk, limit)
+    if k0 <= 0:
+        return
+    if len(d) > 4 * chunk:
+        thr = np.partition(d, k0 - 1)[k0 - 1]
+        sel = np.flatnonzero(d <= thr)  # ascending index: the stable sort below keeps argsort's tie order
+        first = sel[np.argsort(d[sel], kind="stable")[:k0]]
+    else:
+        first = np.argsort(d, kind="stable")[:k0]
+    yield 0, torch.from_numpy(centres[first])
+    if limit > k0:
+        order = np.argsort(d, kind="stable")[:limit]
+        for k in range(k0, limit, chunk):
+            yield k, torch.from_numpy(centres[order[k:k + chunk]])
 
 
 def _nearest_free_voxel_centre(t, scene, index, grid, reachable, clear, max_candidates, mean_voxels=None) -> Tensor:
@@ -427,11 +448,10 @@ def _nearest_free_voxel_centre(t, scene, index, grid, reachable, clear, max_cand
             d = np.sqrt(((centres - t_np) ** 2).sum(1))
             # every voxel outside the window is at least R voxels away (target inside the grid)
             if float(d.min()) <= R * vs or covers_all:
-                cand = torch.from_numpy(centres[np.argsort(d, kind="stable")[:max_candidates]])
-                for k in range(0, cand.shape[0], 16):  # nearest first, a few exact tests at a time
-                    ok = torch.as_tensor(clear(cand[k:k + 16].to(scene.means.device))).reshape(-1).cpu()
+                for k, cand in _nearest_chunks(centres, d, max_candidates, 16):  # a few exact tests at a time
+                    ok = torch.as_tensor(clear(cand.to(scene.means.device))).reshape(-1).cpu()
                     if bool(ok.any()):
-                        return cand[k + int(torch.nonzero(ok)[0, 0])]
+                        return cand[int(torch.nonzero(ok)[0, 0])]
                 if covers_all:
                     break
         elif covers_all:

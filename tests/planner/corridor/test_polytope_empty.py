@@ -109,6 +109,7 @@ def test_stopped_polytope_is_empty_and_only_when_the_full_one_is(backend, seed):
         Af, bf = full.to_numpy()
         As, bs = stop.to_numpy()
         stopped = stop.ellipsoid_ids.numel() > 0 and int(stop.ellipsoid_ids[-1]) == -1
+        assert stop.proven_empty == stopped and not full.proven_empty  # what closest_safe_point reads
         if stopped:
             stops += 1
             assert chebyshev_center(As, bs)[1] == -np.inf  # explicitly empty: no point at all

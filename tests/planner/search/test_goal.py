@@ -251,6 +251,48 @@ def test_buried_target_uses_the_free_voxel_fallback():
     assert np.linalg.norm(x.numpy()) == pytest.approx(np.linalg.norm(centres, axis=1).min())
 
 
+def test_proven_empty_polytope_skips_the_projection(monkeypatch):
+    """A buried target's polytope proven empty (stop_when_empty) goes straight to the voxel fallback: the same goal
+    as when the projection runs and answers None, without running it."""
+    from cinenerf_ns.planner.corridor import polytope as poly_mod
+    from cinenerf_ns.planner.native import safe_polytope_c
+    from cinenerf_ns.planner.scene.spatial_index import GridIndex
+    from cinenerf_ns.planner.search import goal as goal_mod
+
+    if safe_polytope_c() is None:
+        pytest.skip("no C compiler: the compiled polytope (which proves emptiness here) is not built")
+    scene = buried_scene()
+    index = GridIndex.build(scene)
+    grid = conservative_grid(scene)
+    built = []
+    real_sp = goal_mod.safe_polytope
+    monkeypatch.setattr(goal_mod, "safe_polytope", lambda *a, **k: built.append(real_sp(*a, **k)) or built[-1])
+    calls = []
+    real_proj = goal_mod._project_onto_polytope
+    monkeypatch.setattr(goal_mod, "_project_onto_polytope", lambda *a, **k: calls.append(1) or real_proj(*a, **k))
+    x = closest_safe_point([0.0, 0, 0], scene, index, grid).numpy()
+    assert built and built[-1].proven_empty and not calls
+    monkeypatch.setattr(poly_mod.Polytope, "proven_empty", property(lambda self: False))
+    y = closest_safe_point([0.0, 0, 0], scene, index, grid).numpy()
+    assert calls and np.array_equal(x, y)
+
+
+@settings(max_examples=200, deadline=None)
+@given(d=st.lists(st.integers(0, 6), min_size=0, max_size=120), limit=st.integers(0, 130), chunk=st.integers(1, 20))
+def test_nearest_chunks_are_the_stable_sort_in_chunks(d, limit, chunk):
+    """_nearest_chunks (partition for the first chunk) against a full stable argsort cut into chunks; many ties."""
+    from cinenerf_ns.planner.search.goal import _nearest_chunks
+
+    d = np.asarray(d, dtype=np.float64) * 0.5
+    centres = np.arange(3 * len(d), dtype=np.float64).reshape(-1, 3)  # row i holds 3i, 3i+1, 3i+2: identifies i
+    order = np.argsort(d, kind="stable")[:min(limit, len(d))]
+    want = [(k, centres[order[k:k + chunk]]) for k in range(0, len(order), chunk)]
+    got = list(_nearest_chunks(centres, d, limit, chunk))
+    assert [k for k, _ in got] == [k for k, _ in want]
+    for (_, a), (_, b) in zip(got, want):
+        assert np.array_equal(a.numpy(), b)
+
+
 def test_fallback_skips_voxels_holding_a_mean_and_respects_reachable():
     # a tiny Gaussian (r = 0: it only blocks its own point) sits in the nearest free voxel
     scene = buried_scene(r=0.0)
