@@ -213,6 +213,7 @@ static double seg_cube_closest(const double u0[3], const double d[3], const doub
 typedef struct {
     double lb, v[3];
     int64_t order;  /* position in the scan: ties keep the scan order (numpy's stable argsort) */
+    int64_t bucket;  /* cn_grid_polytope: its lower bound's bucket */
 } Cube;
 
 static int cmp_cube(const void *x, const void *y) {
@@ -319,21 +320,50 @@ int64_t cn_grid_polytope(const uint8_t *surface, const int64_t *shape, const dou
                 c->order = K;
                 K++;
             }
-    sort_cubes(cubes, K, 64);
+    /* The scan below visits the alive cubes in ascending (lower bound, scan order), as the Python construction's
+       stable argsort. A full sort of the K cubes (~1000 at 1M Gaussians) was most of this function's time, yet a
+       polytope needs ~6 planes and the scan stops at the first few cubes. So the cubes are grouped into buckets of
+       their lower bound (counting sort, O(K)); the bucket of a lower bound is monotone in it, so the buckets in
+       order, each sorted, are the full sorted order, and a bucket is sorted only when the scan first reaches it. */
+    int64_t nb = K < 64 ? 1 : (K / 8 < 4096 ? K / 8 : 4096);
+    double lbmin = INFINITY, lbmax = -INFINITY;
+    for (int64_t i = 0; i < K; i++) { lbmin = fmin(lbmin, cubes[i].lb); lbmax = fmax(lbmax, cubes[i].lb); }
+    double scale = lbmax > lbmin ? (double)nb / (lbmax - lbmin) : 0.0;
     double *dist = (double *)malloc((K ? K : 1) * sizeof(double));
     double *qs = (double *)malloc((K ? K : 1) * 3 * sizeof(double)), *ps = (double *)malloc((K ? K : 1) * 3 * sizeof(double));
-    int64_t *live = (int64_t *)malloc((K ? K : 1) * sizeof(int64_t)); /* alive cubes, ascending lower bound */
-    int64_t F = 0, status, nlive = K;
-    if (!dist || !qs || !ps || !live) { status = -1; goto done; }
-    for (int64_t i = 0; i < K; i++) { dist[i] = NAN; live[i] = i; }
+    int64_t *live = (int64_t *)malloc((K ? K : 1) * sizeof(int64_t)); /* alive cubes, grouped by bucket */
+    int64_t *bs = (int64_t *)calloc(2 * nb + 1, sizeof(int64_t)), *be = bs ? bs + nb : NULL;  /* bucket ranges */
+    unsigned char *sorted = (unsigned char *)calloc(nb, 1);
+    Cube *tmp = NULL;
+    int64_t F = 0, status;
+    if (!dist || !qs || !ps || !live || !bs || !sorted) { status = -1; goto done; }
+    for (int64_t i = 0; i < K; i++) {
+        dist[i] = NAN;
+        int64_t b = (int64_t)((cubes[i].lb - lbmin) * scale);
+        cubes[i].bucket = b >= nb ? nb - 1 : (b < 0 ? 0 : b);
+        be[cubes[i].bucket]++;
+    }
+    for (int64_t b = 0, at = 0; b < nb; b++) { bs[b] = at; at += be[b]; be[b] = bs[b]; }
+    for (int64_t i = 0; i < K; i++) live[be[cubes[i].bucket]++] = i;  /* scan order within a bucket */
     for (;;) {
         /* the nearest alive cube, exactly: lower bounds in ascending order stop the scan */
         int64_t best = -1;
-        for (int64_t r = 0; r < nlive; r++) {
-            int64_t i = live[r];
-            if (best >= 0 && dist[best] <= cubes[i].lb) break;
-            if (isnan(dist[i])) dist[i] = seg_cube_closest(u0, d, cubes[i].v, qs + 3 * i, ps + 3 * i);
-            if (best < 0 || dist[i] < dist[best]) best = i;
+        int stop = 0;
+        for (int64_t b = 0; b < nb && !stop; b++) {
+            int64_t n = be[b] - bs[b];
+            if (!sorted[b] && n > 1) {  /* the bucket's alive cubes by (lower bound, scan order) */
+                if (!tmp && !(tmp = (Cube *)malloc(K * sizeof(Cube)))) { status = -1; goto done; }
+                for (int64_t r = 0; r < n; r++) tmp[r] = cubes[live[bs[b] + r]];
+                sort_cubes(tmp, n, 64);
+                for (int64_t r = 0; r < n; r++) live[bs[b] + r] = tmp[r].order;
+            }
+            sorted[b] = 1;
+            for (int64_t r = bs[b]; r < be[b]; r++) {
+                int64_t i = live[r];
+                if (best >= 0 && dist[best] <= cubes[i].lb) { stop = 1; break; }
+                if (isnan(dist[i])) dist[i] = seg_cube_closest(u0, d, cubes[i].v, qs + 3 * i, ps + 3 * i);
+                if (best < 0 || dist[i] < dist[best]) best = i;
+            }
         }
         if (best < 0) break;
         if (dist[best] <= margin) { status = -3; goto done; }
@@ -350,16 +380,21 @@ int64_t cn_grid_polytope(const uint8_t *surface, const int64_t *shape, const dou
         memcpy(out_n + 3 * F, n, sizeof n);
         out_b[F] = off;
         F++;
-        /* drop the cubes entirely beyond the plane; the rest stay in order (the scan above only visits them) */
+        /* drop the cubes entirely beyond the plane; the rest stay in order, bucket by bucket (the scan above only
+           visits them) */
         int64_t kept = 0;
-        for (int64_t r = 0; r < nlive; r++) {
-            const double *v = cubes[live[r]].v;
-            if (!(v[0] * n[0] + v[1] * n[1] + v[2] * n[2] + neg >= off)) live[kept++] = live[r];
+        for (int64_t b = 0; b < nb; b++) {
+            int64_t from = bs[b], to = be[b];
+            bs[b] = kept;
+            for (int64_t r = from; r < to; r++) {
+                const double *v = cubes[live[r]].v;
+                if (!(v[0] * n[0] + v[1] * n[1] + v[2] * n[2] + neg >= off)) live[kept++] = live[r];
+            }
+            be[b] = kept;
         }
-        nlive = kept;
     }
     status = F;
 done:
-    free(cubes); free(dist); free(qs); free(ps); free(live);
+    free(cubes); free(dist); free(qs); free(ps); free(live); free(bs); free(sorted); free(tmp);
     return status;
 }

@@ -278,6 +278,28 @@ def test_auto_resolves_by_voxel_size_against_the_camera_radius():
         Planner(sc, PlannerConfig(grid_polytopes="yes"))
 
 
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.integers(0, 10_000), st.sampled_from([0.03, 0.1, 0.25]), st.sampled_from([1.5, 4.0, 8.0]))
+def test_compiled_planes_equal_pythons_with_many_cubes(seed, fill, margin_box):
+    """Boxes holding hundreds of surface cubes, where native/gridpoly.c groups the cubes in buckets of their lower
+    bound and sorts a bucket only when its scan reaches it: the same cubes in the same order as the Python
+    construction's full stable sort, so the same normals bit for bit (the offsets' dot products round in another order
+    in C: ~1e-16)."""
+    case = _random_case(seed, fill, shape=(26, 22, 20))
+    if case is None:
+        return
+    occ, a, c, _ = case
+    if not segments_in_free_voxels(occ, np.zeros(3), 1.0, a[None], c[None])[0]:
+        return
+    lo, hi = np.minimum(a, c) - margin_box, np.maximum(a, c) + margin_box
+    got = grid_polytope_planes(surface_voxels(occ), a, c, lo, hi, 1e-9, backend="native")
+    ref = grid_polytope_planes(surface_voxels(occ), a, c, lo, hi, 1e-9, backend="python")
+    assert (got is None) == (ref is None)
+    if got is not None:
+        assert np.array_equal(got[0], ref[0])
+        np.testing.assert_allclose(got[1], ref[1], rtol=0, atol=1e-12)
+
+
 def test_ties_pick_the_same_cube_in_both_constructions():
     """Two walls at the same distance from a segment: every nearest cube has twins on the other wall and along the
     segment. The compiled construction must visit the cubes in the Python one's order (lower bound, then scan order;
