@@ -261,3 +261,13 @@ def grid_polytope_c():
 def hidden_voxels_c():
     """The compiled sampled sight lines (voxelrays.c: cn_hidden_voxels; method/object_centre.hidden_voxels), or None."""
     return _function("voxelrays", "cn_hidden_voxels", [_P, _I64, _I64, _I64, _P, _I64, _P, _I64, _F64, _P], _I64)
+
+
+def project_primal_c():
+    """The compiled primal active-set projection onto a polytope (project.c: cn_project_primal; goal.py), or None."""
+    return _function("project", "cn_project_primal", [_P, _P, _I64, _P, _P, _I64, _P], _I64)
+
+
+def project_dual_c():
+    """The compiled dual active-set projection onto a polytope (project.c: cn_project_dual; goal.py), or None."""
+    return _function("project", "cn_project_dual", [_P, _P, _I64, _P, _I64, _P], _I64)

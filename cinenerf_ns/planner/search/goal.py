@@ -2,10 +2,11 @@
 
 closest_safe_point (paper Sec. IV-C): the go-to target (e.g. an object's centroid) is usually inside
 the object. We grow a Prop-2 safe polytope around the target (it may exclude the target itself) and
-project the target onto it (a 3-variable QP: an active-set method, Clarabel as fallback); every point
-of that polytope is safe, so the projection is a safe goal as close to the target as that polytope
-allows. When the polytope is empty (target deep inside clutter) we fall back to the nearest free voxel
-of the occupancy grid that holds no Gaussian mean, verified with an exact point clearance test.
+project the target onto it (a 3-variable QP: an active-set method, compiled in native/project.c, Clarabel
+as fallback); every point of that polytope is safe, so the projection is a safe goal as close to the
+target as that polytope allows. When the polytope is empty (target deep inside clutter) we fall back to
+the nearest free voxel of the occupancy grid that holds no Gaussian mean, verified with an exact point
+clearance test.
 
 sample_free_starts: seeded rejection sampling of camera centres in a region, pre-filtered by the
 grid's free voxels and accepted only after an exact clearance test.
@@ -26,6 +27,7 @@ from torch import Tensor
 from ..corridor.polytope import candidate_ids, chebyshev_center, safe_polytope
 from ..corridor.polytope_planes import closest_t
 from ..errors import GoalUnreachableError, InvalidInputError, StartInCollisionError
+from ..native import choose, project_dual_c, project_primal_c
 from ..scene.occupancy import OccupancyGrid
 
 INTERIOR_RADIUS = 1e-9
@@ -138,8 +140,32 @@ def _default_clear(scene, index, margin):
 
 
 # ------------------------------------------------------------------------------------ goal
+def _native_projection_args(A: np.ndarray, b: np.ndarray, target: np.ndarray) -> tuple:
+    """(A [F, 3], b [F], target [3]) as C-contiguous float64 arrays for native/project.c (ValueError on other
+    shapes: the compiled code would read past them)."""
+    A = np.ascontiguousarray(A, dtype=np.float64)
+    b = np.ascontiguousarray(b, dtype=np.float64)
+    if A.ndim != 2 or A.shape[1] != 3 or b.shape != (A.shape[0],):
+        raise ValueError(f"A must be [F, 3] and b [F], got {A.shape} and {b.shape}")
+    return A, b, np.ascontiguousarray(target, dtype=np.float64).reshape(3)
+
+
+def _native_projection_result(code: int, x: np.ndarray, outcomes: dict):
+    """What a native/project.c return code means: x, or outcomes[code]; LinAlgError where numpy's solve raises it,
+    ZeroDivisionError where the Python division by a one-face working set's |a|^2 does (only when it underflows)."""
+    if code == 0:
+        return x
+    if code == -1:
+        raise np.linalg.LinAlgError("Singular matrix")
+    if code == -2:
+        raise ZeroDivisionError("float division by zero")
+    if code in outcomes:
+        return outcomes[code]
+    raise MemoryError("the compiled projection ran out of memory")
+
+
 def project_active_set(A: np.ndarray, b: np.ndarray, target: np.ndarray, x0: np.ndarray,
-                       max_iter: int = 60) -> Optional[np.ndarray]:
+                       max_iter: int = 60, backend: str = "auto") -> Optional[np.ndarray]:
     """argmin_x |x - target|^2 s.t. A x <= b (A [F, 3], b [F]) by the primal active-set method (Nocedal &
     Wright, Alg. 16.3, Hessian I) from the feasible point x0 [3] -> x [3], or None when it does not
     finish in ``max_iter`` steps (degenerate vertices can cycle; the caller then uses a QP solver).
@@ -148,7 +174,18 @@ def project_active_set(A: np.ndarray, b: np.ndarray, target: np.ndarray, x0: np.
     3x3 solve, and the whole projection is a few steps of ~10 us where Clarabel's set-up and interior-point
     iterations cost ~1 ms per goal. Exact up to rounding (the multipliers prove optimality); rounding can leave
     A x - b at ~1e-16, which the caller removes.
+    backend: "auto" (native/project.c's cn_project_primal, the same steps up to rounding, when it loads),
+    "native" or "python" (this numpy code, the reference); a singular working set raises np.linalg.LinAlgError on
+    both.
     """
+    fn = choose(backend, project_primal_c, "project", "active-set projection")
+    if fn is not None:
+        A, b, t = _native_projection_args(A, b, target)
+        x0 = np.ascontiguousarray(x0, dtype=np.float64).reshape(3)
+        x = np.empty(3)
+        code = fn(A.ctypes.data, b.ctypes.data, A.shape[0], t.ctypes.data, x0.ctypes.data, int(max_iter),
+                  x.ctypes.data)
+        return _native_projection_result(code, x, {1: None})
     A = np.asarray(A, dtype=np.float64)  # [F, 3]
     b = np.asarray(b, dtype=np.float64)  # [F]
     t = np.asarray(target, dtype=np.float64).reshape(3)
@@ -198,7 +235,7 @@ def project_active_set(A: np.ndarray, b: np.ndarray, target: np.ndarray, x0: np.
 
 
 def project_dual_active_set(A: np.ndarray, b: np.ndarray, target: np.ndarray,
-                            max_iter: Optional[int] = None) -> Union[np.ndarray, None, str]:
+                            max_iter: Optional[int] = None, backend: str = "auto") -> Union[np.ndarray, None, str]:
     """argmin_x |x - target|^2 s.t. A x <= b (A [F, 3], b [F]) by the dual active-set method of Goldfarb & Idnani
     (Math. Programming 27, 1983; Hessian I) -> x [3], None when the polytope is empty, or "unfinished" when it does
     not finish in ``max_iter`` steps or a step is too ill-conditioned to trust (the caller then solves it another way).
@@ -210,7 +247,17 @@ def project_dual_active_set(A: np.ndarray, b: np.ndarray, target: np.ndarray,
     nonnegative multipliers (dual feasible); the objective only grows, so faces cannot cycle in exact arithmetic.
     Empty polytope: the violated face's normal lies in the span of the working set's and no multiplier can shrink
     (Farkas: a nonnegative combination of faces proves A x <= b infeasible). Rounding leaves A x - b at ~1e-16
-    relative; callers tighten b when they need the point strictly inside."""
+    relative; callers tighten b when they need the point strictly inside.
+    backend: "auto" (native/project.c's cn_project_dual, the same steps up to rounding, when it loads),
+    "native" or "python" (this numpy code, the reference); a singular working set raises np.linalg.LinAlgError on
+    both."""
+    fn = choose(backend, project_dual_c, "project", "dual active-set projection")
+    if fn is not None:
+        A, b, t = _native_projection_args(A, b, target)
+        x = np.empty(3)
+        code = fn(A.ctypes.data, b.ctypes.data, A.shape[0], t.ctypes.data,
+                  50 + 4 * A.shape[0] if max_iter is None else int(max_iter), x.ctypes.data)
+        return _native_projection_result(code, x, {1: None, 2: "unfinished"})
     A = np.asarray(A, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
     x = np.asarray(target, dtype=np.float64).reshape(3).copy()
