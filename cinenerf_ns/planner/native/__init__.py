@@ -271,3 +271,26 @@ def project_primal_c():
 def project_dual_c():
     """The compiled dual active-set projection onto a polytope (project.c: cn_project_dual; goal.py), or None."""
     return _function("project", "cn_project_dual", [_P, _P, _I64, _P, _I64, _P], _I64)
+
+
+# the curve arguments both timing.c entry points start with (timing._native_curve)
+_CURVE = [_P, _I64, _I64,  # power coefficients of p' [M, n+1, 3], M, n+1
+          _P, _P, _F64]  # segment starts [M], durations [M], total duration
+
+
+def arc_length_table_c():
+    """The compiled arc-length table (timing.c: cn_arc_length_table; trajectory/timing.arc_length_table), or None."""
+    return _function("timing", "cn_arc_length_table",
+                     [*_CURVE, _I64, _P, _P,  # samples per segment, Gauss-Legendre nodes [5], weights [5]
+                      _P, _P, _P],  # out: tau [K], s [K], speed at tau [K] or NULL
+                     _I64)
+
+
+def invert_arc_length_c():
+    """The compiled arc-length inversion (timing.c: cn_invert_arc_length; trajectory/timing.invert_arc_length with
+    the table's speeds), or None."""
+    return _function("timing", "cn_invert_arc_length",
+                     [*_CURVE, _P, _P,  # Gauss-Legendre nodes [5], weights [5]
+                      _P, _P, _P, _I64,  # table: tau [K], s [K], speed [K], K
+                      _P, _I64, _F64, _P],  # arc lengths s [T], T, Newton tolerance, out: tau [T]
+                     _I64)

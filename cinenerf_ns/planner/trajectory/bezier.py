@@ -192,16 +192,22 @@ class BezierTrajectory:
         shot). Horner's rule on the power-basis coefficients of p' (cached): about twice as fast as derivative(t, 1)
         and equal to its norm up to rounding (~1e-13 relative), but not exactly 0 where the curve rests."""
         seg, u = self.segment_of(t)
-        hit = self._dcp.get("power1")
-        if hit is None or hit[0] is not self.control_points or hit[1] is not self.durations:
-            hit = (self.control_points, self.durations, power_coefficients(self._derivative_points(1)))
-            self._dcp["power1"] = hit
-        c = hit[2][seg]  # [T, n+1, 3]: c_0 + c_1 u + ... + c_n u^n per point
+        c = self.speed_coefficients()[seg]  # [T, n+1, 3]: c_0 + c_1 u + ... + c_n u^n per point
         out = c[:, -1].copy()
         for j in range(c.shape[1] - 2, -1, -1):
             out *= u[:, None]
             out += c[:, j]
         return np.sqrt(np.einsum("tc,tc->t", out, out))
+
+    def speed_coefficients(self) -> np.ndarray:
+        """Power-basis coefficients [M, n+1, 3] of p' per segment (C-contiguous, cached like _derivative_points): what
+        speed evaluates by Horner's rule, and native/timing.c with it."""
+        hit = self._dcp.get("power1")
+        if hit is None or hit[0] is not self.control_points or hit[1] is not self.durations:
+            hit = (self.control_points, self.durations,
+                   np.ascontiguousarray(power_coefficients(self._derivative_points(1))))
+            self._dcp["power1"] = hit
+        return hit[2]
 
     def _derivative_points(self, order: int) -> np.ndarray:
         """derivative_control_points(order) [M, D+1-order, 3], cached (see __post_init__)."""

@@ -88,10 +88,33 @@ class TimedPath:
     fps: float
 
 
-def arc_length_table(traj: BezierTrajectory, samples_per_segment: int = 64, with_speed: bool = False):
+def _native_curve(traj: BezierTrajectory) -> tuple:
+    """(the curve arguments native/timing.c's entry points start with, the arrays they point into: keep them)."""
+    coef, starts, durations = traj.speed_coefficients(), traj.segment_starts, np.ascontiguousarray(traj.durations)
+    return (coef.ctypes.data, coef.shape[0], coef.shape[1], starts.ctypes.data, durations.ctypes.data,
+            traj.total_duration), (coef, starts, durations)
+
+
+def arc_length_table(traj: BezierTrajectory, samples_per_segment: int = 64, with_speed: bool = False,
+                     backend: str = "auto"):
     """(tau [K], s [K]): cumulative arc length at a dense grid of curve times (monotone, s[0] = 0).
-    with_speed: also the speed |p'(tau)| [K] at the grid times (same derivative evaluation; for invert_arc_length)."""
+    with_speed: also the speed |p'(tau)| [K] at the grid times (same derivative evaluation; for invert_arc_length).
+    backend: "auto" (native/timing.c's cn_arc_length_table, the same arithmetic, when it loads), "native" or
+    "python" (the numpy reference below)."""
+    from ..native import arc_length_table_c, choose
+
     nodes, weights = _GL5
+    fn = choose(backend, arc_length_table_c, "timing", "arc-length table")
+    if fn is not None:
+        S = int(samples_per_segment)
+        if S < 0:  # numpy's linspace refuses these too (but for -1)
+            raise ValueError(f"samples_per_segment must be >= 0, got {S}")
+        K = traj.num_segments * S + 1
+        tau, s, v = np.empty(K), np.empty(K), (np.empty(K) if with_speed else None)
+        args, _keep = _native_curve(traj)
+        fn(*args, S, nodes.ctypes.data, weights.ctypes.data, tau.ctypes.data, s.ctypes.data,
+           None if v is None else v.ctypes.data)
+        return (tau, s, v) if with_speed else (tau, s)
     lin = np.linspace(0.0, 1.0, samples_per_segment + 1)[:-1]
     # per segment start + duration * lin, all segments in one broadcast (the same float64 operations)
     grid = traj.segment_starts[:, None] + traj.durations[:, None] * lin[None, :]  # [M, samples]
@@ -132,15 +155,31 @@ def _hermite_guess(tau_tab: np.ndarray, s_tab: np.ndarray, v_tab: np.ndarray, i:
 
 
 def invert_arc_length(traj: BezierTrajectory, tau_tab: np.ndarray, s_tab: np.ndarray, s: np.ndarray,
-                      v_tab: "np.ndarray | None" = None) -> np.ndarray:
+                      v_tab: "np.ndarray | None" = None, backend: str = "auto") -> np.ndarray:
     """Curve times tau [T] with arc length s [T]: table bracket, then safeguarded Newton steps.
 
     Start: the cubic Hermite model of the table interval when the table's speeds v_tab [K] are given
     (arc_length_table(..., with_speed=True)), else linear interpolation (off by ~0.1% in local speed where
     |p'| varies fast, and converging slowly where the curve rests). Newton on
     S(tau) = s_tab[i] + integral_{tau_i}^{tau} |p'| (5-point Gauss-Legendre) brings it to ~1e-12.
+    backend: "auto" (native/timing.c's cn_invert_arc_length, the same steps, when it loads and v_tab is given),
+    "native" or "python" (the numpy reference below).
     """
+    from ..native import choose, invert_arc_length_c
+
     nodes, weights = _GL5
+    fn = choose(backend, invert_arc_length_c, "timing", "arc-length inversion", applies=v_tab is not None,
+                needs="the table's speeds v_tab")
+    if fn is not None:
+        tt, st, vt, sq = (np.ascontiguousarray(a, dtype=np.float64) for a in (tau_tab, s_tab, v_tab, s))
+        if not (len(tt) == len(st) == len(vt) >= 2 and sq.ndim == 1):
+            raise InvalidInputError("invert_arc_length needs tables of one length >= 2 and arc lengths s [T]")
+        tau = np.empty(len(sq))
+        args, _keep = _native_curve(traj)
+        if fn(*args, nodes.ctypes.data, weights.ctypes.data, tt.ctypes.data, st.ctypes.data, vt.ctypes.data,
+              len(tt), sq.ctypes.data, len(sq), 1e-11 * max(1.0, traj.total_duration), tau.ctypes.data) < 0:
+            raise MemoryError("the compiled arc-length inversion ran out of memory")
+        return tau
     i = np.clip(np.searchsorted(s_tab, s, side="right") - 1, 0, len(s_tab) - 2)  # [T] bracket
     lo, hi = tau_tab[i], tau_tab[i + 1]
     tau = np.interp(s, s_tab, tau_tab) if v_tab is None else np.clip(_hermite_guess(tau_tab, s_tab, v_tab, i, s),
@@ -204,11 +243,12 @@ def _profile(length: float, cfg: TimingConfig):
     return dur, s_of_t, v_of_t
 
 
-def time_parametrize(traj: BezierTrajectory, config: TimingConfig = None) -> TimedPath:
-    """Sample traj at config.fps with speed <= max_speed (see the module docstring)."""
+def time_parametrize(traj: BezierTrajectory, config: TimingConfig = None, backend: str = "auto") -> TimedPath:
+    """Sample traj at config.fps with speed <= max_speed (see the module docstring). backend: arc_length_table's and
+    invert_arc_length's ("auto": native/timing.c when it loads)."""
     cfg = config or TimingConfig()
     cfg.validate()
-    tau_tab, s_tab, v_tab = arc_length_table(traj, cfg.table_samples_per_segment, with_speed=True)
+    tau_tab, s_tab, v_tab = arc_length_table(traj, cfg.table_samples_per_segment, with_speed=True, backend=backend)
     length = float(s_tab[-1])
     if length <= 1e-12 * max(1.0, float(np.abs(traj.control_points).max())):
         # start == goal and the curve does not move: one still frame pair, 1/fps apart
@@ -223,7 +263,7 @@ def time_parametrize(traj: BezierTrajectory, config: TimingConfig = None) -> Tim
     s = s_of_t(times / slow)  # [T]
     s[-1] = length
     speed = v_of_t(times / slow) / slow
-    tau = invert_arc_length(traj, tau_tab, s_tab, s, v_tab)
+    tau = invert_arc_length(traj, tau_tab, s_tab, s, v_tab, backend=backend)
     tau[-1] = traj.total_duration
     pos = traj.evaluate(tau)
     return TimedPath(times, pos, tau, s, speed, length, float(times[-1]), cfg.fps)

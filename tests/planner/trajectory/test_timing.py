@@ -1,14 +1,16 @@
 """Time parametrisation: speed/acceleration caps measured on the sampled frames (finite differences of
-positions), arc length against a brute-force polyline, exact ends and frame spacing."""
+positions), arc length against a brute-force polyline, exact ends and frame spacing; the compiled arc length and
+inversion (native/timing.c) against the numpy reference."""
 from __future__ import annotations
 
 import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import HealthCheck, given, settings, strategies as st
 from hypothesis.extra import numpy as hnp
 
+from cinenerf_ns.planner import native
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.trajectory.bezier import BezierTrajectory
 from cinenerf_ns.planner.trajectory.timing import TimingConfig, arc_length_table, invert_arc_length, time_parametrize
@@ -170,3 +172,138 @@ def test_arc_length_grid_matches_per_segment_loop(durations, n):
     ref = np.concatenate(taus + [[traj.total_duration]])
     tau, _ = arc_length_table(traj, n)
     assert np.array_equal(ref.view(np.int64), tau.view(np.int64))
+
+
+# ---------------------------------------------------------------- the compiled arc length (native/timing.c)
+needs_native = pytest.mark.skipif(native.arc_length_table_c() is None or native.invert_arc_length_c() is None,
+                                  reason=f"no compiled timing kernels: {native.native_status().get('timing')}")
+NATIVE_SETTINGS = dict(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+# Tolerances, native against numpy. The C code repeats numpy's arithmetic in numpy's order, and on the CPU box the
+# two are equal bit for bit. The order of two sums is numpy's and OpenBLAS's choice, though (the speed's 3 squares:
+# einsum's SIMD lanes; the 5 quadrature terms: speed_q @ weights, a dgemv kernel), so another machine may round them
+# otherwise. Both are sums of nonnegative terms, which bounds the difference relative to each value, also where the
+# curve rests: speeds within a few ulp (rtol 1e-12), the table's s (a cumulative sum of <= 12 * 64 nonnegative
+# pieces) within ~K ulp < 1e-12 relative. Newton's tau solves S(tau) = s, so a ~1e-16 relative change of S moves tau
+# by ~1e-16 s / |p'|: TAU_TOL = 1e-12 of the duration leaves four orders of magnitude for that.
+RTOL, TAU_TOL = 1e-12, 1e-12
+
+
+@st.composite
+def bezier_curves(draw) -> BezierTrajectory:
+    """Random piecewise Bezier curves: degree 3-7, 1-12 segments, C0 joins (corners: the speed jumps at a join) or
+    free ends (the curve jumps), durations even or very uneven, optionally at rest at both ends and with a segment
+    that does not move."""
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    degree, m = draw(st.integers(3, 7)), draw(st.integers(1, 12))
+    cps = np.cumsum(rng.normal(size=(m, degree + 1, 3)) * rng.choice([0.01, 1.0, 30.0]), axis=1)
+    if draw(st.booleans()):
+        cps[1:, 0] = cps[:-1, -1]  # C0 joins
+    durations = {"even": lambda: rng.uniform(0.5, 2.0, m),
+                 "uneven": lambda: 10.0 ** rng.uniform(-4, 2, m),
+                 "one tiny": lambda: np.where(np.arange(m) == rng.integers(m), 1e-6, rng.uniform(0.5, 2.0, m))}[
+        draw(st.sampled_from(["even", "uneven", "one tiny"]))]()
+    if draw(st.booleans()):  # at rest at both ends, like every planned shot
+        cps[0, 1], cps[-1, -2] = cps[0, 0], cps[-1, -1]
+    if draw(st.booleans()):  # a segment of zero length (all its control points at the join)
+        k = int(rng.integers(m))
+        cps[k] = cps[k, 0]
+        if k + 1 < m:
+            cps[k + 1, 0] = cps[k, 0]
+    return BezierTrajectory(cps, durations)
+
+
+def _check_table(traj, tau, s, v):
+    """The invariants of an arc-length table (test_arc_length_table_speeds_are_the_curve_speed and the monotone
+    test above)."""
+    assert tau[0] == 0.0 and tau[-1] == traj.total_duration and np.all(np.diff(tau) >= 0)
+    assert s[0] == 0.0 and np.all(np.diff(s) >= 0)
+    scale = np.abs(traj.control_points).max() / traj.durations.min() * traj.degree
+    np.testing.assert_allclose(v, np.linalg.norm(traj.derivative(tau, 1), axis=1), rtol=1e-9, atol=1e-12 * scale)
+
+
+@needs_native
+@settings(**NATIVE_SETTINGS)
+@given(traj=bezier_curves(), samples=st.sampled_from([2, 5, 64]))
+def test_native_arc_length_table_is_the_numpy_one(traj, samples):
+    ref = arc_length_table(traj, samples, with_speed=True, backend="python")
+    got = arc_length_table(traj, samples, with_speed=True, backend="native")
+    np.testing.assert_array_equal(got[0], ref[0])  # the same grid of curve times, bit for bit
+    np.testing.assert_allclose(got[1], ref[1], rtol=RTOL, atol=0)
+    np.testing.assert_allclose(got[2], ref[2], rtol=RTOL, atol=0)
+    _check_table(traj, *got)
+    tau2, s2 = arc_length_table(traj, samples, backend="native")  # without the speeds: the same table
+    np.testing.assert_array_equal(tau2, got[0])
+    np.testing.assert_array_equal(s2, got[1])
+
+
+@needs_native
+@settings(**NATIVE_SETTINGS)
+@given(traj=bezier_curves(), n=st.integers(1, 400), ends=st.booleans())
+def test_native_inversion_is_the_numpy_one(traj, n, ends):
+    """Arc lengths all along the table, its own entries (ties of searchsorted), beyond both ends (clipped)."""
+    tau_tab, s_tab, v_tab = arc_length_table(traj, 16, with_speed=True, backend="python")
+    rng = np.random.default_rng(n)
+    s = np.sort(rng.uniform(0, s_tab[-1], n))
+    if ends:
+        s = np.concatenate([[-1.0, 0.0], s, s_tab[rng.integers(len(s_tab), size=5)], [s_tab[-1], s_tab[-1] + 1]])
+    ref = invert_arc_length(traj, tau_tab, s_tab, s, v_tab, backend="python")
+    got = invert_arc_length(traj, tau_tab, s_tab, s, v_tab, backend="native")
+    np.testing.assert_allclose(got, ref, rtol=0, atol=TAU_TOL * max(1.0, traj.total_duration))
+    i = np.clip(np.searchsorted(s_tab, s, side="right") - 1, 0, len(s_tab) - 2)
+    assert np.all(got >= tau_tab[i]) and np.all(got <= tau_tab[i + 1])  # inside the bracket, as numpy's
+
+
+@needs_native
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(traj=bezier_curves(), vmax=st.floats(0.5, 20.0), amax=st.one_of(st.none(), st.floats(0.5, 20.0)),
+       ease=st.booleans(), fps=st.sampled_from([24.0, 30.0, 60.0]))
+def test_native_time_parametrize_is_the_numpy_one(traj, vmax, amax, ease, fps):
+    cfg = TimingConfig(max_speed=vmax, max_acceleration=amax, ease=ease, fps=fps, max_frames=10**6)
+    ref = time_parametrize(traj, cfg, backend="python")
+    got = time_parametrize(traj, cfg, backend="native")
+    assert len(got.times) == len(ref.times)
+    scale = max(1.0, float(np.abs(traj.control_points).max()))
+    np.testing.assert_allclose(got.positions, ref.positions, rtol=0, atol=1e-10 * scale)
+    np.testing.assert_allclose(got.curve_times, ref.curve_times, rtol=0,
+                               atol=TAU_TOL * max(1.0, traj.total_duration))
+    np.testing.assert_allclose(got.arc_length, ref.arc_length, rtol=RTOL, atol=0)
+    # the invariants of test_caps_hold_on_frames, on the compiled path
+    np.testing.assert_array_equal(got.positions[0], traj.start)
+    np.testing.assert_allclose(got.positions[-1], traj.end, rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(np.diff(got.times), 1.0 / fps, rtol=1e-9)
+    if got.length > 0 and np.array_equal(traj.control_points[1:, 0], traj.control_points[:-1, -1]):  # no jumps
+        chord = np.linalg.norm(np.diff(got.positions, axis=0), axis=1) * fps
+        assert chord.max() <= vmax * (1 + 1e-7) + 1e-9 * scale
+
+
+@needs_native
+@pytest.mark.parametrize("seed", range(3))
+def test_native_frames_sit_at_their_arc_length(seed):
+    """test_frames_sit_at_their_arc_length_also_where_the_curve_rests on the compiled path."""
+    traj = resting_curve(seed)
+    path = time_parametrize(traj, TimingConfig(max_speed=0.7, max_acceleration=0.4, fps=30), backend="native")
+    err = np.abs(exact_arc_length(traj, path.curve_times) - path.arc_length)
+    assert err.max() <= 1e-10 * max(1.0, path.length)
+
+
+def test_auto_uses_the_compiled_timing_when_it_loads(monkeypatch):
+    """backend="auto" takes native/timing.c when it loads (and, for the inversion, when the table's speeds are
+    given); "python" and the inversion without speeds never do; "native" without speeds is an error."""
+    if native.arc_length_table_c() is None or native.invert_arc_length_c() is None:
+        pytest.skip(f"no compiled timing kernels: {native.native_status().get('timing')}")
+    calls = []
+    for name in ("arc_length_table_c", "invert_arc_length_c"):
+        fn = getattr(native, name)()
+        monkeypatch.setattr(native, name, lambda fn=fn, name=name: calls.append(name) or fn)
+    traj = resting_curve(1)
+    time_parametrize(traj)
+    assert calls == ["arc_length_table_c", "invert_arc_length_c"]
+    calls.clear()
+    time_parametrize(traj, backend="python")
+    tau_tab, s_tab, v_tab = arc_length_table(traj, with_speed=True, backend="python")
+    invert_arc_length(traj, tau_tab, s_tab, s_tab[1:-1], backend="auto")  # no speeds: numpy's linear start
+    assert calls == []
+    with pytest.raises(RuntimeError, match="v_tab"):
+        invert_arc_length(traj, tau_tab, s_tab, s_tab[1:-1], backend="native")
+    with pytest.raises(InvalidInputError, match="backend"):
+        arc_length_table(traj, backend="fast")
