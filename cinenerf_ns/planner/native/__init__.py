@@ -294,3 +294,25 @@ def invert_arc_length_c():
                       _P, _P, _P, _I64,  # table: tau [K], s [K], speed [K], K
                       _P, _I64, _F64, _P],  # arc lengths s [T], T, Newton tolerance, out: tau [T]
                      _I64)
+
+
+# the curve arguments both dense-sampling entry points start with (safety._dense_curve_native)
+_BEZIER = [_P, _I64, _I64,  # control points [M, D+1, 3], M, D+1
+           _P, _P, _F64]  # segment starts [M], durations [M], total duration
+
+
+def dense_counts_c():
+    """The compiled piece counts of the verification's dense samples (timing.c: cn_dense_counts;
+    shots/safety.dense_samples), or None."""
+    return _function("timing", "cn_dense_counts",
+                     [*_BEZIER, _P, _P, _I64, _F64,  # frame positions [T, 3], curve times [T], T, max spacing
+                      _P, _P],  # out: speed bound per segment [M], pieces per frame interval [T-1] (int64)
+                     _I64)
+
+
+def dense_fill_c():
+    """The compiled dense samples from their counts (timing.c: cn_dense_fill; shots/safety.dense_samples), or None."""
+    return _function("timing", "cn_dense_fill",
+                     [*_BEZIER, _P, _P, _P, _I64, _P,  # speed bounds [M], frame times [T], curve times [T], T, sub
+                      _P, _P, _P],  # out: times [S+1], positions [S+1, 3], piece lengths [S]
+                     _I64)

@@ -48,8 +48,38 @@ def _piece_speed_bound(traj, vb: np.ndarray, tau0: np.ndarray, tau1: np.ndarray)
     return out
 
 
-def dense_samples(shot_or_positions: Any, times: Optional[Any], max_spacing: float):
-    """(times [S], positions [S,3], piece_lengths [S-1]) densely covering the path."""
+def _dense_curve_native(counts_fn, traj, f_times: np.ndarray, f_pos: np.ndarray, tau: np.ndarray,
+                        max_spacing: float):
+    """dense_samples' curve branch by native/timing.c: cn_dense_counts (the speed bounds and the pieces per frame
+    interval, whose sum sizes the outputs), then cn_dense_fill (the samples, their curve points and piece lengths)."""
+    from ..native import dense_fill_c
+
+    cp, starts, durations = (np.ascontiguousarray(a) for a in (traj.control_points, traj.segment_starts,
+                                                                traj.durations))  # float64 (bezier.py)
+    curve = (cp.ctypes.data, cp.shape[0], cp.shape[1], starts.ctypes.data, durations.ctypes.data,
+             traj.total_duration)
+    f_pos, f_times, tau = (np.ascontiguousarray(a, dtype=np.float64) for a in (f_pos, f_times, tau))
+    T = len(tau)
+    vb, sub = np.empty(cp.shape[0]), np.empty(T - 1, dtype=np.int64)
+    S = counts_fn(*curve, f_pos.ctypes.data, tau.ctypes.data, T, float(max_spacing), vb.ctypes.data, sub.ctypes.data)
+    if S < 0:
+        raise MemoryError("dense_samples: more samples than int64 counts (max_spacing too small)")
+    t, pos, lengths = np.empty(S + 1), np.empty((S + 1, 3)), np.empty(S)
+    if dense_fill_c()(*curve, vb.ctypes.data, f_times.ctypes.data, tau.ctypes.data, T, sub.ctypes.data,
+                      t.ctypes.data, pos.ctypes.data, lengths.ctypes.data) < 0:
+        raise MemoryError("the compiled dense sampling ran out of memory")
+    return t, pos, lengths
+
+
+def dense_samples(shot_or_positions: Any, times: Optional[Any], max_spacing: float, backend: str = "auto"):
+    """(times [S], positions [S,3], piece_lengths [S-1]) densely covering the path.
+
+    backend, for a Shot with its trajectory and (finite) curve times: "auto" (native/timing.c's cn_dense_counts and
+    cn_dense_fill, the same arithmetic, when they load), "native" or "python" (the numpy reference below); a
+    polyline always takes the numpy path.
+    """
+    from ..native import choose, dense_counts_c
+
     if isinstance(shot_or_positions, Shot):
         shot = shot_or_positions
         f_times, f_pos = shot.times, shot.positions
@@ -64,10 +94,14 @@ def dense_samples(shot_or_positions: Any, times: Optional[Any], max_spacing: flo
         traj, tau = None, None
     if not (np.all(np.isfinite(f_pos)) and np.all(np.isfinite(f_times))):
         raise InvalidInputError("path positions/times contain NaN or inf.")
+    curve = traj is not None and tau is not None
+    fn = choose(backend, dense_counts_c, "timing", "dense sampling", applies=curve and bool(np.all(np.isfinite(tau))),
+                needs="a Shot with its trajectory and finite curve times")
     if len(f_pos) == 1:
         return f_times.copy(), f_pos.copy(), np.zeros(0)
+    if fn is not None:
+        return _dense_curve_native(fn, traj, f_times, f_pos, tau, max_spacing)
     chord = np.linalg.norm(np.diff(f_pos, axis=0), axis=1)  # [T-1]
-    curve = traj is not None and tau is not None
     if curve:
         vb = _speed_bounds(traj)  # [M] rigorous speed bound per segment
         approx_len = np.maximum(chord, _piece_speed_bound(traj, vb, tau[:-1], tau[1:]) * np.abs(np.diff(tau)))
