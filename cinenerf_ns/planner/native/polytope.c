@@ -14,12 +14,14 @@
      and each bucket's planes are taken nearest plane first, as in a Python chunk; the kept planes can differ a
      little.
 
-   Index dedupe: an ellipsoid is listed in every cell of its level that its padded AABB meets. Its copy in a
-   visited cell is skipped when, along some axis, the cell is not the first of the query's range, the previous
-   cell along that axis is not culled (second pass), and the AABB reaches clearly below the cell's lower face:
-   then the index also lists it in that previous cell, which the query visits too. Following those steps back ends at a copy that is kept, so
-   nothing is ever dropped (at worst a copy within the band is visited twice: a duplicate is cut off by its own
-   plane). The band is 1e-6 x (cell + |face|), far wider than the float32 rounding of the packed AABB.
+   Index dedupe: an ellipsoid is listed in every cell of its level that its padded AABB meets (a box of cells). Each
+   entry carries home bits (polytope_native.native_arrays: bit i set when the entry's cell is the first of that box
+   along axis i, so the index does not also list the ellipsoid in the previous cell along i). A copy in a visited
+   cell is skipped when, along some axis, the cell is not the first of the query's range, the entry's home bit is
+   clear and the previous cell along that axis is not culled (second pass): that cell then holds a copy too and is
+   visited. Following those steps back ends at a copy that is kept, so nothing is ever dropped, and each ellipsoid
+   is kept once. The rule reads only the entry's bits, not its row: a skipped copy costs no cache miss (the rows of
+   copies were most of the gather's reads at 1M Gaussians).
 
    Memory: the index lists each ellipsoid in several cells, so the gather is bound by cache misses. It reads one
    packed float32 row per ellipsoid ([N, 12]: padded AABB lo rounded down, hi rounded up, mean, max semi-axis
@@ -286,13 +288,6 @@ static void cell_range(const double qlo[3], const double qhi[3], const double *o
     }
 }
 
-/* the dedupe rule of the header: the packed AABB reaches clearly below the lower face (axis i) of cell index ``at``,
-   so the index also lists this ellipsoid in the previous cell along that axis */
-static inline int below_face(const float *pk, int i, int64_t at, const double *origin, double cell) {
-    double face = origin[i] + (double)at * cell;
-    return (double)pk[i] < face - 1e-6 * (cell + fabs(face));
-}
-
 typedef struct {
     /* scene */
     const void *means, *rots, *radii;
@@ -302,6 +297,7 @@ typedef struct {
     const double *origin, *cells;
     const int64_t *dims;
     const int64_t *const *offsets, *const *ids;
+    const uint8_t *const *homes;
     int n_levels;
     /* request */
     const double *seeds, *box_lo, *box_hi;
@@ -353,6 +349,7 @@ static int gather(State *st, const double qlo[3], const double qhi[3], const dou
         int64_t clo[3], chi[3];
         cell_range(qlo, qhi, st->origin, cell, dm, clo, chi);
         const int64_t *off = st->offsets[L], *lid = st->ids[L];
+        const uint8_t *home = st->homes[L];
         /* culled cells of the range, decided first: the dedupe below must know whether a neighbour is visited */
         int64_t nx = chi[0] - clo[0] + 1, ny = chi[1] - clo[1] + 1, nz = chi[2] - clo[2] + 1;
         unsigned char *culled = NULL;
@@ -375,17 +372,18 @@ static int gather(State *st, const double qlo[3], const double qhi[3], const dou
                     if (CULLED(x, y, z)) continue;
                     int64_t lin = (x * dm[1] + y) * dm[2] + z;
                     for (int64_t k = off[lin]; k < off[lin + 1]; k++) {
-                        int64_t g = lid[k];
                         st->visited++;
+                        /* a copy is skipped only for one in the previous cell along an axis that is visited too
+                           (the header's rule), decided from the entry's home bits before its row is read */
+                        int dup = 0;
+                        for (int i = 0; i < 3 && !dup; i++)
+                            dup = cell_at[i] > clo[i] && !(home[k] >> i & 1) &&
+                                  !CULLED(x - (i == 0), y - (i == 1), z - (i == 2));
+                        if (dup) continue;
+                        int64_t g = lid[k];
                         /* one cache line: lo[3] (rounded down), hi[3] (up), mu[3], amax (up) */
                         const float *pk = st->pack + 12 * g;
                         if (!pack_meets(pk, qlo, qhi)) continue;
-                        /* a copy is skipped only for one in the previous cell along an axis that is visited too */
-                        int dup = 0;
-                        for (int i = 0; i < 3 && !dup; i++)
-                            dup = cell_at[i] > clo[i] && below_face(pk, i, cell_at[i], st->origin, cell) &&
-                                  !CULLED(x - (i == 0), y - (i == 1), z - (i == 2));
-                        if (dup) continue;
                         if (skip_lo && pack_meets(pk, skip_lo, skip_hi)) continue;
                         /* bounding sphere (radius amax, inflated by r) reaches the box (box coordinates) */
                         double m[3] = {pk[6], pk[7], pk[8]};
@@ -664,7 +662,7 @@ static int64_t planes_empty_with_box(const State *st, const double *box_n, const
 int64_t cn_safe_polytope(
     const void *means, const void *rots, const void *radii, const float *pack, int32_t f32,
     const double *origin, int32_t n_levels, const double *cells, const int64_t *dims,
-    const int64_t *const *offsets, const int64_t *const *ids, double pad,
+    const int64_t *const *offsets, const int64_t *const *ids, const uint8_t *const *homes, double pad,
     const double *seeds, int32_t S, const double *box_lo, const double *box_hi, const double *box_rot,
     double r, double margin, int32_t mode, int32_t require_inside, double near_fraction, double empty_shrink,
     int64_t cap, double *out_n, double *out_b, int64_t *out_id, int64_t *bad_id, double *bad_slack, int64_t *info) {
@@ -672,7 +670,8 @@ int64_t cn_safe_polytope(
     State st;
     memset(&st, 0, sizeof st);
     st.means = means; st.rots = rots; st.radii = radii; st.pack = pack; st.f32 = f32;
-    st.origin = origin; st.cells = cells; st.dims = dims; st.offsets = offsets; st.ids = ids; st.n_levels = n_levels;
+    st.origin = origin; st.cells = cells; st.dims = dims; st.offsets = offsets; st.ids = ids; st.homes = homes;
+    st.n_levels = n_levels;
     st.seeds = seeds; st.S = S; st.box_lo = box_lo; st.box_hi = box_hi; st.mode = mode;
     st.require_inside = require_inside; st.r = r; st.margin = margin;
     double I[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
@@ -860,25 +859,26 @@ static int pair_collides(const double p[3], double r, const Ell *E, double margi
 typedef int (*entry_fn)(void *ctx, int64_t g);
 static int for_each_in_box(const float *pack, const double *origin, int32_t n_levels, const double *cells,
                            const int64_t *dims, const int64_t *const *offsets, const int64_t *const *ids,
-                           const double qlo[3], const double qhi[3], int dedupe, entry_fn visit, void *ctx) {
+                           const uint8_t *const *homes, const double qlo[3], const double qhi[3], int dedupe,
+                           entry_fn visit, void *ctx) {
     for (int L = 0; L < n_levels; L++) {
         double cell = cells[L];
         const int64_t *dm = dims + 3 * L;
         int64_t clo[3], chi[3];
         cell_range(qlo, qhi, origin, cell, dm, clo, chi);
         const int64_t *off = offsets[L], *lid = ids[L];
+        const uint8_t *home = homes[L];
         for (int64_t x = clo[0]; x <= chi[0]; x++)
             for (int64_t y = clo[1]; y <= chi[1]; y++)
                 for (int64_t z = clo[2]; z <= chi[2]; z++) {
                     int64_t cell_at[3] = {x, y, z}, lin = (x * dm[1] + y) * dm[2] + z;
                     for (int64_t k = off[lin]; k < off[lin + 1]; k++) {
+                        int dup = 0;
+                        for (int i = 0; i < 3 && dedupe && !dup; i++) dup = cell_at[i] > clo[i] && !(home[k] >> i & 1);
+                        if (dup) continue;
                         int64_t g = lid[k];
                         const float *pk = pack + 12 * g;
                         if (!pack_meets(pk, qlo, qhi)) continue;
-                        int dup = 0;
-                        for (int i = 0; i < 3 && dedupe && !dup; i++)
-                            dup = cell_at[i] > clo[i] && below_face(pk, i, cell_at[i], origin, cell);
-                        if (dup) continue;
                         if (visit(ctx, g)) return 1;
                     }
                 }
@@ -907,14 +907,14 @@ static int point_hits(void *ctx, int64_t g) {
 int64_t cn_points_collide(
     const void *means, const void *rots, const void *radii, const float *pack, int32_t f32,
     const double *origin, int32_t n_levels, const double *cells, const int64_t *dims,
-    const int64_t *const *offsets, const int64_t *const *ids, double pad,
+    const int64_t *const *offsets, const int64_t *const *ids, const uint8_t *const *homes, double pad,
     const double *points, const double *rad, int64_t P, double margin, uint8_t *hit) {
     for (int64_t q = 0; q < P; q++) {
         const double *p = points + 3 * q;
         double half = fmax(rad[q] - pad, 0.0), qlo[3], qhi[3];
         for (int i = 0; i < 3; i++) { qlo[i] = p[i] - half; qhi[i] = p[i] + half; }
         PointCtx c = {means, rots, radii, f32, p, rad[q], margin};
-        int collides = for_each_in_box(pack, origin, n_levels, cells, dims, offsets, ids, qlo, qhi, 1, point_hits, &c);
+        int collides = for_each_in_box(pack, origin, n_levels, cells, dims, offsets, ids, homes, qlo, qhi, 1, point_hits, &c);
         hit[q] = (uint8_t)collides;
     }
     return 0;
@@ -981,8 +981,9 @@ static double ell_dist_exact(const double w[3], const double lam[3]) {
 int64_t cn_points_distance(
     const void *means, const void *rots, const void *radii, const float *pack, int32_t f32,
     const double *origin, int32_t n_levels, const double *cells, const int64_t *dims,
-    const int64_t *const *offsets, const int64_t *const *ids, double pad,
+    const int64_t *const *offsets, const int64_t *const *ids, const uint8_t *const *homes, double pad,
     const double *points, int64_t P, double max_d, double *out) {
+    (void)homes;  /* copies are measured again (see above) */
     if (!(max_d >= 0) || !isfinite(max_d)) return -1;
     const double *prev = NULL;  /* the last point with an exact distance below max_d, and that distance */
     double prev_d = 0.0;
@@ -1187,7 +1188,7 @@ static int box_in_free_voxels(const double qlo[3], const double qhi[3], const ui
 int64_t cn_segments_blocked(
     const void *means, const void *rots, const void *radii, const float *pack, int32_t f32,
     const double *origin, int32_t n_levels, const double *cells, const int64_t *dims,
-    const int64_t *const *offsets, const int64_t *const *ids, double pad,
+    const int64_t *const *offsets, const int64_t *const *ids, const uint8_t *const *homes, double pad,
     const double *p0, const double *p1, int64_t Lines, double piece_len, const uint8_t *skip, uint8_t *blocked,
     const uint8_t *occ, const double *vlo, double vs, const int64_t *vdims) {
     (void)pad;
@@ -1208,7 +1209,7 @@ int64_t cn_segments_blocked(
             }
             if (occ && box_in_free_voxels(qlo, qhi, occ, vlo, vs, vdims)) continue;
             SightCtx c = {means, rots, radii, f32, skip, a0, d, t0, t1, dd, pack};
-            hit = for_each_in_box(pack, origin, n_levels, cells, dims, offsets, ids, qlo, qhi, 1, sight_hits, &c);
+            hit = for_each_in_box(pack, origin, n_levels, cells, dims, offsets, ids, homes, qlo, qhi, 1, sight_hits, &c);
         }
         blocked[l] = (uint8_t)hit;
     }

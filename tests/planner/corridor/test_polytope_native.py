@@ -232,3 +232,31 @@ def test_points_collide_arrays_refusals():
         points_collide_arrays(np.zeros((2, 2)), scene, idx, 0.1)
     with pytest.raises(InvalidInputError, match="radius"):
         points_collide_arrays(np.zeros((2, 3)), scene, idx, np.ones(3))
+
+
+@settings(**SETTINGS)
+@given(seed=st.integers(0, 2**31 - 1), cell=st.sampled_from([None, 0.04, 0.1, 0.25]), pad=st.sampled_from([None, 0.0]))
+def test_home_bits_say_whether_the_previous_cell_lists_the_ellipsoid(seed, cell, pad):
+    """polytope_native's home bits against their definition, by brute force over the index's CSR lists: bit i of an
+    entry (cell c, ellipsoid g) is set exactly when the level does not list g in the cell c - e_i."""
+    from cinenerf_ns.planner.corridor.polytope_native import native_arrays
+
+    rng = np.random.default_rng(seed)
+    scene = random_scene(rng, 120, amin=0.005, amax=0.2, camera_radius=0.03)
+    idx = GridIndex.build(scene, cell_size=cell, pad=pad)
+    arr = native_arrays(scene, idx)
+    for L, lv in enumerate(idx.levels):
+        dims = lv.dims.tolist()
+        off = lv.offsets.long().numpy()
+        ids, homes = arr["ids_t"][L].numpy(), arr["homes_t"][L].numpy()
+        listed = set()
+        cells = []
+        for lin in range(len(off) - 1):
+            c = np.unravel_index(lin, dims)
+            for k in range(off[lin], off[lin + 1]):
+                listed.add((tuple(int(v) for v in c), int(ids[k])))
+                cells.append((tuple(int(v) for v in c), int(ids[k]), int(homes[k])))
+        for c, g, h in cells:
+            for i in range(3):
+                prev = tuple(c[j] - (j == i) for j in range(3))
+                assert bool(h >> i & 1) == ((prev, g) not in listed), (L, c, g, i)
