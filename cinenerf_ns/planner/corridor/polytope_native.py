@@ -43,11 +43,15 @@ def _positions_by_cell(level, inv: np.ndarray) -> tuple[Tensor, Tensor]:
     n = max(len(inv), 1)
     pos = np.sort(cell * n + pos) - cell * n  # one sort of (cell, position) keys: cells stay in place
     dy, dz = (int(v) for v in level.dims[1:].tolist())
+    # the entries' cell coordinates in int32 (a level has at most GridIndex's max_cells cells): int64 division of
+    # ~12M entries at 1M Gaussians took 0.4 s of prepare
+    q, cz = np.divmod(cell.astype(np.int32), np.int32(dz))
+    cx, cy = np.divmod(q, np.int32(dy))
     homes = np.zeros(len(pos), dtype=np.uint8)
-    for i, c in enumerate((cell // (dy * dz), (cell // dz) % dy, cell % dz)):  # the entries' cell coordinates
-        first = np.full(n, np.iinfo(np.int64).max)
+    for i, c in enumerate((cx, cy, cz)):
+        first = np.full(n, np.iinfo(np.int32).max, dtype=np.int32)
         np.minimum.at(first, pos, c)  # per ellipsoid, its first cell along axis i
-        homes |= (c == first[pos]).astype(np.uint8) << i
+        homes |= (c == first[pos]).view(np.uint8) << np.uint8(i)
     return torch.from_numpy(pos), torch.from_numpy(homes)
 
 
