@@ -35,7 +35,7 @@ import numpy as np
 import torch
 from scipy import ndimage
 
-from ..geometry.voxel_traversal import segments_in_free_voxels
+from ..geometry.voxel_traversal import segments_free_native, segments_in_free_voxels
 from .polytope import Polytope
 
 
@@ -81,6 +81,29 @@ def segment_box_closest(u0: np.ndarray, u1: np.ndarray, v: np.ndarray) -> tuple[
     return q[rows, k], p[rows, k], np.sqrt(f[rows, k])
 
 
+_BOX_A = np.vstack([np.eye(3), -np.eye(3)])  # [6, 3] the box's faces, first in every grid polytope
+
+
+def _planes_native(fn, srf: np.ndarray, shp: np.ndarray, u0: np.ndarray, u1: np.ndarray, blo: np.ndarray,
+                   bhi: np.ndarray, margin: float) -> Optional[tuple[np.ndarray, np.ndarray]]:
+    """One cn_grid_polytope call (grid_polytope_planes' compiled path; the box [blo, bhi] already clipped to the grid
+    and holding the segment): srf C-contiguous bool, shp [3] int64, the rest float64 [3]."""
+    cap = 256
+    while True:
+        n_out, b_out = np.empty((cap, 3)), np.empty(cap)
+        F = int(fn(srf.ctypes.data, shp.ctypes.data, u0.ctypes.data, u1.ctypes.data, blo.ctypes.data,
+                   bhi.ctypes.data, float(margin), cap, n_out.ctypes.data, b_out.ctypes.data))
+        if F == -2:
+            cap *= 4
+            continue
+        break
+    if F == -3:
+        return None
+    if F < 0:
+        raise MemoryError("the compiled grid polytope ran out of memory")
+    return np.concatenate([_BOX_A, n_out[:F]]), np.concatenate([bhi, -blo, b_out[:F]])
+
+
 def grid_polytope_planes(
     surface: np.ndarray,  # [X, Y, Z] bool
     u0: np.ndarray,  # [3] voxel units
@@ -106,25 +129,11 @@ def grid_polytope_planes(
     seg = np.stack([u0, u1])  # [2, 3]
     if not ((seg >= blo).all() and (seg <= bhi).all() and (bhi > blo).all()):
         return None
+    if fn is not None:
+        return _planes_native(fn, np.ascontiguousarray(surface, dtype=bool), shape.astype(np.int64), u0, u1, blo, bhi,
+                              margin)
     A = [np.eye(3), -np.eye(3)]
     b = [bhi, -blo]
-    if fn is not None:
-        srf = np.ascontiguousarray(surface, dtype=bool)
-        shp = shape.astype(np.int64)
-        cap = 256
-        while True:
-            n_out, b_out = np.empty((cap, 3)), np.empty(cap)
-            F = int(fn(srf.ctypes.data, shp.ctypes.data, u0.ctypes.data, u1.ctypes.data, blo.ctypes.data,
-                       bhi.ctypes.data, float(margin), cap, n_out.ctypes.data, b_out.ctypes.data))
-            if F == -2:
-                cap *= 4
-                continue
-            break
-        if F == -3:
-            return None
-        if F < 0:
-            raise MemoryError("the compiled grid polytope ran out of memory")
-        return np.concatenate(A + [n_out[:F]]), np.concatenate(b + [b_out[:F]])
     # every cube meeting the CLOSED box, also one that only touches a face of it
     a = np.maximum(np.ceil(blo).astype(np.int64) - 1, 0)
     e = np.minimum(np.floor(bhi).astype(np.int64) + 1, shape)
@@ -191,19 +200,48 @@ class VoxelObstacles:
         """bool [P]: segment p0[i] -> p1[i] (world, float64 [P, 3]) lies in free voxels (exact voxel walk)."""
         return segments_in_free_voxels(self.occupied, self.lo, self.voxel_size, p0, p1)
 
+    def _compiled(self) -> Optional[tuple]:
+        """(cn_segments_free, cn_grid_polytope, occupied, surface as C-contiguous bool, shape [3] int64), kept on the
+        grid, or None when the compiled kernels do not load: polytope() then takes the functions' own "auto" paths.
+        Why: their per-call argument checks and conversions cost ~40 us of a ~35 us grid polytope at 1M Gaussians."""
+        got = self.__dict__.get("_compiled_args")
+        if got is None:
+            from ..native import choose, grid_polytope_c, segments_free_c
+
+            walk = choose("auto", segments_free_c, "gridpoly", "voxel walk")
+            planes = choose("auto", grid_polytope_c, "gridpoly", "grid polytope")
+            got = (None,) if walk is None or planes is None else (
+                walk, planes, np.ascontiguousarray(self.occupied, dtype=bool),
+                np.ascontiguousarray(self.surface, dtype=bool), np.asarray(self.occupied.shape, dtype=np.int64))
+            self.__dict__["_compiled_args"] = got
+        return None if got[0] is None else got
+
+    def __getstate__(self) -> dict:  # the kept compiled functions are not pickled (workers load their own)
+        return {k: v for k, v in self.__dict__.items() if k != "_compiled_args"}
+
     def polytope(self, p0, p1, box_margin: float, margin: float = 1e-6, device=None) -> Optional[Polytope]:
         """Polytope (world units, float64 on ``device``) around the segment p0 -> p1 in its bounding box grown
         by ``box_margin``, excluding every surface voxel; None when the segment is not in free voxels (or a
         plane fails the floating-point check), so the caller must build an exact Prop-2 polytope instead."""
         a = np.asarray(p0.detach().cpu() if isinstance(p0, torch.Tensor) else p0, dtype=np.float64).reshape(3)
         c = np.asarray(p1.detach().cpu() if isinstance(p1, torch.Tensor) else p1, dtype=np.float64).reshape(3)
-        if not bool(self.segments_free(a[None], c[None])[0]):
-            return None
         vs = self.voxel_size
         u0, u1 = (a - self.lo) / vs, (c - self.lo) / vs
         lo_b = (np.minimum(a, c) - box_margin - self.lo) / vs
         hi_b = (np.maximum(a, c) + box_margin - self.lo) / vs
-        planes = grid_polytope_planes(self.surface, u0, u1, lo_b, hi_b, margin / vs)
+        fast = self._compiled()
+        if fast is not None:  # grid_polytope_planes' and segments_free's compiled paths, with the kept arguments
+            walk, fn, occ, srf, shp = fast
+            if not segments_free_native(walk, occ, shp, self.lo, vs, a[None], c[None])[0]:
+                return None
+            blo, bhi = np.clip(lo_b, 0.0, shp.astype(np.float64)), np.clip(hi_b, 0.0, shp.astype(np.float64))
+            seg = np.stack([u0, u1])
+            inside = (seg >= blo).all() and (seg <= bhi).all() and (bhi > blo).all()
+            planes = _planes_native(fn, srf, shp, u0, u1, blo, bhi, margin / vs) if inside else None
+        else:
+            if not bool(self.segments_free(a[None], c[None])[0]):
+                return None
+            planes = grid_polytope_planes(self.surface, u0, u1, lo_b, hi_b, margin / vs)
         if planes is None:
             return None
         Av, bv = planes

@@ -75,6 +75,18 @@ def segment_voxels(u0: np.ndarray, u1: np.ndarray, eps: float = EPS) -> tuple[np
     return own[keep], vox[keep]
 
 
+def segments_free_native(fn, occ: np.ndarray, shape: np.ndarray, lo: np.ndarray, voxel_size: float, a: np.ndarray,
+                         b: np.ndarray) -> np.ndarray:
+    """One cn_segments_free call (native/gridpoly.c): occ [X, Y, Z] C-contiguous bool, shape [3] int64, lo [3] float64,
+    a / b [P, 3] float64 -> bool [P] (segments_in_free_voxels' compiled path; a grid keeps occ and shape)."""
+    a, b = np.ascontiguousarray(a, dtype=np.float64), np.ascontiguousarray(b, dtype=np.float64)
+    res = np.zeros(a.shape[0], dtype=np.uint8)
+    if fn(occ.ctypes.data, shape.ctypes.data, lo.ctypes.data, float(voxel_size), a.ctypes.data, b.ctypes.data,
+          a.shape[0], EPS, res.ctypes.data) != 0:
+        raise MemoryError("the compiled voxel walk ran out of memory")
+    return res.view(bool)
+
+
 def segments_in_free_voxels(occupied: np.ndarray, lo: np.ndarray, voxel_size: float, p0, p1,
                             backend: str = "auto") -> np.ndarray:
     """bool [P]: every point of segment p0[i] -> p1[i] (world, [P, 3]) lies in a free voxel of ``occupied``
@@ -92,13 +104,7 @@ def segments_in_free_voxels(occupied: np.ndarray, lo: np.ndarray, voxel_size: fl
         return out
     if fn is not None:
         occ = np.ascontiguousarray(occupied, dtype=bool)
-        shape = np.asarray(occ.shape, dtype=np.int64)
-        a, b = np.ascontiguousarray(a), np.ascontiguousarray(b)
-        res = np.zeros(a.shape[0], dtype=np.uint8)
-        if fn(occ.ctypes.data, shape.ctypes.data, lo.ctypes.data, float(voxel_size), a.ctypes.data, b.ctypes.data,
-              a.shape[0], EPS, res.ctypes.data) != 0:
-            raise MemoryError("the compiled voxel walk ran out of memory")
-        return res.astype(bool)
+        return segments_free_native(fn, occ, np.asarray(occ.shape, dtype=np.int64), lo, voxel_size, a, b)
     owner, vox = segment_voxels((a - lo) / voxel_size, (b - lo) / voxel_size)
     shape = np.asarray(occupied.shape)
     inside = ((vox >= 0) & (vox < shape)).all(1)

@@ -17,6 +17,10 @@
 #include <stdlib.h>
 #include <string.h>
 
+/* min / max of two numbers that cannot be NaN, inlined (fmin / fmax are library calls at -O2, for their NaN rules) */
+static inline double mn(double a, double b) { return b < a ? b : a; }
+static inline double mx(double a, double b) { return b > a ? b : a; }
+
 static int cmp_double(const void *x, const void *y) {
     double a = *(const double *)x, b = *(const double *)y;
     return (a > b) - (a < b);
@@ -55,7 +59,7 @@ static int segment_free(const uint8_t *occ, const int64_t *shape, const double u
         double c = ceil(hi) - first[a];
         count[a] = c > 0 ? (int64_t)c : 0;
     }
-#define CROSSING(a, k) fmin(fmax((first[a] + (double)(d[a] > 0 ? (k) : count[a] - 1 - (k)) - u0[a]) / d[a], 0.0), 1.0)
+#define CROSSING(a, k) mn(mx((first[a] + (double)(d[a] > 0 ? (k) : count[a] - 1 - (k)) - u0[a]) / d[a], 0.0), 1.0)
     for (int a = 0; a < 3; a++) head[a] = count[a] > 0 ? CROSSING(a, 0) : INFINITY;
     double prev = 0.0;
     for (;;) {
@@ -310,7 +314,7 @@ int64_t cn_grid_polytope(const uint8_t *surface, const int64_t *shape, const dou
                 c->v[0] = (double)x; c->v[1] = (double)y; c->v[2] = (double)z;
                 double cen[3] = {c->v[0] + 0.5, c->v[1] + 0.5, c->v[2] + 0.5}, t = 0.0, dist2 = 0.0;
                 if (dd > 0)
-                    t = fmin(fmax(((cen[0] - u0[0]) * d[0] + (cen[1] - u0[1]) * d[1] + (cen[2] - u0[2]) * d[2]) / dd, 0.0),
+                    t = mn(mx(((cen[0] - u0[0]) * d[0] + (cen[1] - u0[1]) * d[1] + (cen[2] - u0[2]) * d[2]) / dd, 0.0),
                              1.0);
                 for (int i = 0; i < 3; i++) {
                     double r = u0[i] + t * d[i] - cen[i];
@@ -327,7 +331,7 @@ int64_t cn_grid_polytope(const uint8_t *surface, const int64_t *shape, const dou
        order, each sorted, are the full sorted order, and a bucket is sorted only when the scan first reaches it. */
     int64_t nb = K < 64 ? 1 : (K / 8 < 4096 ? K / 8 : 4096);
     double lbmin = INFINITY, lbmax = -INFINITY;
-    for (int64_t i = 0; i < K; i++) { lbmin = fmin(lbmin, cubes[i].lb); lbmax = fmax(lbmax, cubes[i].lb); }
+    for (int64_t i = 0; i < K; i++) { lbmin = mn(lbmin, cubes[i].lb); lbmax = mx(lbmax, cubes[i].lb); }
     double scale = lbmax > lbmin ? (double)nb / (lbmax - lbmin) : 0.0;
     double *dist = (double *)malloc((K ? K : 1) * sizeof(double));
     double *qs = (double *)malloc((K ? K : 1) * 3 * sizeof(double)), *ps = (double *)malloc((K ? K : 1) * 3 * sizeof(double));

@@ -314,3 +314,28 @@ def test_ties_pick_the_same_cube_in_both_constructions():
         ref = grid_polytope_planes(surface_voxels(occ), a, c, lo, hi, 1e-9, backend="python")
         assert got is not None and ref is not None
         assert np.array_equal(got[0], ref[0]) and np.array_equal(got[1], ref[1])
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.integers(0, 10_000), st.sampled_from([0.05, 0.2, 0.35]), st.sampled_from([0.5, 2.0, 5.0]))
+def test_grid_keeps_its_compiled_arguments_and_gives_the_same_polytopes(seed, fill, box_margin):
+    """VoxelObstacles.polytope with the compiled kernels' arguments kept on the grid equals the path through
+    segments_free and grid_polytope_planes (forced by a grid that kept no compiled functions), bit for bit, None
+    included; and a pickled grid drops what it kept."""
+    import pickle
+
+    case = _random_case(seed, fill, shape=(14, 12, 10))
+    if case is None:
+        return
+    occ, a, c, _ = case
+    lo, vs = np.array([-0.3, 0.2, 1.0]), 0.25
+    fast = VoxelObstacles.from_occupied(occ, lo, vs)
+    if fast._compiled() is None:
+        pytest.skip("no C compiler: the compiled grid kernels are not built")
+    slow = VoxelObstacles.from_occupied(occ, lo, vs)
+    slow.__dict__["_compiled_args"] = (None,)
+    p, q = (g.polytope(lo + a * vs, lo + c * vs, box_margin * vs, 1e-9) for g in (fast, slow))
+    assert (p is None) == (q is None)
+    if p is not None:
+        assert torch.equal(p.A, q.A) and torch.equal(p.b, q.b) and torch.equal(p.seed, q.seed)
+    assert "_compiled_args" not in pickle.loads(pickle.dumps(fast)).__dict__
