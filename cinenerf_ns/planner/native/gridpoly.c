@@ -343,8 +343,8 @@ int64_t cn_grid_polytope(const uint8_t *surface, const int64_t *shape, const dou
     if (!dist || !qs || !ps || !live || !bs || !sorted) { status = -1; goto done; }
     for (int64_t i = 0; i < K; i++) {
         dist[i] = NAN;
-        int64_t b = (int64_t)((cubes[i].lb - lbmin) * scale);
-        cubes[i].bucket = b >= nb ? nb - 1 : (b < 0 ? 0 : b);
+        double q = (cubes[i].lb - lbmin) * scale;  /* >= 0, monotone in lb (rounding keeps it so) */
+        cubes[i].bucket = q < (double)nb ? (q > 0.0 ? (int64_t)q : 0) : nb - 1;
         be[cubes[i].bucket]++;
     }
     for (int64_t b = 0, at = 0; b < nb; b++) { bs[b] = at; at += be[b]; be[b] = bs[b]; }
