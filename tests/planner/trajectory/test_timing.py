@@ -272,8 +272,12 @@ def test_native_time_parametrize_is_the_numpy_one(traj, vmax, amax, ease, fps):
     np.testing.assert_allclose(got.positions[-1], traj.end, rtol=0, atol=1e-12 * scale)
     np.testing.assert_allclose(np.diff(got.times), 1.0 / fps, rtol=1e-9)
     if got.length > 0 and np.array_equal(traj.control_points[1:, 0], traj.control_points[:-1, -1]):  # no jumps
+        # the speed cap as well as the reference keeps it: on these extreme curves (control points ~100 apart, near
+        # cusps) the 5-point Gauss-Legendre table is not exact for |p'|, and both backends can exceed the cap by
+        # ~4e-5 relative (falsifying example of 2026-11-26); test_caps_hold_on_frames holds it on planner-like curves
         chord = np.linalg.norm(np.diff(got.positions, axis=0), axis=1) * fps
-        assert chord.max() <= vmax * (1 + 1e-7) + 1e-9 * scale
+        ref_chord = np.linalg.norm(np.diff(ref.positions, axis=0), axis=1) * fps
+        assert chord.max() <= max(vmax * (1 + 1e-7), ref_chord.max() * (1 + 1e-9)) + 1e-9 * scale
 
 
 @needs_native
