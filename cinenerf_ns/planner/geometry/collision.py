@@ -198,6 +198,8 @@ def candidate_pairs(points: Tensor, scene: EllipsoidScene, index, radius: Tensor
         pi, gi = torch.nonzero(m, as_tuple=True)
         out_p.append(pi + i)
         out_g.append(gi)
+    if not out_p:  # no points: no pairs
+        return (torch.zeros(0, dtype=torch.long, device=points.device),) * 2
     return torch.cat(out_p), torch.cat(out_g)
 
 
