@@ -287,9 +287,7 @@ class _Box:
 
 def _f64(x: ArrayLike) -> np.ndarray:
     """x (tensor on any device, array or sequence) as a float64 numpy array."""
-    if isinstance(x, Tensor):
-        return x.detach().to("cpu", torch.float64).numpy()
-    return np.asarray(x, dtype=np.float64)
+    return _np(x) if isinstance(x, Tensor) else np.asarray(x, dtype=np.float64)
 
 
 def _checked_seeds(seed_points: ArrayLike, dev) -> Tensor:
