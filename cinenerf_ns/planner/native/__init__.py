@@ -316,3 +316,15 @@ def dense_fill_c():
                      [*_BEZIER, _P, _P, _P, _I64, _P,  # speed bounds [M], frame times [T], curve times [T], T, sub
                       _P, _P, _P],  # out: times [S+1], positions [S+1, 3], piece lengths [S]
                      _I64)
+
+
+def corridor_dual_c():
+    """The compiled corridor QP by its equality-free form and the dual active-set method (dual_qp.c:
+    cn_corridor_dual; trajectory/dual_qp.py), or None."""
+    return _function("dual_qp", "cn_corridor_dual",
+                     [_I64, _I64, _I64, _I64, _P, _P, _P, _P,  # M, degree, continuity, factor rows, durations,
+                      # factors [M, rows, D+1], diffs, kinds
+                      _P, _P, _P, _P, _F64, _I64,  # start/goal [2, 3], faces A [F, 3], b' [F], face starts [M+1], tol,
+                      # max_iter
+                      _P, _P],  # out: control points [N, 3], info [2]
+                     _I64)

@@ -26,6 +26,7 @@ from torch import Tensor
 
 from ..corridor.polytope import candidate_ids, chebyshev_center, safe_polytope
 from ..corridor.polytope_planes import closest_t
+from ..dual_active_set import add_face
 from ..errors import GoalUnreachableError, InvalidInputError, StartInCollisionError
 from ..native import choose, project_dual_c, project_primal_c
 from ..scene.occupancy import OccupancyGrid
@@ -275,43 +276,11 @@ def project_dual_active_set(A: np.ndarray, b: np.ndarray, target: np.ndarray,
         p = int(np.argmax(v)) if F else -1
         if F == 0 or v[p] <= tol * max(1.0, float(np.sqrt(row2[p]))):
             return x
-        up = 0.0  # multiplier of the face being added
-        while True:
-            it += 1
-            if it > max_iter:
-                return "unfinished"
-            a = A[p]
-            if W:
-                N = A[W]  # [k, 3]
-                G = N @ N.T
-                r = np.linalg.solve(G, N @ a)  # [k]  du_W = -s r per unit of u_p
-                z = N.T @ r - a  # [3]  dx per unit of u_p: minus a's part off the span of the working set
-            else:
-                r, z = np.zeros(0), -a
-            zz = float(z @ z)
-            dependent = zz <= 1e-18 * float(row2[p])
-            pos = np.flatnonzero(r > 1e-12 * (1.0 + np.abs(r).max(initial=0.0)))
-            t1, k = np.inf, -1
-            if pos.size:
-                ratios = u[pos] / r[pos]
-                j = int(np.argmin(ratios))
-                t1, k = float(ratios[j]), int(pos[j])
-            t2 = np.inf if dependent else float(a @ x - b[p]) / zz
-            if not np.isfinite(t1) and not np.isfinite(t2):
-                return None  # a nonnegative combination of the working set's faces and face p is infeasible
-            if t2 < 0:
-                return "unfinished"  # rounding: face p no longer violated after a partial step; restart is safer
-            s = min(t1, t2)
-            if np.isfinite(t2):
-                x = x + s * z
-            u = u - s * r
-            up += s
-            if s == t2:  # full step: face p joins the working set
-                W.append(p)
-                u = np.append(u, up)
-                break
-            W.pop(k)  # partial step: face k's multiplier reached 0, it leaves
-            u = np.delete(u, k)
+        x, u, it, outcome = add_face(A, b, row2, p, x, W, u, it, max_iter)
+        if outcome == "infeasible":
+            return None  # a nonnegative combination of the working set's faces and face p is infeasible
+        if outcome is not None:
+            return outcome
 
 
 def _project_onto_polytope(A: np.ndarray, b: np.ndarray, target: np.ndarray,

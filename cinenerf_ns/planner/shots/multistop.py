@@ -137,15 +137,16 @@ def solve_through_stops(polytopes, waypoints: np.ndarray, start: np.ndarray, goa
     t0 = time.perf_counter()
     qp = _with_stops(build_corridor_qp(polytopes, waypoints, start, goal, config), config, stop_segments, stops)
     t1 = time.perf_counter()
-    solve = _solve_clarabel if config.solver == "clarabel" else _solve_osqp
-    x, status, iters, outcome = solve(qp, config)
+    # (the stops' interpolation rows are not in dual_qp's equality-free form: "active_set" is solved by Clarabel here)
+    solver = "osqp" if config.solver == "osqp" else "clarabel"
+    x, status, iters, outcome = (_solve_osqp if solver == "osqp" else _solve_clarabel)(qp, config)
     if outcome == "infeasible":
         raise CorridorInfeasibleError(
             "no smooth trajectory through the stops fits inside the safe corridor; try fewer stops, a lower "
             "continuity order or stops with more free space around them"
         )
     if outcome == "failed":
-        raise TrajectorySolverError(f"the {config.solver} QP solver did not converge (status {status}).")
+        raise TrajectorySolverError(f"the {solver} QP solver did not converge (status {status}).")
     m, npts = qp.num_segments, qp.degree + 1
     cps = _project_equalities(x, qp).reshape(m, npts, 3).copy()
     cps[0, : config.rest_at_ends + 1] = start
@@ -163,9 +164,9 @@ def solve_through_stops(polytopes, waypoints: np.ndarray, start: np.ndarray, goa
         if free.any():
             worst = max(worst, float(np.max(cps[k, free] @ a.T - b)))
     if worst > 0:
-        raise TrajectorySolverError(f"the {config.solver} solution leaves the corridor by {worst:.2e}.")
+        raise TrajectorySolverError(f"the {solver} solution leaves the corridor by {worst:.2e}.")
     traj = BezierTrajectory(cps, qp.durations)
-    traj.info = {"solver": config.solver, "status": status, "iterations": int(iters), "build_ms": 1e3 * (t1 - t0),
+    traj.info = {"solver": solver, "status": status, "iterations": int(iters), "build_ms": 1e3 * (t1 - t0),
                  "solve_ms": 1e3 * (time.perf_counter() - t1), "max_corridor_violation": worst,
                  "num_variables": qp.n}
     return traj

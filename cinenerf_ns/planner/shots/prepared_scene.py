@@ -14,7 +14,7 @@ from ..corridor.grid_polytope import VoxelObstacles
 from ..corridor.polytope import prepare_native as prepare_native_polytope
 from ..errors import GoalUnreachableError
 from ..geometry.clearance_queries import free_distance_transform
-from ..native import grid_polytope_c as native_grid_polytope, search26 as native_search26
+from ..native import corridor_dual_c, grid_polytope_c as native_grid_polytope, search26 as native_search26
 from ..scene.ellipsoids import EllipsoidScene
 from ..scene.occupancy import OccupancyGrid, build_occupancy
 from ..scene.spatial_index import GridIndex
@@ -81,6 +81,7 @@ def prepare_scene(scene: EllipsoidScene, grid_resolution: int, lo: Tensor, hi: T
     # candidate worker processes fork: they inherit them instead of each loading them on first use
     native_search26()
     native_grid_polytope()
+    corridor_dual_c()
     prepare_native_polytope(scene, index)
     preload_request_modules()
     t6 = time.perf_counter()

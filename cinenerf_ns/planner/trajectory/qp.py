@@ -26,14 +26,17 @@ Constraints:
     q derivatives vanish there, i.e. P_{0,0..q} = start and P_{M-1,D-q..D} = goal.
     Pinned points are checked against their polytope (unshrunk) up front instead of being constrained.
 
-Solved with Clarabel (interior point, default) or OSQP (ADMM + polishing), both called directly with
-matrices built here (scipy CSC, upper triangle of P). CPU numpy float64 throughout: the solvers are
-CPU libraries; torch inputs are accepted and converted.
+Solved by default with ``solver="active_set"``: the equalities eliminated, then an exact dual active-set method
+(dual_qp.py); where it does not apply or fails numerically, Clarabel, and the trajectory's info says so ("fallback").
+Otherwise with Clarabel (interior point) or OSQP (ADMM + polishing), both called directly with matrices built here
+(scipy CSC, upper triangle of P). CPU numpy float64 throughout: the solvers are CPU libraries; torch inputs are
+accepted and converted.
 """
 from __future__ import annotations
 
 import functools
 import math
+import time
 from dataclasses import dataclass, replace
 from typing import Any, List, NamedTuple, Sequence, Tuple
 
@@ -43,6 +46,7 @@ from scipy.linalg.lapack import dpotrf, dpotrs
 
 from ..errors import GoalUnreachableError, InvalidInputError, PlanningError
 from .bezier import BezierTrajectory, _to_numpy, difference_matrix
+from .dual_qp import solve_corridor_dual
 from .working_set import face_norms, free_ranges, solve_with_working_set
 
 
@@ -51,6 +55,7 @@ class CorridorInfeasibleError(GoalUnreachableError):
 
 
 RETRY_TOLERANCE = 1e-6  # Clarabel's tolerance for the one retry after a stalled solve (solve_corridor_qp)
+SOLVERS = ("active_set", "clarabel", "osqp")
 
 
 class TrajectorySolverError(PlanningError):
@@ -77,8 +82,10 @@ class TrajectoryConfig:
     """Lower bound of a segment's duration in seconds (keeps very short segments well conditioned)."""
     rest_at_ends: int = 1
     """Number of time derivatives forced to zero at start and goal (0: none, 1: velocity, 2: + acceleration)."""
-    solver: str = "clarabel"
-    """QP solver: "clarabel" (interior point, robust, default) or "osqp" (ADMM with polishing)."""
+    solver: str = "active_set"
+    """QP solver: "active_set" (the exact optimum: equalities eliminated, then a dual active-set method; Clarabel
+    where it does not apply or fails numerically, said in the trajectory's info), "clarabel" (interior point) or "osqp"
+    (ADMM with polishing)."""
     margin: float = 1e-5
     """Polytope offsets are shrunk by this distance (scene units) so solver tolerance cannot leave a point outside."""
     osqp_margin: float = 1e-4
@@ -91,6 +98,9 @@ class TrajectoryConfig:
     """Clarabel iteration limit (OSQP gets 100x this many ADMM iterations)."""
     tolerance: float = 1e-8
     """Clarabel feasibility/optimality tolerance (tol_feas, tol_gap_abs, tol_gap_rel)."""
+    active_set_tolerance: float = 1e-10
+    """active_set: how far (scene units, times 1 + the waypoints' largest coordinate) a control point may stay outside
+    a face shrunk by `margin` when the solve ends; it must stay below `margin`."""
     iterative_refinement: bool = False
     """Clarabel's iterative refinement of each KKT solve; off: about half the solve time, same optimum (control points
     are still checked against their polytopes). The retry after a stalled solve turns it on."""
@@ -121,10 +131,13 @@ class TrajectoryConfig:
             raise InvalidInputError("cost weights must be >= 0 and not both zero.")
         if self.nominal_speed <= 0 or self.min_segment_duration <= 0:
             raise InvalidInputError("nominal_speed and min_segment_duration must be positive.")
-        if self.solver not in ("clarabel", "osqp"):
-            raise InvalidInputError(f'solver must be "clarabel" or "osqp", got "{self.solver}".')
+        if self.solver not in SOLVERS:
+            raise InvalidInputError(f'solver must be one of {", ".join(SOLVERS)}, got "{self.solver}".')
         if self.margin < 0 or self.osqp_margin < 0:
             raise InvalidInputError(f"margins must be >= 0, got {self.margin}, {self.osqp_margin}.")
+        if not 0 <= self.active_set_tolerance < max(self.margin, 1e-300):
+            raise InvalidInputError(f"active_set_tolerance must be in [0, margin) = [0, {self.margin:g}), "
+                                    f"got {self.active_set_tolerance:g}.")
 
 
 # ---------------------------------------------------------------------------------------------- helpers
@@ -168,6 +181,31 @@ def segment_hessians(degree: int, durations: np.ndarray, config: TrajectoryConfi
     smooth, length = _unit_hessians(degree, r)
     w = config.smoothness_weight / np.asarray(durations, dtype=np.float64) ** (2 * r - 1)  # [M]
     return w[:, None, None] * smooth + config.length_weight * length
+
+
+@functools.lru_cache(maxsize=None)
+def _unit_factors(degree: int, order: int) -> Tuple[np.ndarray, np.ndarray]:
+    """(F_s [D+1-r, D+1], F_l [D, D+1]) with F_s^T F_s and F_l^T F_l the two unit Hessians of ``_unit_hessians``:
+    c_r L_G^T Delta_r (G = L_G L_G^T, the Bernstein Gram matrix) and Delta_1."""
+    c_r = math.factorial(degree) / math.factorial(degree - order)
+    smooth = c_r * np.linalg.cholesky(bernstein_gram(degree - order)).T @ _difference(degree, order)
+    length = _difference(degree, 1).copy()
+    smooth.flags.writeable = False
+    length.flags.writeable = False
+    return smooth, length
+
+
+def segment_factors(degree: int, durations: np.ndarray, config: TrajectoryConfig) -> np.ndarray:
+    """F_k with F_k^T F_k = segment_hessians' H_k: durations [M] -> [M, 2 D + 1 - r, D+1] (the smoothness factor scaled
+    by sqrt(weight / d^(2r-1)) over the length factor scaled by sqrt(length_weight)). Why: a cost written as |F P|^2
+    is computed and factorised without squaring its condition number (dual_qp.py)."""
+    r = config.smoothness_order
+    smooth, length = _unit_factors(degree, r)
+    w = np.sqrt(config.smoothness_weight / np.asarray(durations, dtype=np.float64) ** (2 * r - 1))  # [M]
+    out = np.empty((w.size, smooth.shape[0] + length.shape[0], degree + 1))
+    out[:, : smooth.shape[0]] = w[:, None, None] * smooth
+    out[:, smooth.shape[0]:] = math.sqrt(config.length_weight) * length
+    return out
 
 
 def segment_durations(waypoints: np.ndarray, config: TrajectoryConfig) -> np.ndarray:
@@ -696,6 +734,12 @@ def solve_corridor_qp(polytopes, waypoints, start, goal, config: TrajectoryConfi
     free = free_ranges(m, npts, config.rest_at_ends)
     norms = face_norms(polys)  # once per QP: every working-set round and build uses them
     margin = config.effective_margin()
+    fallback = None
+    if config.solver == "active_set":
+        traj, fallback = _solve_active_set(polys, wp, start, goal, config, free, norms)
+        if traj is not None:
+            return traj
+        config = replace(config, solver="clarabel")
     build = functools.partial(_build, polys, wp, start, goal, config,
                               shrunk=[b - margin * norm for (_, b), norm in zip(polys, norms)])
     solve = functools.partial(_solve_with_retry, config=config)
@@ -717,16 +761,7 @@ def solve_corridor_qp(polytopes, waypoints, start, goal, config: TrajectoryConfi
     # pinned points exactly (the solver meets equalities only to its tolerance)
     cps[0, : config.rest_at_ends + 1] = start
     cps[-1, npts - 1 - config.rest_at_ends :] = goal
-    # verify every free control point against the true (unshrunk) polytope
-    worst = -np.inf  # stays -inf when no control point is free
-    for k, ((a, b), (lo, hi)) in enumerate(zip(polys, free)):
-        if hi > lo:
-            worst = max(worst, float(np.max(cps[k, lo:hi] @ a.T - b)))
-    if worst > 0:  # never return a point outside the true polytope
-        raise TrajectorySolverError(
-            f"The {config.solver} solution leaves the corridor by {worst:.2e}; increase TrajectoryConfig."
-            f"{'osqp_margin' if config.solver == 'osqp' else 'margin'} or use the clarabel solver."
-        )
+    worst = _corridor_violation(cps, polys, free, config.solver)
     traj = BezierTrajectory(cps, qp.durations)
     traj.info = {
         "solver": config.solver,
@@ -735,15 +770,76 @@ def solve_corridor_qp(polytopes, waypoints, start, goal, config: TrajectoryConfi
         "objective": qp.objective(x),
         "num_variables": qp.n,
         "num_inequalities": qp.n_in,  # of the last solve (working set: the faces it kept)
-        "num_inequalities_full": sum((hi - lo) * a.shape[0] for (a, _), (lo, hi) in zip(polys, free) if hi > lo),
+        "num_inequalities_full": _num_inequalities(polys, free),
         "qp_rounds": rounds["qp_rounds"],  # solves (working set: relaxations, the last one feasible for all faces)
         "num_equalities": qp.n_eq,
         "build_ms": 1e3 * rounds["build_s"],  # all rounds
         "solve_ms": 1e3 * rounds["solve_s"],
         "max_corridor_violation": worst,
         "retry_tolerance": retry_tolerance,  # None, or the looser tolerance a stalled first solve was retried with
+        "fallback": fallback,  # None, or why the active-set solve handed this QP to Clarabel
     }
     return traj
+
+
+def _num_inequalities(polys, free) -> int:
+    """Inequality rows of the full QP: one per face of its segment and control point not pinned."""
+    return sum((hi - lo) * a.shape[0] for (a, _), (lo, hi) in zip(polys, free) if hi > lo)
+
+
+def _corridor_violation(cps: np.ndarray, polys, free, solver: str) -> float:
+    """The largest a_f . P - b_f of a free control point against its true (unshrunk) polytope (-inf when none is free);
+    TrajectorySolverError when it is > 0: a point outside the true polytope is never returned."""
+    worst = -np.inf
+    for k, ((a, b), (lo, hi)) in enumerate(zip(polys, free)):
+        if hi > lo:
+            worst = max(worst, float(np.max(cps[k, lo:hi] @ a.T - b)))
+    if worst > 0:
+        raise TrajectorySolverError(
+            f"The {solver} solution leaves the corridor by {worst:.2e}; increase TrajectoryConfig."
+            f"{'osqp_margin' if solver == 'osqp' else 'margin'} or use the clarabel solver."
+        )
+    return worst
+
+
+def _solve_active_set(polys, wp, start, goal, config: TrajectoryConfig, free, norms):
+    """(the trajectory, None) by dual_qp.solve_corridor_dual, or (None, why) when it does not apply or does not finish:
+    the caller then solves the QP with Clarabel. An infeasible verdict is also handed over, so Clarabel's verdict and
+    its diagnosis (error path only) decide what the user is told."""
+    t0 = time.perf_counter()
+    m, d = len(polys), config.degree
+    durations = segment_durations(wp, config)
+    factors = segment_factors(d, durations, config)  # [M, 2D+1-r, D+1]
+    margin = config.effective_margin()
+    shrunk = [(a, b - margin * norm) for (a, b), norm in zip(polys, norms)]
+    tol = config.active_set_tolerance * (1.0 + float(np.abs(wp).max()))
+    res = solve_corridor_dual(durations, factors, shrunk, d, config.continuity, config.rest_at_ends, start, goal, tol)
+    if res is None:
+        return None, "the goal's pinned points fall on points the joins determine (degree - rest_at_ends <= continuity)"
+    if res.outcome != "ok":
+        return None, f"active set: {res.outcome} after {res.iterations} steps"
+    cps = res.points
+    worst = _corridor_violation(cps, polys, free, config.solver)
+    traj = BezierTrajectory(cps, durations)
+    n_eq = 3 * (2 * (config.rest_at_ends + 1) + (m - 1) * (config.continuity + 1))
+    traj.info = {
+        "solver": "active_set",
+        "status": "Solved",
+        "iterations": res.iterations,  # steps: faces added and dropped
+        "objective": float((np.einsum("kij,kjc->kic", factors, cps) ** 2).sum()),  # = 1/2 x^T P x of CorridorQP
+        "num_variables": cps.size,
+        "num_inequalities": _num_inequalities(polys, free),  # all faces: the method adds only those it needs
+        "num_inequalities_full": _num_inequalities(polys, free),
+        "active_faces": res.active,  # faces in the working set at the optimum
+        "qp_rounds": 1,
+        "num_equalities": n_eq,
+        "build_ms": 0.0,  # the elimination is part of the solve
+        "solve_ms": 1e3 * (time.perf_counter() - t0),
+        "max_corridor_violation": worst,
+        "retry_tolerance": None,
+        "fallback": None,
+    }
+    return traj, None
 
 
 def _solve_with_retry(qp: CorridorQP, config: TrajectoryConfig):

@@ -266,17 +266,23 @@ def test_stalled_solve_is_retried_at_a_looser_tolerance():
     assert np.linalg.norm(wp[3] - wp[2]) < 0.05
     # the stall happens with Clarabel's iterative refinement on (the default before 2026-11-24), on all faces (the
     # working set's smaller first QP does not stall)
-    tr = solve_corridor_qp([box] * 4, wp, wp[0], wp[-1], TrajectoryConfig(iterative_refinement=True, working_set=False))
+    tr = solve_corridor_qp([box] * 4, wp, wp[0], wp[-1],
+                           TrajectoryConfig(solver="clarabel", iterative_refinement=True, working_set=False))
     assert tr.info["retry_tolerance"] == 1e-6 and tr.info["status"] == "Solved"
     assert tr.info["max_corridor_violation"] <= 0
     np.testing.assert_allclose(tr.evaluate(np.array([0.0, tr.durations.sum()])), wp[[0, -1]], atol=1e-12)
     # the default (refinement off) solves the same QP, retried or not, to the same curve
-    tr0 = solve_corridor_qp([box] * 4, wp, wp[0], wp[-1])
+    tr0 = solve_corridor_qp([box] * 4, wp, wp[0], wp[-1], TrajectoryConfig(solver="clarabel"))
     assert tr0.info["status"] == "Solved" and tr0.info["max_corridor_violation"] <= 0
     assert abs(tr0.info["objective"] - tr.info["objective"]) <= 1e-4 * abs(tr.info["objective"])  # retry: 1e-6 gap
     # the retry is the only difference: a normal corridor needs none
     wp2 = np.array([[0.0, 0, 0], [0.5, 0.1, 0], [1.0, 0.3, 0.2]])
-    assert solve_corridor_qp([box] * 2, wp2, wp2[0], wp2[-1]).info["retry_tolerance"] is None
+    assert solve_corridor_qp([box] * 2, wp2, wp2[0], wp2[-1],
+                             TrajectoryConfig(solver="clarabel")).info["retry_tolerance"] is None
+    # the active-set default has no tolerance to stall on: the same QP, the exact optimum, no fallback
+    tr1 = solve_corridor_qp([box] * 4, wp, wp[0], wp[-1])
+    assert tr1.info["solver"] == "active_set" and tr1.info["fallback"] is None
+    assert abs(tr1.info["objective"] - tr0.info["objective"]) <= 1e-4 * abs(tr0.info["objective"])
 
 
 # ------------------------------------------------------------------ assembled matrices

@@ -1,5 +1,6 @@
-"""Working-set (constraint generation) corridor QP: the same optimum as the QP with all faces, every control point
-inside every full polytope, re-solves when the first set misses active faces, infeasibility still detected."""
+"""Working-set (constraint generation) corridor QP, Clarabel's path: the same optimum as the QP with all faces, every
+control point inside every full polytope, re-solves when the first set misses active faces, infeasibility still
+detected."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -50,7 +51,8 @@ def test_working_set_equals_all_faces(seed, m, shape, distances, pad):
     """Random corridors (a tight pad makes faces bind); with the first set cut down to the nearest face the loop must
     re-solve, and it still lands on the all-faces optimum."""
     degree, continuity, smooth, rest = shape
-    cfg = TrajectoryConfig(degree=degree, continuity=continuity, smoothness_order=smooth, rest_at_ends=rest)
+    cfg = TrajectoryConfig(solver="clarabel", degree=degree, continuity=continuity, smoothness_order=smooth,
+                           rest_at_ends=rest)
     polys, wp = random_corridor(seed, m=m, faces=16, pad=pad)
     full = solve_corridor_qp(polys, wp, wp[0], wp[-1], replace(cfg, working_set=False))
     with pytest.MonkeyPatch.context() as mp:
@@ -67,7 +69,7 @@ def test_missed_faces_force_a_re_solve(seed, monkeypatch):
     """Thin L-shaped boxes plus far tilted faces: the nearest-face start cannot hold the curve, so the first relaxation
     leaves the corridor, the check finds it and a later round (with the violated faces) returns the full optimum."""
     polys, wp = random_corridor(seed, m=4, faces=14, pad=0.05)
-    cfg = TrajectoryConfig()
+    cfg = TrajectoryConfig(solver="clarabel")
     full = solve_corridor_qp(polys, wp, wp[0], wp[-1], replace(cfg, working_set=False))
     narrow(monkeypatch)
     ws = solve_corridor_qp(polys, wp, wp[0], wp[-1], cfg)
@@ -81,7 +83,7 @@ def test_first_relaxation_alone_would_leave_the_corridor(monkeypatch):
     """Guards the check itself: with one round and no fallback the nearest-face relaxation is infeasible for the full
     QP (so a loop that stopped there could not pass the tests above)."""
     polys, wp = random_corridor(1, m=4, faces=14, pad=0.05)
-    cfg = TrajectoryConfig()
+    cfg = TrajectoryConfig(solver="clarabel")
     pp = [(np.asarray(a), np.asarray(b)) for a, b in polys]
     npts = cfg.degree + 1
     from cinenerf_ns.planner.trajectory.qp import _build, _solve_with_retry
@@ -100,9 +102,9 @@ def test_first_relaxation_alone_would_leave_the_corridor(monkeypatch):
 
 def test_max_rounds_falls_back_to_all_faces(monkeypatch):
     polys, wp = random_corridor(2, m=4, faces=14, pad=0.05)
-    full = solve_corridor_qp(polys, wp, wp[0], wp[-1], TrajectoryConfig(working_set=False))
+    full = solve_corridor_qp(polys, wp, wp[0], wp[-1], TrajectoryConfig(solver="clarabel", working_set=False))
     narrow(monkeypatch, rounds=1)
-    ws = solve_corridor_qp(polys, wp, wp[0], wp[-1], TrajectoryConfig())
+    ws = solve_corridor_qp(polys, wp, wp[0], wp[-1], TrajectoryConfig(solver="clarabel"))
     assert ws.info["qp_rounds"] == 2 and ws.info["num_inequalities"] == ws.info["num_inequalities_full"]
     assert_same_optimum(ws, full, polys)
 
