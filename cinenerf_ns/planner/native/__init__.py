@@ -328,3 +328,12 @@ def corridor_dual_c():
                       # max_iter
                       _P, _P],  # out: control points [N, 3], info [2]
                      _I64)
+
+
+def goal_window_c():
+    """The compiled window of the goal's voxel fallback (goalwindow.c: cn_goal_window; search/goal.py), or None."""
+    return _function("goalwindow", "cn_goal_window",
+                     [_P, _P, _I64, _P, _P, _P, _P, _P,  # occ, labels or NULL, comp, reach or NULL, mean, dims, a, e
+                      _P, _F64, _P, _I64,  # grid lo [3], voxel size, target [3], limit
+                      _P, _P, _P],  # out: centres [limit, 3], distances [limit], smallest distance
+                     _I64)

@@ -28,7 +28,7 @@ from ..corridor.polytope import candidate_ids, chebyshev_center, safe_polytope
 from ..corridor.polytope_planes import closest_t
 from ..dual_active_set import add_face
 from ..errors import GoalUnreachableError, InvalidInputError, StartInCollisionError
-from ..native import choose, project_dual_c, project_primal_c
+from ..native import choose, goal_window_c, project_dual_c, project_primal_c
 from ..scene.occupancy import OccupancyGrid
 
 INTERIOR_RADIUS = 1e-9
@@ -423,48 +423,97 @@ def _nearest_chunks(centres: np.ndarray, d: np.ndarray, limit: int, chunk: int):
             yield k, torch.from_numpy(centres[order[k:k + chunk]])
 
 
-def _nearest_free_voxel_centre(t, scene, index, grid, reachable, clear, max_candidates, mean_voxels=None) -> Tensor:
+def _window_native_args(grid, occ, reachable, mean_voxels):
+    """(occ, labels or None, comp, reach or None, mean) as the C arrays goalwindow.c reads, or None when the inputs are
+    not in that form (the numpy window then): an OccupancyGrid (its centre arithmetic), a mean mask, and a reachable
+    mask that is None, a bool array or a ComponentMask over C-contiguous int32 labels."""
+    if mean_voxels is None or not isinstance(grid, OccupancyGrid) or mean_voxels.shape != occ.shape:
+        return None
+    labels, comp, reach = None, 0, None
+    if isinstance(reachable, ComponentMask):
+        labels, comp = reachable.labels, int(reachable.comp)
+        if not (isinstance(labels, np.ndarray) and labels.dtype == np.int32 and labels.flags.c_contiguous):
+            return None
+    elif reachable is not None:
+        reach = np.ascontiguousarray(reachable, dtype=bool).view(np.uint8)
+    return (np.ascontiguousarray(occ).view(np.uint8), labels, comp, reach,
+            np.ascontiguousarray(mean_voxels, dtype=bool).view(np.uint8))
+
+
+class _NativeWindow:
+    """goalwindow.c's arguments for one goal (arrays that do not change between its windows, made once)."""
+
+    def __init__(self, fn, arrays, lo_np, vs, t_np, limit):
+        self.fn, self.limit, self.vs = fn, int(limit), float(vs)
+        self.occ, self.labels, self.comp, self.reach, self.mean = arrays
+        self.dims = np.asarray(self.occ.shape, dtype=np.int64)
+        self.lo = np.ascontiguousarray(lo_np, dtype=np.float64)
+        self.t = np.ascontiguousarray(t_np, dtype=np.float64)
+        self.ae = np.empty((2, 3), dtype=np.int64)
+        self.dists, self.dmin = np.empty(self.limit), np.empty(1)
+
+    def __call__(self, a, e):
+        """One window [a, e): (any voxel free and reachable, candidates' centres [<= limit, 3] in stable distance
+        order, their smallest distance)."""
+        self.ae[0], self.ae[1] = a, e
+        centres = np.empty((self.limit, 3))
+        labels = None if self.labels is None else self.labels.ctypes.data
+        reach = None if self.reach is None else self.reach.ctypes.data
+        k = self.fn(self.occ.ctypes.data, labels, self.comp, reach, self.mean.ctypes.data, self.dims.ctypes.data,
+                    self.ae.ctypes.data, self.ae[1].ctypes.data, self.lo.ctypes.data, self.vs, self.t.ctypes.data,
+                    self.limit, centres.ctypes.data, self.dists.ctypes.data, self.dmin.ctypes.data)
+        if k == -3:
+            raise MemoryError("native/goalwindow.c could not allocate its work arrays")
+        return k >= 0, centres[: max(min(k, self.limit), 0)], float(self.dmin[0])
+
+
+def _nearest_free_voxel_centre(t, scene, index, grid, reachable, clear, max_candidates, mean_voxels=None,
+                               backend: str = "auto") -> Tensor:
+    """closest_safe_point's step 3. backend: "auto" (native/goalwindow.c for each window when the inputs fit:
+    _window_native_args), "native" or "python" (the numpy windows, the reference); the same candidates in the same
+    order either way."""
     occ, lo, vs = _grid_arrays(grid)
     shape = np.asarray(occ.shape)
     reachable = _reachable_mask(reachable, occ.shape)  # free and reachable voxels: computed per window below
+    native_args = _window_native_args(grid, occ, reachable, mean_voxels) if backend != "python" else None
+    fn = choose(backend, goal_window_c, "goalwindow", "goal window scan",
+                applies=native_args is not None and max_candidates > 0,
+                needs="an OccupancyGrid, a mean-voxel mask and a reachable mask as int32 labels or bool")
     tc = t.cpu()
     t_np, lo_np = tc.numpy(), lo.numpy()
-    v = _world_to_voxel(grid, tc).numpy()
+    if isinstance(grid, OccupancyGrid):  # OccupancyGrid.world_to_voxel's arithmetic without torch's per-call cost
+        v = np.floor((t_np.astype(np.float64) - lo_np) / vs).astype(np.int64)
+    else:
+        v = _world_to_voxel(grid, tc).numpy()
     vc = np.clip(v, 0, shape - 1)
+    window = _NativeWindow(fn, native_args, lo_np, vs, t_np, max_candidates) if fn is not None else None
     R = 2
     while True:
         a = np.maximum(vc - R, 0)
         e = np.minimum(vc + R + 1, shape)
-        win = (slice(a[0], e[0]), slice(a[1], e[1]), slice(a[2], e[2]))
-        sub = ~occ[win]
-        if reachable is not None:
-            sub &= reachable[win]
         covers_all = (a == 0).all() and (e == shape).all()
-        if sub.any():
-            # voxels holding a Gaussian mean are not goals (paper): mark them in this window only
-            if mean_voxels is not None:
-                sub &= ~mean_voxels[a[0]:e[0], a[1]:e[1], a[2]:e[2]]
-            ids = None
-            if mean_voxels is None:  # the means in the window's box, from the index
-                wlo = _voxel_to_world(grid, torch.as_tensor(a)) - 0.5 * vs
-                whi = _voxel_to_world(grid, torch.as_tensor(e - 1)) + 0.5 * vs
-                ids = candidate_ids(scene, index, wlo.to(scene.means.device), whi.to(scene.means.device))
-            if ids is not None and ids.numel():
-                mv = _world_to_voxel(grid, scene.means[ids].detach().cpu().to(torch.float64)).numpy() - a
-                ok = ((mv >= 0) & (mv < (e - a))).all(1)
-                mv = mv[ok]
-                sub[mv[:, 0], mv[:, 1], mv[:, 2]] = False
-            ijk = np.argwhere(sub) + a
-            if len(ijk) == 0:  # every free voxel of the window holds a mean: a wider window
+        if fn is not None:
+            any_free, ordered, dmin = window(a, e)
+            if any_free and len(ordered) == 0:  # every free voxel of the window holds a mean: a wider window
                 if covers_all:
                     break
                 R *= 2
                 continue
-            centres = _voxel_centres(grid, ijk, lo_np, vs)  # [K, 3] float64
-            d = np.sqrt(((centres - t_np) ** 2).sum(1))
+            chunks = ((k, torch.from_numpy(ordered[k:k + 16])) for k in range(0, len(ordered), 16))
+        else:
+            any_free, centres, d = _window_numpy(grid, scene, index, occ, reachable, mean_voxels, a, e, lo_np, vs,
+                                                 t_np)
+            if any_free and centres is None:
+                if covers_all:
+                    break
+                R *= 2
+                continue
+            dmin = float(d.min()) if any_free else np.inf
+            chunks = _nearest_chunks(centres, d, max_candidates, 16) if any_free else iter(())
+        if any_free:
             # every voxel outside the window is at least R voxels away (target inside the grid)
-            if float(d.min()) <= R * vs or covers_all:
-                for k, cand in _nearest_chunks(centres, d, max_candidates, 16):  # a few exact tests at a time
+            if dmin <= R * vs or covers_all:
+                for k, cand in chunks:  # a few exact tests at a time
                     ok = torch.as_tensor(clear(cand.to(scene.means.device))).reshape(-1).cpu()
                     if bool(ok.any()):
                         return cand[int(torch.nonzero(ok)[0, 0])]
@@ -477,6 +526,35 @@ def _nearest_free_voxel_centre(t, scene, index, grid, reachable, clear, max_cand
         f"no safe camera position found near the goal {t.tolist()}: the projection polytope is empty and "
         f"no free voxel without Gaussian means passed the clearance test"
     )
+
+
+def _window_numpy(grid, scene, index, occ, reachable, mean_voxels, a, e, lo_np, vs, t_np):
+    """One window in numpy (the reference): (any voxel free and reachable, candidates' centres [K, 3] or None when
+    every free one holds a mean, their distances [K])."""
+    win = (slice(a[0], e[0]), slice(a[1], e[1]), slice(a[2], e[2]))
+    sub = ~occ[win]
+    if reachable is not None:
+        sub &= reachable[win]
+    if not sub.any():
+        return False, None, None
+    # voxels holding a Gaussian mean are not goals (paper): mark them in this window only
+    if mean_voxels is not None:
+        sub &= ~mean_voxels[a[0]:e[0], a[1]:e[1], a[2]:e[2]]
+    ids = None
+    if mean_voxels is None:  # the means in the window's box, from the index
+        wlo = _voxel_to_world(grid, torch.as_tensor(a)) - 0.5 * vs
+        whi = _voxel_to_world(grid, torch.as_tensor(e - 1)) + 0.5 * vs
+        ids = candidate_ids(scene, index, wlo.to(scene.means.device), whi.to(scene.means.device))
+    if ids is not None and ids.numel():
+        mv = _world_to_voxel(grid, scene.means[ids].detach().cpu().to(torch.float64)).numpy() - a
+        ok = ((mv >= 0) & (mv < (e - a))).all(1)
+        mv = mv[ok]
+        sub[mv[:, 0], mv[:, 1], mv[:, 2]] = False
+    ijk = np.argwhere(sub) + a
+    if len(ijk) == 0:
+        return True, None, None
+    centres = _voxel_centres(grid, ijk, lo_np, vs)  # [K, 3] float64
+    return True, centres, np.sqrt(((centres - t_np) ** 2).sum(1))
 
 
 # ------------------------------------------------------------------------------------ starts

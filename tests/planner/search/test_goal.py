@@ -633,3 +633,77 @@ def test_mean_voxel_mask_gives_the_same_goals_as_the_box_query():
         a = closest_safe_point(t, scene, prep.index, prep.grid, **kw)
         m = closest_safe_point(t, scene, prep.index, prep.grid, mean_voxels=mv, **kw)
         assert torch.equal(a, m) and bool(pl.points_free(m[None].numpy())[0])
+
+
+needs_goalwindow = pytest.mark.skipif(native.goal_window_c() is None,
+                                      reason=f"goalwindow.c did not load: {native.native_status().get('goalwindow')}")
+
+
+@needs_goalwindow
+@settings(max_examples=150, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), dims=st.tuples(st.integers(1, 24), st.integers(1, 24), st.integers(1, 24)),
+       fill=st.sampled_from([0.2, 0.6, 0.95]), mean_fill=st.sampled_from([0.0, 0.3, 0.9]),
+       reach_kind=st.sampled_from(["none", "labels", "bool"]), pass_rate=st.sampled_from([0.0, 0.05, 0.5, 1.0]),
+       limit=st.sampled_from([1, 5, 40, 256]), snap=st.booleans())
+def test_native_goal_window_is_the_numpy_window(seed, dims, fill, mean_fill, reach_kind, pass_rate, limit, snap):
+    """The fallback's windows by goalwindow.c and by numpy: the same candidates tested in the same order, so the same
+    returned centre (or both give up), for any occupancy, reachable mask (component labels or bool), mean mask, target
+    (a voxel centre when ``snap``: many exact distance ties) and exact-test outcome (a fixed random pass per voxel)."""
+    from scipy import ndimage
+
+    from cinenerf_ns.planner.scene.occupancy import OccupancyGrid
+    from cinenerf_ns.planner.search.goal import ComponentMask, _nearest_free_voxel_centre
+
+    rng = np.random.default_rng(seed)
+    occ = rng.random(dims) < fill
+    grid = OccupancyGrid(torch.tensor([-0.3, 0.1, -1.0], dtype=torch.float64), 0.07, torch.from_numpy(occ))
+    mean = rng.random(dims) < mean_fill
+    reach = None
+    if reach_kind == "labels":
+        labels, n = ndimage.label(~occ, structure=np.ones((3, 3, 3), dtype=bool))
+        reach = ComponentMask(labels.astype(np.int32), int(rng.integers(0, n + 1)))
+    elif reach_kind == "bool":
+        reach = rng.random(dims) < 0.7
+    t = grid.lo.numpy() + rng.uniform(-0.2, 1.2, 3) * np.asarray(dims) * grid.voxel_size
+    if snap:
+        t = grid.lo.numpy() + (np.floor(rng.uniform(0, 1, 3) * np.asarray(dims)) + 0.5) * grid.voxel_size
+    passes = rng.random(dims) < pass_rate
+    tested = {"python": [], "native": []}
+
+    def clear_for(name):
+        def clear(points):
+            ijk = np.floor((points.numpy() - grid.lo.numpy()) / grid.voxel_size).astype(int)
+            tested[name].append(points.numpy().copy())
+            return torch.from_numpy(passes[ijk[:, 0], ijk[:, 1], ijk[:, 2]])
+        return clear
+
+    scene = type("S", (), {"means": torch.zeros(1, 3, dtype=torch.float64)})()
+    out = {}
+    for name in ("python", "native"):
+        try:
+            out[name] = _nearest_free_voxel_centre(torch.tensor(t), scene, None, grid, reach, clear_for(name), limit,
+                                                   mean, backend=name).numpy()
+        except GoalUnreachableError:
+            out[name] = None
+    assert (out["python"] is None) == (out["native"] is None)
+    if out["python"] is not None:
+        assert np.array_equal(out["python"], out["native"])
+    assert len(tested["python"]) == len(tested["native"])
+    for a, b in zip(tested["python"], tested["native"]):
+        assert np.array_equal(a, b)
+
+
+def test_goal_window_backend_choice():
+    """auto uses the compiled window where it applies; "native" says what it needs where it does not."""
+    from cinenerf_ns.planner.scene.occupancy import OccupancyGrid
+    from cinenerf_ns.planner.search.goal import _nearest_free_voxel_centre
+
+    grid = OccupancyGrid(torch.zeros(3, dtype=torch.float64), 0.1, torch.zeros(4, 4, 4, dtype=torch.bool))
+    scene = type("S", (), {"means": torch.zeros(1, 3, dtype=torch.float64)})()
+    ok = lambda p: torch.ones(len(p), dtype=torch.bool)  # noqa: E731
+    with pytest.raises(RuntimeError, match="needs an OccupancyGrid, a mean-voxel mask"):
+        _nearest_free_voxel_centre(torch.tensor([0.2, 0.2, 0.2]), scene, None, grid, None, ok, 16, None,
+                                   backend="native")
+    with pytest.raises(InvalidInputError, match="backend"):
+        _nearest_free_voxel_centre(torch.tensor([0.2, 0.2, 0.2]), scene, None, grid, None, ok, 16,
+                                   np.zeros((4, 4, 4), dtype=bool), backend="fast")
