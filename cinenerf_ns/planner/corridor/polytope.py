@@ -309,7 +309,9 @@ def _checked_box(box_lo, box_hi, box_rotation, seeds_t: Tensor, require_seed_ins
     rot = None
     if box_rotation is not None:
         rot = _f64(box_rotation).reshape(3, 3)
-        if not np.allclose(rot.T @ rot, np.eye(3), atol=1e-9):
+        eye = np.eye(3)
+        # np.allclose(rot^T rot, I, atol=1e-9)'s test (rtol 1e-5 of |I|; NaN fails), written out: 3 us instead of 15
+        if not (np.abs(rot.T @ rot - eye) <= 1e-9 + 1e-5 * eye).all():
             raise InvalidInputError("box_rotation must be orthonormal")
     if require_seed_inside:
         seeds_box = _f64(seeds_t) if rot is None else _f64(seeds_t) @ rot

@@ -61,6 +61,12 @@ class OccupancyGrid:
         p = torch.as_tensor(points, device=self.device).double()
         return torch.floor((p - self.lo) / self.voxel_size).long()
 
+    def voxel_of(self, point: np.ndarray) -> np.ndarray:
+        """world_to_voxel of one point [3] as int64 numpy [3]: the same float64 arithmetic, without torch's per-call
+        cost (~40 us on the CPU box for the tensor round trip, 4 us here; a request looks up several points)."""
+        lo = self.lo.detach().cpu().numpy() if self.lo.device.type != "cpu" else self.lo.detach().numpy()
+        return np.floor((np.asarray(point, dtype=np.float64).reshape(3) - lo) / self.voxel_size).astype(np.int64)
+
     def voxel_to_world(self, ijk: Tensor) -> Tensor:
         """Voxel centres [..., 3] float64 of indices [..., 3]."""
         ijk = torch.as_tensor(ijk, device=self.device)

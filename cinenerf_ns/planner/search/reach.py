@@ -56,15 +56,15 @@ def free_voxel_near(planner: "Planner", p: np.ndarray, comp: Optional[int], max_
     free component ``comp`` when given), searched within ``max_window`` voxels."""
     prep = planner.ready()
     grid, labels = prep.grid, prep.astar_grid.labels
-    pt = torch.as_tensor(p, dtype=torch.float64, device=grid.device)
-    ijk = grid.world_to_voxel(pt)
+    ijk = grid.voxel_of(p)  # [3] int64
     shape = np.array(grid.shape)
-    if bool(grid.in_bounds(ijk)):
+    if ((ijk >= 0) & (ijk < shape)).all():
         i, j, k = (int(v) for v in ijk)
         if labels[i, j, k] > 0 and (comp is None or labels[i, j, k] == comp):
             return np.array([i, j, k])
     # search growing windows for free voxels, nearest first, whose segment from p is free
-    c = np.clip(ijk.cpu().numpy(), 0, shape - 1)
+    pt = torch.as_tensor(p, dtype=torch.float64, device=grid.device)
+    c = np.clip(ijk, 0, shape - 1)
     for R in (r for r in (1, 2, 4, 8, 16) if r <= max_window):
         a = np.maximum(c - R, 0)
         e = np.minimum(c + R + 1, shape)
@@ -159,7 +159,7 @@ def reachable_goal(planner: "Planner", target: np.ndarray, comp: int) -> "Reacha
     rlo, rhi = planner.region()
     half_voxel = 0.5 * float(grid.voxel_size)
     target = np.clip(target, rlo + half_voxel, rhi - half_voxel)  # paths never leave the planning region
-    tv = grid.world_to_voxel(torch.as_tensor(target, device=grid.device)).cpu().numpy()  # [3]
+    tv = grid.voxel_of(target)  # [3]
     inside = bool(((tv >= 0) & (tv < np.array(grid.shape))).all())
     # target in an occupied voxel or a free pocket of another component (e.g. inside a hollow
     # object): a straight way out is only looked for next to it (a wider search almost always

@@ -287,6 +287,10 @@ def test_oriented_box_polytope(seed, n, use_index):
     assert clearance(pts, scene).min() >= -1e-9
     with pytest.raises(InvalidInputError):
         safe_polytope(x0, scene, None, lo, hi, box_rotation=2 * R)
+    bad = R.copy()
+    bad[0, 0] = np.nan
+    with pytest.raises(InvalidInputError, match="orthonormal"):
+        safe_polytope(x0, scene, None, lo, hi, box_rotation=bad)
 
 
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])

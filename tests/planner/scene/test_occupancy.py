@@ -114,3 +114,16 @@ def test_cuda_matches_cpu():
     b = build_occupancy(sc.to("cuda"), resolution=30)
     # float32 column maths may round differently on the GPU at voxel boundaries: allow a few voxels
     assert (a.occupied != b.occupied.cpu()).sum() <= 0.001 * a.occupied.numel()
+
+
+@settings(max_examples=200, deadline=None)
+@given(lo=st.lists(st.floats(-5, 5), min_size=3, max_size=3), vs=st.floats(1e-3, 1.0),
+       ijk=st.lists(st.integers(-3, 40), min_size=3, max_size=3),
+       frac=st.sampled_from([0.0, 0.5, 1.0, 1e-12, -1e-12]))
+def test_voxel_of_is_world_to_voxel(lo, vs, ijk, frac):
+    """The numpy lookup of one point gives world_to_voxel's indices, on voxel faces (frac 0 / 1) and beside them."""
+    import numpy as np
+
+    grid = OccupancyGrid(torch.tensor(lo, dtype=torch.float64), vs, torch.zeros(4, 4, 4, dtype=torch.bool))
+    p = np.asarray(lo) + (np.asarray(ijk) + frac) * vs
+    assert grid.voxel_of(p).tolist() == grid.world_to_voxel(torch.as_tensor(p)).tolist()
