@@ -21,7 +21,11 @@ def blas_counts() -> set:
 
 
 @pytest.fixture
-def two_blas_threads():
+def two_blas_threads(monkeypatch):
+    # a fresh controller: the module keeps the one built on first use, and in a test process that can be before
+    # another test imports cvxpy (the tests' reference), which loads scs's own OpenBLAS; the cap then missed it and
+    # these tests failed when tests/planner ran alone under xdist. The planner itself loads no BLAS after import.
+    monkeypatch.setattr(bt, "_controller", None)
     with threadpoolctl.threadpool_limits(limits=2, user_api="blas"):
         THREADED.clear()
         THREADED.update(lib["filepath"] for lib in threadpoolctl.threadpool_info()
