@@ -135,9 +135,9 @@ class TrajectoryConfig:
             raise InvalidInputError(f'solver must be one of {", ".join(SOLVERS)}, got "{self.solver}".')
         if self.margin < 0 or self.osqp_margin < 0:
             raise InvalidInputError(f"margins must be >= 0, got {self.margin}, {self.osqp_margin}.")
-        if not 0 <= self.active_set_tolerance < max(self.margin, 1e-300):
-            raise InvalidInputError(f"active_set_tolerance must be in [0, margin) = [0, {self.margin:g}), "
-                                    f"got {self.active_set_tolerance:g}.")
+        if self.solver == "active_set" and not 0 <= self.active_set_tolerance < max(self.margin, 1e-300):
+            raise InvalidInputError(f"active_set_tolerance must be in [0, margin) = [0, {self.margin:g}) (0 with "
+                                    f"margin 0), got {self.active_set_tolerance:g}.")
 
 
 # ---------------------------------------------------------------------------------------------- helpers

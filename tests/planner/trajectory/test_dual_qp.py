@@ -246,3 +246,15 @@ def test_point_kinds():
     assert k.tolist() == [[S, S, F, F, F, F], [J, J, J, F, F, F], [J, J, J, F, G, G]]
     assert dual_qp.point_kinds(1, 3, 2, 1).tolist() == [S, S, G, G]  # one segment: no join
     assert dual_qp.point_kinds(2, 3, 2, 1) is None  # the goal's pins on joined points
+
+
+def test_active_set_tolerance_is_checked_against_the_margin():
+    """The face tolerance must stay below the margin that absorbs it; other solvers do not read it."""
+    from cinenerf_ns.planner.errors import InvalidInputError
+
+    with pytest.raises(InvalidInputError, match="active_set_tolerance must be in"):
+        TrajectoryConfig(margin=1e-12).validate()
+    with pytest.raises(InvalidInputError, match="active_set_tolerance must be in"):
+        TrajectoryConfig(active_set_tolerance=-1.0).validate()
+    TrajectoryConfig(margin=0.0, active_set_tolerance=0.0).validate()
+    TrajectoryConfig(solver="clarabel", margin=0.0).validate()
