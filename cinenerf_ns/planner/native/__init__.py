@@ -335,5 +335,5 @@ def goal_window_c():
     return _function("goalwindow", "cn_goal_window",
                      [_P, _P, _I64, _P, _P, _P, _P, _P,  # occ, labels or NULL, comp, reach or NULL, mean, dims, a, e
                       _P, _F64, _P, _I64,  # grid lo [3], voxel size, target [3], limit
-                      _P, _P, _P],  # out: centres [limit, 3], distances [limit], smallest distance
+                      _P, _P],  # out: centres [limit, 3], smallest distance
                      _I64)

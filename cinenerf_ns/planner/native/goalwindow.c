@@ -63,11 +63,11 @@ static double kth_smallest(double *x, int64_t n, int64_t k) {
    uint8 or NULL (reachable iff reach != 0; used when labels is NULL); mean [X, Y, Z] uint8 (1: holds a mean);
    dims [3]; window a [3] .. e [3] (exclusive); lo [3], vs: the grid; t [3] the target; limit > 0.
    Returns -1 when no voxel of the window is free and reachable (numpy: sub.any() is false), else K, the number of
-   candidates; centres [min(K, limit), 3] and dists [min(K, limit)] in stable distance order; dmin (out): their
+   candidates; centres [min(K, limit), 3] in stable distance order; dmin (out): their
    smallest distance (inf when K = 0). -3: out of memory. */
 int64_t cn_goal_window(const uint8_t *occ, const int32_t *labels, int64_t comp, const uint8_t *reach,
                        const uint8_t *mean, const int64_t *dims, const int64_t *a, const int64_t *e, const double *lo,
-                       double vs, const double *t, int64_t limit, double *centres, double *dists, double *dmin) {
+                       double vs, const double *t, int64_t limit, double *centres, double *dmin) {
     int64_t Y = dims[1], Z = dims[2];
     int64_t nx = e[0] - a[0], ny = e[1] - a[1], nz = e[2] - a[2];
     int64_t cap = nx * ny * nz;
@@ -127,7 +127,6 @@ int64_t cn_goal_window(const uint8_t *occ, const int32_t *labels, int64_t comp, 
             centres[q * 3] = lo[0] + ((double)i + 0.5) * vs;
             centres[q * 3 + 1] = lo[1] + ((double)j + 0.5) * vs;
             centres[q * 3 + 2] = lo[2] + ((double)k + 0.5) * vs;
-            dists[q] = c[q].d;
         }
         free(c);
     }

@@ -450,7 +450,7 @@ class _NativeWindow:
         self.lo = np.ascontiguousarray(lo_np, dtype=np.float64)
         self.t = np.ascontiguousarray(t_np, dtype=np.float64)
         self.ae = np.empty((2, 3), dtype=np.int64)
-        self.dists, self.dmin = np.empty(self.limit), np.empty(1)
+        self.dmin = np.empty(1)
 
     def __call__(self, a, e):
         """One window [a, e): (any voxel free and reachable, candidates' centres [<= limit, 3] in stable distance
@@ -461,7 +461,7 @@ class _NativeWindow:
         reach = None if self.reach is None else self.reach.ctypes.data
         k = self.fn(self.occ.ctypes.data, labels, self.comp, reach, self.mean.ctypes.data, self.dims.ctypes.data,
                     self.ae.ctypes.data, self.ae[1].ctypes.data, self.lo.ctypes.data, self.vs, self.t.ctypes.data,
-                    self.limit, centres.ctypes.data, self.dists.ctypes.data, self.dmin.ctypes.data)
+                    self.limit, centres.ctypes.data, self.dmin.ctypes.data)
         if k == -3:
             raise MemoryError("native/goalwindow.c could not allocate its work arrays")
         return k >= 0, centres[: max(min(k, self.limit), 0)], float(self.dmin[0])
@@ -481,8 +481,8 @@ def _nearest_free_voxel_centre(t, scene, index, grid, reachable, clear, max_cand
                 needs="an OccupancyGrid, a mean-voxel mask and a reachable mask as int32 labels or bool")
     tc = t.cpu()
     t_np, lo_np = tc.numpy(), lo.numpy()
-    if isinstance(grid, OccupancyGrid):  # OccupancyGrid.world_to_voxel's arithmetic without torch's per-call cost
-        v = np.floor((t_np.astype(np.float64) - lo_np) / vs).astype(np.int64)
+    if isinstance(grid, OccupancyGrid):
+        v = grid.voxel_of(t_np)
     else:
         v = _world_to_voxel(grid, tc).numpy()
     vc = np.clip(v, 0, shape - 1)

@@ -10,11 +10,11 @@ from typing import Optional, Tuple
 import numpy as np
 from torch import Tensor
 
+from .. import native
 from ..corridor.grid_polytope import VoxelObstacles
 from ..corridor.polytope import prepare_native as prepare_native_polytope
 from ..errors import GoalUnreachableError
 from ..geometry.clearance_queries import free_distance_transform
-from ..native import corridor_dual_c, grid_polytope_c as native_grid_polytope, search26 as native_search26
 from ..scene.ellipsoids import EllipsoidScene
 from ..scene.occupancy import OccupancyGrid, build_occupancy
 from ..scene.spatial_index import GridIndex
@@ -77,11 +77,12 @@ def prepare_scene(scene: EllipsoidScene, grid_resolution: int, lo: Tensor, hi: T
     t4 = time.perf_counter()
     voxels = VoxelObstacles.from_occupied(ag._occ, grid.lo.detach().cpu().double().numpy(), grid.voxel_size)
     t5 = time.perf_counter()
-    # compile / load the compiled path search and polytope now (cached on disk after the first time), before
-    # candidate worker processes fork: they inherit them instead of each loading them on first use
-    native_search26()
-    native_grid_polytope()
-    corridor_dual_c()
+    # compile / load a request's compiled kernels now (cached on disk after the first time), before candidate worker
+    # processes fork: they inherit them instead of each loading them on first use. One function per library:
+    # astar26, gridpoly, dual_qp, goalwindow, project, timing; polytope just below.
+    for loader in (native.search26, native.grid_polytope_c, native.corridor_dual_c, native.goal_window_c,
+                   native.project_dual_c, native.arc_length_table_c):
+        loader()
     prepare_native_polytope(scene, index)
     preload_request_modules()
     t6 = time.perf_counter()

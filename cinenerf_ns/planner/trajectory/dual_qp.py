@@ -40,6 +40,7 @@ against the unshrunk polytopes.
 """
 from __future__ import annotations
 
+import functools
 from typing import List, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
@@ -63,8 +64,10 @@ class Reduction(NamedTuple):
     y0: np.ndarray  # [n, 3] the unconstrained optimum in Y = L^T Z
 
 
+@functools.lru_cache(maxsize=256)
 def point_kinds(m: int, degree: int, continuity: int, rest_at_ends: int) -> Optional[np.ndarray]:
-    """[M (D+1)] kind of every control point (segment-major), or None when the goal's pins fall on joined points."""
+    """[M (D+1)] int64 kind of every control point (segment-major), or None when the goal's pins fall on joined points
+    (cached per shape, read-only)."""
     npts = degree + 1
     kind = np.zeros((m, npts), dtype=np.int64)
     kind[1:, : continuity + 1] = JOINED
@@ -72,7 +75,22 @@ def point_kinds(m: int, degree: int, continuity: int, rest_at_ends: int) -> Opti
         return None
     kind[0, : rest_at_ends + 1] = START
     kind[m - 1, degree - rest_at_ends:] = GOAL
-    return kind.ravel()
+    kind = kind.ravel()
+    kind.flags.writeable = False
+    return kind
+
+
+@functools.lru_cache(maxsize=64)
+def _join_rows(degree: int, continuity: int) -> np.ndarray:
+    """[c+1, 2, D+1]: per order r, (Delta^r)_{last} and (Delta^r)_0 padded to D+1, what dual_qp.c's joins read
+    (cached, read-only)."""
+    rows = np.zeros((continuity + 1, 2, degree + 1))
+    for r in range(continuity + 1):
+        d = difference_matrix(degree, r)
+        rows[r, 0, : d.shape[1]] = d[-1]
+        rows[r, 1, : d.shape[1]] = d[0]
+    rows.flags.writeable = False
+    return rows
 
 
 def affine_map(durations: np.ndarray, degree: int, continuity: int, kind: np.ndarray) -> np.ndarray:
@@ -238,12 +256,7 @@ def _solve_native(fn, durations, factors, polys, degree, continuity, rest_at_end
     kind = point_kinds(m, degree, continuity, rest_at_ends)
     if kind is None:
         return None
-    kind = np.ascontiguousarray(kind, dtype=np.int64)
-    diffs = np.zeros((continuity + 1, 2, npts))  # per order r: (Delta^r)_{last} and (Delta^r)_0, padded to D+1
-    for r in range(continuity + 1):
-        d = difference_matrix(degree, r)
-        diffs[r, 0] = d[-1]
-        diffs[r, 1] = d[0]
+    diffs = _join_rows(degree, continuity)
     counts = np.array([a.shape[0] for a, _ in polys], dtype=np.int64)
     face_start = np.zeros(m + 1, dtype=np.int64)
     np.cumsum(counts, out=face_start[1:])

@@ -258,3 +258,12 @@ def test_active_set_tolerance_is_checked_against_the_margin():
         TrajectoryConfig(active_set_tolerance=-1.0).validate()
     TrajectoryConfig(margin=0.0, active_set_tolerance=0.0).validate()
     TrajectoryConfig(solver="clarabel", margin=0.0).validate()
+
+
+def test_unknown_backend_is_refused():
+    from cinenerf_ns.planner.errors import InvalidInputError
+
+    polys, wp = random_corridor(0, m=2)
+    dur, fac, shrunk = _inputs(polys, wp, TrajectoryConfig())
+    with pytest.raises(InvalidInputError, match="backend must be 'auto', 'native' or 'python'"):
+        dual_qp.solve_corridor_dual(dur, fac, shrunk, 5, 2, 1, wp[0], wp[-1], 1e-10, backend="fast")
