@@ -35,7 +35,8 @@ import numpy as np
 import torch
 from scipy import ndimage
 
-from ..geometry.voxel_traversal import segments_free_native, segments_in_free_voxels
+from ..errors import InvalidInputError
+from ..geometry.voxel_traversal import EPS, segments_in_free_voxels
 from .polytope import Polytope
 
 
@@ -201,53 +202,70 @@ class VoxelObstacles:
         return segments_in_free_voxels(self.occupied, self.lo, self.voxel_size, p0, p1)
 
     def _compiled(self) -> Optional[tuple]:
-        """(cn_segments_free, cn_grid_polytope, occupied, surface as C-contiguous bool, shape [3] int64), kept on the
-        grid, or None when the compiled kernels do not load: polytope() then takes the functions' own "auto" paths.
-        Why: their per-call argument checks and conversions cost ~40 us of a ~35 us grid polytope at 1M Gaussians."""
+        """(cn_grid_polytope_world, occupied, surface as C-contiguous bool, shape [3] int64, lo [3] float64), kept on
+        the grid, or None when the compiled kernel does not load: polytope() then takes the Python construction.
+        Why one call: the voxel walk, the box and the planes as separate calls with their argument checks and
+        conversions cost more than the ~35 us a grid polytope itself takes at 1M Gaussians."""
         got = self.__dict__.get("_compiled_args")
         if got is None:
-            from ..native import choose, grid_polytope_c, segments_free_c
+            from ..native import choose, grid_polytope_world_c
 
-            walk = choose("auto", segments_free_c, "gridpoly", "voxel walk")
-            planes = choose("auto", grid_polytope_c, "gridpoly", "grid polytope")
-            got = (None,) if walk is None or planes is None else (
-                walk, planes, np.ascontiguousarray(self.occupied, dtype=bool),
-                np.ascontiguousarray(self.surface, dtype=bool), np.asarray(self.occupied.shape, dtype=np.int64))
+            fn = choose("auto", grid_polytope_world_c, "gridpoly", "grid polytope")
+            got = (None,) if fn is None else (
+                fn, np.ascontiguousarray(self.occupied, dtype=bool), np.ascontiguousarray(self.surface, dtype=bool),
+                np.asarray(self.occupied.shape, dtype=np.int64), np.ascontiguousarray(self.lo, dtype=np.float64))
             self.__dict__["_compiled_args"] = got
         return None if got[0] is None else got
 
     def __getstate__(self) -> dict:  # the kept compiled functions are not pickled (workers load their own)
         return {k: v for k, v in self.__dict__.items() if k != "_compiled_args"}
 
-    def polytope(self, p0, p1, box_margin: float, margin: float = 1e-6, device=None) -> Optional[Polytope]:
+    def polytope(self, p0, p1, box_margin: float, margin: float = 1e-6, device=None,
+                 backend: str = "auto") -> Optional[Polytope]:
         """Polytope (world units, float64 on ``device``) around the segment p0 -> p1 in its bounding box grown
         by ``box_margin``, excluding every surface voxel; None when the segment is not in free voxels (or a
-        plane fails the floating-point check), so the caller must build an exact Prop-2 polytope instead."""
-        a = np.asarray(p0.detach().cpu() if isinstance(p0, torch.Tensor) else p0, dtype=np.float64).reshape(3)
-        c = np.asarray(p1.detach().cpu() if isinstance(p1, torch.Tensor) else p1, dtype=np.float64).reshape(3)
+        plane fails the floating-point check), so the caller must build an exact Prop-2 polytope instead.
+        backend: "auto" (native/gridpoly.c's cn_grid_polytope_world: the voxel walk, the box, the planes and the
+        conversion to world units in one call, when it loads) or "python" (segments_free, then
+        grid_polytope_planes' Python construction; the same planes, offsets within rounding of the conversion)."""
+        if backend not in ("auto", "python"):
+            raise InvalidInputError(f"VoxelObstacles.polytope backend must be 'auto' or 'python', got {backend!r}")
+        a = np.ascontiguousarray(p0.detach().cpu() if isinstance(p0, torch.Tensor) else p0, dtype=np.float64).reshape(3)
+        c = np.ascontiguousarray(p1.detach().cpu() if isinstance(p1, torch.Tensor) else p1, dtype=np.float64).reshape(3)
         vs = self.voxel_size
+        dev = torch.device("cpu") if device is None else torch.device(device)
+        fast = self._compiled() if backend == "auto" else None
+        if fast is not None:
+            fn, occ, srf, shp, lo = fast
+            cap = 256
+            while True:
+                n_out, b_out = np.empty((cap, 3)), np.empty(cap)
+                F = int(fn(occ.ctypes.data, srf.ctypes.data, shp.ctypes.data, lo.ctypes.data, vs, a.ctypes.data,
+                           c.ctypes.data, float(box_margin), float(margin), EPS, cap, n_out.ctypes.data,
+                           b_out.ctypes.data))
+                if F != -2:
+                    break
+                cap *= 4
+            if F in (-3, -4):
+                return None
+            if F < 0:
+                raise MemoryError("the compiled grid polytope ran out of memory")
+            A, b = torch.from_numpy(n_out[:F]), torch.from_numpy(b_out[:F])
+            seed = torch.from_numpy(np.stack([a, c]))
+            if dev.type != "cpu":
+                A, b, seed = A.to(dev), b.to(dev), seed.to(dev)
+            return Polytope(A=A, b=b, seed=seed, ellipsoid_ids=None)
         u0, u1 = (a - self.lo) / vs, (c - self.lo) / vs
         lo_b = (np.minimum(a, c) - box_margin - self.lo) / vs
         hi_b = (np.maximum(a, c) + box_margin - self.lo) / vs
-        fast = self._compiled()
-        if fast is not None:  # grid_polytope_planes' and segments_free's compiled paths, with the kept arguments
-            walk, fn, occ, srf, shp = fast
-            if not segments_free_native(walk, occ, shp, self.lo, vs, a[None], c[None])[0]:
-                return None
-            blo, bhi = np.clip(lo_b, 0.0, shp.astype(np.float64)), np.clip(hi_b, 0.0, shp.astype(np.float64))
-            seg = np.stack([u0, u1])
-            inside = (seg >= blo).all() and (seg <= bhi).all() and (bhi > blo).all()
-            planes = _planes_native(fn, srf, shp, u0, u1, blo, bhi, margin / vs) if inside else None
-        else:
-            if not bool(self.segments_free(a[None], c[None])[0]):
-                return None
-            planes = grid_polytope_planes(self.surface, u0, u1, lo_b, hi_b, margin / vs)
+        if not bool(segments_in_free_voxels(self.occupied, self.lo, vs, a[None], c[None], backend="python")[0]):
+            return None
+        planes = grid_polytope_planes(self.surface, u0, u1, lo_b, hi_b, margin / vs, backend="python")
         if planes is None:
             return None
         Av, bv = planes
         # voxel units -> world: n.u <= b with u = (x - lo) / vs  <=>  n.x <= vs b + n.lo (|n| = 1 stays)
         bw = vs * bv + Av @ self.lo
-        dev = torch.device("cpu") if device is None else device
         return Polytope(
             A=torch.as_tensor(Av, dtype=torch.float64, device=dev),
             b=torch.as_tensor(bw, dtype=torch.float64, device=dev),

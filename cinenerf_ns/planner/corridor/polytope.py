@@ -537,6 +537,40 @@ def _add_two_pass(planes: _PlaneSet, scene, index, box: _Box, seeds_t: Tensor) -
     planes.add(ids1, mu1, am1)
 
 
+_AABB_FACES = np.vstack([np.eye(3), -np.eye(3)])  # [6, 3] an axis-aligned box's faces, the first planes
+
+
+def segment_polytope(p0: np.ndarray, p1: np.ndarray, scene, index, box_lo: np.ndarray, box_hi: np.ndarray, *,
+                     options: Optional[PolytopeOptions] = None, **option_fields) -> Polytope:
+    """safe_polytope(np.stack([p0, p1]), scene, index, box_lo, box_hi, ...) for a corridor segment (float64 numpy
+    [3] each) in an axis-aligned box: the same polytope, the same errors. Where the compiled path applies, the one
+    check it needs (a finite box that holds the segment; the corridor builds its boxes so) is all the Python it runs:
+    safe_polytope's general input handling took half as long as the compiled polytope itself on short segments."""
+    opts = _resolved_options(options, option_fields)
+    from ..native import safe_polytope_c
+
+    fn = safe_polytope_c() if opts.backend == "auto" and opts.prune and native_applies(scene, index) else None
+    seeds = np.stack([p0, p1])  # [2, 3]
+    lo, hi = box_lo, box_hi
+    if fn is None or not (np.isfinite(seeds).all() and np.isfinite(lo).all() and np.isfinite(hi).all()
+                          and (seeds >= lo).all() and (seeds <= hi).all() and (hi > lo).all()):
+        return safe_polytope(seeds, scene, index, lo, hi, options=opts)  # its checks and messages, or other paths
+    r = float(scene.camera_radius)
+    shrink = -1.0 if opts.stop_when_empty is None else float(opts.stop_when_empty)
+    n, b, ids, bad_ids, bad_slack, stopped = native_safe_polytope(
+        fn, scene, index, seeds, lo, hi, None, r, opts.margin, opts.normal, opts.require_seed_inside,
+        opts.near_fraction if opts.two_pass else 0.0, shrink)
+    if bad_slack.size:
+        raise _seed_not_free(seeds, r, torch.from_numpy(bad_ids), bad_slack)
+    A, off = [_AABB_FACES, n], [hi, -lo, b]
+    if stopped:  # _Box.polytope's explicit contradiction: first axis <= lo - (hi - lo)
+        A.append(_AABB_FACES[:1])
+        off.append(np.array([lo[0] - (hi[0] - lo[0])]))
+        ids = np.concatenate([ids, [-1]])
+    return Polytope(torch.from_numpy(np.concatenate(A)), torch.from_numpy(np.concatenate(off)),
+                    torch.from_numpy(seeds), torch.from_numpy(ids))
+
+
 # ---------------------------------------------------------------------------------------- main
 def safe_polytope(
     seed_points: ArrayLike,

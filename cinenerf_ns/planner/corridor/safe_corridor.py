@@ -46,8 +46,9 @@ from torch import Tensor
 from ..errors import InvalidInputError, PlanningError
 from ..host_pool import ordered_map
 from ..tensor_pickle import NumpyPickled
-from .polytope import Polytope, SeedNotFreeError, chebyshev_center, safe_polytope
+from .polytope import Polytope, SeedNotFreeError, chebyshev_center, safe_polytope, segment_polytope
 from .polytope_batched import safe_polytopes_batched
+from .polytope_planes import segment_frame_np
 
 
 class CorridorError(PlanningError):
@@ -88,41 +89,38 @@ class Corridor(NumpyPickled):
         return [p.num_faces for p in self.polytopes]
 
 
-def _segment_frame(p0: Tensor, p1: Tensor) -> Tensor:
-    """Orthonormal [3, 3] whose first column is the segment direction."""
-    u = p1 - p0
-    u = u / u.norm()
-    helper = torch.zeros_like(u)
-    helper[int(torch.argmin(u.abs()))] = 1.0
-    v = torch.linalg.cross(u, helper)
-    v = v / v.norm()
-    return torch.stack([u, v, torch.linalg.cross(u, v)], dim=1)
-
-
 def _segment_polytopes(p0, p1, scene, index, box_margin, depth, max_depth, kw, out, stats, seg_id, box):
-    seg = torch.stack([p0, p1])  # [2, 3]
+    """Append (Polytope, p0, p1) for the segment p0 -> p1 (float64 numpy [3]) to ``out``, split at midpoints while
+    its seed is not free (up to max_depth levels)."""
     if box == "oriented":
-        rot = _segment_frame(p0, p1)
-        sb = seg @ rot  # segment in box coordinates
-        lo, hi = sb.min(0).values - box_margin, sb.max(0).values + box_margin
-        kw = dict(kw, box_rotation=rot)
+        rot = segment_frame_np(p0, p1)
+        sb = np.stack([p0, p1]) @ rot  # segment in box coordinates
+        poly = _try(safe_polytope, np.stack([p0, p1]), scene, index, sb.min(0) - box_margin, sb.max(0) + box_margin,
+                    box_rotation=rot, **kw)
     else:
-        lo = seg.min(0).values - box_margin
-        hi = seg.max(0).values + box_margin
-    try:
-        out.append((safe_polytope(seg, scene, index, lo, hi, **kw), p0, p1))
+        poly = _try(segment_polytope, p0, p1, scene, index, np.minimum(p0, p1) - box_margin,
+                    np.maximum(p0, p1) + box_margin, **kw)
+    if not isinstance(poly, SeedNotFreeError):
+        out.append((poly, p0, p1))
         return
-    except SeedNotFreeError as e:
-        if depth >= max_depth:
-            raise CorridorError(
-                f"path segment {seg_id} ({p0.tolist()} -> {p1.tolist()}) passes within the camera radius of "
-                f"the scene (worst slack {e.min_slack:.3g}) even after {max_depth} splits; the initial path is "
-                f"not collision-free (check the occupancy grid / shortcut segment test)"
-            ) from e
+    if depth >= max_depth:
+        raise CorridorError(
+            f"path segment {seg_id} ({p0.tolist()} -> {p1.tolist()}) passes within the camera radius of "
+            f"the scene (worst slack {poly.min_slack:.3g}) even after {max_depth} splits; the initial path is "
+            f"not collision-free (check the occupancy grid / shortcut segment test)"
+        ) from poly
     stats["splits"] += 1
     mid = 0.5 * (p0 + p1)
     _segment_polytopes(p0, mid, scene, index, box_margin, depth + 1, max_depth, kw, out, stats, seg_id, box)
     _segment_polytopes(mid, p1, scene, index, box_margin, depth + 1, max_depth, kw, out, stats, seg_id, box)
+
+
+def _try(fn, *args, **kw):
+    """fn(*args, **kw), or the SeedNotFreeError it raised."""
+    try:
+        return fn(*args, **kw)
+    except SeedNotFreeError as e:
+        return e
 
 
 def build_corridor(
@@ -173,19 +171,19 @@ def build_corridor(
     Raises InvalidInputError (bad waypoints), CorridorError (a segment cannot be covered).
     """
     _check_options(box, box_margin, backend, split_long, threads)
-    w = _prepared_waypoints(waypoints, scene.means.device)
+    w = _prepared_waypoints(waypoints)
     kw = dict(margin=margin, normal=normal)
     stats = {"splits": 0}
-    pre = _grid_polytopes([w], grid, box_margin, margin, box, known, stats)[0]
+    pre = _grid_polytopes([w], grid, box_margin, margin, box, scene.means.device, known, stats)[0]
     if split_long is not None and box == "aabb":
-        w, pre = _split_long_segments(w, pre, grid, split_long, box_margin, margin, stats)
+        w, pre = _split_long_segments(w, pre, grid, split_long, box_margin, margin, stats, scene.means.device)
     if backend == "batched":
         batched = _batched_polytopes([w], scene, index, box_margin, margin, normal, batch_scene, batch_index, [pre])[0]
         stats["host_segments"] = sum(p is None for p in batched)
     else:
         batched = pre
     pieces = _path_pieces(w, batched, scene, index, box_margin, max_split_depth, kw, stats, box, threads)
-    out = _assemble(pieces, stats, min_overlap, exact_overlap)
+    out = _assemble(pieces, stats, min_overlap, exact_overlap, scene.means.device)
     out.region = region
     return out
 
@@ -205,12 +203,13 @@ def build_corridors(waypoint_list, scene, index=None, **options) -> list:
     if o["box"] != "aabb":
         raise InvalidInputError("build_corridors supports box='aabb' only")
     _check_options(o["box"], o["box_margin"], o["backend"], o["split_long"], o["threads"])
-    ws = [_prepared_waypoints(wp, scene.means.device) for wp in waypoint_list]
+    ws = [_prepared_waypoints(wp) for wp in waypoint_list]
     kw = dict(margin=o["margin"], normal=o["normal"])
     counts = [{} for _ in ws]
-    pre = _grid_polytopes(ws, o["grid"], o["box_margin"], o["margin"], "aabb", o["known"], counts)
+    pre = _grid_polytopes(ws, o["grid"], o["box_margin"], o["margin"], "aabb", scene.means.device, o["known"], counts)
     if o["split_long"] is not None:
-        split = [_split_long_segments(w, p, o["grid"], o["split_long"], o["box_margin"], o["margin"], c)
+        split = [_split_long_segments(w, p, o["grid"], o["split_long"], o["box_margin"], o["margin"], c,
+                                      scene.means.device)
                  for w, p, c in zip(ws, pre, counts)]
         ws, pre = [x[0] for x in split], [x[1] for x in split]
     if o["backend"] == "batched" and ws:
@@ -227,7 +226,7 @@ def build_corridors(waypoint_list, scene, index=None, **options) -> list:
         except CorridorError as e:
             out.append(e)
             continue
-        cor = _assemble(pieces, stats, o["min_overlap"], o["exact_overlap"])
+        cor = _assemble(pieces, stats, o["min_overlap"], o["exact_overlap"], scene.means.device)
         cor.region = o["region"]
         out.append(cor)
     return out
@@ -241,24 +240,32 @@ def _check_options(box: str, box_margin: float, backend: str, split_long: Option
         raise InvalidInputError(f"split_long must be None or a finite length > 0, got {split_long}")
     if box not in ("aabb", "oriented"):
         raise InvalidInputError(f"box must be 'aabb' or 'oriented', got {box!r}")
-    if not (box_margin > 0):
-        raise InvalidInputError(f"box_margin must be > 0, got {box_margin}")
+    if not (math.isfinite(float(box_margin)) and float(box_margin) > 0):
+        raise InvalidInputError(f"box_margin must be a finite length > 0, got {box_margin}")
     if backend not in ("cpu", "batched"):
         raise InvalidInputError(f"corridor backend must be 'cpu' or 'batched', got {backend!r}")
     if backend == "batched" and box != "aabb":
         raise InvalidInputError("the batched corridor backend supports box='aabb' only")
 
 
-def _prepared_waypoints(waypoints, dev) -> Tensor:
-    """Waypoints [M+1, 3] float64 on dev, repeated consecutive points dropped; InvalidInputError if unusable."""
-    w = torch.as_tensor(waypoints, device=dev).to(torch.float64)
+def _prepared_waypoints(waypoints) -> np.ndarray:
+    """Waypoints [M+1, 3] as float64 numpy on the host, repeated consecutive points dropped; InvalidInputError if
+    unusable. The corridor works on host copies of its few points: per-segment torch calls on 3-vectors cost more
+    than the grid polytopes they feed."""
+    if isinstance(waypoints, Tensor):
+        w = waypoints.detach().to("cpu", torch.float64).numpy()
+    else:
+        try:
+            w = np.asarray(waypoints, dtype=np.float64)
+        except (TypeError, ValueError) as e:
+            raise InvalidInputError(f"build_corridor needs waypoints [K>=2, 3] of numbers: {e}") from None
     if w.ndim != 2 or w.shape[-1] != 3 or w.shape[0] < 2:
         raise InvalidInputError(f"build_corridor needs waypoints [K>=2, 3], got {tuple(w.shape)}")
-    if not torch.isfinite(w).all():
+    if not np.isfinite(w).all():
         raise InvalidInputError("build_corridor: waypoints contain NaN/inf")
-    keep = torch.ones(w.shape[0], dtype=torch.bool, device=dev)
-    keep[1:] = (w[1:] - w[:-1]).norm(dim=-1) > 1e-12
-    if bool(keep.all()):  # the usual case: no copy
+    keep = np.ones(w.shape[0], dtype=bool)
+    keep[1:] = np.sqrt(((w[1:] - w[:-1]) ** 2).sum(-1)) > 1e-12
+    if keep.all():  # the usual case: no copy
         return w
     w = w[keep]
     if w.shape[0] < 2:
@@ -266,34 +273,39 @@ def _prepared_waypoints(waypoints, dev) -> Tensor:
     return w
 
 
-def _known_polytope(known, a: Tensor, b: Tensor):
-    """The first of the ``known`` polytopes that holds both ends of the segment a -> b (so the whole segment), or
-    None."""
+def _known_polytope(known, a: np.ndarray, b: np.ndarray, dev):
+    """The first of the ``known`` polytopes that holds both ends of the segment a -> b (float64 numpy [3]; so the
+    whole segment), on ``dev``, or None."""
     for p in known:
-        pa = p if p.A.device == a.device else p.to(a.device)
-        if bool(pa.contains(a)) and bool(pa.contains(b)):
+        pa = p if p.A.device == dev else p.to(dev)
+        if pa.A.device.type == "cpu":
+            A, c = pa.A.detach().numpy(), pa.b.detach().numpy()
+            inside = bool((A @ a <= c).all()) and bool((A @ b <= c).all())
+        else:
+            inside = bool(pa.contains(torch.from_numpy(np.stack([a, b])).to(dev)).all())
+        if inside:
             return pa
     return None
 
 
-def _grid_polytopes(ws, grid, box_margin, margin, box, known=(), stats=None) -> list:
-    """Per path, [Polytope | None] per segment: a ``known`` polytope holding the segment, else the grid polytope of
-    a segment that lies in free voxels of ``grid`` (None: neither; the segment needs an exact polytope). stats: a
-    dict (one path) or a list of dicts (one per path) that get the counts ``known_segments`` and ``grid_segments``.
-    Built one after the other: a grid polytope takes ~0.2 ms, about what handing it to a thread costs."""
+def _grid_polytopes(ws, grid, box_margin, margin, box, dev, known=(), stats=None) -> list:
+    """Per path (waypoints [M+1, 3] float64 numpy), [Polytope | None] per segment, on ``dev``: a ``known`` polytope
+    holding the segment, else the grid polytope of a segment that lies in free voxels of ``grid`` (None: neither;
+    the segment needs an exact polytope). stats: a dict (one path) or a list of dicts (one per path) that get the
+    counts ``known_segments`` and ``grid_segments``. Built one after the other: a grid polytope takes ~0.2 ms, about
+    what handing it to a thread costs."""
     out = []
     for k, w in enumerate(ws):
         row = []
         st = (stats[k] if isinstance(stats, list) else stats) if stats is not None else {}
         st.setdefault("known_segments", 0)
         st.setdefault("grid_segments", 0)
-        wn = w.detach().cpu().numpy()
         for i in range(w.shape[0] - 1):
-            p = _known_polytope(known, w[i], w[i + 1]) if known else None
+            p = _known_polytope(known, w[i], w[i + 1], dev) if known else None
             if p is not None:
                 st["known_segments"] += 1
             elif grid is not None and box == "aabb":
-                p = grid.polytope(wn[i], wn[i + 1], box_margin, margin, device=w.device)
+                p = grid.polytope(w[i], w[i + 1], box_margin, margin, device=dev)
                 st["grid_segments"] += p is not None
             row.append(p)
         out.append(row)
@@ -336,31 +348,32 @@ def _long_pieces(a: np.ndarray, b: np.ndarray, grid, split_long, box_margin, mar
     return out
 
 
-def _split_long_segments(w: Tensor, pre: list, grid, split_long: float, box_margin: float, margin: float,
-                         stats: dict) -> tuple:
-    """(waypoints [M'+1, 3], [Polytope | None] per segment): w [M+1, 3] and its pre-built polytopes ``pre`` with each
-    segment longer than ``split_long`` that has none split by _long_pieces (stats["long_pieces"]: segments added)."""
+def _split_long_segments(w: np.ndarray, pre: list, grid, split_long: float, box_margin: float, margin: float,
+                         stats: dict, dev) -> tuple:
+    """(waypoints [M'+1, 3] float64 numpy, [Polytope | None] per segment): w [M+1, 3] and its pre-built polytopes
+    ``pre`` with each segment longer than ``split_long`` that has none split by _long_pieces (stats["long_pieces"]:
+    segments added); new polytopes on ``dev``."""
     stats.setdefault("long_pieces", 0)
     if grid is None or not any(p is None for p in pre):
         return w, pre
-    wn = w.detach().cpu().numpy()
     pts, polys = [w[0]], []
     for m, p in enumerate(pre):
-        if p is not None or float(np.linalg.norm(wn[m + 1] - wn[m])) <= split_long:
+        if p is not None or float(np.linalg.norm(w[m + 1] - w[m])) <= split_long:
             pts.append(w[m + 1])
             polys.append(p)
             continue
-        parts = _long_pieces(wn[m], wn[m + 1], grid, split_long, box_margin, margin, w.device)
+        parts = _long_pieces(w[m], w[m + 1], grid, split_long, box_margin, margin, dev)
         for k, (_, q1, q) in enumerate(parts):
-            pts.append(w[m + 1] if k == len(parts) - 1 else torch.as_tensor(q1, dtype=w.dtype, device=w.device))
+            pts.append(w[m + 1] if k == len(parts) - 1 else q1)
             polys.append(q)
         stats["long_pieces"] += len(parts) - 1
-    return torch.stack(pts), polys
+    return np.stack(pts), polys
 
 
 def _batched_polytopes(ws, scene, index, box_margin, margin, normal, batch_scene, batch_index, pre=None) -> list:
     """Per path, [Polytope | None] per segment (None: flagged, the host path decides it) from one
-    safe_polytopes_batched call over the segments of every path ws[i] [M_i+1, 3] that have no polytope in ``pre``
+    safe_polytopes_batched call over the segments of every path ws[i] [M_i+1, 3] (float64 numpy) that have no
+    polytope in ``pre``
     yet (per path, [Polytope | None] per segment; those given are kept as they are)."""
     dev = scene.means.device
     bscene = scene if batch_scene is None else batch_scene
@@ -370,7 +383,7 @@ def _batched_polytopes(ws, scene, index, box_margin, margin, normal, batch_scene
     todo = [(i, m) for i, p in enumerate(pre) for m, q in enumerate(p) if q is None]
     if not todo:
         return out
-    bws = [w.to(bscene.means.device) for w in ws]
+    bws = [torch.from_numpy(w).to(bscene.means.device) for w in ws]
     segs = torch.stack([torch.stack([bws[i][m], bws[i][m + 1]]) for i, m in todo])  # [T, 2, 3]
     lo = torch.minimum(segs[:, 0], segs[:, 1]) - box_margin  # [T, 3] same boxes as the host path
     hi = torch.maximum(segs[:, 0], segs[:, 1]) + box_margin
@@ -381,7 +394,8 @@ def _batched_polytopes(ws, scene, index, box_margin, margin, normal, batch_scene
 
 
 def _path_pieces(w, batched, scene, index, box_margin, max_split_depth, kw, stats, box, threads: int = 1) -> list:
-    """(polytope, p0, p1) per segment of the path w [M+1, 3]: the polytope already built for it (grid or batched)
+    """(polytope, p0, p1) per segment of the path w [M+1, 3] (float64 numpy; p0, p1 its rows or midpoints between
+    them): the polytope already built for it (grid or batched)
     where there is one, else the host path (SeedNotFreeError -> split, as with backend "cpu"); up to ``threads``
     host segments are built at once (host_pool.ordered_map), and a CorridorError is that of the first failing
     segment, as in a serial loop."""
@@ -430,10 +444,14 @@ def _probed_overlap(p0: Polytope, p1: Polytope, w_prev: Tensor, wj: Tensor, w_ne
     return float(((b - c @ A.T) / norms).min(dim=-1).values.max())
 
 
-def _assemble(pieces, stats, min_overlap: float, exact_overlap: bool) -> Corridor:
-    """The Corridor of a path's pieces, with the junctions' overlap radii (thin ones warned about)."""
+def _assemble(pieces, stats, min_overlap: float, exact_overlap: bool, dev) -> Corridor:
+    """The Corridor of a path's pieces (waypoints float64 numpy), with the junctions' overlap radii (thin ones warned
+    about); its waypoints on ``dev``."""
     polys = [p for p, _, _ in pieces]
-    wps = torch.stack([pieces[0][1]] + [p1 for _, _, p1 in pieces])  # [M+1, 3]
+    wps_np = np.stack([pieces[0][1]] + [p1 for _, _, p1 in pieces])  # [M+1, 3]
+    wps = torch.from_numpy(wps_np)
+    if torch.device(dev).type != "cpu":
+        wps = wps.to(dev)
 
     radii = []
     thin = []
@@ -441,7 +459,6 @@ def _assemble(pieces, stats, min_overlap: float, exact_overlap: bool) -> Corrido
     # [F]-vectors cost ~30 us, a tenth of that in numpy
     host = wps.device.type == "cpu" and all(p.A.device.type == "cpu" and p.b.device.type == "cpu" for p in polys)
     planes = [(p.A.detach().numpy(), p.b.detach().numpy()) for p in polys] if host else None
-    wps_np = wps.detach().numpy() if host else None
     for m in range(len(polys) - 1):
         wj = wps[m + 1]
         if host:

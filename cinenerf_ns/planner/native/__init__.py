@@ -258,6 +258,14 @@ def grid_polytope_c():
     return _function("gridpoly", "cn_grid_polytope", [_P, _P, _P, _P, _P, _P, _F64, _I64, _P, _P], _I64)
 
 
+def grid_polytope_world_c():
+    """The compiled grid polytope of a world segment, voxel walk and box included (gridpoly.c:
+    cn_grid_polytope_world), or None."""
+    return _function("gridpoly", "cn_grid_polytope_world",
+                     [_P, _P, _P, _P, _F64, _P, _P, _F64, _F64, _F64, _I64, _P, _P],  # occ, surface, dims, lo, vs,
+                     _I64)  # a, c, box margin, margin, eps, cap, out normals [cap, 3], out offsets [cap]
+
+
 def hidden_voxels_c():
     """The compiled sampled sight lines (voxelrays.c: cn_hidden_voxels; method/object_centre.hidden_voxels), or None."""
     return _function("voxelrays", "cn_hidden_voxels", [_P, _I64, _I64, _I64, _P, _I64, _P, _I64, _F64, _P], _I64)

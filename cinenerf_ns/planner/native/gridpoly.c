@@ -402,3 +402,42 @@ done:
     free(cubes); free(dist); free(qs); free(ps); free(live); free(bs); free(sorted); free(tmp);
     return status;
 }
+
+/* grid_polytope.VoxelObstacles.polytope in one call (world units in and out): the segment a -> c must lie in free
+   voxels of occ (segment_free, -4 otherwise); its box is the segment's bounding box grown by box_margin, in voxel
+   units, clipped to the grid, and must hold the segment (-3 otherwise); then cn_grid_polytope's planes (margin in
+   world units). out_n [cap, 3], out_b [cap]: the box's six faces (I, -I) first, then the planes, with offsets back
+   in world units (n.u <= b, u = (x - lo) / vs  <=>  n.x <= vs b + n.lo). Returns the number of rows F, or -4 / -3
+   (no grid polytope: the caller builds an exact one), -2 (more than cap rows), -1 (out of memory). */
+int64_t cn_grid_polytope_world(const uint8_t *occ, const uint8_t *surface, const int64_t *shape, const double *lo,
+                               double vs, const double *a, const double *c, double box_margin, double margin,
+                               double eps, int64_t cap, double *out_n, double *out_b) {
+    double u0[3], u1[3], blo[3], bhi[3];
+    for (int i = 0; i < 3; i++) {
+        u0[i] = (a[i] - lo[i]) / vs;
+        u1[i] = (c[i] - lo[i]) / vs;
+    }
+    if (!segment_free(occ, shape, u0, u1, eps)) return -4;
+    for (int i = 0; i < 3; i++) {
+        double s = (double)shape[i];
+        blo[i] = mn(mx((mn(a[i], c[i]) - box_margin - lo[i]) / vs, 0.0), s);
+        bhi[i] = mn(mx((mx(a[i], c[i]) + box_margin - lo[i]) / vs, 0.0), s);
+        if (!(u0[i] >= blo[i] && u1[i] >= blo[i] && u0[i] <= bhi[i] && u1[i] <= bhi[i] && bhi[i] > blo[i])) return -3;
+    }
+    if (cap < 6) return -2;
+    int64_t F = cn_grid_polytope(surface, shape, u0, u1, blo, bhi, margin / vs, cap - 6, out_n + 18, out_b + 6);
+    if (F < 0) return F;
+    for (int i = 0; i < 3; i++) {
+        for (int j = 0; j < 3; j++) {
+            out_n[3 * i + j] = i == j ? 1.0 : 0.0;
+            out_n[3 * (i + 3) + j] = i == j ? -1.0 : 0.0;
+        }
+        out_b[i] = bhi[i];
+        out_b[i + 3] = -blo[i];
+    }
+    for (int64_t f = 0; f < F + 6; f++) {
+        const double *n = out_n + 3 * f;
+        out_b[f] = vs * out_b[f] + (n[0] * lo[0] + n[1] * lo[1] + n[2] * lo[2]);
+    }
+    return F + 6;
+}

@@ -103,8 +103,7 @@ def at_goal_already(way: np.ndarray) -> bool:
 def leg_corridor(planner: "Planner", way: np.ndarray, known=()) -> Corridor:
     """Safe polytopes along a shortcut polyline [K, 3] (corridor.build_corridor with the planner's box margin, backend,
     grid polytopes and planning region); ``known``: the goal's polytope (ReachableGoal.known())."""
-    return build_corridor(torch.as_tensor(way, device=planner.scene.device), planner.scene, planner.ready().index,
-                          known=known, **planner.corridor_kwargs())
+    return build_corridor(way, planner.scene, planner.ready().index, known=known, **planner.corridor_kwargs())
 
 
 def legs_corridor(planner: "Planner", ways: Sequence[np.ndarray], known=()) -> List[Union[Corridor, CorridorError]]:

@@ -92,6 +92,45 @@ def test_native_polytope_is_safe(seed, n_seeds, oriented, dtype, cell, pad, near
 
 
 @settings(**SETTINGS)
+@given(seed=st.integers(0, 2**31 - 1), dtype=st.sampled_from([torch.float32, torch.float64]),
+       normal=st.sampled_from(["auto", "prop2"]), near=st.sampled_from([0.0, 0.5]),
+       empty=st.sampled_from([None, 0.0, 0.05]), margin=st.sampled_from([1e-6, 0.01]), with_index=st.booleans(),
+       n=st.sampled_from([300, 1500]))
+def test_segment_polytope_is_safe_polytope(seed, dtype, normal, near, empty, margin, with_index, n):
+    """The corridor's segment_polytope (the compiled call without safe_polytope's general input handling) gives
+    safe_polytope's polytope bit for bit, its SeedNotFreeError (same ellipsoids, same slack) and its explicit empty
+    polytope; without a grid index both take the Python path. 1500 ellipsoids: most segments are not free, or their
+    polytope is proven empty."""
+    from cinenerf_ns.planner.corridor.polytope import segment_polytope
+
+    rng = np.random.default_rng(seed)
+    scene = random_scene(rng, n, amin=0.005, amax=0.12, camera_radius=0.03).to(dtype=dtype)
+    idx = GridIndex.build(scene, cell_size=0.1) if with_index else None
+    p0 = rng.uniform(-0.6, 0.6, 3)
+    p1 = p0 + rng.normal(size=3) * 0.15
+    box_margin = rng.uniform(0.05, 0.3)
+    lo, hi = np.minimum(p0, p1) - box_margin, np.maximum(p0, p1) + box_margin
+    kw = dict(normal=normal, two_pass=near > 0, near_fraction=near or 0.5, margin=margin)
+    if empty is not None:
+        kw.update(require_seed_inside=False, stop_when_empty=empty)
+    got, ref = [], []
+    for fn, out in ((lambda: segment_polytope(p0, p1, scene, idx, lo, hi, **kw), got),
+                    (lambda: safe_polytope(np.stack([p0, p1]), scene, idx, lo, hi, **kw), ref)):
+        try:
+            out.append(fn())
+        except SeedNotFreeError as e:
+            out.append(e)
+    g, r = got[0], ref[0]
+    assert type(g) is type(r)
+    if isinstance(r, SeedNotFreeError):
+        assert str(g) == str(r) and g.min_slack == r.min_slack and torch.equal(g.ellipsoid_ids, r.ellipsoid_ids)
+        return
+    for name in ("A", "b", "seed", "ellipsoid_ids"):
+        assert torch.equal(getattr(g, name), getattr(r, name)), name
+    assert g.proven_empty == r.proven_empty
+
+
+@settings(**SETTINGS)
 @given(seed=st.integers(0, 2**31 - 1), n_seeds=st.sampled_from([1, 2]), normal=st.sampled_from(
     ["auto", "prop2", "mahalanobis", "closest"]))
 def test_native_planes_equal_python_planes_when_each_ellipsoid_needs_its_own(seed, n_seeds, normal):

@@ -110,14 +110,13 @@ def test_split_logic_with_a_length_limited_polytope(monkeypatch):
     """Splitting: a fake polytope builder refusing segments longer than 0.3 forces midpoint splits."""
     calls = []
 
-    def fake(seg, scene, index, lo, hi, **kw):
-        seg = torch.as_tensor(seg)
-        calls.append(float((seg[1] - seg[0]).norm()))
+    def fake(p0, p1, scene, index, lo, hi, **kw):
+        calls.append(float(np.linalg.norm(p1 - p0)))
         if calls[-1] > 0.3:
             raise SeedNotFreeError("too long", min_slack=-1.0)
-        return safe_polytope(seg, scene, index, lo, hi, **kw)
+        return safe_polytope(np.stack([p0, p1]), scene, index, lo, hi, **kw)
 
-    monkeypatch.setattr(corridor_mod, "safe_polytope", fake)
+    monkeypatch.setattr(corridor_mod, "segment_polytope", fake)
     scene = make_scene([[5.0, 5, 5]], np.eye(3)[None], [[0.2, 0.2, 0.2]], 0.03)
     cor = build_corridor([[0.0, 0, 0], [1.0, 0, 0], [1.0, 0.2, 0]], scene, None, 0.1)
     # [0,0,0]->[1,0,0] (length 1) needs 2 levels: 4 pieces of 0.25; the short one none
@@ -239,7 +238,9 @@ def test_probed_overlap_is_a_lower_bound_of_the_lp(seed, n0, n1, tight, min_over
     assert probe <= rad + 1e-12
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        cor = corridor_mod._assemble([(p0, w[0], w[1]), (p1, w[1], w[2])], {"splits": 0}, min_overlap, False)
+        wn = [x.numpy() for x in w]
+        cor = corridor_mod._assemble([(p0, wn[0], wn[1]), (p1, wn[1], wn[2])], {"splits": 0}, min_overlap, False,
+                                     "cpu")
     assert float(cor.overlap_radius[0]) <= rad + 1e-12
     assert cor.thin_joints == ([0] if rad < min_overlap else [])
 
@@ -252,10 +253,10 @@ def test_probed_overlap_spares_the_lp_at_a_face(monkeypatch):
     box = lambda lo, hi: Polytope(torch.as_tensor(np.vstack([np.eye(3), -np.eye(3)])),  # noqa: E731
                                   torch.as_tensor(np.concatenate([hi, -np.asarray(lo)])), torch.zeros(1, 3))
     p0, p1 = box([-1.0, -0.5, -0.5], [0.0, 0.5, 0.5]), box([-0.5, -0.5, -0.5], [1.0, 0.5, 0.5])
-    w = [torch.tensor(x, dtype=torch.float64) for x in ([-0.8, 0, 0], [0.0, 0, 0], [0.8, 0, 0])]
+    w = [np.array(x, dtype=np.float64) for x in ([-0.8, 0, 0], [0.0, 0, 0], [0.8, 0, 0])]
     calls = []
     monkeypatch.setattr(corridor_mod, "chebyshev_center", lambda A, b: calls.append(1) or chebyshev_center(A, b))
-    cor = corridor_mod._assemble([(p0, w[0], w[1]), (p1, w[1], w[2])], {"splits": 0}, 1e-3, False)
+    cor = corridor_mod._assemble([(p0, w[0], w[1]), (p1, w[1], w[2])], {"splits": 0}, 1e-3, False, "cpu")
     assert calls == [] and cor.thin_joints == []
     assert 1e-3 <= float(cor.overlap_radius[0]) <= 0.25 + 1e-12  # the LP's radius: 0.25
 
