@@ -540,20 +540,20 @@ def _add_two_pass(planes: _PlaneSet, scene, index, box: _Box, seeds_t: Tensor) -
 _AABB_FACES = np.vstack([np.eye(3), -np.eye(3)])  # [6, 3] an axis-aligned box's faces, the first planes
 
 
-def segment_polytope(p0: np.ndarray, p1: np.ndarray, scene, index, box_lo: np.ndarray, box_hi: np.ndarray, *,
-                     options: Optional[PolytopeOptions] = None, **option_fields) -> Polytope:
-    """safe_polytope(np.stack([p0, p1]), scene, index, box_lo, box_hi, ...) for a corridor segment (float64 numpy
-    [3] each) in an axis-aligned box: the same polytope, the same errors. Where the compiled path applies, the one
-    check it needs (a finite box that holds the segment; the corridor builds its boxes so) is all the Python it runs:
+def aabb_polytope(seeds: np.ndarray, scene, index, box_lo: np.ndarray, box_hi: np.ndarray, *,
+                  options: Optional[PolytopeOptions] = None, **option_fields) -> Polytope:
+    """safe_polytope(seeds, scene, index, box_lo, box_hi, ...) for float64 numpy seeds [S, 3] (a corridor segment,
+    S = 2, or a goal, S = 1) in an axis-aligned box (float64 numpy [3] each): the same polytope, the same errors.
+    Where the compiled path applies, a few numpy checks (finite seeds inside a finite box) are all the Python it runs:
     safe_polytope's general input handling took half as long as the compiled polytope itself on short segments."""
     opts = _resolved_options(options, option_fields)
     from ..native import safe_polytope_c
 
-    fn = safe_polytope_c() if opts.backend == "auto" and opts.prune and native_applies(scene, index) else None
-    seeds = np.stack([p0, p1])  # [2, 3]
     lo, hi = box_lo, box_hi
-    if fn is None or not (np.isfinite(seeds).all() and np.isfinite(lo).all() and np.isfinite(hi).all()
-                          and (seeds >= lo).all() and (seeds <= hi).all() and (hi > lo).all()):
+    fn = safe_polytope_c() if opts.backend == "auto" and opts.prune and native_applies(scene, index) else None
+    if fn is None or seeds.shape not in ((1, 3), (2, 3)) or seeds.dtype != np.float64 or not (
+            np.isfinite(seeds).all() and np.isfinite(lo).all() and np.isfinite(hi).all() and (hi > lo).all()
+            and (not opts.require_seed_inside or ((seeds >= lo).all() and (seeds <= hi).all()))):
         return safe_polytope(seeds, scene, index, lo, hi, options=opts)  # its checks and messages, or other paths
     r = float(scene.camera_radius)
     shrink = -1.0 if opts.stop_when_empty is None else float(opts.stop_when_empty)

@@ -46,7 +46,7 @@ from torch import Tensor
 from ..errors import InvalidInputError, PlanningError
 from ..host_pool import ordered_map
 from ..tensor_pickle import NumpyPickled
-from .polytope import Polytope, SeedNotFreeError, chebyshev_center, safe_polytope, segment_polytope
+from .polytope import Polytope, SeedNotFreeError, aabb_polytope, chebyshev_center, safe_polytope
 from .polytope_batched import safe_polytopes_batched
 from .polytope_planes import segment_frame_np
 
@@ -98,7 +98,7 @@ def _segment_polytopes(p0, p1, scene, index, box_margin, depth, max_depth, kw, o
         poly = _try(safe_polytope, np.stack([p0, p1]), scene, index, sb.min(0) - box_margin, sb.max(0) + box_margin,
                     box_rotation=rot, **kw)
     else:
-        poly = _try(segment_polytope, p0, p1, scene, index, np.minimum(p0, p1) - box_margin,
+        poly = _try(aabb_polytope, np.stack([p0, p1]), scene, index, np.minimum(p0, p1) - box_margin,
                     np.maximum(p0, p1) + box_margin, **kw)
     if not isinstance(poly, SeedNotFreeError):
         out.append((poly, p0, p1))

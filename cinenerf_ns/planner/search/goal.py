@@ -24,7 +24,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..corridor.polytope import candidate_ids, chebyshev_center, safe_polytope
+from ..corridor.polytope import aabb_polytope, candidate_ids, chebyshev_center
 from ..corridor.polytope_planes import closest_t
 from ..dual_active_set import add_face
 from ..errors import GoalUnreachableError, InvalidInputError, StartInCollisionError
@@ -366,9 +366,19 @@ def closest_safe_point(
     a box query that grows with the window: ~40 ms of a request inside a blob of 200k Gaussians on the CPU box).
     """
     dev = scene.means.device
-    t = torch.as_tensor(target, device=dev).to(torch.float64).reshape(-1)
-    if t.shape != (3,) or not torch.isfinite(t).all():
-        raise InvalidInputError(f"goal target must be 3 finite numbers, got {t.tolist()}")
+    # the target as float64 numpy on the host, one tensor of it on the scene's device: the steps below are a few
+    # small numpy calls each, where torch calls on a 3-vector cost more than what they compute
+    if isinstance(target, Tensor):
+        t_np = target.detach().to("cpu", torch.float64).numpy().reshape(-1)
+    else:
+        try:
+            t_np = np.asarray(target, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError):
+            raise InvalidInputError(f"goal target must be 3 finite numbers, got {target!r}") from None
+    if t_np.shape != (3,) or not np.isfinite(t_np).all():
+        raise InvalidInputError(f"goal target must be 3 finite numbers, got {t_np.tolist()}")
+    t = torch.from_numpy(t_np.copy())
+    t = t if dev.type == "cpu" else t.to(dev)
     clear = clearance_fn or _default_clear(scene, index, margin)
     if bool(torch.as_tensor(clear(t[None])).reshape(-1)[0]):
         return t
@@ -376,12 +386,13 @@ def closest_safe_point(
         box_half = 8 * float(grid.voxel_size) if grid is not None else 0.2
     # stop_when_empty: a target deep in a blob gets an empty polytope; its first pass's planes usually prove that
     # already (half the projection's INTERIOR_RADIUS: a proof the projection's own emptiness rule agrees with)
-    P = safe_polytope(t[None], scene, index, t - box_half, t + box_half, margin=margin, require_seed_inside=False,
-                      stop_when_empty=0.5 * INTERIOR_RADIUS)
+    P = aabb_polytope(t_np[None], scene, index, t_np - box_half, t_np + box_half, margin=margin,
+                      require_seed_inside=False, stop_when_empty=0.5 * INTERIOR_RADIUS)
     # a proven-empty polytope has no point to project onto (the projection would answer None after ~0.25 ms)
-    x = None if P.proven_empty else _project_onto_polytope(*P.to_numpy(), t.cpu().numpy())
+    x = None if P.proven_empty else _project_onto_polytope(*P.to_numpy(), t_np)
     if x is not None:
-        return torch.as_tensor(x, dtype=torch.float64, device=dev)
+        x = torch.from_numpy(np.asarray(x, dtype=np.float64))
+        return x if dev.type == "cpu" else x.to(dev)
     if grid is None:
         raise GoalUnreachableError(
             f"no safe camera position found near the goal {t.tolist()} (it is buried in the scene) and no "

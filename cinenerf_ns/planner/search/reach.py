@@ -168,7 +168,7 @@ def reachable_goal(planner: "Planner", target: np.ndarray, comp: int) -> "Reacha
     walled_in = inside and labels[tuple(tv)] != comp
     try:
         g = closest_safe_point(
-            torch.as_tensor(target, device=dev), planner.scene, prep.index, grid, reachable=ComponentMask(labels, comp),
+            target, planner.scene, prep.index, grid, reachable=ComponentMask(labels, comp),
             clearance_fn=planner.free_test, mean_voxels=prep.mean_voxels,
         )
         g = g.detach().cpu().numpy()

@@ -95,33 +95,39 @@ def test_native_polytope_is_safe(seed, n_seeds, oriented, dtype, cell, pad, near
 @given(seed=st.integers(0, 2**31 - 1), dtype=st.sampled_from([torch.float32, torch.float64]),
        normal=st.sampled_from(["auto", "prop2"]), near=st.sampled_from([0.0, 0.5]),
        empty=st.sampled_from([None, 0.0, 0.05]), margin=st.sampled_from([1e-6, 0.01]), with_index=st.booleans(),
-       n=st.sampled_from([300, 1500]))
-def test_segment_polytope_is_safe_polytope(seed, dtype, normal, near, empty, margin, with_index, n):
-    """The corridor's segment_polytope (the compiled call without safe_polytope's general input handling) gives
-    safe_polytope's polytope bit for bit, its SeedNotFreeError (same ellipsoids, same slack) and its explicit empty
-    polytope; without a grid index both take the Python path. 1500 ellipsoids: most segments are not free, or their
-    polytope is proven empty."""
-    from cinenerf_ns.planner.corridor.polytope import segment_polytope
+       n=st.sampled_from([300, 1500]), n_seeds=st.sampled_from([1, 2]), outside=st.booleans())
+def test_aabb_polytope_is_safe_polytope(seed, dtype, normal, near, empty, margin, with_index, n, n_seeds, outside):
+    """aabb_polytope (the compiled call without safe_polytope's general input handling: the corridor's segments, the
+    goal's point) gives safe_polytope's polytope bit for bit, its SeedNotFreeError (same ellipsoids, same slack), its
+    explicit empty polytope and its input errors (a seed outside the box); without a grid index both take the Python
+    path. 1500 ellipsoids: most seeds are not free, or their polytope is proven empty."""
+    from cinenerf_ns.planner.corridor.polytope import aabb_polytope
 
     rng = np.random.default_rng(seed)
     scene = random_scene(rng, n, amin=0.005, amax=0.12, camera_radius=0.03).to(dtype=dtype)
     idx = GridIndex.build(scene, cell_size=0.1) if with_index else None
-    p0 = rng.uniform(-0.6, 0.6, 3)
-    p1 = p0 + rng.normal(size=3) * 0.15
+    seeds = rng.uniform(-0.6, 0.6, (1, 3))
+    if n_seeds == 2:
+        seeds = np.concatenate([seeds, seeds + rng.normal(size=(1, 3)) * 0.15])
     box_margin = rng.uniform(0.05, 0.3)
-    lo, hi = np.minimum(p0, p1) - box_margin, np.maximum(p0, p1) + box_margin
+    lo, hi = seeds.min(0) - box_margin, seeds.max(0) + box_margin
+    if outside:  # the box misses the last seed: an error when seeds must be inside, else allowed
+        lo = lo + np.array([0.0, 0.0, seeds[-1, 2] - lo[2] + 0.01])
     kw = dict(normal=normal, two_pass=near > 0, near_fraction=near or 0.5, margin=margin)
     if empty is not None:
         kw.update(require_seed_inside=False, stop_when_empty=empty)
     got, ref = [], []
-    for fn, out in ((lambda: segment_polytope(p0, p1, scene, idx, lo, hi, **kw), got),
-                    (lambda: safe_polytope(np.stack([p0, p1]), scene, idx, lo, hi, **kw), ref)):
+    for fn, out in ((lambda: aabb_polytope(seeds, scene, idx, lo, hi, **kw), got),
+                    (lambda: safe_polytope(seeds, scene, idx, lo, hi, **kw), ref)):
         try:
             out.append(fn())
-        except SeedNotFreeError as e:
+        except (SeedNotFreeError, InvalidInputError) as e:
             out.append(e)
     g, r = got[0], ref[0]
     assert type(g) is type(r)
+    if isinstance(r, InvalidInputError):
+        assert str(g) == str(r)
+        return
     if isinstance(r, SeedNotFreeError):
         assert str(g) == str(r) and g.min_slack == r.min_slack and torch.equal(g.ellipsoid_ids, r.ellipsoid_ids)
         return

@@ -110,13 +110,13 @@ def test_split_logic_with_a_length_limited_polytope(monkeypatch):
     """Splitting: a fake polytope builder refusing segments longer than 0.3 forces midpoint splits."""
     calls = []
 
-    def fake(p0, p1, scene, index, lo, hi, **kw):
-        calls.append(float(np.linalg.norm(p1 - p0)))
+    def fake(seg, scene, index, lo, hi, **kw):
+        calls.append(float(np.linalg.norm(seg[1] - seg[0])))
         if calls[-1] > 0.3:
             raise SeedNotFreeError("too long", min_slack=-1.0)
-        return safe_polytope(np.stack([p0, p1]), scene, index, lo, hi, **kw)
+        return safe_polytope(seg, scene, index, lo, hi, **kw)
 
-    monkeypatch.setattr(corridor_mod, "segment_polytope", fake)
+    monkeypatch.setattr(corridor_mod, "aabb_polytope", fake)
     scene = make_scene([[5.0, 5, 5]], np.eye(3)[None], [[0.2, 0.2, 0.2]], 0.03)
     cor = build_corridor([[0.0, 0, 0], [1.0, 0, 0], [1.0, 0.2, 0]], scene, None, 0.1)
     # [0,0,0]->[1,0,0] (length 1) needs 2 levels: 4 pieces of 0.25; the short one none

@@ -434,8 +434,8 @@ def test_proven_empty_polytope_skips_the_projection(monkeypatch):
     index = GridIndex.build(scene)
     grid = conservative_grid(scene)
     built = []
-    real_sp = goal_mod.safe_polytope
-    monkeypatch.setattr(goal_mod, "safe_polytope", lambda *a, **k: built.append(real_sp(*a, **k)) or built[-1])
+    real_sp = goal_mod.aabb_polytope
+    monkeypatch.setattr(goal_mod, "aabb_polytope", lambda *a, **k: built.append(real_sp(*a, **k)) or built[-1])
     calls = []
     real_proj = goal_mod._project_onto_polytope
     monkeypatch.setattr(goal_mod, "_project_onto_polytope", lambda *a, **k: calls.append(1) or real_proj(*a, **k))

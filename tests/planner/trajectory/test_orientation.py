@@ -122,3 +122,18 @@ def test_smooth_path_gives_smooth_rotations():
     rot = look_at_rotations(pos, np.array([0.0, 0.0, 0.2]))
     steps = frame_step_deg(rot)
     assert steps.max() < 3.0  # ~1.2 deg of yaw per frame, no jumps
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.sampled_from([(3,), (1, 3), (7, 3), (2, 5, 3)]), st.booleans())
+def test_cross_is_numpy_cross_bit_for_bit(seed, shape, broadcast_one):
+    """orientation._cross against np.cross (the same products and differences, so the same bits), with one
+    argument a single vector broadcast against many, tiny and huge values included."""
+    from cinenerf_ns.planner.trajectory.orientation import _cross
+
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=shape) * 10.0 ** rng.integers(-150, 150, size=shape)
+    b = rng.normal(size=(3,) if broadcast_one else shape)
+    got, ref = _cross(a, b), np.cross(a, b)
+    assert got.shape == ref.shape and np.array_equal(got, ref, equal_nan=True)
+    assert np.array_equal(_cross(b, a), np.cross(b, a), equal_nan=True)
