@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import example, given, settings, strategies as st
 from scipy.linalg import solve_triangular
 from test_qp import check_solution, cvxpy_reference, random_corridor  # this folder is on sys.path
 
@@ -152,9 +152,13 @@ def test_optimum_meets_the_kkt_conditions(seed, m, pad):
 @settings(max_examples=60, deadline=None)
 @given(seed=st.integers(0, 100_000), m=st.integers(1, 7), shape=st.sampled_from(SHAPES),
        pad=st.sampled_from([0.02, 0.05, 0.3]), faces=st.integers(6, 30), stretch=st.booleans())
+@example(seed=75, m=5, shape=(3, 2, 3, 0), pad=0.05, faces=6, stretch=True)  # the reference refuses, C solves
 def test_native_matches_the_reference(seed, m, shape, pad, faces, stretch):
     """dual_qp.c against the numpy reference: the same outcome, and the same optimum to rounding (the optimum is
-    unique; near-ties may order the steps differently)."""
+    unique; near-ties may order the steps differently). One difference is allowed: on a stretched corridor a step
+    whose face is met to rounding (t2 ~ 0) may read as "unfinished" in one and not the other (their sums round
+    differently); the request then goes to Clarabel, and the path that answered "ok" must give a true optimum
+    (KKT conditions)."""
     cfg = _config(shape)
     polys, wp = random_corridor(seed, m=m, faces=faces, pad=pad)
     if stretch:  # very unequal durations (a tiny segment: the 1/d^5 terms)
@@ -168,7 +172,15 @@ def test_native_matches_the_reference(seed, m, shape, pad, faces, stretch):
     if py is None:
         assert nat is None
         return
-    assert nat.outcome == py.outcome
+    if nat.outcome != py.outcome:
+        assert stretch and {nat.outcome, py.outcome} == {"ok", "unfinished"}, (nat.outcome, py.outcome)
+        ok = nat if nat.outcome == "ok" else py
+        red = dual_qp.reduce(dur, fac, cfg.degree, cfg.continuity, cfg.rest_at_ends, wp[0], wp[-1])
+        x = ok.points.reshape(-1, 3)
+        pts, a, b, inv = dual_qp.constraint_rows(red, shrunk, cfg.degree)
+        assert ((np.einsum("ki,ki->k", a, x[pts]) - b) * inv).max() <= 1e-9  # feasible
+        assert _kkt_residual(red, shrunk, cfg.degree, x, 1e-10) < 1e-7  # and optimal
+        return
     if py.outcome == "ok":
         assert stable_cost(nat.points, fac) == pytest.approx(stable_cost(py.points, fac), rel=1e-8)
         if not stretch:
