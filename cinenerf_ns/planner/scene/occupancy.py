@@ -67,6 +67,12 @@ class OccupancyGrid:
         lo = self.lo.detach().cpu().numpy() if self.lo.device.type != "cpu" else self.lo.detach().numpy()
         return np.floor((np.asarray(point, dtype=np.float64).reshape(3) - lo) / self.voxel_size).astype(np.int64)
 
+    def centre_of(self, ijk: np.ndarray) -> np.ndarray:
+        """voxel_to_world of one voxel [3] as float64 numpy [3]: the same float64 arithmetic, without torch's per-call
+        cost (as voxel_of)."""
+        lo = self.lo.detach().cpu().numpy() if self.lo.device.type != "cpu" else self.lo.detach().numpy()
+        return lo + (np.asarray(ijk).reshape(3).astype(np.float64) + 0.5) * self.voxel_size
+
     def voxel_to_world(self, ijk: Tensor) -> Tensor:
         """Voxel centres [..., 3] float64 of indices [..., 3]."""
         ijk = torch.as_tensor(ijk, device=self.device)

@@ -10,7 +10,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..corridor.polytope import Polytope, safe_polytope
+from ..corridor.polytope import Polytope, aabb_polytope
 from ..errors import GoalUnreachableError, PlanningError
 from ..geometry.collision import segments_collide
 from ..geometry.ranges import group_ranks
@@ -155,7 +155,6 @@ def reachable_goal(planner: "Planner", target: np.ndarray, comp: int) -> "Reacha
     """
     prep = planner.ready()
     grid, labels = prep.grid, prep.astar_grid.labels
-    dev = planner.scene.device
     rlo, rhi = planner.region()
     half_voxel = 0.5 * float(grid.voxel_size)
     target = np.clip(target, rlo + half_voxel, rhi - half_voxel)  # paths never leave the planning region
@@ -175,9 +174,8 @@ def reachable_goal(planner: "Planner", target: np.ndarray, comp: int) -> "Reacha
         return ReachableGoal(g, free_voxel_near(planner, g, comp, max_window=2 if walled_in else 16))
     except GoalUnreachableError:
         pass
-    ijk = torch.as_tensor(nearest_component_voxel(planner, target, comp), device=grid.device)
-    c = grid.voxel_to_world(ijk).to(dev)
-    c_np = c.cpu().numpy()
+    ijk = nearest_component_voxel(planner, target, comp)  # [3] int64
+    c_np = grid.centre_of(ijk)  # [3] float64
     vs = float(grid.voxel_size)
     full = np.maximum(np.abs(target - c_np), vs) + vs  # [3] half-widths of the box that reaches the target
     # First a box of GOAL_FIRST_BOX_VOXELS voxels around c: the goal is usually within a voxel or two of it (c is
@@ -188,10 +186,9 @@ def reachable_goal(planner: "Planner", target: np.ndarray, comp: int) -> "Reacha
     x = poly = None
     for half in (np.minimum(full, GOAL_FIRST_BOX_VOXELS * vs), full):
         try:
-            h = torch.as_tensor(half, device=dev)
-            blo = torch.maximum(c - h, torch.as_tensor(rlo, device=dev))  # the box stays in the planning region
-            bhi = torch.minimum(c + h, torch.as_tensor(rhi, device=dev))
-            poly = safe_polytope(c[None], planner.scene, prep.index, blo, bhi)
+            blo = np.maximum(c_np - half, rlo)  # the box stays in the planning region
+            bhi = np.minimum(c_np + half, rhi)
+            poly = aabb_polytope(c_np[None], planner.scene, prep.index, blo, bhi)
             A, b = poly.to_numpy()
             x = _project_onto_polytope(A, b, target, interior=c_np)  # the seed: inside
         except PlanningError:
@@ -200,8 +197,8 @@ def reachable_goal(planner: "Planner", target: np.ndarray, comp: int) -> "Reacha
         if x is None or not on_face or (half >= full).all():
             break
     if x is None:
-        return ReachableGoal(c_np, ijk.cpu().numpy())
-    return ReachableGoal(x, ijk.cpu().numpy(), poly)
+        return ReachableGoal(c_np, ijk)
+    return ReachableGoal(x, ijk, poly)
 
 
 def nearest_component_voxel(planner: "Planner", target: np.ndarray, comp: int) -> np.ndarray:

@@ -127,3 +127,16 @@ def test_voxel_of_is_world_to_voxel(lo, vs, ijk, frac):
     grid = OccupancyGrid(torch.tensor(lo, dtype=torch.float64), vs, torch.zeros(4, 4, 4, dtype=torch.bool))
     p = np.asarray(lo) + (np.asarray(ijk) + frac) * vs
     assert grid.voxel_of(p).tolist() == grid.world_to_voxel(torch.as_tensor(p)).tolist()
+
+
+@settings(max_examples=200, deadline=None)
+@given(lo=st.lists(st.floats(-5, 5), min_size=3, max_size=3), vs=st.floats(1e-3, 1.0),
+       ijk=st.lists(st.integers(-3, 4000), min_size=3, max_size=3))
+def test_centre_of_is_voxel_to_world(lo, vs, ijk):
+    """The numpy centre of one voxel is voxel_to_world's, bit for bit."""
+    import numpy as np
+
+    grid = OccupancyGrid(torch.tensor(lo, dtype=torch.float64), vs, torch.zeros(4, 4, 4, dtype=torch.bool))
+    got = grid.centre_of(np.asarray(ijk, dtype=np.int64))
+    assert got.dtype == np.float64
+    assert np.array_equal(got, grid.voxel_to_world(torch.as_tensor(ijk)).numpy())
