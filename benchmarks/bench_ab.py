@@ -11,11 +11,14 @@ ratio of medians B/A is the comparison. The absolute values are higher than benc
         --n-gaussians 1000000 --device cuda --pairs 100 --block 20
 
 A tree is a directory holding cinenerf_ns/ and benchmarks/ (e.g. `git archive <commit> cinenerf_ns benchmarks`).
-Prints median, p95 and max per tree and the block ratios; records nothing.
+--config-a / --config-b set PlannerConfig fields of one side (`--tree-a . --tree-b . --config-b plan_cpu_threads=None`
+compares two settings of one tree). Prints median, p95 and max per side and the block ratios; records nothing.
 """
 from __future__ import annotations
 
 import argparse
+import ast
+import dataclasses
 import json
 import os
 import subprocess
@@ -41,6 +44,7 @@ def _worker(args) -> None:
     sync = (lambda: torch.cuda.synchronize()) if cuda else (lambda: None)
     fam = load_family(args.family, args.n_gaussians, args.seed, args.device)
     cfg = PlannerConfig(up=fam.up, start_region=None if fam.kind == "procedural" else fam.start_region)
+    cfg = dataclasses.replace(cfg, **_overrides(args.config))
     planner = Planner(fam.scene, cfg)
     if cuda:  # as bench_planner: kernels and allocator warmed on a tiny prepare
         Planner(fam.scene.subset(torch.arange(min(len(fam.scene), 2000), device=fam.scene.device)), cfg).prepare()
@@ -71,11 +75,25 @@ def _worker(args) -> None:
         print(json.dumps(out), flush=True)
 
 
-def _start(tree: Path, args) -> subprocess.Popen:
+def _overrides(items: list) -> dict:
+    """--config KEY=VALUE items as {KEY: the Python literal VALUE} (a bare word stays a string)."""
+    out = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key.isidentifier():
+            raise SystemExit(f"bench_ab: --config-a / --config-b take KEY=VALUE, got {item!r}")
+        try:
+            out[key] = ast.literal_eval(value)
+        except (ValueError, SyntaxError):
+            out[key] = value
+    return out
+
+
+def _start(tree: Path, args, config: list) -> subprocess.Popen:
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tree)] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
     cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", "--family", args.family, "--start-mode",
            args.start_mode, "--n-gaussians", str(args.n_gaussians), "--device", args.device, "--pairs",
-           str(args.pairs), "--seed", str(args.seed)]
+           str(args.pairs), "--seed", str(args.seed)] + [f"--config={c}" for c in config]
     p = subprocess.Popen(cmd, cwd=tree, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     line = p.stdout.readline().strip()
     if line != "ready":
@@ -106,7 +124,12 @@ def main() -> None:
     ap.add_argument("--block", type=int, default=10, help="requests per block (A B B A per block)")
     ap.add_argument("--rounds", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--config-a", action="append", default=[], metavar="KEY=VALUE",
+                    help="a PlannerConfig field for tree A's planner (repeatable)")
+    ap.add_argument("--config-b", action="append", default=[], metavar="KEY=VALUE",
+                    help="a PlannerConfig field for tree B's planner (repeatable)")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--config", action="append", default=[], help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.worker:
         _worker(args)
@@ -123,7 +146,13 @@ def main() -> None:
         args.family = args.family[:4] + str(Path(args.family[4:]).resolve())
     import numpy as np
 
-    workers = [_start(args.tree_a.resolve(), args), _start(args.tree_b.resolve(), args)]
+    from cinenerf_ns.planner.shots.planner import PlannerConfig
+
+    fields = {f.name for f in dataclasses.fields(PlannerConfig)}
+    for c in args.config_a + args.config_b:
+        if next(iter(_overrides([c]))) not in fields:
+            ap.error(f"{c!r}: PlannerConfig has no field {c.partition('=')[0]!r}")
+    workers = [_start(args.tree_a.resolve(), args, args.config_a), _start(args.tree_b.resolve(), args, args.config_b)]
 
     def run(p, i, j):
         p.stdin.write(f"go {i} {j}\n")
@@ -148,8 +177,8 @@ def main() -> None:
         p.stdin.flush()
         p.wait()
     print(f"{args.family}@{args.start_mode}, {args.n_gaussians} Gaussians, {args.device}")
-    print(f"  A {args.tree_a}: {_stats(a_ms)}")
-    print(f"  B {args.tree_b}: {_stats(b_ms)}")
+    print(f"  A {args.tree_a}{' ' + ' '.join(args.config_a) if args.config_a else ''}: {_stats(a_ms)}")
+    print(f"  B {args.tree_b}{' ' + ' '.join(args.config_b) if args.config_b else ''}: {_stats(b_ms)}")
     if ratios:
         print(f"  block ratio B/A: median {np.median(ratios):.3f}, range [{min(ratios):.3f}, {max(ratios):.3f}] over "
               f"{len(ratios)} blocks")

@@ -36,15 +36,19 @@ def test_every_benchmark_script_starts():
 
 
 def test_bench_ab_compares_a_tree_with_itself(tmp_path):
-    """bench_ab.py end to end on a tiny room: two warm workers (the repository against itself) answer the same
-    blocks, and it prints both trees' statistics and the block ratios. A bad option is refused before any worker
-    starts."""
+    """bench_ab.py end to end on a tiny room: two warm workers (the repository against itself, one side with another
+    PlannerConfig setting) answer the same blocks, and it prints both sides' statistics and the block ratios. A bad
+    tree or config field is refused before any worker starts."""
     r = subprocess.run([sys.executable, "benchmarks/bench_ab.py", "--tree-a", ".", "--tree-b", ".", "--family",
-                        "procedural", "--n-gaussians", "3000", "--pairs", "4", "--block", "2"], cwd=REPO,
+                        "procedural", "--n-gaussians", "3000", "--pairs", "4", "--block", "2", "--config-b",
+                        "plan_cpu_threads=None"], cwd=REPO,
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
-    assert "A .: median" in r.stdout and "B .: median" in r.stdout
+    assert "A .: median" in r.stdout and "B . plan_cpu_threads=None: median" in r.stdout
     assert "block ratio B/A: median" in r.stdout and "over 2 blocks" in r.stdout
     r = subprocess.run([sys.executable, "benchmarks/bench_ab.py", "--tree-a", str(tmp_path), "--tree-b", "."],
                        cwd=REPO, capture_output=True, text=True, timeout=60)
     assert r.returncode != 0 and "must hold cinenerf_ns/ and benchmarks/" in r.stderr
+    r = subprocess.run([sys.executable, "benchmarks/bench_ab.py", "--tree-a", ".", "--tree-b", ".", "--config-b",
+                        "no_such_field=1"], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert r.returncode != 0 and "PlannerConfig has no field 'no_such_field'" in r.stderr
