@@ -83,6 +83,7 @@ def segment_box_closest(u0: np.ndarray, u1: np.ndarray, v: np.ndarray) -> tuple[
 
 
 _BOX_A = np.vstack([np.eye(3), -np.eye(3)])  # [6, 3] the box's faces, first in every grid polytope
+FIRST_CAP = 256  # rows VoxelObstacles.polytope's first output buffer holds; more: built again with 4x the room
 
 
 def _planes_native(fn, srf: np.ndarray, shp: np.ndarray, u0: np.ndarray, u1: np.ndarray, blo: np.ndarray,
@@ -198,22 +199,47 @@ class VoxelObstacles:
         return cls(occ, surface_voxels(occ), np.asarray(lo, dtype=np.float64).reshape(3), float(voxel_size))
 
     def segments_free(self, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
-        """bool [P]: segment p0[i] -> p1[i] (world, float64 [P, 3]) lies in free voxels (exact voxel walk)."""
-        return segments_in_free_voxels(self.occupied, self.lo, self.voxel_size, p0, p1)
+        """bool [P]: segment p0[i] -> p1[i] (world, float64 [P, 3]) lies in free voxels (exact voxel walk:
+        segments_in_free_voxels, whose compiled path is called here with the grid's kept pointers)."""
+        fast = self._compiled()
+        if fast is None:
+            return segments_in_free_voxels(self.occupied, self.lo, self.voxel_size, p0, p1)
+        a = np.asarray(p0, dtype=np.float64).reshape(-1, 3)
+        b = np.asarray(p1, dtype=np.float64).reshape(-1, 3)
+        if a.shape != b.shape:
+            raise InvalidInputError(f"segments_free needs p0 and p1 of one shape [P, 3], got {a.shape} and {b.shape}")
+        P = a.shape[0]
+        if P == 0:
+            return np.zeros(0, dtype=bool)
+        ab = np.concatenate([a, b])  # [2P, 3]: both ends behind one pointer
+        ab_p = ab.ctypes.data
+        res = np.zeros(P, dtype=np.uint8)
+        _, walk, occ_p, _, shp_p, lo_p, _ = fast
+        if walk(occ_p, shp_p, lo_p, float(self.voxel_size), ab_p, ab_p + 24 * P, P, EPS, res.ctypes.data) != 0:
+            raise MemoryError("the compiled voxel walk ran out of memory")
+        return res.view(bool)
 
     def _compiled(self) -> Optional[tuple]:
-        """(cn_grid_polytope_world, occupied, surface as C-contiguous bool, shape [3] int64, lo [3] float64), kept on
-        the grid, or None when the compiled kernel does not load: polytope() then takes the Python construction.
-        Why one call: the voxel walk, the box and the planes as separate calls with their argument checks and
-        conversions cost more than the ~35 us a grid polytope itself takes at 1M Gaussians."""
+        """(cn_grid_polytope_world, cn_segments_free, then pointers to occupied and surface as C-contiguous bool,
+        shape [3] int64 and lo [3] float64, with the arrays they point into), kept on the grid, or None when the
+        compiled kernels do not load: polytope() and segments_free() then take the Python paths. Why one call, and
+        pointers kept: the voxel walk, the box and the planes as separate calls with their argument checks and
+        conversions cost more than the ~35 us a grid polytope itself takes at 1M Gaussians (and an array's
+        .ctypes.data costs ~0.8 us)."""
         got = self.__dict__.get("_compiled_args")
         if got is None:
-            from ..native import choose, grid_polytope_world_c
+            from ..native import choose, grid_polytope_world_c, segments_free_c
 
             fn = choose("auto", grid_polytope_world_c, "gridpoly", "grid polytope")
-            got = (None,) if fn is None else (
-                fn, np.ascontiguousarray(self.occupied, dtype=bool), np.ascontiguousarray(self.surface, dtype=bool),
-                np.asarray(self.occupied.shape, dtype=np.int64), np.ascontiguousarray(self.lo, dtype=np.float64))
+            walk = choose("auto", segments_free_c, "gridpoly", "voxel walk")
+            if fn is None or walk is None:
+                got = (None,)
+            else:
+                keep = (np.ascontiguousarray(self.occupied, dtype=bool),
+                        np.ascontiguousarray(self.surface, dtype=bool),
+                        np.asarray(self.occupied.shape, dtype=np.int64),
+                        np.ascontiguousarray(self.lo, dtype=np.float64))
+                got = (fn, walk, *(a.ctypes.data for a in keep), keep)
             self.__dict__["_compiled_args"] = got
         return None if got[0] is None else got
 
@@ -230,19 +256,21 @@ class VoxelObstacles:
         grid_polytope_planes' Python construction; the same planes, offsets within rounding of the conversion)."""
         if backend not in ("auto", "python"):
             raise InvalidInputError(f"VoxelObstacles.polytope backend must be 'auto' or 'python', got {backend!r}")
-        a = np.ascontiguousarray(p0.detach().cpu() if isinstance(p0, torch.Tensor) else p0, dtype=np.float64).reshape(3)
-        c = np.ascontiguousarray(p1.detach().cpu() if isinstance(p1, torch.Tensor) else p1, dtype=np.float64).reshape(3)
+        a = np.asarray(p0.detach().cpu() if isinstance(p0, torch.Tensor) else p0, dtype=np.float64).reshape(3)
+        c = np.asarray(p1.detach().cpu() if isinstance(p1, torch.Tensor) else p1, dtype=np.float64).reshape(3)
         vs = self.voxel_size
         dev = torch.device("cpu") if device is None else torch.device(device)
         fast = self._compiled() if backend == "auto" else None
         if fast is not None:
-            fn, occ, srf, shp, lo = fast
-            cap = 256
+            fn, _, occ_p, srf_p, shp_p, lo_p, _ = fast
+            ac = np.stack([a, c])  # [2, 3] the segment's ends, one pointer for both (and the polytope's seed)
+            ac_p = ac.ctypes.data
+            cap = FIRST_CAP
             while True:
-                n_out, b_out = np.empty((cap, 3)), np.empty(cap)
-                F = int(fn(occ.ctypes.data, srf.ctypes.data, shp.ctypes.data, lo.ctypes.data, vs, a.ctypes.data,
-                           c.ctypes.data, float(box_margin), float(margin), EPS, cap, n_out.ctypes.data,
-                           b_out.ctypes.data))
+                out = np.empty(4 * cap)  # normals [cap, 3], offsets [cap]
+                op = out.ctypes.data
+                F = int(fn(occ_p, srf_p, shp_p, lo_p, vs, ac_p, ac_p + 24, float(box_margin), float(margin), EPS, cap,
+                           op, op + 8 * 3 * cap))
                 if F != -2:
                     break
                 cap *= 4
@@ -250,8 +278,8 @@ class VoxelObstacles:
                 return None
             if F < 0:
                 raise MemoryError("the compiled grid polytope ran out of memory")
-            A, b = torch.from_numpy(n_out[:F]), torch.from_numpy(b_out[:F])
-            seed = torch.from_numpy(np.stack([a, c]))
+            A, b = torch.from_numpy(out[:3 * F].reshape(F, 3)), torch.from_numpy(out[3 * cap:3 * cap + F])
+            seed = torch.from_numpy(ac)
             if dev.type != "cpu":
                 A, b, seed = A.to(dev), b.to(dev), seed.to(dev)
             return Polytope(A=A, b=b, seed=seed, ellipsoid_ids=None)

@@ -15,6 +15,7 @@ from torch import Tensor
 from ..geometry.ranges import group_ranks
 
 NORMAL_CODE = {"auto": 0, "prop2": 1, "mahalanobis": 2, "closest": 3}  # polytope.c's normal rule numbers
+FIRST_CAP = 512  # planes the first output buffer holds; a polytope with more is built again with room for all
 
 
 def native_applies(scene, index) -> bool:
@@ -120,25 +121,32 @@ def native_safe_polytope(fn, scene, index, seeds: np.ndarray, lo: np.ndarray, hi
     [F, 3], offsets [F], scene ids [F] of the planes, scene ids [J] and slacks [J] of the ellipsoids that cut the
     seeds; J > 0 only when ``require_seed_inside``; stopped: True when the second pass was skipped that way)."""
     arr = native_arrays(scene, index)
-    sd = np.ascontiguousarray(seeds, dtype=np.float64)
-    lo_c, hi_c = np.ascontiguousarray(lo, dtype=np.float64), np.ascontiguousarray(hi, dtype=np.float64)
-    rot_c = None if rot is None else np.ascontiguousarray(rot, dtype=np.float64)
-    info = np.zeros(5, dtype=np.int64)
-    cap = 512
+    # one input block (seeds, box lo, hi, rotation) and one output block, each passed as base pointer + offsets: a
+    # numpy array's .ctypes.data costs ~0.8 us, and a call needed ten of them
+    S = int(np.shape(seeds)[0])
+    inp = np.concatenate([np.asarray(seeds, dtype=np.float64).reshape(-1), np.asarray(lo, dtype=np.float64).reshape(3),
+                          np.asarray(hi, dtype=np.float64).reshape(3),
+                          np.zeros(0) if rot is None else np.asarray(rot, dtype=np.float64).reshape(9)])
+    ip = inp.ctypes.data
+    lo_p, hi_p = ip + 8 * 3 * S, ip + 8 * (3 * S + 3)
+    rot_p = None if rot is None else ip + 8 * (3 * S + 6)
+    cap = FIRST_CAP
     while True:
-        n = (np.empty((cap, 3)), np.empty(cap), np.empty(cap, dtype=np.int64), np.empty(cap, dtype=np.int64),
-             np.empty(cap))
+        out = np.empty(7 * cap + 5)  # planes n [cap, 3], b [cap], ids [cap], bad ids [cap], bad slacks [cap], info [5]
+        op = out.ctypes.data
         F = int(fn(
-            *arr["args"], sd.ctypes.data, sd.shape[0], lo_c.ctypes.data, hi_c.ctypes.data,
-            None if rot_c is None else rot_c.ctypes.data, r, float(margin), NORMAL_CODE[normal],
-            int(bool(require_seed_inside)), float(near_fraction), float(empty_shrink), cap, *(a.ctypes.data for a in n),
-            info.ctypes.data))
+            *arr["args"], ip, S, lo_p, hi_p, rot_p, r, float(margin), NORMAL_CODE[normal],
+            int(bool(require_seed_inside)), float(near_fraction), float(empty_shrink), cap, op, op + 8 * 3 * cap,
+            op + 8 * 4 * cap, op + 8 * 5 * cap, op + 8 * 6 * cap, op + 8 * 7 * cap))
+        info = out[7 * cap:].view(np.int64)
         if F == -2:  # more planes than ``cap``: info[2] says how many
             cap = int(info[2]) + 1
             continue
         if F < 0:
             raise MemoryError(f"the compiled safe polytope failed (code {F})")
         break
+    n = (out[:3 * cap].reshape(cap, 3), out[3 * cap:4 * cap], out[4 * cap:5 * cap].view(np.int64),
+         out[5 * cap:6 * cap].view(np.int64), out[6 * cap:7 * cap])
     n_planes, b_planes, ids_planes, bad_ids, bad_slack = n
     nbad = int(info[0])
     perm = arr["perm"]  # the compiled ids are positions in spatial order

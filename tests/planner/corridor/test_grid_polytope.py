@@ -358,6 +358,44 @@ def test_no_grid_polytope_inside_a_solid_block(backend):
     assert grid.polytope(a, c, 0.3, 1e-9, backend=backend) is None
 
 
+def test_a_full_output_buffer_is_retried_with_more_room(monkeypatch):
+    """A polytope with more rows than the first buffer holds (FIRST_CAP made tiny) is built again with a larger one
+    and equals the one built at once."""
+    from cinenerf_ns.planner.corridor import grid_polytope as gp
+
+    occ = np.zeros((12, 12, 12), dtype=bool)
+    occ[[0, -1], :, :] = occ[:, [0, -1], :] = occ[:, :, [0, -1]] = True  # walls on every side: many planes
+    grid = VoxelObstacles.from_occupied(occ, np.zeros(3), 0.25)
+    a, c = np.array([1.1, 1.4, 1.5]), np.array([1.9, 1.6, 1.5])
+    ref = grid.polytope(a, c, 2.0, 1e-9)
+    assert ref is not None and ref.num_faces > 8
+    monkeypatch.setattr(gp, "FIRST_CAP", 7)
+    got = grid.polytope(a, c, 2.0, 1e-9)
+    assert torch.equal(got.A, ref.A) and torch.equal(got.b, ref.b)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.integers(0, 10_000), st.sampled_from([0.05, 0.2, 0.35]), st.integers(0, 6))
+def test_grid_segments_free_is_the_python_walk(seed, fill, n):
+    """VoxelObstacles.segments_free (the compiled walk with the grid's kept pointers, both ends behind one pointer)
+    answers as the Python voxel walk, for 0 to 6 segments, some leaving the grid; ends of different shapes are
+    refused."""
+    rng = np.random.default_rng(seed)
+    occ = rng.random((14, 12, 10)) < fill
+    lo, vs = np.array([-0.3, 0.2, 1.0]), 0.25
+    grid = VoxelObstacles.from_occupied(occ, lo, vs)
+    if grid._compiled() is None:
+        pytest.skip("no C compiler: the compiled grid kernels are not built")
+    a = lo + rng.uniform(-1, 15, (n, 3)) * vs
+    b = a + rng.normal(size=(n, 3)) * rng.choice([0.1, 1.0, 5.0]) * vs
+    got = grid.segments_free(a, b)
+    ref = segments_in_free_voxels(occ, lo, vs, a, b, backend="python")
+    assert got.dtype == bool and np.array_equal(got, ref)
+    if n:
+        with pytest.raises(InvalidInputError, match="one shape"):
+            grid.segments_free(a, b[:-1])
+
+
 def test_grid_polytope_refuses_an_unknown_backend():
     grid = VoxelObstacles.from_occupied(np.zeros((4, 4, 4), dtype=bool), np.zeros(3), 0.25)
     with pytest.raises(InvalidInputError, match="backend"):

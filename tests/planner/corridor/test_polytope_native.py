@@ -136,6 +136,37 @@ def test_aabb_polytope_is_safe_polytope(seed, dtype, normal, near, empty, margin
     assert g.proven_empty == r.proven_empty
 
 
+def test_a_full_output_buffer_is_retried_with_more_room(monkeypatch):
+    """A polytope with more planes than the first output buffer holds (FIRST_CAP made tiny) is built again with room
+    for all, and equals the one built at once; a SeedNotFreeError names the same ellipsoids either way."""
+    from cinenerf_ns.planner.corridor import polytope_native
+
+    rng = np.random.default_rng(3)
+    scene = random_scene(rng, 400, amin=0.005, amax=0.05, camera_radius=0.02)
+    idx = GridIndex.build(scene, cell_size=0.1)
+    free, blocked = None, None
+    for _ in range(200):  # a free point seed with many planes, and a segment seed that is not free
+        p = rng.uniform(-0.5, 0.5, (1, 3))
+        try:
+            P = safe_polytope(p, scene, idx, p[0] - 0.4, p[0] + 0.4)
+            if free is None and P.num_faces > 10:
+                free = (p, P)
+        except SeedNotFreeError as e:
+            if blocked is None:
+                blocked = (p, e)
+        if free is not None and blocked is not None:
+            break
+    assert free is not None and blocked is not None
+    monkeypatch.setattr(polytope_native, "FIRST_CAP", 1)
+    p, ref = free
+    got = safe_polytope(p, scene, idx, p[0] - 0.4, p[0] + 0.4)
+    assert torch.equal(got.A, ref.A) and torch.equal(got.b, ref.b) and torch.equal(got.ellipsoid_ids, ref.ellipsoid_ids)
+    p, ref_e = blocked
+    with pytest.raises(SeedNotFreeError) as e:
+        safe_polytope(p, scene, idx, p[0] - 0.4, p[0] + 0.4)
+    assert torch.equal(e.value.ellipsoid_ids, ref_e.ellipsoid_ids) and e.value.min_slack == ref_e.min_slack
+
+
 @settings(**SETTINGS)
 @given(seed=st.integers(0, 2**31 - 1), n_seeds=st.sampled_from([1, 2]), normal=st.sampled_from(
     ["auto", "prop2", "mahalanobis", "closest"]))
