@@ -142,6 +142,11 @@ def main() -> None:
     for name, v, lo in (("--pairs", args.pairs, 1), ("--block", args.block, 1), ("--rounds", args.rounds, 1)):
         if v < lo:
             ap.error(f"{name} must be >= {lo}, got {v}")
+    if args.family == "fox":  # the capture beside this checkout (a tree elsewhere would look beside itself)
+        sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+        from benchmarks.scene_families import FOX
+
+        args.family = f"npz:{FOX}"
     if args.family.startswith(("npz:", "ply:")):  # the workers run in the trees: make the path absolute
         args.family = args.family[:4] + str(Path(args.family[4:]).resolve())
     import numpy as np
