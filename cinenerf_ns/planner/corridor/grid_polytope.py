@@ -37,7 +37,7 @@ from scipy import ndimage
 
 from ..errors import InvalidInputError
 from ..geometry.voxel_traversal import EPS, segments_in_free_voxels
-from .polytope import Polytope
+from .polytope import AABB_FACES, Polytope
 
 
 def surface_voxels(occupied: np.ndarray) -> np.ndarray:
@@ -82,7 +82,6 @@ def segment_box_closest(u0: np.ndarray, u1: np.ndarray, v: np.ndarray) -> tuple[
     return q[rows, k], p[rows, k], np.sqrt(f[rows, k])
 
 
-_BOX_A = np.vstack([np.eye(3), -np.eye(3)])  # [6, 3] the box's faces, first in every grid polytope
 FIRST_CAP = 256  # rows VoxelObstacles.polytope's first output buffer holds; more: built again with 4x the room
 
 
@@ -103,7 +102,7 @@ def _planes_native(fn, srf: np.ndarray, shp: np.ndarray, u0: np.ndarray, u1: np.
         return None
     if F < 0:
         raise MemoryError("the compiled grid polytope ran out of memory")
-    return np.concatenate([_BOX_A, n_out[:F]]), np.concatenate([bhi, -blo, b_out[:F]])
+    return np.concatenate([AABB_FACES, n_out[:F]]), np.concatenate([bhi, -blo, b_out[:F]])
 
 
 def grid_polytope_planes(

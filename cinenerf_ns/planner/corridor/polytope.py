@@ -537,7 +537,7 @@ def _add_two_pass(planes: _PlaneSet, scene, index, box: _Box, seeds_t: Tensor) -
     planes.add(ids1, mu1, am1)
 
 
-_AABB_FACES = np.vstack([np.eye(3), -np.eye(3)])  # [6, 3] an axis-aligned box's faces, the first planes
+AABB_FACES = np.vstack([np.eye(3), -np.eye(3)])  # [6, 3] an axis-aligned box's faces, the first planes
 
 
 def aabb_polytope(seeds: np.ndarray, scene, index, box_lo: np.ndarray, box_hi: np.ndarray, *,
@@ -562,9 +562,9 @@ def aabb_polytope(seeds: np.ndarray, scene, index, box_lo: np.ndarray, box_hi: n
         opts.near_fraction if opts.two_pass else 0.0, shrink)
     if bad_slack.size:
         raise _seed_not_free(seeds, r, torch.from_numpy(bad_ids), bad_slack)
-    A, off = [_AABB_FACES, n], [hi, -lo, b]
+    A, off = [AABB_FACES, n], [hi, -lo, b]
     if stopped:  # _Box.polytope's explicit contradiction: first axis <= lo - (hi - lo)
-        A.append(_AABB_FACES[:1])
+        A.append(AABB_FACES[:1])
         off.append(np.array([lo[0] - (hi[0] - lo[0])]))
         ids = np.concatenate([ids, [-1]])
     return Polytope(torch.from_numpy(np.concatenate(A)), torch.from_numpy(np.concatenate(off)),

@@ -145,9 +145,9 @@ def native_safe_polytope(fn, scene, index, seeds: np.ndarray, lo: np.ndarray, hi
         if F < 0:
             raise MemoryError(f"the compiled safe polytope failed (code {F})")
         break
-    n = (out[:3 * cap].reshape(cap, 3), out[3 * cap:4 * cap], out[4 * cap:5 * cap].view(np.int64),
-         out[5 * cap:6 * cap].view(np.int64), out[6 * cap:7 * cap])
-    n_planes, b_planes, ids_planes, bad_ids, bad_slack = n
+    n_planes, b_planes = out[:3 * cap].reshape(cap, 3), out[3 * cap:4 * cap]
+    ids_planes, bad_ids = out[4 * cap:5 * cap].view(np.int64), out[5 * cap:6 * cap].view(np.int64)
+    bad_slack = out[6 * cap:7 * cap]
     nbad = int(info[0])
     perm = arr["perm"]  # the compiled ids are positions in spatial order
     return n_planes[:F], b_planes[:F], perm[ids_planes[:F]], perm[bad_ids[:nbad]], bad_slack[:nbad], bool(info[4])

@@ -61,17 +61,20 @@ class OccupancyGrid:
         p = torch.as_tensor(points, device=self.device).double()
         return torch.floor((p - self.lo) / self.voxel_size).long()
 
+    def _lo_numpy(self) -> np.ndarray:
+        """lo [3] as numpy (a view on the CPU; voxel_of and centre_of are the single-point host paths)."""
+        return self.lo.detach().numpy() if self.lo.device.type == "cpu" else self.lo.detach().cpu().numpy()
+
     def voxel_of(self, point: np.ndarray) -> np.ndarray:
         """world_to_voxel of one point [3] as int64 numpy [3]: the same float64 arithmetic, without torch's per-call
         cost (~40 us on the CPU box for the tensor round trip, 4 us here; a request looks up several points)."""
-        lo = self.lo.detach().cpu().numpy() if self.lo.device.type != "cpu" else self.lo.detach().numpy()
-        return np.floor((np.asarray(point, dtype=np.float64).reshape(3) - lo) / self.voxel_size).astype(np.int64)
+        return np.floor((np.asarray(point, dtype=np.float64).reshape(3) - self._lo_numpy()) / self.voxel_size).astype(
+            np.int64)
 
     def centre_of(self, ijk: np.ndarray) -> np.ndarray:
         """voxel_to_world of one voxel [3] as float64 numpy [3]: the same float64 arithmetic, without torch's per-call
         cost (as voxel_of)."""
-        lo = self.lo.detach().cpu().numpy() if self.lo.device.type != "cpu" else self.lo.detach().numpy()
-        return lo + (np.asarray(ijk).reshape(3).astype(np.float64) + 0.5) * self.voxel_size
+        return self._lo_numpy() + (np.asarray(ijk).reshape(3).astype(np.float64) + 0.5) * self.voxel_size
 
     def voxel_to_world(self, ijk: Tensor) -> Tensor:
         """Voxel centres [..., 3] float64 of indices [..., 3]."""

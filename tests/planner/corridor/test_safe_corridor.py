@@ -137,6 +137,11 @@ def test_bad_waypoints():
         build_corridor([[0.0, 0, 0], [0.0, 0, 0]], scene)
     with pytest.raises(InvalidInputError):
         build_corridor([[0.0, 0, 0], [1.0, 0, 0]], scene, box="sphere")
+    with pytest.raises(InvalidInputError, match="of numbers"):
+        build_corridor([[0.0, 0, 0], [1.0, 0]], scene)  # ragged
+    for bad in (0.0, -0.1, np.nan, np.inf):  # box_margin: a finite length, or the boxes are not boxes
+        with pytest.raises(InvalidInputError, match="box_margin must be a finite length > 0"):
+            build_corridor([[0.0, 0, 0], [1.0, 0, 0]], scene, box_margin=bad)
     for bad in (0.0, -0.1, np.nan, np.inf):  # split_long: a length, or bisection would run to its depth limit
         with pytest.raises(InvalidInputError, match="split_long"):
             build_corridor([[0.0, 0, 0], [1.0, 0, 0]], scene, split_long=bad)
