@@ -95,6 +95,10 @@ class PlannerConfig:
     grid_polytopes: Union[bool, str] = "auto"
     """Polytopes from the occupancy grid for segments in free voxels (grid_polytope.py: same guarantee, cheaper);
     False: Prop-2 for all (the paper's). 'auto': on for voxels <= GRID_POLYTOPE_MAX_VOXEL x camera radius."""
+    corner_detours: bool = True
+    """With grid polytopes: a voxel-path step that passes an occupied voxel at an edge or corner is replaced by axis
+    moves through free voxels where such a route exists (corner_steps.py), so its corridor polytope comes from the grid
+    instead of Prop-2. False: the voxel path as A* found it."""
     corridor_backend: str = "auto"
     """Corridor polytopes: 'cpu' one host polytope per segment; 'batched' all in one torch batch on the scene's own
     device; 'auto': 'cpu' for one request's corridor (the CPU mirror's compiled polytopes beat GPU launches) unless
@@ -143,6 +147,8 @@ class PlannerConfig:
                 raise InvalidInputError(f"{name} must be a finite number >= {lo:g} (a fraction / multiple of the "
                                         f"planning region's longest side), got {v!r}")
         self.timing.validate()
+        if not isinstance(self.corner_detours, (bool, np.bool_)):
+            raise InvalidInputError(f"corner_detours must be True or False, got {self.corner_detours!r}")
         if self.grid_polytopes not in (True, False, "auto"):
             raise InvalidInputError(f"grid_polytopes must be True, False or 'auto', got {self.grid_polytopes!r}")
 

@@ -16,6 +16,7 @@ import torch
 from ..corridor.safe_corridor import Corridor, CorridorError, build_corridor, build_corridors
 from ..errors import GoalUnreachableError, UnsafeTrajectoryError
 from ..search.coarse_path import voxel_path
+from ..search.corner_steps import detour_corner_steps
 from ..search.reach import ReachableGoal, free_voxel_near, reachable_goal
 from ..trajectory.dynamics import DynamicLimits, retime_shot
 from ..trajectory.qp import solve_corridor_qp
@@ -56,13 +57,18 @@ def leg_goal(planner: "Planner", start: np.ndarray, target: np.ndarray,
 # ---------------------------------------------------------------- voxel path
 def voxel_centres(planner: "Planner", a_ijk: np.ndarray, b_ijk: np.ndarray) -> np.ndarray:
     """The world centres [K, 3] of the voxel path from voxel ``a_ijk`` to ``b_ijk`` (A* with the configured weight,
-    hard cases on the coarse grid: coarse_path.voxel_path)."""
+    hard cases on the coarse grid: coarse_path.voxel_path), with its corner-cutting steps detoured through free voxels
+    where they can be (config.corner_detours, with grid polytopes: corner_steps.py)."""
     prep = planner.ready()
     path = voxel_path(prep.astar_grid, prep.coarse, a_ijk, b_ijk, astar_weight=planner.config.astar_weight)  # [K, 3]
     if prep.voxels is not None and prep.grid.device.type == "cpu":
         # OccupancyGrid.voxel_to_world's arithmetic in numpy (the same float64 operations, so the same centres)
-        return prep.voxels.lo + (np.asarray(path).astype(np.float64) + 0.5) * prep.voxels.voxel_size
-    return prep.grid.voxel_to_world(torch.as_tensor(path, device=prep.grid.device)).cpu().numpy()
+        centres = prep.voxels.lo + (np.asarray(path).astype(np.float64) + 0.5) * prep.voxels.voxel_size
+    else:
+        centres = prep.grid.voxel_to_world(torch.as_tensor(path, device=prep.grid.device)).cpu().numpy()
+    if planner.config.corner_detours and prep.voxels is not None and planner.use_grid_polytopes():
+        centres = detour_corner_steps(prep.voxels.segments_free, centres)[0]
+    return centres
 
 
 def leg_way(planner: "Planner", start: np.ndarray, s_ijk: np.ndarray, goal: ReachableGoal) -> np.ndarray:
