@@ -326,6 +326,22 @@ def dense_fill_c():
                      _I64)
 
 
+def bezier_positions_c():
+    """The compiled curve positions at curve times (timing.c: cn_bezier_positions; BezierTrajectory.evaluate for
+    timing.time_parametrize's frames), or None."""
+    return _function("timing", "cn_bezier_positions",
+                     [*_BEZIER, _P, _I64, _P],  # curve times [T], T, out: positions [T, 3]
+                     _I64)
+
+
+def look_at_c():
+    """The compiled look-at rotations (orientation.c: cn_look_at; trajectory/orientation.look_at_rotations for frames
+    away from the target and the singular cone), or None."""
+    return _function("orientation", "cn_look_at",
+                     [_P, _P, _I64, _I64, _P, _F64, _P],  # positions [T, 3], target, target per frame, T, up [3],
+                     _I64)  # singular_sin, out: rotations [T, 3, 3]
+
+
 def corridor_dual_c():
     """The compiled corridor QP by its equality-free form and the dual active-set method (dual_qp.c:
     cn_corridor_dual; trajectory/dual_qp.py), or None."""

@@ -333,3 +333,20 @@ int64_t cn_dense_fill(const double *cp, int64_t M, int64_t n1, const double *sta
     free(scratch);
     return 0;
 }
+
+/* BezierTrajectory.evaluate at curve times tau [T] -> pos [T, 3] (position_at per time: segment_of's rules, the
+   Bernstein basis and einsum's sum in numpy's order; timing.time_parametrize's frames). Returns 0, -1 when out of
+   memory. */
+int64_t cn_bezier_positions(const double *cp, int64_t M, int64_t n1, const double *starts, const double *durations,
+                            double total, const double *tau, int64_t T, double *pos) {
+    const bezier_t c = {cp, M, n1, starts, durations, total};
+    double *scratch = malloc((size_t)n1 * 3 * sizeof(double));
+    if (scratch == NULL) return -1;
+    double *binom = scratch, *up = scratch + n1, *vp = scratch + 2 * n1;
+    binom[0] = 1.0;  /* as cn_dense_fill */
+    for (int64_t i = 1; i < n1; i++) binom[i] = binom[i - 1] * (double)(n1 - i) / (double)i;
+    int64_t hint = 0;
+    for (int64_t i = 0; i < T; i++) position_at(&c, tau[i], &hint, binom, up, vp, pos + 3 * i);
+    free(scratch);
+    return 0;
+}

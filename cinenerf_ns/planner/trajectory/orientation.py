@@ -22,6 +22,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import InvalidInputError
+from ..native import choose, look_at_c
 from .bezier import _is_torch, _like, _to_numpy
 
 
@@ -47,11 +48,24 @@ def _fallback_axis(z: np.ndarray, up: np.ndarray) -> np.ndarray:
     return x / np.linalg.norm(x)
 
 
+def _look_at_native(fn, pos: np.ndarray, tgt: np.ndarray, upv: np.ndarray, singular_sin: float):
+    """native/orientation.c's rotations [T, 3, 3] for float64 positions [T, 3], target [3] or [T, 3] and a unit up
+    [3], or None when a frame needs the Python path (at the target, inside the singular cone, not finite)."""
+    p = np.ascontiguousarray(pos)
+    g = np.ascontiguousarray(tgt)
+    u = np.ascontiguousarray(upv)
+    out = np.empty((p.shape[0], 3, 3))
+    status = fn(p.ctypes.data, g.ctypes.data, int(g.ndim == 2), p.shape[0], u.ctypes.data, float(singular_sin),
+                out.ctypes.data)
+    return out if status == 0 else None
+
+
 def look_at_rotations(
     positions: Any,
     target: Any,
     up: Sequence[float] = (0.0, 0.0, 1.0),
     singular_sin: float = 0.2,
+    backend: str = "auto",
 ):
     """Camera-to-world rotations looking from positions [T,3] at target [3] or [T,3] -> [T,3,3].
 
@@ -61,18 +75,26 @@ def look_at_rotations(
     the nearest valid view direction; if none is valid an InvalidInputError is raised.
     singular_sin: sine of the half-angle of the cone around +-up inside which the previous frame's x axis
     is carried along (default 0.2, ~11.5 deg; larger spreads a pole crossing over more frames).
+    backend: "auto" (native/orientation.c when it loads, for paths with every frame away from the target and outside
+    the cone: the same arithmetic), "native" (the same; other paths still take numpy) or "python".
     """
     pos = _to_numpy(positions)
     tgt = _to_numpy(target)
     upv = _to_numpy(up).reshape(-1)
     if pos.ndim != 2 or pos.shape[1] != 3 or pos.shape[0] == 0:
         raise InvalidInputError(f"positions must have shape [T, 3] with T >= 1, got {tuple(pos.shape)}.")
+    tgt_given = tgt  # [3] or [T, 3]: the compiled path reads either without a broadcast copy
     if tgt.shape == (3,):
         tgt = np.broadcast_to(tgt, pos.shape)
     if tgt.shape != pos.shape:
         raise InvalidInputError(f"target must have shape [3] or {tuple(pos.shape)}, got {tuple(tgt.shape)}.")
     if upv.shape != (3,) or np.linalg.norm(upv) < 1e-12:
         raise InvalidInputError(f"up must be a nonzero 3D vector, got {upv.tolist()}.")
+    fn = choose(backend, look_at_c, "orientation", "look-at rotations")
+    if fn is not None and np.isfinite(upv).all():
+        rot = _look_at_native(fn, pos, tgt_given, upv / np.linalg.norm(upv), singular_sin)
+        if rot is not None:
+            return _like(rot, positions)
     if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(tgt)) and np.all(np.isfinite(upv))):
         raise InvalidInputError("positions, target and up must be finite (found NaN or inf).")
     upv = upv / np.linalg.norm(upv)

@@ -243,6 +243,25 @@ def _profile(length: float, cfg: TimingConfig):
     return dur, s_of_t, v_of_t
 
 
+def curve_positions(traj: BezierTrajectory, tau: np.ndarray, backend: str = "auto") -> np.ndarray:
+    """traj.evaluate(tau) for curve times tau [T] -> [T, 3] float64. backend: "auto" (native/timing.c's
+    cn_bezier_positions, the same arithmetic in numpy's order, when it loads), "native" or "python" (traj.evaluate):
+    ~15 numpy calls for a shot's frames otherwise."""
+    from ..native import bezier_positions_c, choose
+
+    fn = choose(backend, bezier_positions_c, "timing", "curve positions")
+    if fn is None:
+        return traj.evaluate(tau)
+    cp, starts, durations = (np.ascontiguousarray(a, dtype=np.float64) for a in (traj.control_points,
+                                                                                 traj.segment_starts, traj.durations))
+    t = np.ascontiguousarray(tau, dtype=np.float64).reshape(-1)
+    out = np.empty((t.shape[0], 3))
+    if fn(cp.ctypes.data, cp.shape[0], cp.shape[1], starts.ctypes.data, durations.ctypes.data, traj.total_duration,
+          t.ctypes.data, t.shape[0], out.ctypes.data) < 0:
+        raise MemoryError("the compiled curve positions ran out of memory")
+    return out
+
+
 def time_parametrize(traj: BezierTrajectory, config: TimingConfig = None, backend: str = "auto") -> TimedPath:
     """Sample traj at config.fps with speed <= max_speed (see the module docstring). backend: arc_length_table's and
     invert_arc_length's ("auto": native/timing.c when it loads)."""
@@ -265,5 +284,5 @@ def time_parametrize(traj: BezierTrajectory, config: TimingConfig = None, backen
     speed = v_of_t(times / slow) / slow
     tau = invert_arc_length(traj, tau_tab, s_tab, s, v_tab, backend=backend)
     tau[-1] = traj.total_duration
-    pos = traj.evaluate(tau)
+    pos = curve_positions(traj, tau, backend=backend)
     return TimedPath(times, pos, tau, s, speed, length, float(times[-1]), cfg.fps)

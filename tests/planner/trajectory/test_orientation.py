@@ -137,3 +137,69 @@ def test_cross_is_numpy_cross_bit_for_bit(seed, shape, broadcast_one):
     got, ref = _cross(a, b), np.cross(a, b)
     assert got.shape == ref.shape and np.array_equal(got, ref, equal_nan=True)
     assert np.array_equal(_cross(b, a), np.cross(b, a), equal_nan=True)
+
+
+# ---------------------------------------------------------------- the compiled rotations (native/orientation.c)
+def _native_calls(monkeypatch) -> list:
+    """Record each status native/orientation.c returns (0: it wrote the rotations; else the Python path ran)."""
+    from cinenerf_ns.planner import native
+    from cinenerf_ns.planner.trajectory import orientation
+
+    fn = native.look_at_c()
+    if fn is None:
+        pytest.skip(f"no compiled orientation kernel: {native.native_status().get('orientation')}")
+    calls = []
+
+    def counted(*a):
+        calls.append(fn(*a))
+        return calls[-1]
+
+    monkeypatch.setattr(orientation, "look_at_c", lambda: counted)
+    return calls
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 200), st.sampled_from(["z", "y", "random"]),
+       st.sampled_from(["one", "per frame"]), st.sampled_from(["regular", "pole", "at target"]))
+def test_native_rotations_are_the_numpy_ones(seed, T, up_kind, tgt_kind, case):
+    """The compiled path gives look_at_rotations' numpy result, bit for bit on the CPU box (the header of
+    native/orientation.c), to rounding elsewhere; paths with a frame at the target or inside the cone around up go to
+    the numpy path whole (their frames depend on their neighbours)."""
+    from cinenerf_ns.planner import native
+
+    if native.look_at_c() is None:
+        pytest.skip("no compiled orientation kernel")
+    rng = np.random.default_rng(seed)
+    up = {"z": np.array([0.0, 0, 1]), "y": np.array([0.0, 1, 0]), "random": rng.normal(size=3)}[up_kind]
+    pos = np.cumsum(rng.normal(size=(T, 3)) * 0.05, axis=0)
+    tgt = rng.normal(size=3) * 2 if tgt_kind == "one" else pos + rng.normal(size=(T, 3))
+    k = int(rng.integers(T))
+    if case == "pole":  # one frame straight above its target
+        g = tgt if tgt.ndim == 1 else tgt[k]
+        pos[k] = g + 0.7 * up / np.linalg.norm(up)
+    elif case == "at target":
+        pos[k] = tgt if tgt.ndim == 1 else tgt[k]
+        if T == 1:  # nothing left to look from: the same error either way
+            for backend in ("python", "auto"):
+                with pytest.raises(InvalidInputError, match="coincides"):
+                    look_at_rotations(pos, tgt, up, backend=backend)
+            return
+    ref = look_at_rotations(pos, tgt, up, backend="python")
+    got = look_at_rotations(pos, tgt, up)
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-14)
+    check_frames(got)
+
+
+def test_native_rotations_cover_regular_paths_and_hand_the_rest_to_numpy(monkeypatch):
+    calls = _native_calls(monkeypatch)
+    pos = np.array([[1.0, 0, 0], [1.0, 1, 0], [0.0, 1, 0.5]])
+    look_at_rotations(pos, np.zeros(3))
+    look_at_rotations(torch.as_tensor(pos), torch.zeros(3))  # torch in: the same compiled path
+    assert calls == [0, 0]
+    look_at_rotations(np.array([[0.0, 0, 1], [1.0, 0, 0]]), np.zeros(3))  # straight above: the cone
+    look_at_rotations(np.array([[0.0, 0, 0], [1.0, 0, 0]]), np.zeros(3))  # at the target
+    with pytest.raises(InvalidInputError, match="finite"):
+        look_at_rotations(np.array([[np.nan, 0, 0]]), np.zeros(3))
+    assert calls == [0, 0, 1, 1, 2]
+    look_at_rotations(pos, np.zeros(3), backend="python")
+    assert len(calls) == 5

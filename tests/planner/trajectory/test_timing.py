@@ -13,7 +13,13 @@ from hypothesis.extra import numpy as hnp
 from cinenerf_ns.planner import native
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.trajectory.bezier import BezierTrajectory
-from cinenerf_ns.planner.trajectory.timing import TimingConfig, arc_length_table, invert_arc_length, time_parametrize
+from cinenerf_ns.planner.trajectory.timing import (
+    TimingConfig,
+    arc_length_table,
+    curve_positions,
+    invert_arc_length,
+    time_parametrize,
+)
 
 
 def random_curve(seed: int, m: int = 3) -> BezierTrajectory:
@@ -281,6 +287,24 @@ def test_native_time_parametrize_is_the_numpy_one(traj, vmax, amax, ease, fps):
 
 
 @needs_native
+@settings(**NATIVE_SETTINGS)
+@given(traj=bezier_curves(), n=st.integers(0, 300))
+def test_native_curve_positions_are_evaluate(traj, n):
+    """curve_positions on the compiled path is traj.evaluate: at random curve times, every join (the later segment),
+    both ends and beyond them (clamped). Equal bit for bit on the CPU box (the header of native/timing.c); rounding of
+    einsum's sum on another build is allowed."""
+    rng = np.random.default_rng(n)
+    tau = np.concatenate([rng.uniform(0, traj.total_duration, n), traj.segment_starts,
+                          [0.0, traj.total_duration, -1.0, traj.total_duration * 1.5]])
+    ref = traj.evaluate(tau)
+    got = curve_positions(traj, tau, backend="native")
+    scale = max(1.0, float(np.abs(traj.control_points).max()))
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-13 * scale)
+    np.testing.assert_array_equal(curve_positions(traj, tau, backend="python"), ref)
+    assert curve_positions(traj, tau[:0], backend="native").shape == (0, 3)
+
+
+@needs_native
 @pytest.mark.parametrize("seed", range(3))
 def test_native_frames_sit_at_their_arc_length(seed):
     """test_frames_sit_at_their_arc_length_also_where_the_curve_rests on the compiled path."""
@@ -296,12 +320,12 @@ def test_auto_uses_the_compiled_timing_when_it_loads(monkeypatch):
     if native.arc_length_table_c() is None or native.invert_arc_length_c() is None:
         pytest.skip(f"no compiled timing kernels: {native.native_status().get('timing')}")
     calls = []
-    for name in ("arc_length_table_c", "invert_arc_length_c"):
+    for name in ("arc_length_table_c", "invert_arc_length_c", "bezier_positions_c"):
         fn = getattr(native, name)()
         monkeypatch.setattr(native, name, lambda fn=fn, name=name: calls.append(name) or fn)
     traj = resting_curve(1)
     time_parametrize(traj)
-    assert calls == ["arc_length_table_c", "invert_arc_length_c"]
+    assert calls == ["arc_length_table_c", "invert_arc_length_c", "bezier_positions_c"]
     calls.clear()
     time_parametrize(traj, backend="python")
     tau_tab, s_tab, v_tab = arc_length_table(traj, with_speed=True, backend="python")
