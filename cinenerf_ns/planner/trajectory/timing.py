@@ -263,8 +263,8 @@ def curve_positions(traj: BezierTrajectory, tau: np.ndarray, backend: str = "aut
 
 
 def time_parametrize(traj: BezierTrajectory, config: TimingConfig = None, backend: str = "auto") -> TimedPath:
-    """Sample traj at config.fps with speed <= max_speed (see the module docstring). backend: arc_length_table's and
-    invert_arc_length's ("auto": native/timing.c when it loads)."""
+    """Sample traj at config.fps with speed <= max_speed (see the module docstring). backend: arc_length_table's,
+    invert_arc_length's and curve_positions' ("auto": native/timing.c when it loads)."""
     cfg = config or TimingConfig()
     cfg.validate()
     tau_tab, s_tab, v_tab = arc_length_table(traj, cfg.table_samples_per_segment, with_speed=True, backend=backend)
