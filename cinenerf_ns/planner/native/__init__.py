@@ -304,7 +304,7 @@ def invert_arc_length_c():
                      _I64)
 
 
-# the curve arguments both dense-sampling entry points start with (safety._dense_curve_native)
+# the curve arguments the dense-sampling and position entry points start with (timing.native_bezier)
 _BEZIER = [_P, _I64, _I64,  # control points [M, D+1, 3], M, D+1
            _P, _P, _F64]  # segment starts [M], durations [M], total duration
 

@@ -79,9 +79,9 @@ def prepare_scene(scene: EllipsoidScene, grid_resolution: int, lo: Tensor, hi: T
     t5 = time.perf_counter()
     # compile / load a request's compiled kernels now (cached on disk after the first time), before candidate worker
     # processes fork: they inherit them instead of each loading them on first use. One function per library:
-    # astar26, gridpoly, dual_qp, goalwindow, project, timing; polytope just below.
+    # astar26, gridpoly, dual_qp, goalwindow, project, timing, orientation; polytope just below.
     for loader in (native.search26, native.grid_polytope_c, native.corridor_dual_c, native.goal_window_c,
-                   native.project_dual_c, native.arc_length_table_c):
+                   native.project_dual_c, native.arc_length_table_c, native.look_at_c):
         loader()
     prepare_native_polytope(scene, index)
     preload_request_modules()

@@ -23,6 +23,7 @@ from ..atomic import atomic_open
 from ..errors import InvalidInputError
 from ..geometry.ranges import group_ranks
 from ..trajectory.bezier import _to_numpy
+from ..trajectory.timing import native_bezier
 from .shot import Shot
 
 DEFAULT_THRESHOLDS = (0.0, 0.01, 0.03, 0.05)
@@ -54,13 +55,10 @@ def _dense_curve_native(counts_fn, traj, f_times: np.ndarray, f_pos: np.ndarray,
     interval, whose sum sizes the outputs), then cn_dense_fill (the samples, their curve points and piece lengths)."""
     from ..native import dense_fill_c
 
-    cp, starts, durations = (np.ascontiguousarray(a) for a in (traj.control_points, traj.segment_starts,
-                                                                traj.durations))  # float64 (bezier.py)
-    curve = (cp.ctypes.data, cp.shape[0], cp.shape[1], starts.ctypes.data, durations.ctypes.data,
-             traj.total_duration)
+    curve, _keep = native_bezier(traj)  # curve[1]: the number of segments M
     f_pos, f_times, tau = (np.ascontiguousarray(a, dtype=np.float64) for a in (f_pos, f_times, tau))
     T = len(tau)
-    vb, sub = np.empty(cp.shape[0]), np.empty(T - 1, dtype=np.int64)
+    vb, sub = np.empty(curve[1]), np.empty(T - 1, dtype=np.int64)
     S = counts_fn(*curve, f_pos.ctypes.data, tau.ctypes.data, T, float(max_spacing), vb.ctypes.data, sub.ctypes.data)
     if S < 0:
         raise MemoryError("dense_samples: more samples than int64 counts (max_spacing too small)")

@@ -95,6 +95,16 @@ def _native_curve(traj: BezierTrajectory) -> tuple:
             traj.total_duration), (coef, starts, durations)
 
 
+def native_bezier(traj: BezierTrajectory) -> tuple:
+    """(the curve arguments native/timing.c's position entry points start with: control points [M, D+1, 3], M, D+1,
+    segment starts [M], durations [M], total duration; the arrays they point into: keep them). curve_positions' and
+    shots/safety.py's dense samples'."""
+    cp, starts, durations = (np.ascontiguousarray(a, dtype=np.float64) for a in (traj.control_points,
+                                                                                 traj.segment_starts, traj.durations))
+    return (cp.ctypes.data, cp.shape[0], cp.shape[1], starts.ctypes.data, durations.ctypes.data,
+            traj.total_duration), (cp, starts, durations)
+
+
 def arc_length_table(traj: BezierTrajectory, samples_per_segment: int = 64, with_speed: bool = False,
                      backend: str = "auto"):
     """(tau [K], s [K]): cumulative arc length at a dense grid of curve times (monotone, s[0] = 0).
@@ -252,12 +262,10 @@ def curve_positions(traj: BezierTrajectory, tau: np.ndarray, backend: str = "aut
     fn = choose(backend, bezier_positions_c, "timing", "curve positions")
     if fn is None:
         return traj.evaluate(tau)
-    cp, starts, durations = (np.ascontiguousarray(a, dtype=np.float64) for a in (traj.control_points,
-                                                                                 traj.segment_starts, traj.durations))
+    curve, _keep = native_bezier(traj)
     t = np.ascontiguousarray(tau, dtype=np.float64).reshape(-1)
     out = np.empty((t.shape[0], 3))
-    if fn(cp.ctypes.data, cp.shape[0], cp.shape[1], starts.ctypes.data, durations.ctypes.data, traj.total_duration,
-          t.ctypes.data, t.shape[0], out.ctypes.data) < 0:
+    if fn(*curve, t.ctypes.data, t.shape[0], out.ctypes.data) < 0:
         raise MemoryError("the compiled curve positions ran out of memory")
     return out
 

@@ -203,3 +203,8 @@ def test_native_rotations_cover_regular_paths_and_hand_the_rest_to_numpy(monkeyp
     assert calls == [0, 0, 1, 1, 2]
     look_at_rotations(pos, np.zeros(3), backend="python")
     assert len(calls) == 5
+
+
+def test_unknown_backend_is_refused():
+    with pytest.raises(InvalidInputError, match="look-at rotations backend must be 'auto', 'native' or 'python'"):
+        look_at_rotations(np.array([[1.0, 0, 0]]), np.zeros(3), backend="fast")

@@ -304,6 +304,11 @@ def test_native_curve_positions_are_evaluate(traj, n):
     assert curve_positions(traj, tau[:0], backend="native").shape == (0, 3)
 
 
+def test_curve_positions_refuses_an_unknown_backend():
+    with pytest.raises(InvalidInputError, match="curve positions backend must be 'auto', 'native' or 'python'"):
+        curve_positions(random_curve(0), np.zeros(1), backend="fast")
+
+
 @needs_native
 @pytest.mark.parametrize("seed", range(3))
 def test_native_frames_sit_at_their_arc_length(seed):
