@@ -180,7 +180,8 @@ def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Opti
                     f"{best:.3f}){core}, "
                     f"centre ({', '.join(f'{v:.3f}' for v in c)})")
             return {"text": text.strip(), "query": q, "label": q if q in label_names else None, "gaussians": n,
-                    "core_gaussians": k, "best_relevancy": best, "centre": c.tolist(), "description": desc, "point": c}
+                    "core_gaussians": k, "best_relevancy": best, "centre": c.tolist(), "description": desc, "point": c,
+                    "mask": r.mask.detach().cpu().numpy().astype(bool)}
 
         def locate(text: str):
             m = match(text)
@@ -202,7 +203,8 @@ def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Opti
 
 def resolve_match(text: str, loaded: LoadedScene, what: str) -> Dict[str, Any]:
     """A target's text -> {"point" [3], "description", and for text: "query", "label", "gaussians", "best_relevancy",
-    "centre"}. InvalidInputError for empty text, text on a scene without semantics, text that matches nothing."""
+    "centre", "mask" (bool [N] over the splat's Gaussians: the object's, when the scene can tell)}.
+    InvalidInputError for empty text, text on a scene without semantics, text that matches nothing."""
     if not isinstance(text, str) or not text.strip():
         raise InvalidInputError(f"the {what} target is empty: type an object (text) or a point 'x y z'")
     p = parse_point(text)
@@ -218,7 +220,11 @@ def resolve_match(text: str, loaded: LoadedScene, what: str) -> Dict[str, Any]:
     if "match" in loaded.extra:
         return loaded.extra["match"](text)
     point, desc = loaded.locate(text)
-    return {"text": text.strip(), "point": point, "description": desc}
+    out = {"text": text.strip(), "point": point, "description": desc}
+    if "room" in loaded.extra:  # a procedural room: the object's Gaussians from its ground truth
+        room = loaded.extra["room"]
+        out["mask"] = room.object_ids.cpu().numpy() == procedural_object(room, text)
+    return out
 
 
 PROCEDURAL_COLOURS = np.array([[0.85, 0.25, 0.2], [0.2, 0.7, 0.3], [0.25, 0.4, 0.9], [0.9, 0.75, 0.2],

@@ -26,6 +26,7 @@ from typing import Any, Dict, List, Literal, Optional, Tuple
 import numpy as np
 import tyro
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
@@ -34,6 +35,7 @@ from cinenerf_ns.options import check_number
 from cinenerf_ns.output_set import OutputSet, check_name, check_writable
 from cinenerf_ns.planner.errors import InvalidInputError, PlanningError
 from cinenerf_ns.planner.scene.ellipsoids import DEFAULT_SAFETY_MARGIN, SceneConfig
+from cinenerf_ns.planner.shots import stages
 from cinenerf_ns.planner.shots.camera_path import (
     DEFAULT_FOV_DEG,
     DEFAULT_PREVIEW_FPS,
@@ -43,6 +45,7 @@ from cinenerf_ns.planner.shots.camera_path import (
     write_camera_path,
 )
 from cinenerf_ns.planner.shots.candidates import RankedShot, plan_candidates, score_shots
+from cinenerf_ns.planner.shots.framing import FramingConfig
 from cinenerf_ns.planner.shots.multistop import plan_multistop
 from cinenerf_ns.planner.shots.planner import GRID_RESOLUTION_RANGE, MAX_CANDIDATES, Planner, PlannerConfig
 from cinenerf_ns.planner.shots.safety import plot_clearance, plot_paths_topdown
@@ -50,6 +53,7 @@ from cinenerf_ns.planner.shots.scoring import ScoreConfig
 from cinenerf_ns.planner.trajectory.dynamics import DynamicLimits, retime_shot
 from cinenerf_ns.planner.trajectory.timing import MAX_FPS, MIN_FPS, TimingConfig
 from cinenerf_ns.scenes import LoadedScene, _word_match, load_scene, parse_point, resolve_match
+from cinenerf_ns.shot_targets import ShotTargets, end_pose_count, shot_targets, start_region_centre
 
 CONSOLE = Console()
 ERRORS = Console(stderr=True)
@@ -66,6 +70,13 @@ class PlanArgs:
     """Where the camera should end: text (needs a semantic scene) or 'x y z'."""
     look_at: str
     """What every frame looks at: text or 'x y z'."""
+    framing: Literal["wide", "medium", "close"] = "medium"
+    """How large the look-at object is in the last frame: wide 0.15-0.35, medium 0.35-0.6, close 0.6-0.85 of the
+    frame (its larger relative extent), kept whole in frame."""
+    end_pose: bool = True
+    """With an object as go-to: end at a free viewpoint near it that frames the look-at object (chosen by visibility
+    through the splat, framing and distance; the same object twice means a good view of it). --no-end-pose: end at
+    the go-to object's centre, moved to the nearest safe point (what a point go-to always does)."""
     start: Optional[str] = None
     """Start point 'x y z' inside the planning region; default: random collision-free starts (seeded)."""
     force_start: bool = False
@@ -216,6 +227,7 @@ def check_args(args: PlanArgs) -> None:
         check_number(args.preview_fps, "--preview-fps", 1, 120)
     check_writable(Path(args.output_dir))
     args.score.validate()
+    _framing(args).validate()
 
 
 def _obstacles_near_paths(means: np.ndarray, shots, up: np.ndarray, band: float = 0.1) -> np.ndarray:
@@ -250,10 +262,31 @@ def _limits(args: PlanArgs) -> Optional[DynamicLimits]:
     )
 
 
+def _framing(args: PlanArgs) -> FramingConfig:
+    return FramingConfig(args.framing, float(args.fov), float(args.width) / float(args.height))
+
+
+def _targets(args: PlanArgs, planner: Planner, loaded: LoadedScene, gm: Dict[str, Any], lm: Dict[str, Any],
+             start: Optional[np.ndarray]) -> Optional[ShotTargets]:
+    """The look-at subject and, for an object go-to, the end poses (shot_targets.py); None for multi-stop shots."""
+    if args.then_go_to:
+        return None
+    if start is not None:
+        start = planner.checked_start(start, force=args.force_start)  # may grow the region: before the component
+        comp, facing = stages.start_voxel(planner, start)[1], start
+    else:
+        comp, facing = planner.main_component(), start_region_centre(planner)
+    k = 1 if start is not None else end_pose_count(args.candidates)
+    return shot_targets(planner, gm, lm, _framing(args), comp, k=k, object_radius=_object_radius(args, loaded),
+                        end_pose=args.end_pose, facing_from=facing)
+
+
 def _plan_shots(args: PlanArgs, planner: Planner, loaded: LoadedScene, goal: np.ndarray, look: np.ndarray,
-                start: Optional[np.ndarray], stops: list, stop_looks: list, timings: Dict[str, float]) -> tuple:
-    """(shots, scores, multi-stop shot or None, object radius, score config) for the request the options describe;
-    ``stops`` / ``stop_looks``: the points of --then-go-to / --then-look-at (resolved once, in run_plan)."""
+                start: Optional[np.ndarray], stops: list, stop_looks: list, timings: Dict[str, float],
+                targets: Optional[ShotTargets]) -> tuple:
+    """(shots, scores, multi-stop shot or None, object radius, score config, candidate ids) for the request the
+    options describe; ``stops`` / ``stop_looks``: the points of --then-go-to / --then-look-at (resolved once, in
+    run_plan); ``targets``: the subject and end poses (_targets)."""
     limits = _limits(args)
     obj_r = _object_radius(args, loaded)
     score_cfg = ScoreConfig(**{**args.score.__dict__, "fov_deg": args.fov})
@@ -261,16 +294,22 @@ def _plan_shots(args: PlanArgs, planner: Planner, loaded: LoadedScene, goal: np.
         looks = [look] + (stop_looks or [look] * len(stops))
         multi = plan_multistop(planner, [goal] + stops, np.stack(looks), start=start, seed=args.seed, limits=limits,
                                force_start=args.force_start)
-        return [multi.shot], [None], multi, obj_r, score_cfg
+        return [multi.shot], [None], multi, obj_r, score_cfg, [0]
+    goals = targets.goals(goal)  # [P, 3]: end poses, or the go-to point
+    subject = targets.samples
     if start is not None:
-        shots = planner.plan(goal, look, start=start, seed=args.seed, n_candidates=1, force_start=args.force_start)
+        shots = planner.plan(goals[0], look, start=start, seed=args.seed, n_candidates=1,
+                             force_start=args.force_start)
         if limits is not None:
             shots = [retime_shot(sh, limits, up=planner.config.up) for sh in shots]
-        return shots, score_shots(planner, shots, look, score_cfg, object_radius=obj_r), None, obj_r, score_cfg
-    ranked: List[RankedShot] = plan_candidates(planner, goal, look, k=args.candidates, seed=args.seed,
-                                               score_config=score_cfg, limits=limits, object_radius=obj_r,
-                                               timings=timings, time_budget_s=args.time_budget)
-    return [r.shot for r in ranked], [r.score for r in ranked], None, obj_r, score_cfg
+        scores = score_shots(planner, shots, look, score_cfg, object_radius=obj_r, subject=subject)
+        return shots, scores, None, obj_r, score_cfg, [0]
+    ranked: List[RankedShot] = plan_candidates(planner, goals if len(goals) > 1 else goals[0], look,
+                                               k=args.candidates, seed=args.seed, score_config=score_cfg,
+                                               limits=limits, object_radius=obj_r, timings=timings,
+                                               time_budget_s=args.time_budget, subject=subject)
+    return ([r.shot for r in ranked], [r.score for r in ranked], None, obj_r, score_cfg,
+            [r.candidate for r in ranked])
 
 
 def _write_outputs(args: PlanArgs, out: OutputSet, planner: Planner, loaded: LoadedScene, shots, goal, look,
@@ -345,25 +384,40 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
         planner = Planner(loaded.scene, pcfg)
         prep = planner.prepare()
         goal, look, start = _resolve(args, planner, gm, lm)
-        prog.update(task, advance=1, description=f"planning {args.candidates} candidate(s)", refresh=True)
+        prog.update(task, advance=1, description=f"choosing the end pose, planning {args.candidates} candidate(s)",
+                    refresh=True)
+        t_req = time.perf_counter()
+        targets = _targets(args, planner, loaded, gm, lm, start)
         batch_tm: Dict[str, float] = {}
-        shots, scores, multi, obj_r, score_cfg = _plan_shots(args, planner, loaded, goal, look, start, stops,
-                                                             stop_looks, batch_tm)
+        shots, scores, multi, obj_r, score_cfg, cands = _plan_shots(args, planner, loaded, goal, look, start, stops,
+                                                                    stop_looks, batch_tm, targets)
+        request_ms = 1e3 * (time.perf_counter() - t_req)
         prog.update(task, advance=1, refresh=True, description="exact clearance report + plots"
                     + (" + preview videos" if args.preview else ""))
         reports = [planner.clearance_report(sh, max_spacing=0.02, label=f"rank {k + 1}") for k, sh in enumerate(shots)]
-        moves = [planner.explain_goal(goal if multi is None else multi.shot.goal_target, sh.goal) for sh in shots]
+        moves = [planner.explain_goal(goal if multi is None else multi.shot.goal_target,
+                                      sh.goal) if targets is None or targets.choice is None or not targets.choice.poses
+                 else planner.explain_goal(sh.goal_target, sh.goal) for sh in shots]
+        views = [None if targets is None else
+                 targets.view_report(sh.positions[-1], look, args.up, None if scores[k] is None else scores[k].terms)
+                 for k, sh in enumerate(shots)]
         with OutputSet(Path(args.output_dir), args.name) as out:
             files, plots = _write_outputs(args, out, planner, loaded, shots, goal, look, reports)
             summary = _summary(args, loaded, planner, prep, gm, lm, goal, look, shots, scores, multi, reports, moves,
                                files, plots, obj_r, score_cfg, batch_tm)
+            summary["request_ms"] = request_ms
+            summary["end_pose"] = None if targets is None or targets.choice is None else targets.choice.to_dict()
+            summary["end_pose_note"] = None if targets is None else targets.note()
+            for k, c in enumerate(summary["candidates"]):
+                c["subject_view"] = views[k]
+                c["end_pose"] = None if targets is None else targets.pose_of(cands[k])
             summary["total_s"] = time.perf_counter() - t_all
             rpath = out.final(f"{args.name}_report.json")
             summary["report"] = str(rpath)
             Path(out.path(rpath.name)).write_text(json.dumps(
                 summary, indent=2, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
         prog.update(task, advance=1, refresh=True)
-    _print_summary(args, console, loaded, gm, lm, shots, scores, multi, reports, moves, files, summary)
+    _print_summary(args, console, loaded, gm, lm, shots, scores, multi, reports, moves, files, summary, views)
     return summary
 
 
@@ -371,7 +425,7 @@ def _summary(args, loaded, planner, prep, gm, lm, goal, look, shots, scores, mul
              obj_r, score_cfg, batch_tm) -> Dict[str, Any]:
     """The report's JSON content."""
     lo, hi = planner.region()
-    strip = lambda m: {k: v for k, v in m.items() if k != "point"}  # noqa: E731
+    strip = lambda m: {k: v for k, v in m.items() if k not in ("point", "mask")}  # noqa: E731
     return {
         "scene": loaded.source,
         "go_to": {**strip(gm), "point": goal.tolist(), "resolved": gm["description"]},
@@ -399,13 +453,13 @@ def _summary(args, loaded, planner, prep, gm, lm, goal, look, shots, scores, mul
     }
 
 
-def _print_summary(args, console, loaded, gm, lm, shots, scores, multi, reports, moves, files, summary) -> None:
+def _print_summary(args, console, loaded, gm, lm, shots, scores, multi, reports, moves, files, summary, views) -> None:
     table = Table(title=f"cinesplat-plan: go to {gm['description']}, look at {lm['description']}")
     # short headers, no wrapping: the table must stay readable in an 80-column terminal (legend below)
     wide = console.width >= 140
-    cols = ["#", "score", "occl", "min clr", "len", "dur s", "peak v/a/w", "file"]
+    cols = ["#", "score", "seen", "end", "size", "min clr", "len", "dur s", "file"]
     if wide:
-        cols[3:3] = ["fill", "start", "mean clr", "jerk", "turn"]
+        cols[5:5] = ["start", "mean clr", "jerk", "turn", "peak v/a/w"]
     for col in cols:
         table.add_column(col, no_wrap=True)
     for k, sh in enumerate(shots):
@@ -415,16 +469,21 @@ def _print_summary(args, console, loaded, gm, lm, shots, scores, multi, reports,
                  f"{dyn['peak_speed']:.2f}/{dyn['peak_acceleration']:.2f}/{dyn['peak_angular_rate_deg']:.0f}")
         t = sc.terms if sc is not None else {}
         f = lambda key, fmt: "-" if key not in t else format(t[key], fmt)  # noqa: E731
-        row = [str(k + 1), "-" if sc is None else f"{sc.total:.3f}", f("occluded_fraction", ".2f"),
-               f"{reports[k]['min_clearance']:.4f}", f"{sh.length:.2f}", f"{sh.duration:.1f}", peaks,
-               Path(files[k]).name]
+        v = views[k] or {}
+        pct = lambda x: "-" if x is None else f"{100 * x:.0f}%"  # noqa: E731
+        seen = None if "occluded_fraction" not in t else 1.0 - t["occluded_fraction"]
+        row = [str(k + 1), "-" if sc is None else f"{sc.total:.3f}", pct(seen), pct(t.get("visible_last")),
+               "-" if "size_last" not in v else f"{v['size_last']:.2f}",
+               f"{reports[k]['min_clearance']:.4f}", f"{sh.length:.2f}", f"{sh.duration:.1f}", Path(files[k]).name]
         if wide:
-            row[3:3] = [f("framing_fill_mean", ".2f"), ",".join(f"{v:.2f}" for v in sh.start),
-                        f"{reports[k]['mean_clearance']:.3f}", f("mean_jerk", ".1f"), f("mean_angular_rate_deg", ".0f")]
+            row[5:5] = [",".join(f"{v:.2f}" for v in sh.start), f"{reports[k]['mean_clearance']:.3f}",
+                        f("mean_jerk", ".1f"), f("mean_angular_rate_deg", ".0f"), peaks]
         table.add_row(*row)
     console.print(table)
-    console.print("score: lower is better (every term in the report); occl: occluded fraction of frames; "
-                  "clr/len in scene units; peak: speed / acceleration / view rotation deg/s"
+    console.print("score: lower is better (every term in the report); seen: frames with at least half of the look-at "
+                  "object visible; end: its visible share in the last frame; size: its size in the last frame "
+                  f"({args.framing}: {_framing(args).band[0]:g}-{_framing(args).band[2]:g}); clr/len in scene units"
+                  + ("; peak: speed / acceleration / view rotation deg/s" if wide else "")
                   + ("" if wide else " (wider terminal: more columns)")
                   + f"; files in {Path(args.output_dir).absolute()}/")
     if summary["stopped_by_time_budget"]:
@@ -432,6 +491,8 @@ def _print_summary(args, console, loaded, gm, lm, shots, scores, multi, reports,
                       f"{args.time_budget:g} s[/yellow]")
     elif len(shots) < args.candidates and multi is None and args.start is None:
         console.print(f"[yellow]note: {len(shots)} of {args.candidates} candidates could be planned[/yellow]")
+    if summary.get("end_pose_note"):
+        console.print(f"[cyan]end pose: {escape(summary['end_pose_note'])}[/cyan]")
     for k, mv in enumerate(moves):
         if mv is not None:
             console.print(f"[yellow]note (rank {k + 1}): the go-to point moved {mv['distance']:.3f} units, from "

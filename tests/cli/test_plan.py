@@ -81,7 +81,7 @@ def test_ranked_candidates_with_limits_in_table_and_report(tmp_path):
     assert rep["candidates"][0]["score"]["costs"]["occlusion"] >= 0
     assert rep["object_radius"] > 0.1  # the procedural lamp's half diagonal
     text = con.export_text()
-    assert "rank" in text and "occluded" in text
+    assert "rank" in text and "visible" in text
 
 
 def test_multi_stop(tmp_path):

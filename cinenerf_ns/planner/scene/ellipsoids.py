@@ -74,6 +74,7 @@ class EllipsoidScene:
     opacities: Tensor  # [N]
     camera_radius: float = SceneConfig.camera_radius
     source_index: Optional[Tensor] = field(default=None)  # [N] index of each kept Gaussian in the input
+    beta: float = SceneConfig.beta  # radii = beta * opacity * scale: the Gaussians' scales are radii / (beta * opacity)
 
     def __post_init__(self) -> None:
         n = self.means.shape[0]
@@ -158,6 +159,7 @@ class EllipsoidScene:
             opacities=opac[idx],
             camera_radius=float(cfg.camera_radius),
             source_index=idx,
+            beta=float(cfg.beta),
         )
 
     @classmethod
@@ -208,6 +210,7 @@ class EllipsoidScene:
         return EllipsoidScene(
             means=mv(self.means), rotations=mv(self.rotations), radii=mv(self.radii),
             opacities=mv(self.opacities), camera_radius=self.camera_radius, source_index=mv(self.source_index),
+            beta=self.beta,
         )
 
     def subset(self, sel: Tensor) -> "EllipsoidScene":
@@ -215,7 +218,7 @@ class EllipsoidScene:
         return EllipsoidScene(
             means=self.means[sel], rotations=self.rotations[sel], radii=self.radii[sel],
             opacities=self.opacities[sel], camera_radius=self.camera_radius,
-            source_index=None if self.source_index is None else self.source_index[sel],
+            source_index=None if self.source_index is None else self.source_index[sel], beta=self.beta,
         )
 
     def covariances(self) -> Tensor:

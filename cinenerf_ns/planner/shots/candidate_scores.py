@@ -12,6 +12,7 @@ import torch
 from ..errors import InvalidInputError
 from ..geometry import clearance_queries
 from ..geometry.occlusion import sight_lines_blocked
+from ..geometry.visibility import SubjectSamples, subject_visibility
 from ..scene.planning_region import as_point
 from .scoring import ScoreConfig, ShotScore, score_terms, scored_frames
 from .shot import Shot
@@ -29,22 +30,28 @@ def score_shots(
     object_center: Optional[Any] = None,
     object_samples: Optional[Any] = None,
     exclude: Optional[torch.Tensor] = None,
+    subject: Optional[SubjectSamples] = None,
 ) -> List[ShotScore]:
     """scoring.score_shot for several shots: one occlusion call and one exact-clearance call for all.
 
     Clearance terms use the scored frames (the same <= config.occlusion_frames frames per shot as the
-    occlusion term); the shots' safety is established separately by the dense verification."""
+    occlusion term); the shots' safety is established separately by the dense verification. ``subject``: samples
+    of the look-at object's Gaussians; occlusion is then its visible fraction (scoring.py)."""
     cfg = config or ScoreConfig()
     cfg.validate()
     look = as_point(look_at, "look-at point")
-    parts = score_parts(planner, shots, look, cfg, object_radius, object_samples, exclude, batch=True)
+    parts = score_parts(planner, shots, look, cfg, object_radius, object_samples, exclude, batch=True, subject=subject)
     return [score_from_parts(sh, part, look, cfg, object_radius, object_center) for sh, part in zip(shots, parts)]
 
 
 def score_parts(planner: "Planner", shots: List[Shot], look: np.ndarray, cfg: ScoreConfig, object_radius: float,
-                object_samples: Optional[Any], exclude: Optional[torch.Tensor], batch: bool) -> List[tuple]:
+                object_samples: Optional[Any], exclude: Optional[torch.Tensor], batch: bool,
+                subject: Optional[SubjectSamples] = None) -> List[tuple]:
     """The expensive per-frame inputs of each shot's score, one occlusion call and one exact-clearance call for all
-    shots: [(tested frame indices [T'], occluded [T', S] bool, clearance [T'] exact up to the cap)].
+    shots: [(tested frame indices [T'], occluded [T', S] bool, clearance [T'] exact up to the cap, visibility [T_v]
+    or None, visibility frame indices [T_v] or None)]. With a ``subject`` the occlusion is its visible fraction on
+    <= cfg.visibility_frames of the tested frames (one subject_visibility call for all shots; CPU, compiled) instead
+    of sight lines.
 
     batch: on the scene's own device (a GPU when there is one: many frames x many Gaussians); False: on the request
     device (the CPU copy of a GPU scene), where the compiled sight-line and capped-distance searches apply
@@ -62,14 +69,26 @@ def score_parts(planner: "Planner", shots: List[Shot], look: np.ndarray, cfg: Sc
         index = prep.batch_index if prep.batch_index is not None else prep.index
     if exclude is not None:
         exclude = torch.as_tensor(exclude, device=scene.device)
+    clr = planner.clearance(pos, cap=cfg.clearance_cap, batch=batch)  # [sum T'] exact up to the cap
+    if subject is not None:
+        vsub = [scored_frames(len(i), cfg.visibility_frames) for i in idx]  # positions among each shot's frames
+        vpos = np.concatenate([sh.positions[i[v]] for sh, i, v in zip(shots, idx, vsub)])
+        from .end_pose import visibility_volume
+
+        vis = subject_visibility(visibility_volume(planner), vpos, subject)  # [sum T_v]
+        out, o, ov = [], 0, 0
+        for i, v in zip(idx, vsub):
+            n, nv = len(i), len(v)
+            out.append((i, (vis[ov : ov + nv] < 0.5)[:, None], clr[o : o + n], vis[ov : ov + nv], i[v]))
+            o, ov = o + n, ov + nv
+        return out
     free_grid = None if batch else clearance_queries.free_voxel_grid(planner)  # the CPU copy's compiled test
     occ = sight_lines_blocked(pos, targets, scene, index, exclude=exclude, stop_distance=object_radius,
                               free_grid=free_grid).cpu().numpy()  # [sum T', S]
-    clr = planner.clearance(pos, cap=cfg.clearance_cap, batch=batch)  # [sum T'] exact up to the cap
     out, o = [], 0
     for i in idx:
         n = len(i)
-        out.append((i, occ[o : o + n], clr[o : o + n]))
+        out.append((i, occ[o : o + n], clr[o : o + n], None, None))
         o += n
     return out
 
@@ -77,7 +96,8 @@ def score_parts(planner: "Planner", shots: List[Shot], look: np.ndarray, cfg: Sc
 def score_from_parts(shot: Shot, part: tuple, look: np.ndarray, cfg: ScoreConfig, object_radius: float,
                      object_center: Optional[Any]) -> ShotScore:
     """A shot's ShotScore from its score_parts entry (scoring.score_terms; cheap)."""
-    i, occ, clr = part
-    sc = score_terms(shot, look, occ, clr, object_radius, object_center, cfg)
+    i, occ, clr, vis, vidx = part
+    sc = score_terms(shot, look, occ, clr, object_radius, object_center, cfg, visibility=vis)
     sc.tested_frame_index = i
+    sc.visibility, sc.visibility_frame_index = vis, vidx
     return sc

@@ -69,6 +69,7 @@ import torch
 
 from ..corridor.safe_corridor import CorridorError
 from ..errors import GoalUnreachableError, InvalidInputError, PlanningError, StartInCollisionError
+from ..geometry.visibility import SubjectSamples
 from ..search.astar import batched_shortcut  # noqa: F401 (re-exported: part of the candidates API)
 from ..trajectory.dynamics import DynamicLimits
 from . import stages
@@ -116,14 +117,15 @@ score everything after the round)."""
 
 
 def _merge_task_results(ids: List[int], results: List[Dict[str, Any]], tm: Dict[str, float],
-                        goal_cache: Dict[int, Any], errors: List[str]) -> List[tuple]:
-    """Worker task results -> this request: their stage times added to tm, the goals they found to goal_cache,
-    their failures to errors. Returns [(id, result)] of the tasks that succeeded, in order."""
+                        cache_of: Callable[[int], Dict[int, Any]], errors: List[str]) -> List[tuple]:
+    """Worker task results -> this request: their stage times added to tm, the goals they found to their candidate's
+    goal cache (cache_of(id)), their failures to errors. Returns [(id, result)] of the tasks that succeeded, in
+    order."""
     ok = []
     for i, res in zip(ids, results):
         for name, ms in res["timings"].items():
             tm[name] = tm.get(name, 0.0) + ms
-        goal_cache.update(res.get("goal_cache", {}))
+        cache_of(i).update(res.get("goal_cache", {}))
         if res["error"] is not None:
             errors.append(res["error"])
         else:
@@ -159,7 +161,7 @@ def _plan_candidate_task(planner: Planner, config, start: np.ndarray, goal_p: np
     Returns {"shot": verified Shot (report in shot.safety) or None, "error": the failure message or None,
     "timings": per-stage ms, "goal_cache": goals found here for components the parent had not cached,
     "score_parts": the shot's score_parts entry (on the CPU copy) when ``score`` = (ScoreConfig, object_radius,
-    object_samples, exclude) is given, else None}. The failures caught are exactly those the in-process path
+    object_samples, exclude, subject) is given, else None}. The failures caught are exactly those the in-process path
     records and replaces with a spare; anything else propagates to the parent."""
     way = _candidate_way_task(planner, config, start, goal_p, goal_cache)  # sets the request's config
     out = {"shot": None, "error": way["error"], "timings": way["timings"], "goal_cache": way["goal_cache"]}
@@ -178,9 +180,9 @@ def _plan_candidate_task(planner: Planner, config, start: np.ndarray, goal_p: np
     out.update(shot=fin["shot"], error=fin["error"], score_parts=None)
     if score is not None and fin["shot"] is not None and fin["shot"].safety["safe"]:
         t = time.perf_counter()
-        cfg, object_radius, object_samples, exclude = score
+        cfg, object_radius, object_samples, exclude, subject = score
         out["score_parts"] = score_parts(planner, [fin["shot"]], look_p, cfg, object_radius, object_samples, exclude,
-                                         batch=False)[0]
+                                         batch=False, subject=subject)[0]
         _lapper(out["timings"])("score_ms", t)
     return out
 
@@ -261,14 +263,17 @@ def plan_candidates(
     spare_fraction: float = 0.5,
     timings: Optional[Dict[str, float]] = None,
     time_budget_s: Optional[float] = None,
+    subject: Optional[SubjectSamples] = None,
 ) -> List[RankedShot]:
     """Plan up to ``k`` verified-safe shots from different seeded random starts, all ending as close as
     safely possible to ``goal`` and looking at ``look_at``; score them (scoring.py) and return them ranked
-    best first (rank 1 = lowest ScoreConfig total).
+    best first (rank 1 = lowest ScoreConfig total). ``goal``: one point [3], or P points [P, 3] (end poses,
+    end_pose.py): the candidate of start i ends at goal[i % P].
 
     limits: retime every shot under DynamicLimits (peaks in ``shot.dynamics``); None: the planner's
     TimingConfig. object_radius / object_center / object_samples / exclude: the look-at object, see
-    scoring.score_shot. spare_fraction: extra starts sampled to replace candidates that fail (unreachable
+    scoring.score_shot; ``subject``: samples of the look-at object's Gaussians (geometry/visibility.py): occlusion is
+    then its visible fraction. spare_fraction: extra starts sampled to replace candidates that fail (unreachable
     goal from that start, corridor failure); fewer than k shots come back only if the spares run out.
     timings: optional dict filled with per-stage milliseconds (summed over candidates) and the total; with
     worker processes (PlannerConfig.candidate_workers, see the module docstring) also pool_ms (wall time of
@@ -277,7 +282,8 @@ def plan_candidates(
     (fewer come back; timings["budget_stopped"] = 1). None: no budget.
     Raises InvalidInputError (bad input) and GoalUnreachableError (no candidate could be planned)."""
     kw = dict(limits=limits, object_radius=object_radius, object_center=object_center, object_samples=object_samples,
-              exclude=exclude, spare_fraction=spare_fraction, timings=timings, time_budget_s=time_budget_s)
+              exclude=exclude, spare_fraction=spare_fraction, timings=timings, time_budget_s=time_budget_s,
+              subject=subject)
     try:
         return _plan_candidates(planner, goal, look_at, k, seed, score_config, use_workers=True, **kw)
     except BrokenProcessPool:
@@ -294,7 +300,7 @@ class _CandidateRequest:
     per-stage milliseconds ``tm`` (laps of ``lap``)."""
 
     planner: Planner
-    goal_p: np.ndarray  # [3] the go-to point
+    goal_p: np.ndarray  # [P, 3] the go-to points: candidate i ends at goal_p[i % P] (end poses, or one go-to)
     look_p: np.ndarray  # [3] the look-at point
     k: int
     limits: Optional[DynamicLimits]
@@ -305,17 +311,27 @@ class _CandidateRequest:
     exclude: Optional[torch.Tensor]
     time_budget_s: Optional[float]
     t_all: float  # when the request started (its time budget and total_ms)
+    subject: Optional[SubjectSamples] = None  # samples of the look-at object: occlusion by visibility (scoring.py)
     pool: Optional[CandidatePool] = None  # None: every round in this process
     starts: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # [n_try, 3]
     tm: Dict[str, float] = field(default_factory=dict)
     errors: List[str] = field(default_factory=list)
-    goal_cache: Dict[int, Any] = field(default_factory=dict)  # free component -> ReachableGoal
+    goal_caches: List[Dict[int, Any]] = field(default_factory=list)  # per go-to point: free component -> goal
     shots: List[Shot] = field(default_factory=list)
     cand_ids: List[int] = field(default_factory=list)  # the start index of each shot
     early_scores: Dict[int, Any] = field(default_factory=dict)  # candidate id -> ShotScore scored while workers ran
 
     def __post_init__(self) -> None:
         self.lap = _lapper(self.tm)
+        self.goal_caches = [{} for _ in range(len(self.goal_p))]
+
+    def goal_of(self, cand: int) -> np.ndarray:
+        """The go-to point [3] of candidate ``cand`` (its start's index)."""
+        return self.goal_p[cand % len(self.goal_p)]
+
+    def cache_of(self, cand: int) -> Dict[int, Any]:
+        """The goal cache (free component -> ReachableGoal) of candidate ``cand``'s go-to point."""
+        return self.goal_caches[cand % len(self.goal_p)]
 
     def over_budget(self) -> bool:
         """The time budget is spent and a shot exists: start no further candidate (timings' budget_stopped)."""
@@ -337,7 +353,7 @@ def _round_in_process(req: _CandidateRequest, batch: List[int], t: float) -> flo
     for ci in batch:
         s = req.starts[ci]
         try:
-            goal, way, t = _candidate_way(planner, s, req.goal_p, req.goal_cache, lap, t)
+            goal, way, t = _candidate_way(planner, s, req.goal_of(ci), req.cache_of(ci), lap, t)
             plans.append({"cand": ci, "start": s, "reach": goal, "way": way})
         except (GoalUnreachableError, StartInCollisionError) as e:
             req.errors.append(str(e))
@@ -357,7 +373,7 @@ def _round_in_process(req: _CandidateRequest, batch: List[int], t: float) -> flo
             req.errors.append(str(e))
             t = time.perf_counter()
             continue
-        req.add(p["cand"], stages.leg_shot(planner, traj, corridor, req.look_p, req.goal_p, req.limits))
+        req.add(p["cand"], stages.leg_shot(planner, traj, corridor, req.look_p, req.goal_of(p["cand"]), req.limits))
         t = lap("timing_ms", t)
     return t
 
@@ -376,8 +392,10 @@ def _round_in_workers(req: _CandidateRequest, batch: List[int], t: float) -> flo
     score_cfg = req.score_config or ScoreConfig()
     score_cfg.validate()
     score_args = (score_cfg, req.object_radius, req.object_samples,
-                  None if req.exclude is None else torch.as_tensor(req.exclude).cpu()) if cfg.worker_scoring else None
-    tasks = [(cfg, req.starts[ci], req.goal_p, req.look_p, req.goal_cache, req.limits, score_args) for ci in batch]
+                  None if req.exclude is None else torch.as_tensor(req.exclude).cpu(),
+                  req.subject) if cfg.worker_scoring else None
+    tasks = [(cfg, req.starts[ci], req.goal_of(ci), req.look_p, req.cache_of(ci), req.limits, score_args)
+             for ci in batch]
     for done, (i, res) in enumerate(req.pool.imap_unordered(_plan_candidate_task, tasks), 1):
         results[i] = res
         if res["error"] is None and res.get("score_parts") is not None:
@@ -392,12 +410,12 @@ def _round_in_workers(req: _CandidateRequest, batch: List[int], t: float) -> flo
         if len(ready) >= chunk and done < len(batch):
             t_s = time.perf_counter()
             sc = score_shots(req.planner, [results[j]["shot"] for j in ready], req.look_p, req.score_config,
-                             req.object_radius, req.object_center, req.object_samples, req.exclude)
+                             req.object_radius, req.object_center, req.object_samples, req.exclude, req.subject)
             req.early_scores.update({batch[j]: x for j, x in zip(ready, sc)})
             ready = []
             lap("score_ms", t_s)
             t += time.perf_counter() - t_s  # not pool time
-    for ci, res in _merge_task_results(batch, results, req.tm, req.goal_cache, req.errors):
+    for ci, res in _merge_task_results(batch, results, req.tm, req.cache_of, req.errors):
         req.add(ci, res["shot"])
     return lap("pool_ms", t)
 
@@ -408,8 +426,8 @@ def _round_two_phase(req: _CandidateRequest, batch: List[int], t: float) -> floa
     corridor at once (stages.legs_corridor), the workers solve the QPs and verify. Same shots as in-process with the
     batched backend."""
     cfg, lap = req.planner.config, req.lap
-    ph1 = req.pool.map(_candidate_way_task, [(cfg, req.starts[ci], req.goal_p, req.goal_cache) for ci in batch])
-    ways = _merge_task_results(batch, ph1, req.tm, req.goal_cache, req.errors)
+    ph1 = req.pool.map(_candidate_way_task, [(cfg, req.starts[ci], req.goal_of(ci), req.cache_of(ci)) for ci in batch])
+    ways = _merge_task_results(batch, ph1, req.tm, req.cache_of, req.errors)
     t = lap("pool_ms", t)
     if not ways:
         return t
@@ -424,8 +442,9 @@ def _round_two_phase(req: _CandidateRequest, batch: List[int], t: float) -> floa
         else:
             todo.append((ci, r, c))
     ph2 = req.pool.map(_candidate_finish_task,
-                       [(cfg, c, req.starts[ci], r["goal"], req.look_p, req.goal_p, req.limits) for ci, r, c in todo])
-    for ci, res in _merge_task_results([ci for ci, _, _ in todo], ph2, req.tm, req.goal_cache, req.errors):
+                       [(cfg, c, req.starts[ci], r["goal"], req.look_p, req.goal_of(ci), req.limits)
+                        for ci, r, c in todo])
+    for ci, res in _merge_task_results([ci for ci, _, _ in todo], ph2, req.tm, req.cache_of, req.errors):
         req.add(ci, res["shot"])
     return lap("pool_ms", t)
 
@@ -452,7 +471,11 @@ def _checked_inputs(planner: Planner, goal: Any, look_at: Any, k: int, spare_fra
         raise InvalidInputError("the time budget (--time-budget) must be a positive number of seconds, got "
                                 f"{time_budget_s}")
     planner.ready()
-    goal_p = planner.checked_point(goal, "go-to point")
+    g = np.asarray(goal, dtype=np.float64)
+    if g.ndim == 2 and (g.shape[0] < 1 or g.shape[0] > MAX_CANDIDATES):
+        raise InvalidInputError(f"go-to points must be [3] or [P, 3] with 1 <= P <= {MAX_CANDIDATES}, got {g.shape}")
+    goal_p = np.stack([planner.checked_point(p, "go-to point") for p in g.reshape(-1, 3)]) if g.ndim == 2 else \
+        planner.checked_point(g, "go-to point")[None]
     look_p = planner.checked_point(look_at, "look-at point")
     planner.check_timing()
     if not (0 <= spare_fraction <= 4):
@@ -480,7 +503,7 @@ def _ranked(req: _CandidateRequest, t: float, timings: Optional[Dict[str, float]
         sh.safety = stages.refuse_unsafe(rep, "a candidate curve")
     late = [i for i, ci in enumerate(cand_ids) if ci not in req.early_scores]
     late_scores = score_shots(planner, [shots[i] for i in late], req.look_p, req.score_config, req.object_radius,
-                              req.object_center, req.object_samples, req.exclude) if late else []
+                              req.object_center, req.object_samples, req.exclude, req.subject) if late else []
     by_pos = dict(zip(late, late_scores))
     scores = [req.early_scores[ci] if ci in req.early_scores else by_pos[i] for i, ci in enumerate(cand_ids)]
     t = lap("score_ms", t)
@@ -512,13 +535,14 @@ def _plan_candidates(
     spare_fraction: float,
     timings: Optional[Dict[str, float]],
     time_budget_s: Optional[float] = None,
+    subject: Optional[SubjectSamples] = None,
 ) -> List[RankedShot]:
     """The body of plan_candidates (use_workers: allow the planner's worker pool): starts sampled, rounds of the
     strategy _round_strategy picks until k shots exist, the starts run out or the time budget is spent, then
     verified, scored and ranked (_ranked)."""
     k, goal_p, look_p = _checked_inputs(planner, goal, look_at, k, spare_fraction, object_radius, time_budget_s)
     req = _CandidateRequest(planner, goal_p, look_p, k, limits, score_config, object_radius, object_center,
-                            object_samples, exclude, time_budget_s, t_all=time.perf_counter())
+                            object_samples, exclude, time_budget_s, t_all=time.perf_counter(), subject=subject)
     t = time.perf_counter()
     n_try = k + int(math.ceil(spare_fraction * k))
     starts = planner.random_starts(n_try, torch.Generator().manual_seed(int(seed)), look_p)
@@ -529,10 +553,11 @@ def _plan_candidates(
         t = req.lap("pool_start_ms", t)  # forking the workers: first request after prepare() only
         req.tm["workers"] = float(req.pool.processes)
         # the main component's goal once here (inherited by every task) instead of once per worker
-        try:
-            stages.component_goal(planner, goal_p, planner.main_component(), req.goal_cache)
-        except GoalUnreachableError:
-            pass  # each candidate then fails with this error in its worker, as in the in-process path
+        for g, cache in zip(req.goal_p, req.goal_caches):
+            try:
+                stages.component_goal(planner, g, planner.main_component(), cache)
+            except GoalUnreachableError:
+                pass  # each candidate then fails with this error in its worker, as in the in-process path
         t = req.lap("goal_ms", t)
     plan_round = _round_strategy(req)
     nxt = 0  # next unused start; spares are only planned to replace failed candidates

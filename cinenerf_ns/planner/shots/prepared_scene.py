@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Optional, Tuple
+from typing import Any, Optional, Tuple
 
 import numpy as np
 from torch import Tensor
@@ -53,6 +53,7 @@ class PreparedScene:
     mean_voxels: Optional[np.ndarray] = None  # [X, Y, Z] bool voxels holding a Gaussian mean (goal.mean_voxel_mask)
     main_component_of: Optional[tuple] = None  # (start_region, component) cached by starts.main_component
     start_blocked_of: Optional[tuple] = None  # (labels, component, blocked mask) cached by starts.start_blocked
+    volume: Optional[Any] = None  # geometry.visibility.SplatVolume of the region (end_pose.visibility_volume, lazy)
 
 
 def prepare_scene(scene: EllipsoidScene, grid_resolution: int, lo: Tensor, hi: Tensor,

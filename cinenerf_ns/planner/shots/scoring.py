@@ -1,8 +1,14 @@
 """A documented, configurable score of one shot (lower cost = better shot).
 
 Terms (each reported raw in ``ShotScore.to_dict()``, and weighted in ``costs``):
-  occluded_fraction   fraction of evaluated frames (x target samples) whose sight line to the look-at
-                      object is blocked by a scene ellipsoid (occlusion.py; exact count).
+  occluded_fraction   with a subject (its Gaussians, geometry/visibility.py): the fraction of visibility frames
+                      in which less than half of the subject is seen through the splat (alpha-composited
+                      transmittance to samples of its Gaussians, relative to the subject rendered alone); also
+                      visible_mean (mean visible fraction), visible_last (the last frame's) and frames_visible_half
+                      (1 - occluded_fraction). Without one: the fraction of evaluated frames (x target samples)
+                      whose sight line to the look-at point is blocked by a scene ellipsoid (occlusion.py; exact
+                      count); visible_last is then 0 or 1.
+                      cost = w_occlusion * occluded_fraction + w_last_visibility * (1 - visible_last).
   framing_size_error  |log(fill / target_fill)| averaged over frames, fill = projected diameter of the
                       look-at object / frame height = 2 atan(object_radius / distance) / fov.
   framing_offset      mean angle between the view axis and the direction to the object's centre,
@@ -44,6 +50,8 @@ class ScoreConfig:
 
     w_occlusion: float = 10.0
     """Weight of the occluded fraction of frames (0..1): the dominant term, a hidden subject ruins a shot."""
+    w_last_visibility: float = 5.0
+    """Weight of the hidden fraction of the subject in the last frame (what the shot ends on)."""
     w_framing_size: float = 1.0
     """Weight of the mean |log(fill / target_fill)| of the object's projected size."""
     w_framing_offset: float = 1.0
@@ -72,6 +80,9 @@ class ScoreConfig:
     """Duration scale, seconds."""
     occlusion_frames: int = 64
     """At most this many evenly spaced frames are tested for occlusion (0: all frames)."""
+    visibility_frames: int = 16
+    """With a subject: at most this many of those frames (evenly spaced, first and last included) get the visible
+    fraction of the subject (0: all of them)."""
     clearance_cap: Optional[float] = 0.1
     """Exact clearance is searched up to this (larger counts as the cap); >= clearance_ref leaves every cost unchanged
     and skips most of the distance work. None: uncapped."""
@@ -91,6 +102,8 @@ class ScoreConfig:
             raise InvalidInputError(f"ScoreConfig.fov_deg must be < 180, got {self.fov_deg}.")
         if self.clearance_cap is not None and self.clearance_cap <= 0:
             raise InvalidInputError(f"ScoreConfig.clearance_cap must be > 0 or None, got {self.clearance_cap}.")
+        if self.visibility_frames < 0:
+            raise InvalidInputError("ScoreConfig.visibility_frames must be >= 0.")
         if self.occlusion_frames < 0:
             raise InvalidInputError("ScoreConfig.occlusion_frames must be >= 0.")
 
@@ -104,6 +117,8 @@ class ShotScore:
     total: float
     occluded_frames: Optional[np.ndarray] = field(default=None, repr=False)  # [T'] bool per tested frame
     tested_frame_index: Optional[np.ndarray] = field(default=None, repr=False)  # [T'] frame indices tested
+    visibility: Optional[np.ndarray] = field(default=None, repr=False)  # [T_v] visible fraction of the subject
+    visibility_frame_index: Optional[np.ndarray] = field(default=None, repr=False)  # [T_v] their frame indices
 
     def to_dict(self) -> Dict[str, Any]:
         return {"total": float(self.total), "terms": {k: float(v) for k, v in self.terms.items()},
@@ -119,9 +134,11 @@ def scored_frames(num: int, cap: int) -> np.ndarray:
 
 
 def score_terms(shot, look_at: np.ndarray, occluded: np.ndarray, clearance: np.ndarray, object_radius: float,
-                object_center: Optional[np.ndarray], config: ScoreConfig) -> ShotScore:
+                object_center: Optional[np.ndarray], config: ScoreConfig,
+                visibility: Optional[np.ndarray] = None) -> ShotScore:
     """Combine precomputed per-frame quantities into a ShotScore (used by score_shot and the batched
-    candidate scorer, so both give identical numbers). occluded [T', S] bool, clearance [T]."""
+    candidate scorer, so both give identical numbers). occluded [T', S] bool, clearance [T]; visibility [T_v]: the
+    subject's visible fraction on the visibility frames (last frame last), which then decides occlusion."""
     pos = shot.positions
     centre = look_at if object_center is None else np.asarray(object_center, np.float64)
     dist = np.maximum(np.linalg.norm(centre[None] - pos, axis=1), 1e-9)  # [T]
@@ -133,6 +150,12 @@ def score_terms(shot, look_at: np.ndarray, occluded: np.ndarray, clearance: np.n
     off = np.arctan2(np.linalg.norm(np.cross(view, to_c), axis=1), (view * to_c).sum(1)) / (0.5 * fov)
     pk = frame_peaks(pos, shot.times, view_vectors(pos, look_at))
     occ = float(np.mean(occluded)) if occluded.size else 0.0
+    if visibility is not None and len(visibility):
+        vis = np.asarray(visibility, np.float64)
+        occ = float(np.mean(vis < 0.5))
+        last = float(vis[-1])
+    else:
+        last = 0.0 if occluded.size and bool(np.any(occluded[-1])) else 1.0
     if config.clearance_cap is not None:
         clearance = np.minimum(clearance, config.clearance_cap)
     terms = {
@@ -147,10 +170,15 @@ def score_terms(shot, look_at: np.ndarray, occluded: np.ndarray, clearance: np.n
         "max_angular_rate_deg": pk.angular_rate_deg,
         "mean_angular_rate_deg": pk.mean_angular_rate_deg,
         "duration_s": float(shot.duration),
+        "visible_last": last,
     }
+    if visibility is not None and len(visibility):
+        terms["visible_mean"] = float(np.mean(visibility))
+        terms["frames_visible_half"] = 1.0 - occ
     c = config
     costs = {
         "occlusion": c.w_occlusion * occ,
+        "last_visibility": c.w_last_visibility * (1.0 - last),
         "framing_size": c.w_framing_size * size_err,
         "framing_offset": c.w_framing_offset * terms["framing_offset"],
         "min_clearance": c.w_min_clearance * max(0.0, c.clearance_ref - terms["min_clearance"]) / c.clearance_ref,

@@ -82,9 +82,9 @@ def test_score_parts_on_the_cpu_copy_match_reference():
     sh = Shot(times=t * 3, positions=pos, rotations=look_at_rotations(pos, TARGET), look_at=TARGET, goal=pos[-1],
               start=pos[0])
     cfg = ScoreConfig(occlusion_frames=0)
-    i, occ, clr = score_parts(pl, [sh], TARGET, cfg, TARGET_RADIUS + 0.03, None, None, batch=False)[0]
+    i, occ, clr, vis, _ = score_parts(pl, [sh], TARGET, cfg, TARGET_RADIUS + 0.03, None, None, batch=False)[0]
     ref = sight_lines_blocked_reference(pos[i], TARGET, *_arrays(pl), stop_distance=TARGET_RADIUS + 0.03)
-    assert np.array_equal(occ, ref) and ref.any() and not ref.all()
+    assert vis is None and np.array_equal(occ, ref) and ref.any() and not ref.all()  # no subject: sight lines
     exact = pl.clearance(pos[i])  # uncapped
     assert np.array_equal(clr, np.minimum(exact, cfg.clearance_cap)) or np.allclose(
         clr, np.minimum(exact, cfg.clearance_cap), rtol=0, atol=1e-12)

@@ -1,0 +1,329 @@
+"""How much of a subject a camera sees through the splat: alpha-composited transmittance to samples of the subject.
+
+The planner's obstacles are hard ellipsoids; what a viewer sees is the splat's semi-transparent Gaussians. Here each
+Gaussian j (mean mu_j, rotation R_j, scales sigma_j, opacity o_j) has, along a segment x(t) = p0 + t (p1 - p0),
+t in [0, 1], the alpha
+
+    a_j = min(o_j exp(-m_j^2 / 2), ALPHA_MAX),   m_j^2 = min_t |diag(1 / sigma_j) R_j^T (x(t) - mu_j)|^2,
+
+the 3D ray-tracing approximation of the rasteriser's 2D alpha (the Gaussian's peak density along the ray), counted
+for m_j < CUT_SIGMA (beyond, a_j < 1.1% of o_j). The transmittance of the segment is prod_j (1 - a_j); in optical
+depth tau = sum_j -log(1 - a_j), split by a class per Gaussian (0: other, 1: the subject).
+
+A subject is S samples of its own Gaussians' means (drawn in proportion to opacity x area). Seen from a camera p, sample
+s is reached by the light of the subject with weight w_s exp(-tau_subject(p, s)) when the subject is rendered alone
+(its own Gaussians in front of it hide it), and with weight w_s exp(-tau_subject - tau_other) through the whole splat.
+The visible fraction of the subject is the ratio of the two sums: what a label render of the subject through the
+splat divided by the subject rendered alone measures, with S point samples instead of pixels (an approximation: the
+alpha of a Gaussian here is its 3D peak along the segment, not gsplat's projected 2D footprint; each sample ignores
+its own Gaussian). Against rendered label images of small test scenes it agrees to within 0.10 for a compact subject
+and 0.15 for a loose one of large Gaussians (tests/planner/geometry/test_visibility.py).
+
+Gaussians are found through a uniform grid of cells (``SplatVolume``, built once per scene): each cell lists the
+Gaussians whose cut-off box meets it; Gaussians spanning more than MAX_CELLS cells are tested for every segment. The
+compiled walk (native/visibility.c) and the numpy path give the same sums as the brute-force float64 reference
+(``optical_depth_reference``), which tests every Gaussian.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from ..errors import InvalidInputError
+from ..scene.ellipsoids import EllipsoidScene
+
+CUT_SIGMA = 3.0
+"""Gaussians farther than this many sigmas from a segment do not attenuate it (alpha < 1.1% of the opacity)."""
+ALPHA_MAX = 0.99
+"""Largest alpha of one Gaussian (as in 3DGS rasterisers)."""
+STOP_SELF = 12.0
+"""subject_visibility stops a sample's walk once the subject hides it from itself by this optical depth (its light is
+then below exp(-12) = 6e-6 of its weight)."""
+MAX_CELLS = 512
+"""A Gaussian whose cut-off box spans more cells than this is tested for every segment instead of listed in cells."""
+CELLS_LONG_SIDE = 128
+"""Cells along the volume box's longest side (the cell is never smaller than the median Gaussian's cut-off box)."""
+
+
+@dataclass
+class SplatVolume:
+    """The splat as semi-transparent Gaussians in a cell grid over the box [lo, lo + dims * cell]."""
+
+    means: np.ndarray  # [N, 3] float64
+    whiten: np.ndarray  # [N, 3, 3] float64: diag(1 / sigma) R^T (world -> sigma units)
+    opacity: np.ndarray  # [N] float64
+    lo: np.ndarray  # [3] float64
+    cell: float
+    dims: np.ndarray  # [3] int64
+    cell_start: np.ndarray  # [C + 1] int64 (C = prod(dims), cells in C order)
+    cell_ids: np.ndarray  # [E] int32
+    big: np.ndarray  # [B] int32: Gaussians tested for every segment
+    packed: np.ndarray  # [N, 13] float64: mean, whitening rows, opacity, in the compiled walk's order (by cell)
+    rank: np.ndarray  # [N] int64: a Gaussian's row in ``packed`` (cell_ids and big hold rows of ``packed``)
+    perm: np.ndarray  # [N] int64: the Gaussian of each row of ``packed`` (rank's inverse)
+
+    def __len__(self) -> int:
+        return int(self.means.shape[0])
+
+    @classmethod
+    def build(cls, scene: EllipsoidScene, lo, hi, cut_sigma: float = CUT_SIGMA) -> "SplatVolume":
+        """The volume of an obstacle scene's Gaussians (scales = radii / (beta * opacity)) over the box [lo, hi]
+        (Gaussians whose cut-off box misses it are left out: segments are clipped to it)."""
+        lo = np.asarray(lo, np.float64).reshape(3)
+        hi = np.asarray(hi, np.float64).reshape(3)
+        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(hi > lo)):
+            raise InvalidInputError(f"the visibility box must be finite with lo < hi, got {lo.tolist()}, {hi.tolist()}")
+        means = scene.means.detach().cpu().double().numpy()  # [N, 3]
+        rot = scene.rotations.detach().cpu().double().numpy()  # [N, 3, 3]
+        opac = scene.opacities.detach().cpu().double().numpy()  # [N]
+        sigma = scene.radii.detach().cpu().double().numpy() / (scene.beta * np.maximum(opac, 1e-6))[:, None]
+        whiten = np.transpose(rot, (0, 2, 1)) / sigma[:, :, None]  # rows: R^T scaled by 1 / sigma
+        half = cut_sigma * np.sqrt(((rot * sigma[:, None, :]) ** 2).sum(-1))  # [N, 3] cut-off box half widths
+        glo, ghi = means - half, means + half
+        inside = np.all((ghi >= lo) & (glo <= hi), axis=1)
+        ext = float((hi - lo).max())
+        med = float(np.median(2 * half[inside].max(1))) if inside.any() else ext
+        cell = max(ext / CELLS_LONG_SIDE, min(med, ext / 8))
+        dims = np.maximum(np.ceil((hi - lo) / cell).astype(np.int64), 1)
+        ids = np.flatnonzero(inside)
+        pad = 1e-9 * ext  # rounding: a box is listed in every cell it might touch
+        i0 = np.clip(np.floor((glo[ids] - pad - lo) / cell), 0, dims - 1).astype(np.int64)  # [K, 3]
+        i1 = np.clip(np.floor((ghi[ids] + pad - lo) / cell), 0, dims - 1).astype(np.int64)
+        span = i1 - i0 + 1
+        count = span.prod(1)
+        big = ids[count > MAX_CELLS].astype(np.int32)
+        small = count <= MAX_CELLS
+        ids, i0, span, count = ids[small], i0[small], span[small], count[small]
+        owner = np.repeat(np.arange(len(ids)), count)  # [E]
+        k = np.arange(len(owner)) - np.repeat(np.cumsum(count) - count, count)  # position inside its box
+        sy, sz = span[owner, 1], span[owner, 2]
+        cx = i0[owner, 0] + k // (sy * sz)
+        cy = i0[owner, 1] + (k // sz) % sy
+        cz = i0[owner, 2] + k % sz
+        cid = (cx * dims[1] + cy) * dims[2] + cz
+        order = np.argsort(cid, kind="stable")
+        n_cells = int(dims.prod())
+        start = np.zeros(n_cells + 1, np.int64)
+        np.cumsum(np.bincount(cid, minlength=n_cells), out=start[1:])
+        # the compiled walk reads Gaussians in the order of their means' cells: a cell's Gaussians lie together in
+        # memory (several times faster than scene order on a 400k room)
+        home = np.clip(np.floor((means - lo) / cell), 0, dims - 1).astype(np.int64)
+        perm = np.argsort((home[:, 0] * dims[1] + home[:, 1]) * dims[2] + home[:, 2], kind="stable")
+        rank = np.empty(len(perm), np.int64)
+        rank[perm] = np.arange(len(perm))
+        packed = np.concatenate([means, whiten.reshape(-1, 9), opac[:, None]], 1)[perm]
+        return cls(means=np.ascontiguousarray(means), whiten=np.ascontiguousarray(whiten), opacity=opac,
+                   lo=lo, cell=float(cell), dims=dims, cell_start=start,
+                   cell_ids=np.ascontiguousarray(rank[ids[owner[order]]].astype(np.int32)),
+                   big=np.ascontiguousarray(rank[big].astype(np.int32)), packed=np.ascontiguousarray(packed),
+                   rank=rank, perm=perm)
+
+
+def _contributions(vol_means, whiten, opac, gid: np.ndarray, p0: np.ndarray, d: np.ndarray, cut2: float) -> np.ndarray:
+    """-log(1 - alpha) [K] of Gaussians gid [K] on segments p0 [K, 3] + t d [K, 3] (0 beyond the cut-off)."""
+    w = whiten[gid]  # [K, 3, 3]
+    u = np.einsum("kij,kj->ki", w, p0 - vol_means[gid])
+    v = np.einsum("kij,kj->ki", w, d)
+    vv = (v * v).sum(1)
+    t = np.clip(np.where(vv > 0, -(u * v).sum(1) / np.where(vv > 0, vv, 1.0), 0.0), 0.0, 1.0)
+    q = u + t[:, None] * v
+    m2 = (q * q).sum(1)
+    a = np.minimum(opac[gid] * np.exp(-0.5 * m2), ALPHA_MAX)
+    return np.where(m2 < cut2, -np.log1p(-a), 0.0)
+
+
+def _checked_segments(p0, p1, skip, n: int) -> tuple:
+    p0 = np.ascontiguousarray(np.asarray(p0, np.float64).reshape(-1, 3))
+    p1 = np.ascontiguousarray(np.asarray(p1, np.float64).reshape(-1, 3))
+    if p0.shape != p1.shape:
+        raise InvalidInputError(f"segment ends disagree: {p0.shape} vs {p1.shape}")
+    if not (np.all(np.isfinite(p0)) and np.all(np.isfinite(p1))):
+        raise InvalidInputError("segment ends contain NaN or inf")
+    skip = np.full(len(p0), -1, np.int64) if skip is None else np.ascontiguousarray(np.asarray(skip, np.int64))
+    if skip.shape != (len(p0),) or np.any(skip >= n):
+        raise InvalidInputError(f"skip must be [L={len(p0)}] Gaussian ids < {n} or -1")
+    return p0, p1, skip
+
+
+def _checked_classes(classes, n: int) -> np.ndarray:
+    cls = np.zeros(n, np.uint8) if classes is None else np.ascontiguousarray(np.asarray(classes).astype(np.uint8))
+    if cls.shape != (n,):
+        raise InvalidInputError(f"classes must be [N={n}], got {cls.shape}")
+    return cls
+
+
+def optical_depth_reference(vol: SplatVolume, p0, p1, classes=None, skip=None,
+                            cut_sigma: float = CUT_SIGMA) -> np.ndarray:
+    """Brute-force float64 reference of optical_depth: every segment against every Gaussian of the volume (the grid
+    and its box are not used: no clipping). Returns tau [L, 2]."""
+    n = len(vol)
+    p0, p1, skip = _checked_segments(p0, p1, skip, n)
+    cls = _checked_classes(classes, n)
+    tau = np.zeros((len(p0), 2))
+    for l in range(len(p0)):
+        gid = np.arange(n)
+        c = _contributions(vol.means, vol.whiten, vol.opacity, gid, np.broadcast_to(p0[l], (n, 3)),
+                           np.broadcast_to(p1[l] - p0[l], (n, 3)), cut_sigma ** 2)
+        if skip[l] >= 0:
+            c[skip[l]] = 0.0
+        tau[l, 0] = c[cls == 0].sum()
+        tau[l, 1] = c[cls == 1].sum()
+    return tau
+
+
+def _cells_along(vol: SplatVolume, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Every cell id a segment a -> b (each [3], inside the box) may pass: the cells of each piece's box, pieces no
+    longer than a cell (a superset of the compiled walk's cells)."""
+    n = max(1, int(np.ceil(np.linalg.norm(b - a) / vol.cell)))
+    t = np.linspace(0.0, 1.0, n + 1)
+    pts = a[None] + t[:, None] * (b - a)[None]  # [n + 1, 3]
+    lo = np.minimum(pts[:-1], pts[1:])
+    hi = np.maximum(pts[:-1], pts[1:])
+    pad = 1e-9 * vol.cell
+    i0 = np.clip(np.floor((lo - pad - vol.lo) / vol.cell), 0, vol.dims - 1).astype(np.int64)
+    i1 = np.clip(np.floor((hi + pad - vol.lo) / vol.cell), 0, vol.dims - 1).astype(np.int64)
+    cells = []
+    for dx in (0, 1):
+        for dy in (0, 1):
+            for dz in (0, 1):
+                c = np.minimum(i0 + np.array([dx, dy, dz]), i1)
+                cells.append((c[:, 0] * vol.dims[1] + c[:, 1]) * vol.dims[2] + c[:, 2])
+    return np.unique(np.concatenate(cells))
+
+
+def _clip_to_box(vol: SplatVolume, p0: np.ndarray, p1: np.ndarray) -> Optional[tuple]:
+    """The part of segment p0 -> p1 inside the volume's box as (a, b), or None when it misses the box."""
+    hi = vol.lo + vol.dims * vol.cell
+    d = p1 - p0
+    t0, t1 = 0.0, 1.0
+    for k in range(3):
+        if d[k] == 0.0:
+            if p0[k] < vol.lo[k] or p0[k] > hi[k]:
+                return None
+            continue
+        ta, tb = sorted(((vol.lo[k] - p0[k]) / d[k], (hi[k] - p0[k]) / d[k]))
+        t0, t1 = max(t0, ta), min(t1, tb)
+        if t0 > t1:
+            return None
+    return p0 + t0 * d, p0 + t1 * d
+
+
+def optical_depth_python(vol: SplatVolume, p0, p1, classes=None, skip=None,
+                         cut_sigma: float = CUT_SIGMA) -> np.ndarray:
+    """optical_depth without the compiled walk: the cells of each segment's pieces, their Gaussians once each."""
+    n = len(vol)
+    p0, p1, skip = _checked_segments(p0, p1, skip, n)
+    cls = _checked_classes(classes, n)
+    tau = np.zeros((len(p0), 2))
+    perm = vol.perm
+    for l in range(len(p0)):
+        clip = _clip_to_box(vol, p0[l], p1[l])
+        rows = vol.big.astype(np.int64)
+        if clip is not None:
+            cells = _cells_along(vol, *clip)
+            parts = [vol.cell_ids[vol.cell_start[c]:vol.cell_start[c + 1]] for c in cells]
+            rows = np.concatenate([rows] + [p.astype(np.int64) for p in parts])
+        gid = np.unique(perm[rows])
+        if skip[l] >= 0:
+            gid = gid[gid != skip[l]]
+        if gid.size == 0:
+            continue
+        c = _contributions(vol.means, vol.whiten, vol.opacity, gid, np.broadcast_to(p0[l], (len(gid), 3)),
+                           np.broadcast_to(p1[l] - p0[l], (len(gid), 3)), cut_sigma ** 2)
+        tau[l, 0] = c[cls[gid] == 0].sum()
+        tau[l, 1] = c[cls[gid] == 1].sum()
+    return tau
+
+
+def optical_depth(vol: SplatVolume, p0, p1, classes=None, skip=None, backend: str = "auto",
+                  cut_sigma: float = CUT_SIGMA, stop1: float = math.inf) -> np.ndarray:
+    """tau [L, 2]: optical depth of each segment p0[l] -> p1[l] ([L, 3] each) through the volume's Gaussians of class 0
+    and of class 1 (``classes`` [N] 0/1, default all 0); ``skip`` [L]: a Gaussian each segment ignores (-1: none).
+    backend: "auto" (compiled walk when it loads), "native" or "python" (optical_depth_python: always whole sums).
+    stop1: the compiled walk of a segment may stop once its class-1 depth exceeds this (both sums are then partial;
+    its light is below exp(-stop1) anyway): a segment from a subject's sample toward a camera stops inside the subject
+    when the subject hides that sample itself."""
+    from ..native import choose, optical_depth_c
+
+    fn = choose(backend, optical_depth_c, "visibility", "optical depth")
+    if fn is None:
+        return optical_depth_python(vol, p0, p1, classes, skip, cut_sigma)
+    n = len(vol)
+    p0, p1, skip = _checked_segments(p0, p1, skip, n)
+    if len(p0) >= 2**31 - 1:
+        raise InvalidInputError(f"too many segments in one call ({len(p0)}); split them")
+    cls = np.ascontiguousarray(_checked_classes(classes, n)[vol.perm])  # in packed's row order
+    skip = np.ascontiguousarray(np.where(skip >= 0, vol.rank[np.maximum(skip, 0)], -1))
+    tau = np.zeros((len(p0), 2))
+    if len(p0) == 0:
+        return tau
+    dims = np.ascontiguousarray(vol.dims, np.int64)
+    rc = fn(vol.packed.ctypes.data, cls.ctypes.data, n,
+            vol.lo.ctypes.data, vol.cell, dims.ctypes.data, vol.cell_start.ctypes.data, vol.cell_ids.ctypes.data,
+            vol.big.ctypes.data, len(vol.big), float(cut_sigma) ** 2, p0.ctypes.data, p1.ctypes.data,
+            skip.ctypes.data, len(p0), float(stop1), tau.ctypes.data)
+    if rc != 0:
+        raise MemoryError("the compiled optical depth could not allocate its work space")
+    return tau
+
+
+@dataclass
+class SubjectSamples:
+    """Points of a subject to look at: S samples of its Gaussians (or one point for a point subject)."""
+
+    points: np.ndarray  # [S, 3] float64
+    weights: np.ndarray  # [S] float64 > 0
+    ids: np.ndarray  # [S] int64: the volume Gaussian each sample is the mean of (-1: not a Gaussian)
+    members: np.ndarray  # [K] int64: the subject's own Gaussians (class 1); empty for a point
+
+    @classmethod
+    def of_point(cls, point) -> "SubjectSamples":
+        p = np.asarray(point, np.float64).reshape(1, 3)
+        return cls(points=p, weights=np.ones(1), ids=np.full(1, -1, np.int64), members=np.zeros(0, np.int64))
+
+    @classmethod
+    def of_members(cls, vol: SplatVolume, members, n_samples: int = 32, seed: int = 0) -> "SubjectSamples":
+        """n_samples of the Gaussians ``members`` (indices [K] into the volume), at their means, drawn with
+        probability proportional to opacity x the area of their two largest axes (what they cover on screen),
+        deterministic for a seed; repeated draws add weight. (Points drawn within each Gaussian instead agreed worse
+        with rendered label images: tests/planner/geometry/test_visibility.py.)"""
+        ids = np.asarray(members, np.int64).reshape(-1)
+        if ids.size > 1 and not bool(np.all(ids[1:] > ids[:-1])):  # sorted and unique already: skip the sort
+            ids = np.unique(ids)
+        if ids.size == 0:
+            raise InvalidInputError("the subject has no Gaussians")
+        if ids[0] < 0 or ids[-1] >= len(vol):
+            raise InvalidInputError(f"subject Gaussian ids must be in [0, {len(vol)})")
+        s = np.sort(1.0 / np.linalg.norm(vol.whiten[ids], axis=2), axis=1)  # [K, 3] sigmas (row norms of whiten)
+        w = vol.opacity[ids] * s[:, 1] * s[:, 2]
+        pick = np.random.default_rng(seed).choice(ids.size, size=int(n_samples), p=w / w.sum())
+        u, counts = np.unique(pick, return_counts=True)
+        return cls(points=vol.means[ids[u]].copy(), weights=counts.astype(np.float64), ids=ids[u].astype(np.int64),
+                   members=ids)
+
+    def classes(self, n: int) -> np.ndarray:
+        """uint8 [n]: 1 for the subject's own Gaussians."""
+        c = np.zeros(n, np.uint8)
+        c[self.members] = 1
+        return c
+
+
+def subject_visibility(vol: SplatVolume, cameras, subject: SubjectSamples, backend: str = "auto") -> np.ndarray:
+    """Visible fraction [M] in [0, 1] of the subject from each camera [M, 3] (module docstring): through the whole splat
+    relative to the subject rendered alone. A camera from which the subject alone shows nothing (inside it) gets 0."""
+    cam = np.asarray(cameras, np.float64).reshape(-1, 3)
+    m, s = len(cam), len(subject.points)
+    # from each sample toward the camera: the subject's own Gaussians come first, and a sample the subject hides
+    # itself stops there (STOP_SELF) instead of walking the whole way
+    p0 = np.tile(subject.points, (m, 1))  # [M * S, 3]
+    p1 = np.repeat(cam, s, axis=0)
+    skip = np.tile(subject.ids, m)
+    tau = optical_depth(vol, p0, p1, subject.classes(len(vol)), skip, backend=backend,
+                        stop1=STOP_SELF).reshape(m, s, 2)
+    alone = subject.weights[None] * np.exp(-tau[:, :, 1])  # [M, S]
+    seen = alone * np.exp(-tau[:, :, 0])
+    den = alone.sum(1)
+    return np.where(den > 1e-12 * subject.weights.sum(), seen.sum(1) / np.maximum(den, 1e-300), 0.0)

@@ -1,0 +1,132 @@
+/* Optical depth of segments through semi-transparent Gaussians (geometry/visibility.py), compiled.
+
+   Each Gaussian j is (mean mu_j, whitening W_j = diag(1 / sigma_j) R_j^T as 9 row-major doubles, opacity o_j,
+   class c_j in {0, 1}). Along the segment x(t) = p0 + t (p1 - p0), t in [0, 1], its alpha is the 3D ray-tracing
+   approximation of the splat's alpha: a_j = min(o_j exp(-m^2 / 2), ALPHA_MAX), m^2 = min_t |W_j (x(t) - mu_j)|^2,
+   counted only for m^2 < cut2 (cut2 = (cut-off sigmas)^2); the segment's optical depth in class c is
+   sum_j -log(1 - a_j) over the Gaussians of that class it meets. Gaussians are found in a uniform grid of cells
+   (CSR: cell_start [C + 1], cell_ids [E]) that lists every Gaussian whose cut-off box meets the cell, plus a list of
+   big Gaussians tested for every segment; a stamp per Gaussian makes each count once per segment. The walk visits
+   every cell the segment passes (Amanatides-Woo), so it finds every Gaussian a brute-force loop finds: the point of
+   the segment closest to a Gaussian lies in its cut-off box, hence in a visited cell that lists it.
+
+   The same float64 arithmetic as visibility.py's optical_depth_python, term by term. */
+#if defined(__clang__)
+#pragma clang fp contract(off)
+#elif defined(__GNUC__)
+#pragma GCC optimize("fp-contract=off")
+#endif
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+
+#define ALPHA_MAX 0.99
+
+/* packed [N, 13]: mean (3), whitening rows (9), opacity (1): one Gaussian's numbers together in memory */
+static inline void add_gaussian(int64_t j, const double *p0, const double *d, const double *packed,
+                                const uint8_t *cls, double cut2, double *tau) {
+    const double *mu = packed + 13 * j;
+    const double *w = mu + 3;
+    double e0 = p0[0] - mu[0], e1 = p0[1] - mu[1], e2 = p0[2] - mu[2];
+    double u[3], v[3];
+    for (int r = 0; r < 3; r++) {
+        u[r] = (w[3 * r] * e0 + w[3 * r + 1] * e1) + w[3 * r + 2] * e2;
+        v[r] = (w[3 * r] * d[0] + w[3 * r + 1] * d[1]) + w[3 * r + 2] * d[2];
+    }
+    double vv = (v[0] * v[0] + v[1] * v[1]) + v[2] * v[2];
+    double uv = (u[0] * v[0] + u[1] * v[1]) + u[2] * v[2];
+    double t = vv > 0.0 ? -uv / vv : 0.0;
+    if (t < 0.0) t = 0.0;
+    if (t > 1.0) t = 1.0;
+    double q0 = u[0] + t * v[0], q1 = u[1] + t * v[1], q2 = u[2] + t * v[2];
+    double m2 = (q0 * q0 + q1 * q1) + q2 * q2;
+    if (!(m2 < cut2)) return;
+    double a = mu[12] * exp(-0.5 * m2);
+    if (a > ALPHA_MAX) a = ALPHA_MAX;
+    tau[cls[j] ? 1 : 0] += -log1p(-a);
+}
+
+/* tau [L, 2]: optical depth of segment l (p0[l] -> p1[l]) in class 0 and class 1; skip[l] >= 0: a Gaussian that
+   segment l ignores (its own target), -1: none. The walk of a segment stops once its class-1 depth exceeds stop1
+   (its light is then below exp(-stop1) in any case; both sums are then partial, class 1's still above stop1).
+   Returns 0, or -1 on bad arguments / no memory. */
+int64_t cn_optical_depth(const double *packed, const uint8_t *cls, int64_t N,
+                         const double *lo, double cell, const int64_t *dims, const int64_t *cell_start,
+                         const int32_t *cell_ids, const int32_t *big, int64_t n_big, double cut2,
+                         const double *p0s, const double *p1s, const int64_t *skip, int64_t L, double stop1, double *tau) {
+    if (cell <= 0.0 || N < 0 || L < 0) return -1;
+    int32_t *stamp = (int32_t *)calloc((size_t)(N > 0 ? N : 1), sizeof(int32_t));
+    if (!stamp) return -1;
+    const int64_t X = dims[0], Y = dims[1], Z = dims[2];
+    for (int64_t l = 0; l < L; l++) {
+        const double *p0 = p0s + 3 * l, *p1 = p1s + 3 * l;
+        double d[3] = {p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2]};
+        double *tl = tau + 2 * l;
+        tl[0] = 0.0;
+        tl[1] = 0.0;
+        const int32_t mark = (int32_t)(l % 2147483647) + 1;  /* unique within a call of < 2^31 segments */
+        if (skip[l] >= 0 && skip[l] < N) stamp[skip[l]] = mark;
+        for (int64_t b = 0; b < n_big; b++) {
+            int64_t j = big[b];
+            if (stamp[j] == mark) continue;
+            stamp[j] = mark;
+            add_gaussian(j, p0, d, packed, cls, cut2, tl);
+        }
+        if (tl[1] > stop1) continue;
+        /* clip the segment to the grid box [lo, lo + dims * cell] (slab test), then walk its cells */
+        double t0 = 0.0, t1 = 1.0;
+        int inside = 1;
+        for (int a = 0; a < 3 && inside; a++) {
+            double hi = lo[a] + (double)dims[a] * cell;
+            if (d[a] == 0.0) {
+                if (p0[a] < lo[a] || p0[a] > hi) inside = 0;
+            } else {
+                double ta = (lo[a] - p0[a]) / d[a], tb = (hi - p0[a]) / d[a];
+                if (ta > tb) { double s = ta; ta = tb; tb = s; }
+                if (ta > t0) t0 = ta;
+                if (tb < t1) t1 = tb;
+                if (t0 > t1) inside = 0;
+            }
+        }
+        if (!inside) continue;
+        int64_t idx[3], step[3];
+        double tmax[3], tdelta[3];
+        for (int a = 0; a < 3; a++) {
+            double x = p0[a] + t0 * d[a];
+            int64_t i = (int64_t)floor((x - lo[a]) / cell);
+            if (i < 0) i = 0;
+            if (i >= dims[a]) i = dims[a] - 1;
+            idx[a] = i;
+            if (d[a] > 0.0) {
+                step[a] = 1;
+                tmax[a] = (lo[a] + (double)(i + 1) * cell - p0[a]) / d[a];
+                tdelta[a] = cell / d[a];
+            } else if (d[a] < 0.0) {
+                step[a] = -1;
+                tmax[a] = (lo[a] + (double)i * cell - p0[a]) / d[a];
+                tdelta[a] = -cell / d[a];
+            } else {
+                step[a] = 0;
+                tmax[a] = INFINITY;
+                tdelta[a] = INFINITY;
+            }
+        }
+        for (;;) {
+            int64_t c = (idx[0] * Y + idx[1]) * Z + idx[2];
+            for (int64_t e = cell_start[c]; e < cell_start[c + 1]; e++) {
+                int64_t j = cell_ids[e];
+                if (stamp[j] == mark) continue;
+                stamp[j] = mark;
+                add_gaussian(j, p0, d, packed, cls, cut2, tl);
+            }
+            if (tl[1] > stop1) break;
+            int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
+            if (tmax[a] > t1) break;
+            idx[a] += step[a];
+            if (idx[a] < 0 || idx[a] >= (a == 0 ? X : (a == 1 ? Y : Z))) break;
+            tmax[a] += tdelta[a];
+        }
+    }
+    free(stamp);
+    return 0;
+}

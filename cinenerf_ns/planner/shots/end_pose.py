@@ -1,0 +1,296 @@
+"""Where a shot ends: a free viewpoint near the go-to object with a good view of the look-at subject.
+
+"Go to X, look at Y" with X and Y objects means: end near X, seeing Y well. The camera is not sent into X's centre;
+viewpoints are sampled around the subject Y at the distances that give the framing's size (framing.py), in
+directions between slightly below and well above eye level, plus directions toward X. A viewpoint is kept when it is
+in a free voxel of the occupancy grid (so the camera ball there is proven clear) of the start's free component,
+outside X's and Y's boxes, and inside the planning region. Each is scored (lower is better) by
+
+    w_size * framing.size_cost  +  w_whole * (subject cut off)  +  w_goto * distance to X's box / aim distance
+    + w_elevation * ((elevation - eye) / 45 deg)^2  (+ w_facing * (1 - cos(angle to the facing direction)) / 2)
+
+and the best ``evaluated`` of them also by how much of Y is seen through the splat (geometry/visibility.py, the
+alpha-composited transmittance to samples of Y's Gaussians) and how much of the frame X fills:
+
+    + w_visibility * (1 - visible fraction)  +  w_goto_fill * max(0, X's frame coverage - GOTO_FILL_FREE).
+
+The best viewpoints, at least ``min_separation_deg`` apart around Y, are the end poses (ranked candidates each get
+one). When X and Y are the same object ("a good view of X"), there is no distance term; the facing direction (the
+start region's centre as seen from Y) is preferred instead.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, List, Optional
+
+import numpy as np
+
+from ..errors import InvalidInputError
+from ..geometry.visibility import SplatVolume, SubjectSamples, subject_visibility
+from .framing import FramingConfig, project, size_cost, subject_size
+from .target_object import TargetObject
+
+if TYPE_CHECKING:
+    from .planner import Planner
+
+GOTO_FILL_FREE = 0.25
+"""The go-to object may cover this fraction of the last frame at no cost."""
+COVERAGE_RASTER = (16, 9)
+"""Cells (across, down) of the coarse raster on which the go-to object's frame coverage is counted."""
+
+
+@dataclass
+class EndPoseConfig:
+    """How end poses are sampled and scored (module docstring)."""
+
+    directions: int = 160
+    """Directions around the subject (a Fibonacci sphere, before the elevation limits)."""
+    min_elevation_deg: float = -15.0
+    """Lowest view elevation (camera below the subject looking up), degrees."""
+    max_elevation_deg: float = 60.0
+    """Highest view elevation, degrees."""
+    eye_elevation_deg: float = 15.0
+    """Preferred elevation (a camera slightly above the subject, looking down a little)."""
+    evaluated: int = 16
+    """Best viewpoints by the cheap terms whose visibility and go-to coverage are computed."""
+    samples: int = 16
+    """Samples of the subject's Gaussians for the visibility."""
+    min_separation_deg: float = 25.0
+    """End poses of different candidates are at least this far apart as seen from the subject."""
+    w_visibility: float = 6.0
+    w_size: float = 1.0
+    w_whole: float = 10.0
+    w_goto: float = 0.5
+    w_elevation: float = 0.3
+    w_goto_fill: float = 4.0
+    w_facing: float = 0.5
+
+    def validate(self) -> None:
+        for k in ("directions", "evaluated", "samples"):
+            v = getattr(self, k)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= 100_000:
+                raise InvalidInputError(f"EndPoseConfig.{k} must be an integer in [1, 100000], got {v!r}")
+        for k, v in self.__dict__.items():
+            if isinstance(v, float) and not math.isfinite(v):
+                raise InvalidInputError(f"EndPoseConfig.{k} must be finite, got {v!r}")
+            if k.startswith("w_") and v < 0:
+                raise InvalidInputError(f"EndPoseConfig.{k} must be >= 0, got {v!r}")
+        if not -90 <= self.min_elevation_deg < self.max_elevation_deg <= 90:
+            raise InvalidInputError("EndPoseConfig elevations must satisfy -90 <= min < max <= 90 degrees")
+
+
+@dataclass
+class EndPose:
+    """One chosen viewpoint and why."""
+
+    point: np.ndarray  # [3]
+    cost: float
+    visibility: float  # fraction of the subject seen through the splat
+    size: float  # the subject's size in the frame (framing.py)
+    whole: bool  # the subject is whole in the frame
+    goto_distance: float  # from the go-to object's box (0 for "a good view of X")
+    goto_fill: float  # fraction of the frame the go-to object covers
+    elevation_deg: float
+
+    def to_dict(self) -> dict:
+        return {"point": self.point.tolist(), "cost": self.cost, "visibility": self.visibility, "size": self.size,
+                "whole_in_frame": self.whole, "goto_distance": self.goto_distance, "goto_fill": self.goto_fill,
+                "elevation_deg": self.elevation_deg}
+
+
+@dataclass
+class EndPoseChoice:
+    """The end poses of a request (best first) and what was considered."""
+
+    poses: List[EndPose]
+    considered: int  # viewpoints sampled
+    feasible: int  # free, reachable, outside the objects, in the region
+    framing: str
+    ms: float
+    notes: List[str] = field(default_factory=list)
+
+    def why(self, k: int = 0) -> str:
+        if not self.poses:
+            return (f"no free viewpoint of the {self.considered} sampled around the subject is reachable; "
+                    + "; ".join(self.notes))
+        p = self.poses[min(k, len(self.poses) - 1)]
+        return (f"end pose chosen from {self.feasible} free, reachable viewpoints of {self.considered}: the subject "
+                f"{100 * p.visibility:.0f}% visible, size {p.size:.2f} ({self.framing}), "
+                + ("whole in frame" if p.whole else "cut off by the frame edge")
+                + (f", {p.goto_distance:.2f} from the go-to object" if p.goto_distance > 0 else ""))
+
+    def to_dict(self) -> dict:
+        return {"framing": self.framing, "considered": self.considered, "feasible": self.feasible,
+                "ms": self.ms, "poses": [p.to_dict() for p in self.poses], "notes": self.notes, "why": self.why()}
+
+
+def visibility_volume(planner: "Planner") -> SplatVolume:
+    """The prepared scene's SplatVolume over the planning region grown by 5% (built once, kept in prep.volume)."""
+    prep = planner.ready()
+    if prep.volume is None:
+        lo, hi = planner.region()
+        pad = 0.05 * float((hi - lo).max())
+        prep.volume = SplatVolume.build(planner.scene, lo - pad, hi + pad)
+    return prep.volume
+
+
+def fibonacci_directions(n: int) -> np.ndarray:
+    """n unit vectors [n, 3] spread evenly on the sphere (z is the pole)."""
+    i = np.arange(n) + 0.5
+    z = 1 - 2 * i / n
+    r = np.sqrt(np.maximum(0.0, 1 - z * z))
+    phi = i * math.pi * (3 - math.sqrt(5))
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], 1)
+
+
+def _to_up(dirs: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """Rotate directions [n, 3] whose pole is +z so that their pole is ``up``."""
+    z = np.array([0.0, 0.0, 1.0])
+    v, c = np.cross(z, up), float(z @ up)
+    if np.linalg.norm(v) < 1e-12:
+        return dirs if c > 0 else -dirs
+    vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    rot = np.eye(3) + vx + vx @ vx / (1 + c)
+    return dirs @ rot.T
+
+
+def _directions(subject: TargetObject, goto: Optional[TargetObject], up: np.ndarray, cfg: EndPoseConfig) -> np.ndarray:
+    """Unit directions [D, 3] from the subject within the elevation limits: the sphere's, plus toward the go-to."""
+    d = _to_up(fibonacci_directions(cfg.directions), up)
+    extra = []
+    if goto is not None:
+        g = goto.centre - subject.centre
+        g = g - (g @ up) * up  # the go-to's bearing, at the eye elevation and around it
+        if np.linalg.norm(g) > 1e-9:
+            g /= np.linalg.norm(g)
+            side = np.cross(up, g)
+            for az in (-30, -15, 0, 15, 30):
+                for el in (cfg.eye_elevation_deg, cfg.eye_elevation_deg + 20):
+                    a, e = math.radians(az), math.radians(el)
+                    extra.append(math.cos(e) * (math.cos(a) * g + math.sin(a) * side) + math.sin(e) * up)
+    if extra:
+        d = np.concatenate([np.array(extra), d])
+    el = np.degrees(np.arcsin(np.clip(d @ up, -1, 1)))
+    return d[(el >= cfg.min_elevation_deg) & (el <= cfg.max_elevation_deg)]
+
+
+def _box_distance(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Euclidean distance [P] from points [P, 3] to the box [lo, hi] (0 inside)."""
+    return np.linalg.norm(np.maximum(0.0, np.maximum(lo - points, points - hi)), axis=1)
+
+
+def frame_coverage(cameras: np.ndarray, look_at: np.ndarray, up: np.ndarray, obj: TargetObject,
+                   framing: FramingConfig, max_points: int = 128) -> np.ndarray:
+    """Approximate fraction [M] of each camera's frame that an object covers: cells of a COVERAGE_RASTER whose centre
+    lies within (pad + spacing) of one of its extent points, projected (points behind the camera are left out)."""
+    pts = obj.extent if len(obj.extent) <= max_points else obj.extent[:: int(math.ceil(len(obj.extent) / max_points))]
+    x, y, depth = project(cameras, look_at, up, pts, framing)  # [M, P]
+    th, tv = framing.tan_half()
+    r = obj.pad + obj.spacing
+    nx, ny = COVERAGE_RASTER
+    cx = (np.arange(nx) + 0.5) / nx * 2 - 1
+    cy = (np.arange(ny) + 0.5) / ny * 2 - 1
+    out = np.zeros(len(cameras))
+    for m in range(len(cameras)):
+        front = depth[m] > 1e-6
+        if not front.any():
+            continue
+        z = depth[m, front]
+        rx, ry = r / (z * th), r / (z * tv)  # [P'] the disc's half axes in half-frame units
+        dx = (cx[:, None] - x[m, front][None]) / rx[None]  # [nx, P']
+        dy = (cy[:, None] - y[m, front][None]) / ry[None]  # [ny, P']
+        inside = (dx[None, :, :] ** 2 + dy[:, None, :] ** 2 <= 1.0).any(-1)  # [ny, nx]
+        out[m] = float(inside.mean())
+    return out
+
+
+def choose_end_poses(planner: "Planner", subject: TargetObject, goto: Optional[TargetObject], framing: FramingConfig,
+                     component: int, k: int = 1, config: Optional[EndPoseConfig] = None,
+                     facing: Optional[np.ndarray] = None) -> EndPoseChoice:
+    """Up to ``k`` end poses (best first, module docstring) for a shot that looks at ``subject`` and ends near
+    ``goto`` (None: "a good view of the subject"), reachable in free component ``component`` of the prepared grid.
+    ``facing`` [3]: a unit direction from the subject that views are preferred from when there is no go-to object."""
+    t0 = time.perf_counter()
+    cfg = config or EndPoseConfig()
+    cfg.validate()
+    framing.validate()
+    prep = planner.ready()
+    up = np.asarray(planner.config.up, np.float64)
+    up = up / np.linalg.norm(up)
+    lo_b, aim, hi_b = framing.band
+    dirs = _directions(subject, goto, up, cfg)  # [D, 3]
+    c = subject.centre
+    # distance for the aimed-for size along each direction: size ~ 1 / distance, two corrections from a first guess
+    th, tv = framing.tan_half()
+    d = np.full(len(dirs), subject.radius() / (aim * min(th, tv)))
+    for _ in range(2):
+        s, _ = subject_size(c[None] + d[:, None] * dirs, c, up, subject.extent, subject.pad, framing)
+        d = d * np.clip(s / aim, 0.25, 4.0)
+    # the aimed-for size, sizes in the band, and beyond it (rooms too small for a wide view of a large subject still
+    # get the closest size they allow)
+    fills = (aim, 0.5 * (lo_b + aim), 0.5 * (aim + hi_b), lo_b, hi_b, 0.7 * lo_b, 0.5 * lo_b, min(0.95, 1.15 * hi_b))
+    pts = np.concatenate([c[None] + (d * aim / f)[:, None] * dirs for f in fills])  # [3D, 3]
+    dir_all = np.concatenate([dirs] * len(fills))
+    considered = len(pts)
+    notes: List[str] = []
+    # feasibility: inside the region, a free voxel of the component (the camera ball is proven clear there), outside
+    # the subject's and the go-to's boxes
+    lo, hi = planner.region()
+    r = float(planner.scene.camera_radius)
+    keep = np.all((pts >= lo + r) & (pts <= hi - r), axis=1)
+    ijk = np.floor((pts - lo) / float(prep.grid.voxel_size)).astype(np.int64)
+    shape = np.array(prep.astar_grid.labels.shape)
+    ijk_c = np.clip(ijk, 0, shape - 1)
+    keep &= np.all((ijk >= 0) & (ijk < shape), axis=1)
+    keep &= prep.astar_grid.labels[ijk_c[:, 0], ijk_c[:, 1], ijk_c[:, 2]] == component
+    for obj in (subject, goto):
+        if obj is not None and not obj.is_point:
+            blo, bhi = obj.box()
+            keep &= _box_distance(pts, blo, bhi) > r
+    pts, dir_all = pts[keep], dir_all[keep]
+    if len(pts) == 0:
+        notes.append("every sampled viewpoint is occupied, unreachable from the start, inside the go-to or subject, "
+                     "or outside the planning region")
+        return EndPoseChoice([], considered, 0, framing.framing, 1e3 * (time.perf_counter() - t0), notes)
+    size, whole = subject_size(pts, c, up, subject.extent, subject.pad, framing)
+    elev = np.degrees(np.arcsin(np.clip(dir_all @ up, -1, 1)))
+    cost = (cfg.w_size * size_cost(size, framing) + cfg.w_whole * (~whole)
+            + cfg.w_elevation * ((elev - cfg.eye_elevation_deg) / 45.0) ** 2)
+    gdist = np.zeros(len(pts))
+    if goto is not None:
+        glo, ghi = goto.box()
+        gdist = _box_distance(pts, glo, ghi)
+        # in units of the subject's distance from the go-to object: halfway between them costs w_goto / 2
+        scale = max(float(_box_distance(c[None], glo, ghi)[0]), float(np.median(d)), 1e-6)
+        cost = cost + cfg.w_goto * gdist / scale
+    elif facing is not None:
+        f = np.asarray(facing, np.float64)
+        if np.linalg.norm(f) > 1e-9:
+            cost = cost + cfg.w_facing * 0.5 * (1 - dir_all @ (f / np.linalg.norm(f)))
+    top = np.argsort(cost, kind="stable")[: cfg.evaluated]
+    vol = visibility_volume(planner)
+    samples = (SubjectSamples.of_point(c) if subject.is_point
+               else SubjectSamples.of_members(vol, subject.members, cfg.samples))
+    vis = subject_visibility(vol, pts[top], samples)
+    gfill = (frame_coverage(pts[top], c, up, goto, framing) if goto is not None and not goto.is_point
+             else np.zeros(len(top)))
+    total = cost[top] + cfg.w_visibility * (1 - vis) + cfg.w_goto_fill * np.maximum(0.0, gfill - GOTO_FILL_FREE)
+    order = np.argsort(total, kind="stable")
+    chosen: List[int] = []
+    cos_sep = math.cos(math.radians(cfg.min_separation_deg))
+    for i in order:  # the best, then the next best far enough (as seen from the subject) from those chosen
+        if len(chosen) >= k:
+            break
+        if all(float(dir_all[top[i]] @ dir_all[top[j]]) < cos_sep for j in chosen):
+            chosen.append(int(i))
+    for i in order:  # too few distinct ones: the next best in order
+        if len(chosen) >= k:
+            break
+        if int(i) not in chosen:
+            chosen.append(int(i))
+    poses = [EndPose(point=pts[top[i]].copy(), cost=float(total[i]), visibility=float(vis[i]), size=float(size[top[i]]),
+                     whole=bool(whole[top[i]]), goto_distance=float(gdist[top[i]]), goto_fill=float(gfill[i]),
+                     elevation_deg=float(elev[top[i]])) for i in chosen]
+    return EndPoseChoice(poses, considered, int(keep.sum()), framing.framing, 1e3 * (time.perf_counter() - t0), notes)

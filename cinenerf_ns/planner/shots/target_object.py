@@ -1,0 +1,110 @@
+"""A go-to or look-at target as the planner sees it: a point, or an object (its Gaussians in the obstacle scene)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+import torch
+
+from ..errors import InvalidInputError
+from ..scene.ellipsoids import EllipsoidScene
+
+EXTENT_POINTS = 512
+"""At most this many of an object's Gaussian means describe its extent (framing, frame coverage)."""
+POINT_RADIUS = 0.1
+"""Radius given to a point target's extent when none is said (scene units; cinesplat-plan --object-radius)."""
+
+
+@dataclass
+class TargetObject:
+    """A target: ``centre`` [3] (where the camera looks or goes), its Gaussians ``members`` [K] (indices into the
+    obstacle scene; empty for a point), ``extent`` [P, 3] points that outline it, grown by ``pad`` (a median sigma of
+    its Gaussians; for a point, 0) and ``spacing`` (the typical gap between extent points)."""
+
+    name: str
+    centre: np.ndarray
+    members: np.ndarray
+    extent: np.ndarray
+    pad: float
+    spacing: float
+
+    @property
+    def is_point(self) -> bool:
+        return self.members.size == 0
+
+    def box(self) -> tuple:
+        """(lo [3], hi [3]) of the extent grown by the pad."""
+        return self.extent.min(0) - self.pad, self.extent.max(0) + self.pad
+
+    def radius(self) -> float:
+        """Largest distance from the centre to an extent point, pad included."""
+        return float(np.linalg.norm(self.extent - self.centre[None], axis=1).max() + self.pad)
+
+    @classmethod
+    def point(cls, p, radius: float = POINT_RADIUS, name: str = "point") -> "TargetObject":
+        """A point target with a small ball of ``radius`` as its extent (its six axis points)."""
+        c = np.asarray(p, np.float64).reshape(3)
+        if not (np.all(np.isfinite(c)) and np.isfinite(radius) and radius >= 0):
+            raise InvalidInputError(f"a point target must be finite with a radius >= 0, got {c.tolist()}, {radius}")
+        ext = c[None] + radius * np.concatenate([np.eye(3), -np.eye(3)])
+        return cls(name=name, centre=c, members=np.zeros(0, np.int64), extent=ext, pad=0.0, spacing=max(radius, 1e-6))
+
+    @classmethod
+    def of_members(cls, scene: EllipsoidScene, members, centre, name: str = "object",
+                   seed: int = 0) -> "TargetObject":
+        """An object from its Gaussians ``members`` (bool [N] mask or indices into the obstacle scene)."""
+        m = np.asarray(members)
+        if m.dtype == bool:
+            if m.shape != (len(scene),):
+                raise InvalidInputError(f"an object mask must be [N={len(scene)}], got {m.shape}")
+            m = np.flatnonzero(m)
+        m = _sorted_unique(m.astype(np.int64).reshape(-1))
+        if m.size == 0:
+            raise InvalidInputError(f"the object '{name}' has no Gaussians among the obstacles")
+        if m[0] < 0 or m[-1] >= len(scene):
+            raise InvalidInputError(f"object member ids must be in [0, {len(scene)}), got {m[0]}..{m[-1]}")
+        idx = torch.as_tensor(m, device=scene.means.device)
+        means = scene.means.detach().index_select(0, idx).cpu().double().numpy()  # [K, 3] (only the members: cheap)
+        radii = scene.radii.detach().index_select(0, idx).cpu().double().numpy()
+        opac = scene.opacities.detach().index_select(0, idx).cpu().double().numpy()
+        ext = means if m.size <= EXTENT_POINTS else means[np.sort(np.random.default_rng(seed).choice(
+            m.size, EXTENT_POINTS, replace=False))]
+        sigma = radii / (scene.beta * np.maximum(opac, 1e-6))[:, None]
+        pad = float(np.median(sigma.max(1)))
+        spacing = _spacing(ext)
+        c = np.asarray(centre, np.float64).reshape(3) if centre is not None else means.mean(0)
+        return cls(name=name, centre=c, members=m, extent=ext, pad=pad, spacing=spacing)
+
+
+def _sorted_unique(ids: np.ndarray) -> np.ndarray:
+    """ids [K] sorted without repeats (no sort when they already are: masks' flatnonzero)."""
+    if ids.size > 1 and not bool(np.all(ids[1:] > ids[:-1])):
+        return np.unique(ids)
+    return ids
+
+
+def _spacing(points: np.ndarray) -> float:
+    """Median distance from each point [P, 3] to its nearest other point (0 for fewer than two points)."""
+    if len(points) < 2:
+        return 0.0
+    from scipy.spatial import cKDTree
+
+    d, _ = cKDTree(points).query(points, k=2)
+    return float(np.median(d[:, 1]))
+
+
+def scene_members(scene: EllipsoidScene, source_mask: Optional[np.ndarray]) -> Optional[np.ndarray]:
+    """Indices [K] of the obstacle scene's Gaussians whose source Gaussian (scene.source_index) is in ``source_mask``
+    (bool over the splat the scene was built from); None when there is no mask."""
+    if source_mask is None:
+        return None
+    mask = np.asarray(source_mask, bool).reshape(-1)
+    if scene.source_index is None:
+        if mask.shape != (len(scene),):
+            raise InvalidInputError(f"object mask has {mask.shape[0]} entries for a scene of {len(scene)} Gaussians")
+        return np.flatnonzero(mask)
+    src = scene.source_index.detach().cpu().numpy()
+    if src.size and src.max() >= mask.shape[0]:
+        raise InvalidInputError(f"object mask has {mask.shape[0]} entries, the scene's Gaussians come from more")
+    return np.flatnonzero(mask[src])

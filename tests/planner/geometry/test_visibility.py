@@ -1,0 +1,148 @@
+"""Visibility through the splat (geometry/visibility.py): the compiled walk and the numpy path against the brute-force
+float64 reference on random scenes, the subject's visible fraction against rendered label images (the project's
+pure-torch rasteriser), and specific input errors."""
+import math
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings, strategies as st
+
+from cinenerf_ns.planner import native
+from cinenerf_ns.planner.errors import InvalidInputError
+from cinenerf_ns.planner.geometry.visibility import (
+    SplatVolume,
+    SubjectSamples,
+    optical_depth,
+    optical_depth_reference,
+    subject_visibility,
+)
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
+
+BACKENDS = ["python"] + (["native"] if native.optical_depth_c() is not None else [])
+
+
+def _scene(rng, n, spread=1.0, log_scale=(-3.5, -1.5), opacity=(0.2, 0.99)):
+    means = torch.as_tensor(rng.uniform(-spread, spread, (n, 3)))
+    quats = torch.as_tensor(rng.normal(size=(n, 4)))
+    log_scales = torch.as_tensor(rng.uniform(*log_scale, (n, 3)))
+    op = rng.uniform(*opacity, n)
+    logits = torch.as_tensor(np.log(op / (1 - op)))
+    return EllipsoidScene.from_splat(means, quats, log_scales, logits, SceneConfig(opacity_floor=0.0, min_axis=1e-9))
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 300), box=st.sampled_from([1.0, 0.6, 2.0]),
+       backend=st.sampled_from(BACKENDS))
+def test_optical_depth_matches_the_reference(seed, n, box, backend):
+    rng = np.random.default_rng(seed)
+    sc = _scene(rng, n)
+    vol = SplatVolume.build(sc, -box * np.ones(3), box * np.ones(3))
+    # segments inside the box (the volume clips to it), a few of them degenerate
+    p0 = rng.uniform(-box, box, (40, 3))
+    p1 = np.where(rng.random((40, 1)) < 0.1, p0, rng.uniform(-box, box, (40, 3)))
+    cls = rng.random(len(sc)) < 0.4
+    skip = rng.integers(-1, len(sc), 40)
+    got = optical_depth(vol, p0, p1, cls, skip, backend=backend)
+    ref = optical_depth_reference(vol, p0, p1, cls, skip)
+    np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-12)
+
+
+def test_big_gaussians_are_tested_for_every_segment():
+    rng = np.random.default_rng(3)
+    small, big = _scene(rng, 400, log_scale=(-4.5, -4.0)), _scene(rng, 5, log_scale=(-0.5, 0.0))
+    sc = EllipsoidScene(torch.cat([small.means, big.means]), torch.cat([small.rotations, big.rotations]),
+                        torch.cat([small.radii, big.radii]), torch.cat([small.opacities, big.opacities]))
+    vol = SplatVolume.build(sc, -np.ones(3), np.ones(3))  # cells sized for the small ones: the big span > MAX_CELLS
+    assert len(vol.big) > 0
+    p0, p1 = rng.uniform(-1, 1, (30, 3)), rng.uniform(-1, 1, (30, 3))
+    for b in BACKENDS:
+        np.testing.assert_allclose(optical_depth(vol, p0, p1, backend=b), optical_depth_reference(vol, p0, p1),
+                                   rtol=1e-9, atol=1e-12)
+
+
+def test_a_wall_hides_and_an_empty_line_does_not():
+    # one opaque Gaussian at the origin, flat along x: a segment through it is attenuated, one beside it is not
+    sc = EllipsoidScene.from_splat(torch.zeros(1, 3, dtype=torch.float64), torch.tensor([[1.0, 0, 0, 0]]),
+                                   torch.log(torch.tensor([[0.01, 0.3, 0.3]])), torch.tensor([6.0]),
+                                   SceneConfig(min_axis=1e-9))
+    vol = SplatVolume.build(sc, -np.ones(3), np.ones(3))
+    tau = optical_depth(vol, np.array([[-0.5, 0, 0], [-0.5, 0.9, 0.9]]), np.array([[0.5, 0, 0], [0.5, 0.9, 0.9]]))
+    o = 1 / (1 + math.exp(-6.0))
+    assert tau[0, 0] == pytest.approx(-math.log1p(-min(o, 0.99)))
+    assert tau[1, 0] == 0.0
+
+
+def _render_visibility(sc, subject_ids, cam, look, fov_deg=60.0, size=96):
+    """Visible fraction of the subject from cam (looking at look) by label rendering with the project's pure-torch
+    rasteriser: subject colour through the whole splat / the subject rendered alone."""
+    from cinenerf_ns.preview.raster_torch import make_scene, render_torch
+
+    opac = sc.opacities.double()
+    sig = sc.radii.double() / (sc.beta * opac[:, None])
+    # rotation -> quaternion wxyz (scenes here are built from unit quaternions; recover them from the matrices)
+    from scipy.spatial.transform import Rotation
+
+    q = Rotation.from_matrix(sc.rotations.double().numpy()).as_quat()  # xyzw
+    quats = torch.as_tensor(np.concatenate([q[:, 3:], q[:, :3]], 1))
+    col = torch.zeros(len(sc), 3, dtype=torch.float64)
+    col[subject_ids, 0] = 1.0
+    full = make_scene(sc.means.double(), quats, sig, opac, col, dtype=torch.float64, drop_transparent=False)
+    sel = torch.as_tensor(subject_ids)
+    alone = make_scene(sc.means.double()[sel], quats[sel], sig[sel], opac[sel], col[sel], dtype=torch.float64,
+                       drop_transparent=False)
+    f = np.asarray(look, float) - cam
+    f /= np.linalg.norm(f)
+    r = np.cross(f, [0, 0, 1.0])
+    r /= np.linalg.norm(r)
+    u = np.cross(r, f)
+    rot = np.stack([r, -u, f])  # OpenCV world -> camera rows: x right, y down, z forward
+    vm = np.eye(4)
+    vm[:3, :3] = rot
+    vm[:3, 3] = -rot @ cam
+    fl = (size / 2) / math.tan(math.radians(fov_deg) / 2)
+    intr = (fl, fl, size / 2, size / 2)
+    rgb, _ = render_torch(full, torch.as_tensor(vm), intr, size, size)
+    _, a = render_torch(alone, torch.as_tensor(vm), intr, size, size)
+    return float(rgb[..., 0].sum() / a.sum())
+
+
+# a small subject (tight cluster of small Gaussians) and a large one (loose cluster of large Gaussians): the estimate
+# (3D peak alpha along segments to 256 samples at the subject's means) against gsplat-style 2D compositing; measured
+# on these views: at most 0.10 apart for the small subject, 0.15 for the large one (documented in visibility.py)
+@pytest.mark.parametrize("subject_scale,tol", [((-3.5, -2.8), 0.12), ((-2.5, -2.0), 0.17)])
+def test_visible_fraction_matches_a_rendered_label_image(subject_scale, tol):
+    rng = np.random.default_rng(7)
+    # subject: a dense cluster at the origin; occluders: a loose screen of Gaussians at x = -0.5 covering part of it
+    n_s = 150
+    means = np.concatenate([rng.normal(0, 0.08 if subject_scale[0] < -3 else 0.2, (n_s, 3)),
+                            np.stack([np.full(60, -0.5), rng.uniform(-0.3, 0.05, 60), rng.uniform(-0.3, 0.3, 60)], 1)])
+    ls = np.concatenate([rng.uniform(*subject_scale, (n_s, 3)), rng.uniform(-3.0, -2.4, (60, 3))])
+    op = np.concatenate([np.full(n_s, 0.9), rng.uniform(0.5, 0.95, 60)])
+    sc = EllipsoidScene.from_splat(torch.as_tensor(means), torch.as_tensor(rng.normal(size=(n_s + 60, 4))),
+                                   torch.as_tensor(ls), torch.as_tensor(np.log(op / (1 - op))),
+                                   SceneConfig(opacity_floor=0.0, min_axis=1e-9))
+    vol = SplatVolume.build(sc, -2 * np.ones(3), 2 * np.ones(3))
+    ids = np.arange(n_s)
+    samples = SubjectSamples.of_members(vol, ids, n_samples=256, seed=1)
+    cams = np.array([[-1.5, 0.0, 0.1], [-1.5, -0.6, 0.0], [-1.2, 0.9, 0.3], [1.5, 0.2, 0.0], [-1.4, -0.1, -0.2]])
+    est = subject_visibility(vol, cams, samples)
+    ref = np.array([_render_visibility(sc, ids, c, np.zeros(3)) for c in cams])
+    assert ref.min() < 0.6 and ref.max() > 0.95  # the cases span hidden and free views
+    np.testing.assert_allclose(est, ref, atol=tol)
+
+
+def test_subject_visibility_of_a_point_and_bad_input():
+    rng = np.random.default_rng(1)
+    sc = _scene(rng, 40, spread=0.2)
+    vol = SplatVolume.build(sc, -np.ones(3), np.ones(3))
+    v = subject_visibility(vol, np.array([[0.9, 0.9, 0.9]]), SubjectSamples.of_point([0.95, 0.95, 0.95]))
+    assert v[0] == pytest.approx(1.0)  # nothing between two points outside the cloud
+    with pytest.raises(InvalidInputError, match="subject Gaussian ids"):
+        SubjectSamples.of_members(vol, [len(sc)])
+    with pytest.raises(InvalidInputError, match="NaN or inf"):
+        optical_depth(vol, np.array([[np.nan, 0, 0]]), np.zeros((1, 3)))
+    with pytest.raises(InvalidInputError, match="classes"):
+        optical_depth(vol, np.zeros((1, 3)), np.ones((1, 3)), classes=np.zeros(3))
+    with pytest.raises(InvalidInputError, match="lo < hi"):
+        SplatVolume.build(sc, np.ones(3), -np.ones(3))
