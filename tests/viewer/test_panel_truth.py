@@ -89,7 +89,7 @@ def test_status_in_words_and_timings_in_details(tmp_path):
     panel.request_plan("chair", "lamp", n_candidates=2).result(10)
     assert any(s == ("Planning: go to 'chair', look at 'lamp'...", "busy") for s in view.statuses)
     text = view.last_status[0]
-    assert text.startswith("Planned 2 shots in ") and not any(w in text for w in ("batch_qp", "_ms", "query_s", "seed"))
+    assert text.startswith("Planned 2 shots: ") and not any(w in text for w in ("batch_qp", "_ms", "query_s", "seed"))
     assert "batch_qp 12 ms" in view.details[-1] and "planning" in view.details[-1]
     panel.close()
 
@@ -141,8 +141,9 @@ def test_no_run_means_no_placeholder_command(tmp_path):
     res = panel.export("take")
     assert res.command is None
     text = view.exports[-1][1]
-    assert "No `ns-render` command: 'procedural:3000' is a generated test room" in text and "<path" not in text
-    assert text.count(str(res.path)) == 1  # the path, once
+    assert "No ns-render command: 'procedural:3000' is a generated test room" in text and "<path" not in text
+    assert view.commands[-1] is None and text.count(f"{tmp_path.name}/camera_paths/take.json") == 1  # the file, once
+    assert str(tmp_path) not in text  # no absolute server path
     panel.close()
 
 
@@ -163,7 +164,9 @@ def test_preview_renders_on_a_thread_and_offers_the_file(tmp_path):
     busy = [t for t, level in view.statuses if level == "busy" and "Rendering a 480x270 preview of candidate 1" in t]
     assert th is not None and len(busy) == 1
     path = tmp_path / "previews" / "take.mp4"
-    assert view.last_status == (f"Preview of candidate 1 written: {path}", "ok") and view.previews[-1] == path
+    shown = f"{tmp_path.name}/previews/take.mp4"  # relative to the output folder's parent
+    assert view.last_status == (f"Preview of candidate 1 written: {shown}. Download it below.", "ok")
+    assert view.previews[-1] == path
     cam, name, w, h, fps = calls[0]
     assert (name, w, h, fps) == ("take", 480, 270, 15) and cam["fps"] == 15 and len(cam["camera_path"]) == 16
     panel.preview("take").join(10)  # a second preview gets its own file

@@ -20,6 +20,7 @@ class FakeView:
         self.statuses: List[tuple] = []
         self.playing: List[bool] = []
         self.exports: List[tuple] = []  # (path or None, text) of every show_export
+        self.commands: List[Any] = []  # the command shown with each show_export (None: none)
         self.inputs: List[tuple] = []  # (goto, look_at) put on screen by each Plan
         self.details: List[str] = []
         self.previews: List[Any] = []  # paths offered (None: offer hidden)
@@ -61,8 +62,9 @@ class FakeView:
         with self.lock:
             self.playing.append(playing)
 
-    def show_export(self, path, text):
+    def show_export(self, path, text, command=None):
         self.exports.append((path, text))
+        self.commands.append(command)
 
     def show_inputs(self, goto, look_at):
         self._rec("inputs", goto, look_at)
