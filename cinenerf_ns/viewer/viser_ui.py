@@ -383,7 +383,7 @@ def push_value(handle: Any) -> None:
     tested on its own."""
     value = handle.value
     handle.value = value + " "  # differs from the value: the client applies it
-    handle._impl.gui_api._websock_interface.flush()
+    handle._impl.gui_api._websock_interface.get_message_buffer().flush()  # the server's, or one page's buffer
     handle.value = value
 
 

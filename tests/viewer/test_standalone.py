@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from viewer_fakes import wait_for
 
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.scene.splat_params import SH_C0, SplatParams
@@ -251,17 +252,6 @@ def test_the_overview_cuts_away_what_lies_above_the_start_region(tmp_path, monke
         v.close()
 
 
-def wait_for(pred, timeout=10.0):
-    import time
-
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.02)
-    return False
-
-
 def test_cli_help():
     env = dict(os.environ, PYTHONPATH=str(REPO))
     r = subprocess.run([sys.executable, "-m", "cinenerf_ns.viewer.standalone", "--help"], capture_output=True,
@@ -367,3 +357,53 @@ def test_ctrl_c_during_the_text_query_warm_up_exits_cleanly(tmp_path):
     assert "viewer exited" in out, text  # a normal return: the warm-up stopped (no os._exit fallback)
     warmed = sum(line.startswith("warming") for line in err)
     assert warmed < 40, text  # stopped early, not after every label
+
+
+def test_host_and_port_are_checked_before_loading(tmp_path, capsys):
+    """127.0.0.1 by default; an address that is not one (999.1.1.1), or not this machine's, fails at once with the
+    option named (viser tried 1,000 ports, silently); a taken port says so; 0.0.0.0 prints a warning."""
+    import time
+
+    from cinenerf_ns.viewer.standalone import check_bind, check_config, check_host, entrypoint, exposure_warning
+
+    assert StandaloneConfig().host == "127.0.0.1"
+    assert StandaloneConfig().output_dir == Path("cinesplat_viewer_exports")
+    for bad in ["999.1.1.1", "", "evil.example", "1.2.3"]:
+        with pytest.raises(InvalidInputError, match="--host"):
+            check_host(bad)
+    t0 = time.monotonic()
+    with pytest.raises(SystemExit) as e:
+        entrypoint(["--host", "999.1.1.1", "--load-config", "demo-tiny"])
+    assert e.value.code == 2 and time.monotonic() - t0 < 10
+    err = capsys.readouterr().err
+    assert "--host '999.1.1.1' is not an IP address" in err and "Traceback" not in err
+    with pytest.raises(InvalidInputError, match="not an address of this machine"):
+        check_bind("203.0.113.7", free_port())  # TEST-NET-3: never one of this machine's
+    with socket.socket() as s:  # a port in use
+        s.bind(("127.0.0.1", 0))
+        s.listen(1)
+        port = s.getsockname()[1]
+        with pytest.raises(InvalidInputError, match=f"--port {port} is already in use"):
+            check_bind("127.0.0.1", port)
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(InvalidInputError, match="--output-dir .* is not a folder"):
+        check_config(StandaloneConfig(output_dir=tmp_path / "file"))
+    assert exposure_warning("127.0.0.1") is None and exposure_warning("::1") is None
+    assert exposure_warning("localhost") is None
+    assert "anyone who can reach this port" in exposure_warning("0.0.0.0")
+
+
+def test_exports_go_to_the_output_folder_never_beside_the_scene(tmp_path, monkeypatch):
+    room, sp = room_splat()
+    scene_dir = tmp_path / "dataset"
+    scene_dir.mkdir()
+    write_3dgs_ply(scene_dir / "scene.ply", sp)
+    monkeypatch.chdir(tmp_path)
+    v = StandaloneViewer(StandaloneConfig(load_config=str(scene_dir / "scene.ply"), port=free_port(),
+                                          host="127.0.0.1"), plan_fn=lambda *a, **k: [])
+    try:
+        assert v.panels.config.output_dir == tmp_path / "cinesplat_viewer_exports"
+        assert v.url.startswith("http://127.0.0.1:")
+    finally:
+        v.close()
+    assert sorted(f.name for f in scene_dir.iterdir()) == ["scene.ply"]

@@ -146,3 +146,13 @@ def camera_looking(position, forward, roll_deg=0.0) -> np.ndarray:
     r = np.deg2rad(roll_deg)
     x, y = np.cos(r) * x + np.sin(r) * y, -np.sin(r) * x + np.cos(r) * y
     return np.c_[x, y, -f, position]
+
+
+def wait_for(pred, timeout: float = 15.0) -> bool:
+    """Poll ``pred`` until true (True) or ``timeout`` seconds (False)."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(0.02)
+    return False
