@@ -239,6 +239,8 @@ class StandaloneConfig:
     network interface: anyone who reaches the port can plan, preview and export; a warning is printed)."""
     output_dir: Path = Path("cinesplat_viewer_exports")
     """Where exported camera paths (camera_paths/) and preview videos (previews/) are written."""
+    max_pages: int = 8
+    """Browser pages served at once (each has its own panel and is sent the whole splat); more are asked to wait."""
     camera_radius: float = SceneConfig.camera_radius
     """Camera body radius in scene units (obstacle model)."""
     safety_margin: float = DEFAULT_SAFETY_MARGIN
@@ -270,7 +272,7 @@ class StandaloneViewer:
         from cinenerf_ns.planner.shots.planner import PlannerConfig
         from cinenerf_ns.planner.trajectory.timing import TimingConfig
 
-        from .panel import PanelConfig
+        from .panel import PanelConfig, ServerLimits
         from .planner_backend import PreparedPlanner
         from .viser_guard import guard_server
         from .viser_ui import attach_cine_panel
@@ -306,7 +308,7 @@ class StandaloneViewer:
                         n_candidates=cfg.n_candidates, scene_note=self.loaded.scene_note),
             scale=cfg.scale, default_goto=self.loaded.default_goto, default_look_at=self.loaded.default_look_at,
             previewer=SplatPreviewer(sp), export_name=f"{self.loaded.name}-shot", start_region=self.loaded.start_region,
-            cameras=self.loaded.cameras,
+            cameras=self.loaded.cameras, limits=ServerLimits(max_clients=cfg.max_pages),
         )
         self.panels.overview_hides.extend(self.splat_above)
         self.panels.use_home_as_initial_camera()  # browsers open (and "Reset View" returns) inside the captured region
@@ -479,6 +481,7 @@ def check_config(cfg: StandaloneConfig) -> None:
     check_number(cfg.grid_resolution, "--grid-resolution", *GRID_RESOLUTION_RANGE, integer=True)
     check_number(cfg.max_speed, "--max-speed", 0, 100, lo_open=True)
     check_number(cfg.n_candidates, "--n-candidates", 1, MAX_CANDIDATES, integer=True)
+    check_number(cfg.max_pages, "--max-pages", 1, 64, integer=True)
     check_number(cfg.max_display_gaussians, "--max-display-gaussians", 1, 50_000_000, integer=True)
     check_number(cfg.scale, "--scale", 0, 1e6, lo_open=True)
     if cfg.device != "cpu" and not str(cfg.device).startswith("cuda"):
