@@ -134,7 +134,21 @@ class ServerGuard:
     # ------------------------------------------------------------------ messages
     def check(self, client_id: int, message: Any, gui: Any) -> bool:
         """Whether ``message`` from ``client_id`` may reach the handlers of ``gui``'s scope (None: the page's GuiApi,
-        looked up when needed)."""
+        looked up when needed). A message too malformed to check is refused."""
+        try:
+            reason = self._refusal(client_id, message, gui)
+        except Exception as err:  # noqa: BLE001 - e.g. a list where a uuid belongs
+            reason = f"malformed {type(message).__name__}: {type(err).__name__}"
+        if reason is None:
+            return True
+        with self._lock:
+            self.refused[reason.split(":")[0]] += 1
+            first = client_id not in self._logged
+            self._logged.add(client_id)
+        (log.warning if first else log.debug)("client %s: message dropped (%s)", client_id, reason)
+        return False
+
+    def _refusal(self, client_id: int, message: Any, gui: Any) -> Optional[str]:
         reason = None
         if client_id in self.refused_clients:
             reason = "origin not allowed"
@@ -154,14 +168,7 @@ class ServerGuard:
                 why = update_refusal(handle, message.updates)
                 if why is not None:
                     reason = f"GuiUpdateMessage refused: {why}"
-        if reason is None:
-            return True
-        with self._lock:
-            self.refused[reason.split(":")[0]] += 1
-            first = client_id not in self._logged
-            self._logged.add(client_id)
-        (log.warning if first else log.debug)("client %s: message dropped (%s)", client_id, reason)
-        return False
+        return reason
 
     # ------------------------------------------------------------------ connections
     async def on_connect(self, conn: Any) -> None:

@@ -313,7 +313,8 @@ class ViserPanelUI:
                                               **kw))
                 top = centre + np.array([0.0, 0.0, size[2] / 2])
                 what = f" ({t.count} Gaussians)" if t.count is not None else ""
-                add(self.scene.add_label(f"{base}/label", f"{t.role}: {t.text}{what}",
+                text = t.text if len(t.text) <= 60 else f"{t.text[:57]}..."  # the status has it whole
+                add(self.scene.add_label(f"{base}/label", f"{t.role}: {text}{what}",
                                                 position=top * self.scale))
 
     def draw_shot(self, shot: Optional[ShotLike], options: DisplayOptions) -> None:

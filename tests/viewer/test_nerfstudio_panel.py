@@ -255,6 +255,7 @@ def test_real_nerfstudio_viewer_installs_panel(tmp_path):
     try:
         panel = model.cine_panel.panels.server_panel()
         assert isinstance(panel, CinePanel)
+        assert viewer.viser_server._cine_guard is not None  # what pages send is checked in ns-viewer too
         assert panel.config.data_dir == tmp_path / "data"
         assert panel.config.config_path == tmp_path / "run" / "config.yml"
         assert panel.request_plan("0 0 0.5", "0 0 0").result(60) is not None, panel.status

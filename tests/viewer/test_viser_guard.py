@@ -235,6 +235,12 @@ def test_hostile_messages_break_nothing(served):
         assert wait(lambda panel=panel, text=text: panel.view.goto.value == text)
         page.click("Plan")
         assert wait(lambda panel=panel: panel.state == "ready"), panel.status
+    # malformed messages: refused by the guard, or (what viser cannot even decode) the sender's own connection ends
+    n = sum(guard.refused.values())
+    a.send("GuiUpdateMessage", uuid=[goto], updates={"value": "x"})  # not even a uuid
+    assert wait(lambda: sum(guard.refused.values()) > n)
+    a.send("ViewerCameraMessage", wxyz=1, position="here", fov=1.0, near=0.01, far=100.0, image_height=480,
+           image_width=640, look_at=[0.0, 0, 0], up_direction=[0.0, 0, 1])
     # one oversized message closes that page's connection only
     a.send("GuiUpdateMessage", uuid=goto, updates={"value": "y" * (MAX_MESSAGE_BYTES + 10)})
     assert not a.wait(lambda: False, 5) and a.closed
