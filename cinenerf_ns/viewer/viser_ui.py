@@ -220,10 +220,17 @@ class ViserPanelUI:
 
     def show_overview(self, on: bool) -> None:
         """The "Top-down overview" toggle: this page's camera (every page's on the server scope) to the overview
-        (``on``) or back home; ``overview_hides`` (server nodes: hidden for every page) hidden while it is on."""
+        (``on``) or back home; ``overview_hides`` (server nodes) hidden while it is on: for this page alone (a
+        visibility message on its own connection; the server's state, and so every other page, keeps them), or on
+        the server scope for every page."""
+        from viser import _messages as vm
+
         for h in self.overview_hides:
             try:
-                h.visible = not on
+                if self.client is None:
+                    h.visible = not on
+                else:  # owner "": the server's node, seen by this page only
+                    self.client._websock_connection.queue_message(vm.SetSceneNodeVisibilityMessage(h.name, not on))
             except Exception:
                 log.debug("(un)hiding %s for the overview failed", getattr(h, "name", "?"), exc_info=True)
         self.go_to_view(self.overview if on else self.home)

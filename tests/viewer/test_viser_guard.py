@@ -134,9 +134,12 @@ def open_page(connect, position=(1.0, 2.0, 3.0), **kw) -> RawClient:
 def panel_of(panels, page: RawClient):
     """The server's panel of ``page``: the one whose Go-to widget uuid the page was sent."""
     uuid = page.widget("Go to", "GuiTextMessage")["uuid"]
-    found = [p for p in panels.panels.values() if p.view.goto._impl.uuid == uuid]
-    assert len(found) == 1
-    return found[0]
+
+    def found():
+        return [p for p in list(panels.panels.values()) if p.view.goto._impl.uuid == uuid]
+
+    assert wait(lambda: len(found()) == 1)  # registered once built (its widgets may reach the page first)
+    return found()[0]
 
 
 def test_two_pages_plan_different_text_at_once(served):
@@ -257,3 +260,23 @@ def test_a_page_from_another_origin_is_refused(served):
     assert panels.panels == {} and not server.get_clients()
     ok = open_page(connect, origin=f"http://localhost:{port}")
     assert wait(lambda: len(panels.panels) == 1) and not ok.closed
+
+
+def test_the_overview_hides_the_ceiling_for_its_own_page_only(served):
+    port, server, panels, guard, backend, connect = served
+    node = server.scene.add_box("/ceiling", dimensions=(1.0, 1.0, 0.1))
+    panels.overview_hides.append(node)
+    a, b = open_page(connect), open_page(connect)
+    pa = panel_of(panels, a)
+    a.set_value("Top-down overview", True, "GuiCheckboxMessage")
+
+    def hidden(page):
+        return [m["visible"] for m in page.messages if m["type"] == "SetSceneNodeVisibilityMessage"
+                and m["name"] == "/ceiling"]
+
+    assert a.wait(lambda: hidden(a)[-1:] == [False]) and pa.view.overview_box.value
+    n = len(hidden(a))
+    b.pump(0.5)
+    assert False not in hidden(b) and node.visible  # the other page, and the server's state, keep it
+    a.set_value("Top-down overview", False, "GuiCheckboxMessage")
+    assert a.wait(lambda: hidden(a)[n:] == [True])
