@@ -240,7 +240,7 @@ class StandaloneConfig:
     output_dir: Path = Path("cinesplat_viewer_exports")
     """Where exported camera paths (camera_paths/) and preview videos (previews/) are written."""
     max_pages: int = 8
-    """Browser pages served at once (each has its own panel and is sent the whole splat); more are asked to wait."""
+    """Browser pages served at once (each has its own panel and is sent the whole splat); more are refused."""
     camera_radius: float = SceneConfig.camera_radius
     """Camera body radius in scene units (obstacle model)."""
     safety_margin: float = DEFAULT_SAFETY_MARGIN
@@ -298,7 +298,7 @@ class StandaloneViewer:
         locate = locate or self.loaded.locate
         self.backend = FunctionBackend(display, plan_fn, locate, self.loaded.name, planner_name)
         self.server = start_server(viser, cfg.host, cfg.port)
-        self.guard = guard_server(self.server, cfg.host)
+        self.guard = guard_server(self.server, cfg.host, max_connections=cfg.max_pages)
         self.server.scene.set_up_direction("+z")
         self._draw_splat(display)
         self.panels = attach_cine_panel(

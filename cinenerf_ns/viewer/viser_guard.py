@@ -122,8 +122,10 @@ def origin_allowed(origin: Optional[str], host_header: Optional[str], bound_host
 class ServerGuard:
     """The checks installed on one viser server (see the module docstring); ``refused`` counts what was dropped."""
 
-    def __init__(self, server: Any, bound_host: str, extra_origins: Iterable[str] = ()) -> None:
+    def __init__(self, server: Any, bound_host: str, extra_origins: Iterable[str] = (),
+                 max_connections: Optional[int] = None) -> None:
         self.server = server
+        self.max_connections = max_connections
         self.bound_host = bound_host
         self.extra_origins = tuple(extra_origins)
         self.refused: Counter = Counter()  # reason -> count
@@ -182,7 +184,11 @@ class ServerGuard:
             except AttributeError:  # another websockets version: viser's 50 MB cap stays
                 log.debug("could not cap the message size of client %s", conn.client_id)
             headers = connection.request.headers if connection.request is not None else {}
-            if not origin_allowed(headers.get("Origin"), headers.get("Host"), self.bound_host, self.extra_origins):
+            if self.max_connections is not None and len(ws._live_connections) > self.max_connections:
+                self.refused_clients.add(conn.client_id)  # each page is sent the whole splat: bounded
+                log.warning("refused a page: %d connections open, the limit", self.max_connections)
+                asyncio.get_running_loop().create_task(connection.close(1013, "too many pages open; try later"))
+            elif not origin_allowed(headers.get("Origin"), headers.get("Host"), self.bound_host, self.extra_origins):
                 self.refused_clients.add(conn.client_id)
                 log.warning("refused a page from Origin %r (not this viewer's address)", headers.get("Origin"))
                 asyncio.get_running_loop().create_task(connection.close(1008, "origin not allowed"))
@@ -200,11 +206,12 @@ class ServerGuard:
 
 
 def guard_server(server: Any, bound_host: str, extra_origins: Iterable[str] = (),
-                 hide_share_button: bool = True) -> ServerGuard:
+                 hide_share_button: bool = True, max_connections: Optional[int] = None) -> ServerGuard:
     """Install :class:`ServerGuard` on a running ``viser.ViserServer`` and turn share requests off (and the share
     button, with ``hide_share_button``: viser's ``configure_theme`` resets the whole theme, so ns-viewer, whose theme
-    nerfstudio sets, keeps the button, which then does nothing). Call it before any page can connect."""
-    guard = ServerGuard(server, bound_host, extra_origins)
+    nerfstudio sets, keeps the button, which then does nothing). ``max_connections``: websockets open at once (each
+    page is sent the whole splat); more are closed at once. Call it before any page can connect."""
+    guard = ServerGuard(server, bound_host, extra_origins, max_connections)
     ws = server._websock_server
     inner = ws._handle_incoming_message
 

@@ -280,3 +280,16 @@ def test_the_overview_hides_the_ceiling_for_its_own_page_only(served):
     assert False not in hidden(b) and node.visible  # the other page, and the server's state, keep it
     a.set_value("Top-down overview", False, "GuiCheckboxMessage")
     assert a.wait(lambda: hidden(a)[n:] == [True])
+
+
+def test_connections_beyond_the_limit_are_closed(served):
+    port, server, panels, guard, backend, connect = served
+    guard.max_connections = 2
+    a, b = open_page(connect), open_page(connect)
+    c = connect()
+    c.send_camera()
+    assert not c.wait(lambda: False, 5) and c.closed and len(panels.panels) == 2
+    a.close()
+    assert wait(lambda: len(panels.panels) == 1)
+    d = open_page(connect)  # room again
+    assert not d.closed and wait(lambda: len(panels.panels) == 2) and not b.closed
