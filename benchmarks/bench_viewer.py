@@ -80,7 +80,8 @@ def main() -> None:
     backend = FunctionBackend(display, planner.plan, loaded.locate, loaded.name, PreparedPlanner.name)
 
     server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
-    panel = attach_cine_panel(server, backend, PanelConfig(autoplay=True, n_candidates=args.n_candidates))
+    panels = attach_cine_panel(server, backend, PanelConfig(autoplay=True, n_candidates=args.n_candidates))
+    panel = panels.server_panel()  # one panel on the server scope (what every page sees), driven from here
     ui = panel.view
     marks: dict = {}
     first_cam = threading.Event()

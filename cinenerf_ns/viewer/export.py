@@ -10,8 +10,10 @@ atomically by its ``write_camera_path``.
 """
 from __future__ import annotations
 
+import os
 import re
 import shlex
+import uuid
 from pathlib import Path
 from typing import Any, Callable, Dict, Optional, Tuple
 
@@ -48,6 +50,29 @@ def write_json_atomic(path: Path, data: Dict[str, Any]) -> Path:
     return write_camera_path(path, data)
 
 
+def write_json_unique(folder: Path, name: str, data: Dict[str, Any]) -> Tuple[Path, str]:
+    """Write ``data`` to ``folder/<name>.json``, or to the first free ``<name>-2.json``, ``<name>-3.json``, ... when
+    taken: atomic (written whole to a hidden temporary file first) and unique under concurrency (the file is put in
+    place with ``os.link``, which fails when the name exists: two writers of one name get two files, never one
+    overwritten). Returns (path, the name used)."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    tmp = folder / f".{name}.{uuid.uuid4().hex}.tmp"
+    write_json_atomic(tmp, data)
+    try:
+        candidate, k = name, 1
+        while True:
+            path = folder / f"{candidate}.json"
+            try:
+                os.link(tmp, path)
+                return path, candidate
+            except FileExistsError:
+                k += 1
+                candidate = f"{name}-{k}"
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
 def unique_json_path(folder: Path, name: str, ext: str = ".json") -> Tuple[Path, str]:
     """(``folder/<name><ext>``, name) or, when that file exists, the first free ``<name>-2``, ``<name>-3``, ...:
     an export never overwrites an earlier one."""
@@ -59,16 +84,22 @@ def unique_json_path(folder: Path, name: str, ext: str = ".json") -> Tuple[Path,
     return folder / f"{candidate}{ext}", candidate
 
 
-def render_command(config_path: Optional[Path], json_path: Path, data_name: str, name: str) -> Optional[str]:
+def render_command(config_path: Optional[Path], json_path: Path, data_name: str, name: str,
+                   absolute: bool = True) -> Optional[str]:
     """The ``ns-render`` command nerfstudio's Render tab shows for the same file, with the run's real config.yml
-    (absolute); None when there is no run to render with (a compact export, a .ply, a procedural room)."""
+    (absolute paths unless ``absolute`` is False: the form shown to browsers); None when there is no run to render
+    with (a compact export, a .ply, a procedural room)."""
     if config_path is None:
         return None
+
+    def p(x) -> str:
+        return shlex.quote(str(Path(x).absolute() if absolute else Path(x)))
+
     return " ".join(
         [
             "ns-render camera-path",
-            f"--load-config {shlex.quote(str(Path(config_path).absolute()))}",
-            f"--camera-path-filename {shlex.quote(str(Path(json_path).absolute()))}",
+            f"--load-config {p(config_path)}",
+            f"--camera-path-filename {p(json_path)}",
             f"--output-path {shlex.quote(str(Path('renders') / data_name / (name + '.mp4')))}",
         ]
     )

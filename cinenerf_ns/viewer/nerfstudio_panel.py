@@ -29,7 +29,7 @@ import dataclasses
 import threading
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Optional, Union
+from typing import TYPE_CHECKING, Any, Callable, Dict, List, Optional, Union
 
 import numpy as np
 import torch
@@ -40,7 +40,10 @@ from cinenerf_ns.planner.scene.splat_params import SplatParams, rgb_to_dc
 
 from .backend import LocateFn, SceneGaussians
 from .conventions import VISER_NERFSTUDIO_SCALE_RATIO
-from .panel import CinePanel, PanelBackend, PanelConfig
+from .panel import PanelBackend, PanelConfig
+
+if TYPE_CHECKING:
+    from .viser_ui import ClientPanels
 
 try:  # nerfstudio is a runtime dependency; keep this module importable for docs/tests without it
     from nerfstudio.viewer.viewer_elements import ViewerControl as _ViewerControl
@@ -53,10 +56,13 @@ def attach_to_nerfstudio_viewer(
     backend: PanelBackend,
     config: Optional[PanelConfig] = None,
     exporter=None,
-) -> CinePanel:
-    """Add the panel to a running ``nerfstudio.viewer.viewer.Viewer``: exports go to
+) -> "ClientPanels":
+    """Give every page of a running ``nerfstudio.viewer.viewer.Viewer`` its own panel: exports go to
     ``viewer.datapath / camera_paths`` (where the Render tab writes and loads them) and the command
-    names the run's ``config.yml`` (``viewer.log_filename.parent / 'config.yml'``, as the Render tab does)."""
+    names the run's ``config.yml`` (``viewer.log_filename.parent / 'config.yml'``, as the Render tab does). What pages
+    send the server is checked first (:func:`~.viser_guard.guard_server`: values only, no uploads or share requests,
+    the Origin)."""
+    from .viser_guard import guard_server
     from .viser_ui import attach_cine_panel
 
     cfg = config or PanelConfig()
@@ -75,7 +81,10 @@ def attach_to_nerfstudio_viewer(
                 backend.planner_config = dataclasses.replace(base, start_region=region)
     elif lock is not None and not isinstance(backend, LockedBackend):
         backend = LockedBackend(backend, lock)
-    return attach_cine_panel(viewer.viser_server, backend, cfg, exporter, scale=VISER_NERFSTUDIO_SCALE_RATIO)
+    server = viewer.viser_server
+    if getattr(server, "_cine_guard", None) is None:
+        server._cine_guard = guard_server(server, server.get_host(), hide_share_button=False)
+    return attach_cine_panel(server, backend, cfg, exporter, scale=VISER_NERFSTUDIO_SCALE_RATIO)
 
 
 def train_camera_centres(viewer: Any) -> Optional[np.ndarray]:
@@ -105,13 +114,13 @@ class CinePanelControl(_ViewerControl):  # type: ignore[misc]
         self._backend_factory = backend_factory
         self._config = config
         self._exporter = exporter
-        self.panel: Optional[CinePanel] = None
+        self.panels: Optional["ClientPanels"] = None  # one panel per page (viser_ui.ClientPanels)
 
     def _setup(self, viewer: Any) -> None:
         super()._setup(viewer)  # sets self.viewer / self.viser_server (nerfstudio's ViewerControl)
-        if self.panel is not None:  # a second viewer on the same model: start fresh
-            self.panel.close()
-        self.panel = attach_to_nerfstudio_viewer(viewer, self._backend_factory(), self._config, self._exporter)
+        if self.panels is not None:  # a second viewer on the same model: start fresh
+            self.panels.close()
+        self.panels = attach_to_nerfstudio_viewer(viewer, self._backend_factory(), self._config, self._exporter)
 
 
 class LockedBackend:

@@ -25,6 +25,7 @@ from typing import Dict, List, Optional, Tuple
 import numpy as np
 
 from cinenerf_ns.planner.errors import GoalUnreachableError, InvalidInputError, PlanningError
+from cinenerf_ns.planner.shots.plan_request import MAX_CANDIDATES
 
 from .backend import parse_point, to_numpy
 from .conventions import interpolate_pose
@@ -38,9 +39,11 @@ from .panel_types import (  # noqa: F401 - re-exported: callers import the panel
     PanelView,
     PlanRequest,
     PlanResult,
+    ServerLimits,
     ShotLike,
     Target,
 )
+from .safe_text import check_text
 from .shot_text import (  # noqa: F401 - re-exported: callers import the shot texts from here
     SCORE_RULE,
     candidate_label,
@@ -55,6 +58,9 @@ from .shot_text import (  # noqa: F401 - re-exported: callers import the shot te
 )
 
 log = logging.getLogger(__name__)
+
+MAX_PANEL_CANDIDATES = MAX_CANDIDATES
+"""Most candidates one Plan asks for (the planner's cap)."""
 
 
 # ----------------------------------------------------------------------------------------- panel
@@ -71,15 +77,20 @@ class CinePanel(OutputMixin):
         config: Optional[PanelConfig] = None,
         exporter: Optional[Exporter] = None,
         previewer: Optional[Previewer] = None,
+        limits: Optional[ServerLimits] = None,
     ) -> None:
-        """``previewer`` renders a camera-path dict to a video (None: no "Preview video")."""
+        """``previewer`` renders a camera-path dict to a video (None: no "Preview video"). ``limits``: the work shared
+        with the other clients' panels of the same viewer (plan slots, the preview slot, files written)."""
         self.backend = backend
         self.view = view
         self.config = replace(config) if config is not None else PanelConfig()
         # absolute once, at start: exports never depend on a later working directory, and the path shown is the file's
         self.config.data_dir = Path(self.config.data_dir).expanduser().absolute()
+        if self.config.output_dir is not None:
+            self.config.output_dir = Path(self.config.output_dir).expanduser().absolute()
         self.exporter: Exporter = exporter or default_exporter()
         self.previewer = previewer
+        self.limits = limits if limits is not None else ServerLimits()
         self.options = DisplayOptions()
         self.seed = 0
         self.last_timings: Dict[str, float] = {}
@@ -170,12 +181,25 @@ class CinePanel(OutputMixin):
         start_from_camera: bool = False,
     ) -> cf.Future:
         """Cancel any animation and plan on the worker thread. Returns a Future of
-        :class:`PlanResult` (None when the request failed or was superseded; see ``status``)."""
+        :class:`PlanResult` (None when the request failed or was superseded; see ``status``). Texts longer than
+        ``MAX_TEXT_CHARS``, or a client with ``limits.max_pending_plans`` requests queued, are refused at once."""
+        done: cf.Future = cf.Future()
+        done.set_result(None)
+        try:
+            goto, look_at = check_text(goto or "", "Go to"), check_text(look_at or "", "Look at")
+            n = int(n_candidates if n_candidates is not None else self.config.n_candidates)
+            if not 1 <= n <= MAX_PANEL_CANDIDATES:
+                raise InvalidInputError(f"'Candidates' must be 1 to {MAX_PANEL_CANDIDATES} (got {n})")
+        except (InvalidInputError, TypeError, ValueError, OverflowError) as err:
+            self._fail("Plan", err)
+            return done
         with self._lock:
             if self._closed:
-                fut: cf.Future = cf.Future()
-                fut.set_result(None)
-                return fut
+                return done
+            if self._pending >= self.limits.max_pending_plans:
+                self._set_status(f"Still working on {self._pending} earlier Plan requests: wait for them before "
+                                 "planning again", "error")
+                return done
             self._stop_animation()
             if new_start:
                 self.seed += 1
@@ -184,8 +208,7 @@ class CinePanel(OutputMixin):
             self._last_texts = (goto, look_at)
             req = PlanRequest(
                 goto=goto or "", look_at=look_at or "", seed=self.seed,
-                n_candidates=int(n_candidates if n_candidates is not None else self.config.n_candidates),
-                start_from_camera=start_from_camera, generation=self._generation,
+                n_candidates=n, start_from_camera=start_from_camera, generation=self._generation,
             )
             self._state = self.PLANNING
         # one source of truth: the boxes show exactly the texts this plan uses; the last plan's outputs go away
@@ -225,7 +248,16 @@ class CinePanel(OutputMixin):
         try:
             if self._superseded(req):
                 return None  # a newer Plan was requested before this one started
-            return self._plan_now(req)
+            waited = []
+            if not self.limits.acquire_plan_slot(lambda: self._superseded(req), lambda: waited.append(
+                    self._set_status("Waiting for another user's Plan on this viewer to finish...", "busy"))):
+                return None  # superseded (or closed) while waiting
+            try:
+                if waited and not self._superseded(req):
+                    self._set_status(f"Planning: go to '{req.goto}', look at '{req.look_at}'...", "busy")
+                return self._plan_now(req)
+            finally:
+                self.limits.release_plan_slot()
         except BaseException as err:  # never let the worker die silently
             if not self._superseded(req):
                 self._fail("Plan", err)
@@ -286,11 +318,14 @@ class CinePanel(OutputMixin):
         timings and the planner's internals go to the details fold."""
         shots, (goal, look), timings = result.shots, result.targets, result.timings
         scored = shot_score(shots[0]) is not None
-        text = (f"{plan_summary(len(shots), timings['total_s'])}: {goal.describe()}; {look.describe()}. "
+        text = (f"{plan_summary(len(shots))}: {goal.describe()}; {look.describe()}. "
                 f"Shot 1: {shot_summary(shots[0])}{goal_note(shots[0])}."
                 f"{f' Candidates are sorted by score ({SCORE_RULE}).' if scored and len(shots) > 1 else ''}")
         if result.warning:
             text += f" Warning: {result.warning}"
+        else:
+            more = "pick another candidate, " if len(shots) > 1 else ""
+            text += f" Next: Play it again, {more}or Export camera path."
         self._set_status(text, "warn" if result.warning else "ok")
         inner = timings_detail(getattr(shots[0], "timings", None) or {})
         by = getattr(self.backend, "planner_name", None)

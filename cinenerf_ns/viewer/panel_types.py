@@ -4,9 +4,10 @@ No viser import; tensors may be torch (any device) or numpy, converted with ``ba
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import threading
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Protocol, Sequence, Tuple, runtime_checkable
+from typing import Any, Callable, Dict, List, Optional, Protocol, Sequence, Tuple, runtime_checkable
 
 import numpy as np
 
@@ -127,8 +128,9 @@ class PanelView(Protocol):
 
     def set_playing(self, playing: bool) -> None: ...
 
-    def show_export(self, path: Optional[Path], text: str) -> None:
-        """Show the exported file (absolute path) and how to render it; ``path`` None hides the box."""
+    def show_export(self, path: Optional[Path], text: str, command: Optional[str] = None) -> None:
+        """Show the exported file and how to render it (``text``: plain text, never markup; ``command``: a shell
+        command shown verbatim); ``path`` None hides the box."""
 
     def show_preview(self, path: Optional[Path]) -> None:
         """Offer the preview video at ``path`` (a download); None hides the offer."""
@@ -140,7 +142,11 @@ class PanelConfig:
     """Panel settings (defaults match nerfstudio's Render tab)."""
 
     data_dir: Path = Path(".")
-    """Dataset directory: exports go to ``<data_dir>/camera_paths/<name>.json`` like the Render tab."""
+    """Dataset directory: its name goes into the ``ns-render`` command's output path; exports go to
+    ``<data_dir>/camera_paths/<name>.json`` like the Render tab unless ``output_dir`` is set."""
+    output_dir: Optional[Path] = None
+    """Where exports (``camera_paths/``) and previews (``previews/``) go (the standalone viewer's ``--output-dir``);
+    None: ``data_dir`` (inside ns-viewer, where the Render tab lists them)."""
     config_path: Optional[Path] = None
     """The run's config.yml, for the ``ns-render`` command (None: the panel says why there is no command)."""
     scene_note: str = ""
@@ -196,3 +202,69 @@ class ExportResult:
     path: Path
     command: Optional[str]  # None when the scene has no run to render with ns-render
     renamed_from: Optional[str] = None  # the name asked for when a file of that name existed
+
+
+@dataclass
+class ServerLimits:
+    """The work one viewer does for all its browsers together (shared by every client's panel): plans run one at a
+    time (``plan_slots``), one preview renders at a time, and the files written are capped in number and bytes."""
+
+    plan_slots: int = 1
+    """Plans running at once over all clients (the others wait, saying so)."""
+    max_pending_plans: int = 3
+    """Plan requests one client may have queued; more are refused until one finishes."""
+    max_clients: int = 8
+    """Browser pages served at once; a page beyond it is told to come back later."""
+    max_preview_s: float = 60.0
+    """Longest shot rendered by "Preview video" (seconds of video)."""
+    max_files: int = 500
+    """Files (exports and previews) this viewer writes in one run."""
+    max_bytes: int = 2 * 1024 ** 3
+    """Bytes of exports and previews this viewer writes in one run."""
+    files_written: int = 0
+    bytes_written: int = 0
+    _plan_sem: Any = field(default=None, repr=False)
+    _preview_lock: Any = field(default=None, repr=False)
+    _files_lock: Any = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        self._plan_sem = threading.BoundedSemaphore(max(int(self.plan_slots), 1))
+        self._preview_lock = threading.Lock()
+        self._files_lock = threading.Lock()
+
+    def acquire_plan_slot(self, cancelled: Callable[[], bool], on_wait: Callable[[], None]) -> bool:
+        """Wait for a planning slot; ``on_wait`` is called once if the wait is not immediate. False (no slot taken)
+        when ``cancelled()`` became true meanwhile."""
+        if self._plan_sem.acquire(blocking=False):
+            return True
+        on_wait()
+        while not cancelled():
+            if self._plan_sem.acquire(timeout=0.05):
+                return True
+        return False
+
+    def release_plan_slot(self) -> None:
+        self._plan_sem.release()
+
+    def try_start_preview(self) -> bool:
+        """Take the one preview slot (False: a preview of some client is rendering)."""
+        return self._preview_lock.acquire(blocking=False)
+
+    def end_preview(self) -> None:
+        self._preview_lock.release()
+
+    def reserve_file(self) -> None:
+        """Count one more file written; raises ``InvalidInputError`` when the run's file or byte budget is spent."""
+        from cinenerf_ns.planner.errors import InvalidInputError
+
+        with self._files_lock:
+            if self.files_written >= self.max_files or self.bytes_written >= self.max_bytes:
+                raise InvalidInputError(
+                    f"this viewer has written {self.files_written} files ({self.bytes_written / 2**20:.1f} MiB), its "
+                    f"limit for one run ({self.max_files} files, {self.max_bytes / 2**20:.0f} MiB); restart it to "
+                    "write more")
+            self.files_written += 1
+
+    def add_bytes(self, n: int) -> None:
+        with self._files_lock:
+            self.bytes_written += int(n)

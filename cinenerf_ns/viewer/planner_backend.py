@@ -47,6 +47,7 @@ class PreparedPlanner:
         self.on_status = on_status
         self.planner: Optional[Planner] = None
         self.prepare_s: Optional[float] = None  # wall time of prepare(), once done
+        self.prepare_detail = ""  # its timings, for the details fold
         self.error: Optional[BaseException] = None  # what prepare() raised, re-raised by plan()
         self._done = threading.Event()
         self._started = False
@@ -85,7 +86,8 @@ class PreparedPlanner:
             self.planner = planner
             self.prepare_s = time.perf_counter() - t0
             detail = ", ".join(f"{k[:-3]} {v:.0f} ms" for k, v in prep.timings_ms.items())
-            self._status(f"Planner ready in {self.prepare_s:.2f} s ({detail}).", "ok")
+            self.prepare_detail = f"Planner prepared in {self.prepare_s:.2f} s ({detail})."  # the details fold
+            self._status("Planner ready.", "ok")
         except BaseException as err:  # kept and re-raised by plan(): the panel shows it
             self.error = err
             self.prepare_s = time.perf_counter() - t0

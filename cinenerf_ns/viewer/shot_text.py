@@ -112,6 +112,6 @@ def sort_by_score(shots: Sequence[Any]) -> List[Any]:
     return sorted(scored, key=shot_score) + [s for s in shots if shot_score(s) is None]
 
 
-def plan_summary(n_shots: int, seconds: float) -> str:
-    """'Planned 3 shots in 1.2 s' (the headline of a finished Plan)."""
-    return f"Planned {n_shots} shot{'s' if n_shots != 1 else ''} in {seconds:.1f} s"
+def plan_summary(n_shots: int) -> str:
+    """'Planned 3 shots' (the headline of a finished Plan; its time goes to the details fold)."""
+    return f"Planned {n_shots} shot{'s' if n_shots != 1 else ''}"

@@ -36,6 +36,8 @@ from .backend import FunctionBackend, LocateFn, PlanFn, SceneGaussians, label_lo
 from .conventions import VISER_NERFSTUDIO_SCALE_RATIO
 from .views import TrainingCameras
 
+LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
+
 
 def display_gaussians(splat: SplatParams) -> SceneGaussians:
     """What the browser draws of a splat: colours (grey where it has none), opacities and covariances."""
@@ -232,10 +234,13 @@ class StandaloneConfig:
     `make demo`) or 'demo-tiny' (a tiny built-in labelled scene)."""
     port: int = 7007
     """Port of the viewer (open http://localhost:<port>)."""
-    host: str = "0.0.0.0"
-    """Interface to listen on (0.0.0.0: all, like ns-viewer)."""
-    data: Optional[Path] = None
-    """Where camera_paths/ go (default: the run's dataset directory, or the .ply's directory)."""
+    host: str = "127.0.0.1"
+    """Address to listen on: 127.0.0.1 (this machine only), or an address of this machine such as 0.0.0.0 (every
+    network interface: anyone who reaches the port can plan, preview and export; a warning is printed)."""
+    output_dir: Path = Path("cinesplat_viewer_exports")
+    """Where exported camera paths (camera_paths/) and preview videos (previews/) are written."""
+    max_pages: int = 8
+    """Browser pages served at once (each has its own panel and is sent the whole splat); more are refused."""
     camera_radius: float = SceneConfig.camera_radius
     """Camera body radius in scene units (obstacle model)."""
     safety_margin: float = DEFAULT_SAFETY_MARGIN
@@ -267,14 +272,15 @@ class StandaloneViewer:
         from cinenerf_ns.planner.shots.planner import PlannerConfig
         from cinenerf_ns.planner.trajectory.timing import TimingConfig
 
-        from .panel import PanelConfig
+        from .panel import PanelConfig, ServerLimits
         from .planner_backend import PreparedPlanner
+        from .viser_guard import guard_server
         from .viser_ui import attach_cine_panel
 
         t0 = time.perf_counter()
         self.cfg = cfg
         scfg = SceneConfig.with_margin(cfg.camera_radius, cfg.safety_margin)
-        self.loaded = load_scene(cfg.load_config, cfg.data, scfg, cfg.device)
+        self.loaded = load_scene(cfg.load_config, None, scfg, cfg.device)
         sp = self.loaded.splat
         self.obstacles = self.loaded.obstacles
         if self.obstacles is None:
@@ -291,24 +297,21 @@ class StandaloneViewer:
         display = display_gaussians(sp)
         locate = locate or self.loaded.locate
         self.backend = FunctionBackend(display, plan_fn, locate, self.loaded.name, planner_name)
-        self.server = viser.ViserServer(host=cfg.host, port=cfg.port, verbose=False)
+        self.server = start_server(viser, cfg.host, cfg.port)
+        self.guard = guard_server(self.server, cfg.host, max_connections=cfg.max_pages)
         self.server.scene.set_up_direction("+z")
         self._draw_splat(display)
-        self.panel = attach_cine_panel(
+        self.panels = attach_cine_panel(
             self.server, self.backend,
             PanelConfig(data_dir=self.loaded.data_dir, config_path=self.loaded.config_path,
+                        output_dir=Path(cfg.output_dir).expanduser().absolute(),
                         n_candidates=cfg.n_candidates, scene_note=self.loaded.scene_note),
             scale=cfg.scale, default_goto=self.loaded.default_goto, default_look_at=self.loaded.default_look_at,
             previewer=SplatPreviewer(sp), export_name=f"{self.loaded.name}-shot", start_region=self.loaded.start_region,
-            cameras=self.loaded.cameras,
+            cameras=self.loaded.cameras, limits=ServerLimits(max_clients=cfg.max_pages),
         )
-        self.ui = self.panel.view
-        self.ui.overview_hides.extend(self.splat_above)
-        self.ui.use_home_as_initial_camera()  # browsers open (and "Reset View" returns) inside the captured region
-
-        @self.server.on_client_connect
-        def _(client) -> None:  # the top-down overview when it is on (a client whose camera is unknown yet stays home)
-            self.ui.go_to_view(self.ui.overview if self.ui.overview_box.value else self.ui.home, client)
+        self.panels.overview_hides.extend(self.splat_above)
+        self.panels.use_home_as_initial_camera()  # browsers open (and "Reset View" returns) inside the captured region
 
         if locate is None:
             text = ("Text queries need a trained cinesplat scene (semantic latents + codec); this scene has none: "
@@ -317,11 +320,10 @@ class StandaloneViewer:
             text = "Text queries: relevancy of the distilled CLIP latents (or x y z)."
         else:
             text = "Text queries: object names (or x y z)."
-        self.loaded_message = (
-            f"Loaded '{self.loaded.name}': {len(display)} Gaussians ({len(self.obstacles)} obstacles) in "
-            f"{time.perf_counter() - t0:.1f} s. Planner: {planner_name}. {text}"
-        )
-        self.panel._set_status(self.loaded_message, "info")
+        self.loaded_message = f"Loaded '{self.loaded.name}' ({len(display)} Gaussians). {text}"
+        self.panels.set_status(self.loaded_message, "info", details=(
+            f"Scene loaded in {time.perf_counter() - t0:.1f} s: {len(display)} Gaussians, {len(self.obstacles)} "
+            f"obstacles. Planner: {planner_name}."))
         if self.planner is not None:
             self.planner.on_status = self._prepare_status
             self.planner.start(background=True)
@@ -330,10 +332,18 @@ class StandaloneViewer:
         self.warm_thread = warm_semantics(self.loaded, stop=self.warm_stop)
 
     def _prepare_status(self, text: str, level: str) -> None:
-        """Progress of the planner's one-time preparation, shown until the first Plan owns the status line (a Plan that
-        failed fast, e.g. text that matches nothing, leaves the panel idle: its message must not be overwritten)."""
-        if (self.panel.state == self.panel.IDLE and not self.panel.planned_before) or level == "error":
-            self.panel._set_status(f"{text} {self.loaded_message}", "busy" if level == "busy" else "info")
+        """Progress of the planner's one-time preparation, shown on each page until its first Plan owns the status line
+        (a Plan that failed fast, e.g. text that matches nothing, leaves the panel idle: its message must not be
+        overwritten); the preparation's timings go to the details fold."""
+        detail = getattr(self.planner, "prepare_detail", "") if self.planner is not None else ""
+        detail = f"{self.panels.details} {detail}".strip()
+        if level == "error":
+            self.panels.set_status(text, "error")
+        elif level == "busy":
+            self.panels.set_status(f"{text} {self.loaded_message}", "busy")
+        else:
+            self.panels.set_status(f"{text} {self.loaded_message} Type where the camera should go and what it should "
+                                   "look at, then Plan.", "info", details=detail or None)
 
     def _draw_splat(self, g: SceneGaussians) -> None:
         """The splat as viser Gaussian-splat nodes: "/splat", and with a start region its Gaussians whose centres lie
@@ -361,7 +371,9 @@ class StandaloneViewer:
 
     @property
     def url(self) -> str:
-        return f"http://localhost:{self.server.get_port()}"
+        host = self.cfg.host
+        shown = "localhost" if host in ("0.0.0.0", "::") else (f"[{host}]" if ":" in host else host)
+        return f"http://{shown}:{self.server.get_port()}"
 
     def close(self, join_s: float = 10.0) -> bool:
         """Stop the server and the text-query warm-up; wait up to ``join_s`` for the warm-up to end (it stops after the
@@ -369,7 +381,7 @@ class StandaloneViewer:
         warm-up, the planner's preparation): a process must not exit while one runs torch / scipy code on a daemon
         thread, the C++ runtime can abort it ('terminate called without an active exception')."""
         self.warm_stop.set()
-        self.panel.close()
+        self.panels.close()
         self.server.stop()
         deadline = time.monotonic() + max(float(join_s), 0.0)
         for th in self.background_threads():
@@ -383,6 +395,73 @@ class StandaloneViewer:
         return [th for th in (self.warm_thread, prep) if th is not None and th.is_alive()]
 
 
+def check_host(host: str) -> str:
+    """``--host`` as given when it is an IP address or 'localhost'; a clear error otherwise (viser would try 1,000
+    ports on an address it cannot bind, silently)."""
+    import ipaddress
+
+    if not isinstance(host, str) or not host.strip():
+        raise InvalidInputError("--host is empty: give 127.0.0.1 (this machine only) or an address of this machine "
+                                "such as 0.0.0.0")
+    if host == "localhost":
+        return host
+    try:
+        ipaddress.ip_address(host)
+    except ValueError:
+        raise InvalidInputError(f"--host {host!r} is not an IP address: give 127.0.0.1 (this machine only), 0.0.0.0 "
+                                f"(every interface) or one of this machine's addresses") from None
+    return host
+
+
+def check_bind(host: str, port: int) -> None:
+    """Bind ``host``:``port`` once, as the server will, and say clearly why it cannot be (not an address of this
+    machine, port in use, no permission) before viser starts."""
+    import errno
+    import socket
+
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_NUMERICSERV)
+    except OSError as e:
+        raise InvalidInputError(f"--host {host}: cannot be resolved ({e})") from None
+    family, _, _, _, addr = infos[0]
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as asyncio's server does
+        try:
+            s.bind(addr)
+        except OSError as e:
+            if e.errno == errno.EADDRINUSE:
+                raise InvalidInputError(f"--port {port} is already in use on {host} (another viewer?): stop it or "
+                                        f"give another --port") from None
+            if e.errno == errno.EADDRNOTAVAIL:
+                raise InvalidInputError(f"--host {host} is not an address of this machine: give 127.0.0.1, 0.0.0.0 "
+                                        f"or one of its interface addresses") from None
+            if e.errno == errno.EACCES:
+                raise InvalidInputError(f"--port {port}: permission denied (ports below 1024 need privileges); give "
+                                        f"a port from 1024 to 65535") from None
+            raise InvalidInputError(f"cannot listen on {host}:{port}: {e.strerror or e}") from None
+
+
+def start_server(viser: Any, host: str, port: int) -> Any:
+    """A viser server on exactly ``host``:``port``, or a clear error (viser would silently move to the next free
+    port)."""
+    check_bind(host, port)
+    server = viser.ViserServer(host=host, port=port, verbose=False)
+    if server.get_port() != port:  # taken between the check and the start
+        server.stop()
+        raise InvalidInputError(f"--port {port} was taken while the viewer started: give another --port")
+    return server
+
+
+def exposure_warning(host: str) -> Optional[str]:
+    """The warning printed when the viewer listens beyond this machine (None on a loopback address)."""
+    import ipaddress
+
+    if host in LOOPBACK_HOSTS or (host != "localhost" and ipaddress.ip_address(host).is_loopback):
+        return None
+    return (f"Warning: listening on {host}: anyone who can reach this port can plan, preview and export with this "
+            "viewer (files go to --output-dir). Use --host 127.0.0.1 to keep it to this machine.")
+
+
 def check_config(cfg: StandaloneConfig) -> None:
     """The options' ranges, before the scene is loaded (messages name the option); the scene-relative checks (camera
     radius against the scene, grid against memory) follow in the planner, shown in the status line."""
@@ -393,11 +472,16 @@ def check_config(cfg: StandaloneConfig) -> None:
         raise InvalidInputError("--load-config is empty: give a run's config.yml, a compact export, a .ply, "
                                 "'procedural' or 'demo'")
     check_number(cfg.port, "--port", 1, 65535, integer=True)
+    check_host(cfg.host)
+    out = Path(cfg.output_dir).expanduser()
+    if out.exists() and not out.is_dir():
+        raise InvalidInputError(f"--output-dir {out} exists and is not a folder")
     check_number(cfg.camera_radius, "--camera-radius", 0, 10)
     check_number(cfg.safety_margin, "--safety-margin", 0, 10)
     check_number(cfg.grid_resolution, "--grid-resolution", *GRID_RESOLUTION_RANGE, integer=True)
     check_number(cfg.max_speed, "--max-speed", 0, 100, lo_open=True)
     check_number(cfg.n_candidates, "--n-candidates", 1, MAX_CANDIDATES, integer=True)
+    check_number(cfg.max_pages, "--max-pages", 1, 64, integer=True)
     check_number(cfg.max_display_gaussians, "--max-display-gaussians", 1, 50_000_000, integer=True)
     check_number(cfg.scale, "--scale", 0, 1e6, lo_open=True)
     if cfg.device != "cpu" and not str(cfg.device).startswith("cuda"):
@@ -414,14 +498,18 @@ def main(cfg: StandaloneConfig) -> None:
     from rich.console import Console
 
     check_config(cfg)
+    check_bind(cfg.host, cfg.port)  # before the scene loads: a taken port or a foreign address fails at once
     viewer = None
     try:
         viewer = StandaloneViewer(cfg)
-        Console().print(f"[bold green]cinesplat-viewer[/] running at {viewer.url}  (Ctrl+C to stop)\n"
-                        f"{viewer.panel.status}")
+        warning = exposure_warning(cfg.host)
+        if warning:
+            Console(stderr=True).print(warning, style="bold yellow", markup=False, highlight=False)
+        Console().print(f"[bold green]cinesplat-viewer[/] running at {viewer.url}  (Ctrl+C to stop)")
+        Console().print(viewer.panels.status, markup=False, highlight=False)
         if viewer.planner is not None:
             viewer.planner.wait_ready()
-            Console().print(viewer.panel.status)
+            Console().print(viewer.panels.status, markup=False, highlight=False)
         while True:
             time.sleep(1.0)
     except KeyboardInterrupt:

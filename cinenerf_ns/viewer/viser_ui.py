@@ -18,9 +18,20 @@ from cinenerf_ns.planner.shots.camera_path import DEFAULT_FOV_DEG, DEFAULT_PREVI
 
 from .backend import to_numpy
 from .conventions import VISER_NERFSTUDIO_SCALE_RATIO, nerfstudio_c2w_to_viser, viser_to_world
-from .panel import CinePanel, DisplayOptions, PanelBackend, PanelConfig, ShotLike, Target, min_clearance
+from .panel import (
+    MAX_PANEL_CANDIDATES,
+    CinePanel,
+    DisplayOptions,
+    PanelBackend,
+    PanelConfig,
+    ServerLimits,
+    ShotLike,
+    Target,
+    min_clearance,
+)
 from .panel_output import Previewer
 from .polytope_mesh import polytope_mesh
+from .safe_text import md_code_block, md_escape
 from .shot_text import SCORE_RULE
 from .views import TrainingCameras, View, highlight_box, opening_view, overview_view
 
@@ -32,7 +43,12 @@ _NO_CANDIDATES = "(plan first)"
 
 
 class ViserPanelUI:
-    """Builds the "Cinematography" GUI folder and implements ``PanelView`` on ``server``."""
+    """Builds the "Cinematography" GUI folder and implements ``PanelView`` on ``server``: for one browser page
+    (``client``: its own widgets, drawings and camera, through viser's per-client ``client.gui`` / ``client.scene``),
+    or with ``client`` None on the server scope, shared by every page (scripts and tests).
+
+    Every text shown in markdown goes through :func:`~.safe_text.md_escape` (viser renders markdown with raw HTML):
+    the panel's status, details and export texts are plain text that may hold what a user typed."""
 
     def __init__(
         self,
@@ -48,8 +64,12 @@ class ViserPanelUI:
         n_candidates: int = 3,
         export_name: str = "shot",
         preview_size: Tuple[int, int] = DEFAULT_PREVIEW_SIZE,
+        client: Any = None,
     ) -> None:
         self.server = server
+        self.client = client
+        api = client if client is not None else server
+        self.scene = api.scene
         self.scale = float(scale)
         self.root = root
         self.fov_deg, self.aspect = fov_deg, aspect
@@ -66,12 +86,13 @@ class ViserPanelUI:
         # scene nodes hidden while the top-down overview is on: the standalone viewer's Gaussians above the start
         # region (a room's ceiling), which would hide the path and frustums from above (see draw_shot)
         self.overview_hides: List[Any] = []
+        self.status_text, self.details_text = "", ""  # the texts the markdown widgets show, before escaping
 
-        gui = server.gui
+        gui = api.gui
         with gui.add_folder(folder_label):
             self.goto = gui.add_text("Go to", default_goto, hint="An object ('the chair') or coordinates 'x y z'")
             self.look_at = gui.add_text("Look at", default_look_at, hint="An object or coordinates 'x y z'")
-            self.n_candidates = gui.add_number("Candidates", n_candidates, min=1, max=16, step=1,
+            self.n_candidates = gui.add_number("Candidates", n_candidates, min=1, max=MAX_PANEL_CANDIDATES, step=1,
                                                hint="Shots planned from different random starts")
             self.from_camera = gui.add_checkbox("Start at my camera", False,
                                                 hint="Plan from the current browser camera instead of a random start")
@@ -149,7 +170,8 @@ class ViserPanelUI:
 
     # ------------------------------------------------------------------ PanelView
     def set_status(self, text: str, level: str) -> None:
-        self.status_md.content = f"{_LEVEL_ICON.get(level, '')}{text}"
+        self.status_text = text  # plain, as the panel said it
+        self.status_md.content = f"{_LEVEL_ICON.get(level, '')}{md_escape(text)}"
 
     def show_inputs(self, goto: str, look_at: str) -> None:
         """The boxes show what the server plans with. viser's client sends all GUI updates through one 50 ms throttle
@@ -160,7 +182,8 @@ class ViserPanelUI:
             push_value(handle)  # and on every screen, whatever the client showed
 
     def show_details(self, text: str) -> None:
-        self.details_md.content = text or "(plan first)"
+        self.details_text = text or "(plan first)"  # plain, as the panel said it
+        self.details_md.content = md_escape(self.details_text)
 
     def show_preview(self, path: Optional[Path]) -> None:
         self.preview_path = path
@@ -170,13 +193,16 @@ class ViserPanelUI:
         path = self.preview_path
         if path is None or event.client is None:
             return
+        if self.client is not None and event.client.client_id != self.client.client_id:
+            return  # only this page's own preview, to this page
         event.client.send_file_download(path.name, path.read_bytes())
 
     def go_to_view(self, view: Optional[View], client: Any = None) -> None:
-        """Move ``client``'s camera (all clients when None) to ``view`` (scene units; its up becomes the orbit's up)."""
+        """Move ``client``'s camera (when None: this page's, or every page's on the server scope) to ``view`` (scene
+        units; its up becomes the orbit's up)."""
         if view is None:
             return
-        clients = [client] if client is not None else list(self.server.get_clients().values())
+        clients = [client or self.client] if (client or self.client) is not None else self._clients()
         for c in clients:
             try:
                 with c.atomic():
@@ -186,25 +212,28 @@ class ViserPanelUI:
             except Exception:
                 log.debug("moving client %s to a view failed", getattr(c, "client_id", "?"), exc_info=True)
 
+    def _clients(self) -> List[Any]:
+        """The pages this view moves: its own, or on the server scope every connected one."""
+        if self.client is not None:
+            return [self.client]
+        return list(self.server.get_clients().values())
+
     def show_overview(self, on: bool) -> None:
-        """The "Top-down overview" toggle: every camera to the overview (``on``) or back home; ``overview_hides``
-        hidden while it is on."""
+        """The "Top-down overview" toggle: this page's camera (every page's on the server scope) to the overview
+        (``on``) or back home; ``overview_hides`` (server nodes) hidden while it is on: for this page alone (a
+        visibility message on its own connection; the server's state, and so every other page, keeps them), or on
+        the server scope for every page."""
+        from viser import _messages as vm
+
         for h in self.overview_hides:
             try:
-                h.visible = not on
+                if self.client is None:
+                    h.visible = not on
+                else:  # owner "": the server's node, seen by this page only
+                    self.client._websock_connection.queue_message(vm.SetSceneNodeVisibilityMessage(h.name, not on))
             except Exception:
                 log.debug("(un)hiding %s for the overview failed", getattr(h, "name", "?"), exc_info=True)
         self.go_to_view(self.overview if on else self.home)
-
-    def use_home_as_initial_camera(self) -> None:
-        """Make the opening view (``home``) viser's initial camera: where a browser that connects starts and where
-        its "Reset View" returns (the standalone viewer; inside ns-viewer, nerfstudio keeps its own)."""
-        if self.home is None:
-            return
-        cam = self.server.initial_camera
-        cam.up = np.asarray(self.home.up, np.float64)
-        cam.position = np.asarray(self.home.position, np.float64) * self.scale
-        cam.look_at = np.asarray(self.home.look_at, np.float64) * self.scale
 
     def show_candidates(self, labels: List[str], selected: int) -> None:
         opts = list(labels) or [_NO_CANDIDATES]
@@ -215,14 +244,15 @@ class ViserPanelUI:
         self.play_button.visible = not playing
         self.pause_button.visible = playing
 
-    def show_export(self, path: Optional[Path], text: str) -> None:
-        self.export_info.content = text if path is not None else ""
+    def show_export(self, path: Optional[Path], text: str, command: Optional[str] = None) -> None:
+        shown = md_escape(text) + (f"\n\n{md_code_block(command)}" if command else "")
+        self.export_info.content = shown if path is not None else ""
         self.export_info.visible = path is not None
 
     def set_camera(self, c2w: np.ndarray) -> int:
         wxyz, pos = nerfstudio_c2w_to_viser(np.asarray(c2w), self.scale)
         moved = 0
-        for client in list(self.server.get_clients().values()):
+        for client in self._clients():
             try:
                 with client.atomic():
                     # preview with the export's vertical fov, as nerfstudio's Render-tab preview does
@@ -238,11 +268,14 @@ class ViserPanelUI:
         return moved
 
     def camera_position(self) -> Optional[np.ndarray]:
-        for client in self.server.get_clients().values():
+        """This page's camera (on the server scope: the first page's), scene units; None when unknown or not
+        finite."""
+        for client in self._clients():
             try:
-                return viser_to_world(np.asarray(client.camera.position), self.scale)
+                p = viser_to_world(np.asarray(client.camera.position, np.float64), self.scale)
             except AssertionError:
                 continue
+            return p if np.all(np.isfinite(p)) else None
         return None
 
     # ------------------------------------------------------------------ drawing
@@ -282,12 +315,13 @@ class ViserPanelUI:
                     centre, size = np.asarray(t.point, np.float64), np.full(3, 2.0 * self.unit / self.scale)
                 kw = dict(color=color, dimensions=tuple(np.maximum(size, 1e-4) * self.scale),
                           position=tuple(centre * self.scale))
-                add(self.server.scene.add_box(f"{base}/outline", wireframe=True, **kw))
-                add(self.server.scene.add_box(f"{base}/fill", opacity=0.12, cast_shadow=False, receive_shadow=False,
+                add(self.scene.add_box(f"{base}/outline", wireframe=True, **kw))
+                add(self.scene.add_box(f"{base}/fill", opacity=0.12, cast_shadow=False, receive_shadow=False,
                                               **kw))
                 top = centre + np.array([0.0, 0.0, size[2] / 2])
                 what = f" ({t.count} Gaussians)" if t.count is not None else ""
-                add(self.server.scene.add_label(f"{base}/label", f"{t.role}: {t.text}{what}",
+                text = t.text if len(t.text) <= 60 else f"{t.text[:57]}..."  # the status has it whole
+                add(self.scene.add_label(f"{base}/label", f"{t.role}: {text}{what}",
                                                 position=top * self.scale))
 
     def draw_shot(self, shot: Optional[ShotLike], options: DisplayOptions) -> None:
@@ -310,30 +344,30 @@ class ViserPanelUI:
             base = f"{self.root}/shot"
             if options.show_path:
                 idx = np.unique(np.linspace(0, len(pos) - 1, min(len(pos), 300)).round().astype(int))
-                add(self.server.scene.add_spline_catmull_rom(
+                add(self.scene.add_spline_catmull_rom(
                     f"{base}/path", points=pos[idx] * self.scale, color=(255, 60, 200),
                     thickness=3.0, thickness_units="screen"))
                 n_fr = min(8, len(pos))
                 for j, i in enumerate(np.linspace(0, len(pos) - 1, n_fr).round().astype(int)):
                     wxyz, p = nerfstudio_c2w_to_viser(np.c_[rot[i], pos[i]], self.scale)
-                    add(self.server.scene.add_camera_frustum(
+                    add(self.scene.add_camera_frustum(
                         f"{base}/frustum_{j}", fov=np.deg2rad(self.fov_deg), aspect=self.aspect,
                         scale=1.5 * self.unit, color=(255, 60, 200) if 0 < j < n_fr - 1 else (255, 255, 255),
                         wxyz=wxyz, position=p, thickness=1.5, thickness_units="screen"))
                 for end, i in (("start", 0), ("end", len(pos) - 1)):  # over the splat, whatever stands in front
-                    add(self.server.scene.add_label(f"{base}/{end}_label", f"shot {end}", position=pos[i] * self.scale,
+                    add(self.scene.add_label(f"{base}/{end}_label", f"shot {end}", position=pos[i] * self.scale,
                                                     depth_test=False, anchor="bottom-center"))
             if options.show_corridor:
                 self._draw_corridor(shot, base)
             if options.show_clearance:  # one label, where it matters: the closest approach
                 i, text = closest_approach(shot)
-                add(self.server.scene.add_label(f"{base}/clearance_min", text, position=pos[i] * self.scale))
+                add(self.scene.add_label(f"{base}/clearance_min", text, position=pos[i] * self.scale))
 
     def _draw_corridor(self, shot: ShotLike, base: str) -> None:
         corridor = getattr(shot, "corridor", None)
         polys = getattr(corridor, "polytopes", corridor) if corridor is not None else None
         if not polys:
-            self._nodes["shot"].append(self.server.scene.add_label(
+            self._nodes["shot"].append(self.scene.add_label(
                 f"{base}/corridor_none", "(this planner gave no corridor)",
                 position=to_numpy(shot.positions)[0] * self.scale))
             return
@@ -345,7 +379,7 @@ class ViserPanelUI:
             if mesh is None:
                 continue
             verts, faces = mesh
-            self._nodes["shot"].append(self.server.scene.add_mesh_simple(
+            self._nodes["shot"].append(self.scene.add_mesh_simple(
                 f"{base}/corridor_{k}", vertices=(verts * self.scale).astype(np.float32), faces=faces,
                 color=(80, 170, 255), opacity=0.06, side="double", cast_shadow=False, receive_shadow=False))
 
@@ -357,7 +391,7 @@ def push_value(handle: Any) -> None:
     tested on its own."""
     value = handle.value
     handle.value = value + " "  # differs from the value: the client applies it
-    handle._impl.gui_api._websock_interface.flush()
+    handle._impl.gui_api._websock_interface.get_message_buffer().flush()  # the server's, or one page's buffer
     handle.value = value
 
 
@@ -373,6 +407,117 @@ def closest_approach(shot: ShotLike) -> "tuple[int, str]":
     return len(to_numpy(shot.positions)) // 2, f"min clearance {'n/a' if m is None else f'{m:.3f}'}"
 
 
+class ClientPanels:
+    """One panel per browser page: each page gets its own widgets, texts, candidates, chosen shot, status, drawings
+    and camera animation (viser's per-client ``client.gui`` / ``client.scene``, built in ``on_client_connect``), so a
+    page never changes another's. What they share: the backend, the opening views, and ``limits`` (plans one at a
+    time over all pages, one preview render, a budget of files written, at most ``limits.max_clients`` pages).
+
+    ``set_status`` says something to every page (loading, the planner's preparation) until a page's own Plan owns
+    its status line; pages that open later start with it."""
+
+    def __init__(self, server: viser.ViserServer, backend: PanelBackend, config: PanelConfig, exporter=None,
+                 previewer: Optional[Previewer] = None, limits: Optional[ServerLimits] = None,
+                 **ui_kwargs: Any) -> None:
+        self.server, self.backend, self.config = server, backend, config
+        self.exporter, self.previewer = exporter, previewer
+        self.limits = limits or ServerLimits()
+        self.ui_kwargs = ui_kwargs
+        self.status, self.status_level, self.details = "", "info", ""
+        self.gaussian_means: Optional[np.ndarray] = None
+        self.home: Optional[View] = None
+        self.overview: Optional[View] = None
+        self.overview_hides: List[Any] = []
+        self.panels: Dict[int, CinePanel] = {}
+        self.refused: List[int] = []  # pages turned away (too many open)
+        self._lock = threading.Lock()
+        self._server_panel: Optional[CinePanel] = None
+        self._closed = False
+
+    def listen(self) -> "ClientPanels":
+        """Build a panel for each page that opens (and those already open), close it when the page leaves."""
+        self.server.on_client_connect(self._connect)
+        self.server.on_client_disconnect(self._disconnect)
+        return self
+
+    def use_home_as_initial_camera(self) -> None:
+        """Make the opening view (``home``) viser's initial camera: where a browser that connects starts and where
+        its "Reset View" returns (the standalone viewer; inside ns-viewer, nerfstudio keeps its own)."""
+        if self.home is None:
+            return
+        cam = self.server.initial_camera
+        cam.up = np.asarray(self.home.up, np.float64)
+        cam.position = np.asarray(self.home.position, np.float64) * self.ui_kwargs.get("scale", 1.0)
+        cam.look_at = np.asarray(self.home.look_at, np.float64) * self.ui_kwargs.get("scale", 1.0)
+
+    def make(self, client: Any = None) -> CinePanel:
+        """A panel on ``client``'s page (None: on the server scope, shown to every page: scripts and tests)."""
+        ui = ViserPanelUI(self.server, client=client, **self.ui_kwargs)
+        ui.gaussian_means, ui.home, ui.overview = self.gaussian_means, self.home, self.overview
+        ui.overview_hides = self.overview_hides
+        panel = CinePanel(self.backend, ui, self.config, self.exporter, self.previewer, self.limits)
+        ui.attach(panel)
+        if self.status:
+            panel._set_status(self.status, self.status_level)
+        if self.details:
+            panel._call_view("show_details", self.details)
+        return panel
+
+    def server_panel(self) -> CinePanel:
+        """The one panel on the server scope (made on first use): every page sees it. For scripts and tests; the
+        viewers give each page its own."""
+        with self._lock:
+            if self._server_panel is None:
+                self._server_panel = self.make(None)
+            return self._server_panel
+
+    def all(self) -> List[CinePanel]:
+        with self._lock:
+            return list(self.panels.values()) + ([self._server_panel] if self._server_panel is not None else [])
+
+    def _connect(self, client: Any) -> None:
+        with self._lock:
+            full = len(self.panels) >= self.limits.max_clients
+            if full:
+                self.refused.append(client.client_id)
+        if self._closed:
+            return
+        if full:
+            client.gui.add_markdown(f"This viewer already serves {self.limits.max_clients} pages, its limit: close "
+                                    "another page, then reload this one.")
+            return
+        try:
+            panel = self.make(client)
+        except Exception:  # a page that left while its panel was built
+            log.debug("building the panel of client %s failed", client.client_id, exc_info=True)
+            return
+        with self._lock:
+            self.panels[client.client_id] = panel
+        panel.view.go_to_view(self.overview if panel.view.overview_box.value else self.home)
+
+    def _disconnect(self, client: Any) -> None:
+        with self._lock:
+            panel = self.panels.pop(client.client_id, None)
+        if panel is not None:  # stops its animation and plan worker; joins off viser's threads
+            threading.Thread(target=panel.close, name="cine-panel-close", daemon=True).start()
+
+    def set_status(self, text: str, level: str = "info", details: Optional[str] = None) -> None:
+        """Say ``text`` to every page whose own Plan does not own its status yet (errors: to every page)."""
+        self.status, self.status_level = text, level
+        if details is not None:
+            self.details = details
+        for p in self.all():
+            if (p.state == p.IDLE and not p.planned_before) or level == "error":
+                p._set_status(text, level)
+                if details is not None:
+                    p._call_view("show_details", details)
+
+    def close(self) -> None:
+        self._closed = True
+        for p in self.all():
+            p.close()
+
+
 def attach_cine_panel(
     server: viser.ViserServer,
     backend: PanelBackend,
@@ -386,25 +531,25 @@ def attach_cine_panel(
     export_name: str = "shot",
     start_region=None,
     cameras: Optional[TrainingCameras] = None,
-) -> CinePanel:
-    """Add the cinematography panel to ``server`` and return its :class:`CinePanel`.
+    limits: Optional[ServerLimits] = None,
+) -> ClientPanels:
+    """Give every browser page of ``server`` its own cinematography panel; returns the :class:`ClientPanels`.
 
     ``backend`` gives Gaussians / locate / plan (see :class:`PanelBackend`); coordinates are drawn at
     ``scale`` x scene units (10 inside nerfstudio's viewer). ``previewer`` enables "Preview video"; ``start_region``
-    (lo [3], hi [3]) and ``cameras`` (the scene's training cameras) place the opening view (``ui.home``) inside the
+    (lo [3], hi [3]) and ``cameras`` (the scene's training cameras) place the opening view (``home``) inside the
     captured region (:func:`~.views.opening_view`)."""
     cfg = config or PanelConfig()
     g = backend.gaussians()
     means = to_numpy(g.means)
     extent = float(np.linalg.norm(np.percentile(means, 98, axis=0)
                                   - np.percentile(means, 2, axis=0))) if len(means) else 2.0
-    ui = ViserPanelUI(server, scale=scale, scene_extent=extent, fov_deg=cfg.fov_deg,
-                      aspect=cfg.render_width / cfg.render_height, default_goto=default_goto,
-                      default_look_at=default_look_at, folder_label=folder_label, n_candidates=cfg.n_candidates,
-                      export_name=export_name, preview_size=(cfg.preview_width, cfg.preview_height))
-    ui.gaussian_means = means
+    panels = ClientPanels(server, backend, cfg, exporter, previewer, limits, scale=scale, scene_extent=extent,
+                          fov_deg=cfg.fov_deg, aspect=cfg.render_width / cfg.render_height,
+                          default_goto=default_goto, default_look_at=default_look_at, folder_label=folder_label,
+                          n_candidates=cfg.n_candidates, export_name=export_name,
+                          preview_size=(cfg.preview_width, cfg.preview_height))
+    panels.gaussian_means = means
     if len(means):
-        ui.home, ui.overview = opening_view(means, start_region, cameras), overview_view(means, cfg.fov_deg)
-    panel = CinePanel(backend, ui, cfg, exporter, previewer)
-    ui.attach(panel)
-    return panel
+        panels.home, panels.overview = opening_view(means, start_region, cameras), overview_view(means, cfg.fov_deg)
+    return panels.listen()

@@ -104,8 +104,8 @@ def viewer(tmp_path):
     from cinenerf_ns.viewer.standalone import StandaloneConfig, StandaloneViewer
 
     v = StandaloneViewer(StandaloneConfig(load_config="procedural:3000", port=free_port(), host="127.0.0.1",
-                                          data=tmp_path / "data", grid_resolution=64))
-    assert v.planner.wait_ready(120), v.panel.status
+                                          output_dir=tmp_path / "data", grid_resolution=64))
+    assert v.planner.wait_ready(120), v.panels.status
     yield v
     v.close()
 
@@ -127,16 +127,17 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
         timings["console_errors_on_load"] = [c[1][:120] for c in ours + viser_own]
         b.screenshot(artifacts / "browser_first_view.png")
         lo, hi = viewer.loaded.start_region  # the opening view: inside the room (procedural start region)
-        assert np.all(viewer.ui.home.position >= lo) and np.all(viewer.ui.home.position <= hi)
+        assert np.all(viewer.panels.home.position >= lo) and np.all(viewer.panels.home.position <= hi)
 
+        pp = page_panel(viewer)  # this page's own panel
         # fast scripted edits then Plan: whatever reached the server, the boxes end up showing what was planned
-        before = viewer.panel.status
+        before = pp.status
         fast_edits(b)
-        assert wait(lambda: viewer.panel.status != before and viewer.panel.status_level != "busy", 30)
-        planned = viewer.panel._last_texts
+        assert wait(lambda: pp.status != before and pp.status_level != "busy", 30)
+        planned = pp._last_texts
         assert wait(lambda: box_values(b) == tuple(planned), 10), (
             f"boxes show {box_values(b)}, the server planned with {planned}")
-        assert f"go to '{planned[0]}'" in viewer.panel.status or "'Go to' is empty" in viewer.panel.status
+        assert f"go to '{planned[0]}'" in pp.status or "'Go to' is empty" in pp.status
         timings["fast_edits_planned_with"] = list(planned)
         client = next(iter(viewer.server.get_clients().values()))
         reported = []  # camera poses the browser reports back (proves the browser's camera moved)
@@ -144,10 +145,10 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
 
         type_into(b, "Go to", "potted plant")
         type_into(b, "Look at", "sofa")
-        assert wait(lambda: viewer.ui.goto.value == "potted plant" and viewer.ui.look_at.value == "sofa")
-        viewer.panel.config.loop = False
+        assert wait(lambda: pp.view.goto.value == "potted plant" and pp.view.look_at.value == "sofa")
+        pp.config.loop = False
         # a longer flight: screenshots must land while it is under way, even on a busy box
-        viewer.panel.config.speed = 0.25
+        pp.config.speed = 0.25
         # the camera reports from here on belong to this flight: autoplay starts with the plan, and on a busy box the
         # flight can be over before the checks below begin (the end was then reported before they counted)
         n_before = len(reported)
@@ -156,8 +157,8 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
         click(b, "Plan")
         # this plan's own status (the fast edits' plan may have left a 'Planned' one that the click has not yet
         # replaced)
-        assert wait(lambda: "Planned" in viewer.panel.status and "go to 'potted plant'" in viewer.panel.status, 60), (
-            viewer.panel.status)
+        assert wait(lambda: "Planned" in pp.status and "go to 'potted plant'" in pp.status, 60), (
+            pp.status)
         timings["plan_click_to_planned_s"] = t_planned = time.perf_counter() - t0
         # the browser camera moves over time while the shot plays (autoplay at the shot's real speed): screenshots
         # first, while the flight is surely under way (a screenshot takes seconds on a loaded 2-core box)
@@ -165,38 +166,37 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
         for i in range(5):
             time.sleep(0.3)
             shots.append(b.screenshot(artifacts / f"browser_flight_{i}.png"))
-            states.append((round(time.perf_counter() - t0 - t_planned, 2), viewer.panel.state,
-                           viewer.panel.frames_sent))
+            states.append((round(time.perf_counter() - t0 - t_planned, 2), pp.state,
+                           pp.frames_sent))
         timings["flight_screenshots_s_after_planned"] = [x[0] for x in states]
         digests = {hashlib.sha1(p.read_bytes()).hexdigest() for p in shots}
         assert len(digests) > 1, ("the rendered view did not change while flying (s after Planned, state, frames): "
                                   f"{states}")
         assert box_values(b) == ("potted plant", "sofa")
-        assert "go to 'potted plant' matched the object 'potted plant'" in viewer.panel.status
-        assert "cinenerf_ns planner" in viewer.ui.details_md.content  # internals in the details fold
-        assert "lower score is better" in viewer.panel.status
+        assert "go to 'potted plant' matched the object 'potted plant'" in pp.status
+        assert "cinenerf_ns planner" in pp.view.details_text  # internals in the details fold
+        assert "lower score is better" in pp.status
         # the candidate dropdown lists duration and min clearance of each candidate
-        assert all(" s, clearance " in o for o in viewer.ui.candidate.options), viewer.ui.candidate.options
+        assert all(" s, clearance " in o for o in pp.view.candidate.options), pp.view.candidate.options
         # the path node exists on the server and in the browser's scene tree
-        names = [getattr(h, "name", "") for h in viewer.ui._nodes["shot"]]
+        names = [getattr(h, "name", "") for h in pp.view._nodes["shot"]]
         assert {"/cine/shot/path", "/cine/shot/start_label", "/cine/shot/end_label"} <= set(names)
         assert b.wait_js("document.body.innerText.includes('Planned')", 20)
-        shot = viewer.panel.shot
+        shot = pp.shot
         end = shot.positions[-1] * viewer.cfg.scale  # viser coordinates
         # the browser reports its camera back (throttled by the client); it must reach the shot's end
-        assert wait(lambda: viewer.panel.state == "ready", 30)
+        assert wait(lambda: pp.state == "ready", 30)
         assert wait(lambda: any(np.linalg.norm(p - end) < 1e-3 for _, p in reported[n_before:]), 20), (
             f"browser camera never reported the shot's end {end}: {[p for _, p in reported[n_before:]]}")
         moved = [p for _, p in reported[n_before:]]
         # (not reported[n_before - 1]: with no report before the flight that index wrapped to the last one)
         assert len(moved) >= 2 and np.linalg.norm(moved[-1] - start_pos) > 1.0
 
-        viewer.ui.overview_box.value = True  # the "Top-down overview" toggle (server side: the box is in a fold)
-        assert wait(lambda: not viewer.splat_above[0].visible, 10)  # what lies above the start region is cut away
-        time.sleep(1.0)
+        pp.view.overview_box.value = True  # the "Top-down overview" toggle (server side: the box is in a fold)
+        time.sleep(1.0)  # what lies above the start region is cut away for this page alone (a message to it)
         b.screenshot(artifacts / "browser_overview.png")
-        viewer.ui.overview_box.value = False
-        assert wait(lambda: viewer.splat_above[0].visible, 10)
+        assert viewer.splat_above[0].visible  # the server's state, and so every other page, keeps it
+        pp.view.overview_box.value = False
 
         exports_preview_and_nonsense(b, viewer, tmp_path, timings)
         b.screenshot(artifacts / "browser_final.png")
@@ -210,29 +210,32 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
 
 def exports_preview_and_nonsense(b, viewer, tmp_path, timings) -> None:
     """Two exports (two files, the second renamed and said), the preview video, a nonsense query."""
+    pp = page_panel(viewer)
     # export through the GUI, twice: two files, the second with a numbered name, said on the page
     type_into(b, "Export name", "browser-take")
     click(b, "Export camera path")
     out = tmp_path / "data" / "camera_paths" / "browser-take.json"
-    assert wait(lambda: out.exists(), 20), viewer.panel.status
+    assert wait(lambda: out.exists(), 20), pp.status
     click(b, "Export camera path")
     out2 = out.with_name("browser-take-2.json")
-    assert wait(lambda: out2.exists(), 20), viewer.panel.status
+    assert wait(lambda: out2.exists(), 20), pp.status
     for f in (out, out2):
         data = json.loads(f.read_text())
         assert len(data["camera_path"]) > 10 and data["render_width"] == 1920
     assert b.wait_js("document.body.innerText.includes(\"'browser-take.json' already exists\")", 20)
-    assert b.wait_js(f"document.body.innerText.includes({json.dumps(str(out2))})", 20)  # the absolute path
+    shown = "data/camera_paths/browser-take-2.json"  # relative to the output folder's parent: no absolute server path
+    assert b.wait_js(f"document.body.innerText.includes({json.dumps(shown)})", 20)
+    assert not b.js(f"document.body.innerText.includes({json.dumps(str(tmp_path))})")
     assert b.wait_js("document.body.innerText.includes('No ns-render command')", 20)  # no run: said, no placeholder
 
     # the preview video of the selected candidate, rendered on the CPU in the background
     t0 = time.perf_counter()
     click(b, "Preview video")
     video = tmp_path / "data" / "previews" / "browser-take.mp4"
-    assert wait(lambda: "Preview of candidate 1 written" in viewer.panel.status, 300), viewer.panel.status
+    assert wait(lambda: "Preview of candidate 1 written" in pp.status, 300), pp.status
     timings["preview_click_to_written_s"] = time.perf_counter() - t0
     assert video.is_file() and video.stat().st_size > 1000
-    assert b.wait_js(f"document.body.innerText.includes({json.dumps(str(video))})", 20)
+    assert b.wait_js("document.body.innerText.includes('data/previews/browser-take.mp4')", 20)
     assert b.wait_js("document.body.innerText.includes('Download preview')", 20)
 
     # nonsense from the browser: an error naming the scene's objects; the viewer keeps running
@@ -240,6 +243,12 @@ def exports_preview_and_nonsense(b, viewer, tmp_path, timings) -> None:
     click(b, "Plan")
     assert b.wait_js("document.body.innerText.includes(\"no object matches 'the unicorn'\")", 20)
     assert b.wait_js("document.body.innerText.includes('objects: armchair, floor lamp')", 20)
+
+
+def page_panel(viewer):
+    """The panel of the one browser page (each page has its own)."""
+    assert wait(lambda: len(viewer.panels.panels) == 1, 30), "the page got no panel"
+    return next(iter(viewer.panels.panels.values()))
 
 
 def wait(pred, timeout=10.0):
@@ -292,21 +301,21 @@ def test_the_bundled_room_opens_at_a_training_camera_without_console_errors(tmp_
 
     # the text-query warm-up runs as for a user (on its thread, about a minute of torch here); close() stops it after
     # its current label and waits for it: a thread still running torch when the test process exits could abort it
-    viewer = StandaloneViewer(StandaloneConfig(port=free_port(), host="127.0.0.1", data=tmp_path / "data"),
+    viewer = StandaloneViewer(StandaloneConfig(port=free_port(), host="127.0.0.1", output_dir=tmp_path / "data"),
                               plan_fn=lambda *a, **k: [])  # loading only: no planner preparation
     b = None
     try:
         cams = viewer.loaded.cameras
         assert cams is not None and len(cams.centres) == 150
-        np.testing.assert_allclose(viewer.ui.home.position, cams.centres[cams.typical()])
+        np.testing.assert_allclose(viewer.panels.home.position, cams.centres[cams.typical()])
         b = Chromium(viewer.url)
         b.wait_js("document.body && document.body.innerText.includes('Export camera path')", 60)
         assert wait(lambda: len(viewer.server.get_clients()) == 1, 30), "the browser did not connect"
         client = next(iter(viewer.server.get_clients().values()))
         s = viewer.cfg.scale
-        assert wait(lambda: np.allclose(client.camera.position, viewer.ui.home.position * s, atol=1e-6), 30), (
-            f"browser camera at {client.camera.position / s}, opening view {viewer.ui.home.position}")
-        np.testing.assert_allclose(client.camera.look_at, viewer.ui.home.look_at * s, atol=1e-6)
+        assert wait(lambda: np.allclose(client.camera.position, viewer.panels.home.position * s, atol=1e-6), 30), (
+            f"browser camera at {client.camera.position / s}, opening view {viewer.panels.home.position}")
+        np.testing.assert_allclose(client.camera.look_at, viewer.panels.home.look_at * s, atol=1e-6)
         deadline = time.monotonic() + 60  # the first splat frame (software WebGL: seconds)
         while time.monotonic() < deadline and not console_errors(b)[1]:
             b.pump(0.5)

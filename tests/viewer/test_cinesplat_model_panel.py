@@ -77,7 +77,7 @@ def test_nerfstudio_viewer_installs_panel_on_cinesplat_model(tmp_path):
         pipeline=Pipeline(), train_lock=lock,
     )
     try:
-        panel = model.cine_panel.panel
+        panel = model.cine_panel.panels.server_panel()
         assert isinstance(panel, CinePanel)
         backend = panel.backend
         assert isinstance(backend, SplatModelBackend) and backend.lock is lock and backend.model is model
@@ -85,7 +85,7 @@ def test_nerfstudio_viewer_installs_panel_on_cinesplat_model(tmp_path):
         res = panel.request_plan("0 0 0.3", "0 0 0", n_candidates=2).result(120)
         assert res is not None, panel.status
         assert "Planned" in panel.status and "timings" not in panel.status
-        details = panel.view.details_md.content  # internals go to the details fold, not the status line
+        details = panel.view.details_text  # internals go to the details fold, not the status line
         assert "cinenerf_ns planner" in details
         assert "prepare " in details  # the first Plan on a snapshot reports the one-time prepare()
         for s in res.shots:

@@ -96,3 +96,32 @@ def test_render_command(tmp_path):
     cmd = render_command(tmp_path / "run" / "config.yml", tmp_path / "x.json", "fox", "x")
     assert cmd.startswith(f"ns-render camera-path --load-config {tmp_path / 'run' / 'config.yml'} ")
     assert cmd.endswith("--output-path renders/fox/x.mp4")
+
+
+def test_same_name_from_many_threads_gives_as_many_files(tmp_path):
+    """Two clients exporting one name at once: every export its own file, each whole (os.link never replaces)."""
+    import threading
+
+    from cinenerf_ns.viewer.export import write_json_unique
+
+    data = camera_path_from_shot(line_shot([0, 0, 0], [1, 0, 0], [0, 1, 0]), 50.0, 64, 48, 30)
+    paths, errors = [], []
+    barrier = threading.Barrier(8)
+
+    def work():
+        barrier.wait()
+        for _ in range(5):
+            try:
+                paths.append(write_json_unique(tmp_path, "take", data)[0])
+            except Exception as e:  # noqa: BLE001
+                errors.append(e)
+
+    threads = [threading.Thread(target=work) for _ in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    assert errors == [] and len(set(paths)) == 40
+    names = sorted(f.name for f in tmp_path.iterdir())
+    assert len(names) == 40 and "take.json" in names and "take-40.json" in names  # no temporary file left
+    assert all(json.loads(p.read_text()) == json.loads(json.dumps(data)) for p in paths)

@@ -219,7 +219,7 @@ def test_control_is_found_by_nerfstudio_and_installs_panel(tmp_path):
                                  log_filename=tmp_path / "run" / "viewer_log_filename.txt", train_lock=threading.Lock())
         for c in found:  # what Viewer.__init__ does
             c._setup(viewer)
-        panel = model.cine_panel.panel
+        panel = model.cine_panel.panels.server_panel()
         assert isinstance(panel, CinePanel) and panel.backend.lock is viewer.train_lock
         assert panel.config.data_dir == tmp_path / "data"
         assert panel.config.config_path == tmp_path / "run" / "config.yml"
@@ -253,8 +253,9 @@ def test_real_nerfstudio_viewer_installs_panel(tmp_path):
         pipeline=Pipeline(), train_lock=threading.Lock(),
     )
     try:
-        panel = model.cine_panel.panel
+        panel = model.cine_panel.panels.server_panel()
         assert isinstance(panel, CinePanel)
+        assert viewer.viser_server._cine_guard is not None  # what pages send is checked in ns-viewer too
         assert panel.config.data_dir == tmp_path / "data"
         assert panel.config.config_path == tmp_path / "run" / "config.yml"
         assert panel.request_plan("0 0 0.5", "0 0 0").result(60) is not None, panel.status

@@ -38,7 +38,7 @@ def no_planning(*args, **kwargs):  # the injected planner: these tests never pla
 
 def viewer_on(source: str, tmp_path: Path) -> StandaloneViewer:
     return StandaloneViewer(StandaloneConfig(load_config=source, port=free_port(), host="127.0.0.1",
-                                             data=tmp_path / "out"), plan_fn=no_planning)
+                                             output_dir=tmp_path / "out"), plan_fn=no_planning)
 
 
 def camera_looking(position, forward, roll_deg=0.0) -> np.ndarray:
@@ -91,13 +91,13 @@ def test_a_run_opens_at_its_typical_training_camera(tmp_path):
         assert cams is not None and cams.c2w is not None
         np.testing.assert_allclose(cams.c2w, want)  # in the run's normalised coordinates, where the splat lives
         assert cams.typical() == 2  # the middle of the row
-        assert_is_camera_view(v.ui.home, want[2])
-        assert np.rad2deg(np.arccos(np.clip(v.ui.home.up @ [0, 0, 1], -1, 1))) > 10  # its roll is kept
+        assert_is_camera_view(v.panels.home, want[2])
+        assert np.rad2deg(np.arccos(np.clip(v.panels.home.up @ [0, 0, 1], -1, 1))) > 10  # its roll is kept
         # the browser starts there, and viser's "Reset View" returns there (viser units: x scale)
         ic, s = v.server.initial_camera, v.cfg.scale
-        np.testing.assert_allclose(ic.position, v.ui.home.position * s)
-        np.testing.assert_allclose(ic.look_at, v.ui.home.look_at * s)
-        np.testing.assert_allclose(ic.up, v.ui.home.up)
+        np.testing.assert_allclose(ic.position, v.panels.home.position * s)
+        np.testing.assert_allclose(ic.look_at, v.panels.home.look_at * s)
+        np.testing.assert_allclose(ic.up, v.panels.home.up)
     finally:
         v.close()
 
@@ -108,9 +108,9 @@ def test_a_generated_scene_opens_in_its_start_region(tmp_path):
     try:
         assert v.loaded.cameras is None
         lo, hi = v.loaded.start_region
-        assert np.all(v.ui.home.position >= lo) and np.all(v.ui.home.position <= hi)
-        np.testing.assert_array_equal(v.ui.home.up, [0, 0, 1])
-        np.testing.assert_allclose(v.server.initial_camera.position, v.ui.home.position * v.cfg.scale)
+        assert np.all(v.panels.home.position >= lo) and np.all(v.panels.home.position <= hi)
+        np.testing.assert_array_equal(v.panels.home.up, [0, 0, 1])
+        np.testing.assert_allclose(v.server.initial_camera.position, v.panels.home.position * v.cfg.scale)
     finally:
         v.close()
 

@@ -47,7 +47,7 @@ def test_plan_resolves_text_and_coordinates(tmp_path):
     assert len(view.candidates) == 2 and view.candidates[0].startswith("1: 1.0 s")
     assert [t.role for t in view.targets] == ["Go to", "Look at"]
     assert view.targets[0].mask.sum() == 10 and view.targets[1].mask is None
-    assert view.last_status[1] == "ok" and view.last_status[0].startswith("Planned 2 shots in ")
+    assert view.last_status[1] == "ok" and view.last_status[0].startswith("Planned 2 shots: ")
     assert "go to 'the chair' matched label 'chair' (10 Gaussians)" in view.last_status[0]
     assert "look at the point (0.1, 0.2, 0.3)" in view.last_status[0]
     assert set(panel.last_timings) == {"query_s", "plan_s", "draw_s", "total_s"}
@@ -258,8 +258,11 @@ def test_export_atomic_and_command(tmp_path):
         f"{res.path.absolute()} --output-path renders/{tmp_path.name}/take1.mp4"
     )
     shown_path, text = view.exports[-1]
-    assert shown_path == res.path and text.count(str(res.path)) == 2  # once as the file, once inside the command
-    assert "--load-config " + str(tmp_path / "config.yml") in text and "Exported candidate 1" in view.last_status[0]
+    command = view.commands[-1]
+    shown = f"{tmp_path.name}/camera_paths/take1.json"  # relative to the output folder's parent, never absolute
+    assert shown_path == res.path and f"Camera path: {shown}." in text and f"--camera-path-filename {shown}" in command
+    assert str(tmp_path) not in text + command and "Exported candidate 1" in view.last_status[0]
+    assert "--load-config config.yml" in command or "--load-config " + (tmp_path / "config.yml").name in command
     assert sorted(os.listdir(res.path.parent)) == ["take1.json"]  # no temp files left
     panel.close()
 

@@ -89,7 +89,7 @@ def test_status_in_words_and_timings_in_details(tmp_path):
     panel.request_plan("chair", "lamp", n_candidates=2).result(10)
     assert any(s == ("Planning: go to 'chair', look at 'lamp'...", "busy") for s in view.statuses)
     text = view.last_status[0]
-    assert text.startswith("Planned 2 shots in ") and not any(w in text for w in ("batch_qp", "_ms", "query_s", "seed"))
+    assert text.startswith("Planned 2 shots: ") and not any(w in text for w in ("batch_qp", "_ms", "query_s", "seed"))
     assert "batch_qp 12 ms" in view.details[-1] and "planning" in view.details[-1]
     panel.close()
 
@@ -141,8 +141,9 @@ def test_no_run_means_no_placeholder_command(tmp_path):
     res = panel.export("take")
     assert res.command is None
     text = view.exports[-1][1]
-    assert "No `ns-render` command: 'procedural:3000' is a generated test room" in text and "<path" not in text
-    assert text.count(str(res.path)) == 1  # the path, once
+    assert "No ns-render command: 'procedural:3000' is a generated test room" in text and "<path" not in text
+    assert view.commands[-1] is None and text.count(f"{tmp_path.name}/camera_paths/take.json") == 1  # the file, once
+    assert str(tmp_path) not in text  # no absolute server path
     panel.close()
 
 
@@ -163,7 +164,9 @@ def test_preview_renders_on_a_thread_and_offers_the_file(tmp_path):
     busy = [t for t, level in view.statuses if level == "busy" and "Rendering a 480x270 preview of candidate 1" in t]
     assert th is not None and len(busy) == 1
     path = tmp_path / "previews" / "take.mp4"
-    assert view.last_status == (f"Preview of candidate 1 written: {path}", "ok") and view.previews[-1] == path
+    shown = f"{tmp_path.name}/previews/take.mp4"  # relative to the output folder's parent
+    assert view.last_status == (f"Preview of candidate 1 written: {shown}. Download it below.", "ok")
+    assert view.previews[-1] == path
     cam, name, w, h, fps = calls[0]
     assert (name, w, h, fps) == ("take", 480, 270, 15) and cam["fps"] == 15 and len(cam["camera_path"]) == 16
     panel.preview("take").join(10)  # a second preview gets its own file
@@ -270,3 +273,56 @@ def test_highlight_box_encloses_the_object_but_not_stray_points():
     assert np.all(size < [1.3, 0.7, 1.0]) and np.all(size > [0.8, 0.4, 0.6])
     with pytest.raises(ValueError):
         highlight_box(np.zeros((0, 3)))
+
+
+# ------------------------------------------------------------------ bounded work over every client
+def test_panels_of_one_viewer_share_its_limits(tmp_path):
+    """Two clients' panels over one ServerLimits: one plan at a time (the other says it waits), one preview render
+    at a time however many quick clicks, texts and queues bounded, files capped."""
+    import threading
+    import time
+
+    from cinenerf_ns.viewer.panel import ServerLimits
+    from cinenerf_ns.viewer.safe_text import MAX_TEXT_CHARS
+
+    limits = ServerLimits(max_files=3)
+    backend = FakeBackend(plan_delay=0.5)
+    started, release = threading.Event(), threading.Event()
+    renders = []
+
+    def previewer(camera_path, out_dir, name, w, h, fps):
+        renders.append(name)
+        started.set()
+        release.wait(10)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        (out_dir / f"{name}.mp4").write_bytes(b"mp4")
+        return out_dir / f"{name}.mp4"
+
+    views = [FakeView(), FakeView()]
+    a, b = (CinePanel(backend, v, PanelConfig(data_dir=tmp_path, output_dir=tmp_path / "out", autoplay=False),
+                      previewer=previewer, limits=limits) for v in views)
+    fa, fb = a.request_plan("chair", "lamp"), b.request_plan("lamp", "chair")
+    assert fa.result(20) is not None and fb.result(20) is not None
+    waited = [v for v in views if any("Waiting for another user's Plan" in s for s, _ in v.statuses)]
+    assert len(waited) == 1  # the second plan waited for the first: never two at once
+    # one preview at a time over both clients, whatever the clicks
+    threads = [p.preview("take") for p in (a, b, a, b, a)]
+    assert started.wait(10) and sum(t is not None for t in threads) == 1
+    assert sum("a preview is already rendering on this viewer" in v.last_status[0] for v in views) == 2
+    release.set()
+    next(t for t in threads if t is not None).join(10)
+    assert renders == ["take"] and not limits._preview_lock.locked()
+    # texts and queues bounded; the files budget: 1 preview + 2 exports, then a clear refusal
+    assert a.request_plan("x" * (MAX_TEXT_CHARS + 1), "lamp").result(5) is None
+    assert f"at most {MAX_TEXT_CHARS} are accepted" in views[0].last_status[0]
+    assert a.export("e1") is not None and a.export("e1") is not None
+    assert a.export("e1") is None and "limit for one run (3 files" in views[0].last_status[0]
+    assert sorted(f.name for f in (tmp_path / "out" / "camera_paths").iterdir()) == ["e1-2.json", "e1.json"]
+    backend.plan_delay = 1.0
+    futures = [b.request_plan("chair", "lamp") for _ in range(limits.max_pending_plans + 2)]
+    assert "Still working on" in views[1].last_status[0]
+    assert [f.result(30) for f in futures][-1] is None  # refused at once
+    t0 = time.monotonic()
+    for p in (a, b):
+        p.close()
+    assert time.monotonic() - t0 < 10

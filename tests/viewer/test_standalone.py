@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from viewer_fakes import wait_for
 
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.scene.splat_params import SH_C0, SplatParams
@@ -98,57 +99,60 @@ def room_splat():
 
 def viewer_for(source, tmp_path, **kw) -> StandaloneViewer:
     return StandaloneViewer(StandaloneConfig(load_config=source, port=free_port(), host="127.0.0.1",
-                                             data=kw.pop("data", None), grid_resolution=48, **kw))
+                                             output_dir=kw.pop("output_dir", tmp_path), grid_resolution=48, **kw))
 
 
 def test_standalone_on_ply_plans_with_coordinates(tmp_path):
     room, sp = room_splat()
     write_3dgs_ply(tmp_path / "scene.ply", sp)
     v = viewer_for(str(tmp_path / "scene.ply"), tmp_path)
+    p = v.panels.server_panel()
     try:
-        assert "this scene has none: type targets as x y z" in v.panel.status
-        assert v.planner is not None and v.planner.wait_ready(60), v.panel.status
-        assert v.panel.request_plan("the armchair", "0 0 0").result(30) is None
-        assert "need a trained cinesplat scene" in v.panel.status and v.panel.status_level == "error"
+        assert "this scene has none: type targets as x y z" in p.status
+        assert v.planner is not None and v.planner.wait_ready(60), p.status
+        assert p.request_plan("the armchair", "0 0 0").result(30) is None
+        assert "need a trained cinesplat scene" in p.status and p.status_level == "error"
         goal = " ".join(f"{x:.3f}" for x in room.object("table").center + [0, 0, 0.3])
         look = " ".join(f"{x:.3f}" for x in room.object("table").center)
-        assert v.panel.request_plan(goal, look, n_candidates=2).result(60) is not None, v.panel.status
-        assert "cinenerf_ns planner" in v.ui.details_md.content
-        out = v.panel.export("ply-take")
+        assert p.request_plan(goal, look, n_candidates=2).result(60) is not None, p.status
+        assert "cinenerf_ns planner" in p.view.details_text
+        out = p.export("ply-take")
         assert out.path == tmp_path / "camera_paths" / "ply-take.json"
     finally:
         v.close()
 
 
 def test_standalone_procedural_names_progress_and_errors(tmp_path):
-    v = viewer_for("procedural:2000", tmp_path, data=tmp_path / "data")
+    v = viewer_for("procedural:2000", tmp_path, output_dir=tmp_path / "data")
+    p = v.panels.server_panel()
     try:
         assert v.planner.wait_ready(60)
-        assert wait_for(lambda: "Planner ready in" in v.panel.status), v.panel.status  # prepare progress + time
-        assert "Text queries: object names" in v.panel.status
-        res = v.panel.request_plan("armchair", "floor lamp", n_candidates=2).result(60)
-        assert res is not None, v.panel.status
+        assert wait_for(lambda: "Planner ready." in p.status), p.status  # prepare progress
+        assert "Planner prepared in" in p.view.details_text  # its time in the details
+        assert "Text queries: object names" in p.status
+        res = p.request_plan("armchair", "floor lamp", n_candidates=2).result(60)
+        assert res is not None, p.status
         room, _ = room_splat()  # the same generated room (same N and seed)
         k = [o.name for o in room.objects].index("armchair")
         assert np.array_equal(res.targets[0].mask, room.object_ids.numpy() == k)  # over the drawn Gaussians
         np.testing.assert_allclose(res.targets[0].point, room.objects[k].center)
-        labels = v.ui.candidate.options
+        labels = p.view.candidate.options
         assert len(labels) == len(res.shots) and all(" s, clearance " in lab for lab in labels)
-        ok = v.panel.export("take")
+        ok = p.export("take")
         before = ok.path.read_bytes()
         # readable errors from the real planner / queries, and the export stays whole
-        assert v.panel.request_plan("the unicorn", "sofa").result(30) is None
-        assert "no object matches 'the unicorn'" in v.panel.status
+        assert p.request_plan("the unicorn", "sofa").result(30) is None
+        assert "no object matches 'the unicorn'" in p.status
         inside = v.loaded.obstacles.means[0].double().numpy()
-        v.panel.view.camera_position = lambda: inside  # as if the browser camera sat inside an obstacle
-        assert v.panel.request_plan("armchair", "sofa", start_from_camera=True).result(60) is None
-        assert "puts the camera inside the scene" in v.panel.status and v.panel.status_level == "error"
-        assert v.panel.shot is res.shots[0]  # the previous plan is kept
-        again = v.panel.export("take")  # never overwrites: a numbered name, said in the status
+        p.view.camera_position = lambda: inside  # as if the browser camera sat inside an obstacle
+        assert p.request_plan("armchair", "sofa", start_from_camera=True).result(60) is None
+        assert "puts the camera inside the scene" in p.status and p.status_level == "error"
+        assert p.shot is res.shots[0]  # the previous plan is kept
+        again = p.export("take")  # never overwrites: a numbered name, said in the status
         assert again.path == ok.path.with_name("take-2.json") and ok.path.read_bytes() == before
-        assert again.renamed_from == "take" and "'take.json' already exists" in v.panel.status
+        assert again.renamed_from == "take" and "'take.json' already exists" in p.status
         assert again.command is None  # a procedural room has no run: no ns-render command with a placeholder
-        assert sorted(p.name for p in ok.path.parent.iterdir()) == ["take-2.json", "take.json"]
+        assert sorted(f.name for f in ok.path.parent.iterdir()) == ["take-2.json", "take.json"]
     finally:
         v.close()
 
@@ -178,9 +182,10 @@ def test_standalone_compact_scene_answers_text_by_relevancy(tmp_path):
     from cinenerf_ns.planner.scene.ellipsoids import SceneConfig
     from cinenerf_ns.scenes import load_scene as cli_load
 
-    v = viewer_for(str(path), tmp_path, data=tmp_path / "out")
+    v = viewer_for(str(path), tmp_path, output_dir=tmp_path / "out")
+    p = v.panels.server_panel()
     try:
-        assert "relevancy" in v.panel.status and v.loaded.semantics == "relevancy"
+        assert "relevancy" in p.status and v.loaded.semantics == "relevancy"
         # the viewer warms the text queries on a thread after loading: every label answered from the cache
         assert v.warm_thread is not None
         v.warm_thread.join(60)
@@ -195,12 +200,12 @@ def test_standalone_compact_scene_answers_text_by_relevancy(tmp_path):
         assert what.startswith("the label 'armchair', best relevancy ")  # what the query matched, in words
         np.testing.assert_allclose(c, c_ref.numpy(), atol=1e-6)
         assert np.array_equal(m, m_ref.numpy()) and m.sum() > 0
-        assert v.panel.request_plan("", "armchair").result(30) is None and "'Go to' is empty" in v.panel.status
-        assert v.panel.request_plan("sofa", "armchair").result(30) is None
-        assert "answers only its own object names" in v.panel.status
+        assert p.request_plan("", "armchair").result(30) is None and "'Go to' is empty" in p.status
+        assert p.request_plan("sofa", "armchair").result(30) is None
+        assert "answers only its own object names" in p.status
         # the planner's preparation finishing after that fast failure does not overwrite it (it once did, at random)
         v._prepare_status("Planner ready in 0.01 s.", "ok")
-        assert "answers only its own object names" in v.panel.status
+        assert "answers only its own object names" in p.status
     finally:
         v.close()
 
@@ -220,7 +225,7 @@ def test_the_overview_cuts_away_what_lies_above_the_start_region(tmp_path, monke
 
     monkeypatch.setattr(viser.SceneApi, "add_gaussian_splats", record)
     v = StandaloneViewer(StandaloneConfig(load_config="procedural:2000", port=free_port(), host="127.0.0.1",
-                                          data=tmp_path), plan_fn=lambda *a, **k: [])
+                                          output_dir=tmp_path), plan_fn=lambda *a, **k: [])
     try:
         top = float(v.loaded.start_region[1][2]) * v.cfg.scale
         parts = dict(sent)
@@ -228,10 +233,11 @@ def test_the_overview_cuts_away_what_lies_above_the_start_region(tmp_path, monke
         assert parts["/splat"][:, 2].max() <= top < parts["/splat_above"][:, 2].min()
         assert len(parts["/splat"]) + len(parts["/splat_above"]) == len(v.loaded.splat.means)
         above = v.splat_above[0]
-        assert v.ui.overview_hides == [above] and above.visible
-        v.ui.overview_box.value = True  # the "Top-down overview" checkbox (set server side: its callback runs)
+        p = v.panels.server_panel()
+        assert v.panels.overview_hides == [above] and above.visible
+        p.view.overview_box.value = True  # the "Top-down overview" checkbox (set server side: its callback runs)
         assert wait_for(lambda: not above.visible)
-        v.ui.overview_box.value = False
+        p.view.overview_box.value = False
         assert wait_for(lambda: above.visible)
     finally:
         v.close()
@@ -239,22 +245,11 @@ def test_the_overview_cuts_away_what_lies_above_the_start_region(tmp_path, monke
     room, sp = room_splat()
     write_3dgs_ply(tmp_path / "scene.ply", sp)
     v = StandaloneViewer(StandaloneConfig(load_config=str(tmp_path / "scene.ply"), port=free_port(), host="127.0.0.1",
-                                          data=tmp_path), plan_fn=lambda *a, **k: [])
+                                          output_dir=tmp_path), plan_fn=lambda *a, **k: [])
     try:
-        assert [name for name, _ in sent] == ["/splat"] and v.ui.overview_hides == []
+        assert [name for name, _ in sent] == ["/splat"] and v.panels.overview_hides == []
     finally:
         v.close()
-
-
-def wait_for(pred, timeout=10.0):
-    import time
-
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.02)
-    return False
 
 
 def test_cli_help():
@@ -338,7 +333,7 @@ def test_ctrl_c_during_the_text_query_warm_up_exits_cleanly(tmp_path):
     scene = compact_scene_with_labels(tmp_path / "scene_compact.pt", 40)
     env = dict(os.environ, PYTHONPATH=str(REPO), PYTHONUNBUFFERED="1")
     p = subprocess.Popen([sys.executable, "-c", SLOW_WARM_DRIVER, "--load-config", str(scene), "--port",
-                          str(free_port()), "--host", "127.0.0.1", "--data", str(tmp_path / "data"),
+                          str(free_port()), "--host", "127.0.0.1", "--output-dir", str(tmp_path / "data"),
                           "--grid-resolution", "48"],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     err: list = []
@@ -362,3 +357,53 @@ def test_ctrl_c_during_the_text_query_warm_up_exits_cleanly(tmp_path):
     assert "viewer exited" in out, text  # a normal return: the warm-up stopped (no os._exit fallback)
     warmed = sum(line.startswith("warming") for line in err)
     assert warmed < 40, text  # stopped early, not after every label
+
+
+def test_host_and_port_are_checked_before_loading(tmp_path, capsys):
+    """127.0.0.1 by default; an address that is not one (999.1.1.1), or not this machine's, fails at once with the
+    option named (viser tried 1,000 ports, silently); a taken port says so; 0.0.0.0 prints a warning."""
+    import time
+
+    from cinenerf_ns.viewer.standalone import check_bind, check_config, check_host, entrypoint, exposure_warning
+
+    assert StandaloneConfig().host == "127.0.0.1"
+    assert StandaloneConfig().output_dir == Path("cinesplat_viewer_exports")
+    for bad in ["999.1.1.1", "", "evil.example", "1.2.3"]:
+        with pytest.raises(InvalidInputError, match="--host"):
+            check_host(bad)
+    t0 = time.monotonic()
+    with pytest.raises(SystemExit) as e:
+        entrypoint(["--host", "999.1.1.1", "--load-config", "demo-tiny"])
+    assert e.value.code == 2 and time.monotonic() - t0 < 10
+    err = capsys.readouterr().err
+    assert "--host '999.1.1.1' is not an IP address" in err and "Traceback" not in err
+    with pytest.raises(InvalidInputError, match="not an address of this machine"):
+        check_bind("203.0.113.7", free_port())  # TEST-NET-3: never one of this machine's
+    with socket.socket() as s:  # a port in use
+        s.bind(("127.0.0.1", 0))
+        s.listen(1)
+        port = s.getsockname()[1]
+        with pytest.raises(InvalidInputError, match=f"--port {port} is already in use"):
+            check_bind("127.0.0.1", port)
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(InvalidInputError, match="--output-dir .* is not a folder"):
+        check_config(StandaloneConfig(output_dir=tmp_path / "file"))
+    assert exposure_warning("127.0.0.1") is None and exposure_warning("::1") is None
+    assert exposure_warning("localhost") is None
+    assert "anyone who can reach this port" in exposure_warning("0.0.0.0")
+
+
+def test_exports_go_to_the_output_folder_never_beside_the_scene(tmp_path, monkeypatch):
+    room, sp = room_splat()
+    scene_dir = tmp_path / "dataset"
+    scene_dir.mkdir()
+    write_3dgs_ply(scene_dir / "scene.ply", sp)
+    monkeypatch.chdir(tmp_path)
+    v = StandaloneViewer(StandaloneConfig(load_config=str(scene_dir / "scene.ply"), port=free_port(),
+                                          host="127.0.0.1"), plan_fn=lambda *a, **k: [])
+    try:
+        assert v.panels.config.output_dir == tmp_path / "cinesplat_viewer_exports"
+        assert v.url.startswith("http://127.0.0.1:")
+    finally:
+        v.close()
+    assert sorted(f.name for f in scene_dir.iterdir()) == ["scene.ply"]

@@ -12,6 +12,7 @@ from viewer_fakes import line_shot
 from cinenerf_ns.viewer.backend import FunctionBackend, SceneGaussians
 from cinenerf_ns.viewer.panel import PanelConfig
 from cinenerf_ns.viewer.polytope_mesh import chebyshev_center, polytope_mesh
+from cinenerf_ns.viewer.safe_text import md_escape
 from cinenerf_ns.viewer.viser_ui import attach_cine_panel
 
 
@@ -61,7 +62,7 @@ def ui_panel(tmp_path):
         return shots
 
     backend = FunctionBackend(SceneGaussians(means), plan, lambda text: (means[:5].mean(0), mask))
-    panel = attach_cine_panel(server, backend, PanelConfig(data_dir=tmp_path, autoplay=False))
+    panel = attach_cine_panel(server, backend, PanelConfig(data_dir=tmp_path, autoplay=False)).server_panel()
     yield panel, panel.view
     panel.close()
     server.stop()
@@ -100,7 +101,8 @@ def test_drawing_follows_options(ui_panel):
 def test_status_and_play_buttons(ui_panel):
     panel, ui = ui_panel
     panel.request_plan("", "x").result(10)
-    assert ui.status_md.content.endswith("'Go to' is empty: type an object (e.g. 'the chair') or coordinates 'x y z'")
+    assert ui.status_md.content.endswith(md_escape("'Go to' is empty: type an object (e.g. 'the chair') or coordinates "
+                                                   "'x y z'"))
     panel.request_plan("thing", "0 -1 0").result(10)
     panel.play()
     assert ui.pause_button.visible and not ui.play_button.visible

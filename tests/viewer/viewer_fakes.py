@@ -20,6 +20,7 @@ class FakeView:
         self.statuses: List[tuple] = []
         self.playing: List[bool] = []
         self.exports: List[tuple] = []  # (path or None, text) of every show_export
+        self.commands: List[Any] = []  # the command shown with each show_export (None: none)
         self.inputs: List[tuple] = []  # (goto, look_at) put on screen by each Plan
         self.details: List[str] = []
         self.previews: List[Any] = []  # paths offered (None: offer hidden)
@@ -61,8 +62,9 @@ class FakeView:
         with self.lock:
             self.playing.append(playing)
 
-    def show_export(self, path, text):
+    def show_export(self, path, text, command=None):
         self.exports.append((path, text))
+        self.commands.append(command)
 
     def show_inputs(self, goto, look_at):
         self._rec("inputs", goto, look_at)
@@ -144,3 +146,13 @@ def camera_looking(position, forward, roll_deg=0.0) -> np.ndarray:
     r = np.deg2rad(roll_deg)
     x, y = np.cos(r) * x + np.sin(r) * y, -np.sin(r) * x + np.cos(r) * y
     return np.c_[x, y, -f, position]
+
+
+def wait_for(pred, timeout: float = 15.0) -> bool:
+    """Poll ``pred`` until true (True) or ``timeout`` seconds (False)."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(0.02)
+    return False
