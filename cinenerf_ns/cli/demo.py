@@ -29,16 +29,18 @@ def demo_args(output_dir: Path, scene: Path = DEMO_SCENE, candidates: int = 1) -
                     candidates=candidates, seed=0)
 
 
-def demo_preview(scene: str, camera_path: str, output_dir: Path, console: Console) -> Optional[dict]:
+def demo_preview(scene: str, camera_path: str, output_dir: Path, console: Console,
+                 subject_points=None) -> Optional[dict]:
     """demo.mp4 + demo_sheet.png of the planned shot (the preview's default size and frame rate, 480x270 at 15 fps,
-    CPU), or None when the scene has no colour."""
+    CPU; the look-at object outlined on the sheet), or None when the scene has no colour."""
     from cinenerf_ns.method.checkpoint import load_splat
     from cinenerf_ns.preview import preview_camera_path
 
     if str(scene).startswith("procedural:"):
         console.print("[yellow]no preview: the procedural fallback scene has no colours[/yellow]")
         return None
-    return preview_camera_path(load_splat(scene).params, camera_path, output_dir, "demo", console=console)
+    return preview_camera_path(load_splat(scene).params, camera_path, output_dir, "demo", console=console,
+                               subject_points=subject_points)
 
 
 def main(argv=None) -> dict:
@@ -56,7 +58,8 @@ def main(argv=None) -> dict:
     t0 = time.perf_counter()
     summary = run_plan(args, console=console)
     cam = summary["candidates"][0]["camera_path"]
-    preview = None if a.no_preview else demo_preview(args.scene, cam, a.output_dir, console)
+    preview = None if a.no_preview else demo_preview(args.scene, cam, a.output_dir, console,
+                                                     summary["look_at"].get("extent_points"))
     if preview is not None:
         summary["preview"] = preview
     console.print(f"\n[green]done in {time.perf_counter() - t0:.1f} s[/green]. Outputs in {a.output_dir}/:")

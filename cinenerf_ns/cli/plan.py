@@ -313,7 +313,7 @@ def _plan_shots(args: PlanArgs, planner: Planner, loaded: LoadedScene, goal: np.
 
 
 def _write_outputs(args: PlanArgs, out: OutputSet, planner: Planner, loaded: LoadedScene, shots, goal, look,
-                   reports) -> tuple:
+                   reports, subject_points: Optional[np.ndarray] = None) -> tuple:
     """Camera paths and plots into the output set: (camera-path files as they will be named, plot files)."""
     files = []
     for k, sh in enumerate(shots):
@@ -337,7 +337,8 @@ def _write_outputs(args: PlanArgs, out: OutputSet, planner: Planner, loaded: Loa
         for k in range(len(shots)):
             res = preview_camera_path(scene, out.path(f"{args.name}_{k}.json"), out.staging,
                                       name=f"{args.name}_{k}_preview",
-                                      width=w, height=h, fps=args.preview_fps, progress=False)
+                                      width=w, height=h, fps=args.preview_fps, progress=False,
+                                      subject_points=subject_points)
             plots[f"preview_{k}"] = str(out.final(Path(res["paths"]["mp4"]).name))
             plots[f"preview_sheet_{k}"] = str(out.final(Path(res["paths"]["contact_sheet"]).name))
     return files, plots
@@ -402,12 +403,14 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
                  targets.view_report(sh.positions[-1], look, args.up, None if scores[k] is None else scores[k].terms)
                  for k, sh in enumerate(shots)]
         with OutputSet(Path(args.output_dir), args.name) as out:
-            files, plots = _write_outputs(args, out, planner, loaded, shots, goal, look, reports)
+            extent = None if targets is None else targets.subject.extent[:: max(1, len(targets.subject.extent) // 64)]
+            files, plots = _write_outputs(args, out, planner, loaded, shots, goal, look, reports, extent)
             summary = _summary(args, loaded, planner, prep, gm, lm, goal, look, shots, scores, multi, reports, moves,
                                files, plots, obj_r, score_cfg, batch_tm)
             summary["request_ms"] = request_ms
             summary["end_pose"] = None if targets is None or targets.choice is None else targets.choice.to_dict()
             summary["end_pose_note"] = None if targets is None else targets.note()
+            summary["look_at"]["extent_points"] = None if extent is None else extent.tolist()  # the sheets' marker
             for k, c in enumerate(summary["candidates"]):
                 c["subject_view"] = views[k]
                 c["end_pose"] = None if targets is None else targets.pose_of(cands[k])

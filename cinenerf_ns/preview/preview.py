@@ -54,6 +54,29 @@ def _frames(scene: PreviewScene, cams: PreviewCameras, backend: str, background,
             yield img, dt
 
 
+def mark_subject(img: np.ndarray, cams: PreviewCameras, i: int, points: np.ndarray) -> np.ndarray:
+    """A copy of frame ``i`` [H, W, 3] with the projected box of ``points`` [P, 3] (those in front of the camera)
+    outlined in yellow and labelled; the frame itself when none is in front."""
+    from PIL import Image, ImageDraw
+
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    vm = cams.viewmats[i]
+    c = pts @ vm[:3, :3].T + vm[:3, 3]  # OpenCV camera coordinates
+    c = c[c[:, 2] > 1e-6]
+    if len(c) == 0:
+        return img
+    fx, fy, cx, cy = cams.intrinsics[i]
+    u, v = fx * c[:, 0] / c[:, 2] + cx, fy * c[:, 1] / c[:, 2] + cy
+    h, w = img.shape[:2]
+    x0, x1 = float(np.clip(u.min(), 0, w - 1)), float(np.clip(u.max(), 0, w - 1))
+    y0, y1 = float(np.clip(v.min(), 0, h - 1)), float(np.clip(v.max(), 0, h - 1))
+    im = Image.fromarray(img)
+    draw = ImageDraw.Draw(im)
+    draw.rectangle([x0, y0, x1, y1], outline=(255, 220, 0), width=2)
+    draw.text((x0 + 3, min(y1 + 2, h - 12)), "look-at", fill=(255, 220, 0))
+    return np.asarray(im)
+
+
 def preview_camera_path(
     splat: Union[SplatParams, PreviewScene],
     camera_path: Union[Dict[str, Any], str, Path],
@@ -69,12 +92,15 @@ def preview_camera_path(
     gif: bool = False,
     console: Optional[Console] = None,
     progress: bool = True,
+    subject_points: Optional[np.ndarray] = None,
 ) -> Dict[str, Any]:
     """Render ``camera_path`` (a nerfstudio camera-path dict or JSON file) through ``splat`` at width x height, fps.
 
     Writes ``<out_dir>/<name>.mp4``, ``<name>_sheet.png`` (``sheet_frames`` frames, first and last included) and,
     with ``gif``, ``<name>.gif``. ``backend``: "auto" (compiled CPU kernel, else torch; gsplat on CUDA), "native",
-    "torch" or "gsplat". Inputs are checked before anything is written (InvalidInputError). Returns
+    "torch" or "gsplat". ``subject_points`` [P, 3]: points of the look-at object; the contact sheet outlines them
+    (their projected box, yellow) in each frame. Inputs are checked before anything is written (InvalidInputError).
+    Returns
     {"paths": {...}, "timings": {...}, "frames", "frame_index", "backend", "width", "height", "fps"}.
     """
     t_start = time.perf_counter()
@@ -108,7 +134,7 @@ def preview_camera_path(
             writer.add(img)
             t_encode += time.perf_counter() - t0
             if i in sheet_at:
-                kept[i] = img
+                kept[i] = img if subject_points is None else mark_subject(img, cams, i, subject_points)
             if gif:
                 gif_frames.append(img)
             bar.advance(task)

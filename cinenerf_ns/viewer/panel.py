@@ -25,6 +25,7 @@ from typing import Dict, List, Optional, Tuple
 import numpy as np
 
 from cinenerf_ns.planner.errors import GoalUnreachableError, InvalidInputError, PlanningError
+from cinenerf_ns.planner.shots.framing import FRAMINGS
 from cinenerf_ns.planner.shots.plan_request import MAX_CANDIDATES
 
 from .backend import parse_point, to_numpy
@@ -179,6 +180,7 @@ class CinePanel(OutputMixin):
         n_candidates: Optional[int] = None,
         new_start: bool = False,
         start_from_camera: bool = False,
+        framing: Optional[str] = None,
     ) -> cf.Future:
         """Cancel any animation and plan on the worker thread. Returns a Future of
         :class:`PlanResult` (None when the request failed or was superseded; see ``status``). Texts longer than
@@ -190,6 +192,9 @@ class CinePanel(OutputMixin):
             n = int(n_candidates if n_candidates is not None else self.config.n_candidates)
             if not 1 <= n <= MAX_PANEL_CANDIDATES:
                 raise InvalidInputError(f"'Candidates' must be 1 to {MAX_PANEL_CANDIDATES} (got {n})")
+            framing = "medium" if framing is None else framing
+            if framing not in FRAMINGS:
+                raise InvalidInputError(f"'Framing' must be one of {', '.join(FRAMINGS)} (got {str(framing)[:40]!r})")
         except (InvalidInputError, TypeError, ValueError, OverflowError) as err:
             self._fail("Plan", err)
             return done
@@ -208,7 +213,7 @@ class CinePanel(OutputMixin):
             self._last_texts = (goto, look_at)
             req = PlanRequest(
                 goto=goto or "", look_at=look_at or "", seed=self.seed,
-                n_candidates=n, start_from_camera=start_from_camera, generation=self._generation,
+                n_candidates=n, start_from_camera=start_from_camera, generation=self._generation, framing=framing,
             )
             self._state = self.PLANNING
         # one source of truth: the boxes show exactly the texts this plan uses; the last plan's outputs go away
@@ -284,8 +289,11 @@ class CinePanel(OutputMixin):
             if start is None:
                 raise InvalidInputError("'start from my camera' needs a connected browser; none is connected")
         t1 = time.perf_counter()
+        extra = {}
+        if getattr(self.backend, "plans_end_poses", False):  # the real planner: end poses and visibility
+            extra = {"targets": (goal, look), "framing": req.framing}
         shots = list(self.backend.plan(goal.point, look.point, start=start, seed=req.seed,
-                                       n_candidates=req.n_candidates))
+                                       n_candidates=req.n_candidates, **extra))
         t2 = time.perf_counter()
         if not shots:
             raise GoalUnreachableError(
@@ -332,7 +340,8 @@ class CinePanel(OutputMixin):
         self._call_view("show_details", (
             f"Planner{f': {by}' if by else ''}, seed {req.seed}. Total {timings['total_s']:.2f} s: queries "
             f"{timings['query_s']:.2f} s, planning {timings['plan_s']:.2f} s{f' ({inner})' if inner else ''}, "
-            f"drawing {timings['draw_s']:.2f} s."))
+            f"drawing {timings['draw_s']:.2f} s."
+            + (f" End pose: {shots[0].end_pose_note}." if getattr(shots[0], "end_pose_note", None) else "")))
 
     def wait_idle(self, timeout: float = 30.0) -> bool:
         """Block until no plan request is pending (tests, benchmarks, CLI)."""

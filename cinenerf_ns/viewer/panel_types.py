@@ -187,6 +187,7 @@ class PlanRequest:
     start_from_camera: bool
     generation: int
     warning: str = ""  # set once the targets are resolved (go-to and look-at the same place)
+    framing: str = "medium"  # the look-at object's size in the last frame (planner/shots/framing.py)
 
 
 @dataclass

@@ -107,9 +107,15 @@ class PreparedPlanner:
         return self._done.is_set() and self.planner is not None
 
     # ------------------------------------------------------------------ planning
-    def plan(self, goal: Any, look_at: Any, start: Any = None, seed: int = 0, n_candidates: int = 1) -> List[Any]:
+    plans_end_poses = True  # the panel passes its resolved targets and framing (panel._plan_now)
+
+    def plan(self, goal: Any, look_at: Any, start: Any = None, seed: int = 0, n_candidates: int = 1,
+             targets: Optional[tuple] = None, framing: str = "medium") -> List[Any]:
         """Shots from the real planner (waits for ``prepare``); every shot gets ``clearance`` [T]:
-        the exact clearance (camera radius included) of its frames."""
+        the exact clearance (camera radius included) of its frames. ``targets``: the panel's resolved (go-to,
+        look-at) Targets (their masks): an object go-to then ends at a chosen end pose (shot_targets.py, as
+        cinesplat-plan does), scores use the look-at object's visibility, and each shot gets ``end_pose`` and
+        ``subject_view`` (what the status reports)."""
         self.wait_ready()
         if self.error is not None:
             if isinstance(self.error, PlanningError):
@@ -118,21 +124,38 @@ class PreparedPlanner:
         assert self.planner is not None
         pt = lambda x: None if x is None else np.asarray(_numpy(x), dtype=np.float64).reshape(-1)  # noqa: E731
         with self._plan_lock:
+            tg = None
+            if targets is not None:
+                tg = self._targets(targets, framing, pt(look_at), pt(start), int(n_candidates))
+            goals = pt(goal)[None] if tg is None else tg.goals(pt(goal))  # [P, 3]
+            subject = None if tg is None else tg.samples
             if start is None and int(n_candidates) > 1:
                 # random starts: the batched candidates, ranked (best first) by the documented shot score
                 from cinenerf_ns.planner.shots.candidates import plan_candidates
 
-                ranked = plan_candidates(self.planner, pt(goal), pt(look_at), k=int(n_candidates), seed=int(seed))
+                ranked = plan_candidates(self.planner, goals if len(goals) > 1 else goals[0], pt(look_at),
+                                         k=int(n_candidates), seed=int(seed), subject=subject)
                 shots = []
                 for r in ranked:
                     r.shot.score, r.shot.rank = float(r.score.total), int(r.rank)
                     r.shot.score_terms = r.score.to_dict()
+                    r.shot.end_pose = None if tg is None else tg.pose_of(r.candidate)
                     shots.append(r.shot)
             else:
-                shots = self.planner.plan(pt(goal), pt(look_at), start=pt(start), seed=int(seed),
+                shots = self.planner.plan(goals[0], pt(look_at), start=pt(start), seed=int(seed),
                                           n_candidates=int(n_candidates))
+                if subject is not None:
+                    from cinenerf_ns.planner.shots.candidates import score_shots
+
+                    for sh, sc in zip(shots, score_shots(self.planner, shots, pt(look_at), subject=subject)):
+                        sh.score_terms, sh.end_pose = sc.to_dict(), tg.pose_of(0)
             for shot in shots:
-                shot.goal_moved = self.planner.explain_goal(pt(goal), shot.goal)  # said on screen, never silent
+                aimed = pt(goal) if tg is None or tg.choice is None or not tg.choice.poses else shot.goal_target
+                shot.goal_moved = self.planner.explain_goal(aimed, shot.goal)  # said on screen, never silent
+                if tg is not None:
+                    terms = (getattr(shot, "score_terms", None) or {}).get("terms")
+                    shot.subject_view = tg.view_report(shot.positions[-1], pt(look_at), self.planner.config.up, terms)
+                    shot.end_pose_note = tg.note()
                 if getattr(shot, "clearance", None) is None:
                     t0 = time.perf_counter()
                     # exact where it matters (near obstacles); capped far away: the uncapped search
@@ -142,6 +165,23 @@ class PreparedPlanner:
                                                 dtype=np.float64).reshape(-1)
                     shot.timings["frame_clearance_ms"] = 1e3 * (time.perf_counter() - t0)
         return list(shots)
+
+
+    def _targets(self, targets: tuple, framing: str, look: np.ndarray, start: Optional[np.ndarray], k: int):
+        """shot_targets of the panel's (go-to, look-at) Targets: the same choice as cinesplat-plan."""
+        from cinenerf_ns.planner.shots import stages
+        from cinenerf_ns.planner.shots.framing import FramingConfig
+        from cinenerf_ns.shot_targets import end_pose_count, shot_targets, start_region_centre
+
+        goal_t, look_t = targets
+        as_match = lambda t: {"point": np.asarray(t.point, np.float64), "text": t.text,  # noqa: E731
+                              **({} if t.mask is None else {"mask": np.asarray(t.mask, bool)})}
+        if start is not None:
+            comp, facing = stages.start_voxel(self.planner, self.planner.checked_start(start))[1], start
+        else:
+            comp, facing = self.planner.main_component(), start_region_centre(self.planner)
+        return shot_targets(self.planner, as_match(goal_t), as_match(look_t), FramingConfig(framing), comp,
+                            k=1 if start is not None else end_pose_count(k), facing_from=facing)
 
 
 def _numpy(x: Any) -> Any:

@@ -82,7 +82,23 @@ def shot_summary(shot: Any) -> str:
     cl = "n/a" if c is None else f"{c:.3g}"
     score = shot_score(shot)
     return (f"{times[-1] - times[0]:.1f} s, {length:.2f} units long, min clearance {cl}"
-            f"{'' if score is None else f', score {score:.3g}'}")
+            f"{'' if score is None else f', score {score:.3g}'}{subject_view_text(shot)}")
+
+
+def subject_view_text(shot: Any) -> str:
+    """', the look-at object 96% visible at the end (seen in 100% of frames), size 0.45 (medium 0.35-0.6)' from the
+    shot's subject_view (PreparedPlanner), else ''."""
+    v = getattr(shot, "subject_view", None)
+    if not v:
+        return ""
+    out = ""
+    if v.get("visible_last") is not None:
+        out += f", the look-at object {100 * v['visible_last']:.0f}% visible at the end"
+        if v.get("frames_visible_half") is not None:
+            out += f" (at least half visible in {100 * v['frames_visible_half']:.0f}% of frames)"
+    lo, _, hi = v["framing_band"]
+    out += f", its size {v['size_last']:.2f} ({v['framing']} {lo:g}-{hi:g})"
+    return out
 
 
 def goal_note(shot: Any) -> str:

@@ -15,6 +15,7 @@ import numpy as np
 import viser
 
 from cinenerf_ns.planner.shots.camera_path import DEFAULT_FOV_DEG, DEFAULT_PREVIEW_SIZE, DEFAULT_RENDER_SIZE
+from cinenerf_ns.planner.shots.framing import FRAMINGS
 
 from .backend import to_numpy
 from .conventions import VISER_NERFSTUDIO_SCALE_RATIO, nerfstudio_c2w_to_viser, viser_to_world
@@ -94,6 +95,9 @@ class ViserPanelUI:
             self.look_at = gui.add_text("Look at", default_look_at, hint="An object or coordinates 'x y z'")
             self.n_candidates = gui.add_number("Candidates", n_candidates, min=1, max=MAX_PANEL_CANDIDATES, step=1,
                                                hint="Shots planned from different random starts")
+            self.framing = gui.add_dropdown("Framing", list(FRAMINGS), initial_value="medium",
+                                            hint="How large the look-at object is in the last frame (wide 0.15-0.35, "
+                                                 "medium 0.35-0.6, close 0.6-0.85 of the frame)")
             self.from_camera = gui.add_checkbox("Start at my camera", False,
                                                 hint="Plan from the current browser camera instead of a random start")
             self.plan_button = gui.add_button("Plan", icon=viser.Icon.ROUTE, color="green")
@@ -141,9 +145,10 @@ class ViserPanelUI:
 
         self.plan_button.on_click(guarded(lambda e: p.request_plan(
             self.goto.value, self.look_at.value, n_candidates=int(self.n_candidates.value),
-            start_from_camera=bool(self.from_camera.value))))
+            start_from_camera=bool(self.from_camera.value), framing=str(self.framing.value))))
         self.new_start_button.on_click(guarded(lambda e: p.request_plan(
-            self.goto.value, self.look_at.value, n_candidates=int(self.n_candidates.value), new_start=True)))
+            self.goto.value, self.look_at.value, n_candidates=int(self.n_candidates.value), new_start=True,
+            framing=str(self.framing.value))))
         self.play_button.on_click(guarded(lambda e: p.play()))
         self.pause_button.on_click(guarded(lambda e: p.pause()))
         self.speed.on_update(guarded(lambda e: p.set_speed(float(self.speed.value))))

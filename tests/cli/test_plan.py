@@ -321,3 +321,33 @@ def test_preview_videos_per_candidate(tmp_path):
         assert s["plots"][f"preview_{k}"] == str(mp4.absolute())
         assert mp4.read_bytes()[4:8] == b"ftyp"
         assert (tmp_path / f"shot_{k}_preview_sheet.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_end_pose_and_framing_in_report_and_table(tmp_path, capsys):
+    """An object go-to ends at a chosen end pose (reported with why), the look-at object's view per candidate;
+    --no-end-pose keeps the go-to centre rule; the same object twice is a good view of it."""
+    kw = dict(scene="procedural:20000:0", look_at="floor lamp", grid_resolution=64)
+    s = run_plan(PlanArgs(go_to="the armchair", candidates=3, framing="wide", output_dir=tmp_path / "a", **kw))
+    rep = json.loads(open(s["report"]).read())
+    assert rep["end_pose"]["framing"] == "wide" and rep["end_pose"]["poses"]
+    assert "end pose chosen from" in rep["end_pose_note"]
+    ends = set()
+    for c in rep["candidates"]:
+        ep, view = c["end_pose"], c["subject_view"]
+        assert np.allclose(c["goal"], ep["point"], atol=1e-6) and c["goal_moved"] is None  # it ends at its pose
+        assert view["framing"] == "wide" and view["framing_band"] == [0.15, 0.25, 0.35]
+        assert 0 <= view["visible_last"] <= 1 and 0 <= view["frames_visible_half"] <= 1
+        ends.add(tuple(np.round(c["goal"], 6)))
+    assert len(ends) == len(rep["candidates"])  # different candidates, different end poses
+    out = capsys.readouterr().out
+    assert "end pose:" in out and "wide: 0.15-0.35" in out
+    old = run_plan(PlanArgs(go_to="the armchair", end_pose=False, output_dir=tmp_path / "b", start="0 0 0.7", **kw))
+    orep = json.loads(open(old["report"]).read())
+    assert orep["end_pose"] is None and orep["candidates"][0]["end_pose"] is None
+    assert orep["candidates"][0]["subject_view"]["visible_last"] is not None  # the view is reported either way
+    same = run_plan(PlanArgs(go_to="floor lamp", output_dir=tmp_path / "c", start="0 0 0.7", **kw))
+    srep = json.loads(open(same["report"]).read())
+    assert srep["end_pose"]["poses"][0]["goto_distance"] == 0.0  # a good view of the lamp, no go-to distance
+    with pytest.raises(InvalidInputError, match="framing"):
+        run_plan(PlanArgs(go_to="armchair", framing="huge", output_dir=tmp_path / "d", **kw))
+    assert not (tmp_path / "d").exists()

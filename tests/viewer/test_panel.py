@@ -323,3 +323,24 @@ def test_candidate_labels_show_duration_clearance_and_optional_score(tmp_path):
     assert "score 0.25" in view.last_status[0] and "lower score is better" in view.last_status[0]
     assert timings_detail({"astar_ms": 12.34, "fit_s": 0.5, "n": 3, "note": "x"}) == "astar 12 ms, fit 0.50 s, n 3"
     panel.close()
+
+
+def test_framing_reaches_a_backend_that_plans_end_poses_and_bad_framing_is_refused(tmp_path):
+    panel, backend, view = make(tmp_path)
+    calls = []
+    plain = backend.plan
+
+    def plan(goal, look_at, start=None, seed=0, n_candidates=1, targets=None, framing="medium"):
+        calls.append((targets, framing))
+        return plain(goal, look_at, start=start, seed=seed, n_candidates=n_candidates)
+
+    backend.plan, backend.plans_end_poses = plan, True
+    assert panel.request_plan("the chair", "lamp", framing="close").result(10) is not None
+    targets, framing = calls[-1]
+    assert framing == "close" and [t.text for t in targets] == ["the chair", "lamp"]
+    assert targets[0].mask is not None and targets[0].mask.sum() == 10  # the query's Gaussians go with it
+    assert panel.request_plan("the chair", "lamp", framing="<b>huge</b>").result(10) is None
+    text, level = view.last_status
+    assert level == "error" and "'Framing' must be one of wide, medium, close" in text
+    assert len(calls) == 1
+    panel.close()

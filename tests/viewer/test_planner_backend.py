@@ -155,3 +155,32 @@ def test_look_at_rotation_convention():
     np.testing.assert_allclose(R, [[1, 0, 0], [0, 0, -1], [0, 1, 0]], atol=1e-12)  # -z forward, +y up
     R = look_at_rotation(np.zeros(3), np.array([0.0, 0.0, -1.0]))  # straight down: no NaN
     assert np.all(np.isfinite(R)) and np.allclose(R @ R.T, np.eye(3))
+
+
+def test_object_targets_end_at_end_poses_and_report_the_view(room):
+    """With the panel's resolved targets (their masks) the backend chooses end poses as cinesplat-plan does: each shot
+    ends at its end pose, outside both objects, and carries end_pose / subject_view for the status."""
+    from cinenerf_ns.viewer.panel_types import Target
+
+    r, scene, planner, _ = room
+    names = [o.name for o in r.objects]
+    ids = r.object_ids.cpu().numpy()
+    goto = Target("go to", "armchair", r.object("armchair").center, ids == names.index("armchair"))
+    look = Target("look at", "floor lamp", r.object("floor lamp").center, ids == names.index("floor lamp"))
+    shots = planner.plan(goto.point, look.point, seed=2, n_candidates=3, targets=(goto, look), framing="close")
+    assert shots
+    for s in shots:
+        assert s.end_pose is not None and np.allclose(s.positions[-1], s.end_pose["point"], atol=1e-6)
+        assert not s.goal_moved  # it ends where it was sent
+        for name in ("armchair", "floor lamp"):
+            o = r.object(name)
+            assert not np.all(np.abs(s.positions[-1] - o.center) <= o.size / 2)
+        v = s.subject_view
+        assert v["framing"] == "close" and 0 <= v["visible_last"] <= 1 and v["size_last"] > 0
+    assert len({tuple(np.round(s.positions[-1], 6)) for s in shots}) == len(shots)  # distinct end poses
+    from cinenerf_ns.viewer.shot_text import shot_summary
+
+    assert "visible at the end" in shot_summary(shots[0]) and "close" in shot_summary(shots[0])
+    # the same object twice: a good view of it (no go-to distance)
+    same = planner.plan(look.point, look.point, seed=2, n_candidates=1, targets=(look, look))
+    assert same[0].end_pose is not None and same[0].end_pose["goto_distance"] == 0.0

@@ -1,0 +1,166 @@
+"""End poses (shots/end_pose.py) on a procedural room with ground-truth objects: never inside an object, proven free,
+in the framing's size band and whole in frame, distinct for candidates, "a good view of X" facing the start region;
+shots planned to them end there and see the subject (checked by rendering label images with the project's
+rasteriser); the framing's size measure against brute-force projection."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from cinenerf_ns.planner.errors import InvalidInputError
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
+from cinenerf_ns.planner.scene.procedural import procedural_room
+from cinenerf_ns.planner.shots.candidates import plan_candidates
+from cinenerf_ns.planner.shots.end_pose import EndPoseConfig, choose_end_poses
+from cinenerf_ns.planner.shots.framing import FRAMING_BANDS, FramingConfig, in_band, subject_size
+from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
+from cinenerf_ns.planner.shots.target_object import TargetObject, scene_members
+
+torch.set_num_threads(1)
+
+
+@pytest.fixture(scope="module")
+def room():
+    r = procedural_room(20_000, seed=0)
+    scene = EllipsoidScene.from_splat(r.means, r.quats, r.log_scales, r.opacity_logits, SceneConfig())
+    pl = Planner(scene, PlannerConfig(grid_resolution=64, start_region=(r.free_lo + 0.03, r.free_hi - 0.03),
+                                      candidate_workers=0))
+    pl.prepare()
+    return r, scene, pl
+
+
+def _obj(r, scene, name) -> TargetObject:
+    ids = r.object_ids.cpu().numpy() == [o.name for o in r.objects].index(name)
+    return TargetObject.of_members(scene, scene_members(scene, ids), r.object(name).center, name)
+
+
+def _inside_a_box(p, r, pad=0.0) -> bool:
+    return any(np.all(np.abs(p - o.center) <= o.size / 2 + pad) for o in r.objects)
+
+
+def test_end_poses_are_free_outside_every_object_and_framed(room):
+    r, scene, pl = room
+    names = [o.name for o in r.objects]
+    comp = pl.main_component()
+    n_in_band = n_total = 0
+    for a in names:
+        for b in names:
+            if a == b:
+                continue
+            subject, goto = _obj(r, scene, b), _obj(r, scene, a)
+            ch = choose_end_poses(pl, subject, goto, FramingConfig("medium"), comp, k=3)
+            for p in ch.poses:
+                assert not _inside_a_box(p.point, r), (a, b, p.point)  # never inside an object (ground truth)
+                assert pl.clearance(p.point[None])[0] >= 0  # exact clearance: the camera ball is free there
+                assert pl.points_free(p.point[None])[0]
+                lo, hi = pl.region()
+                assert np.all(p.point >= lo) and np.all(p.point <= hi)
+                n_total += 1
+                n_in_band += bool(in_band(p.size, FramingConfig("medium"))[()]) and p.whole
+    assert n_total > 0 and n_in_band / n_total >= 0.9
+
+
+@pytest.mark.parametrize("framing", list(FRAMING_BANDS))
+def test_each_framing_puts_the_subject_in_its_band(room, framing):
+    r, scene, pl = room
+    ch = choose_end_poses(pl, _obj(r, scene, "floor lamp"), _obj(r, scene, "armchair"), FramingConfig(framing),
+                          pl.main_component(), k=1)
+    assert ch.poses, ch.why()
+    p = ch.poses[0]
+    # the planner's own estimate and a brute-force projection of every Gaussian mean of the subject agree
+    lamp = _obj(r, scene, "floor lamp")
+    means = scene.means.double().numpy()[lamp.members]
+    size, whole = subject_size(p.point[None], lamp.centre, np.array([0, 0, 1.0]), means, lamp.pad,
+                               FramingConfig(framing))
+    assert abs(size[0] - p.size) <= 0.1 * p.size + 1e-9
+    assert p.whole and in_band(p.size, FramingConfig(framing), tol=0.05)
+
+
+def test_candidates_get_distinct_end_poses(room):
+    r, scene, pl = room
+    cfg = EndPoseConfig(min_separation_deg=25.0)
+    ch = choose_end_poses(pl, _obj(r, scene, "sofa"), _obj(r, scene, "table"), FramingConfig("wide"),
+                          pl.main_component(), k=4, config=cfg)
+    assert len(ch.poses) == 4
+    c = _obj(r, scene, "sofa").centre
+    dirs = [(p.point - c) / np.linalg.norm(p.point - c) for p in ch.poses]
+    angles = [math.degrees(math.acos(np.clip(dirs[i] @ dirs[j], -1, 1))) for i in range(4) for j in range(i)]
+    assert min(angles) >= 25.0 - 1e-6 or ch.feasible < 8
+    costs = [p.cost for p in ch.poses]
+    assert costs[0] == min(costs)
+
+
+def test_a_good_view_of_x_faces_the_start_region(room):
+    r, scene, pl = room
+    lamp = _obj(r, scene, "floor lamp")
+    lo, hi = (np.asarray(v) for v in pl.config.start_region)
+    facing = 0.5 * (lo + hi) - lamp.centre
+    ch = choose_end_poses(pl, lamp, None, FramingConfig("medium"), pl.main_component(), k=1, facing=facing)
+    assert ch.poses and ch.poses[0].goto_distance == 0.0
+    d = ch.poses[0].point - lamp.centre
+    horiz = lambda v: v[:2] / np.linalg.norm(v[:2])  # noqa: E731
+    assert horiz(d) @ horiz(facing) > 0.0  # on the side the start region is on
+
+
+def test_nothing_feasible_says_why(room):
+    r, scene, pl = room
+    ch = choose_end_poses(pl, _obj(r, scene, "floor lamp"), _obj(r, scene, "armchair"), FramingConfig("medium"),
+                          component=10_000, k=2)  # a component that does not exist: nothing is reachable
+    assert ch.poses == [] and "unreachable" in ch.why()
+    with pytest.raises(InvalidInputError, match="framing"):
+        choose_end_poses(pl, _obj(r, scene, "sofa"), None, FramingConfig("huge"), pl.main_component())
+    with pytest.raises(InvalidInputError, match="EndPoseConfig"):
+        EndPoseConfig(samples=0).validate()
+
+
+def _label_visibility(r, scene_params, subject_id, c2w, width=96, height=54, fov=50.0):
+    """Visible fraction of a procedural object in one frame by label rendering (the project's rasteriser): its colour
+    through the whole splat over its alpha rendered alone."""
+    from cinenerf_ns.preview.cameras import viewmat_from_c2w
+    from cinenerf_ns.preview.raster_torch import make_scene
+    from cinenerf_ns.preview.render import render_premultiplied
+
+    means, quats, scales, opac = scene_params
+    ids = r.object_ids.cpu().numpy()
+    col = torch.zeros(len(ids), 3)
+    col[ids == subject_id, 0] = 1.0
+    full = make_scene(means, quats, scales, opac, col, drop_transparent=False)
+    sel = torch.as_tensor(ids == subject_id)
+    alone = make_scene(means[sel], quats[sel], scales[sel], opac[sel], col[sel], drop_transparent=False)
+    f = (height / 2) / math.tan(math.radians(fov) / 2)
+    vm = viewmat_from_c2w(c2w)
+    rgb, _ = render_premultiplied(full, vm, (f, f, width / 2, height / 2), width, height, backend="torch")
+    _, a = render_premultiplied(alone, vm, (f, f, width / 2, height / 2), width, height, backend="torch")
+    return float(rgb[..., 0].sum() / max(float(a.sum()), 1e-9))
+
+
+def test_shots_to_end_poses_end_there_and_see_the_subject(room):
+    r, scene, pl = room
+    names = [o.name for o in r.objects]
+    params = (r.means.float(), r.quats.float(), torch.exp(r.log_scales.float()),
+              torch.sigmoid(r.opacity_logits.float()))
+    from cinenerf_ns.planner.geometry.visibility import SubjectSamples
+    from cinenerf_ns.planner.shots.end_pose import visibility_volume
+
+    seen = []
+    for a, b in [("armchair", "floor lamp"), ("table", "sofa"), ("sofa", "vase")]:
+        if a not in names or b not in names:
+            continue
+        subject, goto = _obj(r, scene, b), _obj(r, scene, a)
+        ch = choose_end_poses(pl, subject, goto, FramingConfig("medium"), pl.main_component(), k=2)
+        goals = np.stack([p.point for p in ch.poses])
+        ranked = plan_candidates(pl, goals, subject.centre, k=2, seed=1,
+                                 subject=SubjectSamples.of_members(visibility_volume(pl), subject.members))
+        assert {rs.candidate % len(goals) for rs in ranked} == set(range(len(goals)))  # each end pose planned to
+        for rs in ranked:
+            sh = rs.shot
+            assert sh.safety["safe"]
+            assert np.allclose(sh.positions[-1], goals[rs.candidate % len(goals)], atol=1e-6)  # ends at its pose
+            v = _label_visibility(r, params, names.index(b), sh.camera_to_worlds()[-1])
+            seen.append((rs.rank, v))
+            assert rs.score.terms["visible_last"] == pytest.approx(v, abs=0.25)  # the planner's estimate
+    assert seen and min(v for rank, v in seen if rank == 1) >= 0.8  # the best shot of each pair shows the subject
+    assert min(v for _, v in seen) >= 0.5
