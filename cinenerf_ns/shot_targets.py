@@ -50,7 +50,7 @@ class ShotTargets:
         """What the user sees at the end of a shot: the subject's visible fraction (last frame and the share of frames
         with at least half of it seen, from the score when there is one) and its size in the last frame."""
         size, whole = subject_size(np.asarray(positions_last, np.float64).reshape(1, 3), np.asarray(look_at),
-                                   np.asarray(up, np.float64) / np.linalg.norm(up), self.subject.extent,
+                                   np.asarray(up, np.float64) / np.linalg.norm(up), self.subject.outline_points(),
                                    self.subject.pad, self.framing)
         t = score_terms or {}
         return {"visible_last": t.get("visible_last"), "frames_visible_half": t.get("frames_visible_half"),
@@ -78,8 +78,9 @@ def shot_targets(planner, gm: Dict[str, Any], lm: Dict[str, Any], framing: Frami
     look = np.asarray(lm["point"], np.float64)
     members = scene_members(scene, lm.get("mask"))
     if members is not None and members.size:
-        subject = TargetObject.of_members(scene, members, look, lm.get("text", "look-at"))
-        samples = SubjectSamples.of_members(visibility_volume(planner), subject.members)
+        vol = visibility_volume(planner)
+        subject = TargetObject.of_members(vol, members, look, lm.get("text", "look-at"))
+        samples = SubjectSamples.of_members(vol, subject.members)
     else:
         subject = TargetObject.point(look, object_radius, lm.get("text", "look-at"))
         samples = SubjectSamples.of_point(look)
@@ -87,7 +88,8 @@ def shot_targets(planner, gm: Dict[str, Any], lm: Dict[str, Any], framing: Frami
     choice = None
     g_members = scene_members(scene, gm.get("mask"))
     if end_pose and g_members is not None and g_members.size:
-        goto = None if good_view else TargetObject.of_members(scene, g_members, gm["point"], gm.get("text", "go-to"))
+        goto = None if good_view else TargetObject.of_members(visibility_volume(planner), g_members, gm["point"],
+                                                              gm.get("text", "go-to"))
         facing = None if facing_from is None else np.asarray(facing_from, np.float64) - subject.centre
         choice = choose_end_poses(planner, subject, goto, framing, component, k=k, facing=facing)
     return ShotTargets(subject, samples, choice, good_view, framing)

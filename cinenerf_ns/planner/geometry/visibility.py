@@ -239,13 +239,15 @@ def optical_depth_python(vol: SplatVolume, p0, p1, classes=None, skip=None,
 
 
 def optical_depth(vol: SplatVolume, p0, p1, classes=None, skip=None, backend: str = "auto",
-                  cut_sigma: float = CUT_SIGMA, stop1: float = math.inf) -> np.ndarray:
+                  cut_sigma: float = CUT_SIGMA, stop1: float = math.inf, stop0: float = math.inf,
+                  after1: Optional[np.ndarray] = None) -> np.ndarray:
     """tau [L, 2]: optical depth of each segment p0[l] -> p1[l] ([L, 3] each) through the volume's Gaussians of class 0
     and of class 1 (``classes`` [N] 0/1, default all 0); ``skip`` [L]: a Gaussian each segment ignores (-1: none).
     backend: "auto" (compiled walk when it loads), "native" or "python" (optical_depth_python: always whole sums).
     stop1: the compiled walk of a segment may stop once its class-1 depth exceeds this (both sums are then partial;
     its light is below exp(-stop1) anyway): a segment from a subject's sample toward a camera stops inside the subject
-    when the subject hides that sample itself."""
+    when the subject hides that sample itself. stop0 / after1 [L]: it may also stop once its class-0 depth exceeds
+    stop0 beyond the parameter after1[l] past which no class-1 Gaussian lies (class 1's sum stays whole)."""
     from ..native import choose, optical_depth_c
 
     fn = choose(backend, optical_depth_c, "visibility", "optical depth")
@@ -264,7 +266,8 @@ def optical_depth(vol: SplatVolume, p0, p1, classes=None, skip=None, backend: st
     rc = fn(vol.packed.ctypes.data, cls.ctypes.data, n,
             vol.lo.ctypes.data, vol.cell, dims.ctypes.data, vol.cell_start.ctypes.data, vol.cell_ids.ctypes.data,
             vol.big.ctypes.data, len(vol.big), float(cut_sigma) ** 2, p0.ctypes.data, p1.ctypes.data,
-            skip.ctypes.data, len(p0), float(stop1), tau.ctypes.data)
+            skip.ctypes.data, len(p0), float(stop1), float(stop0),
+            None if after1 is None else np.ascontiguousarray(after1, np.float64).ctypes.data, tau.ctypes.data)
     if rc != 0:
         raise MemoryError("the compiled optical depth could not allocate its work space")
     return tau
@@ -311,6 +314,27 @@ class SubjectSamples:
         return c
 
 
+def subject_box(vol: SplatVolume, members: np.ndarray, cut_sigma: float = CUT_SIGMA) -> tuple:
+    """(lo [3], hi [3]): the box of the members' cut-off boxes (every point where one of them attenuates)."""
+    w = vol.whiten[members]  # [K, 3, 3] row k: R[:, k]^T / sigma_k
+    sig = 1.0 / np.linalg.norm(w, axis=2)  # [K, 3]
+    # the box half width along world axis i: cut * sqrt(sum_k (R_ik sigma_k)^2), R_ik sigma_k = w[k, i] sigma_k^2
+    half = cut_sigma * np.sqrt(((w * (sig ** 2)[:, :, None]) ** 2).sum(1))  # [K, 3]
+    return (vol.means[members] - half).min(0), (vol.means[members] + half).max(0)
+
+
+def box_exit(p0: np.ndarray, p1: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """[L] the parameter t in [0, 1] beyond which segment p0 -> p1 ([L, 3] each) stays outside the box [lo, hi]
+    (0 when it never enters, 1 when it ends inside)."""
+    d = p1 - p0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ta, tb = (lo - p0) / d, (hi - p0) / d
+    t_near = np.where(d == 0, np.where((p0 >= lo) & (p0 <= hi), -np.inf, np.inf), np.minimum(ta, tb)).max(1)
+    t_far = np.where(d == 0, np.where((p0 >= lo) & (p0 <= hi), np.inf, -np.inf), np.maximum(ta, tb)).min(1)
+    hit = (t_near <= t_far) & (t_far >= 0) & (t_near <= 1)
+    return np.where(hit, np.clip(t_far, 0.0, 1.0), 0.0)
+
+
 def subject_visibility(vol: SplatVolume, cameras, subject: SubjectSamples, backend: str = "auto") -> np.ndarray:
     """Visible fraction [M] in [0, 1] of the subject from each camera [M, 3] (module docstring): through the whole splat
     relative to the subject rendered alone. A camera from which the subject alone shows nothing (inside it) gets 0."""
@@ -321,8 +345,12 @@ def subject_visibility(vol: SplatVolume, cameras, subject: SubjectSamples, backe
     p0 = np.tile(subject.points, (m, 1))  # [M * S, 3]
     p1 = np.repeat(cam, s, axis=0)
     skip = np.tile(subject.ids, m)
+    after1 = None
+    if subject.members.size:  # past the subject's cut-off box no subject Gaussian attenuates: stop hidden samples there
+        lo, hi = subject_box(vol, subject.members)
+        after1 = box_exit(p0, p1, lo, hi)
     tau = optical_depth(vol, p0, p1, subject.classes(len(vol)), skip, backend=backend,
-                        stop1=STOP_SELF).reshape(m, s, 2)
+                        stop1=STOP_SELF, stop0=STOP_SELF, after1=after1).reshape(m, s, 2)
     alone = subject.weights[None] * np.exp(-tau[:, :, 1])  # [M, S]
     seen = alone * np.exp(-tau[:, :, 0])
     den = alone.sum(1)

@@ -48,12 +48,15 @@ static inline void add_gaussian(int64_t j, const double *p0, const double *d, co
 
 /* tau [L, 2]: optical depth of segment l (p0[l] -> p1[l]) in class 0 and class 1; skip[l] >= 0: a Gaussian that
    segment l ignores (its own target), -1: none. The walk of a segment stops once its class-1 depth exceeds stop1
-   (its light is then below exp(-stop1) in any case; both sums are then partial, class 1's still above stop1).
+   (its light is then below exp(-stop1) in any case; both sums are then partial, class 1's still above stop1), and
+   once its class-0 depth exceeds stop0 in a cell that starts beyond after1[l] (no class-1 Gaussian lies beyond that
+   parameter: class 1's sum is then whole, class 0's partial but above stop0); after1 NULL: never.
    Returns 0, or -1 on bad arguments / no memory. */
 int64_t cn_optical_depth(const double *packed, const uint8_t *cls, int64_t N,
                          const double *lo, double cell, const int64_t *dims, const int64_t *cell_start,
                          const int32_t *cell_ids, const int32_t *big, int64_t n_big, double cut2,
-                         const double *p0s, const double *p1s, const int64_t *skip, int64_t L, double stop1, double *tau) {
+                         const double *p0s, const double *p1s, const int64_t *skip, int64_t L, double stop1,
+                         double stop0, const double *after1, double *tau) {
     if (cell <= 0.0 || N < 0 || L < 0) return -1;
     int32_t *stamp = (int32_t *)calloc((size_t)(N > 0 ? N : 1), sizeof(int32_t));
     if (!stamp) return -1;
@@ -122,6 +125,7 @@ int64_t cn_optical_depth(const double *packed, const uint8_t *cls, int64_t N,
             if (tl[1] > stop1) break;
             int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
             if (tmax[a] > t1) break;
+            if (after1 && tl[0] > stop0 && tmax[a] >= after1[l]) break;  /* the next cell starts at tmax[a] */
             idx[a] += step[a];
             if (idx[a] < 0 || idx[a] >= (a == 0 ? X : (a == 1 ? Y : Z))) break;
             tmax[a] += tdelta[a];

@@ -53,7 +53,7 @@ class EndPoseConfig:
     """Highest view elevation, degrees."""
     eye_elevation_deg: float = 15.0
     """Preferred elevation (a camera slightly above the subject, looking down a little)."""
-    evaluated: int = 16
+    evaluated: int = 12
     """Best viewpoints by the cheap terms whose visibility and go-to coverage are computed."""
     samples: int = 16
     """Samples of the subject's Gaussians for the visibility."""
@@ -226,7 +226,7 @@ def choose_end_poses(planner: "Planner", subject: TargetObject, goto: Optional[T
     th, tv = framing.tan_half()
     d = np.full(len(dirs), subject.radius() / (aim * min(th, tv)))
     for _ in range(2):
-        s, _ = subject_size(c[None] + d[:, None] * dirs, c, up, subject.extent, subject.pad, framing)
+        s, _ = subject_size(c[None] + d[:, None] * dirs, c, up, subject.outline_points(), subject.pad, framing)
         d = d * np.clip(s / aim, 0.25, 4.0)
     # the aimed-for size, sizes in the band, and beyond it (rooms too small for a wide view of a large subject still
     # get the closest size they allow)
@@ -254,7 +254,7 @@ def choose_end_poses(planner: "Planner", subject: TargetObject, goto: Optional[T
         notes.append("every sampled viewpoint is occupied, unreachable from the start, inside the go-to or subject, "
                      "or outside the planning region")
         return EndPoseChoice([], considered, 0, framing.framing, 1e3 * (time.perf_counter() - t0), notes)
-    size, whole = subject_size(pts, c, up, subject.extent, subject.pad, framing)
+    size, whole = subject_size(pts, c, up, subject.outline_points(), subject.pad, framing)
     elev = np.degrees(np.arcsin(np.clip(dir_all @ up, -1, 1)))
     cost = (cfg.w_size * size_cost(size, framing) + cfg.w_whole * (~whole)
             + cfg.w_elevation * ((elev - cfg.eye_elevation_deg) / 45.0) ** 2)

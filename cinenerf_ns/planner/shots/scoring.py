@@ -80,7 +80,7 @@ class ScoreConfig:
     """Duration scale, seconds."""
     occlusion_frames: int = 64
     """At most this many evenly spaced frames are tested for occlusion (0: all frames)."""
-    visibility_frames: int = 16
+    visibility_frames: int = 8
     """With a subject: at most this many of those frames (evenly spaced, first and last included) get the visible
     fraction of the subject (0: all of them)."""
     clearance_cap: Optional[float] = 0.1

@@ -5,9 +5,9 @@ from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
-import torch
 
 from ..errors import InvalidInputError
+from ..geometry.visibility import SplatVolume
 from ..scene.ellipsoids import EllipsoidScene
 
 EXTENT_POINTS = 512
@@ -28,6 +28,12 @@ class TargetObject:
     extent: np.ndarray
     pad: float
     spacing: float
+    outline: Optional[np.ndarray] = None  # [H, 3] the extent's convex hull vertices (None: the extent itself)
+
+    def outline_points(self) -> np.ndarray:
+        """The points whose projection bounds the object's: the convex hull's vertices (a perspective projection maps
+        the hull onto the hull of the projected vertices, so their box is the extent's, when all are in front)."""
+        return self.extent if self.outline is None else self.outline
 
     @property
     def is_point(self) -> bool:
@@ -51,30 +57,27 @@ class TargetObject:
         return cls(name=name, centre=c, members=np.zeros(0, np.int64), extent=ext, pad=0.0, spacing=max(radius, 1e-6))
 
     @classmethod
-    def of_members(cls, scene: EllipsoidScene, members, centre, name: str = "object",
+    def of_members(cls, vol: SplatVolume, members, centre, name: str = "object",
                    seed: int = 0) -> "TargetObject":
-        """An object from its Gaussians ``members`` (bool [N] mask or indices into the obstacle scene)."""
+        """An object from its Gaussians ``members`` (bool [N] mask or indices into the obstacle scene, whose
+        SplatVolume ``vol`` holds their means and scales in float64: no tensor conversion per request)."""
         m = np.asarray(members)
         if m.dtype == bool:
-            if m.shape != (len(scene),):
-                raise InvalidInputError(f"an object mask must be [N={len(scene)}], got {m.shape}")
+            if m.shape != (len(vol),):
+                raise InvalidInputError(f"an object mask must be [N={len(vol)}], got {m.shape}")
             m = np.flatnonzero(m)
         m = _sorted_unique(m.astype(np.int64).reshape(-1))
         if m.size == 0:
             raise InvalidInputError(f"the object '{name}' has no Gaussians among the obstacles")
-        if m[0] < 0 or m[-1] >= len(scene):
-            raise InvalidInputError(f"object member ids must be in [0, {len(scene)}), got {m[0]}..{m[-1]}")
-        idx = torch.as_tensor(m, device=scene.means.device)
-        means = scene.means.detach().index_select(0, idx).cpu().double().numpy()  # [K, 3] (only the members: cheap)
-        radii = scene.radii.detach().index_select(0, idx).cpu().double().numpy()
-        opac = scene.opacities.detach().index_select(0, idx).cpu().double().numpy()
+        if m[0] < 0 or m[-1] >= len(vol):
+            raise InvalidInputError(f"object member ids must be in [0, {len(vol)}), got {m[0]}..{m[-1]}")
+        means = vol.means[m]  # [K, 3]
         ext = means if m.size <= EXTENT_POINTS else means[np.sort(np.random.default_rng(seed).choice(
             m.size, EXTENT_POINTS, replace=False))]
-        sigma = radii / (scene.beta * np.maximum(opac, 1e-6))[:, None]
-        pad = float(np.median(sigma.max(1)))
-        spacing = _spacing(ext)
+        sigma_max = 1.0 / np.linalg.norm(vol.whiten[m], axis=2).min(1)  # [K] the largest sigma (smallest row norm)
         c = np.asarray(centre, np.float64).reshape(3) if centre is not None else means.mean(0)
-        return cls(name=name, centre=c, members=m, extent=ext, pad=pad, spacing=spacing)
+        return cls(name=name, centre=c, members=m, extent=ext, pad=float(np.median(sigma_max)),
+                   spacing=_spacing(ext), outline=_hull(ext))
 
 
 def _sorted_unique(ids: np.ndarray) -> np.ndarray:
@@ -82,6 +85,18 @@ def _sorted_unique(ids: np.ndarray) -> np.ndarray:
     if ids.size > 1 and not bool(np.all(ids[1:] > ids[:-1])):
         return np.unique(ids)
     return ids
+
+
+def _hull(points: np.ndarray) -> Optional[np.ndarray]:
+    """The convex hull vertices [H, 3] of points [P, 3], or None when they are too few or flat."""
+    if len(points) < 5:
+        return None
+    from scipy.spatial import ConvexHull, QhullError
+
+    try:
+        return points[ConvexHull(points).vertices]
+    except (QhullError, ValueError):
+        return None
 
 
 def _spacing(points: np.ndarray) -> float:

@@ -146,3 +146,59 @@ def test_subject_visibility_of_a_point_and_bad_input():
         optical_depth(vol, np.zeros((1, 3)), np.ones((1, 3)), classes=np.zeros(3))
     with pytest.raises(InvalidInputError, match="lo < hi"):
         SplatVolume.build(sc, np.ones(3), -np.ones(3))
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(20, 250))
+def test_early_stops_do_not_change_the_visible_fraction(seed, n):
+    """subject_visibility stops hidden samples early (STOP_SELF and the subject's box): the same fraction as whole
+    sums from the brute-force reference, within what the stops may drop (exp(-12) of a sample's weight)."""
+    rng = np.random.default_rng(seed)
+    sc = _scene(rng, n, spread=0.8, opacity=(0.5, 0.99))
+    vol = SplatVolume.build(sc, -np.ones(3), np.ones(3))
+    members = np.flatnonzero(np.linalg.norm(vol.means - vol.means[0], axis=1) < 0.4)
+    samples = SubjectSamples.of_members(vol, members, n_samples=24, seed=seed)
+    cams = rng.uniform(-1, 1, (6, 3))
+    got = subject_visibility(vol, cams, samples)
+    m, s = len(cams), len(samples.points)
+    tau = optical_depth_reference(vol, np.tile(samples.points, (m, 1)), np.repeat(cams, s, axis=0),
+                                  samples.classes(len(vol)), np.tile(samples.ids, m)).reshape(m, s, 2)
+    alone = samples.weights[None] * np.exp(-tau[:, :, 1])
+    den = alone.sum(1)
+    seen = (alone * np.exp(-tau[:, :, 0])).sum(1)
+    ref = np.where(den > 1e-12 * samples.weights.sum(), seen / np.maximum(den, 1e-300), 0.0)
+    np.testing.assert_allclose(got, ref, atol=1e-4)
+
+
+@settings(max_examples=50, deadline=None)
+@given(seed=st.integers(0, 10_000))
+def test_box_exit_against_sampling(seed):
+    from cinenerf_ns.planner.geometry.visibility import box_exit
+
+    rng = np.random.default_rng(seed)
+    lo = rng.uniform(-1, 0, 3)
+    hi = lo + rng.uniform(0.1, 1, 3)
+    p0, p1 = rng.uniform(-1.5, 1.5, (20, 3)), rng.uniform(-1.5, 1.5, (20, 3))
+    t = box_exit(p0, p1, lo, hi)
+    ts = np.linspace(0, 1, 2001)
+    for k in range(20):
+        pts = p0[k] + ts[:, None] * (p1[k] - p0[k])
+        inside = np.all((pts >= lo) & (pts <= hi), 1)
+        last = ts[inside].max() if inside.any() else 0.0
+        assert t[k] >= last - 1e-9 and t[k] <= last + 1e-3 + 1e-9  # never before the last inside point
+
+
+def test_subject_box_holds_every_cut_off_box():
+    from cinenerf_ns.planner.geometry.visibility import CUT_SIGMA, subject_box
+
+    rng = np.random.default_rng(4)
+    sc = _scene(rng, 60)
+    vol = SplatVolume.build(sc, -np.ones(3), np.ones(3))
+    lo, hi = subject_box(vol, np.arange(60))
+    inv = np.linalg.inv(vol.whiten)  # R diag(sigma)
+    z = rng.normal(size=(60, 2000, 3))
+    z = CUT_SIGMA * z / np.linalg.norm(z, axis=2, keepdims=True)  # on each cut-off ellipsoid's surface
+    pts = vol.means[:, None] + np.einsum("kij,ksj->ksi", inv, z)
+    assert np.all(pts >= lo - 1e-9) and np.all(pts <= hi + 1e-9)
+    assert np.allclose(pts.reshape(-1, 3).min(0), lo, atol=0.05) and np.allclose(pts.reshape(-1, 3).max(0), hi,
+                                                                                   atol=0.05)

@@ -20,6 +20,7 @@ from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
 from cinenerf_ns.planner.shots.target_object import TargetObject, scene_members
 
 torch.set_num_threads(1)
+_VOL: list = []  # the room's SplatVolume (set by the fixture)
 
 
 @pytest.fixture(scope="module")
@@ -29,12 +30,15 @@ def room():
     pl = Planner(scene, PlannerConfig(grid_resolution=64, start_region=(r.free_lo + 0.03, r.free_hi - 0.03),
                                       candidate_workers=0))
     pl.prepare()
+    from cinenerf_ns.planner.shots.end_pose import visibility_volume
+
+    _VOL[:] = [visibility_volume(pl)]
     return r, scene, pl
 
 
 def _obj(r, scene, name) -> TargetObject:
     ids = r.object_ids.cpu().numpy() == [o.name for o in r.objects].index(name)
-    return TargetObject.of_members(scene, scene_members(scene, ids), r.object(name).center, name)
+    return TargetObject.of_members(_VOL[0], scene_members(scene, ids), r.object(name).center, name)
 
 
 def _inside_a_box(p, r, pad=0.0) -> bool:
