@@ -413,15 +413,18 @@ def main(cfg: StandaloneConfig) -> None:
     """Serve until Ctrl+C (then exit status 0; a Ctrl+C while the scene loads: 130, no traceback either way)."""
     from rich.console import Console
 
+    from cinenerf_ns.console_text import lit
+
     check_config(cfg)
     viewer = None
     try:
         viewer = StandaloneViewer(cfg)
-        Console().print(f"[bold green]cinesplat-viewer[/] running at {viewer.url}  (Ctrl+C to stop)\n"
-                        f"{viewer.panel.status}")
+        out = Console(emoji=False)  # the status quotes user text (scene path, queries): printed as typed, never markup
+        out.print(f"[bold green]cinesplat-viewer[/] running at {lit(viewer.url)}  (Ctrl+C to stop)")
+        out.print(viewer.panel.status, markup=False)
         if viewer.planner is not None:
             viewer.planner.wait_ready()
-            Console().print(viewer.panel.status)
+            out.print(viewer.panel.status, markup=False)
         while True:
             time.sleep(1.0)
     except KeyboardInterrupt:
@@ -455,11 +458,13 @@ def entrypoint(argv: Optional[List[str]] = None) -> None:
     import tyro
     from rich.console import Console
 
+    from cinenerf_ns.console_text import error_line
+
     cfg = tyro.cli(StandaloneConfig, args=argv)
     try:
         main(cfg)
     except (PlanningError, FileNotFoundError, ValueError, OSError) as e:  # CheckpointError, QueryError, port in use
-        Console(stderr=True).print(f"[bold red]cinesplat-viewer:[/bold red] {e}", highlight=False)
+        Console(stderr=True, emoji=False).print(error_line("cinesplat-viewer", e), soft_wrap=True)
         sys.exit(2)
 
 
