@@ -1,6 +1,8 @@
 # Two set-up commands: `make demo` and `make test` (both create .venv and install on first use).
 # `make test` runs `make lint` (ruff, pinned in the dev extra and configured in pyproject.toml; the docs' names checked
-# by scripts/check_doc_names.py) before pytest.
+# by scripts/check_doc_names.py) before pytest. Its property tests (hypothesis) run derandomised: the same examples on
+# every run (the "ci" profile, tests/conftest.py). `make fuzz` runs only the property tests, with random seeds and
+# FUZZ_FACTOR (default 10) times their examples; pin what it finds with @example (a failure prints @reproduce_failure).
 PY ?= python3
 VENV ?= .venv
 VPY := $(VENV)/bin/python
@@ -13,7 +15,9 @@ PYTEST_ARGS ?=
 # one pytest worker per core; tests that open network ports run in one worker (tests/conftest.py)
 PYTEST_PARALLEL ?= -n auto --dist loadgroup
 
-.PHONY: install demo lint test test-fast bench clean-venv
+FUZZ_FACTOR ?= 10
+
+.PHONY: install demo lint test test-fast fuzz bench clean-venv
 
 $(VPY):
 	$(PY) -m venv $(VENV)
@@ -41,6 +45,10 @@ test: install lint
 
 test-fast: install
 	$(VPY) -m pytest $(PYTEST_PARALLEL) -m "not slow and not browser" $(PYTEST_ARGS)
+
+fuzz: install
+	FUZZ_FACTOR=$(FUZZ_FACTOR) $(VPY) -m pytest $(PYTEST_PARALLEL) -m "hypothesis and not slow and not browser" \
+		--hypothesis-profile=fuzz $(PYTEST_ARGS)
 
 bench: install
 	$(VPY) benchmarks/bench_planner.py

@@ -44,19 +44,48 @@ def parse_point(text: str) -> Optional[np.ndarray]:
 _STOP_WORDS = {"the", "a", "an", "to", "at", "of", "go", "look", "on", "in"}
 
 
-def _word_match(query: str, names: List[str]) -> Optional[int]:
-    """Index of the name that holds every word of the query (each query word equal to or inside one of the name's
-    words: 'lamp' -> 'floor lamp', 'chair' -> 'red armchair'); ties: the shortest name. None when no name holds them
-    all: 'purple elephant' names no 'purple stool' (a shared adjective is not a match)."""
-    q = {w for w in re.findall(r"[a-z]+", query.lower()) if w not in _STOP_WORDS}
+def _forms(w: str) -> frozenset:
+    """A word and the singulars it may be the plural of: 'lamps' {lamp}, 'vases' {vase, vas}, 'boxes' {box, boxe},
+    'shelves' {shelf, shelve, shelv}, 'bodies' {body}; 'glass' and words of 3 letters or fewer ('bus') only themselves.
+    Two words match when their forms meet: a word always matches itself, and 'lamps' matches 'lamp'."""
+    out = {w}
+    if len(w) > 3 and w.endswith("s") and not w.endswith("ss"):
+        out.add(w[:-1])
+        if w.endswith("es"):
+            out.add(w[:-2])
+        if w.endswith("ies"):
+            out.add(w[:-3] + "y")
+        if w.endswith("ves"):
+            out.update((w[:-3] + "f", w[:-3] + "fe"))
+    return frozenset(out)
+
+
+def _words(text: str) -> List[str]:
+    """Lower-case words: runs of letters and digits of any script."""
+    return re.findall(r"[^\W_]+", text.casefold())
+
+
+def word_matches(query: str, names: List[str]) -> List[int]:
+    """Indices of the names that hold every word of the query, stop words ('the', 'go', 'to', ...) aside. Whole words
+    only, singular or plural (_forms): 'lamp' and 'lamps' -> 'floor lamp', 'armchair' -> 'red armchair'; a part of a
+    word is not a match ('chair' and 'hair' name no 'red armchair', 'ant' no 'potted plant'), nor a shared adjective
+    with other words ('purple elephant' names no 'purple stool'). Empty when the query has no words."""
+    q = [_forms(w) for w in _words(query) if w not in _STOP_WORDS]
     if not q:
-        return None
-    best, best_len = None, None
+        return []
+    hits = []
     for i, n in enumerate(names):
-        words = re.findall(r"[a-z]+", n.lower())
-        if all(any(qw in w for w in words) for qw in q) and (best_len is None or len(words) < best_len):
-            best, best_len = i, len(words)
-    return best
+        forms = frozenset().union(*(_forms(w) for w in _words(n)))
+        if all(f & forms for f in q):
+            hits.append(i)
+    return hits
+
+
+def _word_match(query: str, names: List[str]) -> Optional[int]:
+    """Index of the name word_matches picks (ties: the fewest words, then the first: 'lamp' of 'floor lamp' and
+    'floor lamp stand' is 'floor lamp'; the caller's description names it); None when no name holds every word."""
+    hits = word_matches(query, names)
+    return min(hits, key=lambda i: len(_words(names[i]))) if hits else None
 
 
 def free_text(info: Dict[str, Any]) -> bool:
@@ -67,18 +96,19 @@ def free_text(info: Dict[str, Any]) -> bool:
 
 
 def procedural_object(room: Any, text: str) -> int:
-    """Index of the procedural room's object a text names (shared words, see _word_match)."""
+    """Index of the procedural room's object a text names (whole words, see word_matches)."""
     names = [o.name for o in room.objects]
     i = _word_match(text, names)
     if i is None:
-        raise InvalidInputError(f"no object matches '{text}' in the procedural room; objects: {', '.join(names)}")
+        raise InvalidInputError(f"no object matches '{text}' in the procedural room (a name must hold each of its "
+                                f"words, whole words); objects: {', '.join(names)}")
     return i
 
 
 def label_query(text: str, label_names: List[str], free: bool = True) -> str:
-    """The text a semantic scene is queried with: a query naming one of the scene's labels (every word in it, see
-    _word_match) is mapped to that label (its stored embedding needs no CLIP weights); other text goes to the CLIP
-    text tower when ``free`` (free_text), else InvalidInputError listing what the scene can answer."""
+    """The text a semantic scene is queried with: a query naming one of the scene's labels (every word in it, whole
+    words, see word_matches) is mapped to that label (its stored embedding needs no CLIP weights); other text goes to
+    the CLIP text tower when ``free`` (free_text), else InvalidInputError listing what the scene can answer."""
     q = text.strip()
     lower = [n.lower() for n in label_names]
     if q.lower() in lower:
@@ -90,8 +120,8 @@ def label_query(text: str, label_names: List[str], free: bool = True) -> str:
         return q
     if label_names:
         raise InvalidInputError(
-            f"nothing in the scene matches '{q}': this scene answers only its own object names (it was trained "
-            f"without real CLIP weights): {', '.join(label_names)}; or give a point 'x y z'")
+            f"nothing in the scene matches '{q}': this scene answers only its own object names, whole words (it was "
+            f"trained without real CLIP weights): {', '.join(label_names)}; or give a point 'x y z'")
     raise InvalidInputError(
         f"'{q}' cannot be looked up: this scene has no object names and its CLIP features come from random weights, "
         f"so text means nothing to it; give the target as a point 'x y z'")

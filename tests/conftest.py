@@ -5,8 +5,23 @@ import os
 from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, settings
 
 REPO = Path(__file__).resolve().parents[1]
+
+# Property tests (hypothesis): `make test` runs them derandomised, the same examples on every run and machine (the
+# examples follow from each test's source), with no example database (.hypothesis/ of earlier runs changes nothing);
+# the cases a random run once found are pinned with @example. `make fuzz` (--hypothesis-profile=fuzz) draws random
+# examples, FUZZ_FACTOR times each test's max_examples (see pytest_collection_modifyitems); a failure prints the
+# @reproduce_failure blob to pin. Neither profile times anything (no deadline, no too_slow health check: a loaded
+# machine must not fail a test). Registered before any test module builds its @settings (they inherit from the
+# profile loaded at that moment).
+UNTIMED = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow], print_blob=True)
+settings.register_profile("ci", derandomize=True, database=None, **UNTIMED)
+settings.register_profile("fuzz", derandomize=False, **UNTIMED)
+settings.load_profile("ci")
+FUZZ_FACTOR = int(os.environ.get("FUZZ_FACTOR", "10"))
+
 FOX = Path(os.environ.get("CINENERF_FOX", REPO.parent / "shared" / "data" / "fox"))
 FOX_SPLAT = Path(os.environ.get("CINENERF_FOX_SPLAT",
                                 REPO.parent / "shared" / "data" / "fox_cinesplat" / "fox3000.npz"))  # trained fox
@@ -21,7 +36,24 @@ def _cuda() -> bool:
         return False
 
 
+def _fuzz_more_examples(items) -> None:
+    """The fuzz profile: each property test's own max_examples (its @settings) times FUZZ_FACTOR. Hypothesis has no
+    option for this; the settings a @given test runs with are its _hypothesis_internal_use_settings."""
+    from hypothesis import is_hypothesis_test
+
+    done = set()
+    for item in items:
+        fn = getattr(getattr(item, "obj", None), "__func__", getattr(item, "obj", None))
+        if fn is None or id(fn) in done or not is_hypothesis_test(fn):
+            continue
+        done.add(id(fn))
+        own = fn._hypothesis_internal_use_settings
+        fn._hypothesis_internal_use_settings = settings(own, max_examples=own.max_examples * FUZZ_FACTOR)
+
+
 def pytest_collection_modifyitems(config, items):
+    if settings.get_current_profile_name() == "fuzz":
+        _fuzz_more_examples(items)
     has_cuda = _cuda()
     has_fox = (FOX / "transforms.json").exists()
     for item in items:
@@ -34,6 +66,12 @@ def pytest_collection_modifyitems(config, items):
         if "fox" in item.keywords and not has_fox:
             item.add_marker(pytest.mark.skip(reason=f"sample scene not found at {FOX} "
                                              "(../shared/data/fox beside the checkout)"))
+
+
+@pytest.fixture(scope="session")
+def fuzz_factor() -> int:
+    """How many times its own max_examples a property test runs under `make fuzz`."""
+    return FUZZ_FACTOR
 
 
 @pytest.fixture(scope="session")

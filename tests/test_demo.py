@@ -34,3 +34,17 @@ def test_demo_plans_from_text_on_bundled_scene(tmp_path):
     assert p["frame_index"][0] == 0 and p["frame_index"][-1] == len(cam["camera_path"]) - 1
     assert (tmp_path / "demo.mp4").read_bytes()[4:8] == b"ftyp"
     assert (tmp_path / "demo_sheet.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_missing_scene_is_refused_with_its_path_as_typed(tmp_path, capsys):
+    """`python -m cinenerf_ns.cli.demo --scene <missing>`: exit 2 with the path quoted as typed (never rich markup),
+    no traceback, and no silent fallback to the procedural room."""
+    from cinenerf_ns.cli.demo import entrypoint
+
+    scene = tmp_path / "a[/x] [red]:smile:" / "room.npz"
+    with pytest.raises(SystemExit) as e:
+        entrypoint(["--scene", str(scene), "--output-dir", str(tmp_path / "out"), "--no-preview"])
+    cap = capsys.readouterr()
+    assert e.value.code == 2 and "Traceback" not in cap.err
+    assert f"scene not found: {scene} " in cap.err
+    assert not (tmp_path / "out").exists()

@@ -29,7 +29,9 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 from rich.table import Table
+from rich.text import Text
 
+from cinenerf_ns.console_text import error_line, lit
 from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY, OBJECT_CLUSTER, SMOOTH_NEIGHBORS
 from cinenerf_ns.options import check_number
 from cinenerf_ns.output_set import OutputSet, check_name, check_writable
@@ -55,8 +57,8 @@ from cinenerf_ns.planner.trajectory.timing import MAX_FPS, MIN_FPS, TimingConfig
 from cinenerf_ns.scenes import LoadedScene, _word_match, load_scene, parse_point, resolve_match
 from cinenerf_ns.shot_targets import ShotTargets, end_pose_count, shot_targets, start_region_centre
 
-CONSOLE = Console()
-ERRORS = Console(stderr=True)
+CONSOLE = Console(emoji=False)  # user text is printed as typed (console_text)
+ERRORS = Console(stderr=True, emoji=False)
 
 
 @dataclass
@@ -457,7 +459,7 @@ def _summary(args, loaded, planner, prep, gm, lm, goal, look, shots, scores, mul
 
 
 def _print_summary(args, console, loaded, gm, lm, shots, scores, multi, reports, moves, files, summary, views) -> None:
-    table = Table(title=f"cinesplat-plan: go to {gm['description']}, look at {lm['description']}")
+    table = Table(title=Text(f"cinesplat-plan: go to {gm['description']}, look at {lm['description']}"))
     # short headers, no wrapping: the table must stay readable in an 80-column terminal (legend below)
     wide = console.width >= 140
     cols = ["#", "score", "seen", "end", "size", "min clr", "len", "dur s", "file"]
@@ -488,7 +490,7 @@ def _print_summary(args, console, loaded, gm, lm, shots, scores, multi, reports,
                   f"({args.framing}: {_framing(args).band[0]:g}-{_framing(args).band[2]:g}); clr/len in scene units"
                   + ("; peak: speed / acceleration / view rotation deg/s" if wide else "")
                   + ("" if wide else " (wider terminal: more columns)")
-                  + f"; files in {Path(args.output_dir).absolute()}/")
+                  + f"; files in {lit(Path(args.output_dir).absolute())}/", emoji=False)
     if summary["stopped_by_time_budget"]:
         console.print(f"[yellow]note: {len(shots)} of {args.candidates} candidates planned within --time-budget "
                       f"{args.time_budget:g} s[/yellow]")
@@ -499,16 +501,17 @@ def _print_summary(args, console, loaded, gm, lm, shots, scores, multi, reports,
     for k, mv in enumerate(moves):
         if mv is not None:
             console.print(f"[yellow]note (rank {k + 1}): the go-to point moved {mv['distance']:.3f} units, from "
-                          f"{_fmt3(mv['from'])} to {_fmt3(mv['to'])}: {mv['why']}[/yellow]")
-    console.print(f"report: {summary['report']}\nplots: {summary['plots']['clearance']}, {summary['plots']['topdown']}")
+                          f"{_fmt3(mv['from'])} to {_fmt3(mv['to'])}: {lit(mv['why'])}[/yellow]", emoji=False)
+    console.print(Text(f"report: {summary['report']}\nplots: {summary['plots']['clearance']}, "
+                       f"{summary['plots']['topdown']}"), soft_wrap=True)  # paths: one line each, to copy
     videos = [v for k, v in summary["plots"].items() if k.startswith("preview_") and not k.startswith("preview_sheet")]
     if videos:
-        console.print("preview: " + ", ".join(videos))
+        console.print(Text("preview: " + ", ".join(videos)))
     if loaded.config_path is not None:
-        console.print(
+        console.print(Text(
             f"render: ns-render camera-path --load-config {loaded.config_path} --camera-path-filename {files[0]} "
             f"--output-path renders/{args.name}.mp4"
-        )
+        ))
 
 
 def _fmt3(p) -> str:
@@ -529,7 +532,7 @@ def main(argv: Optional[List[str]] = None) -> int:
                      "--candidates")
         return 2
     except (PlanningError, FileNotFoundError, ValueError, OSError) as e:  # user-facing: CheckpointError, QueryError...
-        ERRORS.print(f"[bold red]cinesplat-plan:[/bold red] {e}", markup=True, highlight=False)
+        ERRORS.print(error_line("cinesplat-plan", e), soft_wrap=True)
         return 2
     return 0
 

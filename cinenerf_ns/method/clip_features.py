@@ -30,7 +30,12 @@ from torch import Tensor
 
 
 class ClipWeightsError(RuntimeError):
-    """CLIP weights could not be loaded; the message says how to provide them."""
+    """CLIP weights could not be loaded; the message says how to provide them for training (ns-train options), and
+    ``reason`` says only what failed (query-time callers give their own advice: semantic_scene.build_text_encoder)."""
+
+    def __init__(self, message: str, reason: Optional[str] = None):
+        super().__init__(message)
+        self.reason = reason or message
 
 
 @dataclass
@@ -103,13 +108,15 @@ def load_clip(cfg: ClipFeatureConfig, device: torch.device | str = "cpu"):
         try:
             model = _create_cache_first(cfg.model_name, src, local_file=cfg.checkpoint_path is not None)
         except Exception as e:
+            reason = f"could not load CLIP weights '{cfg.model_name}' / '{src}' ({type(e).__name__}: {str(e)[:160]})"
             raise ClipWeightsError(
-                f"Could not load CLIP weights '{cfg.model_name}' / '{src}' ({type(e).__name__}: {str(e)[:160]}).\n"
+                f"C{reason[1:]}.\n"
                 "Provide them in one of these ways:\n"
                 f"  * run once with network so open_clip caches them (python -c \"import open_clip; "
                 f"open_clip.create_model('{cfg.model_name}', pretrained='{cfg.pretrained}')\"), or\n"
                 "  * download the checkpoint file and pass --pipeline.datamanager.clip.checkpoint-path FILE, or\n"
-                "  * for a pipeline test without semantics: --pipeline.datamanager.clip.random-weights True."
+                "  * for a pipeline test without semantics: --pipeline.datamanager.clip.random-weights True.",
+                reason=reason,
             ) from None
     model.eval().to(device)
     tokenizer = open_clip.get_tokenizer(cfg.model_name)

@@ -27,6 +27,7 @@ from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.data.datamanagers.full_images_datamanager import FullImageDatamanager, FullImageDatamanagerConfig
 from nerfstudio.utils.rich_utils import CONSOLE
 
+from cinenerf_ns.console_text import lit
 from cinenerf_ns.method.clip_features import ClipFeatureConfig
 from cinenerf_ns.method.codec import CodecConfig
 from cinenerf_ns.method.compat import patch_ply_loader_without_open3d
@@ -110,13 +111,13 @@ class CineSplatDatamanager(FullImageDatamanager):
                 labels_dir=self.config.labels_dir,
                 labels_json=self.config.labels_json,
                 device=self.device,
-                log=lambda m: CONSOLE.print(m),
+                log=lambda m: CONSOLE.print(m, markup=False, emoji=False),  # messages quote paths
                 label_transform=label_transform,
                 label_transform_key=label_key,
             )
         except (ClipWeightsError, LabelDataError) as e:
             # one clear message, no stack trace of a download failure
-            CONSOLE.print(f"[bold red]cinesplat: {e}")
+            CONSOLE.print(f"[bold red]cinesplat:[/bold red] {lit(e)}", emoji=False)
             raise SystemExit(2) from None
         self.semantic_stats = result.stats
         self.latent_targets = [t.to(self.device) for t in result.latent_targets]

@@ -46,7 +46,8 @@ def cache_key(image_paths: Sequence[Path], image_sizes: Sequence[Tuple[int, int]
 def _progress(desc: str, total: int):
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-    bar = Progress(TextColumn(f"[bold]{desc}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
+    bar = Progress(TextColumn(desc, style="bold", markup=False), BarColumn(), MofNCompleteColumn(),
+                   TimeRemainingColumn())
     return bar, total
 
 

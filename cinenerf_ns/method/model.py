@@ -26,6 +26,7 @@ from nerfstudio.viewer.viewer_elements import ViewerText
 from torch import Tensor
 from torch.nn import Parameter
 
+from cinenerf_ns.console_text import lit
 from cinenerf_ns.method.codec import CodecConfig, FeatureCodec
 from cinenerf_ns.method.compat import UnavailableLPIPS, offline_safe_lpips
 from cinenerf_ns.method.feature_grid import feature_map_size
@@ -396,7 +397,7 @@ class CineSplatModel(SplatfactoModel):
             enc = self.text_encoder()
             emb = enc([self._query_text, *self.config.relevancy_negatives]).to(self.device)
         except Exception as e:  # viewer must keep running; report once per query
-            CONSOLE.print(f"[bold red]CineSplat query failed: {e}")
+            CONSOLE.print(f"[bold red]CineSplat query failed:[/bold red] {lit(e)}", emoji=False)  # quotes the query
             self._query_text = ""
             return None
         self.codec.to(self.device)

@@ -26,6 +26,7 @@ from cinenerf_ns.method.relevancy import (
     relevancy as relevancy_fn,
     relevancy_mask,
 )
+from cinenerf_ns.method.scene_files import CheckpointError
 from cinenerf_ns.planner.scene.splat_params import SplatParams
 
 TextEncoder = Callable[[Sequence[str]], Tensor]
@@ -35,11 +36,17 @@ def build_text_encoder(info: Dict, label_embeddings: Optional[Tensor] = None,
                        device: torch.device | str = "cpu") -> TextEncoder:
     """Texts equal (case-insensitively) to a trained label name use that label's stored embedding (exact,
     needs no CLIP weights); other texts go through the CLIP text tower named in ``info["clip"]``,
-    loaded on first use (raises ClipWeightsError with instructions when weights are missing)."""
+    loaded on first use (raises ClipWeightsError with instructions when weights are missing). CheckpointError when the
+    label names and embeddings disagree in number: the labels could not be answered, and their text would silently go
+    to the CLIP tower (random weights on label-trained scenes)."""
     names = [n.strip().lower() for n in (info.get("label_names") or [])]
-    table = {}
-    if label_embeddings is not None and label_embeddings.numel() > 0 and len(names) == label_embeddings.shape[0]:
-        table = {n: label_embeddings[i].float() for i, n in enumerate(names)}
+    n_emb = 0 if label_embeddings is None or label_embeddings.numel() == 0 else int(label_embeddings.shape[0])
+    if n_emb != len(names):
+        raise CheckpointError(
+            f"the scene holds {len(names)} label names (info 'label_names') but {n_emb} label embeddings "
+            f"('label_embeddings'): each label needs its embedding, so its text queries cannot be answered; the scene "
+            f"file is inconsistent: export it again from its training run")
+    table = {n: label_embeddings[i].float() for i, n in enumerate(names)}
     state: Dict = {}
 
     def encode(texts: Sequence[str]) -> Tensor:
@@ -58,15 +65,34 @@ def build_text_encoder(info: Dict, label_embeddings: Optional[Tensor] = None,
                         "this scene has no text encoder spec; only its label names can be queried: "
                         + ", ".join(info.get("label_names") or [])
                     )
-                from cinenerf_ns.method.clip_features import clip_config_from_spec, make_text_encoder
+                from cinenerf_ns.method.clip_features import ClipWeightsError, clip_config_from_spec, make_text_encoder
 
-                state["enc"] = make_text_encoder(clip_config_from_spec(info["clip"]), device)
+                try:
+                    state["enc"] = make_text_encoder(clip_config_from_spec(info["clip"]), device)
+                except ClipWeightsError as e:
+                    raise QueryError(_no_clip_advice(info, e.reason, [texts[i] for i in missing])) from None
             emb = state["enc"]([texts[i] for i in missing])
             for j, i in enumerate(missing):
                 out[i] = emb[j].to(device)
         return F.normalize(torch.stack(out).float(), dim=-1)
 
     return encode
+
+
+def _no_clip_advice(info: Dict, reason: str, texts: Sequence[str]) -> str:
+    """What a user querying free text can do when the scene's CLIP text tower does not load (at query time: no
+    training options apply)."""
+    clip = info.get("clip") or {}
+    if clip.get("checkpoint_path"):
+        fix = f"put the CLIP checkpoint file back at {clip['checkpoint_path']} (where the scene was trained with it)"
+    else:
+        fix = (f"cache its weights once on a machine with network (python -c \"import open_clip; "
+               f"open_clip.create_model('{clip.get('model_name')}', pretrained='{clip.get('pretrained')}')\")")
+    names = info.get("label_names") or []
+    labels = f"type one of the scene's label names ({', '.join(names)}) or " if names else ""
+    quoted = ", ".join(f"'{t.strip()}'" for t in texts)
+    return (f"free text ({quoted}) needs this scene's CLIP text tower, which cannot be loaded here: {reason}. For free "
+            f"text, {fix}; otherwise {labels}give the target as a point 'x y z'")
 
 
 def smooth_latents(means: Tensor, opacities: Tensor, latents: Tensor, k: int) -> Tensor:

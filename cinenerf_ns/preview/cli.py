@@ -82,7 +82,7 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
     from cinenerf_ns.planner.errors import InvalidInputError
     from cinenerf_ns.preview.preview import preview_camera_path
 
-    console = Console()
+    console = Console(emoji=False)  # paths printed as typed (console_text)
     name = a.name or a.camera_path.stem
     try:
         out = preview_camera_path(splat, cam, a.output_dir, name, width=a.width, height=a.height, fps=a.fps,
@@ -94,7 +94,7 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
                   f"({out['backend']}) in {t['total_s']:.1f} s (render {t['render_s']:.1f} s, "
                   f"median {t['frame_ms_median']:.0f} ms/frame)")
     for k, p in out["paths"].items():
-        console.print(f"  {k:14s} {p}")
+        console.print(f"  {k:14s} {p}", markup=False, soft_wrap=True)  # a path: as typed, one line
     return out
 
 

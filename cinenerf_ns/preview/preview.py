@@ -124,8 +124,9 @@ def preview_camera_path(
     per_frame: List[float] = []
     t_encode = 0.0
     console = console or Console(stderr=True)
-    bar = Progress(TextColumn("[bold]preview[/bold] {task.description}"), BarColumn(), MofNCompleteColumn(),
-                   TimeRemainingColumn(), console=console, disable=not progress, transient=False)
+    # the description holds the user's name: plain text, never markup
+    bar = Progress(TextColumn("[bold]preview[/bold]"), TextColumn("{task.description}", markup=False), BarColumn(),
+                   MofNCompleteColumn(), TimeRemainingColumn(), console=console, disable=not progress, transient=False)
     with bar, Mp4Writer(paths["mp4"], cams.width, cams.height, cams.fps) as writer:
         task = bar.add_task(f"{name} {cams.width}x{cams.height} @ {cams.fps:g} fps ({b})", total=n)
         for i, (img, dt) in enumerate(_frames(scene, cams, b, background, device)):

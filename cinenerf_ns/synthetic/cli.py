@@ -9,9 +9,10 @@ import tyro
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+from cinenerf_ns.console_text import lit
 from cinenerf_ns.synthetic.dataset import DatasetConfig, write_dataset
 
-CONSOLE = Console()
+CONSOLE = Console(emoji=False)  # the output path printed as typed (console_text)
 
 
 def main(config: DatasetConfig) -> dict:
@@ -26,11 +27,11 @@ def main(config: DatasetConfig) -> dict:
         task = progress.add_task("render", total=config.num_views)
         info = write_dataset(config, progress=lambda i, n: progress.update(task, completed=i))
     CONSOLE.print(
-        f"[green]wrote {config.num_views} views of room seed {config.seed} to {config.output}[/green] "
+        f"[green]wrote {config.num_views} views of room seed {config.seed} to {lit(config.output)}[/green] "
         f"(render {info['render_seconds']:.1f} s wall / {info['render_cpu_seconds']:.1f} s CPU, "
         f"total {info['total_seconds']:.1f} s, {config.threads} thread(s))"
     )
-    CONSOLE.print(f"train with: ns-train cinesplat --data {config.output}")
+    CONSOLE.print(f"train with: ns-train cinesplat --data {config.output}", markup=False, soft_wrap=True)
     return info
 
 

@@ -113,21 +113,22 @@ class FunctionBackend:
 
 
 def label_locate(means: np.ndarray, labels: Sequence[str], label_of: np.ndarray) -> LocateFn:
-    """Stand-in text query for scenes with known per-Gaussian labels (the demo scene, synthetic rooms):
-    a query matches the labels it contains as a word or that contain it (case-insensitive).
+    """Stand-in text query for scenes with known per-Gaussian labels (the demo scene, synthetic rooms): a query
+    matches every label that holds each of its words, whole words (scenes.word_matches: 'box' and 'red box' ->
+    'red box', 'ox' nothing); their Gaussians together.
 
     Not CLIP semantics: this is exact label matching, used where labels are ground truth."""
+    from cinenerf_ns.scenes import word_matches
+
     means = np.asarray(means, dtype=np.float64)
     label_of = np.asarray(label_of)
-    names = [s.lower() for s in labels]
 
     def locate(text: str) -> Tuple[np.ndarray, np.ndarray]:
-        q = " ".join(text.lower().replace("the ", " ").split())
-        if not q:
+        if not text.strip():
             raise InvalidInputError("empty query: type an object name or 'x y z' coordinates")
-        hit = [i for i, n in enumerate(names) if n and (n in q or q in n)]
+        hit = word_matches(text, list(labels))
         if not hit:
-            raise NoMatchError(f"'{text}' matches no object in this scene (known: {', '.join(labels)})")
+            raise NoMatchError(f"'{text}' matches no object in this scene (whole words; known: {', '.join(labels)})")
         mask = np.isin(label_of, hit)
         if not mask.any():
             raise NoMatchError(f"'{text}' names an object with no Gaussians left")

@@ -497,6 +497,8 @@ def main(cfg: StandaloneConfig) -> None:
     """Serve until Ctrl+C (then exit status 0; a Ctrl+C while the scene loads: 130, no traceback either way)."""
     from rich.console import Console
 
+    from cinenerf_ns.console_text import lit
+
     check_config(cfg)
     check_bind(cfg.host, cfg.port)  # before the scene loads: a taken port or a foreign address fails at once
     viewer = None
@@ -504,12 +506,13 @@ def main(cfg: StandaloneConfig) -> None:
         viewer = StandaloneViewer(cfg)
         warning = exposure_warning(cfg.host)
         if warning:
-            Console(stderr=True).print(warning, style="bold yellow", markup=False, highlight=False)
-        Console().print(f"[bold green]cinesplat-viewer[/] running at {viewer.url}  (Ctrl+C to stop)")
-        Console().print(viewer.panels.status, markup=False, highlight=False)
+            Console(stderr=True, emoji=False).print(warning, style="bold yellow", markup=False, highlight=False)
+        out = Console(emoji=False)  # the status quotes user text (scene path, queries): printed as typed, never markup
+        out.print(f"[bold green]cinesplat-viewer[/] running at {lit(viewer.url)}  (Ctrl+C to stop)")
+        out.print(viewer.panels.status, markup=False, highlight=False)
         if viewer.planner is not None:
             viewer.planner.wait_ready()
-            Console().print(viewer.panels.status, markup=False, highlight=False)
+            out.print(viewer.panels.status, markup=False, highlight=False)
         while True:
             time.sleep(1.0)
     except KeyboardInterrupt:
@@ -543,11 +546,13 @@ def entrypoint(argv: Optional[List[str]] = None) -> None:
     import tyro
     from rich.console import Console
 
+    from cinenerf_ns.console_text import error_line
+
     cfg = tyro.cli(StandaloneConfig, args=argv)
     try:
         main(cfg)
     except (PlanningError, FileNotFoundError, ValueError, OSError) as e:  # CheckpointError, QueryError, port in use
-        Console(stderr=True).print(f"[bold red]cinesplat-viewer:[/bold red] {e}", highlight=False)
+        Console(stderr=True, emoji=False).print(error_line("cinesplat-viewer", e), soft_wrap=True)
         sys.exit(2)
 
 

@@ -201,3 +201,143 @@ def test_text_that_matches_nothing_on_the_bundled_scene(text, tmp_path, capsys):
     code, o, e, dt = _run(["--scene", str(DEMO_SCENE), "--go-to", text, "--look-at", "floor lamp", "--output-dir",
                            str(out)], capsys, out)
     _check(code, o, e, dt, rf"nothing in the scene matches '{text}': .* red armchair, floor lamp", out)
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Issue 38, items 3 and 4 (user text, matching). Kept in one block at the end of the file.
+# User text is never markup: queries, their resolved descriptions and paths are printed as typed, whatever they hold
+# (rich would read '[/x]' as a closing tag and ':smile:' as an emoji; it once crashed after writing every output).
+# ---------------------------------------------------------------------------------------------------------------------
+
+LONG_TEXT = "[/sofa] " * 625  # 5,000 characters of closing tags, every word the sofa's
+
+
+def _flat(s: str) -> str:
+    """Printed text with rich's line wrapping undone (the table title and notes wrap at the terminal width)."""
+    return " ".join(s.split())
+
+
+@pytest.mark.parametrize("option,text", [
+    ("--go-to", "[/x]"),
+    ("--go-to", "armchair [/red]"),
+    ("--look-at", "[bold]lamp :chair: [link=http://x.example]y[/link]"),
+    ("--go-to", "\U0001F3AC 🪑 \\"),
+    ("--go-to", "[/x]" * 1250),
+    ("--then-go-to", "[red]purple [/] elephant"),
+], ids=["closing-tag", "word-then-closing-tag", "tags-and-emoji-code", "emoji-backslash", "5000-closing-tags",
+        "then-go-to-tags"])
+def test_query_text_is_echoed_as_typed(option, text, tmp_path, capsys):
+    """A query that matches nothing is refused with the query quoted exactly: exit 2, one line, no traceback."""
+    out = tmp_path / "out"
+    code, o, e, dt = _run(SCENE + TARGETS + ["--output-dir", str(out), option, text], capsys, out)
+    _check(code, o, e, dt, r"no object matches", out)
+    assert f"no object matches '{text.strip()}'" in e, e[:300]
+    assert e.count("\n") == 1, e[:300]  # one line, as written (no wrapping inside the message)
+
+
+def test_a_path_that_looks_like_markup_is_reported_as_itself(tmp_path, capsys):
+    scene = tmp_path / "a[red]b[/red] [/x] :smile:" / "scene[bold].npz"
+    out = tmp_path / "out"
+    code, o, e, dt = _run(["--scene", str(scene)] + TARGETS + ["--output-dir", str(out)], capsys, out)
+    _check(code, o, e, dt, r"scene not found", out)
+    assert f"scene not found: {scene} " in e
+
+
+def test_markup_and_emoji_in_queries_and_paths_plan_and_print_as_typed(tmp_path, capsys):
+    """A plan whose queries, resolved descriptions and output folder hold tags, emoji (codes) and 5,000 characters
+    writes its outputs, exits 0 and prints every one of them as typed."""
+    import json
+
+    out = tmp_path / "o[/x] [red]:smile: 🎬"
+    go, look = "[/potted plant] 🎬 [/plant]", LONG_TEXT
+    code, o, e, dt = _run(SCENE + ["--go-to", go, "--look-at", look, "--output-dir", str(out)], capsys, out)
+    assert code == 0, e[-600:]
+    assert "Traceback" not in o + e
+    report = json.loads((out / "shot_report.json").read_text())
+    assert report["go_to"]["text"] == go and report["look_at"]["text"] == look.strip()
+    flat = _flat(o)
+    for printed in (report["go_to"]["resolved"], report["look_at"]["resolved"], f"files in {out}/",
+                    f"report: {out / 'shot_report.json'}"):
+        assert _flat(printed) in flat, (printed, o[-1500:])
+    assert ":smile:" in o and "😄" not in o
+
+
+def test_the_console_entry_point_prints_markup_text_as_typed(tmp_path):
+    """The installed command's process (not only main()): exit 2, the query quoted, no traceback."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-m", "cinenerf_ns.cli.plan", *SCENE, "--go-to", "armchair [/red]",
+                        "--look-at", "floor lamp", "--output-dir", str(out)], capture_output=True, text=True,
+                       timeout=120, env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])})
+    assert r.returncode == 2, r.stderr[-600:]
+    assert "Traceback" not in r.stderr and "no object matches 'armchair [/red]'" in r.stderr, r.stderr
+    assert not out.exists()
+
+
+# Matching means matching: whole words ('hair' is no 'armchair'), and a scene's text semantics that cannot answer say
+# why with advice cinesplat-plan can follow.
+@pytest.mark.parametrize("text", ["hair", "ant", "chair", "lam", "potted plan"])
+def test_a_part_of_a_word_names_no_object(text, tmp_path, capsys):
+    """Issue 38: 'hair' planned to the armchair and 'ant' to the potted plant. The message lists the names to type."""
+    out = tmp_path / "out"
+    code, o, e, dt = _run(SCENE + TARGETS + ["--output-dir", str(out), "--go-to", text], capsys, out)
+    _check(code, o, e, dt, rf"no object matches '{text}' .* whole words\); objects: armchair, floor lamp, table, "
+                           r"vase, potted plant, sofa", out)
+
+
+def _semantic_scene_file(path: Path, label_names, n_embeddings: int, clip) -> Path:
+    """A compact export of a small procedural room with latents, a codec, label names and embeddings (the numbers
+    may disagree) and a CLIP spec."""
+    import torch
+
+    from cinenerf_ns.method.checkpoint import SplatCheckpoint, export_compact
+    from cinenerf_ns.method.codec import CodecConfig, FeatureCodec
+    from cinenerf_ns.planner.scene.procedural import procedural_room
+    from cinenerf_ns.planner.scene.splat_params import SplatParams
+    from cinenerf_ns.scenes import procedural_params
+
+    sp = procedural_params(procedural_room(2000, seed=0))
+    torch.manual_seed(0)
+    codec = FeatureCodec(8, CodecConfig(hidden_dim=8, train_steps=1))
+    codes = torch.randn(max(1, n_embeddings), 3)
+    with torch.no_grad():
+        emb = codec.decode(codes)[:n_embeddings]
+    st = SplatCheckpoint(
+        SplatParams.of(sp.means, sp.quats_wxyz, sp.log_scales, sp.opacity_logits,
+                       latents=codes[torch.arange(len(sp.means)) % len(codes)]),
+        codec=codec, codec_state=codec.state_dict(), label_embeddings=emb if n_embeddings else None,
+        info={"feature_dim": 8, "codec_config": vars(CodecConfig(hidden_dim=8, train_steps=1)),
+              "label_names": list(label_names), "clip": clip},
+    )
+    return export_compact(st, path, half=False)
+
+
+def test_label_names_and_embeddings_that_disagree_are_refused(tmp_path, capsys):
+    """Issue 38: such a scene answered its labels through a random CLIP text tower without a word."""
+    scene = _semantic_scene_file(tmp_path / "scene.pt", ["thing 0", "thing 1", "thing 2"], 2,
+                                 {"model_name": "ViT-B-32", "pretrained": "", "random_weights": True})
+    out = tmp_path / "out"
+    code, o, e, dt = _run(["--scene", str(scene), "--go-to", "thing 1", "--look-at", "0 0 0.2", "--output-dir",
+                           str(out)], capsys, out)
+    _check(code, o, e, dt, r"3 label names .* but 2 label embeddings", out)
+
+
+@pytest.mark.parametrize("clip,advice", [
+    ({"model_name": "ViT-B-32", "checkpoint_path": "/nonexistent/clip[/x].bin", "random_weights": False},
+     r"put the CLIP checkpoint file back at /nonexistent/clip\[/x\]\.bin"),
+    ({"model_name": "ViT-B-32", "pretrained": "no_such_tag", "random_weights": False},
+     r"cache its weights once on a machine with network .*pretrained='no_such_tag'"),
+])
+def test_free_text_without_loadable_clip_weights_gets_advice_for_this_command(clip, advice, tmp_path, capsys):
+    """Issue 38: a traceback whose advice named training options (--pipeline.datamanager.clip...) that cinesplat-plan
+    does not have. Now: exit 2, what failed, and what this user can do (weights, the label names, a point)."""
+    scene = _semantic_scene_file(tmp_path / "scene.pt", ["thing 0", "thing 1"], 2, clip)
+    out = tmp_path / "out"
+    code, o, e, dt = _run(["--scene", str(scene), "--go-to", "a cosy corner", "--look-at", "thing 1",
+                           "--output-dir", str(out)], capsys, out)
+    _check(code, o, e, dt, r"free text \('a cosy corner'\) needs this scene's CLIP text tower, which cannot be "
+                           rf"loaded here: .*{advice}.*; otherwise type one of the scene's label names "
+                           r"\(thing 0, thing 1\) or give the target as a point 'x y z'", out)
+    assert "--pipeline" not in e

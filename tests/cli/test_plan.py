@@ -3,12 +3,13 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from cinenerf_ns.cli.plan import PlanArgs, run_plan
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.scene.ply import write_splat_ply
 from cinenerf_ns.planner.scene.procedural import procedural_room
-from cinenerf_ns.scenes import _word_match, parse_point
+from cinenerf_ns.scenes import _word_match, parse_point, word_matches
 
 
 def test_parse_point():
@@ -20,10 +21,40 @@ def test_parse_point():
 
 
 def test_word_match():
-    names = ["red armchair", "floor lamp", "table"]
+    """Whole words, singular or plural; a part of a word is no match (issue 38: 'hair' planned to the red armchair,
+    'ant' to the potted plant)."""
+    names = ["red armchair", "floor lamp", "table", "potted plant", "blue vase", "bookshelf", "glass box",
+             "floor lamp stand", "thing 1", "thing 12"]
     assert _word_match("go to the armchair", names) == 0
-    assert _word_match("lamp", names) == 1
+    assert _word_match("lamp", names) == 1  # ties: the fewest words ('floor lamp stand' holds it too)
+    assert word_matches("lamp", names) == [1, 7]
     assert _word_match("piano", names) is None
+    for fragment in ("hair", "ant", "chair", "arm", "shelf", "lam", "oor", "bo"):
+        assert word_matches(fragment, names) == [], fragment
+    for plural, i in [("lamps", 1), ("Floor Lamps", 1), ("plants", 3), ("vases", 4), ("bookshelves", 5),
+                      ("boxes", 6), ("glasses", 6), ("tables", 2)]:
+        assert _word_match(plural, names) == i, plural
+    assert _word_match("thing 1", names) == 8 and _word_match("thing 12", names) == 9
+    assert word_matches("the red elephant", names) == [] and word_matches("the", names) == []
+
+
+@settings(max_examples=60, deadline=None)
+@given(name=st.lists(st.text("abcdefghijklmnopqrstuvwxyz", min_size=1, max_size=8), min_size=1, max_size=4),
+       pick=st.lists(st.integers(0, 3), min_size=1, max_size=4), upper=st.booleans())
+def test_a_name_matches_any_of_its_words_and_no_cut_word(name, pick, upper):
+    """Property: a query of some of a name's words (any order, any case, stop words added) matches it; a query of one
+    word cut short (a strict prefix or suffix that is none of its words' forms) does not."""
+    from cinenerf_ns.scenes import _STOP_WORDS, _forms
+
+    full = " ".join(name)
+    words = [name[i % len(name)] for i in pick]
+    q = "go to the " + " ".join(w.upper() if upper else w for w in reversed(words))
+    if not set(words) <= _STOP_WORDS:
+        assert word_matches(q, [full]) == [0]
+    for w in name:
+        for cut in (w[1:], w[:-1]):
+            if cut and cut not in _STOP_WORDS and not any(_forms(cut) & _forms(v) for v in name):
+                assert word_matches(cut, [full]) == []
 
 
 def test_procedural_text_plan(tmp_path):

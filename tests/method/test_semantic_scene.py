@@ -84,6 +84,17 @@ def test_label_table_encoder_needs_no_clip_for_label_names():
         e(["sofa"])
 
 
+@pytest.mark.parametrize("n_names,n_emb", [(2, 1), (2, 3), (2, 0), (0, 2)])
+def test_label_names_and_embeddings_that_disagree_are_refused(n_names, n_emb):
+    """Issue 38: such a scene answered its labels through the (random) CLIP tower without a word."""
+    from cinenerf_ns.method.scene_files import CheckpointError
+
+    info = {"label_names": [f"thing {i}" for i in range(n_names)], "clip": {"random_weights": True}}
+    emb = F.normalize(torch.randn(n_emb, 8), dim=-1) if n_emb else None
+    with pytest.raises(CheckpointError, match=rf"{n_names} label names .* but {n_emb} label embeddings"):
+        build_text_encoder(info, emb)
+
+
 def test_label_table_then_clip_text_tower(tiny_clip_models):
     from cinenerf_ns.method.clip_features import ClipFeatureConfig, make_text_encoder
 

@@ -73,3 +73,16 @@ def test_console_entry_exit_status(inputs, tmp_path):
                         str(cam), "--output-dir", str(tmp_path / "r"), "--height", "9"], cwd=REPO,
                        capture_output=True, text=True, timeout=120, env={**os.environ, "PYTHONPATH": str(REPO)})
     assert r.returncode == 2 and "--height must be in 16..4096" in r.stderr and not (tmp_path / "r").exists()
+
+
+def test_names_and_paths_that_look_like_markup_are_printed_as_typed(inputs, tmp_path, capsys):
+    """User text is never rich markup (issue 38): a name and an output folder holding tags and emoji codes are used and
+    printed as typed (the progress bar's description included)."""
+    scene, cam = inputs
+    out_dir, name = tmp_path / "r[/x] [red]:smile:", "[bold]take :smile: 🎬 [red]"
+    out = main(["--scene", str(scene), "--camera-path", str(cam), "--output-dir", str(out_dir), "--name", name,
+                "--width", "48", "--height", "32", "--fps", "12"])
+    assert sorted(os.listdir(out_dir)) == [f"{name}.mp4", f"{name}_sheet.png"] and out["frames"] > 0
+    cap = capsys.readouterr()
+    assert str(out_dir / f"{name}.mp4") in cap.out and "Traceback" not in cap.out + cap.err
+    assert f"preview {name} 48x32" in cap.out  # the progress bar's line

@@ -117,3 +117,10 @@ def test_cli_main_small(tmp_path):
     meta = json.loads((tmp_path / "r" / "transforms.json").read_text())
     assert "depth_file_path" not in meta["frames"][0]
     assert (tmp_path / "r" / "geometry.json").exists()
+
+
+def test_cli_prints_an_output_path_that_looks_like_markup_as_typed(tmp_path, capsys):
+    out = tmp_path / "r[/x] [red]:smile:"
+    main(DatasetConfig(output=out, seed=5, num_views=2, width=32, height=24, write_depth=False))
+    assert (out / "transforms.json").exists()
+    assert f"train with: ns-train cinesplat --data {out}\n" in capsys.readouterr().out  # one line, to copy

@@ -142,8 +142,12 @@ def test_label_locate_and_parse_point():
     assert m.sum() == (d.label_of == 0).sum()
     np.testing.assert_allclose(c, d.splat.means[d.label_of == 0].mean(0), atol=1e-6)
     assert locate("pillar")[1].sum() == (d.label_of == 2).sum()
+    assert locate("boxes")[2] == "the label 'red box'"  # whole words, singular or plural
     with pytest.raises(NoMatchError, match="known: red box"):
         locate("sofa")
+    for fragment in ("ox", "pill", "the red box on the left"):  # a part of a word, or words no label holds
+        with pytest.raises(NoMatchError, match="matches no object"):
+            locate(fragment)
     assert parse_point("1 2 3").tolist() == [1, 2, 3]
     assert parse_point("(1.5, -2e-1, .3)").tolist() == [1.5, -0.2, 0.3]
     for bad in ["1 2", "chair", "1 2 3 4", "nan 1 2", ""]:

@@ -268,6 +268,7 @@ def test_cli_help():
     (["--device", "tpu"], r"--device must be"),
     (["--load-config", "/nonexistent/scene.npz"], r"scene\.npz"),
     (["--load-config", "procedural:abc"], r"bad procedural scene"),
+    (["--load-config", "/nonexistent/a[/x] [red]:smile:.npz"], r"/nonexistent/a\[/x\] \[red\]:smile:\.npz"),
 ])
 def test_viewer_options_are_checked_before_anything_starts(argv, regex, capsys):
     """cinesplat-viewer refuses bad options with a message naming them on stderr, exit 2, no server started."""
@@ -322,37 +323,48 @@ print('viewer exited', flush=True)
 """
 
 
-def test_ctrl_c_during_the_text_query_warm_up_exits_cleanly(tmp_path):
-    """Ctrl+C while the text-query warm-up still runs on its thread: the warm-up stops after its current label, the
-    process exits with status 0, no traceback, no C++ abort ('terminate called without an active exception', 134:
-    the interpreter's shutdown while the thread ran torch code)."""
+def interrupt_viewer_when(python_args, scene: Path, tmp_path: Path, stream: str, ready):
+    """Run the viewer's command line (``python <python_args> --load-config scene ...``), send Ctrl+C once a line of
+    ``stream`` ('stdout' | 'stderr') passes ``ready``; returns (exit status, that stream's lines, the other's text)."""
     import signal
     import threading
     import time
 
-    scene = compact_scene_with_labels(tmp_path / "scene_compact.pt", 40)
     env = dict(os.environ, PYTHONPATH=str(REPO), PYTHONUNBUFFERED="1")
-    p = subprocess.Popen([sys.executable, "-c", SLOW_WARM_DRIVER, "--load-config", str(scene), "--port",
-                          str(free_port()), "--host", "127.0.0.1", "--output-dir", str(tmp_path / "data"),
-                          "--grid-resolution", "48"],
+    p = subprocess.Popen([sys.executable, *python_args, "--load-config", str(scene), "--port", str(free_port()),
+                          "--host", "127.0.0.1", "--output-dir", str(tmp_path / "data"), "--grid-resolution", "48"],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-    err: list = []
-    reader = threading.Thread(target=lambda: err.extend(p.stderr), daemon=True)
-    reader.start()
+    got: dict = {"stdout": [], "stderr": []}
+    readers = [threading.Thread(target=lambda k=k, f=f: got[k].extend(f), daemon=True)
+               for k, f in (("stdout", p.stdout), ("stderr", p.stderr))]
+    for r in readers:
+        r.start()
+    lines = got[stream]
     try:
         deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and not any(line.startswith("warming") for line in err):
-            assert p.poll() is None, "".join(err)
+        while time.monotonic() < deadline and not any(ready(line) for line in lines):
+            assert p.poll() is None, "".join(lines)
             time.sleep(0.05)
-        assert any(line.startswith("warming") for line in err), "".join(err)
+        assert any(ready(line) for line in lines), "".join(lines)
         p.send_signal(signal.SIGINT)
-        out, _ = p.communicate(timeout=60)
+        p.wait(timeout=60)
     finally:
         if p.poll() is None:
             p.kill()
-    reader.join(10)
+    for r in readers:
+        r.join(10)
+    return p.returncode, lines, "".join(got["stderr" if stream == "stdout" else "stdout"])
+
+
+def test_ctrl_c_during_the_text_query_warm_up_exits_cleanly(tmp_path):
+    """Ctrl+C while the text-query warm-up still runs on its thread: the warm-up stops after its current label, the
+    process exits with status 0, no traceback, no C++ abort ('terminate called without an active exception', 134:
+    the interpreter's shutdown while the thread ran torch code)."""
+    scene = compact_scene_with_labels(tmp_path / "scene_compact.pt", 40)
+    code, err, out = interrupt_viewer_when(["-c", SLOW_WARM_DRIVER], scene, tmp_path, "stderr",
+                                           lambda line: line.startswith("warming"))
     text = out + "".join(err)
-    assert p.returncode == 0, text
+    assert code == 0, text
     assert "terminate called" not in text and "Traceback" not in text, text
     assert "viewer exited" in out, text  # a normal return: the warm-up stopped (no os._exit fallback)
     warmed = sum(line.startswith("warming") for line in err)
@@ -407,3 +419,16 @@ def test_exports_go_to_the_output_folder_never_beside_the_scene(tmp_path, monkey
     finally:
         v.close()
     assert sorted(f.name for f in scene_dir.iterdir()) == ["scene.ply"]
+
+
+def test_a_scene_path_that_looks_like_markup_is_served_and_printed_as_typed(tmp_path):
+    """User text is never rich markup (issue 38): a scene in a folder named like rich tags and emoji codes loads, the
+    viewer's start-up lines quote its name as typed (it once raised MarkupError there), and Ctrl+C exits 0."""
+    folder = tmp_path / "a[/x] [red]:smile:"
+    folder.mkdir(parents=True)  # "a[" / "x] [red]:smile:"
+    scene = compact_scene_with_labels(folder / "scene [red] :smile: [bold].pt", 3)  # the status names the stem
+    code, lines, err = interrupt_viewer_when(["-m", "cinenerf_ns.viewer.standalone"], scene, tmp_path, "stdout",
+                                             lambda line: line.startswith("Planner ready"))  # the last status
+    out = "".join(lines)
+    assert code == 0 and "Traceback" not in out + err, out + err
+    assert "running at" in out and "'scene [red] :smile: [bold]'" in " ".join(out.split()), out

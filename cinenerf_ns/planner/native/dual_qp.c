@@ -289,6 +289,11 @@ int64_t cn_corridor_dual(int64_t m, int64_t degree, int64_t cont, int64_t fr, co
             }
         }
         if (vp <= tol) break;
+        for (int64_t i = 0; i < k; i++)  /* a face held with equality left outside by rounding (dual_qp.py) */
+            if (Wp[i] == pp && Wf[i] == pf) {
+                ret = CN_UNFINISHED;
+                goto done;
+            }
         if (!have_w[pp]) w_of(&mp, pp, wc + pp * n), have_w[pp] = 1;
         const double *wp = wc + pp * n, *ap = A + 3 * pf;
         double wpwp = dot(wp, wp, n), apap = dot3(ap, ap);

@@ -32,6 +32,12 @@ only the faces it adds; here it is a few small dense solves.
    full QP (primal feasible to tol, multipliers >= 0, complementary), so it is its exact optimum (to rounding), not an
    approximation of it.
    Infeasible (Farkas): the face to add lies in the span of the working set's and no multiplier can shrink.
+   Unfinished (the caller hands the QP to Clarabel, as it does every outcome but "ok"): max_iter steps, a full step
+   that rounding left short (t2 < 0), or the face farthest outside already in the working set. The last comes after a
+   face nearly in the span of the working set's (|z|^2 / |row|^2 ~ 1e-16, above the dependency test's 1e-18) took a
+   step of ~violation / |z|^2 (1e16): its rounding leaves that face outside, and adding it again would drop and re-add
+   it with multipliers growing ~1e7-fold per round until they overflow (a near-infeasible corridor: hypothesis found
+   one, test_dual_qp.py).
 
 ``solve_reduced`` is the numpy reference: dense matrices, every constraint row in Y-space formed explicitly.
 native/dual_qp.c (``backend="auto"``) does the same steps with the structure (Gram entries (w_i . w_j)(a_i . a_j),
@@ -213,6 +219,8 @@ def solve_reduced(red: Reduction, polys: Sequence[Tuple[np.ndarray, np.ndarray]]
         p = int(np.argmax(v))
         if v[p] <= tol:
             return DualResult(x, "ok", it, len(W))
+        if p in W:  # a face held with equality is outside by more than tol: rounding (a huge step), see below
+            return DualResult(None, "unfinished", it, len(W))
         y, u, it, outcome = add_face(N_all, beta, row2, p, y, W, u, it, max_iter)
         if outcome is not None:
             return DualResult(None, outcome, it, len(W))
