@@ -64,6 +64,9 @@ class SplatVolume:
     packed: np.ndarray  # [N, 13] float64: mean, whitening rows, opacity, in the compiled walk's order (by cell)
     rank: np.ndarray  # [N] int64: a Gaussian's row in ``packed`` (cell_ids and big hold rows of ``packed``)
     perm: np.ndarray  # [N] int64: the Gaussian of each row of ``packed`` (rank's inverse)
+    half: np.ndarray  # [N, 3] float64: half widths of each Gaussian's cut-off box
+    sigma_max: np.ndarray  # [N] float64: each Gaussian's largest sigma
+    cover: np.ndarray  # [N] float64: opacity x the area of its two largest axes (what it covers on screen)
 
     def __len__(self) -> int:
         return int(self.means.shape[0])
@@ -115,7 +118,9 @@ class SplatVolume:
         rank = np.empty(len(perm), np.int64)
         rank[perm] = np.arange(len(perm))
         packed = np.concatenate([means, whiten.reshape(-1, 9), opac[:, None]], 1)[perm]
+        sig_sorted = np.sort(sigma, axis=1)
         return cls(means=np.ascontiguousarray(means), whiten=np.ascontiguousarray(whiten), opacity=opac,
+                   half=half, sigma_max=sig_sorted[:, 2].copy(), cover=opac * sig_sorted[:, 1] * sig_sorted[:, 2],
                    lo=lo, cell=float(cell), dims=dims, cell_start=start,
                    cell_ids=np.ascontiguousarray(rank[ids[owner[order]]].astype(np.int32)),
                    big=np.ascontiguousarray(rank[big].astype(np.int32)), packed=np.ascontiguousarray(packed),
@@ -281,6 +286,7 @@ class SubjectSamples:
     weights: np.ndarray  # [S] float64 > 0
     ids: np.ndarray  # [S] int64: the volume Gaussian each sample is the mean of (-1: not a Gaussian)
     members: np.ndarray  # [K] int64: the subject's own Gaussians (class 1); empty for a point
+    box: Optional[tuple] = None  # (lo [3], hi [3]) of the members' cut-off boxes (subject_box); None for a point
 
     @classmethod
     def of_point(cls, point) -> "SubjectSamples":
@@ -300,12 +306,14 @@ class SubjectSamples:
             raise InvalidInputError("the subject has no Gaussians")
         if ids[0] < 0 or ids[-1] >= len(vol):
             raise InvalidInputError(f"subject Gaussian ids must be in [0, {len(vol)})")
-        s = np.sort(1.0 / np.linalg.norm(vol.whiten[ids], axis=2), axis=1)  # [K, 3] sigmas (row norms of whiten)
-        w = vol.opacity[ids] * s[:, 1] * s[:, 2]
-        pick = np.random.default_rng(seed).choice(ids.size, size=int(n_samples), p=w / w.sum())
+        w = vol.cover[ids]
+        c = np.cumsum(w)
+        # inverse-CDF draws (what Generator.choice(p=...) does, without its O(K) checks per call)
+        pick = np.minimum(np.searchsorted(c, np.random.default_rng(seed).random(int(n_samples)) * c[-1],
+                                          side="right"), ids.size - 1)
         u, counts = np.unique(pick, return_counts=True)
         return cls(points=vol.means[ids[u]].copy(), weights=counts.astype(np.float64), ids=ids[u].astype(np.int64),
-                   members=ids)
+                   members=ids, box=subject_box(vol, ids))
 
     def classes(self, n: int) -> np.ndarray:
         """uint8 [n]: 1 for the subject's own Gaussians."""
@@ -314,13 +322,12 @@ class SubjectSamples:
         return c
 
 
-def subject_box(vol: SplatVolume, members: np.ndarray, cut_sigma: float = CUT_SIGMA) -> tuple:
-    """(lo [3], hi [3]): the box of the members' cut-off boxes (every point where one of them attenuates)."""
-    w = vol.whiten[members]  # [K, 3, 3] row k: R[:, k]^T / sigma_k
-    sig = 1.0 / np.linalg.norm(w, axis=2)  # [K, 3]
-    # the box half width along world axis i: cut * sqrt(sum_k (R_ik sigma_k)^2), R_ik sigma_k = w[k, i] sigma_k^2
-    half = cut_sigma * np.sqrt(((w * (sig ** 2)[:, :, None]) ** 2).sum(1))  # [K, 3]
-    return (vol.means[members] - half).min(0), (vol.means[members] + half).max(0)
+def subject_box(vol: SplatVolume, members: np.ndarray) -> tuple:
+    """(lo [3], hi [3]): the box of the members' cut-off boxes, at the volume's cut-off (every point where one of
+    them attenuates)."""
+    half = vol.half[members]  # [K, 3]
+    m = vol.means[members]
+    return (m - half).min(0), (m + half).max(0)
 
 
 def box_exit(p0: np.ndarray, p1: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -347,7 +354,7 @@ def subject_visibility(vol: SplatVolume, cameras, subject: SubjectSamples, backe
     skip = np.tile(subject.ids, m)
     after1 = None
     if subject.members.size:  # past the subject's cut-off box no subject Gaussian attenuates: stop hidden samples there
-        lo, hi = subject_box(vol, subject.members)
+        lo, hi = subject.box if subject.box is not None else subject_box(vol, subject.members)
         after1 = box_exit(p0, p1, lo, hi)
     tau = optical_depth(vol, p0, p1, subject.classes(len(vol)), skip, backend=backend,
                         stop1=STOP_SELF, stop0=STOP_SELF, after1=after1).reshape(m, s, 2)

@@ -269,7 +269,20 @@ def choose_end_poses(planner: "Planner", subject: TargetObject, goto: Optional[T
         f = np.asarray(facing, np.float64)
         if np.linalg.norm(f) > 1e-9:
             cost = cost + cfg.w_facing * 0.5 * (1 - dir_all @ (f / np.linalg.norm(f)))
-    top = np.argsort(cost, kind="stable")[: cfg.evaluated]
+    # the viewpoints whose visibility is computed: half of them the cheapest far apart from each other (candidates need
+    # distinct end poses that still show the subject), the rest the cheapest of all
+    n_eval = min(len(pts), cfg.evaluated + 2 * (k - 1))
+    cos_sep = math.cos(math.radians(cfg.min_separation_deg))
+    by_cost = np.argsort(cost, kind="stable")
+    picked: List[int] = []
+    for i in by_cost:
+        if len(picked) >= (n_eval + 1) // 2:
+            break
+        if all(float(dir_all[i] @ dir_all[j]) < cos_sep for j in picked):
+            picked.append(int(i))
+    seen = set(picked)
+    picked += [int(i) for i in by_cost if int(i) not in seen][: n_eval - len(picked)]
+    top = np.array(sorted(picked, key=lambda i: (cost[i], i)), dtype=np.int64)
     vol = visibility_volume(planner)
     samples = (SubjectSamples.of_point(c) if subject.is_point
                else SubjectSamples.of_members(vol, subject.members, cfg.samples))
@@ -279,11 +292,13 @@ def choose_end_poses(planner: "Planner", subject: TargetObject, goto: Optional[T
     total = cost[top] + cfg.w_visibility * (1 - vis) + cfg.w_goto_fill * np.maximum(0.0, gfill - GOTO_FILL_FREE)
     order = np.argsort(total, kind="stable")
     chosen: List[int] = []
-    cos_sep = math.cos(math.radians(cfg.min_separation_deg))
+    # alternatives must still show the subject: at least half of it, and not much less than the best pose does
+    floor = min(float(vis[order[0]]), max(0.5, float(vis[order[0]]) - 0.25))
     for i in order:  # the best, then the next best far enough (as seen from the subject) from those chosen
         if len(chosen) >= k:
             break
-        if all(float(dir_all[top[i]] @ dir_all[top[j]]) < cos_sep for j in chosen):
+        if (not chosen or vis[i] >= floor) and all(float(dir_all[top[i]] @ dir_all[top[j]]) < cos_sep
+                                                   for j in chosen):
             chosen.append(int(i))
     for i in order:  # too few distinct ones: the next best in order
         if len(chosen) >= k:

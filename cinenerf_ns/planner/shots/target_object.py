@@ -74,9 +74,8 @@ class TargetObject:
         means = vol.means[m]  # [K, 3]
         ext = means if m.size <= EXTENT_POINTS else means[np.sort(np.random.default_rng(seed).choice(
             m.size, EXTENT_POINTS, replace=False))]
-        sigma_max = 1.0 / np.linalg.norm(vol.whiten[m], axis=2).min(1)  # [K] the largest sigma (smallest row norm)
         c = np.asarray(centre, np.float64).reshape(3) if centre is not None else means.mean(0)
-        return cls(name=name, centre=c, members=m, extent=ext, pad=float(np.median(sigma_max)),
+        return cls(name=name, centre=c, members=m, extent=ext, pad=float(np.median(vol.sigma_max[m])),
                    spacing=_spacing(ext), outline=_hull(ext))
 
 
