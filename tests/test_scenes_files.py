@@ -386,3 +386,67 @@ def test_preview_of_a_ply_coloured_with_red_green_blue(tmp_path):
     rows = np.concatenate([np.ones((3, len(SPLAT_PROPS)), np.float32), rgb], 1)
     p = write_ply(tmp_path / "rgb.ply", props=SPLAT_PROPS + ("red", "green", "blue"), count=3, rows=rows, fmt="ascii")
     np.testing.assert_allclose(preview_scene(load_scene(str(p), SceneConfig())).colors.numpy(), rgb / 255.0, atol=1e-6)
+
+
+# ------------------------------------------------------------------------------------------- read whole or refused
+def test_npz_and_torch_files_with_bytes_after_their_data(tmp_path):
+    """A padded array, bytes after a zip archive (.npz or torch's zip format): refused, never read in part."""
+    s = tiny_splat(6)
+    p = save_npz(tmp_path / "ok.npz", **s)
+    assert len(load_scene(str(p), SceneConfig()).scene) > 0
+    (tmp_path / "tail.npz").write_bytes(p.read_bytes() + b"\0" * 5)
+    fails(tmp_path / "tail.npz", CheckpointError, r"bytes after the end of its zip archive")
+    buf = io.BytesIO()
+    np.lib.format.write_array(buf, s["means"].numpy())
+    with zipfile.ZipFile(tmp_path / "pad.npz", "w") as zf:
+        zf.writestr("means.npy", buf.getvalue() + b"\0" * 12)  # more data than the shape (6, 3) holds
+        for k in ("quats", "scales", "opacities"):
+            b = io.BytesIO()
+            np.lib.format.write_array(b, s[k].numpy())
+            zf.writestr(f"{k}.npy", b.getvalue())
+        b = io.BytesIO()
+        np.lib.format.write_array(b, np.array("{}"))
+        zf.writestr("info_json.npy", b.getvalue())
+    fails(tmp_path / "pad.npz", CheckpointError, r"padded or corrupt: array 'means' claims shape \(6, 3\) \(72 "
+          r"bytes\) but stores 84 bytes")
+    st = SplatCheckpoint(SplatParams.of(s["means"], s["quats"], s["scales"], s["opacities"]))
+    pt = export_compact(st, tmp_path / "ok.pt")
+    (tmp_path / "tail.pt").write_bytes(pt.read_bytes() + b"junk")
+    fails(tmp_path / "tail.pt", CheckpointError, r"bytes after the end of its zip archive")
+
+
+@pytest.mark.parametrize("info,problem", [
+    ({"start_region": [[0, 0, 0], [1, -1, 1]]}, r"info_json's start_region is inverted or empty along y"),
+    ({"start_region": [[0, 0, 0], [1, 1, float("nan")]]}, r"info_json's start_region must be .* finite"),
+    ({"camera_centres": [[0, 0]]}, r"info_json's camera_centres must be \[F, 3\]"),
+    ({"camera_centres": [[0, 0, float("inf")]]}, r"info_json's camera_centres must be \[F, 3\] finite"),
+    ({"camera_poses": [[1, 2, 3]]}, r"info_json's camera_poses must be \[F, 3, 4\]"),
+], ids=["inverted", "nan", "centres-shape", "centres-inf", "poses-shape"])
+def test_compact_metadata_is_checked_at_load(tmp_path, info, problem):
+    p = save_npz(tmp_path / "meta.npz", info=json.dumps(info), **tiny_splat(6))
+    fails(p, CheckpointError, problem)
+
+
+def _semantic_npz(path: Path, n: int = 6, latent_width: int = 3, labels: int = 2, names: int = 2,
+                  label_width: int = 24) -> Path:
+    from cinenerf_ns.method.codec import CodecConfig, FeatureCodec
+
+    cc = CodecConfig(hidden_dim=16, backend="torch")
+    codec = FeatureCodec(24, cc)
+    info = {"feature_dim": 24, "codec_config": vars(cc), "codec_backend": "torch",
+            "label_names": [f"thing {i}" for i in range(names)]}
+    arrays = {**tiny_splat(n), "latents": torch.rand(n, latent_width), "label_embeddings": torch.randn(labels,
+                                                                                                      label_width)}
+    arrays.update({"codec." + k: v for k, v in codec.state_dict().items()})
+    return save_npz(path, info=json.dumps(info), **arrays)
+
+
+def test_semantic_parts_must_agree(tmp_path):
+    """Latents as wide as the codec decodes, one label embedding per label name, as wide as the codec's features
+    (they once ended in a traceback, or fell back to a random CLIP without a word)."""
+    fails(_semantic_npz(tmp_path / "w.npz", latent_width=5), CheckpointError,
+          r"latents are \(6, 5\) but the codec decodes latents of width 3 \(codec_config.latent_dim\)")
+    fails(_semantic_npz(tmp_path / "l.npz", labels=3), CheckpointError,
+          r"label_embeddings has 3 rows but label_names lists 2 names")
+    fails(_semantic_npz(tmp_path / "d.npz", label_width=7), CheckpointError,
+          r"label_embeddings are 7 wide but the codec's features are 24 wide")

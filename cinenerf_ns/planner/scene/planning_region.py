@@ -66,11 +66,26 @@ def planning_bounds(scene: "EllipsoidScene", cfg: "PlannerConfig") -> tuple[Tens
     lo, hi = lo - pad, hi + pad
     if cfg.start_region is not None:  # the capture's cameras: the region that matters
         slo, shi = (torch.as_tensor(np.asarray(v, dtype=np.float64), device=dev).reshape(3) for v in cfg.start_region)
+        check_start_region(slo.cpu().numpy(), shi.cpu().numpy())
         grow = cfg.region_padding * float((shi - slo).max())
         inner = scene.camera_radius + 1e-6  # the start region itself always fits
         lo = torch.minimum(torch.maximum(lo, slo - grow), slo - inner)
         hi = torch.maximum(torch.minimum(hi, shi + grow), shi + inner)
     return lo, hi
+
+
+def check_start_region(lo: np.ndarray, hi: np.ndarray) -> None:
+    """InvalidInputError naming the cause when a start region (the training cameras' box) is not finite or is
+    inverted (lo above hi on an axis): the planning region cut to it would be empty."""
+    lo, hi = np.asarray(lo, dtype=np.float64).reshape(-1), np.asarray(hi, dtype=np.float64).reshape(-1)
+    if lo.shape != (3,) or hi.shape != (3,) or not (np.isfinite(lo).all() and np.isfinite(hi).all()):
+        raise InvalidInputError(f"the start region (the training cameras' box) must be two finite points (lo, hi), "
+                                f"got {lo.tolist()}, {hi.tolist()}")
+    bad = np.flatnonzero(lo > hi)
+    if bad.size:
+        axes = ", ".join("xyz"[i] for i in bad)
+        raise InvalidInputError(f"the start region (the training cameras' box) is inverted along {axes}: lo "
+                                f"{format_point(lo)} is above hi {format_point(hi)} there (a damaged scene file?)")
 
 
 def check_region(cfg: "PlannerConfig", camera_radius: float, lo: np.ndarray, hi: np.ndarray) -> None:

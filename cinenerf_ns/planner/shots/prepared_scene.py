@@ -55,6 +55,20 @@ class PreparedScene:
     start_blocked_of: Optional[tuple] = None  # (labels, component, blocked mask) cached by starts.start_blocked
 
 
+def no_free_space(scene: EllipsoidScene, lo: Tensor, hi: Tensor) -> str:
+    """Why a planning region [lo, hi] has no free voxel: Gaussians larger than the region (a scene file whose scales
+    are wrong), else the camera sphere against the voxels."""
+    longest = float((hi - lo).max())
+    big = int((scene.radii.max(-1).values >= longest).sum())
+    if big >= max(1, len(scene) // 2):
+        return (f"the planning region has no free space: {big} of the scene's {len(scene)} Gaussians are larger "
+                f"than the region itself (a semi-axis over its longest side, {longest:.3g} scene units): the splat's "
+                f"scales are wrong for this scene (a damaged or mis-scaled file?)")
+    return ("the occupancy grid has no free voxel: the camera sphere (--camera-radius + --safety-margin = "
+            f"{scene.camera_radius:.3g}) leaves no room between the obstacles at this voxel size; lower "
+            "--camera-radius or --safety-margin, or raise --grid-resolution")
+
+
 def prepare_scene(scene: EllipsoidScene, grid_resolution: int, lo: Tensor, hi: Tensor,
                   mirror: bool) -> Tuple[EllipsoidScene, PreparedScene]:
     """Build the spatial index and the occupancy grid of ``scene`` over [lo [3], hi [3]] (``grid_resolution`` voxels
@@ -66,6 +80,8 @@ def prepare_scene(scene: EllipsoidScene, grid_resolution: int, lo: Tensor, hi: T
     t1 = time.perf_counter()
     grid = build_occupancy(scene, index, grid_resolution, bounds=(lo, hi))
     t2 = time.perf_counter()
+    if not (~grid.occupied).any():
+        raise GoalUnreachableError(no_free_space(scene, lo, hi))
     batch_index = index
     if mirror:
         scene = scene.to("cpu")
@@ -86,11 +102,6 @@ def prepare_scene(scene: EllipsoidScene, grid_resolution: int, lo: Tensor, hi: T
     prepare_native_polytope(scene, index)
     preload_request_modules()
     t6 = time.perf_counter()
-    if not (~grid.occupied).any():
-        raise GoalUnreachableError(
-            "the occupancy grid has no free voxel: the camera radius is too large for this scene, or the "
-            "planning bounds hold no free space (raise --grid-resolution or check --bounds)"
-        )
     prepared = PreparedScene(
         index=index, grid=grid, astar_grid=ag, coarse=coarse, batch_index=batch_index, voxels=voxels,
         mean_voxels=mean_voxel_mask(scene, grid),
