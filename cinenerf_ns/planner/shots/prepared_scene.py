@@ -13,7 +13,7 @@ from torch import Tensor
 from .. import native
 from ..corridor.grid_polytope import VoxelObstacles
 from ..corridor.polytope import prepare_native as prepare_native_polytope
-from ..errors import GoalUnreachableError
+from ..errors import GoalUnreachableError, InvalidInputError
 from ..geometry.clearance_queries import free_distance_transform
 from ..scene.ellipsoids import EllipsoidScene
 from ..scene.occupancy import OccupancyGrid, build_occupancy
@@ -55,6 +55,21 @@ class PreparedScene:
     start_blocked_of: Optional[tuple] = None  # (labels, component, blocked mask) cached by starts.start_blocked
 
 
+OVERSIZED_SPLAT = 1000  # a splat of at least this many Gaussians, most of them over half the region, is refused
+
+
+def check_gaussian_sizes(scene: EllipsoidScene, lo: Tensor, hi: Tensor) -> None:
+    """InvalidInputError when most of a splat's Gaussians (at least OVERSIZED_SPLAT of them) are over half the planning
+    region [lo, hi] long: a file whose scales are wrong (rasterising them would take minutes, each covering most of
+    the grid's columns). Checked before the index and the grid are built."""
+    n, half = len(scene), 0.5 * float((hi - lo).max())
+    big = int((scene.radii.max(-1).values >= half).sum())
+    if n >= OVERSIZED_SPLAT and 2 * big > n:
+        raise InvalidInputError(f"{big} of the scene's {n} Gaussians are larger than half the planning region (a "
+                                f"semi-axis over {half:.3g} scene units): the splat's scales are wrong for this scene "
+                                f"(a damaged or mis-scaled file?); it is not planned through")
+
+
 def no_free_space(scene: EllipsoidScene, lo: Tensor, hi: Tensor) -> str:
     """Why a planning region [lo, hi] has no free voxel: Gaussians larger than the region (a scene file whose scales
     are wrong), else the camera sphere against the voxels."""
@@ -75,6 +90,7 @@ def prepare_scene(scene: EllipsoidScene, grid_resolution: int, lo: Tensor, hi: T
     along the longest side) on the scene's device, then what requests need from them; with ``mirror``, scene, index
     and grid are mirrored to the CPU first. Returns (the scene requests query: ``scene`` or its CPU mirror, the
     PreparedScene). GoalUnreachableError when the grid has no free voxel."""
+    check_gaussian_sizes(scene, lo, hi)
     t0 = time.perf_counter()
     index = GridIndex.build(scene)
     t1 = time.perf_counter()

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from cinenerf_ns.planner.errors import GoalUnreachableError
+from cinenerf_ns.planner.errors import GoalUnreachableError, InvalidInputError
 from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
 from cinenerf_ns.planner.scene.procedural import procedural_room
 from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
@@ -14,16 +14,19 @@ from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
 HANG_GUARD_S = 60.0  # not a performance figure: minutes of rasterising is what this case once took
 
 
-def test_gaussians_larger_than_the_scene_are_named_as_the_cause():
-    r = procedural_room(3000, seed=1)
-    huge = torch.full((3000, 3), float(np.log(5.0)))
-    sc = EllipsoidScene.from_splat(r.means, r.quats, huge, torch.full((3000,), 5.0), SceneConfig())
+@pytest.mark.parametrize("n,radius", [(3000, 5.0), (3000, 1.5), (500, 5.0)])
+def test_gaussians_larger_than_the_scene_are_named_as_the_cause(n, radius):
+    """Every Gaussian larger than the scene (or than half of it): refused at once with the cause (it once rasterised
+    for minutes); a small scene of them (under OVERSIZED_SPLAT) ends with no free space, the same cause named."""
+    r = procedural_room(max(n, 1000), seed=1)
+    huge = torch.full((n, 3), float(np.log(radius / 2)))  # semi-axis = beta 2 x opacity ~1 x scale
+    sc = EllipsoidScene.from_splat(r.means[:n], r.quats[:n], huge, torch.full((n,), 9.0), SceneConfig())
     t = time.perf_counter()
-    with pytest.raises(GoalUnreachableError, match=r"3000 of the scene's 3000 Gaussians are larger than the region") \
-            as e:
+    with pytest.raises((InvalidInputError, GoalUnreachableError)) as e:
         Planner(sc, PlannerConfig(grid_resolution=96)).prepare()
     assert time.perf_counter() - t < HANG_GUARD_S
-    assert "--bounds" not in str(e.value)
+    want = ("larger than half the planning region" if n >= 1000 else "larger than the region itself")
+    assert f"{n} of the scene's {n} Gaussians are {want}" in str(e.value) and "--bounds" not in str(e.value)
 
 
 def test_no_free_voxel_for_the_camera_names_existing_options():
