@@ -3,6 +3,7 @@ set into place at the end; an interrupted or failed run leaves the folder as it 
 the same name that this run does not rewrite are removed (a report never sits beside another run's camera paths)."""
 from __future__ import annotations
 
+import errno
 import os
 import re
 import shutil
@@ -34,7 +35,31 @@ def check_writable(folder: Path, option: str = "--output-dir") -> Path:
         raise InvalidInputError(f"{option} {folder} {what}; give a folder")
     if not os.access(probe, os.W_OK | os.X_OK):
         raise InvalidInputError(f"{option} {folder}: {probe} is not writable")
+    try:  # what access() cannot tell: /proc, a read-only mount, root on a folder that takes no files
+        with tempfile.TemporaryFile(dir=probe):
+            pass
+    except OSError as e:
+        raise InvalidInputError(f"{option} {folder}: cannot write into {probe} ({e.strerror})") from None
     return folder
+
+
+MIN_FILE_SIZE_LIMIT = 64 << 20  # bytes a process must be allowed to write into one file (outputs, previews)
+
+
+def check_file_size_limit(folder: Path, option: str = "--output-dir", need: int = MIN_FILE_SIZE_LIMIT) -> None:
+    """InvalidInputError when the process's file-size limit (ulimit -f) is under ``need`` bytes: the outputs would
+    fail at the end of the run, after all the work."""
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - not on Linux
+        return
+    soft = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+    if soft != resource.RLIM_INFINITY and soft < need:
+        raise InvalidInputError(f"{option} {folder}: the file-size limit (ulimit -f) is {soft} bytes, under the "
+                                f"{need >> 20} MiB one output file may need; raise it (ulimit -f unlimited)")
+
+
+_WRITE_ERRORS = (errno.EFBIG, errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO)
 
 
 class OutputSet:
@@ -42,15 +67,19 @@ class OutputSet:
     when the block ends without an exception (mode 0644), and earlier files of this name (``name_*``,
     ``name.*``) that the set does not hold are removed then."""
 
-    def __init__(self, folder: Path, name: str):
+    def __init__(self, folder: Path, name: str, remove_stale: bool = True):
         self.folder = Path(folder).expanduser().absolute()
         self.name = check_name(name)
+        self.remove_stale = remove_stale  # False: earlier files of this name are kept unless rewritten
         self.staging: Optional[Path] = None
         self.written: List[Path] = []
 
     def __enter__(self) -> "OutputSet":
-        self.folder.mkdir(parents=True, exist_ok=True)
-        self.staging = Path(tempfile.mkdtemp(prefix=f".{self.name}.partial-", dir=self.folder))
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            self.staging = Path(tempfile.mkdtemp(prefix=f".{self.name}.partial-", dir=self.folder))
+        except OSError as e:
+            raise InvalidInputError(f"cannot write the outputs into {self.folder}: {e.strerror}") from None
         return self
 
     def path(self, filename: str) -> Path:
@@ -72,12 +101,20 @@ class OutputSet:
                 new = sorted(self.staging.iterdir())
                 for f in new:
                     os.chmod(f, FILE_MODE)
-                stale = [p for p in self.folder.iterdir() if self._ours(p) and not (self.staging / p.name).exists()]
+                stale = [p for p in self.folder.iterdir() if self.remove_stale and self._ours(p)
+                         and not (self.staging / p.name).exists()]
                 # the report (name_report.json) last: a reader that sees it sees every file it names
                 for f in sorted(new, key=lambda f: f.name.endswith("_report.json")):
                     os.replace(f, self.folder / f.name)
                     self.written.append(self.folder / f.name)
                 for p in stale:
                     p.unlink()
+        except OSError as e:
+            if e.errno not in _WRITE_ERRORS:
+                raise
+            raise InvalidInputError(f"cannot write the outputs into {self.folder}: {e.strerror}") from None
         finally:
             shutil.rmtree(self.staging, ignore_errors=True)
+        if isinstance(exc, OSError) and exc.errno in _WRITE_ERRORS:  # a write into the staging folder failed
+            raise InvalidInputError(f"cannot write the outputs into {self.folder}: {exc.strerror}; nothing was "
+                                    f"written") from None

@@ -27,6 +27,14 @@ from .render import (
 from .video import Mp4Writer, contact_sheet, write_gif, write_png
 
 GSPLAT_BATCH = 8
+MAX_GIF_FRAMES = 900  # a GIF holds its frames in memory until written: a minute at 15 fps, at most
+
+
+def check_gif_frames(n: int) -> None:
+    """InvalidInputError when a GIF of ``n`` frames is asked for (more than MAX_GIF_FRAMES)."""
+    if n > MAX_GIF_FRAMES:
+        raise InvalidInputError(f"--gif is for short previews: at most {MAX_GIF_FRAMES} frames, this one has {n}; "
+                                f"lower --fps or leave out --gif")
 
 
 def _frames(scene: PreviewScene, cams: PreviewCameras, backend: str, background, device: str):
@@ -83,6 +91,8 @@ def preview_camera_path(
     if not name or "/" in name or name.startswith("."):
         raise InvalidInputError(f"preview name must be a plain file name, got {name!r}.")
     cams = path_cameras(camera_path, width, height, fps)
+    if gif:
+        check_gif_frames(len(cams))
     b = choose_backend(backend, device)
     t0 = time.perf_counter()
     scene = splat if isinstance(splat, PreviewScene) else scene_from_splat(splat)
