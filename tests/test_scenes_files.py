@@ -450,3 +450,46 @@ def test_semantic_parts_must_agree(tmp_path):
           r"label_embeddings has 3 rows but label_names lists 2 names")
     fails(_semantic_npz(tmp_path / "d.npz", label_width=7), CheckpointError,
           r"label_embeddings are 7 wide but the codec's features are 24 wide")
+
+
+def test_a_run_whose_dataset_is_gone_says_it_plans_without_its_cameras(tmp_path):
+    """Not silently: the note names the config, the missing dataset and what is lost."""
+    run = tmp_path / "run"
+    (run / "nerfstudio_models").mkdir(parents=True)
+    torch.save({"step": 1, "pipeline": {"_model.gauss_params." + k: v for k, v in tiny_splat(8).items()}},
+               run / "nerfstudio_models" / "step-000000001.ckpt")
+    gone = tmp_path / "data_moved_away"
+    parts = "".join(f"- {p}\n" for p in gone.parts)
+    (run / "config.yml").write_text(f"method_name: cinesplat\ndata: !!python/object/apply:pathlib.PosixPath\n{parts}")
+    ld = load_scene(str(run / "config.yml"), SceneConfig())
+    assert ld.start_region is None
+    (note,) = ld.extra["notes"]
+    assert f"its dataset {gone} is gone; planning without the training cameras" in note and "config.yml" in note
+
+
+def test_scene_paths_that_are_not_files(tmp_path):
+    import os
+
+    os.symlink(tmp_path / "loop.npz", tmp_path / "loop.npz")
+    fails(tmp_path / "loop.npz", InvalidInputError, r"is a symbolic link loop")
+    os.mkfifo(tmp_path / "pipe.ckpt")
+    fails(tmp_path / "pipe.ckpt", InvalidInputError, r"is a FIFO \(named pipe\), not a regular file")
+
+
+def test_text_without_loadable_clip_weights_gives_advice_for_this_tool():
+    """ClipWeightsError's own advice names ns-train options; the planner's message names what works here."""
+    from cinenerf_ns.method.clip_features import ClipWeightsError
+    from cinenerf_ns.scenes import LoadedScene, resolve_match
+
+    def match(text):
+        raise ClipWeightsError("Could not load CLIP weights 'ViT-B-16' / 'laion' (OSError: offline).\n"
+                               "  * pass --pipeline.datamanager.clip.checkpoint-path FILE")
+
+    ld = LoadedScene(scene=None, locate=lambda t: None, kind="checkpoint", source="x.npz",
+                     extra={"match": match, "label_names": ["red armchair", "floor lamp"]})
+    with pytest.raises(InvalidInputError) as e:
+        resolve_match("a cosy corner", ld, "go-to")
+    msg = str(e.value)
+    assert "--pipeline" not in msg and "Could not load CLIP weights 'ViT-B-16'" in msg
+    assert "give the go-to target as a point 'x y z', or one of the scene's object names: red armchair, floor lamp" \
+        in msg
