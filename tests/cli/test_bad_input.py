@@ -298,3 +298,21 @@ def test_text_that_matches_nothing_on_the_bundled_scene(text, tmp_path, capsys):
     code, o, e, dt = _run(["--scene", str(DEMO_SCENE), "--go-to", text, "--look-at", "floor lamp", "--output-dir",
                            str(out)], capsys, out)
     _check(code, o, e, dt, rf"nothing in the scene matches '{text}': .* red armchair, floor lamp", out)
+
+
+def test_memory_budget_is_trusted_up_to_the_memory_available(monkeypatch):
+    """An explicit budget over what the process may take is refused; the default is lowered to it, said."""
+    import cinenerf_ns.cli.plan as plan
+
+    monkeypatch.setattr(plan, "available_memory_mb", lambda: 1000.0)
+    console = plan.Console(file=open(os.devnull, "w"), width=200, record=True)
+    args = plan.PlanArgs(scene="procedural", go_to="sofa", look_at="lamp")
+    assert plan._memory_budget(args, console) == 1000.0
+    assert "note: memory budget 1000 MB (the default 4096 MB is more than the memory available" in console.export_text()
+    args.memory_budget_mb = 512.0
+    assert plan._memory_budget(args, console) == 512.0
+    args.memory_budget_mb = 2000.0
+    with pytest.raises(plan.InvalidInputError, match=r"--memory-budget-mb 2000 is more than .* give at most 1000"):
+        plan._memory_budget(args, console)
+    monkeypatch.setattr(plan, "available_memory_mb", lambda: None)  # unknown: the budget as given
+    assert plan._memory_budget(args, console) == 2000.0
