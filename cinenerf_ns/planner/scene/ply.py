@@ -4,9 +4,10 @@ Why our own reader: a scene file may be anything a user points the tools at. ``r
 header claims against the file before it allocates or reads (a count of 10^12 vertices in a small file is refused at
 once, with the file named), requires the body to hold exactly what the header declares (too few or too many rows and
 trailing bytes are refused: a scene read in part would be planned through the objects it left out), and reports every
-malformed header or body as one InvalidInputError that says what is wrong; plyfile trusts the header and fails with its own exceptions (and is not in the GPU machines' wheel set). Splat
-scenes (``read_splat_ply``), training seed point clouds (synthetic/dataset.py, method/compat.py) and the viewer all
-read through it; ``write_ply_vertices`` is the one writer.
+malformed header or body as one InvalidInputError that says what is wrong; plyfile trusts the header and fails with
+its own exceptions (and is not in the GPU machines' wheel set). Splat scenes (``read_splat_ply``), training seed point
+clouds (synthetic/dataset.py, method/compat.py) and the viewer all read through it; ``write_ply_vertices`` is the one
+writer.
 
 The 3DGS layout (Kerbl et al., also written by ``ns-export gaussian-splat``) is one ``vertex`` element
 with float properties ``x y z`` (means), ``scale_0..2`` (log scales), ``rot_0..3`` (quaternion, wxyz),
@@ -165,8 +166,15 @@ def _read_ascii(f, path: Path, elements, data_bytes: int) -> np.ndarray:
         if data.shape != (count, len(props)):
             raise InvalidInputError(f"{path}: ascii vertex data has {data.shape[0]} rows of {data.shape[1]} values; "
                                     f"the header declares {count} rows of {len(props)} properties (blank lines?)")
-        for k, (p, _) in enumerate(props):
-            arr[p] = data[:, k]
+        for k, (p, t) in enumerate(props):
+            col = data[:, k]
+            if np.dtype(t).kind in "iu":  # an integer property takes whole numbers in its range, never wrapped
+                lim = np.iinfo(np.dtype(t))
+                bad = np.flatnonzero(~((col == np.round(col)) & (col >= lim.min) & (col <= lim.max)))
+                if bad.size:
+                    raise InvalidInputError(f"{path}: ascii vertex {bad[0]}: {p} = {col[bad[0]]:g} does not fit its "
+                                            f"type {_PLY_NAMES[t]} (whole numbers in [{lim.min}, {lim.max}])")
+            arr[p] = col
         return arr
     raise AssertionError("unreachable: the vertex element was checked")
 
@@ -220,6 +228,9 @@ def _read_binary(f, path: Path, endian: str, elements, data_bytes: int) -> np.nd
                     f"{path}: truncated .ply: the header's {count} {name!r} rows need {need} bytes, "
                     f"found {max(data_bytes - low, 0)} (header count too large or file cut short)")
             low += need
+    fixed = not any(isinstance(t, tuple) for _, _, props in elements for _, t in props)
+    if fixed and low != data_bytes:  # the exact size is known: refused before a byte of a padded file is read
+        _trailing(path, data_bytes - low, elements)
     buf = f.read()
     offset, vertex = 0, None
     for name, count, props in elements:
@@ -233,14 +244,18 @@ def _read_binary(f, path: Path, endian: str, elements, data_bytes: int) -> np.nd
                 raise InvalidInputError(f"{path}: list properties in 'vertex' are not supported")
             dt = np.dtype([(p, endian + t) for p, t in props])
             native = np.dtype([(p, t) for p, t in props])  # big-endian files: torch takes native order only
-            vertex = np.frombuffer(buf, dtype=dt, count=count, offset=offset).astype(native)
+            vertex = np.frombuffer(buf, dtype=dt, count=count, offset=offset).astype(native, copy=False)
         offset += need
     if offset != len(buf):
-        raise InvalidInputError(
-            f"{path}: .ply holds {len(buf) - offset} bytes after the last element its header declares "
-            f"({', '.join(f'{c} {n!r}' for n, c, _ in elements)}): the header's counts do not match the data "
-            f"(a header count too small, or a padded or concatenated file); refusing to read it in part")
+        _trailing(path, len(buf) - offset, elements)
     return vertex
+
+
+def _trailing(path: Path, extra: int, elements) -> None:
+    raise InvalidInputError(
+        f"{path}: .ply holds {extra} bytes after the last element its header declares "
+        f"({', '.join(f'{c} {n!r}' for n, c, _ in elements)}): the header's counts do not match the data "
+        f"(a header count too small, or a padded or concatenated file); refusing to read it in part")
 
 
 def unit_rgb(rgb: np.ndarray) -> np.ndarray:

@@ -225,6 +225,13 @@ def test_ascii_header_must_match_the_body(tmp_path):
     _all_refused(tmp_path, cases)
 
 
+def test_ascii_integer_properties_are_not_wrapped(tmp_path):
+    head = "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty uchar red\nend_header\n"
+    _all_refused(tmp_path, {"over": (head + "1 2\n3 300\n", r"ascii vertex 1: red = 300 does not fit its type uchar"),
+                            "nan": (head + "1 nan\n3 4\n", r"ascii vertex 0: red = nan does not fit"),
+                            "fraction": (head + "1 2.5\n3 4\n", r"red = 2.5 does not fit")})
+
+
 def test_ascii_with_a_face_element_and_a_size_limit(tmp_path, monkeypatch):
     from cinenerf_ns.planner.scene import ply
 
