@@ -131,7 +131,9 @@ def grid_region(grid) -> tuple[np.ndarray, np.ndarray]:
 
 def distance_outside(lo: np.ndarray, hi: np.ndarray, point: np.ndarray) -> float:
     """Euclidean distance [scene units] from a point [3] to the box [lo, hi] (0 inside)."""
-    return float(np.linalg.norm(np.maximum(np.maximum(lo - point, point - hi), 0.0)))
+    d = np.maximum(np.maximum(lo - point, point - hi), 0.0)
+    big = float(np.abs(d).max()) if d.size else 0.0
+    return 0.0 if big == 0.0 else big * float(np.linalg.norm(d / big))  # scaled: 1e300 away is no overflow warning
 
 
 def checked_point(point: ArrayLike, what: str, lo: np.ndarray, hi: np.ndarray, far_limit: float) -> np.ndarray:

@@ -33,3 +33,18 @@ def test_a_planner_with_an_inverted_start_region_refuses_before_building_anythin
     p = Planner(sc, PlannerConfig(start_region=(np.array([0.5, 0, 0]), np.array([-0.5, 1, 1]))))
     with pytest.raises(InvalidInputError, match="inverted along x"):
         p.region()
+
+
+@pytest.mark.parametrize("p", [(0.0, 0.0, 1e300), (1e300, -1e300, 0.5), (3.0, 4.0, 0.5), (0.5, 0.5, 0.5)])
+def test_distance_outside_without_overflow(p):
+    """A point 1e300 away is 1e300 away, without numpy's overflow warning (it once printed one to stderr)."""
+    import math
+    import warnings
+
+    from cinenerf_ns.planner.scene.planning_region import distance_outside
+
+    lo, hi = np.zeros(3), np.ones(3)
+    d = [max(a - x, x - b, 0.0) for a, b, x in zip(lo, hi, p)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert distance_outside(lo, hi, np.array(p)) == pytest.approx(math.hypot(*d), rel=1e-12)
