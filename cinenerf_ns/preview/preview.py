@@ -24,7 +24,7 @@ from .render import (
     scene_from_splat,
     to_uint8,
 )
-from .video import Mp4Writer, contact_sheet, write_gif, write_png
+from .video import Mp4Writer, contact_sheet, gif_frame, write_gif, write_png
 
 GSPLAT_BATCH = 8
 MAX_GIF_FRAMES = 900  # a GIF holds its frames in memory until written: a minute at 15 fps, at most
@@ -120,7 +120,7 @@ def preview_camera_path(
             if i in sheet_at:
                 kept[i] = img
             if gif:
-                gif_frames.append(img)
+                gif_frames.append(gif_frame(img))  # small frames: a 4096-wide GIF preview holds no full frames
             bar.advance(task)
         t0 = time.perf_counter()
     t_encode += time.perf_counter() - t0  # the writer's close (ffmpeg flushing) ran at the end of the with block
