@@ -3,6 +3,7 @@ set into place at the end; an interrupted or failed run leaves the folder as it 
 the same name that this run does not rewrite are removed (a report never sits beside another run's camera paths)."""
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import re
@@ -73,8 +74,11 @@ class OutputSet:
         self.remove_stale = remove_stale  # False: earlier files of this name are kept unless rewritten
         self.staging: Optional[Path] = None
         self.written: List[Path] = []
+        self.created: List[Path] = []
 
     def __enter__(self) -> "OutputSet":
+        missing = [d for d in (self.folder, *self.folder.parents) if not d.exists()]
+        self.created = missing[::-1]  # folders this set makes, outermost first: removed again if it fails
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
             self.staging = Path(tempfile.mkdtemp(prefix=f".{self.name}.partial-", dir=self.folder))
@@ -115,6 +119,10 @@ class OutputSet:
             raise InvalidInputError(f"cannot write the outputs into {self.folder}: {e.strerror}") from None
         finally:
             shutil.rmtree(self.staging, ignore_errors=True)
+            if exc_type is not None:  # the folder as it was: no new empty folder either
+                for d in reversed(self.created):
+                    with contextlib.suppress(OSError):
+                        d.rmdir()
         if isinstance(exc, OSError) and exc.errno in _WRITE_ERRORS:  # a write into the staging folder failed
             raise InvalidInputError(f"cannot write the outputs into {self.folder}: {exc.strerror}; nothing was "
                                     f"written") from None

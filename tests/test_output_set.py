@@ -74,11 +74,11 @@ def test_a_write_that_fails_names_the_folder_and_leaves_nothing(tmp_path):
         with OutputSet(out, "shot") as o:
             o.path("shot_0.json").write_text("{}")
             raise OSError(errno.EFBIG, os.strerror(errno.EFBIG))
-    assert os.listdir(out) == []
+    assert not out.exists()
     with pytest.raises(FileNotFoundError):  # other errors are not disguised
         with OutputSet(out, "shot"):
             raise FileNotFoundError(errno.ENOENT, "the scene moved")
-    assert os.listdir(out) == []
+    assert not out.exists()
 
 
 def test_remove_stale_false_keeps_earlier_files(tmp_path):
@@ -100,3 +100,13 @@ def test_folders_that_take_no_files_and_a_small_file_size_limit(tmp_path, monkey
         check_file_size_limit(tmp_path)
     monkeypatch.setattr(resource, "getrlimit", lambda what: (resource.RLIM_INFINITY, resource.RLIM_INFINITY))
     check_file_size_limit(tmp_path)
+
+
+def test_a_failed_set_removes_the_folders_it_made(tmp_path):
+    (tmp_path / "kept").mkdir()
+    for folder in (tmp_path / "new" / "deeper", tmp_path / "kept"):
+        with pytest.raises(KeyboardInterrupt):
+            with OutputSet(folder, "shot") as o:
+                o.path("shot_0.json").write_text("{}")
+                raise KeyboardInterrupt
+    assert sorted(os.listdir(tmp_path)) == ["kept"] and os.listdir(tmp_path / "kept") == []
