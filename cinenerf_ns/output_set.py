@@ -8,9 +8,10 @@ import errno
 import os
 import re
 import shutil
+import signal
 import tempfile
 from pathlib import Path
-from typing import List, Optional
+from typing import Iterator, List, Optional
 
 from cinenerf_ns.planner.atomic import FILE_MODE
 from cinenerf_ns.planner.errors import InvalidInputError
@@ -26,7 +27,8 @@ def check_name(name: str, option: str = "--name") -> str:
 
 
 def check_writable(folder: Path, option: str = "--output-dir") -> Path:
-    """InvalidInputError unless ``folder`` is (or can be created as) a writable folder; creates nothing."""
+    """InvalidInputError unless ``folder`` is (or can be created as) a writable folder; creates nothing (a probe file
+    is made and removed in the nearest existing folder)."""
     folder = Path(folder).expanduser().absolute()
     probe: Optional[Path] = folder
     while probe is not None and not probe.exists():
@@ -102,17 +104,8 @@ class OutputSet:
     def __exit__(self, exc_type, exc, tb) -> None:
         try:
             if exc_type is None:
-                new = sorted(self.staging.iterdir())
-                for f in new:
-                    os.chmod(f, FILE_MODE)
-                stale = [p for p in self.folder.iterdir() if self.remove_stale and self._ours(p)
-                         and not (self.staging / p.name).exists()]
-                # the report (name_report.json) last: a reader that sees it sees every file it names
-                for f in sorted(new, key=lambda f: f.name.endswith("_report.json")):
-                    os.replace(f, self.folder / f.name)
-                    self.written.append(self.folder / f.name)
-                for p in stale:
-                    p.unlink()
+                with _signals_held():  # a signal now is handled once the set is complete: never half moved
+                    self._commit()
         except OSError as e:
             if e.errno not in _WRITE_ERRORS:
                 raise
@@ -126,3 +119,31 @@ class OutputSet:
         if isinstance(exc, OSError) and exc.errno in _WRITE_ERRORS:  # a write into the staging folder failed
             raise InvalidInputError(f"cannot write the outputs into {self.folder}: {exc.strerror}; nothing was "
                                     f"written") from None
+
+    def _commit(self) -> None:
+        new = sorted(self.staging.iterdir())
+        for f in new:
+            os.chmod(f, FILE_MODE)
+        stale = [p for p in self.folder.iterdir() if self.remove_stale and self._ours(p)
+                 and not (self.staging / p.name).exists()]
+        # the report (name_report.json) last: a reader that sees it sees every file it names
+        for f in sorted(new, key=lambda f: f.name.endswith("_report.json")):
+            os.replace(f, self.folder / f.name)
+            self.written.append(self.folder / f.name)
+        for p in stale:
+            p.unlink()
+
+
+@contextlib.contextmanager
+def _signals_held() -> Iterator[None]:
+    """SIGINT, SIGTERM and SIGHUP held (blocked, then delivered) while the block runs."""
+    held = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
+    try:
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    except (AttributeError, OSError, ValueError):  # pragma: no cover - no POSIX signal masks here
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
