@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings, strategies as st
 
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.scene.ply import read_splat_ply, write_splat_ply
@@ -264,3 +265,44 @@ def test_links_loops_and_fifos_are_named_for_what_they_are(tmp_path):
         read_splat_ply(fifo)
     with pytest.raises(InvalidInputError, match="is a folder"):
         read_splat_ply(tmp_path)
+
+
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(0, 40), fmt=st.sampled_from(["binary_little_endian", "binary_big_endian", "ascii"]),
+       cut=st.integers(-9, 9), seed=st.integers(0, 10_000))
+def test_any_body_that_differs_from_its_header_is_refused(n, fmt, cut, seed):
+    """Round trip of a body written here in each format; the same body with bytes cut or added (cut != 0; for
+    ascii: whole rows) is refused, never read in part."""
+    import tempfile
+    from pathlib import Path
+
+    from cinenerf_ns.planner.scene.ply import read_ply_vertices
+
+    rng = np.random.default_rng(seed)
+    props = [("x", "f4", "float"), ("k", "i4", "int"), ("c", "u1", "uchar"), ("d", "f8", "double")]
+    order = ">" if fmt == "binary_big_endian" else "<"
+    rows = np.empty(n, dtype=[(p, order + t) for p, t, _ in props])
+    rows["x"], rows["d"] = rng.normal(size=n), rng.normal(size=n)
+    rows["k"], rows["c"] = rng.integers(-1000, 1000, n), rng.integers(0, 256, n)
+    head = (f"ply\nformat {fmt} 1.0\nelement vertex {n}\n" + "".join(f"property {w} {p}\n" for p, _, w in props)
+            + "end_header\n").encode()
+    if fmt == "ascii":
+        lines = [f"{float(r['x'])!r} {int(r['k'])} {int(r['c'])} {float(r['d'])!r}\n" for r in rows]
+        extra = [f"{i} {i} {i} {i}\n" for i in range(max(cut, 0))]
+        body = "".join(lines[:max(n + min(cut, 0), 0)] + extra).encode()
+        changed = len(lines[:max(n + min(cut, 0), 0)] + extra) != n
+        whole = "".join(lines).encode()
+    else:
+        whole = rows.tobytes()
+        body = whole[:max(len(whole) + cut, 0)] if cut < 0 else whole + bytes(cut)
+        changed = body != whole
+    with tempfile.TemporaryDirectory() as d:
+        p = Path(d) / "v.ply"
+        p.write_bytes(head + whole)
+        back = read_ply_vertices(p)
+        for name, _, _ in props:
+            np.testing.assert_array_equal(back[name], rows[name])
+        p.write_bytes(head + body)
+        if changed:
+            with pytest.raises(InvalidInputError, match=str(p)):
+                read_ply_vertices(p)
