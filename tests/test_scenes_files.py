@@ -413,6 +413,11 @@ def test_npz_and_torch_files_with_bytes_after_their_data(tmp_path):
     pt = export_compact(st, tmp_path / "ok.pt")
     (tmp_path / "tail.pt").write_bytes(pt.read_bytes() + b"junk")
     fails(tmp_path / "tail.pt", CheckpointError, r"bytes after the end of its zip archive")
+    blob = torch.load(pt, weights_only=True)
+    torch.save(blob, tmp_path / "legacy.pt", _use_new_zipfile_serialization=False)  # pickle format, read in order
+    assert len(load_scene(str(tmp_path / "legacy.pt"), SceneConfig()).scene) > 0
+    (tmp_path / "legacy_tail.pt").write_bytes((tmp_path / "legacy.pt").read_bytes() + b"junk")
+    fails(tmp_path / "legacy_tail.pt", CheckpointError, r"has bytes after the end of its data")
 
 
 @pytest.mark.parametrize("info,problem", [

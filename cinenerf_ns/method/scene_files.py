@@ -75,7 +75,11 @@ def torch_read(path: Path, what: str) -> Any:
     try:
         with warnings.catch_warnings():  # a damaged legacy file can claim any pickle protocol
             warnings.filterwarnings("ignore", message="Detected pickle protocol")
-            return torch.load(path, map_location="cpu", weights_only=True)
+            if head.startswith(_ZIP):
+                return torch.load(path, map_location="cpu", weights_only=True)
+            with open(path, "rb") as f:  # the legacy format is read in order: its end must be the file's end
+                blob = torch.load(f, map_location="cpu", weights_only=True)
+                rest = len(f.read(1))
     except pickle.UnpicklingError as e:
         if "Weights only" in str(e):
             raise CheckpointError(f"{path} holds Python objects other than tensors, numbers and plain containers: "
@@ -83,6 +87,10 @@ def torch_read(path: Path, what: str) -> Any:
         raise CheckpointError(f"{path} is truncated or corrupt: not a readable {what} ({_short(e)})") from None
     except Exception as e:  # noqa: BLE001 (torch raises RuntimeError, EOFError, ValueError... for damaged files)
         raise CheckpointError(f"{path} is truncated or corrupt: not a readable {what} ({_short(e)})") from None
+    if rest:
+        raise CheckpointError(f"{path} has bytes after the end of its data (a padded or concatenated file): not a "
+                              f"complete {what}")
+    return blob
 
 
 def _npz_member(zf: zipfile.ZipFile, zi: zipfile.ZipInfo, path: Path) -> Tuple[str, np.ndarray]:
