@@ -294,10 +294,14 @@ def _memory_budget(args: PlanArgs, console: Console) -> float:
 
 
 def _workers(args: PlanArgs, console: Console) -> Optional[int]:
-    """--workers capped by the CPUs this process may use and the candidates (said when capped)."""
-    from cinenerf_ns.planner.shots.workers import usable_cpus
+    """--workers capped by the CPUs this process may use and the candidates (said when capped); the default (one
+    per CPU on >= 4 CPUs) is capped by the candidates too."""
+    from cinenerf_ns.planner.shots.workers import default_workers, usable_cpus
 
-    if args.workers is None or args.workers <= 1:
+    if args.workers is None:
+        auto = default_workers()
+        return None if auto <= args.candidates else (args.candidates if args.candidates > 1 else 0)
+    if args.workers <= 1:
         return args.workers
     cap = min(usable_cpus(), args.candidates)
     if args.workers <= cap:

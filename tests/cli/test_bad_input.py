@@ -271,6 +271,13 @@ def test_workers_are_capped_and_said(tmp_path, capsys, monkeypatch):
     assert "--workers 256 capped to 2 (2 usable CPUs, 4 candidate(s))" in console.export_text()
     args.candidates = 1
     assert plan._workers(args, console) == 1
+    monkeypatch.setattr(workers, "default_workers", lambda: 16)  # the default: one per CPU, capped by candidates
+    args.workers, args.candidates = None, 4
+    assert plan._workers(args, console) == 4
+    args.candidates = 1
+    assert plan._workers(args, console) == 0
+    args.candidates = 32
+    assert plan._workers(args, console) is None
 
 
 @pytest.mark.parametrize("up,want", [((0, 1e300, 0), (0, 1, 0)), ((0, 0, 5e-320), (0, 0, 1)),
