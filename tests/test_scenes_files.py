@@ -409,6 +409,13 @@ def test_npz_and_torch_files_with_bytes_after_their_data(tmp_path):
         zf.writestr("info_json.npy", b.getvalue())
     fails(tmp_path / "pad.npz", CheckpointError, r"padded or corrupt: array 'means' claims shape \(6, 3\) \(72 "
           r"bytes\) but stores 84 bytes")
+    with zipfile.ZipFile(tmp_path / "dup.npz", "w") as zf, warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # zipfile warns of the duplicate name it writes
+        for k in ("means", "quats", "scales", "opacities", "means"):
+            b = io.BytesIO()
+            np.lib.format.write_array(b, s[k].numpy())
+            zf.writestr(f"{k}.npy", b.getvalue())
+    fails(tmp_path / "dup.npz", CheckpointError, r"holds 'means.npy' more than once: an inconsistent archive")
     st = SplatCheckpoint(SplatParams.of(s["means"], s["quats"], s["scales"], s["opacities"]))
     pt = export_compact(st, tmp_path / "ok.pt")
     (tmp_path / "tail.pt").write_bytes(pt.read_bytes() + b"junk")

@@ -143,6 +143,11 @@ def read_npz(path: Path) -> Dict[str, np.ndarray]:
     try:
         with zipfile.ZipFile(path) as zf:
             zip_tail(path, zf, f"{COMPACT} (.npz)")
+            names = [zi.filename for zi in zf.infolist()]
+            dup = sorted({n for n in names if names.count(n) > 1})
+            if dup:
+                raise CheckpointError(f"{path} holds {', '.join(map(repr, dup[:4]))} more than once: an inconsistent "
+                                      f"archive, not a {COMPACT}")
             return dict(_npz_member(zf, zi, path) for zi in zf.infolist())
     except CheckpointError:
         raise
