@@ -100,6 +100,10 @@ def _parse_header(f, path: Path):
         raise InvalidInputError(f"{path}: .ply header has no 'end_header' in {_MAX_HEADER_LINES} lines")
     if fmt not in ("binary_little_endian", "binary_big_endian", "ascii"):
         raise InvalidInputError(f"{path}: unsupported .ply format {fmt!r}")
+    enames = [name for name, _, _ in elements]
+    if len(set(enames)) != len(enames):
+        raise InvalidInputError(f"{path}: .ply header declares the element(s) "
+                                f"{sorted({n for n in enames if enames.count(n) > 1})} more than once")
     for name, _, props in elements:
         names = [p for p, _ in props]
         dup = sorted({p for p in names if names.count(p) > 1})

@@ -226,6 +226,12 @@ def test_ascii_header_must_match_the_body(tmp_path):
     _all_refused(tmp_path, cases)
 
 
+def test_an_element_declared_twice_is_refused(tmp_path):
+    two = _header("binary_little_endian", 1, "element vertex 1\nproperty float x\n").encode()
+    _all_refused(tmp_path, {"two": (two + _rows(1).tobytes() + np.zeros(1, "<f4").tobytes(),
+                                    r"declares the element\(s\) \['vertex'\] more than once")})
+
+
 def test_ascii_integer_properties_are_not_wrapped(tmp_path):
     head = "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty uchar red\nend_header\n"
     _all_refused(tmp_path, {"over": (head + "1 2\n3 300\n", r"ascii vertex 1: red = 300 does not fit its type uchar"),
