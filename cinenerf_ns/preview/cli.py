@@ -23,7 +23,8 @@ def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="cinesplat-preview", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", type=Path, required=True,
-                    help="compact scene (.npz / .pt from export_compact), .ckpt, run folder or ns-train config.yml")
+                    help="compact scene (.npz / .pt from export_compact), .ckpt, run folder, ns-train config.yml or a "
+                         "3DGS .ply")
     ap.add_argument("--camera-path", type=Path, required=True,
                     help="nerfstudio camera-path JSON (cinesplat-plan, viewer)")
     ap.add_argument("--output-dir", type=Path, default=Path("renders"), help="folder of the outputs (default: renders)")
@@ -93,13 +94,14 @@ def _check_args(ap: argparse.ArgumentParser, a: argparse.Namespace, console=None
     except InvalidInputError as e:
         ap.error(f"--camera-path {a.camera_path}: {e}")
     from cinenerf_ns.method.checkpoint import load_splat
+    from cinenerf_ns.planner.scene.ply import read_splat_ply
 
     try:
-        splat = load_splat(a.scene).params
+        splat = read_splat_ply(a.scene) if a.scene.suffix.lower() == ".ply" else load_splat(a.scene).params
     except (ValueError, OSError, KeyError) as e:
         ap.error(f"--scene: could not load {a.scene}: {e}")
     if splat.colors_dc is None:
-        ap.error(f"--scene: {a.scene} has no colour (features_dc / rgb)")
+        ap.error(f"--scene: {a.scene} has no colour (features_dc / rgb, or f_dc_* / red green blue in a .ply)")
     return splat, cam, name
 
 

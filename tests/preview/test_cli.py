@@ -265,3 +265,21 @@ def test_signals_leave_nothing_behind(inputs, tmp_path, sig, code, word):
     assert p.returncode == code, err
     assert "Traceback" not in err and f"cinesplat-preview: {word}" in err and len(err.strip().splitlines()) == 1, err
     assert not out.exists() or not any(out.iterdir()), list(out.iterdir())
+
+
+def test_a_3dgs_ply_is_previewed_and_a_truncated_one_refused(tmp_path, capsys):
+    from cinenerf_ns.planner.scene.ply import write_splat_ply
+
+    sp = random_splat(5)
+    ply = write_splat_ply(tmp_path / "s.ply", sp.means, sp.quats_wxyz, sp.log_scales, sp.opacity_logits,
+                          colors_dc=sp.colors_dc)
+    cam = tmp_path / "shot.json"
+    cam.write_text(json.dumps(orbit_camera_path(n=6)))
+    main(["--scene", str(ply), "--camera-path", str(cam), "--output-dir", str(tmp_path / "r"), "--width", "32",
+          "--height", "32", "--fps", "4"])
+    assert sorted(os.listdir(tmp_path / "r")) == ["shot.mp4", "shot_sheet.png"]
+    cut = tmp_path / "cut.ply"
+    cut.write_bytes(ply.read_bytes()[:-7])
+    code, err = _hostile(["--scene", str(cut), "--camera-path", str(cam), "--output-dir", str(tmp_path / "r2")],
+                         tmp_path, capsys)
+    assert code == 2 and "truncated .ply" in err and str(cut) in err and not (tmp_path / "r2").exists()
