@@ -47,18 +47,19 @@ def _raise_on_next_line(signum: int) -> None:
     frames = []
     f = sys._getframe(2)  # the frame the swallowed handler interrupted
     while f is not None:
-        frames.append(f)
+        frames.append((f, f.f_trace))
         f = f.f_back
+    tracer = sys.gettrace()  # a coverage tool's, say: given back
 
     def local(frame, event, arg):
-        sys.settrace(None)
-        for fr in frames:
-            fr.f_trace = None
+        sys.settrace(tracer)
+        for fr, old in frames:
+            fr.f_trace = old
         raise Terminated(signum)
 
-    for fr in frames:
+    for fr, _ in frames:
         fr.f_trace = local
-    sys.settrace(lambda *a: None)  # tracing on (new frames untraced): the frames above get their line events
+    sys.settrace(tracer or (lambda *a: None))  # tracing on: the frames above get their line events
 
 
 def _unraisable(hook):
