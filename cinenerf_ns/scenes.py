@@ -12,6 +12,7 @@ import numpy as np
 from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY, OBJECT_CLUSTER, SMOOTH_NEIGHBORS
 from cinenerf_ns.method.training_cameras import camera_box, run_config_path, scene_camera_centres, scene_camera_poses
 from cinenerf_ns.planner.errors import InvalidInputError
+from cinenerf_ns.planner.file_checks import path_problem
 from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
 from cinenerf_ns.planner.scene.splat_params import NO_COLOUR_GREY, SplatParams, rgb_to_dc
 
@@ -165,12 +166,19 @@ def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Opti
                        f"({', '.join(f'{v:.3f}' for v in c)})")
 
         r = cfg.camera_radius
+        across = float(np.min(np.asarray(room.free_hi, np.float64) - np.asarray(room.free_lo, np.float64)))
+        if 2 * r >= across:  # the start region (the free space shrunk by r) would be inverted
+            raise InvalidInputError(f"the camera sphere (--camera-radius + --safety-margin = {r:.4g}) is too large for "
+                                    f"this scene: the procedural room's free space is {across:.3g} scene units across")
         return LoadedScene(scene, locate, "procedural", spec, extra={"room": room},
                            start_region=(room.free_lo + r, room.free_hi - r))
     path = Path(spec)
-    if not path.exists():
+    problem = path_problem(path, folder_ok=True)
+    if problem == "was not found":
         raise InvalidInputError(f"scene not found: {spec} (give a config.yml, run folder, .ckpt, compact .npz/.pt, "
                                 f".ply or procedural[:N[:SEED]])")
+    if problem is not None:
+        raise InvalidInputError(f"scene {spec} {problem}")
     if path.suffix.lower() == ".ply":
         return LoadedScene(EllipsoidScene.from_ply(path, cfg).to(device), None, "ply", str(path))
     # checkpoints and compact exports go through the method's loader (no trainer is built)
@@ -226,9 +234,22 @@ def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Opti
         lo, hi = (np.asarray(v, dtype=np.float64) for v in st.info["start_region"])
         region = (lo, hi)
     poses = scene_camera_poses(cfg_path, st.info)  # [F, 3, 4] or None (the viewer's opening view)
+    notes = [] if cams is not None or cfg_path is None else [missing_cameras_note(cfg_path)]
     return LoadedScene(scene, locate, "checkpoint", str(path), config_path=cfg_path,
-                       extra={"splat": st, "camera_centres": cams, "camera_poses": poses, **extra_sem},
+                       extra={"splat": st, "camera_centres": cams, "camera_poses": poses, "notes": notes,
+                              **extra_sem},
                        start_region=region)
+
+
+def missing_cameras_note(config_path: Path) -> str:
+    """What a run planned without its training cameras loses, and why (its dataset moved or is unreadable)."""
+    from cinenerf_ns.method.training_cameras import run_data_path
+
+    data = run_data_path(config_path)
+    why = ("its config names no dataset" if data is None else f"its dataset {data} is gone" if not data.exists()
+           else f"its training cameras could not be read from {data}")
+    return (f"{config_path}: {why}; planning without the training cameras (random starts anywhere in the scene's "
+            f"free space, text targets' centres without the unseen-part fill)")
 
 
 def resolve_match(text: str, loaded: LoadedScene, what: str) -> Dict[str, Any]:
@@ -247,9 +268,20 @@ def resolve_match(text: str, loaded: LoadedScene, what: str) -> Dict[str, Any]:
             f"'{text}' is text, but this scene ({loaded.kind}) has no semantics; give the {what} target as 'x y z' "
             f"or use a cinesplat checkpoint"
         )
-    if "match" in loaded.extra:
-        return loaded.extra["match"](text)
-    point, desc = loaded.locate(text)
+    from cinenerf_ns.method.clip_features import ClipWeightsError
+
+    try:
+        if "match" in loaded.extra:
+            return loaded.extra["match"](text)
+        point, desc = loaded.locate(text)
+    except ClipWeightsError as e:  # its own advice names ns-train options
+        first = str(e).strip().splitlines()[0] if str(e).strip() else "the CLIP weights are missing"
+        labels = loaded.extra.get("label_names") or []
+        names = f", or one of the scene's object names: {', '.join(labels)}" if labels else ""
+        raise InvalidInputError(
+            f"'{text.strip()}' needs the scene's CLIP text model, which cannot be loaded here ({first}); run once "
+            f"with network so open_clip caches its weights, or give the {what} target as a point 'x y z'{names}"
+        ) from None
     out = {"text": text.strip(), "point": point, "description": desc}
     if "room" in loaded.extra:  # a procedural room: the object's Gaussians from its ground truth
         room = loaded.extra["room"]

@@ -63,3 +63,50 @@ def test_writable_checks_create_nothing(tmp_path):
         check_writable(f)
     with pytest.raises(InvalidInputError, match="not a folder"):
         check_writable(f / "sub")
+
+
+def test_a_write_that_fails_names_the_folder_and_leaves_nothing(tmp_path):
+    """A full disk or a file-size limit while staging: one InvalidInputError naming the folder, nothing left."""
+    import errno
+
+    out = tmp_path / "out"
+    with pytest.raises(InvalidInputError, match=rf"cannot write the outputs into {out}: File too large; nothing"):
+        with OutputSet(out, "shot") as o:
+            o.path("shot_0.json").write_text("{}")
+            raise OSError(errno.EFBIG, os.strerror(errno.EFBIG))
+    assert not out.exists()
+    with pytest.raises(FileNotFoundError):  # other errors are not disguised
+        with OutputSet(out, "shot"):
+            raise FileNotFoundError(errno.ENOENT, "the scene moved")
+    assert not out.exists()
+
+
+def test_remove_stale_false_keeps_earlier_files(tmp_path):
+    (tmp_path / "shot_0.json").write_text("the input")
+    with OutputSet(tmp_path, "shot_0", remove_stale=False) as o:
+        o.path("shot_0.mp4").write_bytes(b"video")
+    assert sorted(os.listdir(tmp_path)) == ["shot_0.json", "shot_0.mp4"]
+
+
+def test_folders_that_take_no_files_and_a_small_file_size_limit(tmp_path, monkeypatch):
+    from cinenerf_ns.output_set import check_file_size_limit
+
+    if os.path.isdir("/proc"):
+        with pytest.raises(InvalidInputError, match=r"--output-dir /proc/x: cannot write into /proc"):
+            check_writable("/proc/x")
+    resource = pytest.importorskip("resource")
+    monkeypatch.setattr(resource, "getrlimit", lambda what: (1000, resource.RLIM_INFINITY))
+    with pytest.raises(InvalidInputError, match=rf"--output-dir {tmp_path}: the file-size limit \(ulimit -f\) is 1000"):
+        check_file_size_limit(tmp_path)
+    monkeypatch.setattr(resource, "getrlimit", lambda what: (resource.RLIM_INFINITY, resource.RLIM_INFINITY))
+    check_file_size_limit(tmp_path)
+
+
+def test_a_failed_set_removes_the_folders_it_made(tmp_path):
+    (tmp_path / "kept").mkdir()
+    for folder in (tmp_path / "new" / "deeper", tmp_path / "kept"):
+        with pytest.raises(KeyboardInterrupt):
+            with OutputSet(folder, "shot") as o:
+                o.path("shot_0.json").write_text("{}")
+                raise KeyboardInterrupt
+    assert sorted(os.listdir(tmp_path)) == ["kept"] and os.listdir(tmp_path / "kept") == []

@@ -278,9 +278,9 @@ def test_ply_counts_against_data(tmp_path):
         tracemalloc.stop()
     assert peak < 50e6 and time.perf_counter() - t < 5
     fails(write_ply(tmp_path / "a.ply", count=10**12, rows=np.ones((3, len(SPLAT_PROPS))), fmt="ascii"),
-          InvalidInputError, r"claims 1000000000000 vertices but the file's ascii data is \d+ bytes")
+          InvalidInputError, r"declares 1000000000000 rows but the file's ascii data is only \d+ bytes")
     fails(write_ply(tmp_path / "a2.ply", count=4, rows=np.ones((3, len(SPLAT_PROPS))), fmt="ascii"),
-          InvalidInputError, r"claims 4 vertices but 3 ascii data lines follow")
+          InvalidInputError, r"declares 4 data rows .* the ascii body has 3 lines: fewer rows than declared")
     fails(write_ply(tmp_path / "z.ply", count=0), InvalidInputError, r"holds 0 Gaussians")
 
 
@@ -301,7 +301,7 @@ def test_ply_properties_and_values(tmp_path):
     nan[:, 0] = np.nan
     fails(write_ply(tmp_path / "nan.ply", count=4, rows=nan), InvalidInputError, r"no usable Gaussians: all 4")
     (tmp_path / "d.ply").mkdir()
-    fails(tmp_path / "d.ply", InvalidInputError, r"is a folder, not a \.ply file")
+    fails(tmp_path / "d.ply", InvalidInputError, r"is a folder, not a file")
 
 
 def test_ply_some_non_finite_dropped_with_warning(tmp_path):
@@ -386,3 +386,122 @@ def test_preview_of_a_ply_coloured_with_red_green_blue(tmp_path):
     rows = np.concatenate([np.ones((3, len(SPLAT_PROPS)), np.float32), rgb], 1)
     p = write_ply(tmp_path / "rgb.ply", props=SPLAT_PROPS + ("red", "green", "blue"), count=3, rows=rows, fmt="ascii")
     np.testing.assert_allclose(preview_scene(load_scene(str(p), SceneConfig())).colors.numpy(), rgb / 255.0, atol=1e-6)
+
+
+# ------------------------------------------------------------------------------------------- read whole or refused
+def test_npz_and_torch_files_with_bytes_after_their_data(tmp_path):
+    """A padded array, bytes after a zip archive (.npz or torch's zip format): refused, never read in part."""
+    s = tiny_splat(6)
+    p = save_npz(tmp_path / "ok.npz", **s)
+    assert len(load_scene(str(p), SceneConfig()).scene) > 0
+    (tmp_path / "tail.npz").write_bytes(p.read_bytes() + b"\0" * 5)
+    fails(tmp_path / "tail.npz", CheckpointError, r"bytes after the end of its zip archive")
+    buf = io.BytesIO()
+    np.lib.format.write_array(buf, s["means"].numpy())
+    with zipfile.ZipFile(tmp_path / "pad.npz", "w") as zf:
+        zf.writestr("means.npy", buf.getvalue() + b"\0" * 12)  # more data than the shape (6, 3) holds
+        for k in ("quats", "scales", "opacities"):
+            b = io.BytesIO()
+            np.lib.format.write_array(b, s[k].numpy())
+            zf.writestr(f"{k}.npy", b.getvalue())
+        b = io.BytesIO()
+        np.lib.format.write_array(b, np.array("{}"))
+        zf.writestr("info_json.npy", b.getvalue())
+    fails(tmp_path / "pad.npz", CheckpointError, r"padded or corrupt: array 'means' claims shape \(6, 3\) \(72 "
+          r"bytes\) but stores 84 bytes")
+    with zipfile.ZipFile(tmp_path / "dup.npz", "w") as zf, warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # zipfile warns of the duplicate name it writes
+        for k in ("means", "quats", "scales", "opacities", "means"):
+            b = io.BytesIO()
+            np.lib.format.write_array(b, s[k].numpy())
+            zf.writestr(f"{k}.npy", b.getvalue())
+    fails(tmp_path / "dup.npz", CheckpointError, r"holds 'means.npy' more than once: an inconsistent archive")
+    st = SplatCheckpoint(SplatParams.of(s["means"], s["quats"], s["scales"], s["opacities"]))
+    pt = export_compact(st, tmp_path / "ok.pt")
+    (tmp_path / "tail.pt").write_bytes(pt.read_bytes() + b"junk")
+    fails(tmp_path / "tail.pt", CheckpointError, r"bytes after the end of its zip archive")
+    blob = torch.load(pt, weights_only=True)
+    torch.save(blob, tmp_path / "legacy.pt", _use_new_zipfile_serialization=False)  # pickle format, read in order
+    assert len(load_scene(str(tmp_path / "legacy.pt"), SceneConfig()).scene) > 0
+    (tmp_path / "legacy_tail.pt").write_bytes((tmp_path / "legacy.pt").read_bytes() + b"junk")
+    fails(tmp_path / "legacy_tail.pt", CheckpointError, r"has bytes after the end of its data")
+
+
+@pytest.mark.parametrize("info,problem", [
+    ({"start_region": [[0, 0, 0], [1, -1, 1]]}, r"info_json's start_region is inverted or empty along y"),
+    ({"start_region": [[0, 0, 0], [1, 1, float("nan")]]}, r"info_json's start_region must be .* finite"),
+    ({"camera_centres": [[0, 0]]}, r"info_json's camera_centres must be \[F, 3\]"),
+    ({"camera_centres": [[0, 0, float("inf")]]}, r"info_json's camera_centres must be \[F, 3\] finite"),
+    ({"camera_poses": [[1, 2, 3]]}, r"info_json's camera_poses must be \[F, 3, 4\]"),
+], ids=["inverted", "nan", "centres-shape", "centres-inf", "poses-shape"])
+def test_compact_metadata_is_checked_at_load(tmp_path, info, problem):
+    p = save_npz(tmp_path / "meta.npz", info=json.dumps(info), **tiny_splat(6))
+    fails(p, CheckpointError, problem)
+
+
+def _semantic_npz(path: Path, n: int = 6, latent_width: int = 3, labels: int = 2, names: int = 2,
+                  label_width: int = 24) -> Path:
+    from cinenerf_ns.method.codec import CodecConfig, FeatureCodec
+
+    cc = CodecConfig(hidden_dim=16, backend="torch")
+    codec = FeatureCodec(24, cc)
+    info = {"feature_dim": 24, "codec_config": vars(cc), "codec_backend": "torch",
+            "label_names": [f"thing {i}" for i in range(names)]}
+    arrays = {**tiny_splat(n), "latents": torch.rand(n, latent_width), "label_embeddings": torch.randn(labels,
+                                                                                                      label_width)}
+    arrays.update({"codec." + k: v for k, v in codec.state_dict().items()})
+    return save_npz(path, info=json.dumps(info), **arrays)
+
+
+def test_semantic_parts_must_agree(tmp_path):
+    """Latents as wide as the codec decodes, one label embedding per label name, as wide as the codec's features
+    (they once ended in a traceback, or fell back to a random CLIP without a word)."""
+    fails(_semantic_npz(tmp_path / "w.npz", latent_width=5), CheckpointError,
+          r"latents are \(6, 5\) but the codec decodes latents of width 3 \(codec_config.latent_dim\)")
+    fails(_semantic_npz(tmp_path / "l.npz", labels=3), CheckpointError,
+          r"label_embeddings has 3 rows but label_names lists 2 names")
+    fails(_semantic_npz(tmp_path / "d.npz", label_width=7), CheckpointError,
+          r"label_embeddings are 7 wide but the codec's features are 24 wide")
+
+
+def test_a_run_whose_dataset_is_gone_says_it_plans_without_its_cameras(tmp_path):
+    """Not silently: the note names the config, the missing dataset and what is lost."""
+    run = tmp_path / "run"
+    (run / "nerfstudio_models").mkdir(parents=True)
+    torch.save({"step": 1, "pipeline": {"_model.gauss_params." + k: v for k, v in tiny_splat(8).items()}},
+               run / "nerfstudio_models" / "step-000000001.ckpt")
+    gone = tmp_path / "data_moved_away"
+    parts = "".join(f"- {p}\n" for p in gone.parts)
+    (run / "config.yml").write_text(f"method_name: cinesplat\ndata: !!python/object/apply:pathlib.PosixPath\n{parts}")
+    ld = load_scene(str(run / "config.yml"), SceneConfig())
+    assert ld.start_region is None
+    (note,) = ld.extra["notes"]
+    assert f"its dataset {gone} is gone; planning without the training cameras" in note and "config.yml" in note
+
+
+def test_scene_paths_that_are_not_files(tmp_path):
+    import os
+
+    os.symlink(tmp_path / "loop.npz", tmp_path / "loop.npz")
+    fails(tmp_path / "loop.npz", InvalidInputError, r"is a symbolic link loop")
+    os.mkfifo(tmp_path / "pipe.ckpt")
+    fails(tmp_path / "pipe.ckpt", InvalidInputError, r"is a FIFO \(named pipe\), not a regular file")
+
+
+def test_text_without_loadable_clip_weights_gives_advice_for_this_tool():
+    """ClipWeightsError's own advice names ns-train options; the planner's message names what works here."""
+    from cinenerf_ns.method.clip_features import ClipWeightsError
+    from cinenerf_ns.scenes import LoadedScene, resolve_match
+
+    def match(text):
+        raise ClipWeightsError("Could not load CLIP weights 'ViT-B-16' / 'laion' (OSError: offline).\n"
+                               "  * pass --pipeline.datamanager.clip.checkpoint-path FILE")
+
+    ld = LoadedScene(scene=None, locate=lambda t: None, kind="checkpoint", source="x.npz",
+                     extra={"match": match, "label_names": ["red armchair", "floor lamp"]})
+    with pytest.raises(InvalidInputError) as e:
+        resolve_match("a cosy corner", ld, "go-to")
+    msg = str(e.value)
+    assert "--pipeline" not in msg and "Could not load CLIP weights 'ViT-B-16'" in msg
+    assert "give the go-to target as a point 'x y z', or one of the scene's object names: red armchair, floor lamp" \
+        in msg

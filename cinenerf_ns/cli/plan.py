@@ -17,6 +17,7 @@ is checked before the scene is loaded; errors go to stderr with exit status 2 an
 from __future__ import annotations
 
 import json
+import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -33,8 +34,8 @@ from rich.text import Text
 
 from cinenerf_ns.console_text import error_line, lit
 from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY, OBJECT_CLUSTER, SMOOTH_NEIGHBORS
-from cinenerf_ns.options import check_number
-from cinenerf_ns.output_set import OutputSet, check_name, check_writable
+from cinenerf_ns.options import check_device, check_number
+from cinenerf_ns.output_set import OutputSet, check_file_size_limit, check_name, check_writable
 from cinenerf_ns.planner.errors import InvalidInputError, PlanningError
 from cinenerf_ns.planner.scene.ellipsoids import DEFAULT_SAFETY_MARGIN, SceneConfig
 from cinenerf_ns.planner.shots import stages
@@ -56,6 +57,7 @@ from cinenerf_ns.planner.trajectory.dynamics import DynamicLimits, retime_shot
 from cinenerf_ns.planner.trajectory.timing import MAX_FPS, MIN_FPS, TimingConfig
 from cinenerf_ns.scenes import LoadedScene, _word_match, load_scene, parse_point, resolve_match
 from cinenerf_ns.shot_targets import ShotTargets, end_pose_count, shot_targets, start_region_centre
+from cinenerf_ns.signals import interrupted, signals_as_interrupts
 
 CONSOLE = Console(emoji=False)  # user text is printed as typed (console_text)
 ERRORS = Console(stderr=True, emoji=False)
@@ -207,29 +209,120 @@ def check_args(args: PlanArgs) -> None:
         check_number(args.max_angular_rate, "--max-angular-rate", 0, 3600, lo_open=True)
     if args.object_radius is not None:
         check_number(args.object_radius, "--object-radius", 0, 100)
-    up = np.asarray(args.up, dtype=np.float64)
-    if up.shape != (3,) or not np.all(np.isfinite(up)) or np.linalg.norm(up) < 1e-9:
-        raise InvalidInputError(f"--up must be three finite numbers, not all zero, got {args.up}")
-    if args.device not in ("cpu", "cuda") and not str(args.device).startswith("cuda:"):
-        raise InvalidInputError(f"--device must be 'cpu' or 'cuda', got {args.device!r}")
-    if str(args.device).startswith("cuda"):
-        import torch
-
-        if not torch.cuda.is_available():
-            raise InvalidInputError(f"--device {args.device}: no CUDA device here; use --device cpu")
+    args.up = unit_up(args.up)
+    args.device = check_device(args.device)
     if args.then_look_at and len(args.then_look_at) != len(args.then_go_to):
         raise InvalidInputError(f"--then-look-at needs one look-at per --then-go-to ({len(args.then_go_to)}), got "
                                 f"{len(args.then_look_at)}")
-    if args.start is not None and parse_point(args.start) is None:
-        raise InvalidInputError(f"--start must be a point 'x y z', got {args.start!r}")
+    if args.start is not None:
+        p = parse_point(args.start)
+        if p is None or not np.all(np.isfinite(p)):
+            raise InvalidInputError(f"--start must be a point 'x y z' of three finite numbers, got {args.start!r}")
+    _check_targets(args)
     check_name(args.name)
     if args.preview:
         for v, opt in zip(args.preview_size, ("--preview-size (width)", "--preview-size (height)")):
             check_number(v, opt, 16, 4096, integer=True)
         check_number(args.preview_fps, "--preview-fps", 1, 120)
     check_writable(Path(args.output_dir))
+    check_file_size_limit(Path(args.output_dir))
     args.score.validate()
     _framing(args).validate()
+
+
+def unit_up(up: Any) -> Tuple[float, float, float]:
+    """--up as a unit vector, scaled by its largest component before its norm is taken (0 1e300 0 is +y, not a
+    zero vector from an overflowed norm); InvalidInputError when it is not three finite numbers, not all zero."""
+    try:
+        u = np.asarray(up, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        u = np.full(1, np.nan)
+    big = float(np.abs(u).max()) if u.size else 0.0
+    if u.shape != (3,) or not np.all(np.isfinite(u)) or big == 0.0:
+        raise InvalidInputError(f"--up must be three finite numbers, not all zero, got {tuple(up)}")
+    u = u / big
+    u = u / np.linalg.norm(u)
+    return (float(u[0]), float(u[1]), float(u[2]))
+
+
+def _check_targets(args: PlanArgs) -> None:
+    """Targets that need no scene to be judged: points given as 'x y z' are finite, stops differ from the stop
+    before them (a leg from a stop to itself)."""
+    stops = [("--go-to", args.go_to)] + [(f"--then-go-to (stop {i + 2})", t) for i, t in enumerate(args.then_go_to)]
+    looks = [("--look-at", args.look_at)] + [(f"--then-look-at (stop {i + 2})", t)
+                                             for i, t in enumerate(args.then_look_at)]
+    for opt, text in stops + looks:
+        p = parse_point(text) if isinstance(text, str) else None
+        if p is not None and not np.all(np.isfinite(p)):
+            what = "go-to" if "go-to" in opt else "look-at"
+            raise InvalidInputError(f"the {what} point {text!r} is not finite ({opt}): give three finite numbers "
+                                    f"'x y z'")
+
+    def key(text: str):
+        p = parse_point(text)
+        return tuple(p.tolist()) if p is not None else " ".join(text.lower().split())
+
+    for (o1, t1), (o2, t2) in zip(stops, stops[1:]):
+        if isinstance(t1, str) and isinstance(t2, str) and key(t1) == key(t2):
+            raise InvalidInputError(f"{o2} {t2!r} repeats the stop before it ({o1}): consecutive stops must differ")
+
+
+def available_memory_mb() -> Optional[float]:
+    """Memory this process may still take, MB: the machine's available memory (MemAvailable) and the address-space
+    limit (ulimit -v) less what the process maps now, the smaller; None when unknown."""
+    found = []
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    found.append(int(line.split()[1]) / 1024)
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        import resource
+
+        soft = resource.getrlimit(resource.RLIMIT_AS)[0]
+        if soft != resource.RLIM_INFINITY:
+            with open("/proc/self/statm") as f:
+                mapped = int(f.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+            found.append(max(soft - mapped, 0) / 2**20)
+    except (ImportError, OSError, ValueError, IndexError):
+        pass
+    return min(found) if found else None
+
+
+def _memory_budget(args: PlanArgs, console: Console) -> float:
+    """--memory-budget-mb trusted only up to the memory available: a larger explicit budget is refused, the default
+    is lowered to what is available (said)."""
+    avail = available_memory_mb()
+    budget = float(args.memory_budget_mb)
+    if avail is None or budget <= avail:
+        return budget
+    if budget != PlannerConfig.memory_budget_mb:
+        raise InvalidInputError(f"--memory-budget-mb {budget:g} is more than the memory available to this process "
+                                f"(about {avail:.0f} MB: free memory and ulimit -v); give at most {avail:.0f}")
+    lowered = max(64.0, float(int(avail)))
+    console.print(f"note: memory budget {lowered:.0f} MB (the default {budget:g} MB is more than the memory available "
+                  f"to this process)", markup=False, highlight=False)
+    return lowered
+
+
+def _workers(args: PlanArgs, console: Console) -> Optional[int]:
+    """--workers capped by the CPUs this process may use and the candidates (said when capped); the default (one
+    per CPU on >= 4 CPUs) is capped by the candidates too."""
+    from cinenerf_ns.planner.shots.workers import default_workers, usable_cpus
+
+    if args.workers is None:
+        auto = default_workers()
+        return None if auto <= args.candidates else (args.candidates if args.candidates > 1 else 0)
+    if args.workers <= 1:
+        return args.workers
+    cap = min(usable_cpus(), args.candidates)
+    if args.workers <= cap:
+        return args.workers
+    console.print(f"note: --workers {args.workers} capped to {cap} ({usable_cpus()} usable CPUs, {args.candidates} "
+                  f"candidate(s))", markup=False, highlight=False)
+    return cap
 
 
 def _obstacles_near_paths(means: np.ndarray, shots, up: np.ndarray, band: float = 0.1) -> np.ndarray:
@@ -359,6 +452,8 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
     """Check the options, plan, and write the outputs all together; returns a summary dict (paths, per-candidate
     metrics). Raises InvalidInputError / PlanningError / CheckpointError with a message for the user."""
     check_args(args)
+    memory_budget_mb = _memory_budget(args, console)
+    workers = _workers(args, console)
     scfg = SceneConfig.with_margin(args.camera_radius, args.safety_margin, beta=args.beta,
                                    opacity_floor=args.opacity_floor)
     t_all = time.perf_counter()
@@ -371,6 +466,8 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
                             object_cluster=args.object_cluster, object_centre=args.object_centre, up=args.up,
                             drop_support=not args.keep_support, centre_relevancy=args.centre_relevancy,
                             unseen_fill=not args.no_unseen_fill)
+        for note in loaded.extra.get("notes", []):
+            console.print(f"note: {note}", markup=False, highlight=False)
         prog.update(task, advance=1, description="resolving targets", refresh=True)
         # text first: a query that matches nothing fails before the grid is built
         gm, lm = resolve_match(args.go_to, loaded, "go-to"), resolve_match(args.look_at, loaded, "look-at")
@@ -380,7 +477,7 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
         pcfg = PlannerConfig(
             grid_resolution=args.grid_resolution, up=tuple(args.up),
             timing=TimingConfig(max_speed=args.max_speed, fps=args.fps),
-            start_region=loaded.start_region, candidate_workers=args.workers, memory_budget_mb=args.memory_budget_mb,
+            start_region=loaded.start_region, candidate_workers=workers, memory_budget_mb=memory_budget_mb,
             start_look_distance=args.start_look_distance,
             grid_polytopes={"auto": "auto", "on": True, "off": False}[args.grid_polytopes],
         )
@@ -520,13 +617,15 @@ def _fmt3(p) -> str:
 
 def main(argv: Optional[List[str]] = None) -> int:
     """Parse ``argv`` (default: sys.argv), run; returns the exit status: 0, 2 for a user error (message on stderr),
-    130 when interrupted. Nothing partial is left behind in either case."""
+    130 when interrupted (143 on SIGTERM, 129 on SIGHUP). Nothing partial is left behind in either case."""
     args = tyro.cli(PlanArgs, args=argv)
     try:
-        run_plan(args)
-    except KeyboardInterrupt:
-        ERRORS.print("cinesplat-plan: interrupted; no output was written")
-        return 130
+        with signals_as_interrupts():  # SIGTERM / SIGHUP unwind like Ctrl-C: nothing is left behind
+            run_plan(args)
+    except KeyboardInterrupt as e:
+        code, what = interrupted(e)
+        ERRORS.print(f"cinesplat-plan: {what}; no output was written", markup=False, highlight=False)
+        return code
     except MemoryError:
         ERRORS.print("cinesplat-plan: out of memory; lower --grid-resolution or --memory-budget-mb, or plan fewer "
                      "--candidates")

@@ -27,6 +27,8 @@ from cinenerf_ns.method.scene_files import (
     SUPPORTED,
     CheckpointError,
     check_config_yml,
+    check_info,
+    check_semantics,
     check_splat,
     compact_blob,
     compact_npz,
@@ -141,10 +143,12 @@ def load_splat(path: str | Path, device: torch.device | str = "cpu") -> SplatChe
 
     extra = sd.get("_model._extra_state")
     info = dict(extra.get("cine_info", {})) if isinstance(extra, dict) else {}
+    check_info(info, ckpt, "cine_info")
     codec_state = {k[len("_model.codec.") :]: v for k, v in sd.items() if k.startswith("_model.codec.")}
     codec = _codec_from(info, codec_state, device, ckpt) if (codec_state and info) else None
     lab = sd.get("_model.label_embeddings")
     lab = lab if isinstance(lab, Tensor) and lab.ndim == 2 else None
+    check_semantics(ckpt, sd.get(PREFIX + "latents"), codec, info, lab)
     dc = g("features_dc")
     if dc is not None and info.get("sh_degree", 3) == 0:  # splatfacto's colour at SH degree 0: sigmoid(features_dc)
         dc = rgb_to_dc(torch.sigmoid(dc))
@@ -231,6 +235,7 @@ def _compact_checkpoint(arrays: Dict[str, Tensor], codec_state: Dict[str, Tensor
     info["sh_degree"] = 0
     codec = _codec_from(info, codec_state, device, path) if (codec_state and info.get("codec_config")) else None
     lab = f("label_embeddings")
+    check_semantics(path, f("latents"), codec, info, lab)
     return SplatCheckpoint(
         params=SplatParams.of(f("means"), f("quats"), f("scales"), f("opacities"),
                               colors_dc=None if rgb is None else rgb_to_dc(rgb), latents=f("latents")),

@@ -13,7 +13,7 @@ import warnings
 import zipfile
 import zlib
 from pathlib import Path
-from typing import Any, Dict, Mapping, Tuple
+from typing import Any, Dict, Mapping, Optional, Tuple
 
 import numpy as np
 import torch
@@ -65,11 +65,21 @@ def torch_read(path: Path, what: str) -> Any:
     head = _head(path)
     if not head.startswith(_ZIP) and head[:1] != b"\x80":  # torch.save: a zip archive, or a legacy pickle
         raise CheckpointError(f"{path} is not a PyTorch file (it starts with {head[:4]!r}): not a {what}")
+    if head.startswith(_ZIP):
+        try:
+            with zipfile.ZipFile(path) as zf:
+                zip_tail(path, zf, what)
+        except (zipfile.BadZipFile, OSError, EOFError) as e:
+            raise CheckpointError(f"{path} is truncated or corrupt: not a readable {what} ({_short(e)})") from None
     register_torch_safe_globals()
     try:
         with warnings.catch_warnings():  # a damaged legacy file can claim any pickle protocol
             warnings.filterwarnings("ignore", message="Detected pickle protocol")
-            return torch.load(path, map_location="cpu", weights_only=True)
+            if head.startswith(_ZIP):
+                return torch.load(path, map_location="cpu", weights_only=True)
+            with open(path, "rb") as f:  # the legacy format is read in order: its end must be the file's end
+                blob = torch.load(f, map_location="cpu", weights_only=True)
+                rest = len(f.read(1))
     except pickle.UnpicklingError as e:
         if "Weights only" in str(e):
             raise CheckpointError(f"{path} holds Python objects other than tensors, numbers and plain containers: "
@@ -77,6 +87,10 @@ def torch_read(path: Path, what: str) -> Any:
         raise CheckpointError(f"{path} is truncated or corrupt: not a readable {what} ({_short(e)})") from None
     except Exception as e:  # noqa: BLE001 (torch raises RuntimeError, EOFError, ValueError... for damaged files)
         raise CheckpointError(f"{path} is truncated or corrupt: not a readable {what} ({_short(e)})") from None
+    if rest:
+        raise CheckpointError(f"{path} has bytes after the end of its data (a padded or concatenated file): not a "
+                              f"complete {what}")
+    return blob
 
 
 def _npz_member(zf: zipfile.ZipFile, zi: zipfile.ZipInfo, path: Path) -> Tuple[str, np.ndarray]:
@@ -97,11 +111,26 @@ def _npz_member(zf: zipfile.ZipFile, zi: zipfile.ZipInfo, path: Path) -> Tuple[s
             raise CheckpointError(f"{path}: array {key!r} holds pickled Python objects: not a {COMPACT} "
                                   f"(a compact export holds only numeric arrays and an info_json string)")
         need = math.prod(shape) * dtype.itemsize
-        if need > zi.file_size:
-            raise CheckpointError(f"{path} is truncated or corrupt: array {key!r} claims shape {tuple(shape)} "
-                                  f"({need} bytes) but stores {zi.file_size} bytes")
+        stored = zi.file_size - f.tell()  # the data after the .npy header
+        if need != stored:
+            what = "truncated or corrupt" if need > stored else "padded or corrupt"
+            raise CheckpointError(f"{path} is {what}: array {key!r} claims shape {tuple(shape)} ({need} bytes) but "
+                                  f"stores {stored} bytes of data")
     with zf.open(zi) as f:
         return key, np.lib.format.read_array(f, allow_pickle=False)
+
+
+def zip_tail(path: Path, zf: zipfile.ZipFile, what: str) -> None:
+    """CheckpointError when bytes follow a zip archive's end record (a padded or concatenated file; zipfile would
+    read the archive and ignore them)."""
+    size = path.stat().st_size
+    end = 22 + len(zf.comment)  # the end-of-central-directory record and its comment close a zip archive
+    with open(path, "rb") as f:
+        f.seek(max(size - end, 0))
+        tail = f.read(4)
+    if tail != b"PK\x05\x06":
+        raise CheckpointError(f"{path} has bytes after the end of its zip archive (a padded or concatenated file): "
+                              f"not a complete {what}")
 
 
 def read_npz(path: Path) -> Dict[str, np.ndarray]:
@@ -113,6 +142,12 @@ def read_npz(path: Path) -> Dict[str, np.ndarray]:
                               f"not a {COMPACT}")
     try:
         with zipfile.ZipFile(path) as zf:
+            zip_tail(path, zf, f"{COMPACT} (.npz)")
+            names = [zi.filename for zi in zf.infolist()]
+            dup = sorted({n for n in names if names.count(n) > 1})
+            if dup:
+                raise CheckpointError(f"{path} holds {', '.join(map(repr, dup[:4]))} more than once: an inconsistent "
+                                      f"archive, not a {COMPACT}")
             return dict(_npz_member(zf, zi, path) for zi in zf.infolist())
     except CheckpointError:
         raise
@@ -170,18 +205,61 @@ def parse_info(text: str, path: Path) -> Dict[str, Any]:
         raise CheckpointError(f"{path}: info_json is not valid JSON ({_short(e)})") from None
     if not isinstance(info, dict):
         raise CheckpointError(f"{path}: info_json must be a JSON object, got {type(info).__name__}")
+    check_info(info, path, "info_json")
+    return info
+
+
+def _numbers(v: Any, shape: Tuple[int, ...]) -> Optional[np.ndarray]:
+    """``v`` as a finite float64 array whose shape matches ``shape`` (-1: any length >= 1), else None."""
+    try:
+        a = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        return None
+    ok = a.ndim == len(shape) and all(w in (-1, d) for w, d in zip(shape, a.shape)) and a.size > 0
+    return a if ok and np.isfinite(a).all() else None
+
+
+def check_info(info: Mapping[str, Any], path: Path, where: str) -> None:
+    """A scene's metadata (a compact export's info_json, a run's cine_info): start_region two finite 3-vectors with
+    lo < hi, camera_centres [F, 3] and camera_poses [F, 3, 4] finite, label_names a list of strings. CheckpointError
+    naming the field otherwise (none of it is replaced silently)."""
     sr = info.get("start_region")
     if sr is not None:
-        try:
-            ok = np.asarray(sr, dtype=np.float64).shape == (2, 3) and np.isfinite(np.asarray(sr, np.float64)).all()
-        except (TypeError, ValueError):
-            ok = False
-        if not ok:
-            raise CheckpointError(f"{path}: info_json's start_region must be [[x, y, z], [x, y, z]] (lo, hi)")
+        a = _numbers(sr, (2, 3))
+        if a is None:
+            raise CheckpointError(f"{path}: {where}'s start_region must be [[x, y, z], [x, y, z]] (lo, hi), finite")
+        if not (a[0] < a[1]).all():
+            axes = ", ".join("xyz"[i] for i in np.flatnonzero(a[0] >= a[1]))
+            raise CheckpointError(f"{path}: {where}'s start_region is inverted or empty along {axes} (lo "
+                                  f"{a[0].tolist()} must be below hi {a[1].tolist()} on every axis)")
+    for key, shape, want in (("camera_centres", (-1, 3), "[F, 3] finite camera centres"),
+                             ("camera_poses", (-1, 3, 4), "[F, 3, 4] finite camera-to-world poses")):
+        if info.get(key) is not None and _numbers(info[key], shape) is None:
+            raise CheckpointError(f"{path}: {where}'s {key} must be {want}")
     names = info.get("label_names")
     if names is not None and not (isinstance(names, list) and all(isinstance(n, str) for n in names)):
-        raise CheckpointError(f"{path}: info_json's label_names must be a list of strings")
-    return info
+        raise CheckpointError(f"{path}: {where}'s label_names must be a list of strings")
+
+
+def check_semantics(path: Path, latents: Optional[Tensor], codec: Any, info: Mapping[str, Any],
+                    label_embeddings: Optional[Tensor]) -> None:
+    """The semantic parts agree: latents as wide as the codec's input, one label embedding per label name, label
+    embeddings as wide as the codec's features. CheckpointError naming the fields otherwise."""
+    if codec is not None and latents is not None:
+        width = int(getattr(codec.config, "latent_dim", latents.shape[-1]))
+        if latents.ndim != 2 or latents.shape[1] != width:
+            raise CheckpointError(f"{path}: latents are {tuple(latents.shape)} but the codec decodes latents of width "
+                                  f"{width} (codec_config.latent_dim): the scene's latents and codec do not belong "
+                                  f"together")
+    names = info.get("label_names") or []
+    if label_embeddings is not None and label_embeddings.numel() > 0:
+        if names and label_embeddings.shape[0] != len(names):
+            raise CheckpointError(f"{path}: label_embeddings has {label_embeddings.shape[0]} rows but label_names "
+                                  f"lists {len(names)} names (one embedding per name)")
+        dim = getattr(codec, "feature_dim", None)
+        if dim is not None and label_embeddings.shape[-1] != dim:
+            raise CheckpointError(f"{path}: label_embeddings are {label_embeddings.shape[-1]} wide but the codec's "
+                                  f"features are {dim} wide (feature_dim)")
 
 
 def check_splat(arrays: Mapping[str, Any], path: Path) -> int:

@@ -25,6 +25,7 @@ from cinenerf_ns.planner.shots.camera_path import (
 
 MIN_SIZE, MAX_SIZE = 16, 4096
 MIN_FPS, MAX_FPS = 1.0, 120.0
+MAX_PREVIEW_FRAMES = 9000  # frames one preview may render (10 minutes at 15 fps), checked before anything is made
 
 
 @dataclass
@@ -88,7 +89,12 @@ def path_cameras(camera_path: Dict[str, Any], width: int = DEFAULT_PREVIEW_SIZE[
     if ctype != "perspective":
         raise InvalidInputError(f"the preview renders perspective camera paths only, got camera_type {ctype!r}.")
     frames = camera_path["camera_path"]
-    idx = frame_indices(len(frames), float(camera_path["seconds"]), float(fps))
+    seconds = float(camera_path["seconds"])
+    if len(frames) > 1 and seconds * fps > MAX_PREVIEW_FRAMES:
+        raise InvalidInputError(
+            f"the preview would render {seconds * fps:.4g} frames (the camera path's seconds {seconds:.4g} x "
+            f"{fps:g} fps), more than {MAX_PREVIEW_FRAMES}: lower the preview's fps or preview a shorter path.")
+    idx = frame_indices(len(frames), seconds, float(fps))
     c2w = camera_path_poses(camera_path)[idx]  # [F, 4, 4]
     fov = np.array([float(frames[i]["fov"]) for i in idx])  # [F] vertical, degrees
     if not np.all((fov > 0) & (fov < 180)):

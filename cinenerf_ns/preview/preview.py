@@ -24,9 +24,17 @@ from .render import (
     scene_from_splat,
     to_uint8,
 )
-from .video import Mp4Writer, contact_sheet, write_gif, write_png
+from .video import Mp4Writer, contact_sheet, gif_frame, write_gif, write_png
 
 GSPLAT_BATCH = 8
+MAX_GIF_FRAMES = 900  # a GIF holds its frames in memory until written: a minute at 15 fps, at most
+
+
+def check_gif_frames(n: int) -> None:
+    """InvalidInputError when a GIF of ``n`` frames is asked for (more than MAX_GIF_FRAMES)."""
+    if n > MAX_GIF_FRAMES:
+        raise InvalidInputError(f"--gif is for short previews: at most {MAX_GIF_FRAMES} frames, this one has {n}; "
+                                f"lower --fps or leave out --gif")
 
 
 def _frames(scene: PreviewScene, cams: PreviewCameras, backend: str, background, device: str):
@@ -109,6 +117,8 @@ def preview_camera_path(
     if not name or "/" in name or name.startswith("."):
         raise InvalidInputError(f"preview name must be a plain file name, got {name!r}.")
     cams = path_cameras(camera_path, width, height, fps)
+    if gif:
+        check_gif_frames(len(cams))
     b = choose_backend(backend, device)
     t0 = time.perf_counter()
     scene = splat if isinstance(splat, PreviewScene) else scene_from_splat(splat)
@@ -137,7 +147,7 @@ def preview_camera_path(
             if i in sheet_at:
                 kept[i] = img if subject_points is None else mark_subject(img, cams, i, subject_points)
             if gif:
-                gif_frames.append(img)
+                gif_frames.append(gif_frame(img))  # small frames: a 4096-wide GIF preview holds no full frames
             bar.advance(task)
         t0 = time.perf_counter()
     t_encode += time.perf_counter() - t0  # the writer's close (ffmpeg flushing) ran at the end of the with block

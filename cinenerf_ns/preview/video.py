@@ -115,11 +115,20 @@ def write_png(path: Path, image: np.ndarray) -> Path:
     return Path(path)
 
 
-def write_gif(path: Path, frames: List[np.ndarray], fps: float, width: int = 240) -> Path:
+GIF_WIDTH = 240  # pixels: GIF frames are scaled to this width
+
+
+def gif_frame(frame: np.ndarray, width: int = GIF_WIDTH) -> np.ndarray:
+    """A frame [H, W, 3] scaled to ``width`` pixels wide, as the GIF holds it (kept instead of the full frame)."""
+    h, w = frame.shape[:2]
+    if w == width:
+        return frame
+    return np.asarray(Image.fromarray(frame).resize((int(width), max(1, round(h * width / w))), Image.BILINEAR))
+
+
+def write_gif(path: Path, frames: List[np.ndarray], fps: float, width: int = GIF_WIDTH) -> Path:
     """Looping GIF of the frames, scaled to ``width`` pixels wide."""
-    h, w = frames[0].shape[:2]
-    size = (int(width), max(1, round(h * width / w)))
-    imgs = [Image.fromarray(f).resize(size, Image.BILINEAR) for f in frames]
+    imgs = [Image.fromarray(gif_frame(f, width)) for f in frames]
     with atomic_path(path) as tmp:
         imgs[0].save(tmp, format="GIF", save_all=True, append_images=imgs[1:], duration=round(1000 / fps), loop=0)
     return Path(path)

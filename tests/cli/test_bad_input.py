@@ -61,7 +61,7 @@ OPTION_CASES = [
     ("object-radius-negative", ["--object-radius", "-1"], r"--object-radius must be"),
     ("up-zero", ["--up", "0", "0", "0"], r"--up must be three finite numbers"),
     ("up-nan", ["--up", "nan", "0", "1"], r"--up must be"),
-    ("device-tpu", ["--device", "tpu"], r"--device must be 'cpu' or 'cuda'"),
+    ("device-tpu", ["--device", "tpu"], r"--device must be 'cpu', 'cuda' or 'cuda:N', got 'tpu'"),
     ("name-path", ["--name", "../evil"], r"--name must be 1-100 letters"),
     ("name-empty", ["--name", ""], r"--name must be"),
     ("preview-size", ["--preview", "--preview-size", "8", "270"],
@@ -83,6 +83,18 @@ OPTION_CASES = [
     ("go-to-nonsense", ["--go-to", "xyzzy"], r"no object matches 'xyzzy' .* objects: "),
     ("go-to-shared-adjective", ["--go-to", "the red elephant"], r"no object matches 'the red elephant'"),
     ("then-go-to-nonsense", ["--then-go-to", "purple elephant"], r"no object matches 'purple elephant'"),
+    # issue 38: checks that need no scene, before loading; limits the machine sets
+    ("start-nan", ["--start", "nan 0 0"], r"--start must be a point 'x y z' of three finite numbers"),
+    ("then-go-to-nan", ["--then-go-to", "0 inf 0"], r"go-to point '0 inf 0' is not finite \(--then-go-to \(stop 2\)\)"),
+    ("then-go-to-repeat", ["--then-go-to", "Armchair "], r"--then-go-to \(stop 2\) 'Armchair ' repeats the stop before "
+                                                        r"it \(--go-to\)"),
+    ("then-go-to-repeat-point", ["--go-to", "0.1 0 0.5", "--then-go-to", "0.1, 0, 0.5"], r"repeats the stop before"),
+    ("device-cuda-index", ["--device", "cuda:99"], r"--device cuda:99: (no CUDA device here|this machine has)"),
+    ("device-mps", ["--device", "mps"], r"--device must be 'cpu', 'cuda' or 'cuda:N', got 'mps'"),
+    ("name-300", ["--name", "x" * 300], r"--name must be 1-100 letters"),
+    ("output-proc", ["--output-dir", "/proc/cinesplat"], r"--output-dir /proc/cinesplat: cannot write into /proc"),
+    ("memory-budget-huge", ["--memory-budget-mb", "1000000"],
+     r"--memory-budget-mb 1e\+06 is more than the memory available to this process \(about \d+ MB"),
 ]
 
 
@@ -183,6 +195,98 @@ def test_output_dir_that_is_not_a_folder(where, tmp_path, capsys):
     code, o, e, dt = _run(SCENE + TARGETS + ["--output-dir", str(out)], capsys, tmp_path / "never")
     _check(code, o, e, dt, r"--output-dir .* (is a file|not a folder)", tmp_path / "never")
     assert f.read_text() == "keep me"
+
+
+NO_SCENE_CASES = ["start-nan", "then-go-to-nan", "then-go-to-repeat", "then-go-to-repeat-point", "device-cuda-index",
+                  "device-mps", "name-300", "output-proc", "up-zero", "go-to-nan"]
+
+
+@pytest.mark.parametrize("case", NO_SCENE_CASES)
+def test_checks_that_need_no_scene_come_before_loading(case, tmp_path, capsys, monkeypatch):
+    """The README's promise: every option that can be judged without the scene is judged before it is loaded."""
+    import cinenerf_ns.cli.plan as plan
+
+    monkeypatch.setattr(plan, "load_scene", lambda *a, **k: pytest.fail("the scene was loaded first"))
+    _, extra, regex = next(c for c in OPTION_CASES if c[0] == case)
+    out = tmp_path / "out"
+    code, o, e, dt = _run(SCENE + TARGETS + ["--output-dir", str(out)] + extra, capsys, out)
+    _check(code, o, e, dt, regex, out)
+
+
+def test_file_size_limit_fails_before_planning(tmp_path):
+    """A file-size limit too small for the outputs is refused first, naming the folder (it once failed after the
+    whole plan with the OS's words)."""
+    import subprocess
+    import sys
+
+    repo = Path(__file__).resolve().parents[2]
+    out = tmp_path / "out"
+    code = ("import resource, sys; resource.setrlimit(resource.RLIMIT_FSIZE, (100_000, 100_000)); "
+            "from cinenerf_ns.cli.plan import main; sys.exit(main(sys.argv[1:]))")
+    env = {**os.environ, "PYTHONPATH": str(repo)}
+    r = subprocess.run([sys.executable, "-c", code, *SCENE, *TARGETS, "--output-dir", str(out)], cwd=repo,
+                       capture_output=True, text=True, timeout=HANG_GUARD_S, env=env)
+    err = " ".join(r.stderr.split())
+    assert r.returncode == 2 and "Traceback" not in err, err
+    assert f"--output-dir {out}: the file-size limit (ulimit -f) is 100000 bytes" in err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("sig,code,word", [("SIGTERM", 143, "terminated (SIGTERM)"),
+                                           ("SIGHUP", 129, "hung up (SIGHUP)")])
+def test_signals_while_writing_leave_nothing_behind(tmp_path, sig, code, word):
+    """SIGTERM / SIGHUP while the outputs are being staged (a long preview) end like Ctrl-C: one line, exit 128 +
+    signal, no .partial folder or temporary file, no traceback."""
+    import signal
+    import subprocess
+    import sys
+
+    repo = Path(__file__).resolve().parents[2]
+    out = tmp_path / "out"
+    p = subprocess.Popen([sys.executable, "-m", "cinenerf_ns.cli.plan", *SCENE, *TARGETS, "--output-dir", str(out),
+                          "--preview", "--preview-size", "1024", "1024", "--preview-fps", "120"], cwd=repo,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                         env={**os.environ, "PYTHONPATH": str(repo)})
+    t0 = time.monotonic()
+    while p.poll() is None and time.monotonic() - t0 < 2 * HANG_GUARD_S:
+        if out.exists() and any(f.name.startswith(".shot.partial-") for f in out.iterdir()):
+            break
+        time.sleep(0.05)
+    time.sleep(0.5)
+    p.send_signal(getattr(signal, sig))
+    _, err = p.communicate(timeout=HANG_GUARD_S)
+    assert p.returncode == code, err[-2000:]
+    assert "Traceback" not in err and f"cinesplat-plan: {word}; no output was written" in err, err[-2000:]
+    assert not out.exists() or not any(out.iterdir()), list(out.iterdir())
+
+
+def test_workers_are_capped_and_said(tmp_path, capsys, monkeypatch):
+    import cinenerf_ns.cli.plan as plan
+    import cinenerf_ns.planner.shots.workers as workers
+
+    monkeypatch.setattr(workers, "usable_cpus", lambda: 2)
+    args = plan.PlanArgs(scene="procedural", go_to="sofa", look_at="lamp", workers=256, candidates=4)
+    console = plan.Console(file=open(os.devnull, "w"), width=200, record=True)
+    assert plan._workers(args, console) == 2
+    assert "--workers 256 capped to 2 (2 usable CPUs, 4 candidate(s))" in console.export_text()
+    args.candidates = 1
+    assert plan._workers(args, console) == 1
+    monkeypatch.setattr(workers, "default_workers", lambda: 16)  # the default: one per CPU, capped by candidates
+    args.workers, args.candidates = None, 4
+    assert plan._workers(args, console) == 4
+    args.candidates = 1
+    assert plan._workers(args, console) == 0
+    args.candidates = 32
+    assert plan._workers(args, console) is None
+
+
+@pytest.mark.parametrize("up,want", [((0, 1e300, 0), (0, 1, 0)), ((0, 0, 5e-320), (0, 0, 1)),
+                                     ((1e308, 1e308, 0), (2 ** -0.5, 2 ** -0.5, 0)), ((0, 0, -2), (0, 0, -1))])
+def test_up_is_normalised_without_overflow(up, want):
+    """--up 0 1e300 0 is +y (its norm once overflowed to inf and the camera rolled, exit 0)."""
+    from cinenerf_ns.cli.plan import unit_up
+
+    np.testing.assert_allclose(unit_up(up), want, atol=1e-12)
 
 
 def test_suite_is_at_least_sixty_cases(tmp_path):
@@ -321,7 +425,7 @@ def test_label_names_and_embeddings_that_disagree_are_refused(tmp_path, capsys):
     out = tmp_path / "out"
     code, o, e, dt = _run(["--scene", str(scene), "--go-to", "thing 1", "--look-at", "0 0 0.2", "--output-dir",
                            str(out)], capsys, out)
-    _check(code, o, e, dt, r"3 label names .* but 2 label embeddings", out)
+    _check(code, o, e, dt, r"label_embeddings has 2 rows but label_names lists 3 names", out)  # refused at load
 
 
 @pytest.mark.parametrize("clip,advice", [
@@ -341,3 +445,21 @@ def test_free_text_without_loadable_clip_weights_gets_advice_for_this_command(cl
                            rf"loaded here: .*{advice}.*; otherwise type one of the scene's label names "
                            r"\(thing 0, thing 1\) or give the target as a point 'x y z'", out)
     assert "--pipeline" not in e
+
+
+def test_memory_budget_is_trusted_up_to_the_memory_available(monkeypatch):
+    """An explicit budget over what the process may take is refused; the default is lowered to it, said."""
+    import cinenerf_ns.cli.plan as plan
+
+    monkeypatch.setattr(plan, "available_memory_mb", lambda: 1000.0)
+    console = plan.Console(file=open(os.devnull, "w"), width=200, record=True)
+    args = plan.PlanArgs(scene="procedural", go_to="sofa", look_at="lamp")
+    assert plan._memory_budget(args, console) == 1000.0
+    assert "note: memory budget 1000 MB (the default 4096 MB is more than the memory available" in console.export_text()
+    args.memory_budget_mb = 512.0
+    assert plan._memory_budget(args, console) == 512.0
+    args.memory_budget_mb = 2000.0
+    with pytest.raises(plan.InvalidInputError, match=r"--memory-budget-mb 2000 is more than .* give at most 1000"):
+        plan._memory_budget(args, console)
+    monkeypatch.setattr(plan, "available_memory_mb", lambda: None)  # unknown: the budget as given
+    assert plan._memory_budget(args, console) == 2000.0

@@ -149,3 +149,17 @@ def test_contact_sheet_tiles_are_thumbnails_of_the_frames():
     assert np.abs(tile.astype(int) - expect.astype(int))[inner].max() <= 2
     small = [f[:90, :160] for f in big]
     assert contact_sheet(small, [""] * 6).shape == (2 * 90 + 12, 3 * 160 + 16, 3)  # small frames stay as they are
+
+
+def test_gif_keeps_small_frames_and_a_bounded_count():
+    """A GIF's frames are held until it is written: kept at its own width (240), at most MAX_GIF_FRAMES of them."""
+    from cinenerf_ns.planner.errors import InvalidInputError
+    from cinenerf_ns.preview.preview import MAX_GIF_FRAMES, check_gif_frames
+    from cinenerf_ns.preview.video import gif_frame
+
+    assert gif_frame(np.zeros((2160, 3840, 3), np.uint8)).shape == (135, 240, 3)
+    small = np.zeros((30, 240, 3), np.uint8)
+    assert gif_frame(small) is small
+    check_gif_frames(MAX_GIF_FRAMES)
+    with pytest.raises(InvalidInputError, match=f"at most {MAX_GIF_FRAMES} frames, this one has {MAX_GIF_FRAMES + 1}"):
+        check_gif_frames(MAX_GIF_FRAMES + 1)

@@ -148,10 +148,15 @@ class EllipsoidScene:
             )
         idx = torch.nonzero(keep).squeeze(-1)
         if idx.numel() == 0:
-            raise EmptySceneError(
-                f"no obstacle left: all {n} Gaussians were dropped (opacity floor {cfg.opacity_floor}, "
-                f"degenerate parameters); lower --opacity-floor or check the scene file"
-            )
+            n_faint = int((finite & ~huge & faint).sum())
+            why = [f"{k} {what}" for k, what in (
+                (n_bad, "have NaN/inf positions, rotations or opacities (or zero quaternions)"),
+                (n_huge, "have infinite scales" + ("" if cfg.max_axis is None else f" or a semi-axis over "
+                                                   f"max_axis {cfg.max_axis:g}")),
+                (n_faint, f"are fainter than the opacity floor {cfg.opacity_floor:g} (--opacity-floor)")) if k]
+            fix = ("lower --opacity-floor" if n_faint == n else
+                   "the scene file's values are unusable: check or re-export it")
+            raise EmptySceneError(f"no obstacle left: of {n} Gaussians, {'; '.join(why)}; {fix}")
         return cls(
             means=means[idx],
             rotations=quat_wxyz_to_rotmat(quats[idx]),

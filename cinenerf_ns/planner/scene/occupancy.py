@@ -151,6 +151,10 @@ def build_occupancy(
     lo, voxel, dims = _grid_geometry(scene, resolution, bounds, padding)
     dev = scene.device
     X, Y, Z = (int(d) for d in dims)
+    if _one_covers_the_box(scene, lo, lo + dims.double() * voxel):
+        # every voxel is occupied; rasterising would cost one column per ellipsoid and grid column (a splat whose
+        # Gaussians are all larger than the scene: minutes of work for this same answer)
+        return OccupancyGrid(lo=lo, voxel_size=voxel, occupied=torch.ones(X, Y, Z, dtype=torch.bool, device=dev))
     rho = scene.camera_radius + 0.5 * math.sqrt(3.0) * voxel
     diff = torch.zeros(X * Y * (Z + 1), dtype=torch.int32, device=dev)
     # s samples per ellipsoid: s = h / (h + rho), h log-spaced in [a_min, a_max]
@@ -175,6 +179,18 @@ def build_occupancy(
         start = end
     occ = torch.cumsum(diff.view(X, Y, Z + 1), dim=2)[:, :, :Z] > 0
     return OccupancyGrid(lo=lo, voxel_size=voxel, occupied=occ)
+
+
+def _one_covers_the_box(scene: EllipsoidScene, lo: Tensor, hi: Tensor) -> bool:
+    """Whether one ellipsoid holds the whole box [lo, hi] (its 8 corners; an ellipsoid is convex)."""
+    if len(scene) == 0:
+        return False
+    c = torch.stack(torch.meshgrid(*[torch.stack([lo[k], hi[k]]) for k in range(3)], indexing="ij"), -1).reshape(8, 3)
+    big = scene.radii.double().min(-1).values >= 0.5 * float((hi - lo).min())  # narrower ones cannot
+    if not bool(big.any()):
+        return False
+    d = (c[None] - scene.means[big].double()[:, None]) @ scene.rotations[big].double()  # [B, 8, 3] in the axes
+    return bool((((d / scene.radii[big].double()[:, None]) ** 2).sum(-1) <= 1.0).all(-1).any())
 
 
 def _mark_chunk(scene, a, b, span, i_lo, lo, voxel, dims, rho, t, diff) -> None:

@@ -66,11 +66,26 @@ def planning_bounds(scene: "EllipsoidScene", cfg: "PlannerConfig") -> tuple[Tens
     lo, hi = lo - pad, hi + pad
     if cfg.start_region is not None:  # the capture's cameras: the region that matters
         slo, shi = (torch.as_tensor(np.asarray(v, dtype=np.float64), device=dev).reshape(3) for v in cfg.start_region)
+        check_start_region(slo.cpu().numpy(), shi.cpu().numpy())
         grow = cfg.region_padding * float((shi - slo).max())
         inner = scene.camera_radius + 1e-6  # the start region itself always fits
         lo = torch.minimum(torch.maximum(lo, slo - grow), slo - inner)
         hi = torch.maximum(torch.minimum(hi, shi + grow), shi + inner)
     return lo, hi
+
+
+def check_start_region(lo: np.ndarray, hi: np.ndarray) -> None:
+    """InvalidInputError naming the cause when a start region (the training cameras' box) is not finite or is
+    inverted (lo above hi on an axis): the planning region cut to it would be empty."""
+    lo, hi = np.asarray(lo, dtype=np.float64).reshape(-1), np.asarray(hi, dtype=np.float64).reshape(-1)
+    if lo.shape != (3,) or hi.shape != (3,) or not (np.isfinite(lo).all() and np.isfinite(hi).all()):
+        raise InvalidInputError(f"the start region (the training cameras' box) must be two finite points (lo, hi), "
+                                f"got {lo.tolist()}, {hi.tolist()}")
+    bad = np.flatnonzero(lo > hi)
+    if bad.size:
+        axes = ", ".join("xyz"[i] for i in bad)
+        raise InvalidInputError(f"the start region (the training cameras' box) is inverted along {axes}: lo "
+                                f"{format_point(lo)} is above hi {format_point(hi)} there (a damaged scene file?)")
 
 
 def check_region(cfg: "PlannerConfig", camera_radius: float, lo: np.ndarray, hi: np.ndarray) -> None:
@@ -116,7 +131,9 @@ def grid_region(grid) -> tuple[np.ndarray, np.ndarray]:
 
 def distance_outside(lo: np.ndarray, hi: np.ndarray, point: np.ndarray) -> float:
     """Euclidean distance [scene units] from a point [3] to the box [lo, hi] (0 inside)."""
-    return float(np.linalg.norm(np.maximum(np.maximum(lo - point, point - hi), 0.0)))
+    d = np.maximum(np.maximum(lo - point, point - hi), 0.0)
+    big = float(np.abs(d).max()) if d.size else 0.0
+    return 0.0 if big == 0.0 else big * float(np.linalg.norm(d / big))  # scaled: 1e300 away is no overflow warning
 
 
 def checked_point(point: ArrayLike, what: str, lo: np.ndarray, hi: np.ndarray, far_limit: float) -> np.ndarray:

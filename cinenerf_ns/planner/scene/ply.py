@@ -2,19 +2,23 @@
 
 Why our own reader: a scene file may be anything a user points the tools at. ``read_ply_vertices`` checks every size a
 header claims against the file before it allocates or reads (a count of 10^12 vertices in a small file is refused at
-once, with the file named), and reports every malformed header or body as one InvalidInputError that says what is
-wrong; plyfile trusts the header and fails with its own exceptions (and is not in the GPU machines' wheel set). Splat
-scenes (``read_splat_ply``), training seed point clouds (synthetic/dataset.py, method/compat.py) and the viewer all
-read through it; ``write_ply_vertices`` is the one writer.
+once, with the file named), requires the body to hold exactly what the header declares (too few or too many rows and
+trailing bytes are refused: a scene read in part would be planned through the objects it left out), and reports every
+malformed header or body as one InvalidInputError that says what is wrong; plyfile trusts the header and fails with
+its own exceptions (and is not in the GPU machines' wheel set). Splat scenes (``read_splat_ply``), training seed point
+clouds (synthetic/dataset.py, method/compat.py) and the viewer all read through it; ``write_ply_vertices`` is the one
+writer.
 
 The 3DGS layout (Kerbl et al., also written by ``ns-export gaussian-splat``) is one ``vertex`` element
 with float properties ``x y z`` (means), ``scale_0..2`` (log scales), ``rot_0..3`` (quaternion, wxyz),
 ``opacity`` (logit), ``f_dc_0..2`` (SH DC colour) and ``f_rest_*`` (higher SH bands); ``nx ny nz``
 are usually present and unused. A file without ``f_dc_*`` may colour its Gaussians with ``red green blue``.
-Binary (little or big endian) and ascii bodies are read.
+Binary (little or big endian, returned in native byte order) and ascii bodies (numpy's parser, up to MAX_ASCII_BYTES)
+are read.
 """
 from __future__ import annotations
 
+import io
 import os
 import re
 from pathlib import Path
@@ -24,6 +28,7 @@ import numpy as np
 
 from ..atomic import atomic_write
 from ..errors import InvalidInputError
+from ..file_checks import path_problem
 from .splat_params import SplatParams, rgb_to_dc
 
 _PLY_TYPES = {
@@ -95,6 +100,10 @@ def _parse_header(f, path: Path):
         raise InvalidInputError(f"{path}: .ply header has no 'end_header' in {_MAX_HEADER_LINES} lines")
     if fmt not in ("binary_little_endian", "binary_big_endian", "ascii"):
         raise InvalidInputError(f"{path}: unsupported .ply format {fmt!r}")
+    enames = [name for name, _, _ in elements]
+    if len(set(enames)) != len(enames):
+        raise InvalidInputError(f"{path}: .ply header declares the element(s) "
+                                f"{sorted({n for n in enames if enames.count(n) > 1})} more than once")
     for name, _, props in elements:
         names = [p for p, _ in props]
         dup = sorted({p for p in names if names.count(p) > 1})
@@ -104,22 +113,44 @@ def _parse_header(f, path: Path):
 
 
 def read_ply_vertices(path: Union[str, Path]) -> np.ndarray:
-    """The ``vertex`` element of a .ply file as a numpy structured array [N]."""
+    """The ``vertex`` element of a .ply file as a numpy structured array [N] (native byte order). The body must
+    hold exactly what the header declares: too few or too many rows, or bytes after the last element, are refused
+    with the file named (a truncated or padded scene is never read in part)."""
     path = Path(path)
-    if path.is_dir():
-        raise InvalidInputError(f"{path} is a folder, not a .ply file")
-    if not path.is_file():
-        raise InvalidInputError(f"scene file not found: {path}")
+    problem = path_problem(path)
+    if problem is not None:
+        raise InvalidInputError(f"scene file {path} {problem}")
     with open(path, "rb") as f:
         fmt, elements = _parse_header(f, path)
         data_bytes = os.fstat(f.fileno()).st_size - f.tell()
+        if not any(name == "vertex" for name, _, _ in elements):
+            raise InvalidInputError(f"{path}: .ply file has no 'vertex' element")
         if fmt == "ascii":
             return _read_ascii(f, path, elements, data_bytes)
         return _read_binary(f, path, "<" if fmt == "binary_little_endian" else ">", elements, data_bytes)
 
 
+MAX_ASCII_BYTES = 1 << 30  # an ascii .ply body over 1 GiB is refused (binary is ~3x smaller and read at disk speed)
+
+
 def _read_ascii(f, path: Path, elements, data_bytes: int) -> np.ndarray:
-    """The vertex rows of an ascii .ply body (one line per element row)."""
+    """The vertex rows of an ascii .ply body (one line per element row, every element's rows counted)."""
+    total = sum(count for _, count, _ in elements)
+    if total * 2 > data_bytes + 1:  # a row is at least one digit and a newline
+        raise InvalidInputError(f"{path}: .ply header declares {total} rows but the file's ascii data is only "
+                                f"{data_bytes} bytes (truncated file?)")
+    if data_bytes > MAX_ASCII_BYTES:
+        raise InvalidInputError(f"{path}: ascii .ply body of {data_bytes / 2**20:.0f} MiB is over the "
+                                f"{MAX_ASCII_BYTES >> 20} MiB this tool reads as text; convert it to a binary .ply")
+    body = f.read().rstrip()
+    ends = np.flatnonzero(np.frombuffer(body, np.uint8) == ord("\n"))
+    lines = len(ends) + 1 if body else 0
+    if lines != total:
+        what = "fewer" if lines < total else "more"
+        raise InvalidInputError(f"{path}: .ply header declares {total} data rows "
+                                f"({', '.join(f'{c} {n!r}' for n, c, _ in elements)}) but the ascii body has "
+                                f"{lines} lines: {what} rows than declared (truncated file, or a header count that "
+                                f"does not match the data)")
     pos = 0
     for name, count, props in elements:
         if name != "vertex":
@@ -127,60 +158,108 @@ def _read_ascii(f, path: Path, elements, data_bytes: int) -> np.ndarray:
             continue
         if any(isinstance(t, tuple) for _, t in props):
             raise InvalidInputError(f"{path}: list properties in 'vertex' are not supported")
-        if (pos + count) * 2 > data_bytes + 1:  # a row is at least one digit and a newline
-            raise InvalidInputError(f"{path}: .ply header claims {count} vertices but the file's ascii data is "
-                                    f"{data_bytes} bytes (truncated file?)")
-        lines = f.read().decode("ascii", errors="replace").splitlines()
-        rows = [ln.split() for ln in lines[pos:pos + count]]
-        if len(rows) != count:
-            raise InvalidInputError(f"{path}: .ply header claims {count} vertices but {len(rows)} ascii data lines "
-                                    f"follow (truncated file?)")
-        for i, r in enumerate(rows):
-            if len(r) != len(props):
-                raise InvalidInputError(f"{path}: ascii vertex {i} has {len(r)} values, the header declares "
-                                        f"{len(props)} properties")
+        first = 0 if pos == 0 else int(ends[pos - 1]) + 1
+        last = len(body) if pos + count >= lines else int(ends[pos + count - 1])
         arr = np.empty(count, dtype=np.dtype([(p, t) for p, t in props]))
+        if count == 0:
+            return arr
         try:
-            data = np.asarray(rows, dtype=np.float64).reshape(count, len(props))
+            data = np.loadtxt(io.BytesIO(body[first:last]), dtype=np.float64, comments=None, ndmin=2)
         except ValueError:
-            i, v = next((i, v) for i, r in enumerate(rows) for v in r if not _is_number(v))
-            raise InvalidInputError(f"{path}: ascii vertex {i}: {v[:40]!r} is not a number") from None
-        for k, (p, _) in enumerate(props):
-            arr[p] = data[:, k]
+            raise InvalidInputError(f"{path}: {_ascii_problem(body[first:last], len(props))}") from None
+        if data.shape != (count, len(props)):
+            raise InvalidInputError(f"{path}: ascii vertex data has {data.shape[0]} rows of {data.shape[1]} values; "
+                                    f"the header declares {count} rows of {len(props)} properties (blank lines?)")
+        for k, (p, t) in enumerate(props):
+            col = data[:, k]
+            if np.dtype(t).kind in "iu":  # an integer property takes whole numbers in its range, never wrapped
+                lim = np.iinfo(np.dtype(t))
+                bad = np.flatnonzero(~((col == np.round(col)) & (col >= lim.min) & (col <= lim.max)))
+                if bad.size:
+                    raise InvalidInputError(f"{path}: ascii vertex {bad[0]}: {p} = {col[bad[0]]:g} does not fit its "
+                                            f"type {_PLY_NAMES[t]} (whole numbers in [{lim.min}, {lim.max}])")
+            arr[p] = col
         return arr
-    raise InvalidInputError(f"{path}: .ply file has no 'vertex' element")
+    raise AssertionError("unreachable: the vertex element was checked")
 
 
-def _is_number(v: str) -> bool:
-    try:
-        float(v)
-    except ValueError:
-        return False
-    return True
+def _ascii_problem(block: bytes, nprops: int) -> str:
+    """Where an ascii vertex block that numpy could not parse goes wrong (the error path only: a Python scan)."""
+    for i, line in enumerate(block.splitlines()):
+        vals = line.split()
+        if len(vals) != nprops:
+            return f"ascii vertex {i} has {len(vals)} values, the header declares {nprops} properties"
+        for v in vals:
+            try:
+                float(v)
+            except ValueError:
+                return f"ascii vertex {i}: {v[:40].decode('ascii', 'replace')!r} is not a number"
+    return "unreadable ascii vertex data"
+
+
+def _element_bytes(buf: bytes, offset: int, name: str, count: int, props, endian: str, path: Path) -> int:
+    """Bytes the ``count`` rows of an element take in a binary body from ``offset``, list properties walked."""
+    if not any(isinstance(t, tuple) for _, t in props):
+        return np.dtype([(p, endian + t) for p, t in props]).itemsize * count
+    start = offset
+    for row in range(count):
+        for _, t in props:
+            if not isinstance(t, tuple):
+                offset += np.dtype(t).itemsize
+                continue
+            ct, it = np.dtype(endian + t[1]), np.dtype(t[2])
+            if offset + ct.itemsize > len(buf):
+                raise InvalidInputError(f"{path}: truncated .ply: element {name!r} row {row} of {count} runs past "
+                                        f"the end of the file")
+            n = int(np.frombuffer(buf, dtype=ct, count=1, offset=offset)[0])
+            if n < 0:
+                raise InvalidInputError(f"{path}: .ply element {name!r} row {row}: negative list length {n}")
+            offset += ct.itemsize + n * it.itemsize
+        if offset > len(buf):
+            break
+    return offset - start
 
 
 def _read_binary(f, path: Path, endian: str, elements, data_bytes: int) -> np.ndarray:
-    """The vertex rows of a binary .ply body; claimed sizes are checked against the file size before reading."""
-    offset = 0
+    """The vertex rows of a binary .ply body; the header's sizes are checked against the file size before reading,
+    and the elements must fill the body exactly."""
+    low = 0  # the body's size without list properties: a lower bound, checked before anything is read
     for name, count, props in elements:
-        if any(isinstance(t, tuple) for _, t in props):
-            if name == "vertex":
-                raise InvalidInputError(f"{path}: list properties in 'vertex' are not supported")
-            raise InvalidInputError(
-                f"{path}: element {name!r} with list properties precedes 'vertex'; cannot locate vertex data"
-            )
-        dt = np.dtype([(p, endian + t) for p, t in props])
-        need = dt.itemsize * count
-        if offset + need > data_bytes:
+        if not any(isinstance(t, tuple) for _, t in props):
+            need = np.dtype([(p, endian + t) for p, t in props]).itemsize * count
+            if low + need > data_bytes:
+                raise InvalidInputError(
+                    f"{path}: truncated .ply: the header's {count} {name!r} rows need {need} bytes, "
+                    f"found {max(data_bytes - low, 0)} (header count too large or file cut short)")
+            low += need
+    fixed = not any(isinstance(t, tuple) for _, _, props in elements for _, t in props)
+    if fixed and low != data_bytes:  # the exact size is known: refused before a byte of a padded file is read
+        _trailing(path, data_bytes - low, elements)
+    buf = f.read()
+    offset, vertex = 0, None
+    for name, count, props in elements:
+        need = _element_bytes(buf, offset, name, count, props, endian, path)
+        if offset + need > len(buf):
             raise InvalidInputError(
                 f"{path}: truncated .ply: the header's {count} {name!r} rows need {need} bytes, "
-                f"found {max(data_bytes - offset, 0)} (header count too large or file cut short)"
-            )
+                f"found {max(len(buf) - offset, 0)} (header count too large or file cut short)")
         if name == "vertex":
-            f.seek(offset, os.SEEK_CUR)
-            return np.frombuffer(f.read(need), dtype=dt, count=count)
+            if any(isinstance(t, tuple) for _, t in props):
+                raise InvalidInputError(f"{path}: list properties in 'vertex' are not supported")
+            dt = np.dtype([(p, endian + t) for p, t in props])
+            native = np.dtype([(p, t) for p, t in props])  # big-endian files: torch takes native order only
+            vertex = np.frombuffer(buf, dtype=dt, count=count, offset=offset).astype(native, copy=False)
         offset += need
-    raise InvalidInputError(f"{path}: .ply file has no 'vertex' element")
+    if offset != len(buf):
+        _trailing(path, len(buf) - offset, elements)
+    return vertex
+
+
+def _trailing(path: Path, extra: int, elements) -> None:
+    raise InvalidInputError(
+        f"{path}: .ply holds {extra} bytes after the last element its header declares "
+        f"({', '.join(f'{c} {n!r}' for n, c, _ in elements)}): the header's counts do not match the data "
+        f"(a header count too small, or a padded or concatenated file); refusing to read it in part")
 
 
 def unit_rgb(rgb: np.ndarray) -> np.ndarray:

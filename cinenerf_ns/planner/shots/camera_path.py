@@ -28,6 +28,7 @@ import numpy as np
 
 from ..atomic import atomic_write
 from ..errors import InvalidInputError
+from ..file_checks import path_problem
 from .shot import Shot
 
 REQUIRED_KEYS = ("camera_type", "render_height", "render_width", "seconds", "camera_path")
@@ -108,24 +109,95 @@ def shot_to_camera_path(
     }
 
 
-def validate_camera_path(d: Dict[str, Any]) -> None:
-    """Raise InvalidInputError unless d has what ns-render and the viewer's Load Path read."""
+MAX_PATH_FRAMES = 200_000  # frames a camera path may hold (ours: at most TimingConfig.max_frames)
+MAX_TRANSLATION = 1e5  # scene units: a camera farther from the origin is a corrupt or mis-scaled path
+MAX_SECONDS = 1e7  # a camera path's duration, seconds (115 days: any more is a corrupt file)
+MAX_RENDER_SIZE = 16384  # render_width / render_height, pixels
+MAX_CAMERA_PATH_BYTES = 256 << 20  # a camera-path JSON file larger than this is refused before it is read
+
+
+def _number(v: Any) -> bool:
+    """A JSON number: int or float, not a bool, not a string."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _pose(m: Any, where: str) -> None:
+    """InvalidInputError unless ``m`` is 16 finite numbers, row-major 4x4, whose 3x3 block is a rotation and whose
+    translation is bounded: a camera pose (an all-zero or 1e30 matrix renders blank frames)."""
+    if not isinstance(m, list) or len(m) != 16 or not all(_number(v) for v in m):
+        got = type(m).__name__ if not isinstance(m, list) else f"a list of {len(m)}" + (
+            "" if all(_number(v) for v in m) else " with non-numbers (numbers must not be strings)")
+        raise InvalidInputError(f"camera path {where} must be 16 numbers (row-major 4x4), got {got}.")
+    try:
+        a = np.asarray(m, dtype=np.float64).reshape(4, 4)
+    except OverflowError:
+        a = np.full((4, 4), np.inf)
+    if not np.isfinite(a).all():
+        raise InvalidInputError(f"camera path {where} has a non-finite value.")
+    R, t = a[:3, :3], a[:3, 3]
+    if np.abs(R.T @ R - np.eye(3)).max() > 1e-3:
+        det = float(np.linalg.det(R))
+        raise InvalidInputError(f"camera path {where} is not a camera pose: its 3x3 block must be a rotation "
+                                f"(orthonormal columns, no scale or shear), got determinant {det:.3g}"
+                                + (" (a singular matrix)" if abs(det) < 1e-9 else "") + ".")
+    if np.abs(t).max() > MAX_TRANSLATION:
+        raise InvalidInputError(f"camera path {where} puts the camera {np.abs(t).max():.3g} scene units from the "
+                                f"origin (at most {MAX_TRANSLATION:g}): a corrupt or mis-scaled path.")
+
+
+def validate_camera_path(d: Any) -> None:
+    """Raise InvalidInputError unless d is what ns-render and the viewer's Load Path read: a JSON object with
+    camera_type (text), render_width / render_height (whole numbers), seconds (a positive number) and camera_path (a
+    list of frame objects, each with camera_to_world: a camera pose, and fov in (0, 180)); optional keyframes
+    (objects with a 16-number matrix, fov and aspect). Numbers must be JSON numbers, not strings."""
+    if not isinstance(d, dict):
+        raise InvalidInputError(f"camera path must be a JSON object (a nerfstudio camera path), got "
+                                f"{'a list' if isinstance(d, list) else type(d).__name__}.")
     missing = [k for k in REQUIRED_KEYS if k not in d]
     if missing:
         raise InvalidInputError(f"camera path is missing {missing}.")
-    if not d["camera_path"]:
+    if not isinstance(d["camera_type"], str):
+        raise InvalidInputError(f"camera path camera_type must be text, got {d['camera_type']!r:.40}.")
+    for k in ("render_width", "render_height"):
+        v = d[k]
+        if not (_number(v) and 1 <= v <= MAX_RENDER_SIZE and float(v) == int(v)):
+            raise InvalidInputError(f"camera path {k} must be a whole number in [1, {MAX_RENDER_SIZE}], got "
+                                    f"{v!r:.40}.")
+    sec = d["seconds"]
+    if not (_number(sec) and 0 < sec <= MAX_SECONDS):  # Python compares a huge JSON integer without overflow
+        raise InvalidInputError(f"camera path seconds must be a positive number up to {MAX_SECONDS:g}, got "
+                                f"{sec!r:.40}.")
+    frames = d["camera_path"]
+    if not isinstance(frames, list):
+        raise InvalidInputError(f"camera path camera_path must be a list of frames, got {type(frames).__name__}.")
+    if not frames:
         raise InvalidInputError("camera path has no frames.")
-    for i, frame in enumerate(d["camera_path"]):
-        m = frame.get("camera_to_world")
-        if m is None or len(m) != 16 or "fov" not in frame:
-            raise InvalidInputError(f"camera path frame {i} needs camera_to_world (16 floats) and fov.")
-        if not all(math.isfinite(float(v)) for v in m):
-            raise InvalidInputError(f"camera path frame {i} has a non-finite camera_to_world.")
-    for i, kf in enumerate(d.get("keyframes", [])):
-        if len(kf.get("matrix", [])) != 16 or "fov" not in kf or "aspect" not in kf:
-            raise InvalidInputError(f"camera path keyframe {i} needs matrix (16 floats), fov and aspect.")
-    if not (float(d["seconds"]) > 0):
-        raise InvalidInputError(f"camera path seconds must be positive, got {d['seconds']}.")
+    if len(frames) > MAX_PATH_FRAMES:
+        raise InvalidInputError(f"camera path has {len(frames)} frames, more than {MAX_PATH_FRAMES}.")
+    for i, frame in enumerate(frames):
+        if not isinstance(frame, dict):
+            raise InvalidInputError(f"camera path frame {i} must be an object with camera_to_world and fov, got "
+                                    f"{'a list' if isinstance(frame, list) else type(frame).__name__}.")
+        if "camera_to_world" not in frame or "fov" not in frame:
+            raise InvalidInputError(f"camera path frame {i} needs camera_to_world (16 numbers) and fov.")
+        _pose(frame["camera_to_world"], f"frame {i} camera_to_world")
+        fov = frame["fov"]
+        if not (_number(fov) and 0 < fov < 180):
+            raise InvalidInputError(f"camera path frame {i} fov must be a number in (0, 180) degrees, got "
+                                    f"{fov!r:.40}.")
+    if "default_fov" in d and not (_number(d["default_fov"]) and 0 < d["default_fov"] < 180):
+        raise InvalidInputError(f"camera path default_fov must be a number in (0, 180) degrees, got "
+                                f"{d['default_fov']!r:.40}.")
+    kfs = d.get("keyframes", [])
+    if not isinstance(kfs, list):
+        raise InvalidInputError(f"camera path keyframes must be a list, got {type(kfs).__name__}.")
+    for i, kf in enumerate(kfs):
+        if not isinstance(kf, dict) or not all(k in kf for k in ("matrix", "fov", "aspect")):
+            raise InvalidInputError(f"camera path keyframe {i} needs matrix (16 numbers), fov and aspect.")
+        _pose(kf["matrix"], f"keyframe {i} matrix")
+        if not (_number(kf["fov"]) and 0 < kf["fov"] < 180 and _number(kf["aspect"]) and 0 < kf["aspect"] < 1e3):
+            raise InvalidInputError(f"camera path keyframe {i} fov must be in (0, 180) degrees and aspect a "
+                                    f"positive number.")
 
 
 def write_camera_path(path: Union[str, Path], d: Dict[str, Any]) -> Path:
@@ -138,13 +210,23 @@ def write_camera_path(path: Union[str, Path], d: Dict[str, Any]) -> Path:
 def read_camera_path(path: Union[str, Path]) -> Dict[str, Any]:
     """Read and validate a camera-path JSON."""
     path = Path(path)
-    if not path.is_file():
-        raise InvalidInputError(f"camera path file not found: {path}")
+    problem = path_problem(path)
+    if problem is not None:
+        raise InvalidInputError(f"camera path file {path} {problem}")
+    size = path.stat().st_size
+    if size > MAX_CAMERA_PATH_BYTES:
+        raise InvalidInputError(f"camera path {path} is {size / 2**20:.0f} MiB, over the "
+                                f"{MAX_CAMERA_PATH_BYTES >> 20} MiB a camera path may take")
     try:
         d = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as e:
-        raise InvalidInputError(f"camera path {path} is not valid JSON: {e}") from None
-    validate_camera_path(d)
+    except UnicodeDecodeError:
+        raise InvalidInputError(f"camera path {path} is not text (not UTF-8): not a camera-path JSON") from None
+    except (ValueError, RecursionError) as e:  # JSONDecodeError, integers of over 4300 digits, deep nesting
+        raise InvalidInputError(f"camera path {path} is not valid JSON: {str(e)[:200] or type(e).__name__}") from None
+    try:
+        validate_camera_path(d)
+    except InvalidInputError as e:
+        raise InvalidInputError(f"{path}: {e}") from None
     return d
 
 

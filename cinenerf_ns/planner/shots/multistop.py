@@ -142,8 +142,8 @@ def solve_through_stops(polytopes, waypoints: np.ndarray, start: np.ndarray, goa
     x, status, iters, outcome = (_solve_osqp if solver == "osqp" else _solve_clarabel)(qp, config)
     if outcome == "infeasible":
         raise CorridorInfeasibleError(
-            "no smooth trajectory through the stops fits inside the safe corridor; try fewer stops, a lower "
-            "continuity order or stops with more free space around them"
+            "no smooth trajectory through the stops fits inside the safe corridor; try fewer stops (--then-go-to), "
+            "stops with more free space around them, or a smaller --camera-radius / --safety-margin"
         )
     if outcome == "failed":
         raise TrajectorySolverError(f"the {solver} QP solver did not converge (status {status}).")

@@ -13,7 +13,7 @@ from torch import Tensor
 from .. import native
 from ..corridor.grid_polytope import VoxelObstacles
 from ..corridor.polytope import prepare_native as prepare_native_polytope
-from ..errors import GoalUnreachableError
+from ..errors import GoalUnreachableError, InvalidInputError
 from ..geometry.clearance_queries import free_distance_transform
 from ..scene.ellipsoids import EllipsoidScene
 from ..scene.occupancy import OccupancyGrid, build_occupancy
@@ -56,17 +56,49 @@ class PreparedScene:
     volume: Optional[Any] = None  # geometry.visibility.SplatVolume of the region (end_pose.visibility_volume, lazy)
 
 
+OVERSIZED_SPLAT = 1000  # a splat of at least this many Gaussians, most of them over half the region, is refused
+
+
+def check_gaussian_sizes(scene: EllipsoidScene, lo: Tensor, hi: Tensor) -> None:
+    """InvalidInputError when most of a splat's Gaussians (at least OVERSIZED_SPLAT of them) are over half the planning
+    region [lo, hi] long: a file whose scales are wrong (rasterising them would take minutes, each covering most of
+    the grid's columns). Checked before the index and the grid are built."""
+    n, half = len(scene), 0.5 * float((hi - lo).max())
+    big = int((scene.radii.max(-1).values >= half).sum())
+    if n >= OVERSIZED_SPLAT and 2 * big > n:
+        raise InvalidInputError(f"{big} of the scene's {n} Gaussians are larger than half the planning region (a "
+                                f"semi-axis over {half:.3g} scene units): the splat's scales are wrong for this scene "
+                                f"(a damaged or mis-scaled file?); it is not planned through")
+
+
+def no_free_space(scene: EllipsoidScene, lo: Tensor, hi: Tensor) -> str:
+    """Why a planning region [lo, hi] has no free voxel: Gaussians larger than the region (a scene file whose scales
+    are wrong), else the camera sphere against the voxels."""
+    longest = float((hi - lo).max())
+    big = int((scene.radii.max(-1).values >= longest).sum())
+    if big >= max(1, len(scene) // 2):
+        return (f"the planning region has no free space: {big} of the scene's {len(scene)} Gaussians are larger "
+                f"than the region itself (a semi-axis over its longest side, {longest:.3g} scene units): the splat's "
+                f"scales are wrong for this scene (a damaged or mis-scaled file?)")
+    return ("the occupancy grid has no free voxel: the camera sphere (--camera-radius + --safety-margin = "
+            f"{scene.camera_radius:.3g}) leaves no room between the obstacles at this voxel size; lower "
+            "--camera-radius or --safety-margin, or raise --grid-resolution")
+
+
 def prepare_scene(scene: EllipsoidScene, grid_resolution: int, lo: Tensor, hi: Tensor,
                   mirror: bool) -> Tuple[EllipsoidScene, PreparedScene]:
     """Build the spatial index and the occupancy grid of ``scene`` over [lo [3], hi [3]] (``grid_resolution`` voxels
     along the longest side) on the scene's device, then what requests need from them; with ``mirror``, scene, index
     and grid are mirrored to the CPU first. Returns (the scene requests query: ``scene`` or its CPU mirror, the
     PreparedScene). GoalUnreachableError when the grid has no free voxel."""
+    check_gaussian_sizes(scene, lo, hi)
     t0 = time.perf_counter()
     index = GridIndex.build(scene)
     t1 = time.perf_counter()
     grid = build_occupancy(scene, index, grid_resolution, bounds=(lo, hi))
     t2 = time.perf_counter()
+    if not (~grid.occupied).any():
+        raise GoalUnreachableError(no_free_space(scene, lo, hi))
     batch_index = index
     if mirror:
         scene = scene.to("cpu")
@@ -87,11 +119,6 @@ def prepare_scene(scene: EllipsoidScene, grid_resolution: int, lo: Tensor, hi: T
     prepare_native_polytope(scene, index)
     preload_request_modules()
     t6 = time.perf_counter()
-    if not (~grid.occupied).any():
-        raise GoalUnreachableError(
-            "the occupancy grid has no free voxel: the camera radius is too large for this scene, or the "
-            "planning bounds hold no free space (raise --grid-resolution or check --bounds)"
-        )
     prepared = PreparedScene(
         index=index, grid=grid, astar_grid=ag, coarse=coarse, batch_index=batch_index, voxels=voxels,
         mean_voxels=mean_voxel_mask(scene, grid),

@@ -30,6 +30,7 @@ from __future__ import annotations
 import multiprocessing as mp
 import os
 import pickle
+import signal
 import weakref
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
@@ -115,6 +116,8 @@ def _preload() -> None:
 
 def _init_worker(planner_ref: "weakref.ref") -> None:
     global _PLANNER
+    for s in (signal.SIGTERM, signal.SIGHUP):  # the parent's handlers (the CLI's clean-up) are not the worker's
+        signal.signal(s, signal.SIG_DFL)
     torch.set_num_threads(1)
     set_blas_threads(1)
     _PLANNER = planner_ref()

@@ -81,6 +81,8 @@ def look_at_rotations(
     pos = _to_numpy(positions)
     tgt = _to_numpy(target)
     upv = _to_numpy(up).reshape(-1)
+    if upv.shape == (3,) and np.isfinite(upv).all() and np.abs(upv).max() > 0:
+        upv = upv / np.abs(upv).max()  # scaled before any norm: (0, 1e300, 0) is +y, not an overflowed zero vector
     if pos.ndim != 2 or pos.shape[1] != 3 or pos.shape[0] == 0:
         raise InvalidInputError(f"positions must have shape [T, 3] with T >= 1, got {tuple(pos.shape)}.")
     tgt_given = tgt  # [3] or [T, 3]: the compiled path reads either without a broadcast copy

@@ -750,8 +750,9 @@ def solve_corridor_qp(polytopes, waypoints, start, goal, config: TrajectoryConfi
         margins = [margin * norm for norm in norms]
         raise CorridorInfeasibleError(
             "No smooth trajectory fits inside the safe corridor: "
-            f"{_diagnose_infeasible(polys, margins)}. Try a lower continuity order, a higher degree, "
-            "or a corridor with more overlap between consecutive polytopes."
+            f"{_diagnose_infeasible(polys, margins)}. The corridor's polytopes overlap too little for a smooth "
+            "curve: try another start or target with more free space around the path, a smaller --camera-radius / "
+            "--safety-margin, or a finer --grid-resolution (library callers: TrajectoryConfig.continuity / degree)."
         )
     if outcome == "failed":
         raise TrajectorySolverError(f"The {config.solver} QP solver did not converge (status {status}).")

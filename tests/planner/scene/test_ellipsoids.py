@@ -85,3 +85,19 @@ def test_subset_to_bounds():
     lo, hi = sc.bounds()
     assert lo.shape == (3,) and (lo < hi).all()
     assert sc.to(dtype=torch.float64).means.dtype == torch.float64
+
+
+def test_empty_scene_names_the_cause():
+    """All Gaussians dropped: the message says why (infinite scales are not an opacity-floor problem)."""
+    from cinenerf_ns.planner.errors import EmptySceneError
+
+    means, q = torch.zeros(4, 3), torch.tensor([[1.0, 0, 0, 0]] * 4)
+    with pytest.raises(EmptySceneError, match=r"of 4 Gaussians, 4 have infinite scales; the scene file") as e:
+        EllipsoidScene.from_splat(means, q, torch.full((4, 3), float("inf")), torch.full((4,), 5.0))
+    assert "--opacity-floor" not in str(e.value)
+    with pytest.raises(EmptySceneError, match=r"4 are fainter than the opacity floor 0.05 .*; lower --opacity-floor"):
+        EllipsoidScene.from_splat(means, q, torch.zeros(4, 3), torch.full((4,), -10.0))
+    ls = torch.zeros(4, 3)
+    ls[:2] = float("inf")
+    with pytest.raises(EmptySceneError, match=r"2 have infinite scales; 2 are fainter"):
+        EllipsoidScene.from_splat(means, q, ls, torch.tensor([5.0, 5.0, -10.0, -10.0]))

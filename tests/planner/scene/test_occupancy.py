@@ -140,3 +140,38 @@ def test_centre_of_is_voxel_to_world(lo, vs, ijk):
     got = grid.centre_of(np.asarray(ijk, dtype=np.int64))
     assert got.dtype == np.float64
     assert np.array_equal(got, grid.voxel_to_world(torch.as_tensor(ijk)).numpy())
+
+
+def test_an_ellipsoid_that_holds_the_whole_grid_fills_it_without_rasterising(monkeypatch):
+    """A splat whose Gaussians are all larger than the scene: the grid is all occupied at once (issue 38: minutes of
+    rasterising for this answer); the shortcut agrees with the rasterisation it skips."""
+    from cinenerf_ns.planner.scene import occupancy
+
+    sc = random_scene(30, 7, camera_radius=0.02)
+    sc.radii[3] = torch.tensor([9.0, 7.0, 8.0], dtype=sc.radii.dtype)  # holds the whole scene box
+    box = (torch.full((3,), -1.0), torch.full((3,), 1.0))  # the planning region: the scene, not the huge ellipsoid
+    fast = build_occupancy(sc, resolution=24, bounds=box)
+    assert fast.occupied.all()
+    monkeypatch.setattr(occupancy, "_one_covers_the_box", lambda *a: False)
+    assert torch.equal(build_occupancy(sc, resolution=24, bounds=box).occupied, fast.occupied)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), scale=st.floats(0.2, 6.0))
+def test_covers_the_box_against_the_covariance_form(seed, scale):
+    """_one_covers_the_box (corners in the ellipsoid's axes) against a float64 reference: the box's corners in
+    (x - mu)^T Sigma^-1 (x - mu) <= 1 with Sigma = R diag(r^2) R^T, for every ellipsoid."""
+    from cinenerf_ns.planner.scene.occupancy import _one_covers_the_box
+
+    sc = random_scene(4, seed, rmin=0.5 * scale, rmax=scale).to(dtype=F64)
+    g = torch.Generator().manual_seed(seed)
+    lo = torch.rand(3, generator=g, dtype=F64) - 1.0
+    hi = lo + 0.2 + torch.rand(3, generator=g, dtype=F64)
+    corners = torch.stack(torch.meshgrid(*[torch.stack([lo[k], hi[k]]) for k in range(3)], indexing="ij"),
+                          -1).reshape(8, 3)
+    inv = torch.linalg.inv(sc.covariances())  # [N, 3, 3]
+    d = corners[None] - sc.means[:, None]  # [N, 8, 3]
+    k = torch.einsum("nci,nij,ncj->nc", d, inv, d)
+    want = bool((k <= 1.0 + 1e-9).all(-1).any())
+    if bool(((k - 1.0).abs() > 1e-6).all()):  # not on the boundary: the two forms must agree
+        assert _one_covers_the_box(sc, lo, hi) == want

@@ -208,3 +208,17 @@ def test_native_rotations_cover_regular_paths_and_hand_the_rest_to_numpy(monkeyp
 def test_unknown_backend_is_refused():
     with pytest.raises(InvalidInputError, match="look-at rotations backend must be 'auto', 'native' or 'python'"):
         look_at_rotations(np.array([[1.0, 0, 0]]), np.zeros(3), backend="fast")
+
+
+@pytest.mark.parametrize("backend", ["python", "native"])
+@pytest.mark.parametrize("scale", [1e300, 1e-300, 5e-320])
+def test_huge_or_tiny_up_is_the_same_direction(backend, scale):
+    """up = (0, 1e300, 0) is +y (its norm once overflowed to inf: up became 0 and the camera rolled)."""
+    from cinenerf_ns.planner.native import look_at_c
+
+    if backend == "native" and look_at_c() is None:
+        pytest.skip("the compiled kernel is not available here")
+    pos = np.array([[0.0, 0.0, 2.0], [0.5, 0.1, 2.0]])
+    want = look_at_rotations(pos, np.zeros(3), up=(0.0, 1.0, 0.0), backend=backend)
+    got = look_at_rotations(pos, np.zeros(3), up=(0.0, scale, 0.0), backend=backend)
+    np.testing.assert_allclose(got, want, atol=1e-12)
