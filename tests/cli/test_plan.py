@@ -358,20 +358,20 @@ def test_end_pose_and_framing_in_report_and_table(tmp_path, capsys):
     """An object go-to ends at a chosen end pose (reported with why), the look-at object's view per candidate;
     --no-end-pose keeps the go-to centre rule; the same object twice is a good view of it."""
     kw = dict(scene="procedural:20000:0", look_at="floor lamp", grid_resolution=64)
-    s = run_plan(PlanArgs(go_to="the armchair", candidates=3, framing="wide", output_dir=tmp_path / "a", **kw))
+    s = run_plan(PlanArgs(go_to="the armchair", candidates=3, framing="close", output_dir=tmp_path / "a", **kw))
     rep = json.loads(open(s["report"]).read())
-    assert rep["end_pose"]["framing"] == "wide" and rep["end_pose"]["poses"]
+    assert rep["end_pose"]["framing"] == "close" and rep["end_pose"]["poses"]
     assert "end pose chosen from" in rep["end_pose_note"]
     ends = set()
     for c in rep["candidates"]:
         ep, view = c["end_pose"], c["subject_view"]
         assert np.allclose(c["goal"], ep["point"], atol=1e-6) and c["goal_moved"] is None  # it ends at its pose
-        assert view["framing"] == "wide" and view["framing_band"] == [0.15, 0.25, 0.35]
+        assert view["framing"] == "close" and view["framing_band"] == [0.6, 0.7, 0.85]
         assert 0 <= view["visible_last"] <= 1 and 0 <= view["frames_visible_half"] <= 1
         ends.add(tuple(np.round(c["goal"], 6)))
     assert len(ends) == len(rep["candidates"])  # different candidates, different end poses
     out = capsys.readouterr().out
-    assert "end pose:" in out and "wide: 0.15-0.35" in out
+    assert "end pose:" in out and "close: 0.6-0.85" in out
     old = run_plan(PlanArgs(go_to="the armchair", end_pose=False, output_dir=tmp_path / "b", start="0 0 0.7", **kw))
     orep = json.loads(open(old["report"]).read())
     assert orep["end_pose"] is None and orep["candidates"][0]["end_pose"] is None

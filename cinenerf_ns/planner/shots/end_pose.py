@@ -230,7 +230,7 @@ def choose_end_poses(planner: "Planner", subject: TargetObject, goto: Optional[T
         d = d * np.clip(s / aim, 0.25, 4.0)
     # the aimed-for size, sizes in the band, and beyond it (rooms too small for a wide view of a large subject still
     # get the closest size they allow)
-    fills = (aim, 0.5 * (lo_b + aim), 0.5 * (aim + hi_b), lo_b, hi_b, 0.7 * lo_b, 0.5 * lo_b, min(0.95, 1.15 * hi_b))
+    fills = (aim, 0.5 * (lo_b + aim), 0.5 * (aim + hi_b), lo_b, hi_b, min(0.95, 1.15 * hi_b))
     pts = np.concatenate([c[None] + (d * aim / f)[:, None] * dirs for f in fills])  # [3D, 3]
     dir_all = np.concatenate([dirs] * len(fills))
     considered = len(pts)
