@@ -2,7 +2,7 @@
 
 Usage: .venv/bin/python benchmarks/bench_planner.py [--device cpu|cuda] [--n-gaussians 200000]
        [--pairs 100] [--seed 0] [--grid-resolution 96] [--corridor-backend auto|cpu|batched] [--quick] [--no-record]
-       [--family procedural|blobs|fox|ply:PATH|npz:PATH] [--start-mode random|given]
+       [--family procedural|blobs|grove|fox|ply:PATH|npz:PATH] [--start-mode random|given]
 
 Scene (--family, benchmarks/scene_families.py): procedural_room(N) (floor, walls, 6 objects; the default), blobs
 (synthetic/blobs.py: y up, walls + random round blobs + floaters), or a file (the fox capture, any .ply / compact
@@ -14,7 +14,9 @@ planner's checks); Planner.plan then includes its start check (start_check stage
 total (wall time of Planner.plan: what the user waits for) with median / p95 / max, per-stage median / p95 / max of
 every key in Shot.timings, failures by exception type, and two clearances: the planner's own
 verification (every dense sample proven free by the conservative test, else the exact clearance of
-the inconclusive ones) and an independent exact clearance of every frame (not timed; on the scene's own device). On CUDA
+the inconclusive ones) and an independent exact clearance of every frame (not timed; on the scene's own device). The
+grove (--family grove) plans its seeded pairs (given: from the pair's start) and, where the fine reference search joins
+them, reports the go-tos reached within REACH_TOL and the path length over the reference path's. On CUDA
 every timed region is bracketed by torch.cuda.synchronize(). Prints a rich table, writes
 benchmarks/bench_planner_<device>_<N>.json and appends a summary to benchmarks/RESULTS.md.
 """
@@ -39,6 +41,8 @@ from benchmarks._results import append_results, device_name  # noqa: E402
 from benchmarks.scene_families import FAMILIES, given_starts, load_family, request_fn  # noqa: E402
 from cinenerf_ns.planner.geometry.distance import clearance  # noqa: E402
 from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig  # noqa: E402
+
+REACH_TOL = 0.05  # scene units: a grove shot reaches its go-to when it ends this close to it (issue 37)
 
 
 def main() -> None:
@@ -77,7 +81,7 @@ def main() -> None:
             torch.cuda.synchronize(dev)
 
     t0 = time.perf_counter()
-    fam = load_family(args.family, args.n_gaussians, args.seed, args.device)
+    fam = load_family(args.family, args.n_gaussians, args.seed, args.device, n_pairs=args.pairs)
     scene = fam.scene
     sync()
     build_s = time.perf_counter() - t0
@@ -104,22 +108,29 @@ def main() -> None:
         goal, look = fam.targets(rng, *region)
         requests.append((goal, look, args.seed * 100_003 + k))
     starts = [None] * len(requests)
-    if args.start_mode == "given":  # drawn (and checked) before timing
+    if fam.pairs:  # the grove: its seeded pairs (reference-searched); given mode starts at the pair's start
+        requests = [(p.goal, p.look_at, args.seed * 100_003 + k) for k, p in enumerate(fam.pairs)]
+        starts = [p.start if args.start_mode == "given" else None for p in fam.pairs]
+    elif args.start_mode == "given":  # drawn (and checked) before timing
         starts = given_starts(planner, [g for g, _, _ in requests], region, args.seed)
     plan = request_fn(planner, args.start_mode)
 
     per_stage: dict[str, list] = {}
     totals, fails, clear_verified, clear_exact, inconclusive = [], Counter(), [], [], []
     fail_examples: dict[str, str] = {}
+    reach = []  # grove pairs the reference joins: (reached within REACH_TOL, shot length / reference length or None)
     timed = []  # (ms, request index)
     shot_timings = []  # (ms, request index, Shot.timings) of each planned request
     for ri, ((goal, look, seed), st) in enumerate(zip(requests, starts)):
         sync()
         t0 = time.perf_counter()
+        ref = fam.pairs[ri].reference_length if fam.pairs and args.start_mode == "given" else None
         try:
             shot = plan(goal, look, st, seed)[0]
         except Exception as e:  # noqa: BLE001 - the benchmark counts every failure by type
             sync()
+            if ref is not None:
+                reach.append((False, None))
             name = type(e).__name__
             fails[name] += 1
             fail_examples.setdefault(name, "".join(traceback.format_exception_only(type(e), e)).strip()[:300])
@@ -127,6 +138,9 @@ def main() -> None:
         sync()
         totals.append(1e3 * (time.perf_counter() - t0))
         timed.append((totals[-1], ri))
+        if ref is not None:
+            reached = float(np.linalg.norm(np.asarray(shot.goal) - goal)) <= REACH_TOL
+            reach.append((reached, shot.length / ref if reached else None))
         for k, v in shot.timings.items():
             per_stage.setdefault(k, []).append(float(v))
         shot_timings.append((totals[-1], ri, dict(shot.timings)))
@@ -181,6 +195,12 @@ def main() -> None:
         "shots_with_inconclusive_samples": int(sum(1 for x in inconclusive if x)),
         "min_exact_frame_clearance": min(clear_exact) if clear_exact else None,
     }
+    if reach:  # the grove's reference-joined pairs (given starts)
+        ratios = [r for ok, r in reach if r is not None]
+        result["reference"] = {
+            "pairs_joined": len(reach), "reached_within": REACH_TOL,
+            "reached": int(sum(ok for ok, _ in reach)), "reach_rate": sum(ok for ok, _ in reach) / len(reach),
+            "length_ratio": stat(ratios), "length_ratio_over_1_3": int(sum(r > 1.3 for r in ratios))}
 
     try:
         from rich.console import Console
@@ -199,6 +219,8 @@ def main() -> None:
     except ImportError:
         print(json.dumps(stages, indent=1))
     print(f"failures: {dict(fails) or 'none'}  examples: {fail_examples}")
+    if "reference" in result:
+        print(f"reference: {result['reference']}")
     print(
         f"min exact frame clearance {result['min_exact_frame_clearance']}, verified exact (inconclusive samples only) "
         f"{result['min_verified_exact_clearance']}, shots with inconclusive samples "
@@ -236,6 +258,7 @@ def main() -> None:
         + f"); success {n_ok}/{args.pairs}, failures {dict(fails) or 'none'}; min exact frame clearance "
         f"{result['min_exact_frame_clearance']}",
         "",
+        *([reference_line(result["reference"]), ""] if "reference" in result else []),
         "prepare ms: " + ", ".join(f"{k} {v:.0f}" for k, v in prepare_ms.items()),
         "",
         "| ms | median | p95 | max |",
@@ -246,6 +269,15 @@ def main() -> None:
         "",
     ]
     append_results("\n".join(lines))
+
+
+def reference_line(ref: dict) -> str:
+    """The RESULTS.md line of the grove's reference comparison."""
+    lr = ref["length_ratio"]
+    ratio = ("no pair reached" if lr is None else f"path length / reference: median {lr['median']:.3f}, p95 "
+             f"{lr['p95']:.3f}, max {lr['max']:.3f} ({ref['length_ratio_over_1_3']} over 1.3)")
+    return (f"reference-joined pairs: {ref['reached']}/{ref['pairs_joined']} go-tos reached within "
+            f"{ref['reached_within']:g} ({100 * ref['reach_rate']:.0f}%); {ratio}")
 
 
 def profile_requests(plan, requests, starts, indices) -> None:
