@@ -386,3 +386,14 @@ def test_preview_of_a_ply_coloured_with_red_green_blue(tmp_path):
     rows = np.concatenate([np.ones((3, len(SPLAT_PROPS)), np.float32), rgb], 1)
     p = write_ply(tmp_path / "rgb.ply", props=SPLAT_PROPS + ("red", "green", "blue"), count=3, rows=rows, fmt="ascii")
     np.testing.assert_allclose(preview_scene(load_scene(str(p), SceneConfig())).colors.numpy(), rgb / 255.0, atol=1e-6)
+
+
+def test_a_malformed_stored_planning_region_is_a_checkpoint_error():
+    from cinenerf_ns.scenes import stored_region
+
+    assert stored_region({}, "x.npz") is None
+    lo, hi = stored_region({"planning_region": {"lo": [0, 0, 0], "hi": [1, 2, 3]}}, "x.npz")
+    np.testing.assert_allclose(hi, [1, 2, 3])
+    for bad in ({"lo": [0, 0, 0], "hi": [0, 1, 1]}, {"lo": [0, 0]}, "everywhere"):
+        with pytest.raises(CheckpointError, match="x.npz: its stored planning region is not a valid box"):
+            stored_region({"planning_region": bad}, "x.npz")

@@ -17,6 +17,7 @@ is checked before the scene is loaded; errors go to stderr with exit status 2 an
 from __future__ import annotations
 
 import json
+import re
 import sys
 import time
 from dataclasses import dataclass, field
@@ -34,6 +35,7 @@ from cinenerf_ns.options import check_number
 from cinenerf_ns.output_set import OutputSet, check_name, check_writable
 from cinenerf_ns.planner.errors import InvalidInputError, PlanningError
 from cinenerf_ns.planner.scene.ellipsoids import DEFAULT_SAFETY_MARGIN, SceneConfig
+from cinenerf_ns.planner.scene.planning_region import user_box
 from cinenerf_ns.planner.shots.camera_path import (
     DEFAULT_FOV_DEG,
     DEFAULT_PREVIEW_FPS,
@@ -112,6 +114,10 @@ class PlanArgs:
     """Ellipsoid size in sigmas (paper: 2), scaled by each Gaussian's opacity."""
     opacity_floor: float = SceneConfig.opacity_floor
     """Gaussians below this opacity are not obstacles."""
+    region: Optional[str] = None
+    """Planning region 'x0 y0 z0 x1 y1 z1' (two corners, scene units): every path stays in it. Default: the region
+    stored in a compact export, else the training cameras' box grown, else the box of the dense content (far background,
+    sky and floaters do not stretch it); the report says which rule chose it."""
     grid_resolution: int = PlannerConfig.grid_resolution
     """A* voxels along the longest side of the planning region (8-1024, within --memory-budget-mb)."""
     memory_budget_mb: float = PlannerConfig.memory_budget_mb
@@ -209,6 +215,8 @@ def check_args(args: PlanArgs) -> None:
                                 f"{len(args.then_look_at)}")
     if args.start is not None and parse_point(args.start) is None:
         raise InvalidInputError(f"--start must be a point 'x y z', got {args.start!r}")
+    if args.region is not None:
+        parse_region(args.region)
     check_name(args.name)
     if args.preview:
         for v, opt in zip(args.preview_size, ("--preview-size (width)", "--preview-size (height)")):
@@ -216,6 +224,28 @@ def check_args(args: PlanArgs) -> None:
         check_number(args.preview_fps, "--preview-fps", 1, 120)
     check_writable(Path(args.output_dir))
     args.score.validate()
+
+
+def parse_region(text: str) -> Tuple[np.ndarray, np.ndarray]:
+    """--region 'x0 y0 z0 x1 y1 z1' -> (lo [3], hi [3]); InvalidInputError unless 6 finite numbers with lo < hi on
+    every axis (planning_region.user_box)."""
+    tokens = [t for t in re.split(r"[\s,;\[\]()]+", str(text).strip()) if t]
+    try:
+        vals = [float(t) for t in tokens]
+    except ValueError as e:
+        raise InvalidInputError(f"--region must be 6 numbers 'x0 y0 z0 x1 y1 z1', got {text!r}") from e
+    return user_box(vals, "the planning region (--region)")
+
+
+def _region_config(args: PlanArgs, loaded: LoadedScene) -> Dict[str, Any]:
+    """PlannerConfig's bounds / bounds_rule: --region, else the region a compact export stores, else none (the
+    planner's rules)."""
+    if args.region is not None:
+        return {"bounds": parse_region(args.region), "bounds_rule": "user box"}
+    stored = loaded.extra.get("planning_region")
+    if stored is not None:
+        return {"bounds": stored, "bounds_rule": "stored in the export"}
+    return {}
 
 
 def _obstacles_near_paths(means: np.ndarray, shots, up: np.ndarray, band: float = 0.1) -> np.ndarray:
@@ -341,6 +371,7 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
             start_region=loaded.start_region, candidate_workers=args.workers, memory_budget_mb=args.memory_budget_mb,
             start_look_distance=args.start_look_distance,
             grid_polytopes={"auto": "auto", "on": True, "off": False}[args.grid_polytopes],
+            **_region_config(args, loaded),
         )
         planner = Planner(loaded.scene, pcfg)
         prep = planner.prepare()
@@ -376,7 +407,7 @@ def _summary(args, loaded, planner, prep, gm, lm, goal, look, shots, scores, mul
         "scene": loaded.source,
         "go_to": {**strip(gm), "point": goal.tolist(), "resolved": gm["description"]},
         "look_at": {**strip(lm), "point": look.tolist(), "resolved": lm["description"]},
-        "planning_region": {"lo": lo.tolist(), "hi": hi.tolist()},
+        "planning_region": {"lo": lo.tolist(), "hi": hi.tolist(), "rule": planner.region_rule()},
         "prepare_ms": prep.timings_ms,
         "camera_radius": args.camera_radius,
         "safety_margin": args.safety_margin,
@@ -423,6 +454,8 @@ def _print_summary(args, console, loaded, gm, lm, shots, scores, multi, reports,
                         f"{reports[k]['mean_clearance']:.3f}", f("mean_jerk", ".1f"), f("mean_angular_rate_deg", ".0f")]
         table.add_row(*row)
     console.print(table)
+    reg = summary["planning_region"]
+    console.print(f"planning region {_fmt3(reg['lo'])}..{_fmt3(reg['hi'])} ({reg['rule']})")
     console.print("score: lower is better (every term in the report); occl: occluded fraction of frames; "
                   "clr/len in scene units; peak: speed / acceleration / view rotation deg/s"
                   + ("" if wide else " (wider terminal: more columns)")
