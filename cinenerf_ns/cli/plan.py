@@ -419,6 +419,7 @@ def _summary(args, loaded, planner, prep, gm, lm, goal, look, shots, scores, mul
              "score": None if scores[k] is None else scores[k].to_dict(),
              "dynamics": getattr(sh, "dynamics", None) if multi is None else multi.dynamics,
              "camera_path": str(files[k]), "goal_moved": moves[k],
+             "refinement": getattr(sh, "refinement", None),
              "exact_clearance": {kk: v for kk, v in reports[k].items() if kk not in ("times", "clearance")},
              "verification": sh.safety}
             for k, sh in enumerate(shots)

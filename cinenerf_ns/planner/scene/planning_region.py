@@ -51,9 +51,9 @@ DENSE_BINS = 64
 DENSE_FLOOR = 0.05
 """dense_content_box: a cell is dense when its opacity mass is >= this x the mass-weighted mean cell mass (the density
 where the opaque mass typically lies): far background shells, sky Gaussians and isolated floaters fall below it."""
-DENSE_KEEP = 0.1
-"""dense_content_box: 26-connected groups of dense cells with >= this fraction of the heaviest group's mass are kept
-(the connected core; an isolated dense clump far away, e.g. a patch of background, is not)."""
+DENSE_BRIDGE = 1
+"""dense_content_box: dense cells this many cells apart still belong to one group (a gap of a cell or two between
+parts of the content does not split it)."""
 DENSE_OUTER_QUANTILE = 0.001
 """dense_content_box bins the means inside their [q, 1 - q] quantile box (a few extreme outliers would otherwise make
 the cells huge)."""
@@ -68,12 +68,13 @@ def _quantile_box(m: Tensor, q: float) -> tuple[Tensor, Tensor]:
     return m.min(0).values, m.max(0).values
 
 
-def dense_content_box(means: Tensor, weights: Tensor, bins: int = DENSE_BINS, floor: float = DENSE_FLOOR,
-                      keep: float = DENSE_KEEP) -> tuple[np.ndarray, np.ndarray]:
+def dense_content_box(means: Tensor, weights: Tensor, bins: int = DENSE_BINS,
+                      floor: float = DENSE_FLOOR) -> tuple[np.ndarray, np.ndarray]:
     """(lo [3], hi [3]) float64: the box of the dense opaque content of points ``means`` [N, 3] with ``weights`` [N]
     (opacities). The means are binned (opacity-weighted) into cubic cells, ``bins`` along the longest side of their
-    DENSE_OUTER_QUANTILE box; cells with mass >= ``floor`` x the mass-weighted mean cell mass are dense; their
-    26-connected groups with >= ``keep`` x the heaviest group's mass are the core; the box covers the core's cells."""
+    DENSE_OUTER_QUANTILE box; cells with mass >= ``floor`` x the mass-weighted mean cell mass are dense; the
+    heaviest group of dense cells (26-connected, bridging gaps of DENSE_BRIDGE cells) is the connected core: a far
+    background ring or dome, however heavy, is a group of its own. The box covers the core's cells."""
     from scipy import ndimage
 
     m = means.double()
@@ -94,10 +95,12 @@ def dense_content_box(means: Tensor, weights: Tensor, bins: int = DENSE_BINS, fl
     total = mass.sum()
     typical = float((mass * mass).sum() / total) if total > 0 else 0.0
     dense = (mass >= floor * typical) & (mass > 0)
-    labels, n = ndimage.label(dense.reshape(tuple(dims.tolist())), structure=np.ones((3, 3, 3), dtype=bool))
+    dense = dense.reshape(tuple(dims.tolist()))
+    bridged = ndimage.binary_dilation(dense, np.ones((3, 3, 3), dtype=bool), iterations=DENSE_BRIDGE)
+    labels, n = ndimage.label(bridged, structure=np.ones((3, 3, 3), dtype=bool))
     comp_mass = np.bincount(labels.reshape(-1), weights=mass, minlength=n + 1)
     comp_mass[0] = 0.0
-    core = np.isin(labels, np.flatnonzero(comp_mass >= keep * comp_mass.max()))
+    core = dense & (labels == int(np.argmax(comp_mass)))
     idx = np.argwhere(core)  # [K, 3]: at least the heaviest cell's group
     base = olo.cpu().numpy()
     return base + idx.min(0) * cell, base + (idx.max(0) + 1) * cell

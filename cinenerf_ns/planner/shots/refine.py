@@ -1,0 +1,112 @@
+"""Free space at the resolution the obstacles need (issue 37): a go-to that is free but whose free space is not
+connected to the start's at the grid's resolution is not given up at once. The leg is planned again on a finer
+occupancy grid over a box around the start and the go-to (a local fine search: the rest of the region stays coarse),
+and that shot is kept when it ends closer to the go-to than the coarse leg would.
+
+The fine grid is built by the same conservative rasteriser (scene/occupancy.py: a free voxel keeps the camera ball
+clear of every ellipsoid, never optimistic) over the same scene and spatial index, and the leg is planned by the same
+stages (stages.plan_leg on a sub-planner whose planning region is the box), so every shot is still verified by the
+exact clearance check before it is returned."""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import replace
+from typing import TYPE_CHECKING, Optional, Tuple
+
+import numpy as np
+import torch
+
+from ..corridor.safe_corridor import CorridorError
+from ..errors import GoalUnreachableError, InvalidInputError
+
+if TYPE_CHECKING:
+    from .planner import Planner
+    from .shot import Shot
+
+REFINE_VOXEL_RADII = 2 / math.sqrt(3)
+"""The fine voxel is at most this many camera radii (its half diagonal, by which the conservative occupancy inflates
+the camera ball, is then at most one camera radius) ..."""
+REFINE_MAX_FACTOR = 4
+"""... and at least 1 / this of the coarse voxel ..."""
+REFINE_MIN_FACTOR = 2
+"""... and at most 1 / this of it; no refinement when that would exceed REFINE_MAX_VOXELS."""
+REFINE_MAX_VOXELS = 300_000
+"""Most voxels of the fine grid (its build and search are a request's: bounded)."""
+REFINE_MARGIN = 0.1
+"""The box around start and go-to grows by this x their distance on every side (room to go around an obstacle) ..."""
+REFINE_MIN_MARGIN_VOXELS = 3
+"""... and by at least this many coarse voxels."""
+
+
+def refine_box(planner: "Planner", start: np.ndarray, target: np.ndarray) -> Optional[Tuple[np.ndarray, np.ndarray,
+                                                                                           int]]:
+    """(lo [3], hi [3], grid resolution) of the fine grid for a leg start -> target ([3] each), inside the planning
+    region; None when it would exceed REFINE_MAX_VOXELS."""
+    rlo, rhi = planner.region()
+    vs = float(planner.ready().grid.voxel_size)
+    margin = max(REFINE_MARGIN * float(np.linalg.norm(target - start)), REFINE_MIN_MARGIN_VOXELS * vs)
+    lo = np.maximum(np.minimum(start, target) - margin, rlo)
+    hi = np.minimum(np.maximum(start, target) + margin, rhi)
+    side = hi - lo
+    want = int(math.ceil(vs / (REFINE_VOXEL_RADII * float(planner.scene.camera_radius)) - 1e-9))
+    factor = min(max(want, REFINE_MIN_FACTOR), REFINE_MAX_FACTOR)
+    fine = vs / factor
+    if float(np.prod(np.ceil(side / fine))) > REFINE_MAX_VOXELS:
+        return None
+    return lo, hi, max(8, int(math.ceil(float(side.max()) / fine)))
+
+
+def refined_planner(planner: "Planner", lo: np.ndarray, hi: np.ndarray, resolution: int) -> "Planner":
+    """A prepared sub-planner over [lo, hi] at ``resolution``: the same scene (the request's, e.g. the CPU mirror),
+    its spatial index reused, the configuration otherwise the same (no workers, no further refinement)."""
+    from .planner import Planner
+    from .prepared_scene import prepare_scene
+
+    cfg = replace(planner.config, bounds=(lo, hi), bounds_rule="local refinement", grid_resolution=int(resolution),
+                  candidate_workers=0, refine_disconnected=False)
+    sub = Planner(planner.scene, cfg)
+    dev = planner.scene.device
+    sub.scene, sub.prepared = prepare_scene(
+        planner.scene, int(resolution), torch.as_tensor(lo, dtype=torch.float64, device=dev),
+        torch.as_tensor(hi, dtype=torch.float64, device=dev), mirror=False, index=planner.ready().index,
+        light=True)
+    return sub
+
+
+def needs_refinement(planner: "Planner", goal_point: np.ndarray, target: np.ndarray, tol: float = 1e-6) -> bool:
+    """The coarse leg would end away from ``target`` [3] although the target is in the planning region and free
+    (exact clearance >= 0): its free space is not connected to the start's at the grid's resolution."""
+    if not planner.config.refine_disconnected or float(np.linalg.norm(goal_point - target)) <= tol:
+        return False
+    if planner.distance_outside(target) > 0:
+        return False
+    return bool(planner.clearance(np.asarray(target, dtype=np.float64)[None])[0] >= 0.0)
+
+
+def refined_leg(planner: "Planner", start: np.ndarray, target: np.ndarray, look_at: np.ndarray,
+                coarse_goal: np.ndarray) -> Optional["Shot"]:
+    """The leg start -> target planned on a fine grid over refine_box (stages.plan_leg on refined_planner: verified
+    by the exact check), when it ends closer to ``target`` than ``coarse_goal`` [3]; else None. Its timings get
+    refine_ms (the fine grid's build + the leg) and its ``refinement`` says where and how fine."""
+    from . import stages
+
+    box = refine_box(planner, start, target)
+    if box is None:
+        return None
+    lo, hi, res = box
+    t0 = time.perf_counter()
+    try:
+        sub = refined_planner(planner, lo, hi, res)
+        t1 = time.perf_counter()
+        shot = stages.plan_leg(sub, start, target, look_at, {})
+    except (GoalUnreachableError, CorridorError, InvalidInputError):
+        return None
+    if np.linalg.norm(shot.goal - target) >= np.linalg.norm(coarse_goal - target):
+        return None
+    shot.timings["refine_grid_ms"] = 1e3 * (t1 - t0)
+    shot.timings["refine_ms"] = 1e3 * (time.perf_counter() - t0)
+    shot.refinement = {"lo": lo.tolist(), "hi": hi.tolist(), "voxel_size": float(sub.prepared.grid.voxel_size),
+                       "coarse_voxel_size": float(planner.ready().grid.voxel_size),
+                       "grid_shape": list(sub.prepared.grid.shape)}
+    return shot
