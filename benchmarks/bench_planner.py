@@ -40,6 +40,7 @@ sys.path.insert(0, str(REPO))
 from benchmarks._results import append_results, device_name  # noqa: E402
 from benchmarks.scene_families import FAMILIES, given_starts, load_family, request_fn  # noqa: E402
 from cinenerf_ns.planner.geometry.distance import clearance  # noqa: E402
+from cinenerf_ns.planner.scene.floaters import apply_floater_rule  # noqa: E402
 from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig  # noqa: E402
 
 REACH_TOL = 0.05  # scene units: a grove shot reaches its go-to when it ends this close to it (issue 37)
@@ -62,6 +63,9 @@ def main() -> None:
     ap.add_argument("--family", default="procedural", help=f"scene family: {FAMILIES}")
     ap.add_argument("--start-mode", default="random", choices=["random", "given"],
                     help="random: the planner samples each start; given: explicit starts, drawn before timing")
+    ap.add_argument("--ignore-floaters", default="off", choices=["auto", "on", "off"],
+                    help="scene/floaters.py: plan without the small, faint, isolated Gaussians (the independent exact "
+                         "check then also reports the clearance to every Gaussian)")
     ap.add_argument("--profile", type=int, default=0,
                     help="cProfile the N slowest requests again after the run (printed, not recorded)")
     ap.add_argument("--quick", action="store_true", help="20k Gaussians, 20 requests (smoke run)")
@@ -82,12 +86,14 @@ def main() -> None:
 
     t0 = time.perf_counter()
     fam = load_family(args.family, args.n_gaussians, args.seed, args.device, n_pairs=args.pairs)
-    scene = fam.scene
+    full_scene = fam.scene
+    scene, floaters = apply_floater_rule(full_scene, args.ignore_floaters)
     sync()
     build_s = time.perf_counter() - t0
     # the procedural room keeps its historical setting (no start region: comparable with older records)
     cfg = PlannerConfig(request_device=args.request_device, corridor_backend=args.corridor_backend, up=fam.up,
-                        start_region=None if fam.kind == "procedural" else fam.start_region)
+                        start_region=None if fam.kind == "procedural" else fam.start_region,
+                        obstacles_note=floaters.obstacle_note())
     if args.grid_resolution is not None:
         cfg.grid_resolution = args.grid_resolution
     if args.start_look_distance is not None:
@@ -117,6 +123,12 @@ def main() -> None:
 
     per_stage: dict[str, list] = {}
     totals, fails, clear_verified, clear_exact, inconclusive = [], Counter(), [], [], []
+    clear_all = []  # with floaters ignored: exact clearance of every frame to every Gaussian (floaters included)
+    full_index = None
+    if floaters.ignored:
+        from cinenerf_ns.planner.scene.spatial_index import GridIndex
+
+        full_index = GridIndex.build(full_scene)
     fail_examples: dict[str, str] = {}
     reach = []  # grove pairs the reference joins: (reached within REACH_TOL, shot length / reference length or None)
     timed = []  # (ms, request index)
@@ -157,6 +169,8 @@ def main() -> None:
         torch.set_num_threads(1 if not cuda else threads)  # small ops: 1 thread is faster on a shared CPU
         cidx = prep.batch_index if prep.batch_index is not None else prep.index
         clear_exact.append(float(clearance(pts, planner.batch_scene, cidx, max_distance=0.25).min()))
+        if full_index is not None:
+            clear_all.append(float(clearance(pts, full_scene, full_index, max_distance=0.25).min()))
         torch.set_num_threads(threads)
 
     def stat(v):
@@ -194,7 +208,12 @@ def main() -> None:
         "min_verified_exact_clearance": min(clear_verified) if clear_verified else None,
         "shots_with_inconclusive_samples": int(sum(1 for x in inconclusive if x)),
         "min_exact_frame_clearance": min(clear_exact) if clear_exact else None,
+        "floaters": floaters.to_dict(),
     }
+    if clear_all:  # floaters ignored: how close the frames come to every Gaussian (negative: through a floater)
+        a = np.asarray(clear_all)
+        result["floaters"].update({"min_frame_clearance_all_gaussians": float(a.min()),
+                                   "shots_through_ignored_floaters": int((a < 0).sum())})
     if reach:  # the grove's reference-joined pairs (given starts)
         ratios = [r for ok, r in reach if r is not None]
         result["reference"] = {
@@ -221,6 +240,7 @@ def main() -> None:
     print(f"failures: {dict(fails) or 'none'}  examples: {fail_examples}")
     if "reference" in result:
         print(f"reference: {result['reference']}")
+    print(f"floaters: {result['floaters']}")
     print(
         f"min exact frame clearance {result['min_exact_frame_clearance']}, verified exact (inconclusive samples only) "
         f"{result['min_verified_exact_clearance']}, shots with inconclusive samples "
@@ -254,7 +274,12 @@ def main() -> None:
         "",
         f"family {args.family}: {fam.description}, grid_resolution {cfg.grid_resolution} {result['grid_shape']}, "
         f"{args.pairs} requests ({args.start_mode} start, "
-        + ("go-to object +-jitter, look-at object" if fam.objects else "go-to and look-at uniform in the start region")
+        + (f"floaters ignored: {floaters.count} of {floaters.total} Gaussians, "
+           f"{result['floaters'].get('shots_through_ignored_floaters', 0)} shots pass through one "
+           f"(min clearance to all Gaussians {result['floaters'].get('min_frame_clearance_all_gaussians', 0):.4f}), "
+           if floaters.ignored else "")
+        + ("go-to object +-jitter, look-at object" if fam.objects else
+           "seeded grove pairs" if fam.pairs else "go-to and look-at uniform in the start region")
         + f"); success {n_ok}/{args.pairs}, failures {dict(fails) or 'none'}; min exact frame clearance "
         f"{result['min_exact_frame_clearance']}",
         "",

@@ -35,6 +35,7 @@ from cinenerf_ns.options import check_number
 from cinenerf_ns.output_set import OutputSet, check_name, check_writable
 from cinenerf_ns.planner.errors import InvalidInputError, PlanningError
 from cinenerf_ns.planner.scene.ellipsoids import DEFAULT_SAFETY_MARGIN, SceneConfig
+from cinenerf_ns.planner.scene.floaters import apply_floater_rule
 from cinenerf_ns.planner.scene.planning_region import user_box
 from cinenerf_ns.planner.shots.camera_path import (
     DEFAULT_FOV_DEG,
@@ -118,6 +119,10 @@ class PlanArgs:
     """Planning region 'x0 y0 z0 x1 y1 z1' (two corners, scene units): every path stays in it. Default: the region
     stored in a compact export, else the training cameras' box grown, else the box of the dense content (far background,
     sky and floaters do not stretch it); the report says which rule chose it."""
+    ignore_floaters: Literal["auto", "on", "off"] = "off"
+    """Treat small, faint, isolated Gaussians (a capture's noise in the air) as non-obstacles: on, off, or auto (on
+    when they are at least 1% of the Gaussians). The rule is in the report, with how many were ignored; shots are
+    verified against the obstacles that remain (cinenerf_ns/planner/scene/floaters.py)."""
     grid_resolution: int = PlannerConfig.grid_resolution
     """A* voxels along the longest side of the planning region (8-1024, within --memory-budget-mb)."""
     memory_budget_mb: float = PlannerConfig.memory_budget_mb
@@ -365,13 +370,14 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
         stops = [resolve_match(t, loaded, f"go-to {i + 2}")["point"] for i, t in enumerate(args.then_go_to)]
         stop_looks = [resolve_match(t, loaded, f"look-at {i + 2}")["point"] for i, t in enumerate(args.then_look_at)]
         prog.update(task, advance=1, description="preparing (index, occupancy grid)", refresh=True)
+        loaded.scene, floaters = apply_floater_rule(loaded.scene, args.ignore_floaters)
         pcfg = PlannerConfig(
             grid_resolution=args.grid_resolution, up=tuple(args.up),
             timing=TimingConfig(max_speed=args.max_speed, fps=args.fps),
             start_region=loaded.start_region, candidate_workers=args.workers, memory_budget_mb=args.memory_budget_mb,
             start_look_distance=args.start_look_distance,
             grid_polytopes={"auto": "auto", "on": True, "off": False}[args.grid_polytopes],
-            **_region_config(args, loaded),
+            **_region_config(args, loaded), obstacles_note=floaters.obstacle_note(),
         )
         planner = Planner(loaded.scene, pcfg)
         prep = planner.prepare()
@@ -388,6 +394,7 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
             files, plots = _write_outputs(args, out, planner, loaded, shots, goal, look, reports)
             summary = _summary(args, loaded, planner, prep, gm, lm, goal, look, shots, scores, multi, reports, moves,
                                files, plots, obj_r, score_cfg, batch_tm)
+            summary["floaters"] = floaters.to_dict()
             summary["total_s"] = time.perf_counter() - t_all
             rpath = out.final(f"{args.name}_report.json")
             summary["report"] = str(rpath)
@@ -456,7 +463,8 @@ def _print_summary(args, console, loaded, gm, lm, shots, scores, multi, reports,
         table.add_row(*row)
     console.print(table)
     reg = summary["planning_region"]
-    console.print(f"planning region {_fmt3(reg['lo'])}..{_fmt3(reg['hi'])} ({reg['rule']})")
+    console.print(f"planning region {_fmt3(reg['lo'])}..{_fmt3(reg['hi'])} ({reg['rule']}); obstacles: "
+                  f"{summary['floaters']['obstacles']}")
     console.print("score: lower is better (every term in the report); occl: occluded fraction of frames; "
                   "clr/len in scene units; peak: speed / acceleration / view rotation deg/s"
                   + ("" if wide else " (wider terminal: more columns)")

@@ -349,3 +349,19 @@ def test_planning_region_rules_in_report_and_export(tmp_path, capsys):
     np.testing.assert_allclose(s["planning_region"]["lo"], [-1.2, -1.2, 0])
     s = run_plan(PlanArgs(scene=str(npz), output_dir=tmp_path / "d", region=box, **common))
     assert s["planning_region"]["rule"] == "user box"  # --region wins over the stored one
+
+
+def test_ignore_floaters_reports_the_count_and_the_verified_obstacles(tmp_path, capsys):
+    from cinenerf_ns.synthetic.grove import grove_scene
+
+    ply = grove_scene(20_000, seed=3).write_ply(tmp_path / "grove.ply")
+    common = dict(scene=str(ply), go_to="-0.3 0.2 0.5", look_at="0.5 0.5 0.5", start="0.6 -0.5 0.6",
+                  grid_resolution=48)
+    s = run_plan(PlanArgs(output_dir=tmp_path / "on", ignore_floaters="on", **common))
+    fl = s["floaters"]
+    assert fl["ignored"] and fl["ignored_gaussians"] > 0 and "opacity <=" in fl["rule"]
+    assert s["candidates"][0]["verification"]["obstacles"] == fl["obstacles"]
+    assert f"{fl['ignored_gaussians']} floaters ignored" in " ".join(capsys.readouterr().out.split())
+    s = run_plan(PlanArgs(output_dir=tmp_path / "off", **common))  # the default keeps every Gaussian
+    assert not s["floaters"]["ignored"] and s["floaters"]["ignored_gaussians"] == 0
+    assert s["candidates"][0]["verification"]["obstacles"].startswith("all ")

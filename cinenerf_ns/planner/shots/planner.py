@@ -102,6 +102,9 @@ class PlannerConfig:
     grid_polytopes: Union[bool, str] = "auto"
     """Polytopes from the occupancy grid for segments in free voxels (grid_polytope.py: same guarantee, cheaper);
     False: Prop-2 for all (the paper's). 'auto': on for voxels <= GRID_POLYTOPE_MAX_VOXEL x camera radius."""
+    obstacles_note: Optional[str] = None
+    """What the scene's obstacles are, when not every Gaussian (e.g. floaters ignored: scene/floaters.py); every shot's
+    verification states it (Planner.obstacle_set)."""
     refine_disconnected: bool = True
     """A go-to that is free but not connected to the start at grid_resolution is planned again on a finer grid over a
     box around start and go-to (refine.py) before the shot's goal is moved; False: moved at once."""
@@ -227,6 +230,10 @@ class Planner:
         """Which rule chose the planning region: 'user box', 'training cameras', 'dense content', ...
         (planning_region.region_rule)."""
         return planning_region.region_rule(self.config)
+
+    def obstacle_set(self) -> str:
+        """The obstacle set shots are planned and verified against (config.obstacles_note, else every ellipsoid)."""
+        return self.config.obstacles_note or f"all {len(self.scene)} ellipsoids of the scene"
 
     def check_region(self, lo: np.ndarray, hi: np.ndarray) -> None:
         """InvalidInputError when the camera sphere or the voxel grid does not fit the region [lo, hi]

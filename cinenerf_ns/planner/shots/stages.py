@@ -154,6 +154,7 @@ def refuse_unsafe(report: dict, curve: str = "the curve") -> dict:
 def leg_verify(planner: "Planner", shot: Shot, curve: str = "the curve") -> dict:
     """The exact-clearance verification of a shot (safety.verify_shot), refused when unsafe (refuse_unsafe)."""
     report = verify_shot(shot, planner.points_free, planner.clearance, max_spacing=planner.config.verify_spacing)
+    report["obstacles"] = planner.obstacle_set()
     return refuse_unsafe(report, curve)
 
 
@@ -179,6 +180,7 @@ def legs_verify(planner: "Planner", shots: Sequence[Shot]) -> List[dict]:
             "min_exact_clearance": mn, "safe": bool(mn is None or mn >= 0.0),
             "method": "conservative test on every sample (occupancy grid, then Cor.1), exact distance where "
                       "inconclusive (batched over candidates)",
+            "obstacles": planner.obstacle_set(),
         })
         o += n
     return out
