@@ -28,7 +28,9 @@ import numpy as np
 import torch
 
 REPO = Path(__file__).resolve().parents[1]
-FOX = REPO.parent / "shared" / "data" / "fox_cinesplat" / "fox3000.npz"
+FOX = next((p for p in (REPO.parent / "shared" / "data" / "fox_cinesplat" / "fox3000.npz",  # beside the checkout
+                         REPO.parents[1] / "shared" / "data" / "fox_cinesplat" / "fox3000.npz")  # beside a worktree
+            if p.exists()), REPO.parent / "shared" / "data" / "fox_cinesplat" / "fox3000.npz")
 FAMILIES = "procedural | blobs | grove | fox | ply:PATH | npz:PATH"
 GROVE_SPACING = 0.025  # scene units: the grove reference grid's spacing (synthetic/grove.py reference_search)
 GIVEN_CLEAR = 0.1  # scene units: a given start's distance to every Gaussian centre
