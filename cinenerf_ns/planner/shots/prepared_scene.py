@@ -53,6 +53,7 @@ class PreparedScene:
     mean_voxels: Optional[np.ndarray] = None  # [X, Y, Z] bool voxels holding a Gaussian mean (goal.mean_voxel_mask)
     main_component_of: Optional[tuple] = None  # (start_region, component) cached by starts.main_component
     start_blocked_of: Optional[tuple] = None  # (labels, component, blocked mask) cached by starts.start_blocked
+    component_boxes: Optional[list] = None  # ndimage.find_objects of the free components (refine.enclosed, lazy)
 
 
 def prepare_scene(scene: EllipsoidScene, grid_resolution: int, lo: Tensor, hi: Tensor,

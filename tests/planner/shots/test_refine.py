@@ -96,3 +96,26 @@ def test_refined_grid_is_never_optimistic():
 def test_refinement_can_be_switched_off_and_is_validated():
     with pytest.raises(Exception, match="refine_disconnected"):
         PlannerConfig(refine_disconnected="yes").validate()
+
+
+def test_a_walled_in_target_is_not_refined(dense_grove):
+    """The free inside of a closed shell cannot be connected by any grid: enclosed() proves it (every ray through the
+    shell collides) and the goal is moved at once; a grove go-to behind floaters is not enclosed."""
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(4000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    floor = np.c_[rng.uniform(-1, 1, (4000, 2)), np.full(4000, -0.4)]
+    means = np.r_[0.3 * d, floor]
+    n = len(means)
+    shell = EllipsoidScene(torch.as_tensor(means), torch.eye(3, dtype=torch.float64).repeat(n, 1, 1),
+                           torch.full((n, 3), 0.02, dtype=torch.float64), torch.full((n,), 0.9, dtype=torch.float64),
+                           camera_radius=0.03)
+    pl = Planner(shell, PlannerConfig(grid_resolution=48))
+    start, centre = np.array([0.7, 0.0, 0.0]), np.zeros(3)
+    shot = pl.plan(centre, np.array([0.0, 0.0, -0.4]), start=start)[0]
+    assert np.linalg.norm(shot.goal - centre) > 0.2 and "refine_ms" not in shot.timings
+    assert refine.enclosed(pl, centre, shot.goal)
+    assert not refine.needs_refinement(pl, shot.goal, centre)
+    _, _, robust, pair = dense_grove
+    old = robust.plan(pair.goal, pair.look_at, start=pair.start)[0]
+    assert not refine.enclosed(robust, pair.goal, old.goal)
