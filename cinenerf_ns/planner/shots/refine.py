@@ -138,6 +138,22 @@ def enclosed(planner: "Planner", target: np.ndarray, coarse_goal: np.ndarray) ->
     return bool(_segments_proven_blocked(planner, np.asarray(target, np.float64), target + length[:, None] * d).all())
 
 
+def _free(planner: "Planner", p: np.ndarray) -> bool:
+    """Exact clearance of the camera centre p [3] >= 0 (the compiled distance capped at the camera radius: inside an
+    ellipsoid is NaN, not measured; Planner.clearance where the compiled search does not apply)."""
+    from ..corridor.polytope_native import native_applies
+    from ..geometry.distance import native_capped_distance
+    from ..native import points_distance_c
+
+    scene, index = planner.scene, planner.ready().index
+    r = float(scene.camera_radius)
+    fn = points_distance_c() if native_applies(scene, index) else None
+    if fn is None:
+        return bool(planner.clearance(p[None], cap=r)[0] >= 0.0)
+    d = float(native_capped_distance(fn, torch.from_numpy(p[None].copy()), scene, index, r)[0])
+    return not math.isnan(d) and d >= r
+
+
 def needs_refinement(planner: "Planner", goal_point: np.ndarray, target: np.ndarray, tol: float = 1e-6) -> bool:
     """The coarse leg would end at least REFINE_MIN_MISS_VOXELS coarse voxels away from ``target`` [3] although the
     target is in the planning region, free (exact clearance >= 0) and not walled in (enclosed): its free space is
@@ -149,7 +165,7 @@ def needs_refinement(planner: "Planner", goal_point: np.ndarray, target: np.ndar
     if planner.distance_outside(target) > 0:
         return False
     target = np.asarray(target, dtype=np.float64)
-    if not planner.clearance(target[None])[0] >= 0.0:
+    if not _free(planner, target):
         return False
     return not enclosed(planner, target, np.asarray(goal_point, dtype=np.float64))
 
