@@ -63,6 +63,10 @@ def main() -> None:
     ap.add_argument("--family", default="procedural", help=f"scene family: {FAMILIES}")
     ap.add_argument("--start-mode", default="random", choices=["random", "given"],
                     help="random: the planner samples each start; given: explicit starts, drawn before timing")
+    ap.add_argument("--region-rule", default="auto", choices=["auto", "dense", "robust"],
+                    help="PlannerConfig.region_rule without training cameras (robust: the rule before issue 37)")
+    ap.add_argument("--no-refine", action="store_true",
+                    help="PlannerConfig.refine_disconnected=False (the behaviour before issue 37)")
     ap.add_argument("--ignore-floaters", default="off", choices=["auto", "on", "off"],
                     help="scene/floaters.py: plan without the small, faint, isolated Gaussians (the independent exact "
                          "check then also reports the clearance to every Gaussian)")
@@ -93,7 +97,8 @@ def main() -> None:
     # the procedural room keeps its historical setting (no start region: comparable with older records)
     cfg = PlannerConfig(request_device=args.request_device, corridor_backend=args.corridor_backend, up=fam.up,
                         start_region=None if fam.kind == "procedural" else fam.start_region,
-                        obstacles_note=floaters.obstacle_note())
+                        obstacles_note=floaters.obstacle_note(), region_rule=args.region_rule,
+                        refine_disconnected=not args.no_refine)
     if args.grid_resolution is not None:
         cfg.grid_resolution = args.grid_resolution
     if args.start_look_distance is not None:
@@ -193,6 +198,8 @@ def main() -> None:
         "pairs": args.pairs,
         "seed": args.seed,
         "family": args.family,
+        "region_rule": planner.region_rule(),
+        "refine_disconnected": not args.no_refine,
         "family_description": fam.description,
         "start_mode": args.start_mode,
         "slowest_requests": [{"ms": ms, "request": ri, "timings_ms": tm}
@@ -254,7 +261,7 @@ def main() -> None:
     if args.no_record:  # a trial run: neither the committed JSON nor RESULTS.md changes
         return
     default = args.family == "procedural" and args.start_mode == "random"  # the historical file names
-    tag = "" if default else f"{args.family.split(':')[0]}_{args.start_mode}_"
+    tag = "" if default else f"{fam.name.split(':')[0]}_{args.start_mode}_"
     out = REPO / "benchmarks" / f"bench_planner_{dev.type}_{tag}{len(scene)}.json"
     out.write_text(json.dumps(result, indent=1))
     print(f"wrote {out}")
@@ -272,7 +279,9 @@ def main() -> None:
         "",
         f"`{cmd}`",
         "",
-        f"family {args.family}: {fam.description}, grid_resolution {cfg.grid_resolution} {result['grid_shape']}, "
+        f"family {args.family}: {fam.description}, region {result['region_rule']}"
+        + ("" if not args.no_refine else ", no refinement")
+        + f", grid_resolution {cfg.grid_resolution} {result['grid_shape']}, "
         f"{args.pairs} requests ({args.start_mode} start, "
         + (f"floaters ignored: {floaters.count} of {floaters.total} Gaussians, "
            f"{result['floaters'].get('shots_through_ignored_floaters', 0)} shots pass through one "

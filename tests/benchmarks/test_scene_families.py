@@ -36,3 +36,10 @@ def test_grove_family_carries_reference_searched_pairs(monkeypatch):
     assert len(fam.pairs) == 3 and "pairs joined by the reference grid" in fam.description
     g, la = fam.targets(np.random.default_rng(0), None, None)
     assert any(np.array_equal(g, p.goal) and np.array_equal(la, p.look_at) for p in fam.pairs)
+
+
+def test_grove_variant_spec_is_checked():
+    with pytest.raises(SystemExit, match="grove:BACKGROUND:FLOATERS"):
+        load_family("grove:lots", 20_000, 0, n_pairs=1)
+    with pytest.raises(SystemExit, match="floater_fraction"):
+        load_family("grove:0.03:0.9", 20_000, 0, n_pairs=1)
