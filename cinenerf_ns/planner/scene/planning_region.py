@@ -51,9 +51,10 @@ DENSE_BINS = 64
 DENSE_FLOOR = 0.05
 """dense_content_box: a cell is dense when its opacity mass is >= this x the mass-weighted mean cell mass (the density
 where the opaque mass typically lies): far background shells, sky Gaussians and isolated floaters fall below it."""
-DENSE_BRIDGE = 2
-"""dense_content_box: dense cells up to 2 x this many cells apart belong to one group (parts of the content with a
-small gap between them, e.g. an object above the floor, stay in; a background shell far from the content does not)."""
+DENSE_BRIDGE = 1
+"""dense_content_box: dense cells up to 2 x this many empty cells apart belong to one group (parts of the content with
+a small gap between them stay in; a background shell farther from the content does not: 2 already joined the grove's
+far ring through its sparse outskirts)."""
 DENSE_OUTER_QUANTILE = 0.001
 """dense_content_box bins the means inside their [q, 1 - q] quantile box (a few extreme outliers would otherwise make
 the cells huge)."""

@@ -104,7 +104,7 @@ def test_a_walled_in_target_is_not_refined(dense_grove):
     rng = np.random.default_rng(0)
     d = rng.normal(size=(4000, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    floor = np.c_[rng.uniform(-1, 1, (4000, 2)), np.full(4000, -0.4)]
+    floor = np.c_[rng.uniform(-1, 1, (4000, 2)), np.full(4000, -0.34)]
     means = np.r_[0.3 * d, floor]
     n = len(means)
     shell = EllipsoidScene(torch.as_tensor(means), torch.eye(3, dtype=torch.float64).repeat(n, 1, 1),
@@ -112,7 +112,7 @@ def test_a_walled_in_target_is_not_refined(dense_grove):
                            camera_radius=0.03)
     pl = Planner(shell, PlannerConfig(grid_resolution=48))
     start, centre = np.array([0.7, 0.0, 0.0]), np.zeros(3)
-    shot = pl.plan(centre, np.array([0.0, 0.0, -0.4]), start=start)[0]
+    shot = pl.plan(centre, np.array([0.0, 0.0, -0.34]), start=start)[0]
     assert np.linalg.norm(shot.goal - centre) > 0.2 and not hasattr(shot, "refinement")
     assert refine.enclosed(pl, centre, shot.goal)
     assert not refine.needs_refinement(pl, shot.goal, centre)
