@@ -95,7 +95,7 @@ def prepare_scene(scene: EllipsoidScene, grid_resolution: int, lo: Tensor, hi: T
     if not (~grid.occupied).any():
         raise GoalUnreachableError(
             "the occupancy grid has no free voxel: the camera radius is too large for this scene, or the "
-            "planning bounds hold no free space (raise --grid-resolution or check --bounds)"
+            "planning region holds no free space (raise --grid-resolution or check --region)"
         )
     prepared = PreparedScene(
         index=index, grid=grid, astar_grid=ag, coarse=coarse, batch_index=batch_index, voxels=voxels,
