@@ -164,7 +164,7 @@ def planning_bounds(scene: "EllipsoidScene", cfg: "PlannerConfig") -> tuple[Tens
     'robust', the robust box."""
     dev = scene.device
     if cfg.bounds is not None:
-        what = "the planning region (--region)" if cfg.bounds_rule == "user box" else f"the {cfg.bounds_rule}"
+        what = "the planning region (" + ("--region" if cfg.bounds_rule == "user box" else cfg.bounds_rule) + ")"
         blo, bhi = user_box(cfg.bounds, what)
         check_user_box(scene, blo, bhi, what)
         return (torch.as_tensor(blo, dtype=torch.float64, device=dev),
