@@ -59,6 +59,10 @@ def refine_box(planner: "Planner", start: np.ndarray, target: np.ndarray) -> Opt
     if float(np.prod(np.ceil(side / fine))) > REFINE_MAX_VOXELS:
         return None
     res = max(8, int(math.ceil(float(side.max()) / fine)))
+    # the fine grid rounds its box up to whole voxels: shift it back inside the planning region where it would leave
+    grid_side = np.ceil(side / (float(side.max()) / res) - 1e-9) * (float(side.max()) / res)
+    lo = np.maximum(rlo, np.minimum(lo, rhi - grid_side))
+    hi = lo + side
     dev = planner.scene.device
     bounds = tuple(torch.as_tensor(v, dtype=torch.float64, device=dev) for v in (lo, hi))
     # only Gaussians whose mean is within their largest possible reach of the box can have columns in it

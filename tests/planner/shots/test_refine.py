@@ -119,3 +119,17 @@ def test_a_walled_in_target_is_not_refined(dense_grove):
     _, _, robust, pair = dense_grove
     old = robust.plan(pair.goal, pair.look_at, start=pair.start)[0]
     assert not refine.enclosed(robust, pair.goal, old.goal)
+
+
+def test_the_fine_grid_stays_in_the_planning_region(dense_grove):
+    """A box against the region's corner: the fine grid's whole voxels are shifted back inside, not past it."""
+    _, _, robust, _ = dense_grove
+    rlo, rhi = robust.region()
+    for start, goal in ((rhi - 0.1, rhi - [0.9, 0.7, 0.5]), (rlo + 0.1, rlo + [0.8, 0.6, 0.45])):
+        box = refine.refine_box(robust, start, goal)
+        assert box is not None
+        sub = refine.refined_planner(robust, *box)
+        glo, ghi = sub.region()
+        assert (glo >= rlo - 1e-9).all() and (ghi <= rhi + 1e-9).all()
+        for p in (start, goal):
+            assert (p >= glo).all() and (p <= ghi).all()
