@@ -2,7 +2,7 @@
 
 Usage: .venv/bin/python benchmarks/bench_planner.py [--device cpu|cuda] [--n-gaussians 200000]
        [--pairs 100] [--seed 0] [--grid-resolution 96] [--corridor-backend auto|cpu|batched] [--quick] [--no-record]
-       [--family procedural|blobs|fox|ply:PATH|npz:PATH] [--start-mode random|given]
+       [--family procedural|blobs|grove|fox|ply:PATH|npz:PATH] [--start-mode random|given]
 
 Scene (--family, benchmarks/scene_families.py): procedural_room(N) (floor, walls, 6 objects; the default), blobs
 (synthetic/blobs.py: y up, walls + random round blobs + floaters), or a file (the fox capture, any .ply / compact
@@ -14,7 +14,9 @@ planner's checks); Planner.plan then includes its start check (start_check stage
 total (wall time of Planner.plan: what the user waits for) with median / p95 / max, per-stage median / p95 / max of
 every key in Shot.timings, failures by exception type, and two clearances: the planner's own
 verification (every dense sample proven free by the conservative test, else the exact clearance of
-the inconclusive ones) and an independent exact clearance of every frame (not timed; on the scene's own device). On CUDA
+the inconclusive ones) and an independent exact clearance of every frame (not timed; on the scene's own device). The
+grove (--family grove) plans its seeded pairs (given: from the pair's start) and, where the fine reference search joins
+them, reports the go-tos reached within REACH_TOL and the path length over the reference path's. On CUDA
 every timed region is bracketed by torch.cuda.synchronize(). Prints a rich table, writes
 benchmarks/bench_planner_<device>_<N>.json and appends a summary to benchmarks/RESULTS.md.
 """
@@ -38,7 +40,10 @@ sys.path.insert(0, str(REPO))
 from benchmarks._results import append_results, device_name  # noqa: E402
 from benchmarks.scene_families import FAMILIES, given_starts, load_family, request_fn  # noqa: E402
 from cinenerf_ns.planner.geometry.distance import clearance  # noqa: E402
+from cinenerf_ns.planner.scene.floaters import apply_floater_rule  # noqa: E402
 from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig  # noqa: E402
+
+REACH_TOL = 0.05  # scene units: a grove shot reaches its go-to when it ends this close to it (issue 37)
 
 
 def main() -> None:
@@ -58,6 +63,13 @@ def main() -> None:
     ap.add_argument("--family", default="procedural", help=f"scene family: {FAMILIES}")
     ap.add_argument("--start-mode", default="random", choices=["random", "given"],
                     help="random: the planner samples each start; given: explicit starts, drawn before timing")
+    ap.add_argument("--region-rule", default="auto", choices=["auto", "dense", "robust"],
+                    help="PlannerConfig.region_rule without training cameras (robust: the rule before issue 37)")
+    ap.add_argument("--no-refine", action="store_true",
+                    help="PlannerConfig.refine_disconnected=False (the behaviour before issue 37)")
+    ap.add_argument("--ignore-floaters", default="off", choices=["auto", "on", "off"],
+                    help="scene/floaters.py: plan without the small, faint, isolated Gaussians (the independent exact "
+                         "check then also reports the clearance to every Gaussian)")
     ap.add_argument("--profile", type=int, default=0,
                     help="cProfile the N slowest requests again after the run (printed, not recorded)")
     ap.add_argument("--quick", action="store_true", help="20k Gaussians, 20 requests (smoke run)")
@@ -77,13 +89,16 @@ def main() -> None:
             torch.cuda.synchronize(dev)
 
     t0 = time.perf_counter()
-    fam = load_family(args.family, args.n_gaussians, args.seed, args.device)
-    scene = fam.scene
+    fam = load_family(args.family, args.n_gaussians, args.seed, args.device, n_pairs=args.pairs)
+    full_scene = fam.scene
+    scene, floaters = apply_floater_rule(full_scene, args.ignore_floaters)
     sync()
     build_s = time.perf_counter() - t0
     # the procedural room keeps its historical setting (no start region: comparable with older records)
     cfg = PlannerConfig(request_device=args.request_device, corridor_backend=args.corridor_backend, up=fam.up,
-                        start_region=None if fam.kind == "procedural" else fam.start_region)
+                        start_region=None if fam.kind == "procedural" else fam.start_region,
+                        obstacles_note=floaters.obstacle_note(), region_rule=args.region_rule,
+                        refine_disconnected=not args.no_refine)
     if args.grid_resolution is not None:
         cfg.grid_resolution = args.grid_resolution
     if args.start_look_distance is not None:
@@ -104,22 +119,35 @@ def main() -> None:
         goal, look = fam.targets(rng, *region)
         requests.append((goal, look, args.seed * 100_003 + k))
     starts = [None] * len(requests)
-    if args.start_mode == "given":  # drawn (and checked) before timing
+    if fam.pairs:  # the grove: its seeded pairs (reference-searched); given mode starts at the pair's start
+        requests = [(p.goal, p.look_at, args.seed * 100_003 + k) for k, p in enumerate(fam.pairs)]
+        starts = [p.start if args.start_mode == "given" else None for p in fam.pairs]
+    elif args.start_mode == "given":  # drawn (and checked) before timing
         starts = given_starts(planner, [g for g, _, _ in requests], region, args.seed)
     plan = request_fn(planner, args.start_mode)
 
     per_stage: dict[str, list] = {}
     totals, fails, clear_verified, clear_exact, inconclusive = [], Counter(), [], [], []
+    clear_all = []  # with floaters ignored: exact clearance of every frame to every Gaussian (floaters included)
+    full_index = None
+    if floaters.ignored:
+        from cinenerf_ns.planner.scene.spatial_index import GridIndex
+
+        full_index = GridIndex.build(full_scene)
     fail_examples: dict[str, str] = {}
+    reach = []  # grove pairs the reference joins: (reached within REACH_TOL, shot length / reference length or None)
     timed = []  # (ms, request index)
     shot_timings = []  # (ms, request index, Shot.timings) of each planned request
     for ri, ((goal, look, seed), st) in enumerate(zip(requests, starts)):
         sync()
         t0 = time.perf_counter()
+        ref = fam.pairs[ri].reference_length if fam.pairs and args.start_mode == "given" else None
         try:
             shot = plan(goal, look, st, seed)[0]
         except Exception as e:  # noqa: BLE001 - the benchmark counts every failure by type
             sync()
+            if ref is not None:
+                reach.append((False, None))
             name = type(e).__name__
             fails[name] += 1
             fail_examples.setdefault(name, "".join(traceback.format_exception_only(type(e), e)).strip()[:300])
@@ -127,6 +155,9 @@ def main() -> None:
         sync()
         totals.append(1e3 * (time.perf_counter() - t0))
         timed.append((totals[-1], ri))
+        if ref is not None:
+            reached = float(np.linalg.norm(np.asarray(shot.goal) - goal)) <= REACH_TOL
+            reach.append((reached, shot.length / ref if reached else None))
         for k, v in shot.timings.items():
             per_stage.setdefault(k, []).append(float(v))
         shot_timings.append((totals[-1], ri, dict(shot.timings)))
@@ -143,6 +174,8 @@ def main() -> None:
         torch.set_num_threads(1 if not cuda else threads)  # small ops: 1 thread is faster on a shared CPU
         cidx = prep.batch_index if prep.batch_index is not None else prep.index
         clear_exact.append(float(clearance(pts, planner.batch_scene, cidx, max_distance=0.25).min()))
+        if full_index is not None:
+            clear_all.append(float(clearance(pts, full_scene, full_index, max_distance=0.25).min()))
         torch.set_num_threads(threads)
 
     def stat(v):
@@ -165,6 +198,8 @@ def main() -> None:
         "pairs": args.pairs,
         "seed": args.seed,
         "family": args.family,
+        "region_rule": planner.region_rule(),
+        "refine_disconnected": not args.no_refine,
         "family_description": fam.description,
         "start_mode": args.start_mode,
         "slowest_requests": [{"ms": ms, "request": ri, "timings_ms": tm}
@@ -180,7 +215,18 @@ def main() -> None:
         "min_verified_exact_clearance": min(clear_verified) if clear_verified else None,
         "shots_with_inconclusive_samples": int(sum(1 for x in inconclusive if x)),
         "min_exact_frame_clearance": min(clear_exact) if clear_exact else None,
+        "floaters": floaters.to_dict(),
     }
+    if clear_all:  # floaters ignored: how close the frames come to every Gaussian (negative: through a floater)
+        a = np.asarray(clear_all)
+        result["floaters"].update({"min_frame_clearance_all_gaussians": float(a.min()),
+                                   "shots_through_ignored_floaters": int((a < 0).sum())})
+    if reach:  # the grove's reference-joined pairs (given starts)
+        ratios = [r for ok, r in reach if r is not None]
+        result["reference"] = {
+            "pairs_joined": len(reach), "reached_within": REACH_TOL,
+            "reached": int(sum(ok for ok, _ in reach)), "reach_rate": sum(ok for ok, _ in reach) / len(reach),
+            "length_ratio": stat(ratios), "length_ratio_over_1_3": int(sum(r > 1.3 for r in ratios))}
 
     try:
         from rich.console import Console
@@ -199,6 +245,9 @@ def main() -> None:
     except ImportError:
         print(json.dumps(stages, indent=1))
     print(f"failures: {dict(fails) or 'none'}  examples: {fail_examples}")
+    if "reference" in result:
+        print(f"reference: {result['reference']}")
+    print(f"floaters: {result['floaters']}")
     print(
         f"min exact frame clearance {result['min_exact_frame_clearance']}, verified exact (inconclusive samples only) "
         f"{result['min_verified_exact_clearance']}, shots with inconclusive samples "
@@ -212,7 +261,7 @@ def main() -> None:
     if args.no_record:  # a trial run: neither the committed JSON nor RESULTS.md changes
         return
     default = args.family == "procedural" and args.start_mode == "random"  # the historical file names
-    tag = "" if default else f"{args.family.split(':')[0]}_{args.start_mode}_"
+    tag = "" if default else f"{fam.name.split(':')[0]}_{args.start_mode}_"
     out = REPO / "benchmarks" / f"bench_planner_{dev.type}_{tag}{len(scene)}.json"
     out.write_text(json.dumps(result, indent=1))
     print(f"wrote {out}")
@@ -230,12 +279,20 @@ def main() -> None:
         "",
         f"`{cmd}`",
         "",
-        f"family {args.family}: {fam.description}, grid_resolution {cfg.grid_resolution} {result['grid_shape']}, "
+        f"family {args.family}: {fam.description}, region {result['region_rule']}"
+        + ("" if not args.no_refine else ", no refinement")
+        + f", grid_resolution {cfg.grid_resolution} {result['grid_shape']}, "
         f"{args.pairs} requests ({args.start_mode} start, "
-        + ("go-to object +-jitter, look-at object" if fam.objects else "go-to and look-at uniform in the start region")
+        + (f"floaters ignored: {floaters.count} of {floaters.total} Gaussians, "
+           f"{result['floaters'].get('shots_through_ignored_floaters', 0)} shots pass through one "
+           f"(min clearance to all Gaussians {result['floaters'].get('min_frame_clearance_all_gaussians', 0):.4f}), "
+           if floaters.ignored else "")
+        + ("go-to object +-jitter, look-at object" if fam.objects else
+           "seeded grove pairs" if fam.pairs else "go-to and look-at uniform in the start region")
         + f"); success {n_ok}/{args.pairs}, failures {dict(fails) or 'none'}; min exact frame clearance "
         f"{result['min_exact_frame_clearance']}",
         "",
+        *([reference_line(result["reference"]), ""] if "reference" in result else []),
         "prepare ms: " + ", ".join(f"{k} {v:.0f}" for k, v in prepare_ms.items()),
         "",
         "| ms | median | p95 | max |",
@@ -246,6 +303,15 @@ def main() -> None:
         "",
     ]
     append_results("\n".join(lines))
+
+
+def reference_line(ref: dict) -> str:
+    """The RESULTS.md line of the grove's reference comparison."""
+    lr = ref["length_ratio"]
+    ratio = ("no pair reached" if lr is None else f"path length / reference: median {lr['median']:.3f}, p95 "
+             f"{lr['p95']:.3f}, max {lr['max']:.3f} ({ref['length_ratio_over_1_3']} over 1.3)")
+    return (f"reference-joined pairs: {ref['reached']}/{ref['pairs_joined']} go-tos reached within "
+            f"{ref['reached_within']:g} ({100 * ref['reach_rate']:.0f}%); {ratio}")
 
 
 def profile_requests(plan, requests, starts, indices) -> None:

@@ -2,6 +2,9 @@
 
     --family procedural   planner/scene/procedural.py's room (z up, 2 x 2 x 1, thin discs, 6 objects on a jittered grid)
     --family blobs        synthetic/blobs.py (y up, about [-1, 1]^3, 3 walls + floor, random round blobs, floaters)
+    --family grove[:BG:FF]  synthetic/grove.py (z up, open: ground, 36 thin trunks + canopies, rocks, 3% faint floaters,
+                          3% huge Gaussians on a far background shell; no training cameras) with seeded start / go-to
+                          pairs whose reachability and length come from a fine-grid reference search (GROVE_SPACING)
     --family fox          ../shared/data/fox_cinesplat/fox3000.npz (a real capture's compact export)
     --family ply:PATH / npz:PATH   any Gaussian-splat .ply or compact export (.npz / .pt)
 The files go through cinenerf_ns.scenes.load_scene (the CLI's loader: the same obstacles) and their start_region (the
@@ -17,7 +20,7 @@ when there is none).
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, List, Optional, Tuple
 
@@ -25,8 +28,11 @@ import numpy as np
 import torch
 
 REPO = Path(__file__).resolve().parents[1]
-FOX = REPO.parent / "shared" / "data" / "fox_cinesplat" / "fox3000.npz"
-FAMILIES = "procedural | blobs | fox | ply:PATH | npz:PATH"
+FOX = next((p for p in (REPO.parent / "shared" / "data" / "fox_cinesplat" / "fox3000.npz",  # beside the checkout
+                         REPO.parents[1] / "shared" / "data" / "fox_cinesplat" / "fox3000.npz")  # beside a worktree
+            if p.exists()), REPO.parent / "shared" / "data" / "fox_cinesplat" / "fox3000.npz")
+FAMILIES = "procedural | blobs | grove[:BG:FF] | fox | ply:PATH | npz:PATH"
+GROVE_SPACING = 0.025  # scene units: the grove reference grid's spacing (synthetic/grove.py reference_search)
 GIVEN_CLEAR = 0.1  # scene units: a given start's distance to every Gaussian centre
 GIVEN_FROM_GOAL = 0.5  # scene units: a given start's distance to its go-to target
 
@@ -40,9 +46,14 @@ class Family:
     up: Tuple[float, float, float]  # PlannerConfig.up
     objects: list  # [(centre [3], size [3])] go-to / look-at objects (procedural, blobs); [] for files
     description: str
+    pairs: list = field(default_factory=list)  # grove: [GrovePair] (start, go-to, look-at, reference length)
 
     def targets(self, rng: np.random.Generator, lo: np.ndarray, hi: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
-        """One request's (go-to [3], look-at [3]); lo / hi [3]: where file families draw them."""
+        """One request's (go-to [3], look-at [3]); lo / hi [3]: where file families draw them (the grove: a random
+        pair's)."""
+        if self.pairs:
+            p = self.pairs[int(rng.integers(len(self.pairs)))]
+            return p.goal.copy(), p.look_at.copy()
         if self.objects:
             i, j = rng.choice(len(self.objects), 2, replace=False)
             c, size = self.objects[i]
@@ -50,8 +61,8 @@ class Family:
         return rng.uniform(lo, hi), rng.uniform(lo, hi)
 
 
-def load_family(spec: str, n_gaussians: int, seed: int, device: str = "cpu") -> Family:
-    """--family spec -> Family (n_gaussians / seed only for the generated families)."""
+def load_family(spec: str, n_gaussians: int, seed: int, device: str = "cpu", n_pairs: int = 100) -> Family:
+    """--family spec -> Family (n_gaussians / seed only for the generated families, n_pairs for the grove's)."""
     from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
 
     dev = torch.device(device)
@@ -72,6 +83,21 @@ def load_family(spec: str, n_gaussians: int, seed: int, device: str = "cpu") -> 
         r = float(scene.camera_radius)
         return Family(spec, "blobs", scene, (b.free_lo + r, b.free_hi - r), b.up,
                       [(x.center, np.full(3, 2 * x.radius)) for x in b.blobs], f"blob_scene N={len(scene)} seed {seed}")
+    if spec == "grove" or spec.startswith("grove:"):
+        from cinenerf_ns.planner.scene.spatial_index import GridIndex
+        from cinenerf_ns.synthetic.grove import grove_pairs, grove_scene
+
+        try:  # grove:BACKGROUND:FLOATERS fractions (default 0.03 each)
+            fr = [float(v) for v in spec.split(":")[1:]] if ":" in spec else []
+            g = grove_scene(n_gaussians, seed=seed, **dict(zip(("background_fraction", "floater_fraction"), fr)))
+        except (ValueError, TypeError) as e:
+            raise SystemExit(f"--family {spec!r}: expected grove or grove:BACKGROUND:FLOATERS ({e})") from e
+        scene = EllipsoidScene.from_params(g.splat, device=dev)
+        pairs, ref = grove_pairs(g, scene, GridIndex.build(scene), n_pairs, seed=seed, spacing=GROVE_SPACING)
+        n_ref = sum(p.reference_length is not None for p in pairs)
+        return Family(spec.replace(":", "_"), "grove", scene, None, g.up, [],
+                      f"grove_scene N={len(scene)} seed {seed} ({n_ref}/{len(pairs)} pairs joined by the reference "
+                      f"grid {list(ref.free.shape)} at {ref.spacing:g})", pairs=pairs)
     if spec == "fox":
         path = FOX
     elif spec.startswith(("ply:", "npz:")):

@@ -235,9 +235,10 @@ def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Opti
         region = (lo, hi)
     poses = scene_camera_poses(cfg_path, st.info)  # [F, 3, 4] or None (the viewer's opening view)
     notes = [] if cams is not None or cfg_path is None else [missing_cameras_note(cfg_path)]
+    stored = stored_region(st.info, path)
     return LoadedScene(scene, locate, "checkpoint", str(path), config_path=cfg_path,
                        extra={"splat": st, "camera_centres": cams, "camera_poses": poses, "notes": notes,
-                              **extra_sem},
+                              **extra_sem, **({"planning_region": stored} if stored is not None else {})},
                        start_region=region)
 
 
@@ -250,6 +251,21 @@ def missing_cameras_note(config_path: Path) -> str:
            else f"its training cameras could not be read from {data}")
     return (f"{config_path}: {why}; planning without the training cameras (random starts anywhere in the scene's "
             f"free space, text targets' centres without the unseen-part fill)")
+
+
+def stored_region(info: Dict[str, Any], path: Any) -> Optional[Tuple[np.ndarray, np.ndarray]]:
+    """The planning region a compact export stores (export_compact's planning_region) as (lo [3], hi [3]), or None;
+    CheckpointError when it is there but not a valid box."""
+    reg = info.get("planning_region")
+    if reg is None:
+        return None
+    from cinenerf_ns.method.scene_files import CheckpointError
+    from cinenerf_ns.planner.scene.planning_region import user_box
+
+    try:
+        return user_box((reg["lo"], reg["hi"]), "the stored planning region")
+    except (InvalidInputError, KeyError, TypeError) as e:
+        raise CheckpointError(f"{path}: its stored planning region is not a valid box: {e}") from e
 
 
 def resolve_match(text: str, loaded: LoadedScene, what: str) -> Dict[str, Any]:

@@ -505,3 +505,14 @@ def test_text_without_loadable_clip_weights_gives_advice_for_this_tool():
     assert "--pipeline" not in msg and "Could not load CLIP weights 'ViT-B-16'" in msg
     assert "give the go-to target as a point 'x y z', or one of the scene's object names: red armchair, floor lamp" \
         in msg
+
+
+def test_a_malformed_stored_planning_region_is_a_checkpoint_error():
+    from cinenerf_ns.scenes import stored_region
+
+    assert stored_region({}, "x.npz") is None
+    lo, hi = stored_region({"planning_region": {"lo": [0, 0, 0], "hi": [1, 2, 3]}}, "x.npz")
+    np.testing.assert_allclose(hi, [1, 2, 3])
+    for bad in ({"lo": [0, 0, 0], "hi": [0, 1, 1]}, {"lo": [0, 0]}, "everywhere"):
+        with pytest.raises(CheckpointError, match="x.npz: its stored planning region is not a valid box"):
+            stored_region({"planning_region": bad}, "x.npz")

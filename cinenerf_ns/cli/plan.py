@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import sys
 import time
 from dataclasses import dataclass, field
@@ -38,6 +39,8 @@ from cinenerf_ns.options import check_device, check_number
 from cinenerf_ns.output_set import OutputSet, check_file_size_limit, check_name, check_writable
 from cinenerf_ns.planner.errors import InvalidInputError, PlanningError
 from cinenerf_ns.planner.scene.ellipsoids import DEFAULT_SAFETY_MARGIN, SceneConfig
+from cinenerf_ns.planner.scene.floaters import apply_floater_rule
+from cinenerf_ns.planner.scene.planning_region import user_box
 from cinenerf_ns.planner.shots import stages
 from cinenerf_ns.planner.shots.camera_path import (
     DEFAULT_FOV_DEG,
@@ -127,6 +130,14 @@ class PlanArgs:
     """Ellipsoid size in sigmas (paper: 2), scaled by each Gaussian's opacity."""
     opacity_floor: float = SceneConfig.opacity_floor
     """Gaussians below this opacity are not obstacles."""
+    region: Optional[str] = None
+    """Planning region 'x0 y0 z0 x1 y1 z1' (two corners, scene units): every path stays in it. Default: the region
+    stored in a compact export, else the training cameras' box grown, else the box of the dense content (far background,
+    sky and floaters do not stretch it); the report says which rule chose it."""
+    ignore_floaters: Literal["auto", "on", "off"] = "off"
+    """Treat small, faint, isolated Gaussians (a capture's noise in the air) as non-obstacles: on, off, or auto (on
+    when they are at least 1% of the Gaussians). The rule is in the report, with how many were ignored; shots are
+    verified against the obstacles that remain (cinenerf_ns/planner/scene/floaters.py)."""
     grid_resolution: int = PlannerConfig.grid_resolution
     """A* voxels along the longest side of the planning region (8-1024, within --memory-budget-mb)."""
     memory_budget_mb: float = PlannerConfig.memory_budget_mb
@@ -219,6 +230,8 @@ def check_args(args: PlanArgs) -> None:
         if p is None or not np.all(np.isfinite(p)):
             raise InvalidInputError(f"--start must be a point 'x y z' of three finite numbers, got {args.start!r}")
     _check_targets(args)
+    if args.region is not None:
+        parse_region(args.region)
     check_name(args.name)
     if args.preview:
         for v, opt in zip(args.preview_size, ("--preview-size (width)", "--preview-size (height)")):
@@ -323,6 +336,28 @@ def _workers(args: PlanArgs, console: Console) -> Optional[int]:
     console.print(f"note: --workers {args.workers} capped to {cap} ({usable_cpus()} usable CPUs, {args.candidates} "
                   f"candidate(s))", markup=False, highlight=False)
     return cap
+
+
+def parse_region(text: str) -> Tuple[np.ndarray, np.ndarray]:
+    """--region 'x0 y0 z0 x1 y1 z1' -> (lo [3], hi [3]); InvalidInputError unless 6 finite numbers with lo < hi on
+    every axis (planning_region.user_box)."""
+    tokens = [t for t in re.split(r"[\s,;\[\]()]+", str(text).strip()) if t]
+    try:
+        vals = [float(t) for t in tokens]
+    except ValueError as e:
+        raise InvalidInputError(f"--region must be 6 numbers 'x0 y0 z0 x1 y1 z1', got {text!r}") from e
+    return user_box(vals, "the planning region (--region)")
+
+
+def _region_config(args: PlanArgs, loaded: LoadedScene) -> Dict[str, Any]:
+    """PlannerConfig's bounds / bounds_rule: --region, else the region a compact export stores, else none (the
+    planner's rules)."""
+    if args.region is not None:
+        return {"bounds": parse_region(args.region), "bounds_rule": "user box"}
+    stored = loaded.extra.get("planning_region")
+    if stored is not None:
+        return {"bounds": stored, "bounds_rule": "stored in the export"}
+    return {}
 
 
 def _obstacles_near_paths(means: np.ndarray, shots, up: np.ndarray, band: float = 0.1) -> np.ndarray:
@@ -474,12 +509,14 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
         stops = [resolve_match(t, loaded, f"go-to {i + 2}")["point"] for i, t in enumerate(args.then_go_to)]
         stop_looks = [resolve_match(t, loaded, f"look-at {i + 2}")["point"] for i, t in enumerate(args.then_look_at)]
         prog.update(task, advance=1, description="preparing (index, occupancy grid)", refresh=True)
+        loaded.scene, floaters = apply_floater_rule(loaded.scene, args.ignore_floaters)
         pcfg = PlannerConfig(
             grid_resolution=args.grid_resolution, up=tuple(args.up),
             timing=TimingConfig(max_speed=args.max_speed, fps=args.fps),
             start_region=loaded.start_region, candidate_workers=workers, memory_budget_mb=memory_budget_mb,
             start_look_distance=args.start_look_distance,
             grid_polytopes={"auto": "auto", "on": True, "off": False}[args.grid_polytopes],
+            **_region_config(args, loaded), obstacles_note=floaters.obstacle_note(),
         )
         planner = Planner(loaded.scene, pcfg)
         prep = planner.prepare()
@@ -513,6 +550,7 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
             for k, c in enumerate(summary["candidates"]):
                 c["subject_view"] = views[k]
                 c["end_pose"] = None if targets is None else targets.pose_of(cands[k])
+            summary["floaters"] = floaters.to_dict()
             summary["total_s"] = time.perf_counter() - t_all
             rpath = out.final(f"{args.name}_report.json")
             summary["report"] = str(rpath)
@@ -532,7 +570,7 @@ def _summary(args, loaded, planner, prep, gm, lm, goal, look, shots, scores, mul
         "scene": loaded.source,
         "go_to": {**strip(gm), "point": goal.tolist(), "resolved": gm["description"]},
         "look_at": {**strip(lm), "point": look.tolist(), "resolved": lm["description"]},
-        "planning_region": {"lo": lo.tolist(), "hi": hi.tolist()},
+        "planning_region": {"lo": lo.tolist(), "hi": hi.tolist(), "rule": planner.region_rule()},
         "prepare_ms": prep.timings_ms,
         "camera_radius": args.camera_radius,
         "safety_margin": args.safety_margin,
@@ -544,6 +582,7 @@ def _summary(args, loaded, planner, prep, gm, lm, goal, look, shots, scores, mul
              "score": None if scores[k] is None else scores[k].to_dict(),
              "dynamics": getattr(sh, "dynamics", None) if multi is None else multi.dynamics,
              "camera_path": str(files[k]), "goal_moved": moves[k],
+             "refinement": getattr(sh, "refinement", None),
              "exact_clearance": {kk: v for kk, v in reports[k].items() if kk not in ("times", "clearance")},
              "verification": sh.safety}
             for k, sh in enumerate(shots)
@@ -582,6 +621,9 @@ def _print_summary(args, console, loaded, gm, lm, shots, scores, multi, reports,
                         f("mean_jerk", ".1f"), f("mean_angular_rate_deg", ".0f"), peaks]
         table.add_row(*row)
     console.print(table)
+    reg = summary["planning_region"]
+    console.print(f"planning region {_fmt3(reg['lo'])}..{_fmt3(reg['hi'])} ({reg['rule']}); obstacles: "
+                  f"{summary['floaters']['obstacles']}")
     console.print("score: lower is better (every term in the report); seen: frames with at least half of the look-at "
                   "object visible; end: its visible share in the last frame; size: its size in the last frame "
                   f"({args.framing}: {_framing(args).band[0]:g}-{_framing(args).band[2]:g}); clr/len in scene units"

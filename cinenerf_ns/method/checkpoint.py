@@ -177,11 +177,14 @@ def _is_compact(path: Path) -> bool:
     return isinstance(blob, dict) and blob.get("format") == "cinesplat-compact"
 
 
-def export_compact(ck: SplatCheckpoint, path: str | Path, half: bool = True) -> Path:
+def export_compact(ck: SplatCheckpoint, path: str | Path, half: bool = True,
+                   planning_region: Optional[tuple] = None) -> Path:
     """Write a small self-contained scene (SH degree 0 colour): .pt (torch) or .npz (numpy).
 
     Keys: means, quats, scales (log), opacities (logit), rgb [N,3], latents?, codec state, info (JSON),
     label_embeddings?. ``half``: float16 for the per-Gaussian arrays (means stay float32: positions need it).
+    ``planning_region`` (lo [3], hi [3]): stored as info["planning_region"] {"lo", "hi"}; cinenerf_ns.scenes.load_scene
+    gives it back (stored_region) and cinesplat-plan plans in it unless --region says otherwise.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -202,7 +205,11 @@ def export_compact(ck: SplatCheckpoint, path: str | Path, half: bool = True) -> 
     if ck.label_embeddings is not None:
         arrays["label_embeddings"] = ck.label_embeddings.to(ht).cpu()
     codec_state = {k: v.float().cpu() for k, v in (ck.codec_state or {}).items()}
-    info_json = json.dumps(ck.info, default=str)
+    info = dict(ck.info)
+    if planning_region is not None:
+        lo, hi = (np.asarray(v, dtype=np.float64).reshape(3) for v in planning_region)
+        info["planning_region"] = {"lo": lo.tolist(), "hi": hi.tolist()}
+    info_json = json.dumps(info, default=str)
     tmp = path.with_name(path.name + ".tmp")
     if path.suffix == ".npz":
         flat = {k: v.numpy() for k, v in arrays.items()}

@@ -27,3 +27,19 @@ def test_given_starts_keep_their_distances_and_plan(family):
 def test_unknown_family_is_refused():
     with pytest.raises(SystemExit, match="expected"):
         load_family("cubes", 1000, 0)
+
+
+def test_grove_family_carries_reference_searched_pairs(monkeypatch):
+    monkeypatch.setattr("benchmarks.scene_families.GROVE_SPACING", 0.06)  # a coarser reference: a quicker test
+    fam = load_family("grove", 20_000, 0, n_pairs=3)
+    assert fam.kind == "grove" and fam.start_region is None and fam.up == (0.0, 0.0, 1.0)
+    assert len(fam.pairs) == 3 and "pairs joined by the reference grid" in fam.description
+    g, la = fam.targets(np.random.default_rng(0), None, None)
+    assert any(np.array_equal(g, p.goal) and np.array_equal(la, p.look_at) for p in fam.pairs)
+
+
+def test_grove_variant_spec_is_checked():
+    with pytest.raises(SystemExit, match="grove:BACKGROUND:FLOATERS"):
+        load_family("grove:lots", 20_000, 0, n_pairs=1)
+    with pytest.raises(SystemExit, match="floater_fraction"):
+        load_family("grove:0.03:0.9", 20_000, 0, n_pairs=1)

@@ -382,3 +382,47 @@ def test_end_pose_and_framing_in_report_and_table(tmp_path, capsys):
     with pytest.raises(InvalidInputError, match="framing"):
         run_plan(PlanArgs(go_to="armchair", framing="huge", output_dir=tmp_path / "d", **kw))
     assert not (tmp_path / "d").exists()
+
+
+def test_planning_region_rules_in_report_and_export(tmp_path, capsys):
+    """No cameras: the dense content's box; --region: that box; a compact export's stored region: used on load. The
+    report and the printed summary say which rule chose it."""
+    from cinenerf_ns.method.checkpoint import SplatCheckpoint, export_compact
+    from cinenerf_ns.synthetic.grove import grove_scene
+
+    g = grove_scene(20_000, seed=1, background_fraction=0.1)
+    ply = g.write_ply(tmp_path / "grove.ply")
+    common = dict(go_to="-0.3 0.2 0.5", look_at="0.5 0.5 0.5", start="0.6 -0.5 0.6", grid_resolution=48)
+    s = run_plan(PlanArgs(scene=str(ply), output_dir=tmp_path / "a", **common))
+    reg = s["planning_region"]
+    assert reg["rule"] == "dense content"
+    assert np.ptp(np.array([reg["lo"], reg["hi"]]), axis=0).max() < 9.0  # not the 15-unit background shell
+    assert "(dense content)" in capsys.readouterr().out
+    box = "-1.5 -1.5 0 1.5 1.5 1.2"
+    s = run_plan(PlanArgs(scene=str(ply), output_dir=tmp_path / "b", region=box, **common))
+    assert s["planning_region"]["rule"] == "user box"
+    np.testing.assert_allclose(s["planning_region"]["lo"], [-1.5, -1.5, 0])
+    st = SplatCheckpoint(params=g.splat)
+    npz = export_compact(st, tmp_path / "grove.npz", half=False,
+                         planning_region=(np.array([-1.2, -1.2, 0.0]), np.array([1.2, 1.2, 1.0])))
+    s = run_plan(PlanArgs(scene=str(npz), output_dir=tmp_path / "c", **common))
+    assert s["planning_region"]["rule"] == "stored in the export"
+    np.testing.assert_allclose(s["planning_region"]["lo"], [-1.2, -1.2, 0])
+    s = run_plan(PlanArgs(scene=str(npz), output_dir=tmp_path / "d", region=box, **common))
+    assert s["planning_region"]["rule"] == "user box"  # --region wins over the stored one
+
+
+def test_ignore_floaters_reports_the_count_and_the_verified_obstacles(tmp_path, capsys):
+    from cinenerf_ns.synthetic.grove import grove_scene
+
+    ply = grove_scene(20_000, seed=3).write_ply(tmp_path / "grove.ply")
+    common = dict(scene=str(ply), go_to="-0.3 0.2 0.5", look_at="0.5 0.5 0.5", start="0.6 -0.5 0.6",
+                  grid_resolution=48)
+    s = run_plan(PlanArgs(output_dir=tmp_path / "on", ignore_floaters="on", **common))
+    fl = s["floaters"]
+    assert fl["ignored"] and fl["ignored_gaussians"] > 0 and "opacity <=" in fl["rule"]
+    assert s["candidates"][0]["verification"]["obstacles"] == fl["obstacles"]
+    assert f"{fl['ignored_gaussians']} floaters ignored" in " ".join(capsys.readouterr().out.split())
+    s = run_plan(PlanArgs(output_dir=tmp_path / "off", **common))  # the default keeps every Gaussian
+    assert not s["floaters"]["ignored"] and s["floaters"]["ignored_gaussians"] == 0
+    assert s["candidates"][0]["verification"]["obstacles"].startswith("all ")

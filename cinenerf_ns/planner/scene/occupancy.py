@@ -160,14 +160,7 @@ def build_occupancy(
     # s samples per ellipsoid: s = h / (h + rho), h log-spaced in [a_min, a_max]
     t = torch.linspace(0, 1, n_s, dtype=torch.float64, device=dev)
     n = len(scene)
-    ext = scene.half_extents().double() + rho  # [N, 3] half-extents of E + B(rho)
-    i_lo = torch.ceil((scene.means.double() - ext - lo) / voxel - 0.5).long()
-    i_hi = torch.floor((scene.means.double() + ext - lo) / voxel - 0.5).long()
-    i_lo = i_lo.clamp_min(0)
-    i_hi = torch.minimum(i_hi, dims - 1)
-    span = (i_hi[:, :2] - i_lo[:, :2] + 1).clamp_min(0)  # [N, 2] footprint columns along x, y
-    span[(i_hi[:, 2] < i_lo[:, 2])] = 0  # z-range outside the grid: nothing to mark
-    ncol = span[:, 0] * span[:, 1]  # [N]
+    span, i_lo, ncol = _footprints(scene, lo, voxel, dims, rho)
     # chunks of ellipsoids with at most ~max_columns columns each
     csum = torch.cumsum(ncol, 0)
     start = 0
@@ -191,6 +184,25 @@ def _one_covers_the_box(scene: EllipsoidScene, lo: Tensor, hi: Tensor) -> bool:
         return False
     d = (c[None] - scene.means[big].double()[:, None]) @ scene.rotations[big].double()  # [B, 8, 3] in the axes
     return bool((((d / scene.radii[big].double()[:, None]) ** 2).sum(-1) <= 1.0).all(-1).any())
+
+
+def _footprints(scene: EllipsoidScene, lo: Tensor, voxel: float, dims: Tensor, rho: float):
+    """(span [N, 2] footprint columns along x and y, i_lo [N, 3] first voxel, ncol [N] columns) of each ellipsoid grown
+    by rho on the grid (0 columns for those outside it)."""
+    ext = scene.half_extents().double() + rho  # [N, 3] half-extents of E + B(rho)
+    i_lo = torch.ceil((scene.means.double() - ext - lo) / voxel - 0.5).long()
+    i_hi = torch.floor((scene.means.double() + ext - lo) / voxel - 0.5).long()
+    i_lo = i_lo.clamp_min(0)
+    i_hi = torch.minimum(i_hi, dims - 1)
+    span = (i_hi[:, :2] - i_lo[:, :2] + 1).clamp_min(0)  # [N, 2] footprint columns along x, y
+    span[(i_hi[:, 2] < i_lo[:, 2])] = 0  # z-range outside the grid: nothing to mark
+    return span, i_lo, span[:, 0] * span[:, 1]
+
+
+def occupancy_columns(scene: EllipsoidScene, resolution: int, bounds: Tuple[Tensor, Tensor]) -> int:
+    """How many voxel columns build_occupancy(scene, resolution=resolution, bounds=bounds) rasterises (its work)."""
+    lo, voxel, dims = _grid_geometry(scene, resolution, bounds, None)
+    return int(_footprints(scene, lo, voxel, dims, scene.camera_radius + 0.5 * math.sqrt(3.0) * voxel)[2].sum())
 
 
 def _mark_chunk(scene, a, b, span, i_lo, lo, voxel, dims, rho, t, diff) -> None:

@@ -42,26 +42,141 @@ def as_point(x: ArrayLike, what: str) -> np.ndarray:
     return p
 
 
-def planning_bounds(scene: "EllipsoidScene", cfg: "PlannerConfig") -> tuple[Tensor, Tensor]:
-    """(lo [3], hi [3]) float64 on the scene's device: config.bounds when given, else the robust box of the Gaussian
-    means (config.robust_bounds_quantile, grown by 10% + the camera radius), cut to the start region grown by
-    config.region_padding when there is one (a capture's cameras: the region that matters)."""
-    dev = scene.device
-    if cfg.bounds is not None:
-        lo = torch.as_tensor(cfg.bounds[0], dtype=torch.float64, device=dev).reshape(3)
-        hi = torch.as_tensor(cfg.bounds[1], dtype=torch.float64, device=dev).reshape(3)
-        if not (torch.isfinite(lo).all() and torch.isfinite(hi).all() and (hi > lo).all()):
-            raise InvalidInputError(f"planning bounds need finite lo < hi, got {lo.tolist()}, {hi.tolist()}")
-        return lo, hi
-    m = scene.means.double()  # [N, 3]
-    q = cfg.robust_bounds_quantile
-    if len(scene) > 1000 and q > 0:
+REGION_RULES = ("auto", "dense", "robust")
+"""PlannerConfig.region_rule: without bounds and training cameras, the region follows the dense content ('auto',
+'dense': dense_content_box) or the robust box of all means ('robust': the rule before issue 37)."""
+
+DENSE_BINS = 64
+"""dense_content_box: histogram cells along the longest side of the means' robust box."""
+DENSE_FLOOR = 0.05
+"""dense_content_box: a cell is dense when its opacity mass is >= this x the mass-weighted mean cell mass (the density
+where the opaque mass typically lies): far background shells, sky Gaussians and isolated floaters fall below it."""
+DENSE_BRIDGE = 1
+"""dense_content_box: dense cells up to 2 x this many empty cells apart belong to one group (parts of the content with
+a small gap between them stay in; a background shell farther from the content does not: 2 already joined the grove's
+far ring through its sparse outskirts)."""
+DENSE_OUTER_QUANTILE = 0.001
+"""dense_content_box bins the means inside their [q, 1 - q] quantile box (a few extreme outliers would otherwise make
+the cells huge)."""
+
+
+def _quantile_box(m: Tensor, q: float) -> tuple[Tensor, Tensor]:
+    """(lo [3], hi [3]) the [q, 1 - q] per-axis quantiles of points m [N, 3] (min / max for q = 0 or N <= 1000)."""
+    if len(m) > 1000 and q > 0:
         # torch.quantile has an input-size limit; a strided subsample is plenty for bounds
         sub = m[:: max(1, len(m) // 200_000)]
-        lo = torch.quantile(sub, q, dim=0)
-        hi = torch.quantile(sub, 1 - q, dim=0)
+        return torch.quantile(sub, q, dim=0), torch.quantile(sub, 1 - q, dim=0)
+    return m.min(0).values, m.max(0).values
+
+
+def dense_content_box(means: Tensor, weights: Tensor, bins: int = DENSE_BINS,
+                      floor: float = DENSE_FLOOR) -> tuple[np.ndarray, np.ndarray]:
+    """(lo [3], hi [3]) float64: the box of the dense opaque content of points ``means`` [N, 3] with ``weights`` [N]
+    (opacities). The means are binned (opacity-weighted) into cubic cells, ``bins`` along the longest side of their
+    DENSE_OUTER_QUANTILE box; cells with mass >= ``floor`` x the mass-weighted mean cell mass are dense; the
+    heaviest group of dense cells (26-connected, bridging gaps of DENSE_BRIDGE cells) is the connected core: a far
+    background ring or dome, however heavy, is a group of its own. The box covers the core's cells."""
+    from scipy import ndimage
+
+    m = means.double()
+    w = weights.double().reshape(-1)
+    ok = torch.isfinite(m).all(1) & torch.isfinite(w) & (w > 0)
+    m, w = m[ok], w[ok]
+    if len(m) == 0:
+        raise InvalidInputError("the scene has no finite Gaussian with positive opacity: no region to plan in")
+    olo, ohi = _quantile_box(m, DENSE_OUTER_QUANTILE)
+    side = (ohi - olo).clamp_min(1e-9)
+    cell = float(side.max()) / bins
+    dims = torch.clamp(torch.ceil(side / cell).long(), 1, bins)
+    ijk = torch.floor((m - olo) / cell).long()
+    inside = ((ijk >= 0) & (ijk < dims)).all(1)
+    ijk, w = ijk[inside], w[inside]
+    flat = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
+    mass = torch.bincount(flat, weights=w, minlength=int(dims.prod())).cpu().numpy()
+    total = mass.sum()
+    typical = float((mass * mass).sum() / total) if total > 0 else 0.0
+    dense = (mass >= floor * typical) & (mass > 0)
+    dense = dense.reshape(tuple(dims.tolist()))
+    bridged = ndimage.binary_dilation(dense, np.ones((3, 3, 3), dtype=bool), iterations=DENSE_BRIDGE)
+    labels, n = ndimage.label(bridged, structure=np.ones((3, 3, 3), dtype=bool))
+    comp_mass = np.bincount(labels.reshape(-1), weights=mass, minlength=n + 1)
+    comp_mass[0] = 0.0
+    core = dense & (labels == int(np.argmax(comp_mass)))
+    idx = np.argwhere(core)  # [K, 3]: at least the heaviest cell's group
+    base = olo.cpu().numpy()
+    return base + idx.min(0) * cell, base + (idx.max(0) + 1) * cell
+
+
+def region_rule(cfg: "PlannerConfig") -> str:
+    """Which rule chooses the planning region under ``cfg`` (what the report and the CLI say): cfg.bounds_rule when
+    bounds are given ('user box', ...), 'training cameras' with a start region, else 'dense content' or 'robust box of
+    all means' (cfg.region_rule)."""
+    if cfg.bounds is not None:
+        return cfg.bounds_rule
+    if cfg.start_region is not None:
+        return "training cameras"
+    return "robust box of all means" if cfg.region_rule == "robust" else "dense content"
+
+
+def user_box(bounds, what: str = "the planning region (--region)") -> tuple[np.ndarray, np.ndarray]:
+    """(lo [3], hi [3]) float64 of a user box (lo, hi) or 6 numbers x0 y0 z0 x1 y1 z1; InvalidInputError naming
+    ``what`` unless they are 6 finite numbers with lo < hi on every axis."""
+    try:
+        v = np.asarray([np.asarray(b, dtype=np.float64).reshape(-1) for b in bounds], dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError) as e:
+        raise InvalidInputError(f"{what} must be 6 numbers 'x0 y0 z0 x1 y1 z1', got {bounds!r}") from e
+    if v.shape != (6,):
+        raise InvalidInputError(f"{what} must be 6 numbers 'x0 y0 z0 x1 y1 z1' (two corners), got {v.size} numbers")
+    if not np.all(np.isfinite(v)):
+        raise InvalidInputError(f"{what} must be 6 finite numbers, got {v.tolist()}")
+    lo, hi = v[:3], v[3:]
+    if not (hi > lo).all():
+        axes = ", ".join("xyz"[i] for i in np.flatnonzero(hi <= lo))
+        raise InvalidInputError(f"{what} is empty or inverted along {axes}: each of x0 y0 z0 must be below x1 y1 z1, "
+                                f"got {format_point(lo)}..{format_point(hi)}")
+    return lo, hi
+
+
+def check_user_box(scene: "EllipsoidScene", lo: np.ndarray, hi: np.ndarray, what: str) -> None:
+    """InvalidInputError when a user box misses the scene (no Gaussian mean in it or next to it) or is too thin
+    for the camera (a side under 4 camera radii: no room to move)."""
+    r = float(scene.camera_radius)
+    thin = np.flatnonzero(hi - lo < 4 * r)
+    if thin.size:
+        raise InvalidInputError(
+            f"{what} {format_point(lo)}..{format_point(hi)} is too small for the camera along "
+            f"{', '.join('xyz'[i] for i in thin)}: each side must be at least 4 x (--camera-radius + --safety-margin) "
+            f"= {4 * r:.4g} scene units")
+    m = scene.means.detach()
+    slo = m.min(0).values.double().cpu().numpy()
+    shi = m.max(0).values.double().cpu().numpy()
+    if (lo > shi).any() or (hi < slo).any():
+        raise InvalidInputError(
+            f"{what} {format_point(lo)}..{format_point(hi)} lies outside the scene, whose Gaussians span "
+            f"{format_point(slo)}..{format_point(shi)} (scene units)")
+
+
+def planning_bounds(scene: "EllipsoidScene", cfg: "PlannerConfig") -> tuple[Tensor, Tensor]:
+    """(lo [3], hi [3]) float64 on the scene's device, by region_rule(cfg): config.bounds when given (checked:
+    user_box, check_user_box); else with a start region (training cameras) the start region grown by
+    config.region_padding, cut to the robust box of the means (config.robust_bounds_quantile, grown by 10% + the
+    camera radius); else the dense content's box (dense_content_box, grown the same way) or, with region_rule
+    'robust', the robust box."""
+    dev = scene.device
+    if cfg.bounds is not None:
+        what = "the planning region (" + ("--region" if cfg.bounds_rule == "user box" else cfg.bounds_rule) + ")"
+        blo, bhi = user_box(cfg.bounds, what)
+        check_user_box(scene, blo, bhi, what)
+        return (torch.as_tensor(blo, dtype=torch.float64, device=dev),
+                torch.as_tensor(bhi, dtype=torch.float64, device=dev))
+    m = scene.means.double()  # [N, 3]
+    q = cfg.robust_bounds_quantile
+    if cfg.start_region is None and cfg.region_rule != "robust":
+        dlo, dhi = dense_content_box(m, scene.opacities)
+        lo = torch.as_tensor(dlo, dtype=torch.float64, device=dev)
+        hi = torch.as_tensor(dhi, dtype=torch.float64, device=dev)
     else:
-        lo, hi = m.min(0).values, m.max(0).values
+        lo, hi = _quantile_box(m, q)
     pad = 0.1 * (hi - lo).max() + scene.camera_radius
     lo, hi = lo - pad, hi + pad
     if cfg.start_region is not None:  # the capture's cameras: the region that matters

@@ -53,7 +53,14 @@ class PlannerConfig:
     grid_resolution: int = 96
     """Voxels along the longest side of the planning bounds (A* grid; conservative occupancy)."""
     bounds: Optional[tuple] = None
-    """(lo[3], hi[3]) planning region in scene units; None: the scene bounds (robust, see prepare())."""
+    """(lo[3], hi[3]) planning region in scene units (cinesplat-plan --region); None: chosen by the rules of
+    planning_region.planning_bounds (training cameras, else the dense content)."""
+    bounds_rule: str = "user box"
+    """What chose ``bounds`` when they are given, for the report ('user box', 'stored in the export', ...)."""
+    region_rule: str = "auto"
+    """Without bounds and a start region: 'auto' / 'dense': the box of the dense opaque content
+    (planning_region.dense_content_box: far background, sky and floaters do not stretch it); 'robust': the robust box
+    of all means (robust_bounds_quantile)."""
     start_region: Optional[tuple] = None
     """(lo[3], hi[3]) where random starts are drawn (a capture's training-camera box); None: the planning bounds,
     preferring an enclosed free component (starts.preferred_component: a room's interior, not its outer shell)."""
@@ -95,6 +102,12 @@ class PlannerConfig:
     grid_polytopes: Union[bool, str] = "auto"
     """Polytopes from the occupancy grid for segments in free voxels (grid_polytope.py: same guarantee, cheaper);
     False: Prop-2 for all (the paper's). 'auto': on for voxels <= GRID_POLYTOPE_MAX_VOXEL x camera radius."""
+    obstacles_note: Optional[str] = None
+    """What the scene's obstacles are, when not every Gaussian (e.g. floaters ignored: scene/floaters.py); every shot's
+    verification states it (Planner.obstacle_set)."""
+    refine_disconnected: bool = True
+    """A go-to that is free but not connected to the start at grid_resolution is planned again on a finer grid over a
+    box around start and go-to (refine.py) before the shot's goal is moved; False: moved at once."""
     corner_detours: bool = True
     """With grid polytopes: a voxel-path step that passes an occupied voxel at an edge or corner is replaced by axis
     moves through free voxels where such a route exists (corner_steps.py), so its corridor polytope comes from the grid
@@ -117,6 +130,9 @@ class PlannerConfig:
 
     def validate(self) -> None:
         """InvalidInputError naming the first field out of its range (Planner checks its config at construction)."""
+        if self.region_rule not in planning_region.REGION_RULES:
+            raise InvalidInputError(f"region_rule must be one of {planning_region.REGION_RULES}, got "
+                                    f"{self.region_rule!r}")
         if self.request_device not in ("auto", "scene"):
             raise InvalidInputError(f"request_device must be 'auto' or 'scene', got {self.request_device!r}")
         if self.corridor_backend not in ("auto", "cpu", "batched"):
@@ -147,6 +163,8 @@ class PlannerConfig:
                 raise InvalidInputError(f"{name} must be a finite number >= {lo:g} (a fraction / multiple of the "
                                         f"planning region's longest side), got {v!r}")
         self.timing.validate()
+        if not isinstance(self.refine_disconnected, (bool, np.bool_)):
+            raise InvalidInputError(f"refine_disconnected must be True or False, got {self.refine_disconnected!r}")
         if not isinstance(self.corner_detours, (bool, np.bool_)):
             raise InvalidInputError(f"corner_detours must be True or False, got {self.corner_detours!r}")
         if self.grid_polytopes not in (True, False, "auto"):
@@ -198,7 +216,8 @@ class Planner:
         room = 2.0 * float(self.ready().grid.voxel_size) + float(self.scene.camera_radius)
         lo, hi = np.minimum(lo, point - room), np.maximum(hi, point + room)
         self.close()
-        self.config = replace(self.config, bounds=(lo, hi))
+        rule = f"{self.region_rule()}, grown to hold the forced start"
+        self.config = replace(self.config, bounds=(lo, hi), bounds_rule=rule)
         self.prepared = None
         self.prepare()
 
@@ -206,6 +225,15 @@ class Planner:
     def planning_bounds(self) -> tuple[Tensor, Tensor]:
         """(lo [3], hi [3]) of the region prepare() will grid (planning_region.planning_bounds)."""
         return planning_region.planning_bounds(self.scene, self.config)
+
+    def region_rule(self) -> str:
+        """Which rule chose the planning region: 'user box', 'training cameras', 'dense content', ...
+        (planning_region.region_rule)."""
+        return planning_region.region_rule(self.config)
+
+    def obstacle_set(self) -> str:
+        """The obstacle set shots are planned and verified against (config.obstacles_note, else every ellipsoid)."""
+        return self.config.obstacles_note or f"all {len(self.scene)} ellipsoids of the scene"
 
     def check_region(self, lo: np.ndarray, hi: np.ndarray) -> None:
         """InvalidInputError when the camera sphere or the voxel grid does not fit the region [lo, hi]

@@ -54,6 +54,7 @@ class PreparedScene:
     main_component_of: Optional[tuple] = None  # (start_region, component) cached by starts.main_component
     start_blocked_of: Optional[tuple] = None  # (labels, component, blocked mask) cached by starts.start_blocked
     volume: Optional[Any] = None  # geometry.visibility.SplatVolume of the region (end_pose.visibility_volume, lazy)
+    component_boxes: Optional[list] = None  # ndimage.find_objects of the free components (refine.enclosed, lazy)
 
 
 OVERSIZED_SPLAT = 1000  # a splat of at least this many Gaussians, most of them over half the region, is refused
@@ -82,18 +83,21 @@ def no_free_space(scene: EllipsoidScene, lo: Tensor, hi: Tensor) -> str:
                 f"scales are wrong for this scene (a damaged or mis-scaled file?)")
     return ("the occupancy grid has no free voxel: the camera sphere (--camera-radius + --safety-margin = "
             f"{scene.camera_radius:.3g}) leaves no room between the obstacles at this voxel size; lower "
-            "--camera-radius or --safety-margin, or raise --grid-resolution")
+            "--camera-radius or --safety-margin, raise --grid-resolution, or check --region")
 
 
 def prepare_scene(scene: EllipsoidScene, grid_resolution: int, lo: Tensor, hi: Tensor,
-                  mirror: bool) -> Tuple[EllipsoidScene, PreparedScene]:
+                  mirror: bool, index: Optional[GridIndex] = None,
+                  light: bool = False) -> Tuple[EllipsoidScene, PreparedScene]:
     """Build the spatial index and the occupancy grid of ``scene`` over [lo [3], hi [3]] (``grid_resolution`` voxels
     along the longest side) on the scene's device, then what requests need from them; with ``mirror``, scene, index
     and grid are mirrored to the CPU first. Returns (the scene requests query: ``scene`` or its CPU mirror, the
-    PreparedScene). GoalUnreachableError when the grid has no free voxel."""
+    PreparedScene). ``index``: the scene's spatial index when already built; ``light``: no coarse grid, compiled
+    kernels or distance transform built now (refine.py's local fine grids: a request's own work, after a prepare()).
+    GoalUnreachableError when the grid has no free voxel."""
     check_gaussian_sizes(scene, lo, hi)
     t0 = time.perf_counter()
-    index = GridIndex.build(scene)
+    index = GridIndex.build(scene) if index is None else index
     t1 = time.perf_counter()
     grid = build_occupancy(scene, index, grid_resolution, bounds=(lo, hi))
     t2 = time.perf_counter()
@@ -106,18 +110,20 @@ def prepare_scene(scene: EllipsoidScene, grid_resolution: int, lo: Tensor, hi: T
     t3 = time.perf_counter()
     ag = AStarGrid(grid.numpy())
     _ = ag.labels  # free-space components, used for reachability of goals and starts
-    coarse = CoarseGrid(ag)
+    coarse = None if light else CoarseGrid(ag)
     t4 = time.perf_counter()
     voxels = VoxelObstacles.from_occupied(ag._occ, grid.lo.detach().cpu().double().numpy(), grid.voxel_size)
     t5 = time.perf_counter()
     # compile / load a request's compiled kernels now (cached on disk after the first time), before candidate worker
     # processes fork: they inherit them instead of each loading them on first use. One function per library:
     # astar26, gridpoly, dual_qp, goalwindow, project, timing, orientation; polytope just below.
-    for loader in (native.search26, native.grid_polytope_c, native.corridor_dual_c, native.goal_window_c,
-                   native.project_dual_c, native.arc_length_table_c, native.look_at_c):
+    loaders = (native.search26, native.grid_polytope_c, native.corridor_dual_c, native.goal_window_c,
+               native.project_dual_c, native.arc_length_table_c, native.look_at_c)
+    for loader in () if light else loaders:
         loader()
-    prepare_native_polytope(scene, index)
-    preload_request_modules()
+    if not light:
+        prepare_native_polytope(scene, index)
+        preload_request_modules()
     t6 = time.perf_counter()
     prepared = PreparedScene(
         index=index, grid=grid, astar_grid=ag, coarse=coarse, batch_index=batch_index, voxels=voxels,
@@ -126,6 +132,7 @@ def prepare_scene(scene: EllipsoidScene, grid_resolution: int, lo: Tensor, hi: T
                     "mirror_ms": 1e3 * (t3 - t2) if mirror else 0.0,
                     "components_ms": 1e3 * (t4 - t3), "surface_ms": 1e3 * (t5 - t4), "native_ms": 1e3 * (t6 - t5)},
     )
-    free_distance_transform(prepared)  # once, off the request path (clearance_queries.clearance_lower_bound)
+    if not light:
+        free_distance_transform(prepared)  # once, off the request path (clearance_queries.clearance_lower_bound)
     prepared.timings_ms["warm_ms"] = 1e3 * (time.perf_counter() - t6)  # mean voxels + distance transform
     return scene, prepared

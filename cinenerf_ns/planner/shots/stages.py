@@ -20,6 +20,7 @@ from ..search.corner_steps import detour_corner_steps
 from ..search.reach import ReachableGoal, free_voxel_near, reachable_goal
 from ..trajectory.dynamics import DynamicLimits, retime_shot
 from ..trajectory.qp import solve_corridor_qp
+from . import refine
 from .safety import dense_samples, verify_shot
 from .shot import Shot
 
@@ -153,6 +154,7 @@ def refuse_unsafe(report: dict, curve: str = "the curve") -> dict:
 def leg_verify(planner: "Planner", shot: Shot, curve: str = "the curve") -> dict:
     """The exact-clearance verification of a shot (safety.verify_shot), refused when unsafe (refuse_unsafe)."""
     report = verify_shot(shot, planner.points_free, planner.clearance, max_spacing=planner.config.verify_spacing)
+    report["obstacles"] = planner.obstacle_set()
     return refuse_unsafe(report, curve)
 
 
@@ -178,6 +180,7 @@ def legs_verify(planner: "Planner", shots: Sequence[Shot]) -> List[dict]:
             "min_exact_clearance": mn, "safe": bool(mn is None or mn >= 0.0),
             "method": "conservative test on every sample (occupancy grid, then Cor.1), exact distance where "
                       "inconclusive (batched over candidates)",
+            "obstacles": planner.obstacle_set(),
         })
         o += n
     return out
@@ -194,6 +197,15 @@ def plan_leg(planner: "Planner", start: np.ndarray, target: np.ndarray, look_at:
     goal, s_ijk = leg_goal(planner, start, target, goal_cache)
     t1 = time.perf_counter()
     tm["goal_ms"] = 1e3 * (t1 - t0)
+    if refine.needs_refinement(planner, goal.point, target):  # free but not connected here: a finer grid first
+        shot = refine.refined_leg(planner, start, target, look_at, goal.point)
+        if shot is not None:
+            shot.timings = {**shot.timings, "start_sample_ms": sample_ms, "goal_ms": tm["goal_ms"],
+                            "plan_ms": 1e3 * (time.perf_counter() - t0) + sample_ms}
+            return shot
+    if not np.array_equal(goal.point, target):
+        tm["refine_ms"] = 1e3 * (time.perf_counter() - t1)  # the check (and a refinement that did not help)
+        t1 = time.perf_counter()
     way = leg_way(planner, start, s_ijk, goal)
     t2 = time.perf_counter()
     tm["astar_ms"] = 1e3 * (t2 - t1)

@@ -1,10 +1,17 @@
-"""planning_region.py: a start region (the training cameras' box) that is inverted or not finite is refused with the
-cause named (issue 38: the message once named the symptom, the "planning region's longest side (-0.69)")."""
+"""planner/scene/planning_region.py: which rule chooses the planning region (user box, training cameras, dense
+content), bad user boxes refused with clear errors; a start region (the training cameras' box) that is inverted or
+not finite is refused with the cause named (issue 38: the message once named the symptom)."""
+from __future__ import annotations
+
 import numpy as np
 import pytest
+import torch
 
 from cinenerf_ns.planner.errors import InvalidInputError
-from cinenerf_ns.planner.scene.planning_region import check_start_region
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
+from cinenerf_ns.planner.scene.planning_region import check_start_region, dense_content_box, user_box
+from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
+from cinenerf_ns.synthetic.grove import grove_scene
 
 
 def test_inverted_start_region_names_the_axis():
@@ -24,9 +31,7 @@ def test_flat_and_ordinary_regions_pass():
 
 
 def test_a_planner_with_an_inverted_start_region_refuses_before_building_anything():
-    from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
     from cinenerf_ns.planner.scene.procedural import procedural_room
-    from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
 
     r = procedural_room(1000, seed=0)
     sc = EllipsoidScene.from_splat(r.means, r.quats, r.log_scales, r.opacity_logits)
@@ -48,3 +53,83 @@ def test_distance_outside_without_overflow(p):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert distance_outside(lo, hi, np.array(p)) == pytest.approx(math.hypot(*d), rel=1e-12)
+
+
+@pytest.fixture(scope="module")
+def grove():
+    g = grove_scene(30_000, seed=5, background_fraction=0.1, floater_fraction=0.05)
+    return g, EllipsoidScene.from_params(g.splat)
+
+
+def test_dense_content_ignores_the_background_shell_and_floaters(grove):
+    g, e = grove
+    lo, hi = dense_content_box(e.means, e.opacities)
+    cell = 15.0 / 64  # about the outer box's longest side / bins
+    assert (lo >= g.content_lo - 2 * cell).all() and (hi <= g.content_hi + 2 * cell).all()
+    assert (lo <= g.content_lo + [0.5, 0.5, 0.1]).all() and (hi >= g.content_hi - [0.5, 0.5, 0.3]).all()
+    # the robust box of all means is stretched by the far shell (what the dense rule is for)
+    rlo, rhi = (t.numpy() for t in Planner(e, PlannerConfig(region_rule="robust")).planning_bounds())
+    assert (rhi - rlo).max() > 2 * (hi - lo).max()
+
+
+def test_dense_content_box_of_a_single_cluster_is_its_box():
+    """With no sparse matter at all the dense box is the points' own box (to a cell)."""
+    rng = np.random.default_rng(0)
+    m = torch.as_tensor(rng.uniform([0, 0, 0], [2, 1, 0.5], (5000, 3)))
+    lo, hi = dense_content_box(m, torch.ones(5000))
+    cell = 2.0 / 64
+    np.testing.assert_allclose(lo, [0, 0, 0], atol=cell)
+    np.testing.assert_allclose(hi, [2, 1, 0.5], atol=cell)
+
+
+def test_rules_are_named(grove):
+    _, e = grove
+    dense = Planner(e, PlannerConfig(grid_resolution=32))
+    assert dense.region_rule() == "dense content"
+    lo, hi = (t.numpy() for t in dense.planning_bounds())
+    assert (hi - lo).max() < 8.5  # the grove (6 units) + padding, not the 15-unit shell
+    box = (np.array([-1.0, -1.0, 0.1]), np.array([1.0, 1.0, 1.0]))
+    cams = Planner(e, PlannerConfig(grid_resolution=32, start_region=box))
+    assert cams.region_rule() == "training cameras"
+    clo, chi = (t.numpy() for t in cams.planning_bounds())
+    grow = 0.5 * 2.0  # region_padding x the start region's longest side
+    assert (clo >= box[0] - grow - 1e-9).all() and (chi <= box[1] + grow + 1e-9).all()
+    user = Planner(e, PlannerConfig(grid_resolution=32, bounds=box))
+    assert user.region_rule() == "user box"
+    user.prepare()
+    rlo, rhi = user.region()
+    vs = float(user.prepared.grid.voxel_size)
+    np.testing.assert_allclose(rlo, box[0])
+    assert (rhi >= box[1] - 1e-9).all() and (rhi <= box[1] + vs + 1e-9).all()  # whole voxels
+    assert Planner(e, PlannerConfig(region_rule="robust")).region_rule() == "robust box of all means"
+
+
+@pytest.mark.parametrize("bounds,regex", [
+    ((np.zeros(3), np.zeros(3)), r"empty or inverted along x, y, z"),
+    (([0, 0, 0], [1, -1, 1]), r"empty or inverted along y"),
+    (([0, 0, np.nan], [1, 1, 1]), r"must be 6 finite numbers"),
+    (([0, 0, 0], [1, 1, np.inf]), r"must be 6 finite numbers"),
+    (([0, 0], [1, 1]), r"must be 6 numbers .* got 4 numbers"),
+    (("a", "b"), r"must be 6 numbers"),
+])
+def test_bad_boxes_are_clear_errors(bounds, regex):
+    with pytest.raises(InvalidInputError, match=regex):
+        user_box(bounds, "the planning region (--region)")
+
+
+@pytest.mark.parametrize("bounds,regex", [
+    (([20, 20, 20], [21, 21, 21]), r"lies outside the scene, whose Gaussians span"),
+    (([-1, -1, 0.5], [1, 1, 0.55]), r"too small for the camera along z"),
+    (([0, 0, 0], [0, 1, 1]), r"empty or inverted along x"),
+])
+def test_bad_boxes_are_refused_before_the_grid(grove, bounds, regex):
+    _, e = grove
+    pl = Planner(e, PlannerConfig(bounds=tuple(np.asarray(b, float) for b in bounds)))
+    with pytest.raises(InvalidInputError, match=regex):
+        pl.prepare()
+    assert pl.prepared is None
+
+
+def test_region_rule_is_validated():
+    with pytest.raises(InvalidInputError, match="region_rule"):
+        PlannerConfig(region_rule="widest").validate()

@@ -40,7 +40,7 @@ def test_region_holds_the_start_region_and_stays_within_the_scene_box(room):
     lo, hi = pl.region()
     slo, shi = pl.config.start_region
     assert (lo <= slo).all() and (hi >= shi).all()
-    robust = Planner(e, PlannerConfig(grid_resolution=64)).planning_bounds()
+    robust = Planner(e, PlannerConfig(grid_resolution=64, region_rule="robust")).planning_bounds()  # the box cut to
     vs = float(pl.prepared.grid.voxel_size)  # the grid rounds its box up to whole voxels
     assert (lo >= robust[0].numpy() - 1e-9).all() and (hi <= robust[1].numpy() + vs + 1e-9).all()
 
