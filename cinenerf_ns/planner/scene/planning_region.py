@@ -3,7 +3,7 @@ configuration, the checks a region must pass before any expensive work, and user
 Pure functions of a scene, a PlannerConfig and the region's corners (Planner delegates to them)."""
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Sequence, Union
+from typing import TYPE_CHECKING, Optional, Sequence, Union
 
 import numpy as np
 import torch
@@ -107,15 +107,45 @@ def dense_content_box(means: Tensor, weights: Tensor, bins: int = DENSE_BINS,
     return base + idx.min(0) * cell, base + (idx.max(0) + 1) * cell
 
 
-def region_rule(cfg: "PlannerConfig") -> str:
+DENSE_MIN_STRETCH = 1.5
+"""The dense content's box replaces the robust box of all means only when the latter's longest side is at least this
+many times the former's (far content stretches it: a background shell, sky) ..."""
+DENSE_MIN_MASS = 0.5
+"""... and the dense box holds at least this fraction of the opacity-weighted means (a sparse or evenly spread scene
+has no dense core: its heaviest group of cells is a random few, and the robust box stays)."""
+
+
+def dense_box_applies(robust_lo, robust_hi, dense_lo, dense_hi, means: Tensor, weights: Tensor) -> bool:
+    """Whether the dense content's box is used instead of the robust box (DENSE_MIN_STRETCH, DENSE_MIN_MASS)."""
+    r = float(np.max(np.asarray(robust_hi, dtype=np.float64) - np.asarray(robust_lo, dtype=np.float64)))
+    d = float(np.max(np.asarray(dense_hi, dtype=np.float64) - np.asarray(dense_lo, dtype=np.float64)))
+    if r < DENSE_MIN_STRETCH * d:
+        return False
+    m, w = means.double(), weights.double().reshape(-1)
+    lo = torch.as_tensor(np.asarray(dense_lo, dtype=np.float64), device=m.device)
+    hi = torch.as_tensor(np.asarray(dense_hi, dtype=np.float64), device=m.device)
+    inside = ((m >= lo) & (m <= hi)).all(1)
+    total = float(w.clamp_min(0).sum())
+    return total > 0 and float(w[inside].clamp_min(0).sum()) >= DENSE_MIN_MASS * total
+
+
+def region_rule(cfg: "PlannerConfig", scene: Optional["EllipsoidScene"] = None) -> str:
     """Which rule chooses the planning region under ``cfg`` (what the report and the CLI say): cfg.bounds_rule when
-    bounds are given ('user box', ...), 'training cameras' with a start region, else 'dense content' or 'robust box of
-    all means' (cfg.region_rule)."""
+    bounds are given ('user box', ...), 'training cameras' with a start region, else 'dense content' when the far
+    content stretches the robust box (dense_box_applies; needs ``scene``) or 'robust box of all means'."""
     if cfg.bounds is not None:
         return cfg.bounds_rule
     if cfg.start_region is not None:
         return "training cameras"
-    return "robust box of all means" if cfg.region_rule == "robust" else "dense content"
+    if cfg.region_rule == "robust":
+        return "robust box of all means"
+    if scene is not None:
+        m = scene.means.double()
+        lo, hi = _quantile_box(m, cfg.robust_bounds_quantile)
+        if not dense_box_applies(lo.cpu().numpy(), hi.cpu().numpy(), *dense_content_box(m, scene.opacities), m,
+                                 scene.opacities):
+            return "robust box of all means (no far content to leave out)"
+    return "dense content"
 
 
 def user_box(bounds, what: str = "the planning region (--region)") -> tuple[np.ndarray, np.ndarray]:
@@ -171,12 +201,12 @@ def planning_bounds(scene: "EllipsoidScene", cfg: "PlannerConfig") -> tuple[Tens
                 torch.as_tensor(bhi, dtype=torch.float64, device=dev))
     m = scene.means.double()  # [N, 3]
     q = cfg.robust_bounds_quantile
+    lo, hi = _quantile_box(m, q)
     if cfg.start_region is None and cfg.region_rule != "robust":
         dlo, dhi = dense_content_box(m, scene.opacities)
-        lo = torch.as_tensor(dlo, dtype=torch.float64, device=dev)
-        hi = torch.as_tensor(dhi, dtype=torch.float64, device=dev)
-    else:
-        lo, hi = _quantile_box(m, q)
+        if dense_box_applies(lo.cpu().numpy(), hi.cpu().numpy(), dlo, dhi, m, scene.opacities):
+            lo = torch.as_tensor(dlo, dtype=torch.float64, device=dev)
+            hi = torch.as_tensor(dhi, dtype=torch.float64, device=dev)
     pad = 0.1 * (hi - lo).max() + scene.camera_radius
     lo, hi = lo - pad, hi + pad
     if cfg.start_region is not None:  # the capture's cameras: the region that matters

@@ -183,6 +183,7 @@ class Planner:
         self.config.validate()
         self.batch_scene = scene  # the scene on its own device: big batched queries (candidate scoring)
         self.scene = scene  # the scene on the request device (a CPU mirror after prepare() when 'auto' + GPU)
+        self._region_rule: Optional[str] = None  # region_rule(), computed once
         self.prepared: Optional[PreparedScene] = None
         self._pool: Optional[tuple] = None  # (PreparedScene, processes, CandidatePool), see candidate_pool()
 
@@ -218,6 +219,7 @@ class Planner:
         self.close()
         rule = f"{self.region_rule()}, grown to hold the forced start"
         self.config = replace(self.config, bounds=(lo, hi), bounds_rule=rule)
+        self._region_rule = None
         self.prepared = None
         self.prepare()
 
@@ -229,7 +231,9 @@ class Planner:
     def region_rule(self) -> str:
         """Which rule chose the planning region: 'user box', 'training cameras', 'dense content', ...
         (planning_region.region_rule)."""
-        return planning_region.region_rule(self.config)
+        if self._region_rule is None:  # the dense-content test costs a histogram of the means: once
+            self._region_rule = planning_region.region_rule(self.config, self.batch_scene)
+        return self._region_rule
 
     def obstacle_set(self) -> str:
         """The obstacle set shots are planned and verified against (config.obstacles_note, else every ellipsoid)."""

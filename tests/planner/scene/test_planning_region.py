@@ -133,3 +133,16 @@ def test_bad_boxes_are_refused_before_the_grid(grove, bounds, regex):
 def test_region_rule_is_validated():
     with pytest.raises(InvalidInputError, match="region_rule"):
         PlannerConfig(region_rule="widest").validate()
+
+
+def test_an_evenly_spread_scene_keeps_the_robust_box():
+    """Without far content (no shell, no sky) the dense rule does not apply: a scene of evenly spread Gaussians has no
+    dense core, and cutting it to a random heaviest group of cells once made a tiny region (issue 37 merge)."""
+    g = torch.Generator().manual_seed(0)
+    n = 2000
+    sc = EllipsoidScene.from_splat(torch.rand(n, 3, generator=g) * 2 - 1, torch.randn(n, 4, generator=g),
+                                   torch.full((n, 3), -4.0), torch.zeros(n))
+    pl = Planner(sc, PlannerConfig())
+    lo, hi = (t.cpu().numpy() for t in pl.planning_bounds())
+    assert (hi - lo).min() > 1.8  # about the [-1, 1] cube, not a corner of it
+    assert pl.region_rule().startswith("robust box of all means")
