@@ -42,6 +42,8 @@ ALPHA_MAX = 0.99
 STOP_SELF = 12.0
 """subject_visibility stops a sample's walk once the subject hides it from itself by this optical depth (its light is
 then below exp(-12) = 6e-6 of its weight)."""
+COARSE = 8
+"""The coarse grid's cell, in fine cells."""
 MAX_CELLS = 512
 """A Gaussian whose cut-off box spans more cells than this is tested for every segment instead of listed in cells."""
 CELLS_LONG_SIDE = 128
@@ -60,7 +62,11 @@ class SplatVolume:
     dims: np.ndarray  # [3] int64
     cell_start: np.ndarray  # [C + 1] int64 (C = prod(dims), cells in C order)
     cell_ids: np.ndarray  # [E] int32
-    big: np.ndarray  # [B] int32: Gaussians tested for every segment
+    ccell: float  # the coarse grid's cell (COARSE x cell, same lo): Gaussians too large for the fine cells
+    cdims: np.ndarray  # [3] int64
+    ccell_start: np.ndarray  # [C' + 1] int64
+    ccell_ids: np.ndarray  # [E'] int32
+    big: np.ndarray  # [B] int32: Gaussians tested for every segment (too large for the coarse cells too)
     packed: np.ndarray  # [N, 13] float64: mean, whitening rows, opacity, in the compiled walk's order (by cell)
     rank: np.ndarray  # [N] int64: a Gaussian's row in ``packed`` (cell_ids and big hold rows of ``packed``)
     perm: np.ndarray  # [N] int64: the Gaussian of each row of ``packed`` (rank's inverse)
@@ -93,24 +99,12 @@ class SplatVolume:
         dims = np.maximum(np.ceil((hi - lo) / cell).astype(np.int64), 1)
         ids = np.flatnonzero(inside)
         pad = 1e-9 * ext  # rounding: a box is listed in every cell it might touch
-        i0 = np.clip(np.floor((glo[ids] - pad - lo) / cell), 0, dims - 1).astype(np.int64)  # [K, 3]
-        i1 = np.clip(np.floor((ghi[ids] + pad - lo) / cell), 0, dims - 1).astype(np.int64)
-        span = i1 - i0 + 1
-        count = span.prod(1)
-        big = ids[count > MAX_CELLS].astype(np.int32)
-        small = count <= MAX_CELLS
-        ids, i0, span, count = ids[small], i0[small], span[small], count[small]
-        owner = np.repeat(np.arange(len(ids)), count)  # [E]
-        k = np.arange(len(owner)) - np.repeat(np.cumsum(count) - count, count)  # position inside its box
-        sy, sz = span[owner, 1], span[owner, 2]
-        cx = i0[owner, 0] + k // (sy * sz)
-        cy = i0[owner, 1] + (k // sz) % sy
-        cz = i0[owner, 2] + k % sz
-        cid = (cx * dims[1] + cy) * dims[2] + cz
-        order = np.argsort(cid, kind="stable")
-        n_cells = int(dims.prod())
-        start = np.zeros(n_cells + 1, np.int64)
-        np.cumsum(np.bincount(cid, minlength=n_cells), out=start[1:])
+        start, listed, rest = _cell_lists(ids, glo, ghi, lo, cell, dims, pad)
+        # the Gaussians too large for the fine cells go to a coarse grid (COARSE x the cell, same lo); the few too
+        # large even for it are tested for every segment
+        ccell = COARSE * cell
+        cdims = np.maximum(np.ceil((hi - lo) / ccell).astype(np.int64), 1)
+        cstart, clisted, big = _cell_lists(rest, glo, ghi, lo, ccell, cdims, pad)
         # the compiled walk reads Gaussians in the order of their means' cells: a cell's Gaussians lie together in
         # memory (several times faster than scene order on a 400k room)
         home = np.clip(np.floor((means - lo) / cell), 0, dims - 1).astype(np.int64)
@@ -122,9 +116,35 @@ class SplatVolume:
         return cls(means=np.ascontiguousarray(means), whiten=np.ascontiguousarray(whiten), opacity=opac,
                    half=half, sigma_max=sig_sorted[:, 2].copy(), cover=opac * sig_sorted[:, 1] * sig_sorted[:, 2],
                    lo=lo, cell=float(cell), dims=dims, cell_start=start,
-                   cell_ids=np.ascontiguousarray(rank[ids[owner[order]]].astype(np.int32)),
+                   cell_ids=np.ascontiguousarray(rank[listed].astype(np.int32)), ccell=float(ccell), cdims=cdims,
+                   ccell_start=cstart, ccell_ids=np.ascontiguousarray(rank[clisted].astype(np.int32)),
                    big=np.ascontiguousarray(rank[big].astype(np.int32)), packed=np.ascontiguousarray(packed),
                    rank=rank, perm=perm)
+
+
+def _cell_lists(ids: np.ndarray, glo: np.ndarray, ghi: np.ndarray, lo: np.ndarray, cell: float, dims: np.ndarray,
+                pad: float) -> tuple:
+    """(cell starts [C + 1], listed Gaussians [E] (ids, by cell), the ids left out [R]) of the Gaussians ``ids`` whose
+    cut-off boxes [glo, ghi] span at most MAX_CELLS cells of the grid (lo, cell, dims)."""
+    i0 = np.clip(np.floor((glo[ids] - pad - lo) / cell), 0, dims - 1).astype(np.int64)  # [K, 3]
+    i1 = np.clip(np.floor((ghi[ids] + pad - lo) / cell), 0, dims - 1).astype(np.int64)
+    span = i1 - i0 + 1
+    count = span.prod(1)
+    rest = ids[count > MAX_CELLS]
+    small = count <= MAX_CELLS
+    ids, i0, span, count = ids[small], i0[small], span[small], count[small]
+    owner = np.repeat(np.arange(len(ids)), count)  # [E]
+    k = np.arange(len(owner)) - np.repeat(np.cumsum(count) - count, count)  # position inside its box
+    sy, sz = span[owner, 1], span[owner, 2]
+    cx = i0[owner, 0] + k // (sy * sz)
+    cy = i0[owner, 1] + (k // sz) % sy
+    cz = i0[owner, 2] + k % sz
+    cid = (cx * dims[1] + cy) * dims[2] + cz
+    order = np.argsort(cid, kind="stable")
+    n_cells = int(dims.prod())
+    start = np.zeros(n_cells + 1, np.int64)
+    np.cumsum(np.bincount(cid, minlength=n_cells), out=start[1:])
+    return start, ids[owner[order]], rest
 
 
 def _contributions(vol_means, whiten, opac, gid: np.ndarray, p0: np.ndarray, d: np.ndarray, cut2: float) -> np.ndarray:
@@ -179,23 +199,26 @@ def optical_depth_reference(vol: SplatVolume, p0, p1, classes=None, skip=None,
     return tau
 
 
-def _cells_along(vol: SplatVolume, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Every cell id a segment a -> b (each [3], inside the box) may pass: the cells of each piece's box, pieces no
-    longer than a cell (a superset of the compiled walk's cells)."""
-    n = max(1, int(np.ceil(np.linalg.norm(b - a) / vol.cell)))
+def _cells_along(vol: SplatVolume, a: np.ndarray, b: np.ndarray, cell: Optional[float] = None,
+                 dims: Optional[np.ndarray] = None) -> np.ndarray:
+    """Every cell id a segment a -> b (each [3], inside the box) may pass in the grid (vol.lo, cell, dims; default
+    the fine one): the cells of each piece's box, pieces no longer than a cell (a superset of the compiled walk's)."""
+    cell = vol.cell if cell is None else cell
+    dims = vol.dims if dims is None else dims
+    n = max(1, int(np.ceil(np.linalg.norm(b - a) / cell)))
     t = np.linspace(0.0, 1.0, n + 1)
     pts = a[None] + t[:, None] * (b - a)[None]  # [n + 1, 3]
     lo = np.minimum(pts[:-1], pts[1:])
     hi = np.maximum(pts[:-1], pts[1:])
-    pad = 1e-9 * vol.cell
-    i0 = np.clip(np.floor((lo - pad - vol.lo) / vol.cell), 0, vol.dims - 1).astype(np.int64)
-    i1 = np.clip(np.floor((hi + pad - vol.lo) / vol.cell), 0, vol.dims - 1).astype(np.int64)
+    pad = 1e-9 * cell
+    i0 = np.clip(np.floor((lo - pad - vol.lo) / cell), 0, dims - 1).astype(np.int64)
+    i1 = np.clip(np.floor((hi + pad - vol.lo) / cell), 0, dims - 1).astype(np.int64)
     cells = []
     for dx in (0, 1):
         for dy in (0, 1):
             for dz in (0, 1):
                 c = np.minimum(i0 + np.array([dx, dy, dz]), i1)
-                cells.append((c[:, 0] * vol.dims[1] + c[:, 1]) * vol.dims[2] + c[:, 2])
+                cells.append((c[:, 0] * dims[1] + c[:, 1]) * dims[2] + c[:, 2])
     return np.unique(np.concatenate(cells))
 
 
@@ -230,6 +253,8 @@ def optical_depth_python(vol: SplatVolume, p0, p1, classes=None, skip=None,
         if clip is not None:
             cells = _cells_along(vol, *clip)
             parts = [vol.cell_ids[vol.cell_start[c]:vol.cell_start[c + 1]] for c in cells]
+            coarse = _cells_along(vol, *clip, cell=vol.ccell, dims=vol.cdims)
+            parts += [vol.ccell_ids[vol.ccell_start[c]:vol.ccell_start[c + 1]] for c in coarse]
             rows = np.concatenate([rows] + [p.astype(np.int64) for p in parts])
         gid = np.unique(perm[rows])
         if skip[l] >= 0:
@@ -268,8 +293,10 @@ def optical_depth(vol: SplatVolume, p0, p1, classes=None, skip=None, backend: st
     if len(p0) == 0:
         return tau
     dims = np.ascontiguousarray(vol.dims, np.int64)
+    cdims = np.ascontiguousarray(vol.cdims, np.int64)
     rc = fn(vol.packed.ctypes.data, cls.ctypes.data, n,
             vol.lo.ctypes.data, vol.cell, dims.ctypes.data, vol.cell_start.ctypes.data, vol.cell_ids.ctypes.data,
+            vol.ccell, cdims.ctypes.data, vol.ccell_start.ctypes.data, vol.ccell_ids.ctypes.data,
             vol.big.ctypes.data, len(vol.big), float(cut_sigma) ** 2, p0.ctypes.data, p1.ctypes.data,
             skip.ctypes.data, len(p0), float(stop1), float(stop0),
             None if after1 is None else np.ascontiguousarray(after1, np.float64).ctypes.data, tau.ctypes.data)

@@ -52,15 +52,86 @@ static inline void add_gaussian(int64_t j, const double *p0, const double *d, co
    once its class-0 depth exceeds stop0 in a cell that starts beyond after1[l] (no class-1 Gaussian lies beyond that
    parameter: class 1's sum is then whole, class 0's partial but above stop0); after1 NULL: never.
    Returns 0, or -1 on bad arguments / no memory. */
+/* Walk the cells of one grid (lo, cell, dims, CSR) that segment p0 + t d, t in [0, 1], passes (Amanatides-Woo),
+   adding each listed Gaussian not yet stamped with mark; the early stops of cn_optical_depth. */
+static void walk_grid(const double *lo, const double *box_hi, double cell, const int64_t *dims, const int64_t *cell_start,
+                      const int32_t *cell_ids, const double *p0, const double *d, int32_t *stamp, int32_t mark,
+                      const double *packed, const uint8_t *cls, double cut2, double *tl, double stop1, double stop0,
+                      double after1) {
+    const int64_t X = dims[0], Y = dims[1], Z = dims[2];
+    /* clip the segment to the volume's box [lo, box_hi] (the fine grid's; slab test), then walk its cells */
+    double t0 = 0.0, t1 = 1.0;
+    for (int a = 0; a < 3; a++) {
+        double hi = box_hi[a];
+        if (d[a] == 0.0) {
+            if (p0[a] < lo[a] || p0[a] > hi) return;
+        } else {
+            double ta = (lo[a] - p0[a]) / d[a], tb = (hi - p0[a]) / d[a];
+            if (ta > tb) { double s = ta; ta = tb; tb = s; }
+            if (ta > t0) t0 = ta;
+            if (tb < t1) t1 = tb;
+            if (t0 > t1) return;
+        }
+    }
+    int64_t idx[3], step[3];
+    double tmax[3], tdelta[3];
+    for (int a = 0; a < 3; a++) {
+        double x = p0[a] + t0 * d[a];
+        int64_t i = (int64_t)floor((x - lo[a]) / cell);
+        if (i < 0) i = 0;
+        if (i >= dims[a]) i = dims[a] - 1;
+        idx[a] = i;
+        if (d[a] > 0.0) {
+            step[a] = 1;
+            tmax[a] = (lo[a] + (double)(i + 1) * cell - p0[a]) / d[a];
+            tdelta[a] = cell / d[a];
+        } else if (d[a] < 0.0) {
+            step[a] = -1;
+            tmax[a] = (lo[a] + (double)i * cell - p0[a]) / d[a];
+            tdelta[a] = -cell / d[a];
+        } else {
+            step[a] = 0;
+            tmax[a] = INFINITY;
+            tdelta[a] = INFINITY;
+        }
+    }
+    for (;;) {
+        int64_t c = (idx[0] * Y + idx[1]) * Z + idx[2];
+        for (int64_t e = cell_start[c]; e < cell_start[c + 1]; e++) {
+            int64_t j = cell_ids[e];
+            if (stamp[j] == mark) continue;
+            stamp[j] = mark;
+            add_gaussian(j, p0, d, packed, cls, cut2, tl);
+        }
+        if (tl[1] > stop1) return;
+        int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
+        if (tmax[a] > t1) return;
+        if (tl[0] > stop0 && tmax[a] >= after1) return; /* the next cell starts at tmax[a] */
+        idx[a] += step[a];
+        if (idx[a] < 0 || idx[a] >= (a == 0 ? X : (a == 1 ? Y : Z))) return;
+        tmax[a] += tdelta[a];
+    }
+}
+
+/* tau [L, 2]: optical depth of segment l (p0[l] -> p1[l]) in class 0 and class 1; skip[l] >= 0: a Gaussian that
+   segment l ignores (its own target), -1: none. Gaussians are listed in a fine grid (cell) and, those whose box spans
+   too many fine cells, in a coarse one (ccell > 0, same lo); the few spanning too many coarse cells are tested for
+   every segment (big). The walk of a segment stops once its class-1 depth exceeds stop1 (its light is then below
+   exp(-stop1) in any case; both sums are then partial, class 1's still above stop1), and once its class-0 depth
+   exceeds stop0 in a cell that starts beyond after1[l] (no class-1 Gaussian lies beyond that parameter: class 1's
+   sum is then whole, class 0's partial but above stop0); after1 NULL: never.
+   Returns 0, or -1 on bad arguments / no memory. */
 int64_t cn_optical_depth(const double *packed, const uint8_t *cls, int64_t N,
                          const double *lo, double cell, const int64_t *dims, const int64_t *cell_start,
-                         const int32_t *cell_ids, const int32_t *big, int64_t n_big, double cut2,
+                         const int32_t *cell_ids, double ccell, const int64_t *cdims, const int64_t *ccell_start,
+                         const int32_t *ccell_ids, const int32_t *big, int64_t n_big, double cut2,
                          const double *p0s, const double *p1s, const int64_t *skip, int64_t L, double stop1,
                          double stop0, const double *after1, double *tau) {
     if (cell <= 0.0 || N < 0 || L < 0) return -1;
     int32_t *stamp = (int32_t *)calloc((size_t)(N > 0 ? N : 1), sizeof(int32_t));
     if (!stamp) return -1;
-    const int64_t X = dims[0], Y = dims[1], Z = dims[2];
+    double box_hi[3];
+    for (int a = 0; a < 3; a++) box_hi[a] = lo[a] + (double)dims[a] * cell;
     for (int64_t l = 0; l < L; l++) {
         const double *p0 = p0s + 3 * l, *p1 = p1s + 3 * l;
         double d[3] = {p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2]};
@@ -68,6 +139,7 @@ int64_t cn_optical_depth(const double *packed, const uint8_t *cls, int64_t N,
         tl[0] = 0.0;
         tl[1] = 0.0;
         const int32_t mark = (int32_t)(l % 2147483647) + 1;  /* unique within a call of < 2^31 segments */
+        const double a1 = after1 ? after1[l] : INFINITY;
         if (skip[l] >= 0 && skip[l] < N) stamp[skip[l]] = mark;
         for (int64_t b = 0; b < n_big; b++) {
             int64_t j = big[b];
@@ -76,60 +148,12 @@ int64_t cn_optical_depth(const double *packed, const uint8_t *cls, int64_t N,
             add_gaussian(j, p0, d, packed, cls, cut2, tl);
         }
         if (tl[1] > stop1) continue;
-        /* clip the segment to the grid box [lo, lo + dims * cell] (slab test), then walk its cells */
-        double t0 = 0.0, t1 = 1.0;
-        int inside = 1;
-        for (int a = 0; a < 3 && inside; a++) {
-            double hi = lo[a] + (double)dims[a] * cell;
-            if (d[a] == 0.0) {
-                if (p0[a] < lo[a] || p0[a] > hi) inside = 0;
-            } else {
-                double ta = (lo[a] - p0[a]) / d[a], tb = (hi - p0[a]) / d[a];
-                if (ta > tb) { double s = ta; ta = tb; tb = s; }
-                if (ta > t0) t0 = ta;
-                if (tb < t1) t1 = tb;
-                if (t0 > t1) inside = 0;
-            }
+        if (ccell > 0.0) {
+            walk_grid(lo, box_hi, ccell, cdims, ccell_start, ccell_ids, p0, d, stamp, mark, packed, cls, cut2, tl, stop1,
+                      stop0, a1);
+            if (tl[1] > stop1) continue;
         }
-        if (!inside) continue;
-        int64_t idx[3], step[3];
-        double tmax[3], tdelta[3];
-        for (int a = 0; a < 3; a++) {
-            double x = p0[a] + t0 * d[a];
-            int64_t i = (int64_t)floor((x - lo[a]) / cell);
-            if (i < 0) i = 0;
-            if (i >= dims[a]) i = dims[a] - 1;
-            idx[a] = i;
-            if (d[a] > 0.0) {
-                step[a] = 1;
-                tmax[a] = (lo[a] + (double)(i + 1) * cell - p0[a]) / d[a];
-                tdelta[a] = cell / d[a];
-            } else if (d[a] < 0.0) {
-                step[a] = -1;
-                tmax[a] = (lo[a] + (double)i * cell - p0[a]) / d[a];
-                tdelta[a] = -cell / d[a];
-            } else {
-                step[a] = 0;
-                tmax[a] = INFINITY;
-                tdelta[a] = INFINITY;
-            }
-        }
-        for (;;) {
-            int64_t c = (idx[0] * Y + idx[1]) * Z + idx[2];
-            for (int64_t e = cell_start[c]; e < cell_start[c + 1]; e++) {
-                int64_t j = cell_ids[e];
-                if (stamp[j] == mark) continue;
-                stamp[j] = mark;
-                add_gaussian(j, p0, d, packed, cls, cut2, tl);
-            }
-            if (tl[1] > stop1) break;
-            int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
-            if (tmax[a] > t1) break;
-            if (after1 && tl[0] > stop0 && tmax[a] >= after1[l]) break;  /* the next cell starts at tmax[a] */
-            idx[a] += step[a];
-            if (idx[a] < 0 || idx[a] >= (a == 0 ? X : (a == 1 ? Y : Z))) break;
-            tmax[a] += tdelta[a];
-        }
+        walk_grid(lo, box_hi, cell, dims, cell_start, cell_ids, p0, d, stamp, mark, packed, cls, cut2, tl, stop1, stop0, a1);
     }
     free(stamp);
     return 0;

@@ -48,14 +48,15 @@ def test_optical_depth_matches_the_reference(seed, n, box, backend):
     np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-12)
 
 
-def test_big_gaussians_are_tested_for_every_segment():
+def test_large_gaussians_in_the_coarse_grid_and_huge_ones_for_every_segment():
     rng = np.random.default_rng(3)
-    small, big = _scene(rng, 400, log_scale=(-4.5, -4.0)), _scene(rng, 5, log_scale=(-0.5, 0.0))
-    sc = EllipsoidScene(torch.cat([small.means, big.means]), torch.cat([small.rotations, big.rotations]),
-                        torch.cat([small.radii, big.radii]), torch.cat([small.opacities, big.opacities]))
-    vol = SplatVolume.build(sc, -np.ones(3), np.ones(3))  # cells sized for the small ones: the big span > MAX_CELLS
-    assert len(vol.big) > 0
-    p0, p1 = rng.uniform(-1, 1, (30, 3)), rng.uniform(-1, 1, (30, 3))
+    parts = [_scene(rng, 600, spread=8.0, log_scale=(-5.5, -5.0)), _scene(rng, 6, spread=8.0, log_scale=(-1.0, -0.5)),
+             _scene(rng, 3, spread=8.0, log_scale=(1.5, 2.0))]  # small; too large for fine cells; for coarse ones
+    sc = EllipsoidScene(*(torch.cat([getattr(p, k) for p in parts]) for k in ("means", "rotations", "radii",
+                                                                              "opacities")))
+    vol = SplatVolume.build(sc, -8 * np.ones(3), 8 * np.ones(3))  # cells sized for the small ones
+    assert len(vol.big) > 0 and len(vol.ccell_ids) > 0 and len(vol.cell_ids) > 0
+    p0, p1 = rng.uniform(-8, 8, (30, 3)), rng.uniform(-8, 8, (30, 3))
     for b in BACKENDS:
         np.testing.assert_allclose(optical_depth(vol, p0, p1, backend=b), optical_depth_reference(vol, p0, p1),
                                    rtol=1e-9, atol=1e-12)
