@@ -4,7 +4,7 @@ named an object) and, for an object go-to, the chosen end poses (planner/shots/e
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Dict, List, Optional
+from typing import Any, Dict, Optional
 
 import numpy as np
 
@@ -106,15 +106,3 @@ def end_pose_count(candidates: int) -> int:
     """Distinct end poses for a request of ``candidates`` (each candidate ends at one, round robin)."""
     return max(1, min(int(candidates), 8))
 
-
-def describe_views(views: List[Optional[dict]]) -> List[str]:
-    """One line per shot for the console: the subject's visibility and size."""
-    out = []
-    for v in views:
-        if v is None:
-            out.append("-")
-            continue
-        seen = "-" if v["frames_visible_half"] is None else f"{100 * v['frames_visible_half']:.0f}%"
-        last = "-" if v["visible_last"] is None else f"{100 * v['visible_last']:.0f}%"
-        out.append(f"seen {seen} of frames, {last} at the end, size {v['size_last']:.2f}")
-    return out

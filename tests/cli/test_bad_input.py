@@ -470,3 +470,28 @@ def test_memory_budget_is_trusted_up_to_the_memory_available(monkeypatch):
         plan._memory_budget(args, console)
     monkeypatch.setattr(plan, "available_memory_mb", lambda: None)  # unknown: the budget as given
     assert plan._memory_budget(args, console) == 2000.0
+
+
+# --------------------------------------------------------------------------------------------- issue 34: framing
+def test_a_framing_that_does_not_exist_is_refused_by_the_parser_with_the_choices(tmp_path, capsys):
+    """--framing is a choice: tyro refuses another value (exit 2) naming the option and the allowed values, before
+    anything loads or is written."""
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as e:
+        main(SCENE + TARGETS + ["--output-dir", str(out), "--framing", "huge"])
+    err = " ".join(capsys.readouterr().err.split())
+    assert e.value.code == 2 and "Traceback" not in err
+    assert "--framing" in err and "wide" in err and "medium" in err and "close" in err
+    assert not out.exists()
+
+
+def test_framing_and_end_pose_reach_the_report(tmp_path, capsys):
+    out = tmp_path / "out"
+    code, o, e, dt = _run(SCENE + TARGETS + ["--output-dir", str(out), "--framing", "close", "--start", "0 0 0.7"],
+                          capsys, out)
+    assert code in (0, None) and "Traceback" not in o + e, e[-400:]
+    import json
+
+    rep = json.loads((out / "shot_report.json").read_text())
+    assert rep["candidates"][0]["subject_view"]["framing"] == "close"
+    assert rep["end_pose"] is not None and rep["end_pose"]["framing"] == "close"

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Dict, Optional, Tuple
+from typing import Dict, Tuple
 
 import numpy as np
 
@@ -112,7 +112,3 @@ def in_band(size, cfg: FramingConfig, tol: float = 0.0) -> np.ndarray:
     lo, _, hi = cfg.band
     s = np.asarray(size, np.float64)
     return (s >= lo * (1 - tol)) & (s <= hi * (1 + tol))
-
-
-def framing_or_default(framing: Optional[str]) -> str:
-    return "medium" if framing is None else framing
