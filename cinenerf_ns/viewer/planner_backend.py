@@ -83,6 +83,11 @@ class PreparedPlanner:
         try:
             planner = Planner(self.scene, self.config)
             prep = planner.prepare()
+            from cinenerf_ns.planner.shots.end_pose import visibility_volume
+
+            t_vol = time.perf_counter()
+            visibility_volume(planner)  # the end poses' splat volume, off the first Plan's path
+            prep.timings_ms["visibility_ms"] = 1e3 * (time.perf_counter() - t_vol)
             self.planner = planner
             self.prepare_s = time.perf_counter() - t0
             detail = ", ".join(f"{k[:-3]} {v:.0f} ms" for k, v in prep.timings_ms.items())
