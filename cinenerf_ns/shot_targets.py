@@ -9,7 +9,7 @@ from typing import Any, Dict, Optional
 import numpy as np
 
 from cinenerf_ns.planner.geometry.visibility import SubjectSamples
-from cinenerf_ns.planner.shots.end_pose import EndPoseChoice, choose_end_poses, visibility_volume
+from cinenerf_ns.planner.shots.end_pose import EndPoseChoice, EndPoseConfig, choose_end_poses, visibility_volume
 from cinenerf_ns.planner.shots.framing import FramingConfig, subject_size
 from cinenerf_ns.planner.shots.target_object import TargetObject, scene_members
 
@@ -80,7 +80,7 @@ def shot_targets(planner, gm: Dict[str, Any], lm: Dict[str, Any], framing: Frami
     if members is not None and members.size:
         vol = visibility_volume(planner)
         subject = TargetObject.of_members(vol, members, look, lm.get("text", "look-at"))
-        samples = SubjectSamples.of_members(vol, subject.members)
+        samples = SubjectSamples.of_members(vol, subject.members, EndPoseConfig.samples)  # end poses' and scores'
     else:
         subject = TargetObject.point(look, object_radius, lm.get("text", "look-at"))
         samples = SubjectSamples.of_point(look)
@@ -91,7 +91,7 @@ def shot_targets(planner, gm: Dict[str, Any], lm: Dict[str, Any], framing: Frami
         goto = None if good_view else TargetObject.of_members(visibility_volume(planner), g_members, gm["point"],
                                                               gm.get("text", "go-to"))
         facing = None if facing_from is None else np.asarray(facing_from, np.float64) - subject.centre
-        choice = choose_end_poses(planner, subject, goto, framing, component, k=k, facing=facing)
+        choice = choose_end_poses(planner, subject, goto, framing, component, k=k, facing=facing, samples=samples)
     return ShotTargets(subject, samples, choice, good_view, framing)
 
 

@@ -208,10 +208,12 @@ def frame_coverage(cameras: np.ndarray, look_at: np.ndarray, up: np.ndarray, obj
 
 def choose_end_poses(planner: "Planner", subject: TargetObject, goto: Optional[TargetObject], framing: FramingConfig,
                      component: int, k: int = 1, config: Optional[EndPoseConfig] = None,
-                     facing: Optional[np.ndarray] = None) -> EndPoseChoice:
+                     facing: Optional[np.ndarray] = None,
+                     samples: Optional[SubjectSamples] = None) -> EndPoseChoice:
     """Up to ``k`` end poses (best first, module docstring) for a shot that looks at ``subject`` and ends near
     ``goto`` (None: "a good view of the subject"), reachable in free component ``component`` of the prepared grid.
-    ``facing`` [3]: a unit direction from the subject that views are preferred from when there is no go-to object."""
+    ``facing`` [3]: a unit direction from the subject that views are preferred from when there is no go-to object.
+    ``samples``: the subject's visibility samples when the caller has them (else drawn here, config.samples)."""
     t0 = time.perf_counter()
     cfg = config or EndPoseConfig()
     cfg.validate()
@@ -231,7 +233,7 @@ def choose_end_poses(planner: "Planner", subject: TargetObject, goto: Optional[T
     # the aimed-for size, sizes in the band, and beyond it (rooms too small for a wide view of a large subject still
     # get the closest size they allow)
     fills = (aim, 0.5 * (lo_b + aim), 0.5 * (aim + hi_b), lo_b, hi_b, min(0.95, 1.15 * hi_b))
-    pts = np.concatenate([c[None] + (d * aim / f)[:, None] * dirs for f in fills])  # [3D, 3]
+    pts = np.concatenate([c[None] + (d * aim / f)[:, None] * dirs for f in fills])  # [len(fills) * D, 3]
     dir_all = np.concatenate([dirs] * len(fills))
     considered = len(pts)
     notes: List[str] = []
@@ -284,8 +286,9 @@ def choose_end_poses(planner: "Planner", subject: TargetObject, goto: Optional[T
     picked += [int(i) for i in by_cost if int(i) not in seen][: n_eval - len(picked)]
     top = np.array(sorted(picked, key=lambda i: (cost[i], i)), dtype=np.int64)
     vol = visibility_volume(planner)
-    samples = (SubjectSamples.of_point(c) if subject.is_point
-               else SubjectSamples.of_members(vol, subject.members, cfg.samples))
+    if samples is None:
+        samples = (SubjectSamples.of_point(c) if subject.is_point
+                   else SubjectSamples.of_members(vol, subject.members, cfg.samples))
     vis = subject_visibility(vol, pts[top], samples)
     gfill = (frame_coverage(pts[top], c, up, goto, framing) if goto is not None and not goto.is_point
              else np.zeros(len(top)))
