@@ -516,12 +516,26 @@ def main(cfg: StandaloneConfig) -> None:
         while True:
             time.sleep(1.0)
     except KeyboardInterrupt:
-        pass
+        exit_watchdog(SHUTDOWN_HARD_S)
     finally:
         if viewer is not None and not viewer.close(SHUTDOWN_JOIN_S):
             _exit_now(0)  # a computation still runs on a daemon thread: the interpreter's shutdown could abort
     if viewer is None:  # interrupted while loading
         _exit_now(130)
+
+
+SHUTDOWN_HARD_S = 20.0
+"""After Ctrl+C the process ends within this many seconds whatever still runs: the viewer's close and the interpreter's
+shutdown are normally done in a second or two, but a thread of a library (the server's, a pool's) that does not stop
+must not keep a stopped viewer alive (a fresh-clone test run once waited over a minute)."""
+
+
+def exit_watchdog(seconds: float) -> threading.Timer:
+    """A daemon timer that ends the process (status 0, output flushed) after ``seconds`` unless it has exited."""
+    t = threading.Timer(float(seconds), _exit_now, args=(0,))
+    t.daemon = True
+    t.start()
+    return t
 
 
 def _exit_now(code: int) -> None:

@@ -432,3 +432,17 @@ def test_a_scene_path_that_looks_like_markup_is_served_and_printed_as_typed(tmp_
     out = "".join(lines)
     assert code == 0 and "Traceback" not in out + err, out + err
     assert "running at" in out and "'scene [red] :smile: [bold]'" in " ".join(out.split()), out
+
+
+def test_the_exit_watchdog_ends_a_process_that_a_thread_keeps_alive():
+    """After Ctrl+C the viewer ends within SHUTDOWN_HARD_S whatever still runs: here a non-daemon thread that would keep
+    the interpreter's shutdown waiting for 60 s."""
+    import time
+
+    code = ("import threading, time\nfrom cinenerf_ns.viewer.standalone import exit_watchdog\n"
+            "threading.Thread(target=time.sleep, args=(60,)).start()\nexit_watchdog(0.5)\n"
+            "print('main done', flush=True)\n")
+    t0 = time.monotonic()
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=50,
+                       env=dict(os.environ, PYTHONPATH=str(REPO)))
+    assert r.returncode == 0 and "main done" in r.stdout and time.monotonic() - t0 < 30, r.stderr
