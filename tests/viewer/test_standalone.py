@@ -323,6 +323,15 @@ print('viewer exited', flush=True)
 """
 
 
+def _default_sigint() -> None:
+    """In the child before exec: SIGINT back to its default action. A shell starts background jobs (`make test &`) with
+    SIGINT ignored, exec keeps it ignored, and Python then installs no KeyboardInterrupt for it: the Ctrl+C these tests
+    send would be lost (fresh-clone runs started that way timed out here)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def interrupt_viewer_when(python_args, scene: Path, tmp_path: Path, stream: str, ready):
     """Run the viewer's command line (``python <python_args> --load-config scene ...``), send Ctrl+C once a line of
     ``stream`` ('stdout' | 'stderr') passes ``ready``; returns (exit status, that stream's lines, the other's text)."""
@@ -333,7 +342,8 @@ def interrupt_viewer_when(python_args, scene: Path, tmp_path: Path, stream: str,
     env = dict(os.environ, PYTHONPATH=str(REPO), PYTHONUNBUFFERED="1")
     p = subprocess.Popen([sys.executable, *python_args, "--load-config", str(scene), "--port", str(free_port()),
                           "--host", "127.0.0.1", "--output-dir", str(tmp_path / "data"), "--grid-resolution", "48"],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                         preexec_fn=_default_sigint)
     got: dict = {"stdout": [], "stderr": []}
     readers = [threading.Thread(target=lambda k=k, f=f: got[k].extend(f), daemon=True)
                for k, f in (("stdout", p.stdout), ("stderr", p.stderr))]
