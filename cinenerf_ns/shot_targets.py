@@ -24,6 +24,11 @@ class ShotTargets:
     good_view: bool  # go-to and look-at name the same object: "a good view of X"
     framing: FramingConfig
 
+    @property
+    def ends_at_poses(self) -> bool:
+        """Shots were planned to end poses (each shot's goal_target is its pose), not to the go-to point."""
+        return self.choice is not None and bool(self.choice.poses)
+
     def goals(self, goal: np.ndarray) -> np.ndarray:
         """The go-to points to plan to: the end poses [P, 3], or ``goal`` [3] itself as [1, 3]."""
         if self.choice is not None and self.choice.poses:

@@ -532,9 +532,9 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
         prog.update(task, advance=1, refresh=True, description="exact clearance report + plots"
                     + (" + preview videos" if args.preview else ""))
         reports = [planner.clearance_report(sh, max_spacing=0.02, label=f"rank {k + 1}") for k, sh in enumerate(shots)]
-        moves = [planner.explain_goal(goal if multi is None else multi.shot.goal_target,
-                                      sh.goal) if targets is None or targets.choice is None or not targets.choice.poses
-                 else planner.explain_goal(sh.goal_target, sh.goal) for sh in shots]
+        at_poses = targets is not None and targets.ends_at_poses  # else the go-to point (or the multi-stop's)
+        moves = [planner.explain_goal(sh.goal_target if at_poses else goal if multi is None
+                                      else multi.shot.goal_target, sh.goal) for sh in shots]
         views = [None if targets is None else
                  targets.view_report(sh.positions[-1], look, args.up, None if scores[k] is None else scores[k].terms)
                  for k, sh in enumerate(shots)]

@@ -155,7 +155,7 @@ class PreparedPlanner:
                     for sh, sc in zip(shots, score_shots(self.planner, shots, pt(look_at), subject=subject)):
                         sh.score_terms, sh.end_pose = sc.to_dict(), tg.pose_of(0)
             for shot in shots:
-                aimed = pt(goal) if tg is None or tg.choice is None or not tg.choice.poses else shot.goal_target
+                aimed = shot.goal_target if tg is not None and tg.ends_at_poses else pt(goal)
                 shot.goal_moved = self.planner.explain_goal(aimed, shot.goal)  # said on screen, never silent
                 if tg is not None:
                     terms = (getattr(shot, "score_terms", None) or {}).get("terms")
