@@ -13,6 +13,7 @@ import os
 import socket
 import time
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 import pytest
@@ -47,13 +48,41 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def type_into(b, label: str, text: str) -> None:
-    ok = b.js(f"(() => {{ const e = ({INPUT_FOR})({json.dumps(label)}); if (!e) return false; "
-              "e.focus(); e.select(); return true; })()")
-    assert ok, f"no input labelled {label}"
-    b.insert_text(text)
-    b.js(f"({INPUT_FOR})({json.dumps(label)}).blur()")
-    time.sleep(0.12)  # as a person types: longer than the client's 50 ms GUI-message throttle (see fast_edits)
+def type_into(b, label: str, text: str, viewer=None, handle: str = "", notes: Optional[dict] = None) -> None:
+    """Types into the box labelled ``label`` as a person does. With ``viewer`` and ``handle`` (the page panel's
+    ``view`` attribute of that box) it waits until the server holds the text before the next action, as a person
+    looks at the box before moving on.
+
+    viser 1.1.1's client sends GUI messages through one 50 ms throttle that keeps only the latest pending message
+    (client/src/WebsocketUtils.ts) and drops messages while its websocket reconnects; on a starved 2-core box its
+    timer can fire late, so an edit followed by another action can be replaced. The wait makes each edit land
+    before the next; an edit that has not reached the server after 20 s is typed once more (said in ``notes``) and
+    must then arrive: a pipeline that never delivers still fails."""
+    def put() -> None:
+        ok = b.js(f"(() => {{ const e = ({INPUT_FOR})({json.dumps(label)}); if (!e) return false; "
+                  "e.focus(); e.select(); return true; })()")
+        assert ok, f"no input labelled {label}"
+        b.insert_text(text)
+        b.js(f"({INPUT_FOR})({json.dumps(label)}).blur()")
+
+    put()
+    if viewer is None:
+        time.sleep(0.12)  # longer than the client's 50 ms GUI-message throttle (see fast_edits)
+        return
+
+    def arrived() -> bool:
+        panels = list(viewer.panels.panels.values())  # the page's current panel (a reconnect makes a new one)
+        return len(panels) == 1 and getattr(panels[0].view, handle).value == text
+
+    if wait(arrived, 20):
+        return
+    seen = [getattr(p.view, handle).value for p in viewer.panels.panels.values()]
+    if notes is not None:
+        notes.setdefault("retyped", []).append({"box": label, "text": text, "server_had": seen,
+                                                "clients": len(viewer.server.get_clients())})
+    put()
+    assert wait(arrived, 20), (f"'{label}' typed twice as {text!r}; the server's panels hold {seen} "
+                               f"({len(viewer.server.get_clients())} clients, box shows {box_values(b)})")
 
 
 def fast_edits(b) -> None:
@@ -139,13 +168,14 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
             f"boxes show {box_values(b)}, the server planned with {planned}")
         assert f"go to '{planned[0]}'" in pp.status or "'Go to' is empty" in pp.status
         timings["fast_edits_planned_with"] = list(planned)
-        client = next(iter(viewer.server.get_clients().values()))
         reported = []  # camera poses the browser reports back (proves the browser's camera moved)
-        client.camera.on_update(lambda cam: reported.append((time.perf_counter(), np.array(cam.position))))
 
-        type_into(b, "Go to", "potted plant")
-        type_into(b, "Look at", "sofa")
-        assert wait(lambda: pp.view.goto.value == "potted plant" and pp.view.look_at.value == "sofa")
+        type_into(b, "Go to", "potted plant", viewer, "goto", timings)
+        type_into(b, "Look at", "sofa", viewer, "look_at", timings)
+        pp = page_panel(viewer)  # the page's panel now (the same one unless the page reconnected)
+        client = next(iter(viewer.server.get_clients().values()))
+        client.camera.on_update(lambda cam: reported.append((time.perf_counter(), np.array(cam.position))))
+        assert pp.view.goto.value == "potted plant" and pp.view.look_at.value == "sofa"
         pp.config.loop = False
         # a longer flight: screenshots must land while it is under way, even on a busy box
         pp.config.speed = 0.25
@@ -212,7 +242,7 @@ def exports_preview_and_nonsense(b, viewer, tmp_path, timings) -> None:
     """Two exports (two files, the second renamed and said), the preview video, a nonsense query."""
     pp = page_panel(viewer)
     # export through the GUI, twice: two files, the second with a numbered name, said on the page
-    type_into(b, "Export name", "browser-take")
+    type_into(b, "Export name", "browser-take", viewer, "export_name", timings)
     click(b, "Export camera path")
     out = tmp_path / "data" / "camera_paths" / "browser-take.json"
     assert wait(lambda: out.exists(), 20), pp.status
@@ -239,7 +269,7 @@ def exports_preview_and_nonsense(b, viewer, tmp_path, timings) -> None:
     assert b.wait_js("document.body.innerText.includes('Download preview')", 20)
 
     # nonsense from the browser: an error naming the scene's objects; the viewer keeps running
-    type_into(b, "Go to", "the unicorn")
+    type_into(b, "Go to", "the unicorn", viewer, "goto", timings)
     click(b, "Plan")
     assert b.wait_js("document.body.innerText.includes(\"no object matches 'the unicorn'\")", 20)
     assert b.wait_js("document.body.innerText.includes('objects: armchair, floor lamp')", 20)
