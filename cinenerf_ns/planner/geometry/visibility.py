@@ -27,7 +27,7 @@ compiled walk (native/visibility.c) and the numpy path give the same sums as the
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
@@ -44,6 +44,8 @@ STOP_SELF = 12.0
 then below exp(-12) = 6e-6 of its weight)."""
 COARSE = 8
 """The coarse grid's cell, in fine cells."""
+MIN_SEGMENTS_PER_THREAD = 16
+"""The compiled walk starts another thread only for at least this many more segments."""
 MAX_CELLS = 512
 """A Gaussian whose cut-off box spans more cells than this is tested for every segment instead of listed in cells."""
 CELLS_LONG_SIDE = 128
@@ -270,24 +272,37 @@ def optical_depth_python(vol: SplatVolume, p0, p1, classes=None, skip=None,
 
 def optical_depth(vol: SplatVolume, p0, p1, classes=None, skip=None, backend: str = "auto",
                   cut_sigma: float = CUT_SIGMA, stop1: float = math.inf, stop0: float = math.inf,
-                  after1: Optional[np.ndarray] = None) -> np.ndarray:
+                  after1: Optional[np.ndarray] = None, threads: Optional[int] = None,
+                  packed_classes: Optional[np.ndarray] = None) -> np.ndarray:
     """tau [L, 2]: optical depth of each segment p0[l] -> p1[l] ([L, 3] each) through the volume's Gaussians of class 0
     and of class 1 (``classes`` [N] 0/1, default all 0); ``skip`` [L]: a Gaussian each segment ignores (-1: none).
     backend: "auto" (compiled walk when it loads), "native" or "python" (optical_depth_python: always whole sums).
     stop1: the compiled walk of a segment may stop once its class-1 depth exceeds this (both sums are then partial;
     its light is below exp(-stop1) anyway): a segment from a subject's sample toward a camera stops inside the subject
     when the subject hides that sample itself. stop0 / after1 [L]: it may also stop once its class-0 depth exceeds
-    stop0 beyond the parameter after1[l] past which no class-1 Gaussian lies (class 1's sum stays whole)."""
-    from ..native import choose, optical_depth_c
+    stop0 beyond the parameter after1[l] past which no class-1 Gaussian lies (class 1's sum stays whole).
+    threads: of the compiled walk (None: native.kernel_threads(); the sums do not depend on it). packed_classes:
+    ``classes`` already in the volume's row order (vol.packed_classes), which saves an O(N) gather per call."""
+    from ..native import choose, kernel_threads, optical_depth_c
 
+    if threads is not None and not int(threads) >= 1:
+        raise InvalidInputError(f"threads must be >= 1, got {threads}")
     fn = choose(backend, optical_depth_c, "visibility", "optical depth")
     if fn is None:
+        if classes is None and packed_classes is not None:
+            classes = np.asarray(packed_classes)[vol.rank]
         return optical_depth_python(vol, p0, p1, classes, skip, cut_sigma)
     n = len(vol)
     p0, p1, skip = _checked_segments(p0, p1, skip, n)
     if len(p0) >= 2**31 - 1:
         raise InvalidInputError(f"too many segments in one call ({len(p0)}); split them")
-    cls = np.ascontiguousarray(_checked_classes(classes, n)[vol.perm])  # in packed's row order
+    if packed_classes is not None:
+        cls = np.ascontiguousarray(_checked_classes(packed_classes, n))
+    else:
+        cls = np.ascontiguousarray(_checked_classes(classes, n)[vol.perm])  # in packed's row order
+    n_threads = kernel_threads() if threads is None else int(threads)
+    # a thread walks at least MIN_SEGMENTS_PER_THREAD segments: starting one costs more than a few walks
+    n_threads = max(1, min(n_threads, len(p0) // MIN_SEGMENTS_PER_THREAD))
     skip = np.ascontiguousarray(np.where(skip >= 0, vol.rank[np.maximum(skip, 0)], -1))
     tau = np.zeros((len(p0), 2))
     if len(p0) == 0:
@@ -299,7 +314,8 @@ def optical_depth(vol: SplatVolume, p0, p1, classes=None, skip=None, backend: st
             vol.ccell, cdims.ctypes.data, vol.ccell_start.ctypes.data, vol.ccell_ids.ctypes.data,
             vol.big.ctypes.data, len(vol.big), float(cut_sigma) ** 2, p0.ctypes.data, p1.ctypes.data,
             skip.ctypes.data, len(p0), float(stop1), float(stop0),
-            None if after1 is None else np.ascontiguousarray(after1, np.float64).ctypes.data, tau.ctypes.data)
+            None if after1 is None else np.ascontiguousarray(after1, np.float64).ctypes.data, tau.ctypes.data,
+            n_threads)
     if rc != 0:
         raise MemoryError("the compiled optical depth could not allocate its work space")
     return tau
@@ -314,6 +330,7 @@ class SubjectSamples:
     ids: np.ndarray  # [S] int64: the volume Gaussian each sample is the mean of (-1: not a Gaussian)
     members: np.ndarray  # [K] int64: the subject's own Gaussians (class 1); empty for a point
     box: Optional[tuple] = None  # (lo [3], hi [3]) of the members' cut-off boxes (subject_box); None for a point
+    _packed: Optional[tuple] = field(default=None, repr=False, compare=False)  # (id(vol), packed_classes(vol))
 
     @classmethod
     def of_point(cls, point) -> "SubjectSamples":
@@ -348,13 +365,31 @@ class SubjectSamples:
         c[self.members] = 1
         return c
 
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        state["_packed"] = None  # O(N) bytes, rebuilt in O(K) where needed: never pickled
+        return state
+
+    def packed_classes(self, vol: SplatVolume) -> np.ndarray:
+        """uint8 [N]: classes(N) in the volume's row order (what the compiled walk reads), built from the members'
+        rows in O(K) and kept for the next call with the same volume (end poses, then the candidates' scores)."""
+        key = id(vol)
+        if self._packed is None or self._packed[0] != key:
+            c = np.zeros(len(vol), np.uint8)
+            c[vol.rank[self.members]] = 1
+            self._packed = (key, c)
+        return self._packed[1]
+
 
 def subject_box(vol: SplatVolume, members: np.ndarray) -> tuple:
     """(lo [3], hi [3]): the box of the members' cut-off boxes, at the volume's cut-off (every point where one of
     them attenuates)."""
-    half = vol.half[members]  # [K, 3]
-    m = vol.means[members]
-    return (m - half).min(0), (m + half).max(0)
+    m = np.take(vol.means, members, axis=0)  # [K, 3] (np.take: several times faster than fancy indexing here)
+    half = np.take(vol.half, members, axis=0)
+    # per column: numpy's reductions along axis 0 of a [K, 3] array are about 10x slower than over a column
+    lo = np.array([(m[:, a] - half[:, a]).min() for a in range(3)])
+    hi = np.array([(m[:, a] + half[:, a]).max() for a in range(3)])
+    return lo, hi
 
 
 def box_exit(p0: np.ndarray, p1: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -383,8 +418,8 @@ def subject_visibility(vol: SplatVolume, cameras, subject: SubjectSamples, backe
     if subject.members.size:  # past the subject's cut-off box no subject Gaussian attenuates: stop hidden samples there
         lo, hi = subject.box if subject.box is not None else subject_box(vol, subject.members)
         after1 = box_exit(p0, p1, lo, hi)
-    tau = optical_depth(vol, p0, p1, subject.classes(len(vol)), skip, backend=backend,
-                        stop1=STOP_SELF, stop0=STOP_SELF, after1=after1).reshape(m, s, 2)
+    tau = optical_depth(vol, p0, p1, None, skip, backend=backend, stop1=STOP_SELF, stop0=STOP_SELF, after1=after1,
+                        packed_classes=subject.packed_classes(vol)).reshape(m, s, 2)
     alone = subject.weights[None] * np.exp(-tau[:, :, 1])  # [M, S]
     seen = alone * np.exp(-tau[:, :, 0])
     den = alone.sum(1)

@@ -82,8 +82,38 @@ def compile_library(src: Path, stem: str, flags: Sequence[str]) -> Tuple[Optiona
     return lib, ""
 
 
+_FLAGS = {"visibility": ["-O2", "-pthread"]}
+"""Compiler flags of the libraries that need more than -O2 (visibility.c splits its segments over threads)."""
+_THREADS: Optional[int] = None
+
+
+def set_kernel_threads(n: Optional[int]) -> None:
+    """Threads a multi-threaded kernel may use in this process (None: the default, kernel_threads). A forked candidate
+    worker sets 1: its siblings use the other CPUs."""
+    global _THREADS
+    _THREADS = None if n is None else max(1, int(n))
+
+
+def kernel_threads() -> int:
+    """Threads a multi-threaded kernel may use: set_kernel_threads, else $CINENERF_THREADS, else the CPUs this
+    process may run on, at most 8 (the kernels' work per call is small: more threads cost more than they save)."""
+    if _THREADS is not None:
+        return _THREADS
+    env = os.environ.get("CINENERF_THREADS", "").strip()
+    if env:
+        try:
+            return max(1, int(env))
+        except ValueError:
+            raise InvalidInputError(f"CINENERF_THREADS must be a whole number >= 1, got {env[:20]!r}") from None
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        cpus = os.cpu_count() or 1
+    return max(1, min(8, cpus))
+
+
 def _compile(name: str) -> Optional[Path]:
-    lib, why = compile_library(_HERE / f"{name}.c", name, ["-O2"])
+    lib, why = compile_library(_HERE / f"{name}.c", name, _FLAGS.get(name, ["-O2"]))
     if lib is None:
         _STATUS[name] = why
     return lib
@@ -372,5 +402,5 @@ def optical_depth_c():
                       _F64, _P, _P, _P,  # coarse grid (same lo): cell (<= 0: none), dims, cell starts, cell ids
                       _P, _I64, _F64,  # big ids int32, their count, cut-off m^2
                       _P, _P, _P, _I64, _F64,  # p0 [L, 3], p1 [L, 3], skip [L] int64, L, stop1,
-                      _F64, _P, _P],  # stop0, after1 [L] or NULL, out tau [L, 2]
+                      _F64, _P, _P, _I64],  # stop0, after1 [L] or NULL, out tau [L, 2], threads
                      _I64)

@@ -17,6 +17,7 @@
 #pragma GCC optimize("fp-contract=off")
 #endif
 #include <math.h>
+#include <pthread.h>
 #include <stdint.h>
 #include <stdlib.h>
 
@@ -46,12 +47,6 @@ static inline void add_gaussian(int64_t j, const double *p0, const double *d, co
     tau[cls[j] ? 1 : 0] += -log1p(-a);
 }
 
-/* tau [L, 2]: optical depth of segment l (p0[l] -> p1[l]) in class 0 and class 1; skip[l] >= 0: a Gaussian that
-   segment l ignores (its own target), -1: none. The walk of a segment stops once its class-1 depth exceeds stop1
-   (its light is then below exp(-stop1) in any case; both sums are then partial, class 1's still above stop1), and
-   once its class-0 depth exceeds stop0 in a cell that starts beyond after1[l] (no class-1 Gaussian lies beyond that
-   parameter: class 1's sum is then whole, class 0's partial but above stop0); after1 NULL: never.
-   Returns 0, or -1 on bad arguments / no memory. */
 /* Walk the cells of one grid (lo, cell, dims, CSR) that segment p0 + t d, t in [0, 1], passes (Amanatides-Woo),
    adding each listed Gaussian not yet stamped with mark; the early stops of cn_optical_depth. */
 static void walk_grid(const double *lo, const double *box_hi, double cell, const int64_t *dims, const int64_t *cell_start,
@@ -113,48 +108,110 @@ static void walk_grid(const double *lo, const double *box_hi, double cell, const
     }
 }
 
+/* What one thread needs: the volume, the segments and the range [l0, l1) it walks. */
+typedef struct {
+    const double *packed;
+    const uint8_t *cls;
+    int64_t N;
+    const double *lo;
+    double cell;
+    const int64_t *dims, *cell_start;
+    const int32_t *cell_ids;
+    double ccell;
+    const int64_t *cdims, *ccell_start;
+    const int32_t *ccell_ids, *big;
+    int64_t n_big;
+    double cut2;
+    const double *p0s, *p1s;
+    const int64_t *skip;
+    int64_t l0, l1;
+    double stop1, stop0;
+    const double *after1;
+    double *tau;
+    int64_t rc;
+} depth_job;
+
+/* Segments [l0, l1) of a job, with the job's own stamp array (segments are independent: each thread writes only its
+   own rows of tau, so the sums are the same whatever the number of threads). */
+static void *depth_range(void *arg) {
+    depth_job *jb = (depth_job *)arg;
+    int32_t *stamp = (int32_t *)calloc((size_t)(jb->N > 0 ? jb->N : 1), sizeof(int32_t));
+    if (!stamp) {
+        jb->rc = -1;
+        return NULL;
+    }
+    double box_hi[3];
+    for (int a = 0; a < 3; a++) box_hi[a] = jb->lo[a] + (double)jb->dims[a] * jb->cell;
+    for (int64_t l = jb->l0; l < jb->l1; l++) {
+        const double *p0 = jb->p0s + 3 * l, *p1 = jb->p1s + 3 * l;
+        double d[3] = {p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2]};
+        double *tl = jb->tau + 2 * l;
+        tl[0] = 0.0;
+        tl[1] = 0.0;
+        const int32_t mark = (int32_t)((l - jb->l0) % 2147483647) + 1;  /* unique within a job of < 2^31 segments */
+        const double a1 = jb->after1 ? jb->after1[l] : INFINITY;
+        if (jb->skip[l] >= 0 && jb->skip[l] < jb->N) stamp[jb->skip[l]] = mark;
+        for (int64_t b = 0; b < jb->n_big; b++) {
+            int64_t j = jb->big[b];
+            if (stamp[j] == mark) continue;
+            stamp[j] = mark;
+            add_gaussian(j, p0, d, jb->packed, jb->cls, jb->cut2, tl);
+        }
+        if (tl[1] > jb->stop1) continue;
+        if (jb->ccell > 0.0) {
+            walk_grid(jb->lo, box_hi, jb->ccell, jb->cdims, jb->ccell_start, jb->ccell_ids, p0, d, stamp, mark,
+                      jb->packed, jb->cls, jb->cut2, tl, jb->stop1, jb->stop0, a1);
+            if (tl[1] > jb->stop1) continue;
+        }
+        walk_grid(jb->lo, box_hi, jb->cell, jb->dims, jb->cell_start, jb->cell_ids, p0, d, stamp, mark, jb->packed,
+                  jb->cls, jb->cut2, tl, jb->stop1, jb->stop0, a1);
+    }
+    free(stamp);
+    jb->rc = 0;
+    return NULL;
+}
+
+#define MAX_THREADS 64
+
 /* tau [L, 2]: optical depth of segment l (p0[l] -> p1[l]) in class 0 and class 1; skip[l] >= 0: a Gaussian that
    segment l ignores (its own target), -1: none. Gaussians are listed in a fine grid (cell) and, those whose box spans
    too many fine cells, in a coarse one (ccell > 0, same lo); the few spanning too many coarse cells are tested for
    every segment (big). The walk of a segment stops once its class-1 depth exceeds stop1 (its light is then below
    exp(-stop1) in any case; both sums are then partial, class 1's still above stop1), and once its class-0 depth
    exceeds stop0 in a cell that starts beyond after1[l] (no class-1 Gaussian lies beyond that parameter: class 1's
-   sum is then whole, class 0's partial but above stop0); after1 NULL: never.
+   sum is then whole, class 0's partial but above stop0); after1 NULL: never. The segments are split over
+   n_threads threads (1: this thread; a thread that cannot start is walked here). Each thread's results are the
+   same as one thread's: tau does not depend on n_threads.
    Returns 0, or -1 on bad arguments / no memory. */
 int64_t cn_optical_depth(const double *packed, const uint8_t *cls, int64_t N,
                          const double *lo, double cell, const int64_t *dims, const int64_t *cell_start,
                          const int32_t *cell_ids, double ccell, const int64_t *cdims, const int64_t *ccell_start,
                          const int32_t *ccell_ids, const int32_t *big, int64_t n_big, double cut2,
                          const double *p0s, const double *p1s, const int64_t *skip, int64_t L, double stop1,
-                         double stop0, const double *after1, double *tau) {
+                         double stop0, const double *after1, double *tau, int64_t n_threads) {
     if (cell <= 0.0 || N < 0 || L < 0) return -1;
-    int32_t *stamp = (int32_t *)calloc((size_t)(N > 0 ? N : 1), sizeof(int32_t));
-    if (!stamp) return -1;
-    double box_hi[3];
-    for (int a = 0; a < 3; a++) box_hi[a] = lo[a] + (double)dims[a] * cell;
-    for (int64_t l = 0; l < L; l++) {
-        const double *p0 = p0s + 3 * l, *p1 = p1s + 3 * l;
-        double d[3] = {p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2]};
-        double *tl = tau + 2 * l;
-        tl[0] = 0.0;
-        tl[1] = 0.0;
-        const int32_t mark = (int32_t)(l % 2147483647) + 1;  /* unique within a call of < 2^31 segments */
-        const double a1 = after1 ? after1[l] : INFINITY;
-        if (skip[l] >= 0 && skip[l] < N) stamp[skip[l]] = mark;
-        for (int64_t b = 0; b < n_big; b++) {
-            int64_t j = big[b];
-            if (stamp[j] == mark) continue;
-            stamp[j] = mark;
-            add_gaussian(j, p0, d, packed, cls, cut2, tl);
-        }
-        if (tl[1] > stop1) continue;
-        if (ccell > 0.0) {
-            walk_grid(lo, box_hi, ccell, cdims, ccell_start, ccell_ids, p0, d, stamp, mark, packed, cls, cut2, tl, stop1,
-                      stop0, a1);
-            if (tl[1] > stop1) continue;
-        }
-        walk_grid(lo, box_hi, cell, dims, cell_start, cell_ids, p0, d, stamp, mark, packed, cls, cut2, tl, stop1, stop0, a1);
+    if (n_threads < 1) n_threads = 1;
+    if (n_threads > MAX_THREADS) n_threads = MAX_THREADS;
+    if (n_threads > L) n_threads = L > 0 ? L : 1;
+    depth_job jobs[MAX_THREADS];
+    pthread_t tid[MAX_THREADS];
+    int started[MAX_THREADS];
+    for (int64_t t = 0; t < n_threads; t++) {
+        depth_job jb = {packed, cls, N, lo, cell, dims, cell_start, cell_ids, ccell, cdims, ccell_start, ccell_ids,
+                        big, n_big, cut2, p0s, p1s, skip, L * t / n_threads, L * (t + 1) / n_threads, stop1, stop0,
+                        after1, tau, -1};
+        jobs[t] = jb;
     }
-    free(stamp);
-    return 0;
+    for (int64_t t = 1; t < n_threads; t++)
+        started[t] = pthread_create(&tid[t], NULL, depth_range, &jobs[t]) == 0;
+    depth_range(&jobs[0]);
+    int64_t rc = jobs[0].rc;
+    for (int64_t t = 1; t < n_threads; t++) {
+        if (started[t])
+            pthread_join(tid[t], NULL);
+        else
+            depth_range(&jobs[t]);  /* no thread: walk its range here */
+        if (jobs[t].rc != 0) rc = -1;
+    }
+    return rc;
 }

@@ -40,6 +40,7 @@ import torch
 
 from ..blas_threads import set_blas_threads
 from ..errors import InvalidInputError
+from ..native import set_kernel_threads
 
 # the planner a worker serves; set in the child by _init_worker (inherited through fork, never pickled)
 _PLANNER: Any = None
@@ -120,6 +121,7 @@ def _init_worker(planner_ref: "weakref.ref") -> None:
         signal.signal(s, signal.SIG_DFL)
     torch.set_num_threads(1)
     set_blas_threads(1)
+    set_kernel_threads(1)  # the compiled kernels too: the other workers use the other CPUs
     _PLANNER = planner_ref()
 
 

@@ -203,3 +203,55 @@ def test_subject_box_holds_every_cut_off_box():
     assert np.all(pts >= lo - 1e-9) and np.all(pts <= hi + 1e-9)
     assert np.allclose(pts.reshape(-1, 3).min(0), lo, atol=0.05) and np.allclose(pts.reshape(-1, 3).max(0), hi,
                                                                                    atol=0.05)
+
+
+@pytest.mark.skipif("native" not in BACKENDS, reason="the compiled walk did not load here")
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 300), n_seg=st.integers(1, 200), threads=st.integers(2, 9))
+def test_threads_give_the_same_sums_bit_for_bit(seed, n, n_seg, threads):
+    """The compiled walk split over threads returns exactly what one thread returns (segments are independent),
+    with the early stops on, and the classes given in the volume's row order give the same as in scene order."""
+    rng = np.random.default_rng(seed)
+    sc = _scene(rng, n)
+    vol = SplatVolume.build(sc, -np.ones(3), np.ones(3))
+    p0, p1 = rng.uniform(-1, 1, (n_seg, 3)), rng.uniform(-1, 1, (n_seg, 3))
+    cls = rng.random(len(sc)) < 0.3
+    skip = rng.integers(-1, len(sc), n_seg)
+    after1 = rng.random(n_seg)
+    kw = dict(backend="native", stop1=2.0, stop0=3.0, after1=after1)
+    one = optical_depth(vol, p0, p1, cls, skip, threads=1, **kw)
+    many = optical_depth(vol, p0, p1, cls, skip, threads=threads, **kw)
+    np.testing.assert_array_equal(one, many)
+    packed = np.ascontiguousarray(cls.astype(np.uint8)[vol.perm])
+    np.testing.assert_array_equal(optical_depth(vol, p0, p1, None, skip, packed_classes=packed, **kw), one)
+    # the Python path takes row-order classes too
+    np.testing.assert_allclose(optical_depth(vol, p0, p1, None, skip, backend="python", packed_classes=packed),
+                               optical_depth(vol, p0, p1, cls, skip, backend="python"))
+
+
+def test_subject_packed_classes_are_its_classes_in_row_order_and_kept_per_volume():
+    rng = np.random.default_rng(5)
+    sc = _scene(rng, 80)
+    vol = SplatVolume.build(sc, -np.ones(3), np.ones(3))
+    s = SubjectSamples.of_members(vol, np.arange(10, 30), n_samples=8)
+    np.testing.assert_array_equal(s.packed_classes(vol), s.classes(len(vol))[vol.perm])
+    assert s.packed_classes(vol) is s.packed_classes(vol)  # kept: built once per volume
+    vol2 = SplatVolume.build(sc, -2 * np.ones(3), 2 * np.ones(3))
+    np.testing.assert_array_equal(s.packed_classes(vol2), s.classes(len(vol2))[vol2.perm])
+
+
+def test_kernel_threads_setting(monkeypatch):
+    monkeypatch.setattr(native, "_THREADS", None)
+    monkeypatch.setenv("CINENERF_THREADS", "3")
+    assert native.kernel_threads() == 3
+    monkeypatch.setenv("CINENERF_THREADS", "lots")
+    with pytest.raises(InvalidInputError, match="CINENERF_THREADS must be a whole number"):
+        native.kernel_threads()
+    monkeypatch.delenv("CINENERF_THREADS")
+    assert 1 <= native.kernel_threads() <= 8
+    native.set_kernel_threads(1)
+    assert native.kernel_threads() == 1
+    native.set_kernel_threads(None)
+    with pytest.raises(InvalidInputError, match="threads must be >= 1"):
+        optical_depth(SplatVolume.build(_scene(np.random.default_rng(0), 5), -np.ones(3), np.ones(3)),
+                      np.zeros((2, 3)), np.ones((2, 3)), threads=0)
