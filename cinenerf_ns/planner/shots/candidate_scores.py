@@ -46,7 +46,7 @@ def score_shots(
 
 def score_parts(planner: "Planner", shots: List[Shot], look: np.ndarray, cfg: ScoreConfig, object_radius: float,
                 object_samples: Optional[Any], exclude: Optional[torch.Tensor], batch: bool,
-                subject: Optional[SubjectSamples] = None) -> List[tuple]:
+                subject: Optional[SubjectSamples] = None, visibility_later: bool = False) -> List[tuple]:
     """The expensive per-frame inputs of each shot's score, one occlusion call and one exact-clearance call for all
     shots: [(tested frame indices [T'], occluded [T', S] bool, clearance [T'] exact up to the cap, visibility [T_v]
     or None, visibility frame indices [T_v] or None)]. With a ``subject`` the occlusion is its visible fraction on
@@ -56,7 +56,12 @@ def score_parts(planner: "Planner", shots: List[Shot], look: np.ndarray, cfg: Sc
     batch: on the scene's own device (a GPU when there is one: many frames x many Gaussians); False: on the request
     device (the CPU copy of a GPU scene), where the compiled sight-line and capped-distance searches apply
     (native/polytope.c): what the candidate worker processes use, since they cannot use CUDA. Both are exact: the
-    clearances agree to ~1e-13, the occlusion flags except for sight lines that graze an ellipsoid within rounding."""
+    clearances agree to ~1e-13, the occlusion flags except for sight lines that graze an ellipsoid within rounding.
+
+    visibility_later: without a ``subject``, the occlusion is left out ((i, None, clr, None, None)): the caller adds
+    the subject's visibility with with_visibility (a candidate worker leaves it to the parent, which holds the
+    subject's classes and walks all candidates' frames in one threaded call instead of pickling the subject to every
+    worker)."""
     if not (math.isfinite(object_radius) and object_radius >= 0):
         raise InvalidInputError(f"object_radius must be finite and >= 0, got {object_radius}.")
     prep = planner.ready()
@@ -70,18 +75,12 @@ def score_parts(planner: "Planner", shots: List[Shot], look: np.ndarray, cfg: Sc
     if exclude is not None:
         exclude = torch.as_tensor(exclude, device=scene.device)
     clr = planner.clearance(pos, cap=cfg.clearance_cap, batch=batch)  # [sum T'] exact up to the cap
-    if subject is not None:
-        vsub = [scored_frames(len(i), cfg.visibility_frames) for i in idx]  # positions among each shot's frames
-        vpos = np.concatenate([sh.positions[i[v]] for sh, i, v in zip(shots, idx, vsub)])
-        from .end_pose import visibility_volume
-
-        vis = subject_visibility(visibility_volume(planner), vpos, subject)  # [sum T_v]
-        out, o, ov = [], 0, 0
-        for i, v in zip(idx, vsub):
-            n, nv = len(i), len(v)
-            out.append((i, (vis[ov : ov + nv] < 0.5)[:, None], clr[o : o + n], vis[ov : ov + nv], i[v]))
-            o, ov = o + n, ov + nv
-        return out
+    if subject is not None or visibility_later:
+        out, o = [], 0
+        for i in idx:
+            out.append((i, None, clr[o : o + len(i)], None, None))
+            o += len(i)
+        return out if subject is None else with_visibility(planner, shots, out, subject, cfg)
     free_grid = None if batch else clearance_queries.free_voxel_grid(planner)  # the CPU copy's compiled test
     occ = sight_lines_blocked(pos, targets, scene, index, exclude=exclude, stop_distance=object_radius,
                               free_grid=free_grid).cpu().numpy()  # [sum T', S]
@@ -90,6 +89,25 @@ def score_parts(planner: "Planner", shots: List[Shot], look: np.ndarray, cfg: Sc
         n = len(i)
         out.append((i, occ[o : o + n], clr[o : o + n], None, None))
         o += n
+    return out
+
+
+def with_visibility(planner: "Planner", shots: List[Shot], parts: List[tuple], subject: SubjectSamples,
+                    cfg: ScoreConfig) -> List[tuple]:
+    """score_parts entries made with visibility_later, completed with the subject's visible fraction on <=
+    cfg.visibility_frames of each shot's tested frames (one subject_visibility call for all shots; each frame's
+    fraction is independent of the others, so the numbers do not depend on how shots are grouped)."""
+    idx = [p[0] for p in parts]
+    vsub = [scored_frames(len(i), cfg.visibility_frames) for i in idx]  # positions among each shot's frames
+    vpos = np.concatenate([sh.positions[i[v]] for sh, i, v in zip(shots, idx, vsub)])
+    from .end_pose import visibility_volume
+
+    vis = subject_visibility(visibility_volume(planner), vpos, subject)  # [sum T_v]
+    out, ov = [], 0
+    for (i, _, clr, _, _), v in zip(parts, vsub):
+        nv = len(v)
+        out.append((i, (vis[ov : ov + nv] < 0.5)[:, None], clr, vis[ov : ov + nv], i[v]))
+        ov += nv
     return out
 
 

@@ -73,7 +73,7 @@ from ..geometry.visibility import SubjectSamples
 from ..search.astar import batched_shortcut  # noqa: F401 (re-exported: part of the candidates API)
 from ..trajectory.dynamics import DynamicLimits
 from . import stages
-from .candidate_scores import score_from_parts, score_parts, score_shots
+from .candidate_scores import score_from_parts, score_parts, score_shots, with_visibility
 from .plan_request import MAX_CANDIDATES
 from .planner import Planner
 from .scoring import ScoreConfig, ShotScore
@@ -161,7 +161,8 @@ def _plan_candidate_task(planner: Planner, config, start: np.ndarray, goal_p: np
     Returns {"shot": verified Shot (report in shot.safety) or None, "error": the failure message or None,
     "timings": per-stage ms, "goal_cache": goals found here for components the parent had not cached,
     "score_parts": the shot's score_parts entry (on the CPU copy) when ``score`` = (ScoreConfig, object_radius,
-    object_samples, exclude, subject) is given, else None}. The failures caught are exactly those the in-process path
+    object_samples, exclude, visibility_later) is given, else None; with visibility_later (a subject) the parent adds
+    the visibility: candidate_scores.with_visibility}. The failures caught are exactly those the in-process path
     records and replaces with a spare; anything else propagates to the parent."""
     way = _candidate_way_task(planner, config, start, goal_p, goal_cache)  # sets the request's config
     out = {"shot": None, "error": way["error"], "timings": way["timings"], "goal_cache": way["goal_cache"]}
@@ -180,9 +181,9 @@ def _plan_candidate_task(planner: Planner, config, start: np.ndarray, goal_p: np
     out.update(shot=fin["shot"], error=fin["error"], score_parts=None)
     if score is not None and fin["shot"] is not None and fin["shot"].safety["safe"]:
         t = time.perf_counter()
-        cfg, object_radius, object_samples, exclude, subject = score
+        cfg, object_radius, object_samples, exclude, visibility_later = score
         out["score_parts"] = score_parts(planner, [fin["shot"]], look_p, cfg, object_radius, object_samples, exclude,
-                                         batch=False, subject=subject)[0]
+                                         batch=False, visibility_later=visibility_later)[0]
         _lapper(out["timings"])("score_ms", t)
     return out
 
@@ -391,13 +392,20 @@ def _round_in_workers(req: _CandidateRequest, batch: List[int], t: float) -> flo
     chunk = max(EARLY_SCORE_MIN, req.k // 4)
     score_cfg = req.score_config or ScoreConfig()
     score_cfg.validate()
+    # a subject's visibility is added here, for the whole round at once (with_visibility): the workers get no
+    # subject to unpickle (its members and classes are O(K) and O(N) bytes, per task)
+    later = req.subject is not None
     score_args = (score_cfg, req.object_radius, req.object_samples,
                   None if req.exclude is None else torch.as_tensor(req.exclude).cpu(),
-                  req.subject) if cfg.worker_scoring else None
+                  later) if cfg.worker_scoring else None
     tasks = [(cfg, req.starts[ci], req.goal_of(ci), req.look_p, req.cache_of(ci), req.limits, score_args)
              for ci in batch]
+    waiting: List[int] = []  # positions in batch of shots whose parts wait for the subject's visibility
     for done, (i, res) in enumerate(req.pool.imap_unordered(_plan_candidate_task, tasks), 1):
         results[i] = res
+        if res["error"] is None and res.get("score_parts") is not None and later:
+            waiting.append(i)
+            continue
         if res["error"] is None and res.get("score_parts") is not None:
             t_s = time.perf_counter()
             req.early_scores[batch[i]] = score_from_parts(res["shot"], res["score_parts"], req.look_p, score_cfg,
@@ -415,6 +423,16 @@ def _round_in_workers(req: _CandidateRequest, batch: List[int], t: float) -> flo
             ready = []
             lap("score_ms", t_s)
             t += time.perf_counter() - t_s  # not pool time
+    if waiting:
+        t_s = time.perf_counter()
+        shots = [results[j]["shot"] for j in waiting]
+        parts = with_visibility(req.planner, shots, [results[j]["score_parts"] for j in waiting], req.subject,
+                                score_cfg)
+        for j, shot, part in zip(waiting, shots, parts):
+            req.early_scores[batch[j]] = score_from_parts(shot, part, req.look_p, score_cfg, req.object_radius,
+                                                          req.object_center)
+        lap("score_ms", t_s)
+        t += time.perf_counter() - t_s  # not pool time
     for ci, res in _merge_task_results(batch, results, req.tm, req.cache_of, req.errors):
         req.add(ci, res["shot"])
     return lap("pool_ms", t)

@@ -313,3 +313,35 @@ def test_workers_inherit_the_lazily_imported_libraries(monkeypatch):
         assert pool.map(_lazy_modules_loaded, [(), ()]) == [[True, True, True]] * 2
     finally:
         pl.close()
+
+
+@pytest.mark.parametrize("worker_scoring", [True, False])
+def test_workers_with_a_subject_give_the_same_visibility_and_get_no_subject(planners, monkeypatch, worker_scoring):
+    """Scored by a subject's visibility: the same ranked shots and visible fractions as in this process; with
+    worker_scoring the workers leave the visibility to this process (one call for the round) and their tasks carry
+    no subject (its members and classes would be pickled to every worker)."""
+    from cinenerf_ns.planner.geometry.visibility import SubjectSamples
+    from cinenerf_ns.planner.shots.end_pose import visibility_volume
+
+    p0, p2 = planners
+    p2.config.worker_scoring = worker_scoring
+    vol = visibility_volume(p0)
+    near = np.flatnonzero(np.linalg.norm(vol.means - np.asarray(TARGET), axis=1) < 0.25)
+    assert near.size > 0
+    subject = SubjectSamples.of_members(vol, near, 16)
+    r0 = plan_candidates(p0, GO_TO, TARGET, k=6, seed=5, object_radius=STOP, subject=subject)
+    import cinenerf_ns.planner.shots.workers as workers
+
+    sent = []
+    real = workers._task
+    monkeypatch.setattr(workers, "_task", lambda fn, a: sent.append(a) or real(fn, a))
+    r2 = plan_candidates(p2, GO_TO, TARGET, k=6, seed=5, object_radius=STOP, subject=subject)
+    assert sent, "no task went to the workers"
+    _assert_same(r0, r2)
+    for x, y in zip(r0, r2):
+        np.testing.assert_array_equal(x.score.visibility, y.score.visibility)
+        assert x.score.terms["visible_last"] == y.score.terms["visible_last"]
+    for a in sent:  # the tasks the pool was handed
+        assert not any(isinstance(v, SubjectSamples) for v in a)
+        if worker_scoring:
+            assert not any(isinstance(v, SubjectSamples) for v in a[-1]) and a[-1][-1] is True  # visibility_later
