@@ -192,18 +192,13 @@ def frame_coverage(cameras: np.ndarray, look_at: np.ndarray, up: np.ndarray, obj
     nx, ny = COVERAGE_RASTER
     cx = (np.arange(nx) + 0.5) / nx * 2 - 1
     cy = (np.arange(ny) + 0.5) / ny * 2 - 1
-    out = np.zeros(len(cameras))
-    for m in range(len(cameras)):
-        front = depth[m] > 1e-6
-        if not front.any():
-            continue
-        z = depth[m, front]
-        rx, ry = r / (z * th), r / (z * tv)  # [P'] the disc's half axes in half-frame units
-        dx = (cx[:, None] - x[m, front][None]) / rx[None]  # [nx, P']
-        dy = (cy[:, None] - y[m, front][None]) / ry[None]  # [ny, P']
-        inside = (dx[None, :, :] ** 2 + dy[:, None, :] ** 2 <= 1.0).any(-1)  # [ny, nx]
-        out[m] = float(inside.mean())
-    return out
+    front = depth > 1e-6  # [M, P]
+    z = np.where(front, depth, 1.0)
+    rx, ry = r / (z * th), r / (z * tv)  # [M, P] the disc's half axes in half-frame units
+    dx = (cx[None, :, None] - x[:, None, :]) / rx[:, None, :]  # [M, nx, P]
+    dy = (cy[None, :, None] - y[:, None, :]) / ry[:, None, :]  # [M, ny, P]
+    inside = ((dx[:, None, :, :] ** 2 + dy[:, :, None, :] ** 2 <= 1.0) & front[:, None, None, :]).any(-1)
+    return inside.mean(axis=(1, 2))  # [M]
 
 
 def choose_end_poses(planner: "Planner", subject: TargetObject, goto: Optional[TargetObject], framing: FramingConfig,

@@ -76,11 +76,15 @@ def project(cameras: np.ndarray, look_at: np.ndarray, up: np.ndarray, points: np
     """(x, y, depth) [M, P] of points [P, 3] seen from cameras [M, 3] aimed at look_at: x, y in units of the half
     frame (-1..1 is inside the frame), depth along the view axis."""
     f, r, u = camera_axes(cameras, look_at, up)
-    rel = points[None, :, :] - cameras[:, None, :]  # [M, P, 3]
-    depth = np.einsum("mpk,mk->mp", rel, f)
+    pts = np.asarray(points, np.float64)
+
+    def along(axis: np.ndarray) -> np.ndarray:  # [M, P]: (points - camera) . axis, as one matrix product
+        return axis @ pts.T - np.einsum("mk,mk->m", axis, cameras)[:, None]
+
+    depth = along(f)
     th, tv = cfg.tan_half()
     z = np.maximum(depth, 1e-9)
-    return np.einsum("mpk,mk->mp", rel, r) / (z * th), np.einsum("mpk,mk->mp", rel, u) / (z * tv), depth
+    return along(r) / (z * th), along(u) / (z * tv), depth
 
 
 def subject_size(cameras: np.ndarray, look_at: np.ndarray, up: np.ndarray, extent: np.ndarray, pad: float,

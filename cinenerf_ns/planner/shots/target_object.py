@@ -1,6 +1,8 @@
 """A go-to or look-at target as the planner sees it: a point, or an object (its Gaussians in the obstacle scene)."""
 from __future__ import annotations
 
+import weakref
+
 from dataclasses import dataclass
 from typing import Optional
 
@@ -71,11 +73,14 @@ class TargetObject:
             raise InvalidInputError(f"the object '{name}' has no Gaussians among the obstacles")
         if m[0] < 0 or m[-1] >= len(vol):
             raise InvalidInputError(f"object member ids must be in [0, {len(vol)}), got {m[0]}..{m[-1]}")
-        means = vol.means[m]  # [K, 3]
-        ext = means if m.size <= EXTENT_POINTS else means[np.sort(np.random.default_rng(seed).choice(
-            m.size, EXTENT_POINTS, replace=False))]
-        c = np.asarray(centre, np.float64).reshape(3) if centre is not None else means.mean(0)
-        return cls(name=name, centre=c, members=m, extent=ext, pad=float(np.median(vol.sigma_max[m])),
+        pick = None if m.size <= EXTENT_POINTS else np.sort(np.random.default_rng(seed).choice(
+            m.size, EXTENT_POINTS, replace=False))
+        ext = np.take(vol.means, m if pick is None else m[pick], axis=0)  # [P, 3] (np.take: faster than m-indexing)
+        if centre is not None:
+            c = np.asarray(centre, np.float64).reshape(3)
+        else:  # the members' mean, one column at a time (numpy's axis-0 mean of [K, 3] is ~10x slower)
+            c = np.array([np.take(vol.means[:, a], m).mean() for a in range(3)])
+        return cls(name=name, centre=c, members=m, extent=ext, pad=float(np.median(np.take(vol.sigma_max, m))),
                    spacing=_spacing(ext), outline=_hull(ext))
 
 
@@ -118,7 +123,25 @@ def scene_members(scene: EllipsoidScene, source_mask: Optional[np.ndarray]) -> O
         if mask.shape != (len(scene),):
             raise InvalidInputError(f"object mask has {mask.shape[0]} entries for a scene of {len(scene)} Gaussians")
         return np.flatnonzero(mask)
-    src = scene.source_index.detach().cpu().numpy()
-    if src.size and src.max() >= mask.shape[0]:
+    src, top = _source_on_host(scene.source_index)
+    if src.size and top >= mask.shape[0]:
         raise InvalidInputError(f"object mask has {mask.shape[0]} entries, the scene's Gaussians come from more")
     return np.flatnonzero(mask[src])
+
+
+_SOURCES: dict = {}  # id(tensor) -> (weak reference to it, its host copy [N] int64, its largest value)
+
+
+def _source_on_host(source_index) -> tuple:
+    """(scene.source_index as a host array, its largest value), copied once per tensor: on a GPU scene the copy and
+    its max are a device sync and an 8 MB transfer at 1M Gaussians, per object per request otherwise."""
+    key = id(source_index)
+    hit = _SOURCES.get(key)
+    if hit is not None and hit[0]() is source_index:
+        return hit[1], hit[2]
+    src = source_index.detach().cpu().numpy()
+    top = int(src.max()) if src.size else -1
+    for k in [k for k, v in _SOURCES.items() if v[0]() is None]:  # forget tensors that are gone
+        del _SOURCES[k]
+    _SOURCES[key] = (weakref.ref(source_index), src, top)
+    return src, top

@@ -169,3 +169,60 @@ def test_shots_to_end_poses_end_there_and_see_the_subject(room):
             assert rs.score.terms["visible_last"] == pytest.approx(v, abs=0.25)  # the planner's estimate
     assert seen and min(v for rank, v in seen if rank == 1) >= 0.8  # the best shot of each pair shows the subject
     assert min(v for _, v in seen) >= 0.5
+
+
+def test_scene_members_through_source_index_and_its_host_copy():
+    """A scene built from a splat with dropped Gaussians maps masks over the splat through source_index; the host copy
+    of source_index is made once per tensor and a new tensor is read anew."""
+    from cinenerf_ns.planner.shots import target_object as T
+
+    scene = EllipsoidScene.from_splat(torch.zeros(6, 3), torch.tensor([[1.0, 0, 0, 0]] * 6), torch.zeros(6, 3),
+                                      torch.tensor([5.0, -10.0, 5.0, 5.0, -10.0, 5.0]), SceneConfig(opacity_floor=0.05))
+    assert scene.source_index is not None and scene.source_index.tolist() == [0, 2, 3, 5]
+    mask = np.array([1, 1, 0, 1, 0, 0], bool)  # splat Gaussians 0, 1 (dropped), 3
+    np.testing.assert_array_equal(scene_members(scene, mask), [0, 2])
+    first = T._SOURCES[id(scene.source_index)][1]
+    np.testing.assert_array_equal(scene_members(scene, mask), [0, 2])
+    assert T._SOURCES[id(scene.source_index)][1] is first  # not copied again
+    scene.source_index = torch.tensor([1, 2, 3, 4])
+    np.testing.assert_array_equal(scene_members(scene, mask), [0, 2])  # the new tensor's own copy: splat 1 and 3
+    with pytest.raises(InvalidInputError, match="the scene's Gaussians come from more"):
+        scene_members(scene, mask[:4])
+    assert scene_members(scene, None) is None
+
+
+def _frame_coverage_reference(cameras, look_at, up, obj, framing):
+    """Cell by cell, point by point (float64): a cell counts when its centre lies in the disc of radius pad + spacing
+    (in half-frame units at the point's depth) around a projected extent point in front of the camera."""
+    from cinenerf_ns.planner.shots.end_pose import COVERAGE_RASTER
+    from cinenerf_ns.planner.shots.framing import project
+
+    x, y, depth = project(cameras, look_at, up, obj.extent, framing)
+    th, tv = framing.tan_half()
+    r = obj.pad + obj.spacing
+    nx, ny = COVERAGE_RASTER
+    out = []
+    for m in range(len(cameras)):
+        hit = 0
+        for j in range(ny):
+            for i in range(nx):
+                cx, cy = (i + 0.5) / nx * 2 - 1, (j + 0.5) / ny * 2 - 1
+                hit += any(depth[m, p] > 1e-6 and ((cx - x[m, p]) / (r / (depth[m, p] * th))) ** 2
+                           + ((cy - y[m, p]) / (r / (depth[m, p] * tv))) ** 2 <= 1.0 for p in range(len(obj.extent)))
+        out.append(hit / (nx * ny))
+    return np.array(out)
+
+
+def test_frame_coverage_matches_a_cell_by_cell_reference():
+    from cinenerf_ns.planner.shots.end_pose import frame_coverage
+
+    rng = np.random.default_rng(7)
+    for trial in range(4):
+        pts = rng.normal(size=(30, 3)) * rng.uniform(0.05, 0.5)
+        obj = TargetObject(name="o", centre=pts.mean(0), members=np.arange(30), extent=pts, pad=0.02, spacing=0.05)
+        cams = rng.normal(size=(7, 3)) * 1.5
+        cams[0] = pts[0]  # a camera among the points: some behind it
+        look = pts.mean(0) + rng.normal(size=3) * 0.1
+        up = np.array([0.0, 0.0, 1.0])
+        got = frame_coverage(cams, look, up, obj, FramingConfig("medium"))
+        np.testing.assert_array_equal(got, _frame_coverage_reference(cams, look, up, obj, FramingConfig("medium")))
