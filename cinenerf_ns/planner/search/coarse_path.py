@@ -154,7 +154,9 @@ def voxel_path(
         if p is not None:
             return p
     costs = coarse.fine_costs if coarse is not None else np.where(fine._occ, np.inf, 1.0)
-    p = _mcp_path(costs, np.asarray(s), np.asarray(g, dtype=np.int64)[None])
+    # the prepared fine grid (the same occupancy as costs): no padded copy and no new search workspace per call
+    # (10.6 -> 7.3 ms a call on the 1M grove, whose canopy splits the coarse grid into two components)
+    p = _mcp_path(costs, np.asarray(s), np.asarray(g, dtype=np.int64)[None], grid=fine)
     if p is None:  # cannot happen: astar() checked that s and g share a free component
         raise GoalUnreachableError(f"no collision-free voxel path from {tuple(s)} to {tuple(g)}")
     return p.astype(np.float64)
