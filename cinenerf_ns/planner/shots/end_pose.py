@@ -201,6 +201,41 @@ def frame_coverage(cameras: np.ndarray, look_at: np.ndarray, up: np.ndarray, obj
     return inside.mean(axis=(1, 2))  # [M]
 
 
+def _feasible(planner: "Planner", pts: np.ndarray, objects: tuple, component: int) -> np.ndarray:
+    """bool [V]: viewpoints pts [V, 3] inside the region, in a free voxel of ``component`` (the camera ball is proven
+    clear there) and outside the boxes of the objects (TargetObject or None) by the camera radius."""
+    prep = planner.ready()
+    lo, hi = planner.region()
+    r = float(planner.scene.camera_radius)
+    keep = np.all((pts >= lo + r) & (pts <= hi - r), axis=1)
+    ijk = np.floor((pts - lo) / float(prep.grid.voxel_size)).astype(np.int64)
+    shape = np.array(prep.astar_grid.labels.shape)
+    ijk_c = np.clip(ijk, 0, shape - 1)
+    keep &= np.all((ijk >= 0) & (ijk < shape), axis=1)
+    keep &= prep.astar_grid.labels[ijk_c[:, 0], ijk_c[:, 1], ijk_c[:, 2]] == component
+    for obj in objects:
+        if obj is not None and not obj.is_point:
+            blo, bhi = obj.box()
+            keep &= _box_distance(pts, blo, bhi) > r
+    return keep
+
+
+def _to_evaluate(cost: np.ndarray, dirs: np.ndarray, n_eval: int, cos_sep: float) -> np.ndarray:
+    """int64 [n_eval] the viewpoints whose visibility is computed, by cost: half of them the cheapest far apart from
+    each other (directions dirs [V, 3] at cosines below cos_sep: candidates need distinct end poses that still show
+    the subject), the rest the cheapest of all."""
+    by_cost = np.argsort(cost, kind="stable")
+    picked: List[int] = []
+    for i in by_cost:
+        if len(picked) >= (n_eval + 1) // 2:
+            break
+        if all(float(dirs[i] @ dirs[j]) < cos_sep for j in picked):
+            picked.append(int(i))
+    seen = set(picked)
+    picked += [int(i) for i in by_cost if int(i) not in seen][: n_eval - len(picked)]
+    return np.array(sorted(picked, key=lambda i: (cost[i], i)), dtype=np.int64)
+
+
 def choose_end_poses(planner: "Planner", subject: TargetObject, goto: Optional[TargetObject], framing: FramingConfig,
                      component: int, k: int = 1, config: Optional[EndPoseConfig] = None,
                      facing: Optional[np.ndarray] = None,
@@ -213,7 +248,7 @@ def choose_end_poses(planner: "Planner", subject: TargetObject, goto: Optional[T
     cfg = config or EndPoseConfig()
     cfg.validate()
     framing.validate()
-    prep = planner.ready()
+    planner.ready()  # prepared before anything is sampled (raises a clear error otherwise)
     up = np.asarray(planner.config.up, np.float64)
     up = up / np.linalg.norm(up)
     lo_b, aim, hi_b = framing.band
@@ -232,20 +267,7 @@ def choose_end_poses(planner: "Planner", subject: TargetObject, goto: Optional[T
     dir_all = np.concatenate([dirs] * len(fills))
     considered = len(pts)
     notes: List[str] = []
-    # feasibility: inside the region, a free voxel of the component (the camera ball is proven clear there), outside
-    # the subject's and the go-to's boxes
-    lo, hi = planner.region()
-    r = float(planner.scene.camera_radius)
-    keep = np.all((pts >= lo + r) & (pts <= hi - r), axis=1)
-    ijk = np.floor((pts - lo) / float(prep.grid.voxel_size)).astype(np.int64)
-    shape = np.array(prep.astar_grid.labels.shape)
-    ijk_c = np.clip(ijk, 0, shape - 1)
-    keep &= np.all((ijk >= 0) & (ijk < shape), axis=1)
-    keep &= prep.astar_grid.labels[ijk_c[:, 0], ijk_c[:, 1], ijk_c[:, 2]] == component
-    for obj in (subject, goto):
-        if obj is not None and not obj.is_point:
-            blo, bhi = obj.box()
-            keep &= _box_distance(pts, blo, bhi) > r
+    keep = _feasible(planner, pts, (subject, goto), component)
     pts, dir_all = pts[keep], dir_all[keep]
     if len(pts) == 0:
         notes.append("every sampled viewpoint is occupied, unreachable from the start, inside the go-to or subject, "
@@ -266,20 +288,8 @@ def choose_end_poses(planner: "Planner", subject: TargetObject, goto: Optional[T
         f = np.asarray(facing, np.float64)
         if np.linalg.norm(f) > 1e-9:
             cost = cost + cfg.w_facing * 0.5 * (1 - dir_all @ (f / np.linalg.norm(f)))
-    # the viewpoints whose visibility is computed: half of them the cheapest far apart from each other (candidates need
-    # distinct end poses that still show the subject), the rest the cheapest of all
-    n_eval = min(len(pts), cfg.evaluated + 2 * (k - 1))
     cos_sep = math.cos(math.radians(cfg.min_separation_deg))
-    by_cost = np.argsort(cost, kind="stable")
-    picked: List[int] = []
-    for i in by_cost:
-        if len(picked) >= (n_eval + 1) // 2:
-            break
-        if all(float(dir_all[i] @ dir_all[j]) < cos_sep for j in picked):
-            picked.append(int(i))
-    seen = set(picked)
-    picked += [int(i) for i in by_cost if int(i) not in seen][: n_eval - len(picked)]
-    top = np.array(sorted(picked, key=lambda i: (cost[i], i)), dtype=np.int64)
+    top = _to_evaluate(cost, dir_all, min(len(pts), cfg.evaluated + 2 * (k - 1)), cos_sep)
     vol = visibility_volume(planner)
     if samples is None:
         samples = (SubjectSamples.of_point(c) if subject.is_point
