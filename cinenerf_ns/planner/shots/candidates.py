@@ -179,13 +179,20 @@ def _plan_candidate_task(planner: Planner, config, start: np.ndarray, goal_p: np
     for name, ms in fin["timings"].items():
         out["timings"][name] = out["timings"].get(name, 0.0) + ms
     out.update(shot=fin["shot"], error=fin["error"], score_parts=None)
-    if score is not None and fin["shot"] is not None and fin["shot"].safety["safe"]:
-        t = time.perf_counter()
-        cfg, object_radius, object_samples, exclude, visibility_later = score
-        out["score_parts"] = score_parts(planner, [fin["shot"]], look_p, cfg, object_radius, object_samples, exclude,
-                                         batch=False, visibility_later=visibility_later)[0]
-        _lapper(out["timings"])("score_ms", t)
+    _worker_score(planner, out, look_p, score)
     return out
+
+
+def _worker_score(planner: Planner, out: Dict[str, Any], look_p: np.ndarray, score: Optional[tuple]) -> None:
+    """In a worker: out["score_parts"] = the safe shot's score_parts entry on the CPU copy when ``score`` =
+    (ScoreConfig, object_radius, object_samples, exclude, visibility_later) is given (_worker_score_args)."""
+    if score is None or out.get("shot") is None or not out["shot"].safety["safe"]:
+        return
+    t = time.perf_counter()
+    cfg, object_radius, object_samples, exclude, visibility_later = score
+    out["score_parts"] = score_parts(planner, [out["shot"]], look_p, cfg, object_radius, object_samples, exclude,
+                                     batch=False, visibility_later=visibility_later)[0]
+    _lapper(out["timings"])("score_ms", t)
 
 
 def _candidate_way_task(planner: Planner, config, start: np.ndarray, goal_p: np.ndarray,
@@ -216,9 +223,11 @@ def _candidate_way_task(planner: Planner, config, start: np.ndarray, goal_p: np.
 
 
 def _candidate_finish_task(planner: Planner, config, corridor, start: np.ndarray, g: np.ndarray, look_p: np.ndarray,
-                           goal_p: np.ndarray, limits: Optional[DynamicLimits]) -> Dict[str, Any]:
-    """Phase 2 of a candidate in a worker: the QP in the parent's corridor, timing, dense verification. Returns
-    {"shot" (report in shot.safety) or None, "error", "timings"}."""
+                           goal_p: np.ndarray, limits: Optional[DynamicLimits],
+                           score: Optional[tuple] = None) -> Dict[str, Any]:
+    """Phase 2 of a candidate in a worker: the QP in the parent's corridor, timing, dense verification, and the score
+    parts when ``score`` is given (_worker_score). Returns {"shot" (report in shot.safety) or None, "error",
+    "timings"[, "score_parts"]}."""
     planner.config = config
     tm: Dict[str, float] = {}
     lap = _lapper(tm)
@@ -233,7 +242,9 @@ def _candidate_finish_task(planner: Planner, config, corridor, start: np.ndarray
     t = lap("timing_ms", t)
     sh.safety = stages.legs_verify(planner, [sh])[0]  # the parent refuses unsafe shots (stages.refuse_unsafe)
     lap("verify_ms", t)
-    return {"shot": sh, "error": None, "timings": tm}
+    out = {"shot": sh, "error": None, "timings": tm, "score_parts": None}
+    _worker_score(planner, out, look_p, score)
+    return out
 
 
 def _with_request_threads(fn):
@@ -392,12 +403,8 @@ def _round_in_workers(req: _CandidateRequest, batch: List[int], t: float) -> flo
     chunk = max(EARLY_SCORE_MIN, req.k // 4)
     score_cfg = req.score_config or ScoreConfig()
     score_cfg.validate()
-    # a subject's visibility is added here, for the whole round at once (with_visibility): the workers get no
-    # subject to unpickle (its members and classes are O(K) and O(N) bytes, per task)
     later = req.subject is not None
-    score_args = (score_cfg, req.object_radius, req.object_samples,
-                  None if req.exclude is None else torch.as_tensor(req.exclude).cpu(),
-                  later) if cfg.worker_scoring else None
+    score_args = _worker_score_args(req, score_cfg)
     tasks = [(cfg, req.starts[ci], req.goal_of(ci), req.look_p, req.cache_of(ci), req.limits, score_args)
              for ci in batch]
     waiting: List[int] = []  # positions in batch of shots whose parts wait for the subject's visibility
@@ -425,17 +432,34 @@ def _round_in_workers(req: _CandidateRequest, batch: List[int], t: float) -> flo
             t += time.perf_counter() - t_s  # not pool time
     if waiting:
         t_s = time.perf_counter()
-        shots = [results[j]["shot"] for j in waiting]
-        parts = with_visibility(req.planner, shots, [results[j]["score_parts"] for j in waiting], req.subject,
-                                score_cfg)
-        for j, shot, part in zip(waiting, shots, parts):
-            req.early_scores[batch[j]] = score_from_parts(shot, part, req.look_p, score_cfg, req.object_radius,
-                                                          req.object_center)
+        _scores_of_parts(req, [(batch[j], results[j]) for j in waiting], score_cfg)
         lap("score_ms", t_s)
         t += time.perf_counter() - t_s  # not pool time
     for ci, res in _merge_task_results(batch, results, req.tm, req.cache_of, req.errors):
         req.add(ci, res["shot"])
     return lap("pool_ms", t)
+
+
+def _worker_score_args(req: _CandidateRequest, score_cfg: ScoreConfig) -> Optional[tuple]:
+    """What a worker needs to compute its shot's score parts (_worker_score), None without worker_scoring. A
+    subject's visibility is added in this process for the whole round at once (_scores_of_parts): the workers get no
+    subject to unpickle (its members and classes are O(K) and O(N) bytes, per task)."""
+    if not req.planner.config.worker_scoring:
+        return None
+    return (score_cfg, req.object_radius, req.object_samples,
+            None if req.exclude is None else torch.as_tensor(req.exclude).cpu(), req.subject is not None)
+
+
+def _scores_of_parts(req: _CandidateRequest, done: List[tuple], score_cfg: ScoreConfig) -> None:
+    """req.early_scores[ci] for each (ci, task result with score_parts) of ``done``, the subject's visibility added
+    for all of them in one call first when the request has a subject."""
+    shots = [res["shot"] for _, res in done]
+    parts = [res["score_parts"] for _, res in done]
+    if req.subject is not None and done:
+        parts = with_visibility(req.planner, shots, parts, req.subject, score_cfg)
+    for (ci, _), shot, part in zip(done, shots, parts):
+        req.early_scores[ci] = score_from_parts(shot, part, req.look_p, score_cfg, req.object_radius,
+                                                req.object_center)
 
 
 def _round_two_phase(req: _CandidateRequest, batch: List[int], t: float) -> float:
@@ -459,12 +483,21 @@ def _round_two_phase(req: _CandidateRequest, batch: List[int], t: float) -> floa
             req.errors.append(str(c))
         else:
             todo.append((ci, r, c))
+    score_cfg = req.score_config or ScoreConfig()
+    score_cfg.validate()
+    score_args = _worker_score_args(req, score_cfg)  # the workers score their shots (on the CPU copy) too
     ph2 = req.pool.map(_candidate_finish_task,
-                       [(cfg, c, req.starts[ci], r["goal"], req.look_p, req.goal_of(ci), req.limits)
+                       [(cfg, c, req.starts[ci], r["goal"], req.look_p, req.goal_of(ci), req.limits, score_args)
                         for ci, r, c in todo])
+    t = lap("pool_ms", t)
+    scored = [(ci, res) for (ci, _, _), res in zip(todo, ph2)
+              if res["error"] is None and res.get("score_parts") is not None]
+    if scored:
+        _scores_of_parts(req, scored, score_cfg)
+        t = lap("score_ms", t)
     for ci, res in _merge_task_results([ci for ci, _, _ in todo], ph2, req.tm, req.cache_of, req.errors):
         req.add(ci, res["shot"])
-    return lap("pool_ms", t)
+    return t
 
 
 def _round_strategy(req: _CandidateRequest) -> Callable[[_CandidateRequest, List[int], float], float]:

@@ -345,3 +345,36 @@ def test_workers_with_a_subject_give_the_same_visibility_and_get_no_subject(plan
         assert not any(isinstance(v, SubjectSamples) for v in a)
         if worker_scoring:
             assert not any(isinstance(v, SubjectSamples) for v in a[-1]) and a[-1][-1] is True  # visibility_later
+
+
+@pytest.mark.parametrize("with_subject", [False, True])
+def test_two_phase_rounds_score_in_the_workers(monkeypatch, with_subject):
+    """In two-phase rounds the workers also compute their shots' score parts (worker_scoring, on the CPU copy):
+    nothing is scored by score_shots in this process, a subject's visibility is added here in one call, and the
+    ranked shots and scores are those of in-process planning."""
+    from cinenerf_ns.planner.geometry.visibility import SubjectSamples
+    from cinenerf_ns.planner.shots.end_pose import visibility_volume
+
+    kw = dict(corridor_backend="batched", grid_polytopes=False)
+    p0, p2 = _planner(0, **kw), _planner(2, **kw)
+    try:
+        subject = None
+        if with_subject:
+            vol = visibility_volume(p0)
+            subject = SubjectSamples.of_members(
+                vol, np.flatnonzero(np.linalg.norm(vol.means - np.asarray(TARGET), axis=1) < 0.25), 16)
+        r0 = plan_candidates(p0, GO_TO, TARGET, k=8, seed=5, object_radius=STOP, subject=subject)
+        calls, strategies = [], []
+        real_score, real_strategy = candidates.score_shots, candidates._round_strategy
+        monkeypatch.setattr(candidates, "score_shots", lambda pl, shots, *a: calls.append(len(shots)) or
+                            real_score(pl, shots, *a))
+        monkeypatch.setattr(candidates, "_round_strategy", lambda req: strategies.append(real_strategy(req)) or
+                            strategies[-1])
+        r2 = plan_candidates(p2, GO_TO, TARGET, k=8, seed=5, object_radius=STOP, subject=subject)
+    finally:
+        p2.close()
+    assert strategies and all(f is candidates._round_two_phase for f in strategies)
+    assert calls == []  # every shot was scored from the workers' parts
+    _assert_same(r0, r2)
+    for x, y in zip(r0, r2):
+        assert x.score.terms == pytest.approx(y.score.terms, rel=1e-12, abs=1e-12)
