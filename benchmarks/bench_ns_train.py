@@ -114,18 +114,25 @@ def child(result_path: Path, ns_train_args: Sequence[str], entry=None) -> None:
     W.put_time = put_time
     trainer_mod.Trainer.eval_iteration = eval_iteration
     trainer_mod.Trainer.train = train
-    if entry is None:
+    real = entry is None
+    if real:
         from nerfstudio.scripts.train import entrypoint as entry
     sys.argv = ["ns-train", *ns_train_args]
     try:
         with offline_safe_lpips("cached"):  # splatfacto's LPIPS would download AlexNet (cinesplat: its own option)
             entry()
     finally:
+        if not result_path.exists():  # crashed: keep the steps recorded so far
+            _write_json(result_path, res)
         W.put_time = orig_put_time
         trainer_mod.Trainer.eval_iteration = orig_eval_iteration
         trainer_mod.Trainer.train = orig_train
     res["wall_s"] = time.perf_counter() - t_start
     _write_json(result_path, res)
+    if real:  # results are written: leave now, whatever threads (viewer server, loaders) would keep the process alive
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(0)
 
 
 def _write_json(path: Path, obj) -> None:
@@ -234,7 +241,7 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
     ap.add_argument("--window", default="1000:3000", help="steps lo:hi the statistics use")
     ap.add_argument("--vis", default="viewer", help="ns-train --vis (default: nerfstudio's default, the viewer)")
     ap.add_argument("--work", type=Path, default=Path("/tmp/bench_ns_train"))
-    ap.add_argument("--timeout", type=float, default=420.0, help="seconds per run before it is killed")
+    ap.add_argument("--timeout", type=float, default=300.0, help="seconds per run before it is killed")
     ap.add_argument("--budget-s", type=float, default=None,
                     help="start no further run once this many seconds have passed (a device command's time limit)")
     ap.add_argument("--logs", type=Path, default=None, help="folder for each run's console log (default: --work)")
