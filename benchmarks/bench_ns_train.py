@@ -13,6 +13,7 @@ in the order given (``--repeats`` cycles through the whole list again: interleav
   CUDA-synchronised: a step's queued GPU work is paid by whichever later host sync waits for it) and the
   20-step running mean the console shows;
 * at the end: Gaussian count, peak GPU memory of the training steps (``max_memory_allocated``; the peak is reset
+  when training starts, so setup such as cinesplat's CLIP feature extraction is reported apart as "setup peak", and
   after each eval so eval renders do not count), eval PSNR / SSIM / LPIPS over the eval split
   (``pipeline.get_average_eval_image_metrics``). LPIPS needs torchvision's AlexNet weights, which stock splatfacto
   downloads; offline both methods build it through ``compat.offline_safe_lpips("cached")`` and it is reported
@@ -93,6 +94,9 @@ def child(result_path: Path, ns_train_args: Sequence[str], entry=None) -> None:
         return out
 
     def train(self):
+        if cuda:  # setup (CLIP features, codec fit) is not training: its peak is kept apart
+            res["peak_mem_setup_mib"] = torch.cuda.max_memory_allocated() / 2**20
+            torch.cuda.reset_peak_memory_stats()
         orig_train(self)
         res["train_s"] = time.perf_counter() - t_start - (res["first_step_s"] or 0.0)
         model = self.pipeline.model
@@ -199,8 +203,8 @@ def ns_train_args(name: str, data: Path, downscale: int, steps: int, work: Path,
 def table(rows: List[dict], lo: int, hi: int) -> List[str]:
     lines = [
         "| run | ds | step ms median | p95 | max | mean | console median | x splatfacto (median) | x (mean) | "
-        "Gaussians | peak MiB | x mem | PSNR | SSIM | LPIPS | setup s |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "Gaussians | peak MiB | x mem | setup peak MiB | PSNR | SSIM | LPIPS | setup s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     base: Dict[tuple, dict] = {}
     for r in rows:
@@ -221,10 +225,29 @@ def table(rows: List[dict], lo: int, hi: int) -> List[str]:
         lines.append(
             f"| {r['name']} | {r['downscale']} | {st['median']:.2f} | {st['p95']:.2f} | {st['max']:.1f} | "
             f"{st['mean']:.2f} | {st['console_median']:.2f} | {ratio:.3f} | {ratio_mean:.3f} | "
-            f"{r['result'].get('gaussians', 0)} | {pm:.0f} | {xm:.2f} | {f('psnr', '%.2f')} | {f('ssim', '%.4f')} | "
+            f"{r['result'].get('gaussians', 0)} | {pm:.0f} | {xm:.2f} | "
+            f"{r['result'].get('peak_mem_setup_mib', float('nan')):.0f} | {f('psnr', '%.2f')} | {f('ssim', '%.4f')} | "
             f"{f('lpips', '%.4f')} | {r['result'].get('first_step_s') or float('nan'):.1f} |"
         )
     return lines
+
+
+def window_ratios(rows: List[dict], edges: Sequence[int]) -> List[str]:
+    """Per run, its median step time in each window [edges[k], edges[k+1]) over splatfacto's at the same downscale and
+    repeat: how the gap changes as training goes on (Gaussian count, SH degree)."""
+    base = {(r["downscale"], r["repeat"]): r["result"] for r in rows if r["name"] == "splatfacto" and r["result"]}
+    heads = [f"{a}-{b}" for a, b in zip(edges[:-1], edges[1:])]
+    out = ["| run | ds | " + " | ".join(heads) + " |", "|---|---|" + "---|" * len(heads)]
+    for r in rows:
+        b = base.get((r["downscale"], r["repeat"]))
+        if r["name"] == "splatfacto" or not b or not r["result"]:
+            continue
+        cells = []
+        for lo, hi in zip(edges[:-1], edges[1:]):
+            x, y = window_stats(r["result"], lo, hi), window_stats(b, lo, hi)
+            cells.append(f"{x['median'] / y['median']:.3f}" if x.get("n") and y.get("n") else "n/a")
+        out.append(f"| {r['name']} | {r['downscale']} | " + " | ".join(cells) + " |")
+    return out
 
 
 def main(argv: Optional[Sequence[str]] = None) -> None:
@@ -298,9 +321,14 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
         f"--repeats {args.repeats}`: "
         f"stock `ns-train` processes in this order, nerfstudio's own step timer (\"Train Iter (time)\", host time, "
         f"not CUDA-synced) over steps {lo}-{hi}; console median = median of the 20-step running mean the console "
-        f"prints; peak MiB = max_memory_allocated of the training steps; eval over the eval split after the last step.",
+        "prints; peak MiB = max_memory_allocated of the training steps (setup peak: before step 0); eval over the eval "
+        "split after the last step.",
         "",
         *table(rows, lo, hi),
+        "",
+        "x splatfacto (median step time) per step window:",
+        "",
+        *window_ratios(rows, list(range(0, args.steps, 500)) + [args.steps]),
         "",
     ]
     text = "\n".join(lines)

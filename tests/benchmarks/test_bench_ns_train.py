@@ -66,8 +66,12 @@ def test_window_stats_and_table():
     lines = b.table(rows, 1000, 3000)
     assert "| cinesplat | 4 | 11.00 |" in lines[3] and "| 1.100 |" in lines[3] and "| 1.10 |" in lines[3]
     assert "n/a" in lines[3]  # NaN LPIPS (no AlexNet weights offline)
+    assert "| nan |" in lines[3]  # no setup peak recorded in this fake
     assert b.percentile([1, 2, 3, 4, 5], 50) == 3 and b.percentile([1, 2], 95) == pytest.approx(1.95)
     assert b.window_stats({"raw": []}, 0, 10) == {"n": 0}
+    ratios = b.window_ratios(rows, [0, 1000, 2000, 3000])
+    assert ratios[0] == "| run | ds | 0-1000 | 1000-2000 | 2000-3000 |"
+    assert ratios[2] == "| cinesplat | 4 | 1.100 | 1.100 | 1.100 |"
 
 
 def test_runs_spec_and_every_variant_parses_with_ns_train_cli():
