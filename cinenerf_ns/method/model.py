@@ -59,7 +59,7 @@ class CineSplatModelConfig(SplatfactoModelConfig):
     The paper distils after the geometry converged (e.g. 2/3 of the run)."""
     latent_loss_weight: float = 1.0
     """Weight of the latent L2 loss. Only the latents receive its gradient and they have their own Adam
-    optimizer, so in "separate" mode this mostly scales the logged value."""
+    optimizer, so in "shared" and "separate" modes this mostly scales the logged value."""
     latent_every: int = 1
     """Render the latent pass and add its loss every this many steps (>1 trades latent quality for speed)."""
     latent_render_mode: Literal["shared", "separate", "fused"] = "shared"
