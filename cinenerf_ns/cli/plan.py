@@ -50,15 +50,16 @@ from cinenerf_ns.planner.shots.camera_path import (
     shot_to_camera_path,
     write_camera_path,
 )
-from cinenerf_ns.planner.shots.candidates import RankedShot, plan_candidates, score_shots
+from cinenerf_ns.planner.shots.candidates import RankedShot
 from cinenerf_ns.planner.shots.framing import FramingConfig
 from cinenerf_ns.planner.shots.multistop import plan_multistop
 from cinenerf_ns.planner.shots.planner import GRID_RESOLUTION_RANGE, MAX_CANDIDATES, Planner, PlannerConfig
 from cinenerf_ns.planner.shots.safety import plot_clearance, plot_paths_topdown
 from cinenerf_ns.planner.shots.scoring import ScoreConfig
-from cinenerf_ns.planner.trajectory.dynamics import DynamicLimits, retime_shot
+from cinenerf_ns.planner.trajectory.dynamics import DynamicLimits
 from cinenerf_ns.planner.trajectory.timing import MAX_FPS, MIN_FPS, TimingConfig
 from cinenerf_ns.scenes import LoadedScene, _word_match, load_scene, parse_point, resolve_match
+from cinenerf_ns.shot_request import ShotRequest, plan_request
 from cinenerf_ns.shot_targets import ShotTargets, end_pose_count, shot_targets, start_region_centre
 from cinenerf_ns.signals import interrupted, signals_as_interrupts
 
@@ -425,19 +426,10 @@ def _plan_shots(args: PlanArgs, planner: Planner, loaded: LoadedScene, goal: np.
         multi = plan_multistop(planner, [goal] + stops, np.stack(looks), start=start, seed=args.seed, limits=limits,
                                force_start=args.force_start)
         return [multi.shot], [None], multi, obj_r, score_cfg, [0]
-    goals = targets.goals(goal)  # [P, 3]: end poses, or the go-to point
-    subject = targets.samples
-    if start is not None:
-        shots = planner.plan(goals[0], look, start=start, seed=args.seed, n_candidates=1,
-                             force_start=args.force_start)
-        if limits is not None:
-            shots = [retime_shot(sh, limits, up=planner.config.up) for sh in shots]
-        scores = score_shots(planner, shots, look, score_cfg, object_radius=obj_r, subject=subject)
-        return shots, scores, None, obj_r, score_cfg, [0]
-    ranked: List[RankedShot] = plan_candidates(planner, goals if len(goals) > 1 else goals[0], look,
-                                               k=args.candidates, seed=args.seed, score_config=score_cfg,
-                                               limits=limits, object_radius=obj_r, timings=timings,
-                                               time_budget_s=args.time_budget, subject=subject)
+    req = ShotRequest(goals=targets.goals(goal), look_at=look, start=start, candidates=args.candidates,
+                      seed=args.seed, subject=targets.samples, score=score_cfg, limits=limits, object_radius=obj_r,
+                      time_budget_s=args.time_budget, force_start=args.force_start)
+    ranked: List[RankedShot] = plan_request(planner, req, timings)
     return ([r.shot for r in ranked], [r.score for r in ranked], None, obj_r, score_cfg,
             [r.candidate for r in ranked])
 
