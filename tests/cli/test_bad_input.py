@@ -84,6 +84,7 @@ OPTION_CASES = [
     ("region-five-numbers", ["--region", "0 0 0 1 1"], r"--region\) must be 6 numbers .* got 5 numbers"),
     ("region-text", ["--region", "everywhere"], r"--region must be 6 numbers 'x0 y0 z0 x1 y1 z1'"),
     ("region-outside-the-scene", ["--region", "10 10 10 11 11 11"], r"--region\) .* lies outside the scene"),
+    ("region-far-larger-than-the-scene", ["--region", "0 0 0 1e30 1e30 1e30"], r"--region\) .* larger than the scene"),
     ("region-too-thin", ["--region", "-1 -1 0.5 1 1 0.52"], r"--region\) .* too small for the camera along z"),
     ("go-to-empty", ["--go-to", ""], r"go-to target is empty"),
     ("look-at-blank", ["--look-at", "   "], r"look-at target is empty"),
