@@ -354,7 +354,7 @@ def _region_config(args: PlanArgs, loaded: LoadedScene) -> Dict[str, Any]:
     planner's rules)."""
     if args.region is not None:
         return {"bounds": parse_region(args.region), "bounds_rule": "user box"}
-    stored = loaded.extra.get("planning_region")
+    stored = loaded.planning_region
     if stored is not None:
         return {"bounds": stored, "bounds_rule": "stored in the export"}
     return {}
@@ -374,7 +374,7 @@ def _object_radius(args: PlanArgs, loaded: LoadedScene) -> float:
     if args.object_radius is not None:
         return float(args.object_radius)
     if loaded.kind == "procedural" and parse_point(args.look_at) is None:
-        objs = loaded.extra["room"].objects
+        objs = loaded.room.objects
         i = _word_match(args.look_at, [o.name for o in objs])
         if i is not None:
             return float(0.5 * np.linalg.norm(objs[i].size))
@@ -501,7 +501,7 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
                             object_cluster=args.object_cluster, object_centre=args.object_centre, up=args.up,
                             drop_support=not args.keep_support, centre_relevancy=args.centre_relevancy,
                             unseen_fill=not args.no_unseen_fill)
-        for note in loaded.extra.get("notes", []):
+        for note in loaded.notes:
             console.print(f"note: {note}", markup=False, highlight=False)
         prog.update(task, advance=1, description="resolving targets", refresh=True)
         # text first: a query that matches nothing fails before the grid is built
