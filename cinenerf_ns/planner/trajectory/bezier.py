@@ -231,10 +231,6 @@ class BezierTrajectory:
             return torch.from_numpy(times), torch.from_numpy(pos)
         return times, pos
 
-    def control_polygon_length(self) -> float:
-        """Length of the control polygon: an upper bound of the curve length."""
-        return float(np.linalg.norm(np.diff(self.control_points, axis=1), axis=-1).sum())
-
     def to_dict(self) -> dict:
         return {
             "control_points": self.control_points.tolist(),
