@@ -201,7 +201,7 @@ def astar(
         raise RuntimeError(f"the compiled A* is not available: {native_status().get('astar26', 'not loaded')}")
     if fn is not None:
         return _astar_native(grid, start, goal, s, g_, max_expansions, float(heuristic_weight))
-    return _astar_python(grid, start, goal, s, g_, max_expansions, float(heuristic_weight))
+    return _astar_reference(grid, start, goal, s, g_, max_expansions, float(heuristic_weight))
 
 
 def _check_endpoints(grid: AStarGrid, s: tuple, g_: tuple, check_components: bool) -> None:
@@ -221,7 +221,7 @@ def _check_endpoints(grid: AStarGrid, s: tuple, g_: tuple, check_components: boo
             )
 
 
-def _astar_python(grid: AStarGrid, start: int, goal: int, s, g_, max_expansions, weight: float) -> np.ndarray:
+def _astar_reference(grid: AStarGrid, start: int, goal: int, s, g_, max_expansions, weight: float) -> np.ndarray:
     """astar() in pure Python (flat padded indices; the module docstring says why it is written this way)."""
     closed = bytearray(grid.blocked)  # occupied or closed: one lookup per neighbour
     gi, gj, gk = g_

@@ -515,7 +515,7 @@ def _nearest_free_voxel_centre(t, scene, index, grid, reachable, clear, max_cand
                 continue
             chunks = ((k, torch.from_numpy(ordered[k:k + 16])) for k in range(0, len(ordered), 16))
         else:
-            any_free, centres, d = _window_numpy(grid, scene, index, occ, reachable, mean_voxels, a, e, lo_np, vs,
+            any_free, centres, d = _window_reference(grid, scene, index, occ, reachable, mean_voxels, a, e, lo_np, vs,
                                                  t_np)
             if any_free and centres is None:
                 if covers_all:
@@ -542,7 +542,7 @@ def _nearest_free_voxel_centre(t, scene, index, grid, reachable, clear, max_cand
     )
 
 
-def _window_numpy(grid, scene, index, occ, reachable, mean_voxels, a, e, lo_np, vs, t_np):
+def _window_reference(grid, scene, index, occ, reachable, mean_voxels, a, e, lo_np, vs, t_np):
     """One window in numpy (the reference): (any voxel free and reachable, candidates' centres [K, 3] or None when
     every free one holds a mean, their distances [K])."""
     win = (slice(a[0], e[0]), slice(a[1], e[1]), slice(a[2], e[2]))
