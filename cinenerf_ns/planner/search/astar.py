@@ -1,4 +1,4 @@
-"""Initial path: A* on the occupancy voxel grid, then line-of-sight shortcutting (issue 3, item 4).
+"""Initial path: A* on the occupancy voxel grid, then line-of-sight shortcutting.
 
 26-connected moves cost 1, sqrt(2), sqrt(3) (voxel units). The heuristic is the 3D octile distance
 (the exact path cost on an obstacle-free 26-connected grid): it is >= the Euclidean distance yet
@@ -7,7 +7,7 @@ expand about one voxel per path step instead of a wide Euclidean "cone". A* with
 heuristic and a closed set returns a minimum-cost path.
 
 Two implementations of the same search (same costs, heuristic and tie-breaking, hence the same path):
-the compiled one (native/astar26.c, built with the system C compiler on first use; ~50x faster) when it
+the compiled one (native/astar26.c, built with the system C compiler on first use; much faster) when it
 is available, else the pure-Python one below (``backend`` chooses; tests compare them). A grid with ``landmarks``
 (landmarks.py; coarse_path.py sets them on its block grid) adds their bound in the compiled search only: the same
 minimum cost, possibly another of several equal-cost paths.

@@ -1,4 +1,4 @@
-"""Goal and start positions (issue 3, item 6).
+"""Goal and start positions.
 
 closest_safe_point (paper Sec. IV-C): the go-to target (e.g. an object's centroid) is usually inside
 the object. We grow a Prop-2 safe polytope around the target (it may exclude the target itself) and

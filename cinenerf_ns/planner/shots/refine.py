@@ -1,4 +1,4 @@
-"""Free space at the resolution the obstacles need (issue 37): a go-to that is free but whose free space is not
+"""Free space at the resolution the obstacles need: a go-to that is free but whose free space is not
 connected to the start's at the grid's resolution is not given up at once. The leg is planned again on a finer
 occupancy grid over a box around the start and the go-to (a local fine search: the rest of the region stays coarse),
 and that shot is kept when it ends closer to the go-to than the coarse leg would.

@@ -1,7 +1,7 @@
 """The corridor QP (qp.py) solved exactly: equalities eliminated, then the dual active-set method of Goldfarb & Idnani.
 
-Why: Clarabel (interior point) spent ~1.3 ms of a ~2 ms QP stage on captured 1M-Gaussian requests, most of it set-up,
-for problems of ~40 free control points of which ~12 faces are active at the optimum. A dual active-set method touches
+Why: Clarabel (interior point) spent most of a QP stage on captured requests in set-up (docs/PLANNER_DEFAULTS.md), for
+problems of ~40 free control points of which ~12 faces are active at the optimum. A dual active-set method touches
 only the faces it adds; here it is a few small dense solves.
 
 1. Equalities eliminated (``reduce``). The pins and the C^c joins fix some control points as affine functions of the
