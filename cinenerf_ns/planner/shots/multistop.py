@@ -5,7 +5,7 @@ Choice (documented): ONE QP over the concatenated corridor, the stops as interpo
      go-to that the start's free component reaches (reach.reachable_goal, as for single shots);
   2. per leg (start -> stop 1, stop 1 -> stop 2, ...): A*, line-of-sight shortcut (all legs in one
      batched call), safe polytope corridor (stages.py, the single shot's leg stages);
-  3. the legs' polytopes and waypoints are concatenated and the corridor QP of trajectory.py is built once;
+  3. the legs' polytopes and waypoints are concatenated and the corridor QP of trajectory/qp.py is built once;
      for every interior stop j joining segments k-1 and k, the equality P_{k-1,D} = stop_j is added (the
      C0..C2 joins then carry the curve through it with continuous velocity and acceleration: the camera
      flies through the stop, it does not halt) and the two control points at the stop drop their polytope
