@@ -17,11 +17,9 @@ from cinenerf_ns.planner.trajectory.qp import (
     CorridorInfeasibleError,
     TrajectoryConfig,
     build_corridor_qp,
-    segment_durations,
-    segment_factors,
-    segment_hessians,
     solve_corridor_qp,
 )
+from cinenerf_ns.planner.trajectory.qp_matrices import segment_durations, segment_factors, segment_hessians
 
 needs_native = pytest.mark.skipif(native.corridor_dual_c() is None,
                                   reason=f"dual_qp.c did not load: {native.native_status().get('dual_qp')}")
