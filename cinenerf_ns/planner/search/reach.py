@@ -14,7 +14,8 @@ from ..corridor.polytope import Polytope, aabb_polytope
 from ..errors import GoalUnreachableError, PlanningError
 from ..geometry.collision import segments_collide
 from ..geometry.ranges import group_ranks
-from .goal import ComponentMask, _project_onto_polytope, closest_safe_point
+from .goal import ComponentMask, closest_safe_point
+from .projection import project_onto_polytope
 
 if TYPE_CHECKING:
     from ..shots.planner import Planner
@@ -190,7 +191,7 @@ def reachable_goal(planner: "Planner", target: np.ndarray, comp: int) -> "Reacha
             bhi = np.minimum(c_np + half, rhi)
             poly = aabb_polytope(c_np[None], planner.scene, prep.index, blo, bhi)
             A, b = poly.to_numpy()
-            x = _project_onto_polytope(A, b, target, interior=c_np)  # the seed: inside
+            x = project_onto_polytope(A, b, target, interior=c_np)  # the seed: inside
         except PlanningError:
             x = None
         on_face = x is not None and bool((np.abs(np.abs(x - c_np) - half) <= 1e-9 * (1 + np.abs(x).max())).any())
