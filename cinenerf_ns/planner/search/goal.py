@@ -24,7 +24,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..corridor.polytope import aabb_polytope, candidate_ids
+from ..corridor.polytope import aabb_polytope
+from ..corridor.polytope_candidates import candidate_ids
 from ..corridor.polytope_planes import closest_t
 from ..errors import GoalUnreachableError, InvalidInputError, StartInCollisionError
 from ..native import choose, goal_window_c
