@@ -284,9 +284,9 @@ def _summary(args, loaded, planner, prep, gm, lm, goal, look, shots, scores, mul
         "candidates": [
             {**(multi.to_dict() if multi is not None else sh.to_dict()), "rank": k + 1,
              "score": None if scores[k] is None else scores[k].to_dict(),
-             "dynamics": getattr(sh, "dynamics", None) if multi is None else multi.dynamics,
+             "dynamics": sh.dynamics if multi is None else multi.dynamics,
              "camera_path": str(files[k]), "goal_moved": moves[k],
-             "refinement": getattr(sh, "refinement", None),
+             "refinement": sh.refinement,
              "exact_clearance": {kk: v for kk, v in reports[k].items() if kk not in ("times", "clearance")},
              "verification": sh.safety}
             for k, sh in enumerate(shots)
@@ -309,7 +309,7 @@ def _print_summary(args, console, loaded, gm, lm, shots, scores, multi, reports,
         table.add_column(col, no_wrap=True)
     for k, sh in enumerate(shots):
         sc = scores[k]
-        dyn = getattr(sh, "dynamics", None) if multi is None else multi.dynamics
+        dyn = sh.dynamics if multi is None else multi.dynamics
         peaks = ("-" if not dyn else
                  f"{dyn['peak_speed']:.2f}/{dyn['peak_acceleration']:.2f}/{dyn['peak_angular_rate_deg']:.0f}")
         t = sc.terms if sc is not None else {}

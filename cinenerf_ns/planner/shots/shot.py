@@ -41,6 +41,16 @@ class Shot:
     curve_times: Optional[np.ndarray] = None  # [T] the trajectory's own time at each frame (dense resampling)
     safety: Optional[Dict[str, Any]] = None  # the planner's dense exact-clearance report (safety.safety_report)
     goal_target: Optional[np.ndarray] = None  # [3] the requested go-to point (goal is the closest safe point to it)
+    # What a request adds to a planned shot (None until it does): read by the CLI's report and table and the viewer.
+    score: Optional[float] = None  # the shot score's total (ranked candidates: lower is better)
+    rank: Optional[int] = None  # 1 = the best of its request's candidates
+    score_terms: Optional[Dict[str, Any]] = None  # ShotScore.to_dict() of the shot's score
+    goal_moved: Optional[Dict[str, Any]] = None  # Planner.explain_goal: where the go-to moved and why
+    dynamics: Optional[Dict[str, float]] = None  # peaks vs limits after retime_shot (trajectory/dynamics.py)
+    refinement: Optional[Dict[str, Any]] = None  # the local fine grid a refined leg was planned on (refine.py)
+    end_pose: Optional[Any] = None  # the end pose it ends at (shot_targets.ShotTargets.pose_of)
+    subject_view: Optional[Dict[str, Any]] = None  # the look-at object seen from its last frame (view_report)
+    end_pose_note: Optional[str] = None  # why it ends where it does (ShotTargets.note)
 
     def __post_init__(self) -> None:
         self.times = _to_numpy(self.times).reshape(-1)
