@@ -55,7 +55,7 @@ def project_active_set(A: np.ndarray, b: np.ndarray, target: np.ndarray, x0: np.
     iterations cost ~1 ms per goal. Exact up to rounding (the multipliers prove optimality); rounding can leave
     A x - b at ~1e-16, which the caller removes.
     backend: "auto" (native/project.c's cn_project_primal, the same steps up to rounding, when it loads),
-    "native" or "python" (this numpy code, the reference); a singular working set raises np.linalg.LinAlgError on
+    "native" or "python" (project_active_set_reference); a singular working set raises np.linalg.LinAlgError on
     both.
     """
     fn = choose(backend, project_primal_c, "project", "active-set projection")
@@ -66,6 +66,12 @@ def project_active_set(A: np.ndarray, b: np.ndarray, target: np.ndarray, x0: np.
         code = fn(A.ctypes.data, b.ctypes.data, A.shape[0], t.ctypes.data, x0.ctypes.data, int(max_iter),
                   x.ctypes.data)
         return _native_projection_result(code, x, {1: None})
+    return project_active_set_reference(A, b, target, x0, max_iter)
+
+
+def project_active_set_reference(A: np.ndarray, b: np.ndarray, target: np.ndarray, x0: np.ndarray,
+                                 max_iter: int = 60) -> Optional[np.ndarray]:
+    """project_active_set in numpy: the reference of native/project.c's cn_project_primal (the same steps)."""
     A = np.asarray(A, dtype=np.float64)  # [F, 3]
     b = np.asarray(b, dtype=np.float64)  # [F]
     t = np.asarray(target, dtype=np.float64).reshape(3)
@@ -129,8 +135,8 @@ def project_dual_active_set(A: np.ndarray, b: np.ndarray, target: np.ndarray,
     (Farkas: a nonnegative combination of faces proves A x <= b infeasible). Rounding leaves A x - b at ~1e-16
     relative; callers tighten b when they need the point strictly inside.
     backend: "auto" (native/project.c's cn_project_dual, the same steps up to rounding, when it loads),
-    "native" or "python" (this numpy code, the reference); a singular working set raises np.linalg.LinAlgError on
-    both."""
+    "native" or "python" (project_dual_active_set_reference); a singular working set raises np.linalg.LinAlgError
+    on both."""
     fn = choose(backend, project_dual_c, "project", "dual active-set projection")
     if fn is not None:
         A, b, t = _native_projection_args(A, b, target)
@@ -138,6 +144,12 @@ def project_dual_active_set(A: np.ndarray, b: np.ndarray, target: np.ndarray,
         code = fn(A.ctypes.data, b.ctypes.data, A.shape[0], t.ctypes.data,
                   50 + 4 * A.shape[0] if max_iter is None else int(max_iter), x.ctypes.data)
         return _native_projection_result(code, x, {1: None, 2: "unfinished"})
+    return project_dual_active_set_reference(A, b, target, max_iter)
+
+
+def project_dual_active_set_reference(A: np.ndarray, b: np.ndarray, target: np.ndarray,
+                                      max_iter: Optional[int] = None) -> Union[np.ndarray, None, str]:
+    """project_dual_active_set in numpy: the reference of native/project.c's cn_project_dual (the same steps)."""
     A = np.asarray(A, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
     x = np.asarray(target, dtype=np.float64).reshape(3).copy()
