@@ -38,7 +38,7 @@ class NoFreeStartError(StartInCollisionError):
 
 
 # ------------------------------------------------------------------------------------ grid helpers
-def _grid_arrays(grid):
+def grid_arrays(grid):
     occ = grid.occupied
     occ = occ.detach().cpu().numpy() if isinstance(occ, Tensor) else np.asarray(occ)
     lo = torch.as_tensor(grid.lo).detach().cpu().to(torch.float64).reshape(3)
@@ -81,7 +81,7 @@ def _reachable_mask(reachable, shape):
 def _voxel_to_world(grid, ijk: Tensor) -> Tensor:
     if hasattr(grid, "voxel_to_world"):
         return torch.as_tensor(grid.voxel_to_world(ijk)).detach().cpu().to(torch.float64)
-    _, lo, vs = _grid_arrays(grid)
+    _, lo, vs = grid_arrays(grid)
     return lo + (ijk.to(torch.float64) + 0.5) * vs
 
 
@@ -96,7 +96,7 @@ def _voxel_centres(grid, ijk: np.ndarray, lo: np.ndarray, vs: float) -> np.ndarr
 def _world_to_voxel(grid, x: Tensor) -> Tensor:
     if hasattr(grid, "world_to_voxel"):
         return torch.as_tensor(grid.world_to_voxel(x)).detach().cpu().long()
-    _, lo, vs = _grid_arrays(grid)
+    _, lo, vs = grid_arrays(grid)
     return ((x.to(torch.float64) - lo) / vs).floor().long()
 
 
@@ -207,7 +207,7 @@ def closest_safe_point(
 def mean_voxel_mask(scene, grid) -> np.ndarray:
     """bool [X, Y, Z]: the grid's voxels that hold at least one Gaussian mean of ``scene`` (never goals, see
     closest_safe_point step 3). One pass over the means; computed once per prepared scene."""
-    occ, _, _ = _grid_arrays(grid)
+    occ, _, _ = grid_arrays(grid)
     v = _world_to_voxel(grid, scene.means.detach().cpu().to(torch.float64)).numpy()  # [N, 3]
     v = v[((v >= 0) & (v < np.asarray(occ.shape))).all(1)]
     out = np.zeros(occ.shape, dtype=bool)
@@ -288,7 +288,7 @@ def _nearest_free_voxel_centre(t, scene, index, grid, reachable, clear, max_cand
     """closest_safe_point's step 3. backend: "auto" (native/goalwindow.c for each window when the inputs fit:
     _window_native_args), "native" or "python" (the numpy windows, the reference); the same candidates in the same
     order either way."""
-    occ, lo, vs = _grid_arrays(grid)
+    occ, lo, vs = grid_arrays(grid)
     shape = np.asarray(occ.shape)
     reachable = _reachable_mask(reachable, occ.shape)  # free and reachable voxels: computed per window below
     native_args = _window_native_args(grid, occ, reachable, mean_voxels) if backend != "python" else None
@@ -417,7 +417,7 @@ def sample_free_starts(
     gen = generator if isinstance(generator, torch.Generator) else torch.Generator().manual_seed(int(generator or 0))
     occ = None
     if grid is not None:
-        occ, glo, vs = _grid_arrays(grid)
+        occ, glo, vs = grid_arrays(grid)
         ghi = glo + torch.as_tensor(occ.shape, dtype=torch.float64) * vs
         if blocked is not None:
             if blocked.shape != occ.shape:

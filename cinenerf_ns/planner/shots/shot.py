@@ -14,7 +14,7 @@ from typing import Any, Callable, Dict, Optional, Sequence
 import numpy as np
 
 from ..errors import InvalidInputError
-from ..trajectory.bezier import BezierTrajectory, _to_numpy
+from ..trajectory.bezier import BezierTrajectory, to_numpy
 from ..trajectory.orientation import look_at_error_deg, look_at_rotations
 from ..trajectory.timing import TimingConfig, arc_length_table, check_frame_count, time_parametrize
 
@@ -53,11 +53,11 @@ class Shot:
     end_pose_note: Optional[str] = None  # why it ends where it does (ShotTargets.note)
 
     def __post_init__(self) -> None:
-        self.times = _to_numpy(self.times).reshape(-1)
-        self.positions = _to_numpy(self.positions)
-        self.rotations = _to_numpy(self.rotations)
+        self.times = to_numpy(self.times).reshape(-1)
+        self.positions = to_numpy(self.positions)
+        self.rotations = to_numpy(self.rotations)
         for name in ("look_at", "goal", "start"):
-            v = _to_numpy(getattr(self, name)).reshape(-1)
+            v = to_numpy(getattr(self, name)).reshape(-1)
             if v.shape != (3,) or not np.all(np.isfinite(v)):
                 raise InvalidInputError(f"Shot.{name} must be a finite 3D point, got {v.tolist()}.")
             setattr(self, name, v)
@@ -73,11 +73,11 @@ class Shot:
         if t > 1 and np.any(np.diff(self.times) <= 0):
             raise InvalidInputError("Shot times must be strictly increasing.")
         if self.clearance is not None:
-            self.clearance = _to_numpy(self.clearance).reshape(-1)
+            self.clearance = to_numpy(self.clearance).reshape(-1)
             if self.clearance.shape != (t,):
                 raise InvalidInputError(f"Shot.clearance must have shape [{t}], got {self.clearance.shape}.")
         if self.curve_times is not None:
-            self.curve_times = _to_numpy(self.curve_times).reshape(-1)
+            self.curve_times = to_numpy(self.curve_times).reshape(-1)
             if self.curve_times.shape != (t,):
                 raise InvalidInputError(f"Shot.curve_times must have shape [{t}], got {self.curve_times.shape}.")
         if self.fps is None:
@@ -110,13 +110,13 @@ class Shot:
         timings["orientation_ms"] = 1e3 * (t2 - t1)
         clearance = None
         if clearance_fn is not None:
-            clearance = _to_numpy(clearance_fn(path.positions)).reshape(-1)
+            clearance = to_numpy(clearance_fn(path.positions)).reshape(-1)
             timings["clearance_ms"] = 1e3 * (time.perf_counter() - t2)
         return cls(
             times=path.times,
             positions=path.positions,
             rotations=rot,
-            look_at=_to_numpy(look_at),
+            look_at=to_numpy(look_at),
             goal=trajectory.end,
             start=trajectory.start,
             trajectory=trajectory,

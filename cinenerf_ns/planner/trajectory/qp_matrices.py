@@ -12,7 +12,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import CorridorInfeasibleError, InvalidInputError
-from .bezier import _to_numpy, difference_matrix
+from .bezier import difference_matrix, to_numpy
 from .qp_config import TrajectoryConfig
 
 
@@ -100,8 +100,8 @@ def as_polytopes(polytopes: Sequence[Any]) -> List[Tuple[np.ndarray, np.ndarray]
                 a, b = poly
             except (TypeError, ValueError):
                 raise InvalidInputError(f"polytope {k} must be an (A, b) pair or have .A and .b") from None
-        a = _to_numpy(a)
-        b = _to_numpy(b).reshape(-1)
+        a = to_numpy(a)
+        b = to_numpy(b).reshape(-1)
         if a.ndim != 2 or a.shape[1] != 3 or a.shape[0] != b.shape[0] or a.shape[0] == 0:
             raise InvalidInputError(
                 f"polytope {k}: A must be [F, 3] and b [F] with F >= 1, got A {a.shape}, b {b.shape}."
@@ -377,9 +377,9 @@ def checked_qp_input(polytopes, waypoints, start, goal):
     """(polytopes [(A, b)], waypoints [M+1, 3], start [3], goal [3]) as float64 numpy; InvalidInputError for bad
     shapes or values, CorridorInfeasibleError when start / goal (pinned by equality) lie outside their polytope."""
     polys = as_polytopes(polytopes)
-    wp = _to_numpy(waypoints)
-    start = _to_numpy(start).reshape(-1)
-    goal = _to_numpy(goal).reshape(-1)
+    wp = to_numpy(waypoints)
+    start = to_numpy(start).reshape(-1)
+    goal = to_numpy(goal).reshape(-1)
     m = len(polys)
     if m == 0:
         raise InvalidInputError("the corridor has no polytopes.")
