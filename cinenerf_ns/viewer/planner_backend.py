@@ -149,10 +149,10 @@ class PreparedPlanner:
                 aimed = shot.goal_target if tg is not None and tg.ends_at_poses else pt(goal)
                 shot.goal_moved = self.planner.explain_goal(aimed, shot.goal)  # said on screen, never silent
                 if tg is not None:
-                    terms = (getattr(shot, "score_terms", None) or {}).get("terms")
+                    terms = (shot.score_terms or {}).get("terms")
                     shot.subject_view = tg.view_report(shot.positions[-1], pt(look_at), self.planner.config.up, terms)
                     shot.end_pose_note = tg.note()
-                if getattr(shot, "clearance", None) is None:
+                if shot.clearance is None:
                     t0 = time.perf_counter()
                     # exact where it matters (near obstacles); capped far away: the uncapped search
                     # would dominate a Plan on large scenes
