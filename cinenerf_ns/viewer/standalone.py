@@ -34,6 +34,7 @@ from cinenerf_ns.planner.trajectory.timing import TimingConfig
 
 from .backend import FunctionBackend, LocateFn, PlanFn, SceneGaussians, label_locate, to_numpy
 from .conventions import VISER_NERFSTUDIO_SCALE_RATIO
+from .region_box import stored_region_config
 from .views import TrainingCameras
 
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
@@ -67,6 +68,7 @@ class LoadedScene:
     scene_note: str = ""  # what the scene is when it has no run (said instead of an ns-render command)
     # the capture's training cameras (the opening view); None: generated scenes
     cameras: Optional[TrainingCameras] = None
+    planning_region: Optional[Tuple[np.ndarray, np.ndarray]] = None  # (lo [3], hi [3]) a compact export stores
 
 
 # --------------------------------------------------------------------------------------- loading
@@ -173,6 +175,7 @@ def load_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optio
         semantic=sem, free_text=bool(ld.extra.get("free_text", False)),
         scene_note="" if cfg_path is not None else f"{path.absolute()} is a compact export with no training run",
         cameras=TrainingCameras.of(ld.extra.get("camera_centres"), ld.extra.get("camera_poses")),
+        planning_region=ld.extra.get("planning_region"),
     )
 
 
@@ -289,14 +292,15 @@ class StandaloneViewer:
         if plan_fn is None:
             self.planner = PreparedPlanner(self.obstacles, PlannerConfig(
                 grid_resolution=cfg.grid_resolution, start_region=self.loaded.start_region,
-                timing=TimingConfig(max_speed=cfg.max_speed), candidate_workers=0))  # see PreparedPlanner
+                timing=TimingConfig(max_speed=cfg.max_speed), candidate_workers=0,  # see PreparedPlanner
+                **stored_region_config(self.loaded.planning_region)))
             plan_fn, planner_name = self.planner.plan, PreparedPlanner.name
         else:
             planner_name = "injected planner"
         self.planner_name = planner_name
         display = display_gaussians(sp)
         locate = locate or self.loaded.locate
-        self.backend = FunctionBackend(display, plan_fn, locate, self.loaded.name, planner_name)
+        self.backend = FunctionBackend(display, plan_fn, locate, self.loaded.name, planner_name, self.planner)
         self.server = start_server(viser, cfg.host, cfg.port)
         self.guard = guard_server(self.server, cfg.host, max_connections=cfg.max_pages)
         self.server.scene.set_up_direction("+z")
