@@ -325,9 +325,9 @@ class StandaloneViewer:
         else:
             text = "Text queries: object names (or x y z)."
         self.loaded_message = f"Loaded '{self.loaded.name}' ({len(display)} Gaussians). {text}"
-        self.panels.set_status(self.loaded_message, "info", details=(
-            f"Scene loaded in {time.perf_counter() - t0:.1f} s: {len(display)} Gaussians, {len(self.obstacles)} "
-            f"obstacles. Planner: {planner_name}."))
+        self.load_detail = (f"Scene loaded in {time.perf_counter() - t0:.1f} s: {len(display)} Gaussians, "
+                            f"{len(self.obstacles)} obstacles. Planner: {planner_name}.")
+        self.panels.set_status(self.loaded_message, "info", details=self.load_detail)
         if self.planner is not None:
             self.planner.on_status = self._prepare_status
             self.planner.start(background=True)
@@ -340,7 +340,7 @@ class StandaloneViewer:
         (a Plan that failed fast, e.g. text that matches nothing, leaves the panel idle: its message must not be
         overwritten); the preparation's timings go to the details fold."""
         detail = getattr(self.planner, "prepare_detail", "") if self.planner is not None else ""
-        detail = f"{self.panels.details} {detail}".strip()
+        detail = f"{self.load_detail} {detail}".strip()  # the latest preparation's (a new planning region's)
         if level == "error":
             self.panels.set_status(text, "error")
         elif level == "busy":

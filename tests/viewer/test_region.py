@@ -245,6 +245,9 @@ def test_a_compact_export_stores_the_region_and_the_viewer_plans_in_it(tmp_path)
         assert "chosen by: stored in the export" in p.view.region.rule_text
         assert p.reset_region() and v.planner.wait_ready(60)
         assert wait_for(lambda: "chosen by: automatic: " in p.status), p.status
+        # the details fold: the scene's load and the latest preparation (the new region's), not every one so far
+        assert wait_for(lambda: "chosen by: automatic: " in p.view.details_text), p.view.details_text
+        assert p.view.details_text.count("Planner prepared in") == 1 and "Scene loaded in" in p.view.details_text
     finally:
         v.close()
     # a damaged stored region is refused when the file loads, naming the field
