@@ -23,7 +23,7 @@ from cinenerf_ns.planner.scene import planning_region
 from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
 from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
 
-from .region_box import AUTOMATIC, RegionInfo
+from .region_box import AUTOMATIC, RegionInfo, notify_all
 
 StatusFn = Callable[[str, str], None]  # (text, level "busy" | "ok" | "error")
 
@@ -196,11 +196,7 @@ class PreparedPlanner:
         self._listeners.append(fn)
 
     def _notify(self) -> None:
-        for fn in list(self._listeners):
-            try:
-                fn()
-            except Exception:  # a broken page must not stop the preparation
-                pass
+        notify_all(self._listeners)
 
     # ------------------------------------------------------------------ planning
     plans_end_poses = True  # the panel passes its resolved targets and framing (panel._plan_now)

@@ -36,7 +36,7 @@ class RegionInfo:
     """What chose it, in words: 'automatic: training cameras', 'automatic: dense content', 'user box', 'stored in the
     export' (planner.region_rule())."""
     state: str = "ready"
-    """'preparing' | 'ready' | 'error'."""
+    """'preparing' | 'ready' | 'error' | 'later' (ns-viewer before the first Plan: prepared by the next Plan)."""
     error: str = ""
     """Why the planner could not prepare this region (state 'error')."""
     generation: int = 0
@@ -73,6 +73,15 @@ class RegionSource(Protocol):
 
     def add_region_listener(self, fn: Callable[[], None]) -> None:
         """Call ``fn()`` whenever the region or its state changed (from any thread)."""
+
+
+def notify_all(listeners: Sequence[Callable[[], None]]) -> None:
+    """Call every region listener; one that fails (a page that left) does not stop the others or the caller."""
+    for fn in list(listeners):
+        try:
+            fn()
+        except Exception:
+            log.debug("a planning-region listener failed", exc_info=True)
 
 
 def corners(lo: Sequence[float], hi: Sequence[float]) -> tuple:
@@ -136,8 +145,7 @@ class RegionMixin:
         info = self._set_region(bounds, "Planning region")
         if info is None:
             return False
-        self._set_status(f"Planning region set to {info.box_text()} (user box): preparing the planner for it in the "
-                         "background; a Plan waits for it...", "busy")
+        self._set_status(f"Planning region set to {info.box_text()} (user box): {_when(info)}", _level(info))
         return True
 
     def reset_region(self) -> bool:
@@ -146,8 +154,7 @@ class RegionMixin:
         info = self._set_region(None, "Reset to automatic")
         if info is None:
             return False
-        self._set_status("Planning region back to automatic: preparing the planner in the background; a Plan waits "
-                         "for it...", "busy")
+        self._set_status(f"Planning region back to automatic: {_when(info)}", _level(info))
         return True
 
     def set_region_box(self, on: bool) -> None:
@@ -170,6 +177,17 @@ class RegionMixin:
             self._set_status(f"Planner ready in {info.describe()}{how}.", "ok")
         elif info.state == "error":
             self._set_status(f"The planner could not prepare {info.describe()}: {info.error}", "error")
+
+
+def _when(info: RegionInfo) -> str:
+    """When the planner works in a region just asked for, in words."""
+    if info.state == "later":
+        return "the next Plan prepares the planner for it."
+    return "preparing the planner for it in the background; a Plan waits for it..."
+
+
+def _level(info: RegionInfo) -> str:
+    return "info" if info.state == "later" else "busy"
 
 
 STORED_RULE = "stored in the export"

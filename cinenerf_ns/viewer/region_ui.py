@@ -17,7 +17,7 @@ log = logging.getLogger(__name__)
 
 REGION_COLOR = (255, 200, 0)
 """The box's colour (yellow: none of the shot's pink / white, the go-to's green or the look-at's orange)."""
-_STATE_ICON = {"preparing": "⏳ ", "ready": "", "error": "❌ "}
+_STATE_ICON = {"preparing": "⏳ ", "ready": "", "error": "❌ ", "later": ""}
 
 
 class RegionWidgets:
@@ -52,7 +52,8 @@ class RegionWidgets:
 
     def show_region(self, info: RegionInfo) -> None:
         """The rule and state in words; the corners when known (the prepared box: what paths stay in)."""
-        state = {"preparing": " (preparing the planner for it...)", "error": f" (refused: {info.error})"}
+        state = {"preparing": " (preparing the planner for it...)", "error": f" (refused: {info.error})",
+                 "later": " (prepared at the next Plan)"}
         self.rule_text = f"{info.box_text()}, chosen by: {info.rule}{state.get(info.state, '')}"
         self.rule_md.content = _STATE_ICON.get(info.state, "") + md_escape(self.rule_text)
         if info.lo is not None and info.hi is not None:

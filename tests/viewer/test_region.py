@@ -293,3 +293,41 @@ def test_plans_wait_for_a_region_being_prepared(room_planner):
         planner._prepare_now = orig
         planner.set_region(None)
         planner.wait_ready(60)
+
+
+def test_ns_viewer_backend_keeps_the_region_for_every_training_step(tmp_path):
+    """The live-model backend (ns-viewer's panel): before the first Plan the region is only asked for; the planner of
+    each step plans in it; the planner in use prepares a new one in the background; bad boxes are refused."""
+    from test_nerfstudio_panel import TinySplatModel
+
+    from cinenerf_ns.viewer.nerfstudio_panel import SplatModelBackend
+
+    model = TinySplatModel(n=400)
+    backend = SplatModelBackend(model, planner_config=PlannerConfig(grid_resolution=24, candidate_workers=0))
+    src, view = backend.region_source, RegionView()
+    panel = CinePanel(backend, view, PanelConfig(data_dir=tmp_path, autoplay=False))
+    panel.region_source = src
+    src.add_region_listener(panel.region_changed)
+    try:
+        info = src.region_info()
+        assert info.state == "later" and info.automatic and info.lo is None
+        assert not panel.apply_region((0, 0, 0), (1, -1, 1)) and "is empty or inverted along y" in panel.status
+        assert panel.apply_region((-0.8, -0.8, -0.8), (0.8, 0.8, 0.8))
+        assert panel.status_level == "info" and "the next Plan prepares the planner for it" in panel.status
+        assert view.regions[-1].rule == "user box" and view.regions[-1].state == "later"
+        shots = backend.plan(np.array([0.5, 0.5, 0.5]), np.zeros(3), start=None, seed=0, n_candidates=1)
+        got = src.region_info()
+        assert got.state == "ready" and got.rule == "user box" and view.regions[-1].state == "ready"
+        assert np.all(got.lo <= -0.8 + 1e-9) and np.all(got.hi >= 0.8 - 1e-9) and np.all(got.hi < 0.9)
+        assert np.all(shots[0].positions >= got.lo - 1e-9) and np.all(shots[0].positions <= got.hi + 1e-9)
+        with pytest.raises(InvalidInputError, match="lies outside the scene"):  # the planner in use checks it
+            src.set_region(((5, 5, 5), (6, 6, 6)))
+        assert panel.reset_region() and "preparing the planner" in panel.status
+        planner = backend._cache["planner"][1]
+        assert planner.wait_ready(60) and src.region_info().rule.startswith("automatic: ")
+        assert wait_for(lambda: panel.status_level == "ok" and "chosen by: automatic: " in panel.status), panel.status
+        model.step = 1  # training went on: the next Plan's planner keeps the automatic region
+        backend.plan(np.array([0.5, 0.5, 0.5]), np.zeros(3))
+        assert backend._cache["planner"][1] is not planner and src.region_info().automatic
+    finally:
+        panel.close()
