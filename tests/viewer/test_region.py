@@ -331,3 +331,43 @@ def test_ns_viewer_backend_keeps_the_region_for_every_training_step(tmp_path):
         assert backend._cache["planner"][1] is not planner and src.region_info().automatic
     finally:
         panel.close()
+
+
+def test_two_pages_one_region_through_the_guard(tmp_path):
+    """Pages speak viser's protocol (no browser): one page types corners and clicks Apply region; the guard lets finite
+    corners through and refuses NaN; the other page's fold follows when the region is prepared."""
+    import viser
+    from raw_client import RawClient
+    from test_viser_guard import open_page, panel_of
+    from test_viser_ui import free_port
+
+    from cinenerf_ns.viewer.viser_guard import guard_server
+    from cinenerf_ns.viewer.viser_ui import attach_cine_panel
+
+    port = free_port()
+    server = viser.ViserServer(host="127.0.0.1", port=port, verbose=False)
+    guard = guard_server(server, "127.0.0.1")
+    backend, src = FakeBackend(), FakeRegion()
+    backend.region_source = src
+    panels = attach_cine_panel(server, backend, PanelConfig(data_dir=tmp_path, autoplay=False))
+    pages = []
+    try:
+        a, b = (open_page(lambda: pages.append(RawClient(port)) or pages[-1]) for _ in range(2))
+        pa, pb = panel_of(panels, a), panel_of(panels, b)
+        before = sum(guard.refused.values())
+        a.set_value("Low corner", [0.0, float("nan"), 0.0], "GuiVector3Message")
+        assert wait_for(lambda: sum(guard.refused.values()) > before)
+        a.set_value("Low corner", [0.5, 0.0, 0.0], "GuiVector3Message")
+        a.set_value("High corner", [1.5, 1.0, 2.0], "GuiVector3Message")
+        assert wait_for(lambda: pa.view.region.hi.value == (1.5, 1.0, 2.0) and pa.view.region.lo.value[0] == 0.5)
+        a.click("Apply region")
+        assert wait_for(lambda: src.asked and pa.status_level == "busy"), pa.status
+        np.testing.assert_allclose(src.asked[-1][0], [0.5, 0, 0])
+        src.finish()
+        assert "chosen by: user box" in pb.view.region.rule_text and pb.view.region.hi.value == (1.5, 1.0, 2.0)
+        assert "chosen by: user box" in pa.status and pa.status_level == "ok"
+    finally:
+        for c in pages:
+            c.close()
+        panels.close()
+        server.stop()
