@@ -300,7 +300,8 @@ class ModelRegion:
             return info
         bounds = getattr(self.backend.planner_config, "bounds", None)
         lo, hi = (None, None) if bounds is None else (np.asarray(v, dtype=np.float64) for v in bounds)
-        return RegionInfo(lo, hi, AUTOMATIC if bounds is None else "user box", "later", automatic=bounds is None)
+        return RegionInfo(lo, hi, AUTOMATIC if bounds is None else "user box", "later", automatic=bounds is None,
+                          asked=None if bounds is None else (lo, hi))
 
     def set_region(self, bounds: Any) -> Any:
         """Checked by the current planner (its rules, before any work; it prepares again in the background) or, before

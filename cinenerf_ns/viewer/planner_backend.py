@@ -112,7 +112,7 @@ class PreparedPlanner:
             lo, hi = planner.region()
             rule = planner.region_rule()  # computed here, off the UI's threads (a histogram of the means)
             region = RegionInfo(lo, hi, rule if config.bounds is not None else f"{AUTOMATIC}: {rule}", "ready",
-                                generation=gen, automatic=config.bounds is None)
+                                generation=gen, automatic=config.bounds is None, asked=self._asked(config))
             if gen != self._generation:  # superseded while preparing: a newer region follows
                 planner.close()
                 return
@@ -131,8 +131,9 @@ class PreparedPlanner:
                 return
             with self._plan_lock:
                 self.error, self.config = err, config
-                self._region = RegionInfo(*self._asked(config), self._region.rule if self._region else AUTOMATIC,
-                                          "error", str(err), gen, config.bounds is None)
+                asked = self._asked(config)
+                self._region = RegionInfo(*(asked or (None, None)), self._region.rule if self._region else AUTOMATIC,
+                                          "error", str(err), gen, asked is None, asked)
             self.prepare_s = time.perf_counter() - t0
             self._status(f"The planner could not prepare this scene: {err}", "error")
         self._notify()
@@ -182,14 +183,16 @@ class PreparedPlanner:
 
     @staticmethod
     def _asked(config: PlannerConfig) -> tuple:
-        """(lo, hi) of the box a config asks for, (None, None) for the automatic region."""
+        """(lo, hi) of the box a config asks for, None for the automatic region."""
         if config.bounds is None:
-            return None, None
+            return None
         return tuple(np.asarray(v, dtype=np.float64).reshape(3) for v in config.bounds)
 
     def _pending_region(self, config: PlannerConfig, gen: int) -> RegionInfo:
         rule = config.bounds_rule if config.bounds is not None else AUTOMATIC
-        return RegionInfo(*self._asked(config), rule, "preparing", generation=gen, automatic=config.bounds is None)
+        asked = self._asked(config)
+        return RegionInfo(*(asked or (None, None)), rule, "preparing", generation=gen, automatic=asked is None,
+                          asked=asked)
 
     def add_region_listener(self, fn: Callable[[], None]) -> None:
         """``fn()`` after every change of the region or its state (on the thread that changed it)."""

@@ -43,6 +43,9 @@ class RegionInfo:
     """0: the region the viewer opened with; each Apply / Reset adds one."""
     automatic: bool = True
     """Whether the region is the planner's automatic choice (no box given), 'Reset to automatic' then does nothing."""
+    asked: Optional[tuple] = None
+    """(lo [3], hi [3]) the box given (user box, stored in the export), None for the automatic region: the fold's
+    corners show it as given; ``lo`` / ``hi`` are the prepared box, rounded out to whole voxels."""
 
     def box_text(self) -> str:
         """'(x, y, z)..(x, y, z)' or '(not known yet)'."""
@@ -55,10 +58,12 @@ class RegionInfo:
         return f"the planning region {self.box_text()}, chosen by: {self.rule}"
 
     def region_option(self) -> str:
-        """The cinesplat-plan option that plans in this box: --region "x0 y0 z0 x1 y1 z1" ("" when not known)."""
-        if self.lo is None or self.hi is None:
+        """The cinesplat-plan option that plans in this box (the one given, else the prepared one): --region "x0 y0 z0
+        x1 y1 z1" ("" when not known)."""
+        lo, hi = self.asked if self.asked is not None else (self.lo, self.hi)
+        if lo is None or hi is None:
             return ""
-        return "--region \"" + " ".join(f"{v:.6g}" for v in (*self.lo, *self.hi)) + "\""
+        return "--region \"" + " ".join(f"{v:.6g}" for v in (*lo, *hi)) + "\""
 
 
 class RegionSource(Protocol):

@@ -20,6 +20,12 @@ REGION_COLOR = (255, 200, 0)
 _STATE_ICON = {"preparing": "⏳ ", "ready": "", "error": "❌ ", "later": ""}
 
 
+def box_edges(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """[12, 2, 3] the edges of the axis-aligned box [lo, hi]: pairs of corners that differ along one axis."""
+    corners = np.array([[hi[i] if (k >> i) & 1 else lo[i] for i in range(3)] for k in range(8)])
+    return np.array([[corners[k], corners[k | (1 << i)]] for k in range(8) for i in range(3) if not (k >> i) & 1])
+
+
 class RegionWidgets:
     """The fold and the box on one page (``gui`` / ``scene``: the page's ``client.gui`` / ``client.scene``, or the
     server's). Corners are scene units; the box is drawn at ``scale`` x scene units."""
@@ -56,9 +62,10 @@ class RegionWidgets:
                  "later": " (prepared at the next Plan)"}
         self.rule_text = f"{info.box_text()}, chosen by: {info.rule}{state.get(info.state, '')}"
         self.rule_md.content = _STATE_ICON.get(info.state, "") + md_escape(self.rule_text)
-        if info.lo is not None and info.hi is not None:
-            self.lo.value = tuple(round(float(v), 4) for v in info.lo)
-            self.hi.value = tuple(round(float(v), 4) for v in info.hi)
+        lo, hi = (info.lo, info.hi) if info.asked is None else info.asked  # a box asked for: as typed
+        if lo is not None and hi is not None:
+            self.lo.value = tuple(round(float(v), 4) for v in lo)
+            self.hi.value = tuple(round(float(v), 4) for v in hi)
         self.reset.disabled = info.automatic
 
     def draw_region(self, info: Optional[RegionInfo]) -> None:
@@ -75,9 +82,9 @@ class RegionWidgets:
                 return
             lo, hi = np.asarray(info.lo, np.float64), np.asarray(info.hi, np.float64)
             base = f"{self.root}/region"
-            self._nodes.append(self.scene.add_box(
-                f"{base}/box", color=REGION_COLOR, dimensions=tuple((hi - lo) * self.scale),
-                position=tuple((lo + hi) / 2 * self.scale), wireframe=True, cast_shadow=False, receive_shadow=False))
+            self._nodes.append(self.scene.add_line_segments(  # its 12 edges (a wireframe box shows face diagonals)
+                f"{base}/box", points=(box_edges(lo, hi) * self.scale).astype(np.float32), colors=REGION_COLOR,
+                thickness=2.0, thickness_units="screen"))
             label = f"planning region ({info.rule})" + (" - preparing" if info.state == "preparing" else "")
             self._nodes.append(self.scene.add_label(f"{base}/label", label, position=tuple(hi * self.scale),
                                                     anchor="bottom-right"))

@@ -77,6 +77,9 @@ def test_a_user_box_is_prepared_in_the_background_and_paths_stay_in_it(room_plan
     got = planner.region_info()
     assert got.state == "ready" and got.rule == "user box" and got.generation == info.generation
     assert np.all(got.lo <= lo + 1e-9) and np.all(got.hi >= hi - 1e-9)  # the grid's box holds the box asked for
+    np.testing.assert_array_equal(got.asked[0], lo)  # the fold shows the box as given
+    np.testing.assert_array_equal(got.asked[1], hi)
+    assert got.region_option() == '--region "' + " ".join(f"{v:.6g}" for v in (*lo, *hi)) + '"'
     assert np.all(got.hi - got.lo <= hi - lo + 2 * planner.planner.ready().grid.voxel_size + 1e-9)
     assert [c.state for c in changes[-2:]] == ["preparing", "ready"]
     goal, look = lo + 0.4 * (hi - lo), (lo + hi) / 2
@@ -179,6 +182,21 @@ def test_panel_apply_reset_and_show(tmp_path):
         panel.close()
 
 
+def test_box_edges_are_the_twelve_edges():
+    from cinenerf_ns.viewer.region_ui import box_edges
+
+    lo, hi = np.array([0.0, -1.0, 2.0]), np.array([1.0, 1.0, 5.0])
+    e = box_edges(lo, hi)
+    assert e.shape == (12, 2, 3)
+    d = np.abs(e[:, 1] - e[:, 0])
+    assert np.all((d > 0).sum(1) == 1)  # each along one axis, as long as the box's side
+    for axis in range(3):
+        along = d[:, axis] > 0
+        assert along.sum() == 4 and np.allclose(d[along, axis], hi[axis] - lo[axis])
+    assert len({tuple(np.round(np.sort(x, 0).ravel(), 9)) for x in e}) == 12  # no edge twice
+    assert np.all((e == lo) | (e == hi))  # corners only
+
+
 def test_panel_without_a_region_source_says_so(tmp_path):
     panel = CinePanel(FakeBackend(), FakeView(), PanelConfig(data_dir=tmp_path))
     try:
@@ -212,9 +230,9 @@ def test_the_fold_and_the_box_on_a_viser_server(tmp_path):
         assert "preparing" in ui.region.rule_text
         src.finish()  # every page's fold and box follow (the listener ClientPanels adds)
         assert "chosen by: user box" in ui.region.rule_text and not ui.region.reset.disabled
-        box = ui.region._nodes[0]
-        np.testing.assert_allclose(box.dimensions, np.array([0.75, 2.0, 1.0]) * ui.scale)
-        np.testing.assert_allclose(box.position, np.array([0.625, 1.0, 0.5]) * ui.scale)
+        edges = ui.region._nodes[0].points / ui.scale  # [12, 2, 3]: the box's edges
+        np.testing.assert_allclose(edges.reshape(-1, 3).min(0), [0.25, 0.0, 0.0], atol=1e-6)
+        np.testing.assert_allclose(edges.reshape(-1, 3).max(0), [1.0, 2.0, 1.0], atol=1e-6)
         panel.set_region_box(False)
         assert names() == []
         ui.region.show.value = True  # server-side: no callback; the panel's own call draws it again
