@@ -358,18 +358,12 @@ def test_the_bundled_room_opens_at_a_training_camera_without_console_errors(tmp_
         assert viewer.close(), "the text-query warm-up or the planner's preparation still runs after close()"
 
 
-VECTOR_INPUTS = """
-(name) => {
-  const l = [...document.querySelectorAll('label')].find(e => e.innerText.trim() === name);
-  let n = l;
-  for (let i = 0; i < 6 && n; i++) {
-    n = n.parentElement;
-    const inp = n ? [...n.querySelectorAll('input:not([type=hidden])')] : [];
-    if (inp.length >= 3) return inp.slice(0, 3);
-  }
-  return null;
-}
-"""
+# the three inputs of the vector widget labelled `name` (INPUT_FOR's search, for three inputs)
+VECTOR_INPUTS = INPUT_FOR.replace(
+    "const inp = n && n.querySelector('input:not([type=hidden])');",
+    "const inp = n ? [...n.querySelectorAll('input:not([type=hidden])')] : [];").replace(
+    "if (inp) return inp;", "if (inp.length >= 3) return inp.slice(0, 3);")
+assert VECTOR_INPUTS.count("slice(0, 3)") == 1 and "querySelectorAll" in VECTOR_INPUTS
 
 
 def test_the_planning_region_fold_sets_the_box_from_the_page(viewer, tmp_path):
