@@ -35,7 +35,8 @@ class RegionWidgets:
         self._lock = threading.Lock()
         self._nodes: List[Any] = []
         self.rule_text = ""  # what the fold says of the region, before escaping
-        with gui.add_folder("Planning region", expand_by_default=False):
+        self.folder = gui.add_folder("Planning region", expand_by_default=False)
+        with self.folder:
             self.show = gui.add_checkbox("Show region box", True,
                                          hint="The box the planner works in: paths never leave it")
             self.rule_md = gui.add_markdown("(the planner is preparing)")
@@ -50,7 +51,9 @@ class RegionWidgets:
                                              "content")
 
     def attach(self, panel: Any, guarded: Callable[[Callable], Callable]) -> None:
-        """Wire the widgets to ``panel`` (a CinePanel; ``guarded`` keeps errors out of viser's callback thread)."""
+        """Wire the widgets to ``panel`` (a CinePanel; ``guarded`` keeps errors out of viser's callback thread). A
+        panel without a region source (an injected backend with no planner region) shows no fold."""
+        self.folder.visible = panel.region_source is not None
         self.apply.on_click(guarded(lambda e: panel.apply_region(self.lo.value, self.hi.value)))
         self.reset.on_click(guarded(lambda e: panel.reset_region()))
         self.show.on_update(guarded(lambda e: panel.set_region_box(bool(self.show.value))))

@@ -222,6 +222,7 @@ def test_the_fold_and_the_box_on_a_viser_server(tmp_path):
     ui = panel.view
     try:
         names = lambda: sorted(h.name for h in ui.region._nodes)  # noqa: E731
+        assert ui.region.folder.visible
         assert names() == ["/cine/region/box", "/cine/region/label"]
         assert ui.region.lo.value == (0.0, 0.0, 0.0) and ui.region.hi.value == (1.0, 1.0, 1.0)
         assert "chosen by: automatic: dense content" in ui.region.rule_text and ui.region.reset.disabled
