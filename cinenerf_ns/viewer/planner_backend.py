@@ -60,6 +60,9 @@ class PreparedPlanner:
         self._prep_lock = threading.Lock()  # one preparation at a time (set_region while one runs: the next waits)
         self._thread: Optional[threading.Thread] = None  # the latest preparation's
         self._generation = 0  # 0: the opening preparation; each set_region adds one
+        self._request: tuple = (0, self.config, self._done)  # (generation, config, done): the latest asked for
+        self._queued = False  # a preparation thread is waiting for _prep_lock: it takes the latest request
+        self._prepared_gen = -1  # the newest generation a preparation took up
         self._region: Optional[RegionInfo] = None
         self._listeners: List[Callable[[], None]] = []
 
@@ -71,16 +74,21 @@ class PreparedPlanner:
                 return self
             self._started = True
             self._region = self._pending_region(self.config, 0)
-        self._launch(0, self.config, self._done, background)
+        self._launch(background)
         return self
 
-    def _launch(self, gen: int, config: PlannerConfig, done: threading.Event, background: bool) -> None:
+    def _launch(self, background: bool) -> None:
+        """Prepare the latest request: on a new thread unless one already waits to (at most one runs and one waits,
+        however often a page clicks Apply)."""
+        with self._start_lock:
+            if self._queued:
+                return
+            self._queued = True
         if background:
-            self._thread = threading.Thread(target=self._prepare, args=(gen, config, done), name="cine-prepare",
-                                            daemon=True)
+            self._thread = threading.Thread(target=self._prepare, name="cine-prepare", daemon=True)
             self._thread.start()
         else:
-            self._prepare(gen, config, done)
+            self._prepare()
 
     def _status(self, text: str, level: str) -> None:
         if self.on_status is not None:
@@ -89,10 +97,14 @@ class PreparedPlanner:
             except Exception:  # a broken view must not stop the preparation
                 pass
 
-    def _prepare(self, gen: int, config: PlannerConfig, done: threading.Event) -> None:
+    def _prepare(self) -> None:
         with self._prep_lock:
+            with self._start_lock:
+                self._queued = False
+                gen, config, done = self._request
             try:
-                if gen == self._generation:  # else a newer region was asked for before this one started
+                if gen > self._prepared_gen:  # else prepared (or being replaced) already
+                    self._prepared_gen = gen
                     self._prepare_now(gen, config)
             finally:
                 done.set()
@@ -175,10 +187,11 @@ class PreparedPlanner:
             self._started = True
             self._generation += 1
             gen, old, self._done = self._generation, self._done, threading.Event()
+            self._request = (gen, config, self._done)
             self._region = info = self._pending_region(config, gen)
         old.set()  # a preparation it replaces may still run: its waiters move on to this one
         self._notify()
-        self._launch(gen, config, self._done, background=True)
+        self._launch(background=True)
         return info
 
     @staticmethod

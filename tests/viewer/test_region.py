@@ -92,8 +92,18 @@ def test_a_user_box_is_prepared_in_the_background_and_paths_stay_in_it(room_plan
 def test_a_region_asked_for_while_another_prepares_replaces_it(room_planner):
     r, planner, _, _ = room_planner
     lo, hi = np.asarray(r.free_lo) + 0.02, np.asarray(r.free_hi) - 0.02
-    planner.set_region((lo, hi))
-    last = planner.set_region((lo, (lo + hi) / 2 + 0.3))
+    gate = threading.Event()
+    orig = planner._prepare_now
+    planner._prepare_now = lambda gen, config: (gate.wait(30), orig(gen, config))
+    try:
+        for k in range(20):  # a page clicking Apply again and again while one preparation runs
+            planner.set_region((lo, hi - 0.01 * k))
+        last = planner.set_region((lo, (lo + hi) / 2 + 0.3))
+        alive = [t for t in threading.enumerate() if t.name == "cine-prepare"]
+        assert len(alive) <= 2  # one preparing, one waiting to take the latest request
+    finally:
+        gate.set()
+        planner._prepare_now = orig
     assert planner.wait_ready(60)
     assert planner.region_info().generation == last.generation and planner.region_info().state == "ready"
     np.testing.assert_allclose(planner.planner.config.bounds[1], (lo + hi) / 2 + 0.3)
