@@ -38,7 +38,8 @@ demo: install
 
 lint: install
 	$(VPY) -m ruff check cinenerf_ns tests benchmarks scripts
-	$(VPY) scripts/check_doc_names.py docs/ARCHITECTURE.md README.md docs/PLANNER_DEFAULTS.md cinenerf_ns/planner/__init__.py
+	$(VPY) scripts/check_doc_names.py docs/ARCHITECTURE.md README.md docs/PLANNER_DEFAULTS.md cinenerf_ns/planner/__init__.py \
+		cinenerf_ns
 
 test: install lint
 	$(VPY) -m pytest $(PYTEST_PARALLEL) $(PYTEST_ARGS)

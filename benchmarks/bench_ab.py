@@ -147,8 +147,9 @@ def main() -> None:
         from benchmarks.scene_families import FOX
 
         args.family = f"npz:{FOX}"
-    if args.family.startswith(("npz:", "ply:")):  # the workers run in the trees: make the path absolute
-        args.family = args.family[:4] + str(Path(args.family[4:]).resolve())
+    prefix, _, source = args.family.partition(":")
+    if prefix in ("npz", "ply", "scene") and not source.startswith("procedural"):  # the workers run in the trees:
+        args.family = f"{prefix}:{Path(source).resolve()}"  # make the path absolute
     import numpy as np
 
     from cinenerf_ns.planner.shots.planner import PlannerConfig

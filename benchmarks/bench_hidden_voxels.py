@@ -36,11 +36,11 @@ def main(argv=None) -> None:
     if hidden_voxels_c() is None:
         raise SystemExit("the compiled kernel did not load (see cinenerf_ns.planner.native.native_status())")
     ld = load_scene(a.scene, SceneConfig(), smooth_neighbors=32)
-    sem = ld.extra.get("semantic")
+    sem = ld.semantics.semantic if ld.semantics else None
     if sem is None or sem.camera_centres is None:
         raise SystemExit(f"{a.scene} has no semantic latents or no training cameras")
     rows = []
-    for name in ld.extra["label_names"]:
+    for name in ld.semantics.label_names:
         if name in ("floor", "wall", "ceiling", "background"):
             continue
         core = sem.locate_full(name).core

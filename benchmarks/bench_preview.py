@@ -26,11 +26,11 @@ from rich.console import Console
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks._results import append_results, device_name  # noqa: E402
-from cinenerf_ns.method.checkpoint import load_splat  # noqa: E402
 from cinenerf_ns.planner.shots.camera_path import read_camera_path  # noqa: E402
 from cinenerf_ns.planner.trajectory.orientation import look_at_rotations  # noqa: E402
 from cinenerf_ns.preview import native, path_cameras, preview_camera_path, scene_from_splat  # noqa: E402
 from cinenerf_ns.preview.render import render_premultiplied  # noqa: E402
+from cinenerf_ns.scenes import load_scene  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 FOX = REPO.parent / "shared" / "data" / "fox_cinesplat" / "fox3000.npz"
@@ -92,7 +92,7 @@ def main(argv=None) -> None:
     compile_s = time.perf_counter() - t0
     tmp = Path(tempfile.mkdtemp(prefix="bench_preview_"))
     rows = []
-    room = load_splat(REPO / "cinenerf_ns" / "assets" / "room0.npz").params
+    room = load_scene(str(REPO / "cinenerf_ns" / "assets" / "room0.npz"), planning=False).splat
     cam = read_camera_path(a.camera_path) if a.camera_path else demo_camera_path(tmp / "plan")
     rows.append(("bundled room, demo shot", bench(room, cam, tmp, "room", a.repeats)))
     cams = path_cameras(cam, 480, 270, 15)
@@ -100,10 +100,9 @@ def main(argv=None) -> None:
     render_premultiplied(scene_from_splat(room), cams.viewmats[0], cams.intrinsics[0], 480, 270, backend="torch")
     torch_ms = (time.perf_counter() - t) * 1e3
     if a.fox.exists():
-        fox = load_splat(a.fox)
+        fox = load_scene(str(a.fox), planning=False)
         rows.append(("fox capture (real), orbit",
-                     bench(fox.params, orbit_camera_path(np.asarray(fox.info["camera_centres"])),
-                                                         tmp, "fox", a.repeats)))
+                     bench(fox.splat, orbit_camera_path(np.asarray(fox.camera_centres)), tmp, "fox", a.repeats)))
     else:
         print(f"fox scene not found at {a.fox}: skipped")
     lines = [f"## bench_preview ({datetime.date.today()}, {device_name('cpu')})", "",

@@ -102,7 +102,7 @@ def bench_room(scene_path: str, gt_dir: str, args, rows: list) -> None:
     loaded = load_scene(scene_path, scfg)
     gt = load_ground_truth(gt_dir, Path(gt_dir) / "dataparser_transforms.json")
     names = object_names(gt)
-    st = loaded.extra["splat"]
+    st = loaded.checkpoint
     means, quats, log_scales, logits = st.params.tensors()
     lab = label_ids(means.double(), gt, names)
     base = make_scene(means, quats, torch.exp(log_scales), torch.sigmoid(logits), torch.zeros(len(lab), 3),

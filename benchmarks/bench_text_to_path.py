@@ -2,7 +2,7 @@
 
     python benchmarks/bench_text_to_path.py [--scene demo] [--requests 10] [--candidates 1] [--no-warm] [--append]
 
-What the viewer does, in its order: viewer.standalone.load_scene(--scene) (timed), the planner prepared on a background
+What the viewer does, in its order: viewer.standalone.open_scene(--scene) (timed), the planner prepared on a background
 thread (PreparedPlanner.start) and, unless --no-warm, the text queries warmed on another (warm_semantics:
 SemanticScene.warm: latent smoothing + every label's answer); both are waited for (timed: "ready"). Then --requests
 seeded requests of (go-to text, look-at text) pairs drawn from the scene's label names, written as a user would type
@@ -31,7 +31,7 @@ from cinenerf_ns.planner.scene.ellipsoids import SceneConfig  # noqa: E402
 from cinenerf_ns.planner.shots.planner import PlannerConfig  # noqa: E402
 from cinenerf_ns.planner.trajectory.timing import TimingConfig  # noqa: E402
 from cinenerf_ns.viewer.planner_backend import PreparedPlanner  # noqa: E402
-from cinenerf_ns.viewer.standalone import StandaloneConfig, load_scene, warm_semantics  # noqa: E402
+from cinenerf_ns.viewer.standalone import StandaloneConfig, open_scene, warm_semantics  # noqa: E402
 
 
 def text_pairs(names: list, n: int, seed: int) -> list:
@@ -68,7 +68,7 @@ def main() -> None:
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        ls = load_scene(a.scene, scene_config=SceneConfig.with_margin(vc.camera_radius, vc.safety_margin),
+        ls = open_scene(a.scene, scene_config=SceneConfig.with_margin(vc.camera_radius, vc.safety_margin),
                         device=a.device)
     load_s = time.perf_counter() - t0
     if ls.locate is None or ls.obstacles is None:

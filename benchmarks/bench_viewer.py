@@ -36,7 +36,7 @@ from cinenerf_ns.planner.shots.planner import PlannerConfig  # noqa: E402
 from cinenerf_ns.viewer.backend import FunctionBackend  # noqa: E402
 from cinenerf_ns.viewer.panel import PanelConfig  # noqa: E402
 from cinenerf_ns.viewer.planner_backend import PreparedPlanner  # noqa: E402
-from cinenerf_ns.viewer.standalone import display_gaussians, load_scene  # noqa: E402
+from cinenerf_ns.viewer.standalone import display_gaussians, open_scene  # noqa: E402
 
 
 def free_port() -> int:
@@ -66,7 +66,7 @@ def main() -> None:
     from cinenerf_ns.viewer.viser_ui import attach_cine_panel
 
     t0 = time.perf_counter()
-    loaded = load_scene(f"procedural:{args.n_gaussians}", Path("/tmp"), SceneConfig(), args.device)
+    loaded = open_scene(f"procedural:{args.n_gaussians}", Path("/tmp"), SceneConfig(), args.device)
     load_s = time.perf_counter() - t0
     t0 = time.perf_counter()
     planner = PreparedPlanner(loaded.obstacles, PlannerConfig(grid_resolution=args.grid_resolution,

@@ -54,7 +54,7 @@ from cinenerf_ns.scenes import load_scene  # noqa: E402
 
 
 def evaluate_selection(loaded, gt) -> list[dict]:
-    sem = loaded.extra.get("semantic")
+    sem = loaded.semantics.semantic if loaded.semantics else None
     if sem is None:
         raise SystemExit("the scene has no semantic latents (train it with ns-train cinesplat)")
     rows = []
@@ -264,7 +264,7 @@ def main(argv=None) -> dict:
                         smooth_neighbors=a.semantic_smoothing, object_cluster=a.object_cluster,
                         object_centre=a.object_centre, drop_support=not a.keep_support,
                         centre_relevancy=a.centre_relevancy, unseen_fill=not a.no_unseen_fill)
-    sem = loaded.extra.get("semantic")
+    sem = loaded.semantics.semantic if loaded.semantics else None
     n_cams = 0 if sem is None or sem.camera_centres is None else len(sem.camera_centres)
     unseen = f"unseen parts filled ({n_cams} training cameras)" if n_cams else "no unseen fill (no training cameras)"
     sel = evaluate_selection(loaded, gt)

@@ -6,11 +6,12 @@
                           3% huge Gaussians on a far background shell; no training cameras) with seeded start / go-to
                           pairs whose reachability and length come from a fine-grid reference search (GROVE_SPACING)
     --family fox          ../shared/data/fox_cinesplat/fox3000.npz (a real capture's compact export)
-    --family ply:PATH / npz:PATH   any Gaussian-splat .ply or compact export (.npz / .pt)
-The files go through cinenerf_ns.scenes.load_scene (the CLI's loader: the same obstacles) and their start_region (the
-training cameras' box; None for a .ply) defines the planning region. Targets: procedural / blobs: go-to an object's
-centre +- jitter inside it, look-at another object's centre; files: uniform in the start region (the planning region
-when there is none).
+    --family scene:SPEC   any scene every command reads (cinenerf_ns.scenes.load_scene: config.yml, run folder, .ckpt,
+                          compact .npz / .pt, 3DGS .ply, procedural:N); ply:PATH / npz:PATH say the same
+The files go through cinenerf_ns.scenes.load_scene (the loader of every command: the same obstacles) and their
+start_region (the training cameras' box; None for a .ply) defines the planning region. Targets: procedural / blobs:
+go-to an object's centre +- jitter inside it, look-at another object's centre; files: uniform in the start region (the
+planning region when there is none).
 
     --start-mode random   the planner samples each request's start (seeded), as the viewer does
     --start-mode given    explicit starts drawn seeded before timing: uniform in the start region (else the planning
@@ -31,7 +32,7 @@ REPO = Path(__file__).resolve().parents[1]
 FOX = next((p for p in (REPO.parent / "shared" / "data" / "fox_cinesplat" / "fox3000.npz",  # beside the checkout
                          REPO.parents[1] / "shared" / "data" / "fox_cinesplat" / "fox3000.npz")  # beside a worktree
             if p.exists()), REPO.parent / "shared" / "data" / "fox_cinesplat" / "fox3000.npz")
-FAMILIES = "procedural | blobs | grove[:BG:FF] | fox | ply:PATH | npz:PATH"
+FAMILIES = "procedural | blobs | grove[:BG:FF] | fox | scene:SPEC (ply:PATH, npz:PATH)"
 GROVE_SPACING = 0.025  # scene units: the grove reference grid's spacing (synthetic/grove.py reference_search)
 GIVEN_CLEAR = 0.1  # scene units: a given start's distance to every Gaussian centre
 GIVEN_FROM_GOAL = 0.5  # scene units: a given start's distance to its go-to target
@@ -99,20 +100,22 @@ def load_family(spec: str, n_gaussians: int, seed: int, device: str = "cpu", n_p
                       f"grove_scene N={len(scene)} seed {seed} ({n_ref}/{len(pairs)} pairs joined by the reference "
                       f"grid {list(ref.free.shape)} at {ref.spacing:g})", pairs=pairs)
     if spec == "fox":
-        path = FOX
-    elif spec.startswith(("ply:", "npz:")):
-        path = Path(spec.split(":", 1)[1])
+        source = str(FOX)
+    elif spec.startswith(("scene:", "ply:", "npz:")):
+        source = spec.split(":", 1)[1]
     else:
         raise SystemExit(f"--family {spec!r}: expected {FAMILIES}")
-    if not path.exists():
-        raise SystemExit(f"--family {spec}: {path} not found")
+    from cinenerf_ns.planner.errors import PlanningError
     from cinenerf_ns.scenes import load_scene
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the loader's splat-repair summary
-        loaded = load_scene(str(path), SceneConfig(), device=device)
+        try:
+            loaded = load_scene(source, SceneConfig(), device=device)
+        except (PlanningError, ValueError) as e:  # not found, unreadable (InvalidInputError, CheckpointError)
+            raise SystemExit(f"--family {spec}: {e}") from None
     return Family(spec, "file", loaded.scene, loaded.start_region, (0.0, 0.0, 1.0), [],
-                  f"{path.name} ({len(loaded.scene)} Gaussians)")
+                  f"{Path(source).name} ({len(loaded.scene)} Gaussians)")
 
 
 def given_starts(planner, goals: List[np.ndarray], region: Tuple[np.ndarray, np.ndarray], seed: int,

@@ -19,17 +19,6 @@ from cinenerf_ns.planner.scene.splat_params import NO_COLOUR_GREY, SplatParams, 
 ASSETS = Path(__file__).parent / "assets"
 DEMO_SCENE = ASSETS / "room0.npz"  # the bundled trained room (make demo, cinesplat-viewer's 'demo')
 
-@dataclass
-class LoadedScene:
-    scene: EllipsoidScene
-    locate: Optional[Callable[[str], Tuple[np.ndarray, str]]]  # text -> (point [3], description)
-    kind: str
-    source: str
-    config_path: Optional[Path] = None
-    extra: Dict[str, Any] = field(default_factory=dict)
-    start_region: Optional[Tuple[np.ndarray, np.ndarray]] = None  # where random starts are drawn
-
-
 def parse_point(text: str) -> Optional[np.ndarray]:
     """'x y z' / 'x, y, z' / '[x, y, z]' -> [3] (non-finite values such as 'nan' kept, for the caller to refuse);
     None when the text is not three numbers."""
@@ -144,44 +133,87 @@ def procedural_spec(spec: str) -> Optional[Tuple[int, int]]:
     return int(m.group(1) or 20_000), int(m.group(2) or 0)
 
 
-def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Optional[float] = None,
-               smooth_neighbors: int = SMOOTH_NEIGHBORS, object_cluster: float = OBJECT_CLUSTER,
-               object_centre: str = "volume",
-               up: Tuple[float, float, float] = (0.0, 0.0, 1.0), drop_support: bool = True,
-               centre_relevancy: float = CENTRE_RELEVANCY, unseen_fill: bool = True) -> LoadedScene:
-    """Scene file/spec -> obstacles + (optionally) a text locator."""
-    proc = procedural_spec(spec)
-    if proc is not None:
-        from cinenerf_ns.planner.scene.procedural import procedural_room
+@dataclass
+class SceneSemantics:
+    """What answers text on a cinesplat scene (latents + codec): its SemanticScene, label names and matcher."""
 
-        n, seed = proc
-        room = procedural_room(n, seed=seed)
-        scene = EllipsoidScene.from_splat(room.means, room.quats, room.log_scales, room.opacity_logits, cfg).to(device)
-        names = [o.name for o in room.objects]
+    semantic: Any  # method.semantic_scene.SemanticScene
+    label_names: List[str]
+    free_text: bool  # whether free text (not only label names) means anything to it (free_text)
+    match: Callable[[str], Dict[str, Any]]  # text -> the resolve_match dict (point, description, mask, ...)
 
-        def locate(text: str):
-            i = procedural_object(room, text)
-            c = room.objects[i].center.astype(np.float64)
-            return c, (f"'{text.strip()}' -> object '{names[i]}' (ground-truth name), centre "
-                       f"({', '.join(f'{v:.3f}' for v in c)})")
 
-        r = cfg.camera_radius
-        across = float(np.min(np.asarray(room.free_hi, np.float64) - np.asarray(room.free_lo, np.float64)))
-        if 2 * r >= across:  # the start region (the free space shrunk by r) would be inverted
-            raise InvalidInputError(f"the camera sphere (--camera-radius + --safety-margin = {r:.4g}) is too large for "
-                                    f"this scene: the procedural room's free space is {across:.3g} scene units across")
-        return LoadedScene(scene, locate, "procedural", spec, extra={"room": room},
-                           start_region=(room.free_lo + r, room.free_hi - r))
-    path = Path(spec)
-    problem = path_problem(path, folder_ok=True)
-    if problem == "was not found":
-        raise InvalidInputError(f"scene not found: {spec} (give a config.yml, run folder, .ckpt, compact .npz/.pt, "
-                                f".ply or procedural[:N[:SEED]])")
-    if problem is not None:
-        raise InvalidInputError(f"scene {spec} {problem}")
-    if path.suffix.lower() == ".ply":
-        return LoadedScene(EllipsoidScene.from_ply(path, cfg).to(device), None, "ply", str(path))
-    # checkpoints and compact exports go through the method's loader (no trainer is built)
+@dataclass
+class LoadedScene:
+    """A scene as every command loads it (load_scene): obstacles, the Gaussians as read, what answers text and where
+    the training cameras were. Fields that do not apply to a kind stay None / empty."""
+
+    scene: Optional[EllipsoidScene]  # the obstacles; None when loaded with planning=False (cinesplat-preview)
+    locate: Optional[Callable[[str], Tuple[np.ndarray, str]]]  # text -> (point [3], description)
+    kind: str  # "procedural" | "ply" | "checkpoint" (config.yml, run folder, .ckpt, compact .npz / .pt)
+    source: str
+    config_path: Optional[Path] = None  # the run's config.yml (ns-render needs it)
+    start_region: Optional[Tuple[np.ndarray, np.ndarray]] = None  # where random starts are drawn
+    checkpoint: Optional[Any] = None  # method.checkpoint.SplatCheckpoint of a checkpoint or compact export
+    room: Optional[Any] = None  # planner.scene.procedural.ProceduralRoom of a procedural spec
+    semantics: Optional[SceneSemantics] = None  # a cinesplat scene's text semantics
+    camera_centres: Optional[np.ndarray] = None  # [F, 3] training cameras
+    camera_poses: Optional[np.ndarray] = None  # [F, 3, 4] (the standalone viewer's opening view)
+    notes: List[str] = field(default_factory=list)  # said before planning (e.g. the training cameras are missing)
+    planning_region: Optional[Tuple[np.ndarray, np.ndarray]] = None  # the box a compact export stores
+    params: Optional[SplatParams] = field(default=None, repr=False)  # the Gaussians when no checkpoint holds them
+
+    @property
+    def splat(self) -> SplatParams:
+        """The Gaussians as read (drawn by the viewer, rendered by the preview): a checkpoint's, a .ply's, a
+        procedural room's with its display colours (procedural_params, built on first use)."""
+        if self.checkpoint is not None:
+            return self.checkpoint.params
+        if self.params is None and self.room is not None:
+            self.params = procedural_params(self.room)
+        return self.params
+
+
+SCENE_KINDS = ("a config.yml, run folder, .ckpt, compact .npz/.pt, .ply or procedural[:N[:SEED]]")
+
+
+def _load_procedural(spec: str, proc: Tuple[int, int], cfg: SceneConfig, device: str, planning: bool,
+                     **_: Any) -> LoadedScene:
+    """procedural[:N[:SEED]]: the generated test room; its object names answer text (ground truth)."""
+    from cinenerf_ns.planner.scene.procedural import procedural_room
+
+    n, seed = proc
+    room = procedural_room(n, seed=seed)
+    names = [o.name for o in room.objects]
+
+    def locate(text: str):
+        i = procedural_object(room, text)
+        c = room.objects[i].center.astype(np.float64)
+        return c, (f"'{text.strip()}' -> object '{names[i]}' (ground-truth name), centre "
+                   f"({', '.join(f'{v:.3f}' for v in c)})")
+
+    r = cfg.camera_radius
+    across = float(np.min(np.asarray(room.free_hi, np.float64) - np.asarray(room.free_lo, np.float64)))
+    if planning and 2 * r >= across:  # the start region (the free space shrunk by r) would be inverted
+        raise InvalidInputError(f"the camera sphere (--camera-radius + --safety-margin = {r:.4g}) is too large for "
+                                f"this scene: the procedural room's free space is {across:.3g} scene units across")
+    scene = (EllipsoidScene.from_splat(room.means, room.quats, room.log_scales, room.opacity_logits, cfg).to(device)
+             if planning else None)
+    return LoadedScene(scene, locate, "procedural", spec, room=room, start_region=(room.free_lo + r, room.free_hi - r))
+
+
+def _load_ply(path: Path, cfg: SceneConfig, device: str, planning: bool, **_: Any) -> LoadedScene:
+    """A 3DGS .ply (planner.scene.ply): obstacles only, targets as points."""
+    from cinenerf_ns.planner.scene.ply import read_splat_ply
+
+    splat = read_splat_ply(path)
+    scene = EllipsoidScene.from_params(splat, cfg).to(device) if planning else None
+    return LoadedScene(scene, None, "ply", str(path), params=splat)
+
+
+def _load_checkpoint(path: Path, cfg: SceneConfig, device: str, planning: bool, **semantic_kw: Any) -> LoadedScene:
+    """A run (config.yml, its folder, a .ckpt) or a compact export (.npz / .pt), through the method's loader (no
+    trainer is built): obstacles, the training cameras, and for cinesplat scenes the text semantics."""
     from cinenerf_ns.method.checkpoint import (
         _is_compact,  # noqa: WPS450 (one loader, two formats)
         load_compact,
@@ -189,57 +221,108 @@ def load_scene(spec: str, cfg: SceneConfig, device: str = "cpu", threshold: Opti
     )
 
     st = load_compact(path, device=device) if _is_compact(path) else load_splat(path, device=device)
-    scene = EllipsoidScene.from_params(st.params, cfg, device=device)
     cfg_path = run_config_path(path)
     cams = scene_camera_centres(cfg_path, st.info)  # the run's training cameras, else what a compact export carries
-    locate = None
+    if not planning:
+        return LoadedScene(None, None, "checkpoint", str(path), config_path=cfg_path, checkpoint=st,
+                           camera_centres=cams)
+    scene = EllipsoidScene.from_params(st.params, cfg, device=device)
+    semantics = None
     if st.params.latents is not None and st.codec is not None:
-        from cinenerf_ns.method.semantic_scene import SemanticScene, build_text_encoder
-
-        enc = build_text_encoder(st.info, st.label_embeddings, device=device)
-        kw = {} if threshold is None else {"threshold": threshold}
-        sem = SemanticScene.from_params(st.params, st.codec, enc, device, label_names=st.info.get("label_names"),
-                                        smooth_neighbors=smooth_neighbors, cluster_fraction=object_cluster,
-                                        centre=object_centre, up=up, drop_support=drop_support,
-                                        centre_relevancy=centre_relevancy,
-                                        camera_centres=cams if unseen_fill else None, **kw)
-        label_names = list(st.info.get("label_names") or [])
-        free = free_text(st.info)
-
-        def match(text: str) -> Dict[str, Any]:
-            q = label_query(text, label_names, free)
-            r = sem.locate_full(q)
-            n, k = int(r.mask.sum()), int(r.core.sum())
-            c = r.centroid.detach().cpu().numpy().astype(np.float64)
-            best = float(r.relevancy.max())
-            picked = "" if q == text.strip() else f" -> label '{q}'"
-            core = "" if k == n else f", centre from the {k} above {sem.centre_relevancy:g}"
-            desc = (f"'{text.strip()}'{picked}: {n} Gaussians above relevancy {sem.threshold:g} (best "
-                    f"{best:.3f}){core}, "
-                    f"centre ({', '.join(f'{v:.3f}' for v in c)})")
-            return {"text": text.strip(), "query": q, "label": q if q in label_names else None, "gaussians": n,
-                    "core_gaussians": k, "best_relevancy": best, "centre": c.tolist(), "description": desc, "point": c,
-                    "mask": r.mask.detach().cpu().numpy().astype(bool)}
-
-        def locate(text: str):
-            m = match(text)
-            return m["point"], m["description"]
-
-        extra_sem = {"semantic": sem, "label_names": label_names, "match": match, "free_text": free}
-    else:
-        extra_sem = {}
-
+        semantics = _semantics(st, cams, device, **semantic_kw)
     region = camera_box(cams) if cams is not None else None
     if region is None and st.info.get("start_region"):  # compact exports carry their training cameras' box
         lo, hi = (np.asarray(v, dtype=np.float64) for v in st.info["start_region"])
         region = (lo, hi)
     poses = scene_camera_poses(cfg_path, st.info)  # [F, 3, 4] or None (the viewer's opening view)
     notes = [] if cams is not None or cfg_path is None else [missing_cameras_note(cfg_path)]
-    stored = stored_region(st.info, path)
-    return LoadedScene(scene, locate, "checkpoint", str(path), config_path=cfg_path,
-                       extra={"splat": st, "camera_centres": cams, "camera_poses": poses, "notes": notes,
-                              **extra_sem, **({"planning_region": stored} if stored is not None else {})},
-                       start_region=region)
+    locate = None
+    if semantics is not None:
+        def locate(text: str):
+            m = semantics.match(text)
+            return m["point"], m["description"]
+
+    return LoadedScene(scene, locate, "checkpoint", str(path), config_path=cfg_path, start_region=region,
+                       checkpoint=st, semantics=semantics, camera_centres=cams, camera_poses=poses, notes=notes,
+                       planning_region=stored_region(st.info, path))
+
+
+def _semantics(st: Any, cams: Optional[np.ndarray], device: str, threshold: Optional[float] = None,
+               smooth_neighbors: int = SMOOTH_NEIGHBORS, object_cluster: float = OBJECT_CLUSTER,
+               object_centre: str = "volume", up: Tuple[float, float, float] = (0.0, 0.0, 1.0),
+               drop_support: bool = True, centre_relevancy: float = CENTRE_RELEVANCY,
+               unseen_fill: bool = True) -> SceneSemantics:
+    """The text semantics of a cinesplat checkpoint (latents + codec): a SemanticScene and its matcher."""
+    from cinenerf_ns.method.semantic_scene import SemanticScene, build_text_encoder
+
+    enc = build_text_encoder(st.info, st.label_embeddings, device=device)
+    kw = {} if threshold is None else {"threshold": threshold}
+    sem = SemanticScene.from_params(st.params, st.codec, enc, device, label_names=st.info.get("label_names"),
+                                    smooth_neighbors=smooth_neighbors, cluster_fraction=object_cluster,
+                                    centre=object_centre, up=up, drop_support=drop_support,
+                                    centre_relevancy=centre_relevancy,
+                                    camera_centres=cams if unseen_fill else None, **kw)
+    label_names = list(st.info.get("label_names") or [])
+    free = free_text(st.info)
+
+    def match(text: str) -> Dict[str, Any]:
+        q = label_query(text, label_names, free)
+        r = sem.locate_full(q)
+        n, k = int(r.mask.sum()), int(r.core.sum())
+        c = r.centroid.detach().cpu().numpy().astype(np.float64)
+        best = float(r.relevancy.max())
+        picked = "" if q == text.strip() else f" -> label '{q}'"
+        core = "" if k == n else f", centre from the {k} above {sem.centre_relevancy:g}"
+        desc = (f"'{text.strip()}'{picked}: {n} Gaussians above relevancy {sem.threshold:g} (best "
+                f"{best:.3f}){core}, "
+                f"centre ({', '.join(f'{v:.3f}' for v in c)})")
+        return {"text": text.strip(), "query": q, "label": q if q in label_names else None, "gaussians": n,
+                "core_gaussians": k, "best_relevancy": best, "centre": c.tolist(), "description": desc, "point": c,
+                "mask": r.mask.detach().cpu().numpy().astype(bool)}
+
+    return SceneSemantics(sem, label_names, free, match)
+
+
+def _unknown_suffix(path: Path, *_: Any, **__: Any) -> LoadedScene:
+    from cinenerf_ns.method.scene_files import SUPPORTED, CheckpointError
+
+    raise CheckpointError(f"{path} is not a checkpoint or scene file this tool reads (suffix "
+                          f"{path.suffix or 'none'!r}); give {SUPPORTED}")
+
+
+# The one table of scene files: a path's suffix (lower case) -> its reader; any other folder is a run folder
+# (checkpoint) and 'procedural[:N[:SEED]]' is no file. A new format is one reader here.
+SCENE_READERS: Dict[str, Callable[..., LoadedScene]] = {
+    ".ply": _load_ply,
+    ".npz": _load_checkpoint, ".pt": _load_checkpoint, ".ckpt": _load_checkpoint,
+    ".yml": _load_checkpoint, ".yaml": _load_checkpoint,
+}
+
+
+def load_scene(spec: str, cfg: Optional[SceneConfig] = None, device: str = "cpu", threshold: Optional[float] = None,
+               smooth_neighbors: int = SMOOTH_NEIGHBORS, object_cluster: float = OBJECT_CLUSTER,
+               object_centre: str = "volume",
+               up: Tuple[float, float, float] = (0.0, 0.0, 1.0), drop_support: bool = True,
+               centre_relevancy: float = CENTRE_RELEVANCY, unseen_fill: bool = True,
+               planning: bool = True) -> LoadedScene:
+    """The one scene loader of every command (cinesplat-plan, cinesplat-viewer, cinesplat-preview, the benchmarks):
+    a scene file or spec (SCENE_KINDS) -> LoadedScene, through SCENE_READERS. ``planning`` False: the Gaussians
+    only (no obstacles, no text semantics: what a renderer needs). InvalidInputError / CheckpointError name the
+    file and the problem."""
+    cfg = cfg or SceneConfig()
+    proc = procedural_spec(spec)
+    if proc is not None:
+        return _load_procedural(spec, proc, cfg, device, planning)
+    path = Path(spec)
+    problem = path_problem(path, folder_ok=True)
+    if problem == "was not found":
+        raise InvalidInputError(f"scene not found: {spec} (give {SCENE_KINDS})")
+    if problem is not None:
+        raise InvalidInputError(f"scene {spec} {problem}")
+    reader = SCENE_READERS.get(path.suffix.lower()) or (_load_checkpoint if path.is_dir() else _unknown_suffix)
+    return reader(path, cfg, device, planning, threshold=threshold, smooth_neighbors=smooth_neighbors,
+                  object_cluster=object_cluster, object_centre=object_centre, up=up, drop_support=drop_support,
+                  centre_relevancy=centre_relevancy, unseen_fill=unseen_fill)
 
 
 def missing_cameras_note(config_path: Path) -> str:
@@ -287,20 +370,20 @@ def resolve_match(text: str, loaded: LoadedScene, what: str) -> Dict[str, Any]:
     from cinenerf_ns.method.clip_features import ClipWeightsError
 
     try:
-        if "match" in loaded.extra:
-            return loaded.extra["match"](text)
+        if loaded.semantics is not None:
+            return loaded.semantics.match(text)
         point, desc = loaded.locate(text)
     except ClipWeightsError as e:  # its own advice names ns-train options
         first = str(e).strip().splitlines()[0] if str(e).strip() else "the CLIP weights are missing"
-        labels = loaded.extra.get("label_names") or []
+        labels = loaded.semantics.label_names if loaded.semantics is not None else []
         names = f", or one of the scene's object names: {', '.join(labels)}" if labels else ""
         raise InvalidInputError(
             f"'{text.strip()}' needs the scene's CLIP text model, which cannot be loaded here ({first}); run once "
             f"with network so open_clip caches its weights, or give the {what} target as a point 'x y z'{names}"
         ) from None
     out = {"text": text.strip(), "point": point, "description": desc}
-    if "room" in loaded.extra:  # a procedural room: the object's Gaussians from its ground truth
-        room = loaded.extra["room"]
+    if loaded.room is not None:  # a procedural room: the object's Gaussians from its ground truth
+        room = loaded.room
         out["mask"] = room.object_ids.cpu().numpy() == procedural_object(room, text)
     return out
 
@@ -328,10 +411,4 @@ def preview_scene(loaded: LoadedScene):
     grey)."""
     from cinenerf_ns.preview.render import scene_from_splat
 
-    if "splat" in loaded.extra:
-        return scene_from_splat(loaded.extra["splat"].params)
-    if "room" in loaded.extra:
-        return scene_from_splat(procedural_params(loaded.extra["room"]))
-    from cinenerf_ns.planner.scene.ply import read_splat_ply
-
-    return scene_from_splat(read_splat_ply(loaded.source), grey=NO_COLOUR_GREY)
+    return scene_from_splat(loaded.splat, grey=NO_COLOUR_GREY if loaded.kind == "ply" else None)

@@ -10,6 +10,9 @@
 #     viewer   ns-viewer loads that checkpoint (serves for up to 45 s, log checked), stopped by its PID
 #     labels   fox with generated 3-class brightness label masks: ns-train cinesplat --feature-source labels
 #     bench    benchmarks/bench_method.py (cinesplat vs splatfacto etc.; appends to benchmarks/RESULTS.md)
+#     trainspeed  benchmarks/bench_ns_train.py: stock ns-train splatfacto / cinesplat processes, nerfstudio's own step
+#              timer ($TS_RUNS, default splatfacto@4,cinesplat@4,splatfacto@2,cinesplat@2; $TS_STEPS, default 3000;
+#              ~45-60 s a run); results in $OUT/ns_train.json and $OUT/ns_train_section.md (append it to RESULTS.md)
 #     room     synthetic room (cinesplat-synth, seed $ROOM_SEED) -> ns-train cinesplat with label masks ($ROOM_STEPS
 #              steps) -> compact export + ground-truth files in $OUT/room (the bundled demo scene's recipe)
 #     planner  benchmarks/bench_planner.py, bench_candidates.py, bench_viewer.py on CUDA (1M Gaussians)
@@ -285,6 +288,13 @@ EOF
 stage_bench() {
   [ -n "${FOX:-}" ] || { echo "fox scene not found: set FOX=/path/to/fox"; return 1; }
   $PY benchmarks/bench_method.py --fox "$FOX" --work "$WORK/bench" --clip-random-weights
+}
+
+stage_trainspeed() {
+  [ -n "${FOX:-}" ] || { echo "fox scene not found: set FOX=/path/to/fox"; return 1; }
+  $PY benchmarks/bench_ns_train.py --data "$FOX" --runs "${TS_RUNS:-splatfacto@4,cinesplat@4,splatfacto@2,cinesplat@2}" \
+    --steps "${TS_STEPS:-3000}" --work "$WORK/ns_train" --logs "$WORK/ns_train/logs" --out-json "$OUT/ns_train.json" \
+    --record "$OUT/ns_train_section.md"
 }
 
 stage_room() {

@@ -49,3 +49,11 @@ def test_planner_public_names_resolve():
         assert getattr(planner, name) is not None, name
     with pytest.raises(AttributeError):
         planner.no_such_name  # noqa: B018
+
+
+def test_planner_modules_import_no_private_name_of_another():
+    """A name two planner modules share is public (issue 35): no ``from .x import _name`` inside planner/."""
+    bad = [(str(p.relative_to(PKG)), node.module, a.name) for p in _modules("planner")
+           for node in ast.walk(ast.parse(p.read_text())) if isinstance(node, ast.ImportFrom)
+           for a in node.names if a.name.startswith("_") and not a.name.startswith("__")]
+    assert not bad, bad

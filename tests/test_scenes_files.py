@@ -324,7 +324,7 @@ def test_procedural_bad_specs(spec):
 def test_procedural_specs_and_procedural_named_files(tmp_path, monkeypatch):
     a = load_scene("procedural:1000:3", SceneConfig())
     assert a.kind == "procedural" and a.source == "procedural:1000:3"
-    assert len(load_scene("procedural:1000", SceneConfig()).extra["room"].means) == 1000
+    assert len(load_scene("procedural:1000", SceneConfig()).room.means) == 1000
     s = tiny_splat(5)
     monkeypatch.chdir(tmp_path)
     write_splat_ply("procedural_room.ply", s["means"], s["quats"], s["scales"], s["opacities"])
@@ -345,7 +345,7 @@ def test_real_files_still_load(path, monkeypatch):
         warnings.simplefilter("ignore")
         ld = load_scene(str(path), SceneConfig())
     assert ld.kind == "checkpoint" and len(ld.scene) > 1000 and ld.start_region is not None
-    assert ld.locate is not None and "semantic" in ld.extra
+    assert ld.locate is not None and ld.semantics is not None
 
 
 def test_cli_prints_one_line(tmp_path, monkeypatch, capsys):
@@ -475,7 +475,7 @@ def test_a_run_whose_dataset_is_gone_says_it_plans_without_its_cameras(tmp_path)
     (run / "config.yml").write_text(f"method_name: cinesplat\ndata: !!python/object/apply:pathlib.PosixPath\n{parts}")
     ld = load_scene(str(run / "config.yml"), SceneConfig())
     assert ld.start_region is None
-    (note,) = ld.extra["notes"]
+    (note,) = ld.notes
     assert f"its dataset {gone} is gone; planning without the training cameras" in note and "config.yml" in note
 
 
@@ -491,14 +491,14 @@ def test_scene_paths_that_are_not_files(tmp_path):
 def test_text_without_loadable_clip_weights_gives_advice_for_this_tool():
     """ClipWeightsError's own advice names ns-train options; the planner's message names what works here."""
     from cinenerf_ns.method.clip_features import ClipWeightsError
-    from cinenerf_ns.scenes import LoadedScene, resolve_match
+    from cinenerf_ns.scenes import LoadedScene, SceneSemantics, resolve_match
 
     def match(text):
         raise ClipWeightsError("Could not load CLIP weights 'ViT-B-16' / 'laion' (OSError: offline).\n"
                                "  * pass --pipeline.datamanager.clip.checkpoint-path FILE")
 
     ld = LoadedScene(scene=None, locate=lambda t: None, kind="checkpoint", source="x.npz",
-                     extra={"match": match, "label_names": ["red armchair", "floor lamp"]})
+                     semantics=SceneSemantics(None, ["red armchair", "floor lamp"], True, match))
     with pytest.raises(InvalidInputError) as e:
         resolve_match("a cosy corner", ld, "go-to")
     msg = str(e.value)

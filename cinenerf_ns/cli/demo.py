@@ -37,15 +37,13 @@ def demo_args(output_dir: Path, scene: Path = DEMO_SCENE, candidates: int = 1) -
 def demo_preview(scene: str, camera_path: str, output_dir: Path, console: Console,
                  subject_points=None) -> Optional[dict]:
     """demo.mp4 + demo_sheet.png of the planned shot (the preview's default size and frame rate, 480x270 at 15 fps,
-    CPU; the look-at object outlined on the sheet), or None when the scene has no colour."""
-    from cinenerf_ns.method.checkpoint import load_splat
+    CPU; the look-at object outlined on the sheet) of any scene scenes.load_scene reads (the procedural fallback's
+    objects in their display colours)."""
     from cinenerf_ns.preview import preview_camera_path
+    from cinenerf_ns.scenes import load_scene, preview_scene
 
-    if str(scene).startswith("procedural:"):
-        console.print("[yellow]no preview: the procedural fallback scene has no colours[/yellow]")
-        return None
-    return preview_camera_path(load_splat(scene).params, camera_path, output_dir, "demo", console=console,
-                               subject_points=subject_points)
+    return preview_camera_path(preview_scene(load_scene(str(scene), planning=False)), camera_path, output_dir, "demo",
+                               console=console, subject_points=subject_points)
 
 
 def main(argv=None) -> dict:

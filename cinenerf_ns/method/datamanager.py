@@ -60,7 +60,8 @@ class CineSplatDatamanagerConfig(FullImageDatamanagerConfig):
 
 
 class CineSplatDatamanager(FullImageDatamanager):
-    """Adds ``latent_target`` [h, w, 3] and ``latent_valid`` [h, w, 1] to every training batch."""
+    """Adds ``latent_target`` [h, w, 3], ``latent_valid`` [h, w, 1] and ``latent_all_valid`` (bool) to every
+    training batch."""
 
     config: CineSplatDatamanagerConfig
 
@@ -70,6 +71,7 @@ class CineSplatDatamanager(FullImageDatamanager):
                          **kwargs)
         self.latent_targets: List[torch.Tensor] = []  # per train image [h, w, 3]
         self.latent_valid: List[torch.Tensor] = []  # per train image [h, w, 1] bool
+        self.latent_all_valid: List[bool] = []  # per train image: every pixel valid (the loss then skips the mask)
         self.semantic_stats: Dict = {}
         if test_mode == "val":
             self._prepare_semantics()
@@ -122,6 +124,7 @@ class CineSplatDatamanager(FullImageDatamanager):
         self.semantic_stats = result.stats
         self.latent_targets = [t.to(self.device) for t in result.latent_targets]
         self.latent_valid = [v.to(self.device) for v in result.latent_valid]
+        self.latent_all_valid = [bool(v.all()) for v in result.latent_valid]  # once, on the CPU copies
         meta = self.train_dataset.metadata
         meta[META_CODEC_STATE] = {k: v.detach().cpu() for k, v in result.codec.state_dict().items()}
         meta[META_INFO] = result.info
@@ -164,4 +167,5 @@ class CineSplatDatamanager(FullImageDatamanager):
             idx = int(camera.metadata["cam_idx"])  # type: ignore[index]
             data["latent_target"] = self.latent_targets[idx]
             data["latent_valid"] = self.latent_valid[idx]
+            data["latent_all_valid"] = self.latent_all_valid[idx] if self.latent_all_valid else False
         return camera, data

@@ -4,10 +4,12 @@ Paper Sec. III-A. Every Gaussian carries ``gauss_params["latents"]`` [N, 3] with
 (named "latents"), so gsplat's DefaultStrategy duplicates / splits / prunes it in step with the other
 attributes, and ``load_state_dict`` resizes it like them.
 
-Distillation (eq. 3): l_hat = sum_i l_i T_i alpha_i is rendered by one extra gsplat pass whose
-means / quats / scales / opacities are DETACHED, so the latent loss reaches only the latents (the
-geometry is frozen *for this loss*, it keeps training on RGB). Loss: mean squared error between l_hat and
-f_enc(P) at the feature-map resolution (see ``latent_render_resolution``). Schedule: joint training from
+Distillation (eq. 3): l_hat = sum_i l_i T_i alpha_i is composited with DETACHED geometry, so the latent
+loss reaches only the latents (the geometry is frozen *for this loss*, it keeps training on RGB). By default
+("shared") the latent channels reuse the RGB pass's projection and tile lists: one extra gsplat
+``rasterize_to_pixels`` on the detached 2D means / conics / opacities, no second projection, tile sort or host
+sync (see ``latent_render_mode``). Loss: mean squared error between l_hat and f_enc(P) at the feature-map
+resolution (see ``latent_render_resolution``). Schedule: joint training from
 ``latent_start_step`` (default 0) with detached geometry; set ``latent_start_step`` late (e.g. 2/3 of the
 run) to distil only after the geometry has settled, as in the paper.
 """
@@ -32,6 +34,13 @@ from cinenerf_ns.method.compat import UnavailableLPIPS, offline_safe_lpips
 from cinenerf_ns.method.feature_grid import feature_map_size
 from cinenerf_ns.method.relevancy import DEFAULT_NEGATIVES, relevancy as relevancy_fn
 
+
+def rasterize_to_pixels(*args, **kwargs):
+    """gsplat's ``rasterize_to_pixels`` (imported on first use; tests on the CPU replace this name)."""
+    from gsplat.cuda._wrapper import rasterize_to_pixels as _r2p
+
+    return _r2p(*args, **kwargs)
+
 # keys the datamanager puts into train_dataset.metadata for the model
 META_CODEC_STATE = "cinesplat_codec_state"
 META_INFO = "cinesplat_info"
@@ -50,15 +59,19 @@ class CineSplatModelConfig(SplatfactoModelConfig):
     The paper distils after the geometry converged (e.g. 2/3 of the run)."""
     latent_loss_weight: float = 1.0
     """Weight of the latent L2 loss. Only the latents receive its gradient and they have their own Adam
-    optimizer, so in "separate" mode this mostly scales the logged value."""
+    optimizer, so in "shared" and "separate" modes this mostly scales the logged value."""
     latent_every: int = 1
     """Render the latent pass and add its loss every this many steps (>1 trades latent quality for speed)."""
-    latent_render_mode: Literal["separate", "fused"] = "separate"
-    """"separate": an extra 3-channel pass on detached geometry (exact eq. 3 gradients); "fused": 3 extra channels of
-    the RGB pass (faster, but the loss also reaches the geometry: use a small weight)."""
+    latent_render_mode: Literal["shared", "separate", "fused"] = "shared"
+    """"shared": the 3 latent channels are rasterized on the RGB pass's projection and tile lists (its detached 2D
+    means / conics / opacities): exact eq. 3 gradients (latents only) without a second projection, tile sort or
+    host sync; "separate": a whole second gsplat pass on detached geometry (same gradients, slower); "fused": 3 extra
+    channels of the RGB pass (one rasterization, but the latent loss also reaches the geometry: use a small
+    weight)."""
     latent_render_resolution: Literal["feature", "image"] = "image"
-    """"image": render at the RGB resolution, area-downsample to the feature map; "feature": render at the map's size
-    (fewer pixels but slower on a GPU: a few crowded tiles). "fused" always renders at the RGB resolution."""
+    """"image": render at the RGB pass's resolution, area-downsample to the feature map; "feature": render at the
+    map's size with a separate pass (fewer pixels but slower on a GPU: a few crowded tiles). "shared" and "fused"
+    render at the RGB resolution (a separate pass at the map's size when the RGB pass is smaller than the map)."""
     lpips: Literal["auto", "cached", "off"] = "auto"
     """LPIPS eval metric: "auto" uses torchmetrics' LPIPS when its AlexNet weights are cached or downloadable,
     else skips it with one warning; "cached" never touches the network; "off" never builds it."""
@@ -102,6 +115,7 @@ class CineSplatModel(SplatfactoModel):
         self.register_buffer("label_embeddings", torch.zeros(0), persistent=True)
         if "label_embeddings" in meta:
             self.label_embeddings = meta["label_embeddings"].float().clone()
+        self._train_camera_hw: Dict[int, Tuple[int, int]] = {}  # cam_idx -> (H, W), see _camera_hw
         self._query_text = ""
         self._query_relevancy: Optional[Tensor] = None  # [N] cached per query / per point count
         self._text_encoder = None
@@ -204,7 +218,8 @@ class CineSplatModel(SplatfactoModel):
             c2w = camera.camera_to_worlds
         viewmat = get_viewmat(c2w)
         K = camera.get_intrinsics_matrices().to(self.device)
-        return viewmat, K, int(camera.width.item()), int(camera.height.item())
+        H, W = self._camera_hw(camera)
+        return viewmat, K, W, H
 
     def _crop_ids(self) -> Optional[Tensor]:
         if self.crop_box is not None and not self.training:
@@ -260,9 +275,21 @@ class CineSplatModel(SplatfactoModel):
             rasterize_mode=self.config.rasterize_mode,
         )
 
+    def _camera_hw(self, camera: Cameras) -> Tuple[int, int]:
+        """(H, W) of a camera as python ints. Training cameras live on the GPU, where ``.item()`` waits for the
+        GPU to finish all queued work: training sizes are read once per camera (``metadata["cam_idx"]``) and
+        cached, so the step launches its work without a host synchronisation."""
+        idx = camera.metadata.get("cam_idx") if (self.training and camera.metadata) else None
+        if idx is None:
+            return int(camera.height.item()), int(camera.width.item())
+        hw = self._train_camera_hw.get(int(idx))
+        if hw is None:
+            hw = self._train_camera_hw[int(idx)] = (int(camera.height.item()), int(camera.width.item()))
+        return hw
+
     def _latent_target_size(self, camera: Cameras) -> Tuple[int, int]:
         long_side = int(self.cine_info.get("feature_long_side", 64))
-        return feature_map_size(int(camera.height.item()), int(camera.width.item()), long_side)
+        return feature_map_size(*self._camera_hw(camera), long_side)
 
     def _latents_active(self) -> bool:
         return (
@@ -277,6 +304,15 @@ class CineSplatModel(SplatfactoModel):
             return {}
         if self.training and self.config.latent_render_mode == "fused" and self._latents_active():
             return self._get_outputs_fused(camera)
+        if self.training and self.config.latent_render_mode == "shared" and self._latents_active():
+            h, w = self._latent_target_size(camera)
+            H, W = self._camera_hw(camera)
+            d = self._get_downscale_factor()
+            if h <= int(H * (1 / d)) and w <= int(W * (1 / d)):  # splatfacto's pass covers the feature map
+                outputs = super().get_outputs(camera)
+                outputs["latent"] = self._shared_latents()
+                return outputs
+            # else: the separate pass at the feature map's size below (early coarse steps of a large feature map)
         # camera set-up BEFORE splatfacto's pass: it rescales the camera in place for its downscale factor
         # and the int width/height do not always round-trip (e.g. 270 -> 67 -> 268)
         viewmat, K, W, H = self._camera_setup(camera)
@@ -315,6 +351,25 @@ class CineSplatModel(SplatfactoModel):
         else:
             outputs["relevancy"] = torch.zeros(H, W, 1, device=self.device)
         return outputs
+
+    def _shared_latents(self) -> Tensor:
+        """Eq. 3 on the RGB pass just run (``self.info``): the latents composited with its projected Gaussians and
+        tile lists, all DETACHED, so only the latents get this loss's gradient. Same image as ``render_latents`` on
+        that camera (same projection, same sort), without re-projecting or re-sorting. Returns [Hd, Wd, 3]."""
+        info = self.info
+        render, _ = rasterize_to_pixels(
+            info["means2d"].detach(),
+            info["conics"].detach(),
+            self.latents[None],  # [1, N, 3]: one camera, not packed
+            info["opacities"].detach(),  # [1, N], with splatfacto's antialiasing compensation when on
+            info["width"],
+            info["height"],
+            info["tile_size"],
+            info["isect_offsets"],
+            info["flatten_ids"],
+            packed=False,
+        )
+        return render[0]
 
     def _get_outputs_fused(self, camera: Cameras) -> Dict[str, Union[torch.Tensor, List]]:
         """One rasterization of [RGB(SH evaluated), latent] channels (approximate eq. 3, see config)."""
@@ -355,7 +410,8 @@ class CineSplatModel(SplatfactoModel):
         if self.training and "latent" in outputs and "latent_target" in batch:
             pred = outputs["latent"]  # [h', w', 3]
             target = batch["latent_target"].to(self.device).float()  # [h, w, 3]
-            valid = batch.get("latent_valid")
+            # CLIP targets are valid everywhere: the datamanager says so once (a python bool), saving the mask work
+            valid = None if batch.get("latent_all_valid", False) else batch.get("latent_valid")
             h, w = target.shape[:2]
             if pred.shape[:2] != (h, w):
                 pred = F.adaptive_avg_pool2d(pred.permute(2, 0, 1)[None], (h, w))[0].permute(1, 2, 0)

@@ -23,7 +23,7 @@ _WHERE = {
     "plan_leg": "shots.stages", "ReachableGoal": "search.reach", "reachable_goal": "search.reach",
     "plan_candidates": "shots.candidates", "RankedShot": "shots.candidates", "score_shots": "shots.candidate_scores",
     "plan_multistop": "shots.multistop", "MultiStopShot": "shots.multistop",
-    "Shot": "shots.shot", "TimingConfig": "trajectory.timing", "TrajectoryConfig": "trajectory.qp",
+    "Shot": "shots.shot", "TimingConfig": "trajectory.timing", "TrajectoryConfig": "trajectory.qp_config",
     "DynamicLimits": "trajectory.dynamics",
     "retime_shot": "trajectory.dynamics", "ScoreConfig": "shots.scoring",
     "safety_report": "shots.safety", "verify_shot": "shots.safety", "plot_clearance": "shots.safety",

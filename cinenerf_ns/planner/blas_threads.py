@@ -1,10 +1,9 @@
 """BLAS threads capped while a request runs.
 
 Why: a request's linear algebra is small (Gram matrices and Cholesky factors of a few hundred rows), and OpenBLAS
-threads it anyway. Its worker threads then wait for cores that torch's threads, the viewer or other processes hold: on
-the 2-core box, with the other core busy, a 138 x 276 Gram product took 4.8 ms with 2 BLAS threads and 0.12 ms with
-one, and single QP stages took 200 ms. threadpoolctl (a scikit-learn dependency, listed in ours) sets the limit of
-the BLAS libraries numpy and scipy loaded; without it the cap is skipped and nothing else changes.
+threads it anyway. Its worker threads then wait for cores that torch's threads, the viewer or other processes hold
+(docs/PLANNER_DEFAULTS.md, plan_cpu_threads). threadpoolctl (a scikit-learn dependency, listed in ours) sets the limit
+of the BLAS libraries numpy and scipy loaded; without it the cap is skipped and nothing else changes.
 """
 from __future__ import annotations
 

@@ -24,3 +24,11 @@ class GoalUnreachableError(PlanningError):
 
 class UnsafeTrajectoryError(PlanningError):
     """Verification found a trajectory sample with negative exact clearance."""
+
+
+class CorridorInfeasibleError(GoalUnreachableError):
+    """No trajectory of the requested smoothness fits inside the corridor."""
+
+
+class TrajectorySolverError(PlanningError):
+    """The QP solver failed for numerical reasons or returned a point outside the corridor."""

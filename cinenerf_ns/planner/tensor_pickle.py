@@ -2,8 +2,8 @@
 
 Why: candidate workers send their shots back pickled (shots/workers.py), and a shot's corridor holds ~30 small
 tensors (each polytope's planes, seed and ids). torch's own tensor pickling goes through its storage serialisation,
-~75 us per tensor to load: ~2 ms a shot, paid one shot after another in the parent, about 60 ms of a 32-candidate
-request at 1M Gaussians. A numpy array loads in microseconds, and torch.from_numpy gives the same tensor back (same
+slow to load, paid one shot after another in the parent (docs/PLANNER_DEFAULTS.md). A numpy array loads in
+microseconds, and torch.from_numpy gives the same tensor back (same
 dtype, shape and values; CPU). Tensors on other devices, ones that need grad, and dtypes numpy lacks keep torch's
 pickling.
 """

@@ -9,10 +9,10 @@ Frames come from the compiled tile rasteriser (native/raster.c), else the pure-t
 """
 from .cameras import PreviewCameras, path_cameras, viewmat_from_c2w
 from .preview import preview_camera_path
-from .raster_torch import PreviewScene, make_scene, render_torch
+from .raster_torch import PreviewScene, make_scene, raster_reference
 from .render import NERFSTUDIO_BACKGROUND, render_frame, scene_from_splat
 
 __all__ = [
     "NERFSTUDIO_BACKGROUND", "PreviewCameras", "PreviewScene", "make_scene", "path_cameras", "preview_camera_path",
-    "render_frame", "render_torch", "scene_from_splat", "viewmat_from_c2w",
+    "render_frame", "raster_reference", "scene_from_splat", "viewmat_from_c2w",
 ]

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Dict, Tuple
+from typing import Any, Dict
 
 import numpy as np
 
@@ -103,7 +103,3 @@ def path_cameras(camera_path: Dict[str, Any], width: int = DEFAULT_PREVIEW_SIZE[
     intr = np.stack([focal, focal, np.full_like(focal, width / 2.0), np.full_like(focal, height / 2.0)], -1)
     return PreviewCameras(viewmat_from_c2w(c2w), intr, idx, int(width), int(height), float(fps))
 
-
-def path_render_size(camera_path: Dict[str, Any]) -> Tuple[int, int]:
-    """(width, height) the path asks ns-render for."""
-    return int(camera_path["render_width"]), int(camera_path["render_height"])

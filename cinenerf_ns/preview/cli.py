@@ -23,8 +23,8 @@ def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="cinesplat-preview", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", type=Path, required=True,
-                    help="compact scene (.npz / .pt from export_compact), .ckpt, run folder, ns-train config.yml or a "
-                         "3DGS .ply")
+                    help="compact scene (.npz / .pt from export_compact), .ckpt, run folder, ns-train config.yml, a "
+                         "3DGS .ply or procedural[:N[:SEED]] (cinenerf_ns.scenes.load_scene)")
     ap.add_argument("--camera-path", type=Path, required=True,
                     help="nerfstudio camera-path JSON (cinesplat-plan, viewer)")
     ap.add_argument("--output-dir", type=Path, default=Path("renders"), help="folder of the outputs (default: renders)")
@@ -77,7 +77,14 @@ def _check_args(ap: argparse.ArgumentParser, a: argparse.Namespace, console=None
         check_file_size_limit(a.output_dir)
     except InvalidInputError as e:
         ap.error(str(e))
-    for opt, path, folder_ok in (("--scene", a.scene, True), ("--camera-path", a.camera_path, False)):
+    from cinenerf_ns.scenes import load_scene, procedural_spec
+
+    try:
+        procedural = procedural_spec(str(a.scene)) is not None
+    except InvalidInputError as e:
+        ap.error(f"--scene: {e}")
+    files = (("--scene", a.scene, True),) * (not procedural) + (("--camera-path", a.camera_path, False),)
+    for opt, path, folder_ok in files:
         problem = path_problem(path, folder_ok=folder_ok)
         if problem == "was not found":
             ap.error(f"{opt}: file{' or folder' if folder_ok else ''} not found: {path}")
@@ -93,11 +100,8 @@ def _check_args(ap: argparse.ArgumentParser, a: argparse.Namespace, console=None
             check_gif_frames(len(cams))
     except InvalidInputError as e:
         ap.error(f"--camera-path {a.camera_path}: {e}")
-    from cinenerf_ns.method.checkpoint import load_splat
-    from cinenerf_ns.planner.scene.ply import read_splat_ply
-
     try:
-        splat = read_splat_ply(a.scene) if a.scene.suffix.lower() == ".ply" else load_splat(a.scene).params
+        splat = load_scene(str(a.scene), planning=False).splat  # the Gaussians only: no obstacles, no semantics
     except (ValueError, OSError, KeyError) as e:
         ap.error(f"--scene: could not load {a.scene}: {e}")
     if splat.colors_dc is None:

@@ -156,7 +156,7 @@ def _composite_tile(pix: Tensor, m2d: Tensor, con: Tensor, op: Tensor, col: Tens
     return rgb, T
 
 
-def render_torch(scene: PreviewScene, viewmat: Tensor, intrinsics: Tuple[float, float, float, float], width: int,
+def raster_reference(scene: PreviewScene, viewmat: Tensor, intrinsics: Tuple[float, float, float, float], width: int,
                  height: int, near_plane: float = NEAR_PLANE, eps2d: float = EPS2D) -> Tuple[Tensor, Tensor]:
     """(premultiplied rgb [H, W, 3], alpha [H, W, 1]) of one camera, in the scene's dtype (CPU)."""
     dt = scene.means.dtype

@@ -16,7 +16,7 @@ from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.scene.splat_params import SplatParams
 
 from . import native
-from .raster_torch import EPS2D, NEAR_PLANE, PreviewScene, make_scene, render_torch
+from .raster_torch import EPS2D, NEAR_PLANE, PreviewScene, make_scene, raster_reference
 
 # splatfacto's background_color "random" (cinesplat's default) renders over this colour outside training
 NERFSTUDIO_BACKGROUND = (0.1490, 0.1647, 0.2157)
@@ -62,7 +62,7 @@ def render_premultiplied(scene: PreviewScene, viewmat: np.ndarray, intrinsics: S
                                              near_plane, eps2d, threads)
         return torch.from_numpy(rgb), torch.from_numpy(alpha)
     if backend == "torch":
-        return render_torch(scene, torch.as_tensor(np.asarray(viewmat)), intr, width, height, near_plane, eps2d)
+        return raster_reference(scene, torch.as_tensor(np.asarray(viewmat)), intr, width, height, near_plane, eps2d)
     raise InvalidInputError(f"CPU backend must be 'native' or 'torch', got {backend!r}.")
 
 

@@ -1,4 +1,4 @@
-"""An open outdoor scene family (issue 37): a grove of thin trees on a ground plane, with faint floaters in the air and
+"""An open outdoor scene family: a grove of thin trees on a ground plane, with faint floaters in the air and
 a far background shell, z up, no training cameras. What real outdoor captures look like to the planner, and what a
 planning region from the extreme Gaussians gets wrong.
 

@@ -74,9 +74,6 @@ class NerfstudioTransform:
         # rotation part is orthonormal (nerfstudio builds it from a rotation), so inverse = transpose
         return (q / self.scale - self.transform[:3, 3]) @ self.rotation
 
-    def distance_to_ns(self, d):
-        return d * self.scale
-
     def c2w_to_ns(self, c2w: Tensor) -> Tensor:
         """Camera-to-world [...,3|4,4] original -> [...,3,4] nerfstudio (same camera convention)."""
         c = torch.as_tensor(c2w, dtype=torch.float64)[..., :3, :4]

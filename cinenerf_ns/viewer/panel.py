@@ -2,7 +2,7 @@
 
 * :class:`PanelBackend` gives the Gaussians, a text query (``locate``) and the planner (``plan``).
 * :class:`PanelView` is what the panel draws on and moves: the viser implementation is
-  ``viser_view.ViserView``; tests use a fake that records calls. No viser import here.
+  ``viser_ui.ViserPanelUI``; tests use a fake that records calls. No viser import here.
 
 Threads: GUI callbacks only *request* work. Planning runs on one worker thread (requests that were
 superseded by a newer Plan before they started are skipped; a result that arrives after a newer Plan

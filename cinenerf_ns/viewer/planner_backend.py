@@ -235,36 +235,27 @@ class PreparedPlanner:
             tg = None
             if targets is not None:
                 tg = self._targets(targets, framing, pt(look_at), pt(start), int(n_candidates))
-            goals = pt(goal)[None] if tg is None else tg.goals(pt(goal))  # [P, 3]
-            subject = None if tg is None else tg.samples
-            if start is None and int(n_candidates) > 1:
-                # random starts: the batched candidates, ranked (best first) by the documented shot score
-                from cinenerf_ns.planner.shots.candidates import plan_candidates
+            from cinenerf_ns.shot_request import ShotRequest, plan_request
 
-                ranked = plan_candidates(self.planner, goals if len(goals) > 1 else goals[0], pt(look_at),
-                                         k=int(n_candidates), seed=int(seed), subject=subject)
-                shots = []
-                for r in ranked:
-                    r.shot.score, r.shot.rank = float(r.score.total), int(r.rank)
-                    r.shot.score_terms = r.score.to_dict()
-                    r.shot.end_pose = None if tg is None else tg.pose_of(r.candidate)
-                    shots.append(r.shot)
-            else:
-                shots = self.planner.plan(goals[0], pt(look_at), start=pt(start), seed=int(seed),
-                                          n_candidates=int(n_candidates))
-                if subject is not None:
-                    from cinenerf_ns.planner.shots.candidates import score_shots
-
-                    for sh, sc in zip(shots, score_shots(self.planner, shots, pt(look_at), subject=subject)):
-                        sh.score_terms, sh.end_pose = sc.to_dict(), tg.pose_of(0)
+            # the same request rule as cinesplat-plan (shot_request.py): one scored shot from a given start, else
+            # ranked candidates from random starts (one included), best first by the documented shot score
+            ranked = plan_request(self.planner, ShotRequest(
+                goals=pt(goal)[None] if tg is None else tg.goals(pt(goal)), look_at=pt(look_at), start=pt(start),
+                candidates=int(n_candidates), seed=int(seed), subject=None if tg is None else tg.samples))
+            shots = []
+            for r in ranked:
+                r.shot.score, r.shot.rank = float(r.score.total), int(r.rank)
+                r.shot.score_terms = r.score.to_dict()
+                r.shot.end_pose = None if tg is None else tg.pose_of(r.candidate)
+                shots.append(r.shot)
             for shot in shots:
                 aimed = shot.goal_target if tg is not None and tg.ends_at_poses else pt(goal)
                 shot.goal_moved = self.planner.explain_goal(aimed, shot.goal)  # said on screen, never silent
                 if tg is not None:
-                    terms = (getattr(shot, "score_terms", None) or {}).get("terms")
+                    terms = (shot.score_terms or {}).get("terms")
                     shot.subject_view = tg.view_report(shot.positions[-1], pt(look_at), self.planner.config.up, terms)
                     shot.end_pose_note = tg.note()
-                if getattr(shot, "clearance", None) is None:
+                if shot.clearance is None:
                     t0 = time.perf_counter()
                     # exact where it matters (near obstacles); capped far away: the uncapped search
                     # would dominate a Plan on large scenes

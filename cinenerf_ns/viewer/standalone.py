@@ -21,13 +21,12 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, List, Optional, Tuple
+from typing import TYPE_CHECKING, Any, List, Optional, Tuple
 
 import numpy as np
 
 from cinenerf_ns.planner.errors import InvalidInputError, PlanningError
 from cinenerf_ns.planner.scene.ellipsoids import DEFAULT_SAFETY_MARGIN, EllipsoidScene, SceneConfig, quat_wxyz_to_rotmat
-from cinenerf_ns.planner.scene.ply import read_splat_ply
 from cinenerf_ns.planner.scene.splat_params import NO_COLOUR_GREY, SplatParams
 from cinenerf_ns.planner.shots.planner import PlannerConfig
 from cinenerf_ns.planner.trajectory.timing import TimingConfig
@@ -36,6 +35,9 @@ from .backend import FunctionBackend, LocateFn, PlanFn, SceneGaussians, label_lo
 from .conventions import VISER_NERFSTUDIO_SCALE_RATIO
 from .region_box import stored_region_config
 from .views import TrainingCameras
+
+if TYPE_CHECKING:
+    from cinenerf_ns.scenes import LoadedScene
 
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
 
@@ -51,24 +53,46 @@ def display_gaussians(splat: SplatParams) -> SceneGaussians:
 
 
 @dataclass
-class LoadedScene:
-    splat: SplatParams  # what the browser draws
+class ViewerScene:
+    """What the viewer draws, plans around and answers text with: the scene as every command loads it
+    (``scenes.load_scene``'s LoadedScene) plus how the viewer presents it."""
+
+    loaded: LoadedScene  # obstacles, Gaussians, start region, semantics, training cameras
     name: str
     data_dir: Path
-    config_path: Optional[Path] = None
+    config_path: Optional[Path] = None  # the run's config.yml, absolute
     locate: Optional[LocateFn] = None  # text -> (centroid [3], mask [N] over ``splat``); None: coordinates only
     default_goto: str = ""
     default_look_at: str = ""
-    obstacles: Optional[EllipsoidScene] = None  # None: built from ``splat`` with the viewer's SceneConfig
-    start_region: Optional[Tuple[np.ndarray, np.ndarray]] = None  # (lo [3], hi [3]) of random starts
     semantics: str = "none"  # what answers text queries: "none" | "labels" | "relevancy"
     object_names: List[str] = dataclasses.field(default_factory=list)  # ground-truth names (procedural / demo)
-    semantic: Optional[Any] = None  # the SemanticScene answering text ("relevancy" scenes), see warm_semantics
-    free_text: bool = False  # whether free text (not only label names) means anything to ``semantic``
     scene_note: str = ""  # what the scene is when it has no run (said instead of an ns-render command)
     # the capture's training cameras (the opening view); None: generated scenes
     cameras: Optional[TrainingCameras] = None
-    planning_region: Optional[Tuple[np.ndarray, np.ndarray]] = None  # (lo [3], hi [3]) a compact export stores
+
+    @property
+    def splat(self) -> SplatParams:
+        """What the browser draws."""
+        return self.loaded.splat
+
+    @property
+    def obstacles(self) -> EllipsoidScene:
+        return self.loaded.scene
+
+    @property
+    def start_region(self) -> Optional[Tuple[np.ndarray, np.ndarray]]:
+        """(lo [3], hi [3]) of random starts."""
+        return self.loaded.start_region
+
+    @property
+    def semantic(self) -> Optional[Any]:
+        """The SemanticScene answering text ("relevancy" scenes), see warm_semantics."""
+        return None if self.loaded.semantics is None else self.loaded.semantics.semantic
+
+    @property
+    def free_text(self) -> bool:
+        """Whether free text (not only label names) means anything to ``semantic``."""
+        return self.loaded.semantics is not None and self.loaded.semantics.free_text
 
 
 # --------------------------------------------------------------------------------------- loading
@@ -111,75 +135,59 @@ def semantic_locate(sem: Any, label_names: List[str], free: bool = True) -> Loca
     return locate
 
 
-def load_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optional[SceneConfig] = None,
-               device: str = "cpu") -> LoadedScene:
-    """``--load-config`` -> what the viewer draws, plans around and answers text queries with.
-
-    Checkpoints, compact exports and procedural rooms go through ``cinesplat-plan``'s loader (the same
-    obstacles, start regions and text semantics as the command line)."""
-    from cinenerf_ns import scenes as cli
+def open_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optional[SceneConfig] = None,
+               device: str = "cpu") -> ViewerScene:
+    """``--load-config`` -> the scene loaded by ``scenes.load_scene`` (the loader of every command: the same
+    obstacles, start regions and text semantics as cinesplat-plan), presented for the viewer. 'demo' names the
+    bundled trained room; 'demo-tiny' the tiny labelled scene of viewer/demo.py."""
+    from cinenerf_ns.scenes import DEMO_SCENE, LoadedScene, load_scene
 
     scfg = scene_config or SceneConfig()
     if source == "demo":  # the bundled trained room (make demo's scene) when the package ships it
-        from cinenerf_ns.scenes import DEMO_SCENE
-
         if DEMO_SCENE.exists():
-            ls = load_scene(str(DEMO_SCENE), data_dir or Path("demo_output") / "cinesplat-viewer-demo", scene_config,
+            vs = open_scene(str(DEMO_SCENE), data_dir or Path("demo_output") / "cinesplat-viewer-demo", scene_config,
                             device)
-            ls.default_goto, ls.default_look_at = "red armchair", "floor lamp"
-            return ls
+            vs.default_goto, vs.default_look_at = "red armchair", "floor lamp"
+            return vs
         source = "demo-tiny"
     if source == "demo-tiny":
         from .demo import demo_scene
 
         d = demo_scene()
-        return LoadedScene(
-            d.splat, "demo", data_dir or Path("demo_output") / "cinesplat-viewer-demo", None,
+        ld = LoadedScene(EllipsoidScene.from_params(d.splat, scfg).to(device), None, "demo", source, params=d.splat)
+        return ViewerScene(
+            ld, "demo", data_dir or Path("demo_output") / "cinesplat-viewer-demo",
             locate=label_locate(d.splat.means, d.labels, d.label_of), default_goto="red box",
             default_look_at="blue pillar", semantics="labels", object_names=list(d.labels),
             scene_note="the tiny built-in demo scene has no training run",
         )
-    if cli.procedural_spec(source) is not None:  # the explicit spec only, never a file name
-        ld = cli.load_scene(source, scfg, device)
-        room = ld.extra["room"]
-        names = [o.name for o in room.objects]
-        return LoadedScene(
-            cli.procedural_params(room), source.replace(":", "-"),
-            data_dir or Path("demo_output") / "cinesplat-viewer-procedural",
-            None, locate=procedural_locate(room), default_goto=names[0], default_look_at=names[1 % len(names)],
-            obstacles=ld.scene, start_region=ld.start_region, semantics="labels", object_names=names,
+    ld = load_scene(source, scfg, device)
+    if ld.kind == "procedural":
+        names = [o.name for o in ld.room.objects]
+        return ViewerScene(
+            ld, source.replace(":", "-"), data_dir or Path("demo_output") / "cinesplat-viewer-procedural",
+            locate=procedural_locate(ld.room), default_goto=names[0], default_look_at=names[1 % len(names)],
+            semantics="labels", object_names=names,
             scene_note=f"'{source}' is a generated test room with no training run",
         )
     path = Path(source)
-    if not path.exists():
-        raise InvalidInputError(
-            f"--load-config {source}: no such file (give a config.yml, run folder, .ckpt, compact .pt/.npz, a .ply, "
-            f"'procedural[:N[:SEED]]' or 'demo')"
-        )
-    if path.suffix.lower() == ".ply":
-        return LoadedScene(read_splat_ply(path), path.stem, data_dir or path.parent, None,
+    if ld.kind == "ply":
+        return ViewerScene(ld, path.stem, data_dir or path.parent,
                            scene_note=f"{path.absolute()} is a .ply splat with no training run")
-    if not (path.is_dir() or path.suffix.lower() in (".yml", ".yaml", ".ckpt", ".pt", ".npz")):
-        raise InvalidInputError(f"--load-config {source}: expected a config.yml, run folder, .ckpt, compact export, "
-                                f".ply, 'procedural' or 'demo'")
-    ld = cli.load_scene(str(path), scfg, device)
     cfg_path = None if ld.config_path is None else Path(ld.config_path).absolute()
     data = run_data_dir(cfg_path) if cfg_path is not None else None
     name = data.name if data is not None else (path.stem if path.is_file() else path.name)
-    sem = ld.extra.get("semantic")
-    return LoadedScene(
-        ld.extra["splat"].params, name, data_dir or data or (path if path.is_dir() else path.parent), cfg_path,
-        locate=None if sem is None else semantic_locate(sem, ld.extra.get("label_names") or [],
-                                                        ld.extra.get("free_text", True)),
-        obstacles=ld.scene, start_region=ld.start_region, semantics="none" if sem is None else "relevancy",
-        semantic=sem, free_text=bool(ld.extra.get("free_text", False)),
+    sem = ld.semantics
+    return ViewerScene(
+        ld, name, data_dir or data or (path if path.is_dir() else path.parent), cfg_path,
+        locate=None if sem is None else semantic_locate(sem.semantic, sem.label_names, sem.free_text),
+        semantics="none" if sem is None else "relevancy",
         scene_note="" if cfg_path is not None else f"{path.absolute()} is a compact export with no training run",
-        cameras=TrainingCameras.of(ld.extra.get("camera_centres"), ld.extra.get("camera_poses")),
-        planning_region=ld.extra.get("planning_region"),
+        cameras=TrainingCameras.of(ld.camera_centres, ld.camera_poses),
     )
 
 
-def warm_semantics(loaded: LoadedScene, background: bool = True,
+def warm_semantics(loaded: ViewerScene, background: bool = True,
                    stop: Optional[threading.Event] = None) -> Optional[threading.Thread]:
     """Compute the text-independent part of text queries (SemanticScene.warm: latent smoothing, every label's answer)
     once per scene, off the request path: on a daemon thread when ``background`` (returned; None when the scene has no
@@ -283,17 +291,15 @@ class StandaloneViewer:
         t0 = time.perf_counter()
         self.cfg = cfg
         scfg = SceneConfig.with_margin(cfg.camera_radius, cfg.safety_margin)
-        self.loaded = load_scene(cfg.load_config, None, scfg, cfg.device)
+        self.loaded = open_scene(cfg.load_config, None, scfg, cfg.device)
         sp = self.loaded.splat
         self.obstacles = self.loaded.obstacles
-        if self.obstacles is None:
-            self.obstacles = EllipsoidScene.from_params(sp, scfg).to(cfg.device)
         self.planner: Optional[PreparedPlanner] = None
         if plan_fn is None:
             self.planner = PreparedPlanner(self.obstacles, PlannerConfig(
                 grid_resolution=cfg.grid_resolution, start_region=self.loaded.start_region,
                 timing=TimingConfig(max_speed=cfg.max_speed), candidate_workers=0,  # see PreparedPlanner
-                **stored_region_config(self.loaded.planning_region)))
+                **stored_region_config(self.loaded.loaded.planning_region)))
             plan_fn, planner_name = self.planner.plan, PreparedPlanner.name
         else:
             planner_name = "injected planner"

@@ -43,3 +43,18 @@ def test_grove_variant_spec_is_checked():
         load_family("grove:lots", 20_000, 0, n_pairs=1)
     with pytest.raises(SystemExit, match="floater_fraction"):
         load_family("grove:0.03:0.9", 20_000, 0, n_pairs=1)
+
+
+def test_file_families_load_any_scene_spec(tmp_path):
+    """scene:SPEC (and ply: / npz:) go through scenes.load_scene: every kind a command reads; a missing file exits
+    with the loader's message."""
+    from cinenerf_ns.planner.scene.ply import write_splat_ply
+    from cinenerf_ns.planner.scene.procedural import procedural_room
+
+    room = procedural_room(2000, seed=0)
+    ply = write_splat_ply(tmp_path / "r.ply", room.means, room.quats, room.log_scales, room.opacity_logits)
+    a, b = load_family("scene:procedural:2000:0", 0, 0), load_family(f"ply:{ply}", 0, 0)
+    assert a.kind == b.kind == "file" and len(a.scene) == len(b.scene) > 0
+    assert a.start_region is not None and b.start_region is None  # a .ply has no training cameras
+    with pytest.raises(SystemExit, match="scene not found"):
+        load_family(f"scene:{tmp_path / 'nope.npz'}", 0, 0)

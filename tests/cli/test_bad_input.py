@@ -84,6 +84,7 @@ OPTION_CASES = [
     ("region-five-numbers", ["--region", "0 0 0 1 1"], r"--region\) must be 6 numbers .* got 5 numbers"),
     ("region-text", ["--region", "everywhere"], r"--region must be 6 numbers 'x0 y0 z0 x1 y1 z1'"),
     ("region-outside-the-scene", ["--region", "10 10 10 11 11 11"], r"--region\) .* lies outside the scene"),
+    ("region-far-larger-than-the-scene", ["--region", "0 0 0 1e30 1e30 1e30"], r"--region\) .* larger than the scene"),
     ("region-too-thin", ["--region", "-1 -1 0.5 1 1 0.52"], r"--region\) .* too small for the camera along z"),
     ("go-to-empty", ["--go-to", ""], r"go-to target is empty"),
     ("look-at-blank", ["--look-at", "   "], r"look-at target is empty"),
@@ -268,30 +269,30 @@ def test_signals_while_writing_leave_nothing_behind(tmp_path, sig, code, word):
 
 
 def test_workers_are_capped_and_said(tmp_path, capsys, monkeypatch):
-    import cinenerf_ns.cli.plan as plan
+    import cinenerf_ns.cli.plan_args as plan_args
     import cinenerf_ns.planner.shots.workers as workers
 
     monkeypatch.setattr(workers, "usable_cpus", lambda: 2)
-    args = plan.PlanArgs(scene="procedural", go_to="sofa", look_at="lamp", workers=256, candidates=4)
-    console = plan.Console(file=open(os.devnull, "w"), width=200, record=True)
-    assert plan._workers(args, console) == 2
+    args = plan_args.PlanArgs(scene="procedural", go_to="sofa", look_at="lamp", workers=256, candidates=4)
+    console = plan_args.Console(file=open(os.devnull, "w"), width=200, record=True)
+    assert plan_args.worker_count(args, console) == 2
     assert "--workers 256 capped to 2 (2 usable CPUs, 4 candidate(s))" in console.export_text()
     args.candidates = 1
-    assert plan._workers(args, console) == 1
+    assert plan_args.worker_count(args, console) == 1
     monkeypatch.setattr(workers, "default_workers", lambda: 16)  # the default: one per CPU, capped by candidates
     args.workers, args.candidates = None, 4
-    assert plan._workers(args, console) == 4
+    assert plan_args.worker_count(args, console) == 4
     args.candidates = 1
-    assert plan._workers(args, console) == 0
+    assert plan_args.worker_count(args, console) == 0
     args.candidates = 32
-    assert plan._workers(args, console) is None
+    assert plan_args.worker_count(args, console) is None
 
 
 @pytest.mark.parametrize("up,want", [((0, 1e300, 0), (0, 1, 0)), ((0, 0, 5e-320), (0, 0, 1)),
                                      ((1e308, 1e308, 0), (2 ** -0.5, 2 ** -0.5, 0)), ((0, 0, -2), (0, 0, -1))])
 def test_up_is_normalised_without_overflow(up, want):
     """--up 0 1e300 0 is +y (its norm once overflowed to inf and the camera rolled, exit 0)."""
-    from cinenerf_ns.cli.plan import unit_up
+    from cinenerf_ns.cli.plan_args import unit_up
 
     np.testing.assert_allclose(unit_up(up), want, atol=1e-12)
 
@@ -456,20 +457,20 @@ def test_free_text_without_loadable_clip_weights_gets_advice_for_this_command(cl
 
 def test_memory_budget_is_trusted_up_to_the_memory_available(monkeypatch):
     """An explicit budget over what the process may take is refused; the default is lowered to it, said."""
-    import cinenerf_ns.cli.plan as plan
+    import cinenerf_ns.cli.plan_args as plan_args
 
-    monkeypatch.setattr(plan, "available_memory_mb", lambda: 1000.0)
-    console = plan.Console(file=open(os.devnull, "w"), width=200, record=True)
-    args = plan.PlanArgs(scene="procedural", go_to="sofa", look_at="lamp")
-    assert plan._memory_budget(args, console) == 1000.0
+    monkeypatch.setattr(plan_args, "available_memory_mb", lambda: 1000.0)
+    console = plan_args.Console(file=open(os.devnull, "w"), width=200, record=True)
+    args = plan_args.PlanArgs(scene="procedural", go_to="sofa", look_at="lamp")
+    assert plan_args.memory_budget(args, console) == 1000.0
     assert "note: memory budget 1000 MB (the default 4096 MB is more than the memory available" in console.export_text()
     args.memory_budget_mb = 512.0
-    assert plan._memory_budget(args, console) == 512.0
+    assert plan_args.memory_budget(args, console) == 512.0
     args.memory_budget_mb = 2000.0
-    with pytest.raises(plan.InvalidInputError, match=r"--memory-budget-mb 2000 is more than .* give at most 1000"):
-        plan._memory_budget(args, console)
-    monkeypatch.setattr(plan, "available_memory_mb", lambda: None)  # unknown: the budget as given
-    assert plan._memory_budget(args, console) == 2000.0
+    with pytest.raises(plan_args.InvalidInputError, match=r"--memory-budget-mb 2000 is more than .* give at most 1000"):
+        plan_args.memory_budget(args, console)
+    monkeypatch.setattr(plan_args, "available_memory_mb", lambda: None)  # unknown: the budget as given
+    assert plan_args.memory_budget(args, console) == 2000.0
 
 
 # --------------------------------------------------------------------------------------------- issue 34: framing

@@ -177,7 +177,7 @@ def test_load_scene_passes_drop_support():
     from cinenerf_ns.scenes import DEMO_SCENE, load_scene
 
     for flag in (True, False):
-        sem = load_scene(str(DEMO_SCENE), SceneConfig(), smooth_neighbors=0, drop_support=flag).extra["semantic"]
+        sem = load_scene(str(DEMO_SCENE), SceneConfig(), smooth_neighbors=0, drop_support=flag).semantics.semantic
         assert sem.drop_support is flag
 
 
@@ -205,10 +205,10 @@ def test_load_scene_passes_centre_relevancy():
 
     for v in (0.0, 0.7):
         ld = load_scene(str(DEMO_SCENE), SceneConfig(), smooth_neighbors=0, centre_relevancy=v)
-        sem = ld.extra["semantic"]
+        sem = ld.semantics.semantic
         assert sem.centre_relevancy == v
         point, desc = ld.locate("armchair")
-        r = sem.locate_full(label_query("armchair", ld.extra["label_names"]))
+        r = sem.locate_full(label_query("armchair", ld.semantics.label_names))
         np.testing.assert_allclose(point, r.centroid.double().numpy())
         assert ("centre from the" in desc) == (int(r.core.sum()) < int(r.mask.sum()))
         assert (v == 0.0) == torch.equal(r.core, r.mask)
@@ -229,12 +229,12 @@ def test_load_scene_gives_the_bundled_scene_its_training_cameras():
     from cinenerf_ns.scenes import DEMO_SCENE, load_scene
 
     ld = load_scene(str(DEMO_SCENE), SceneConfig(), smooth_neighbors=0)
-    cams = ld.extra["semantic"].camera_centres
+    cams = ld.semantics.semantic.camera_centres
     assert cams is not None and cams.shape == (150, 3)
     np.testing.assert_allclose(ld.start_region[0], cams.min(0) - 0.1)
     np.testing.assert_allclose(ld.start_region[1], cams.max(0) + 0.1)
     off = load_scene(str(DEMO_SCENE), SceneConfig(), smooth_neighbors=0, unseen_fill=False)
-    assert off.extra["semantic"].camera_centres is None
+    assert off.semantics.semantic.camera_centres is None
     np.testing.assert_allclose(off.start_region[0], ld.start_region[0])  # the start region does not depend on it
 
 

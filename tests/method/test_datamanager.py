@@ -42,6 +42,7 @@ def test_fox_targets_metadata_and_cache(fox_dir, tmp_path, tiny_clip_models):
     assert batch["image"].shape[:2] == (H, W)
     assert tuple(batch["latent_target"].shape) == (*feature_map_size(H, W, 16), 3)
     assert batch["latent_target"].abs().max() <= 1.0
+    assert batch["latent_all_valid"] is True and bool(batch["latent_valid"].all())  # CLIP: every pixel (no mask work)
     meta = dm.train_dataset.metadata
     assert META_CODEC_STATE in meta and meta[META_INFO]["feature_dim"] == 32
     assert not dm.semantic_stats["cache_hit"]

@@ -44,6 +44,7 @@ def test_labels_source_with_distortion(tmp_path, tiny_clip_models, tiny_scene):
     t, v = batch["latent_target"], batch["latent_valid"][..., 0]
     assert tuple(t.shape[:2]) == feature_map_size(H, W, 20) == tuple(v.shape)
     assert not v[0].any() and v[-1].all()  # the unnamed top band is ignored
+    assert batch["latent_all_valid"] is False  # so the loss applies the mask
     info = dm.train_dataset.metadata["cinesplat_info"]
     assert info["label_names"] == ["left wall", "right wall"] and info["source"] == "labels"
     # left / right halves carry the two labels' codes

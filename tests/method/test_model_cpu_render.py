@@ -19,9 +19,33 @@ def fake_rasterization(means, quats, scales, opacities, colors, viewmats, Ks, wi
         colors = torch.cat([colors, z], -1)
     img, acc = render_reference(means, quats, scales, opacities, colors, vm, Ks[0], width, height)
     n = means.shape[0]
+    # the fields the "shared" latent pass reads (2D means / conics are stand-ins; opacities are the real ones, with
+    # their autograd graph, as gsplat's meta["opacities"] has); the 3D geometry rides along for fake_r2p
     info = {"means2d": torch.zeros(1, n, 2, requires_grad=True), "width": width, "height": height, "n_cameras": 1,
-            "radii": torch.ones(1, n, 2), "gaussian_ids": None}
+            "radii": torch.ones(1, n, 2), "gaussian_ids": None, "conics": means[None, :, :3] * 0 + 1,
+            "opacities": opacities[None], "tile_size": 16, "isect_offsets": torch.zeros(1, 1, 1, dtype=torch.int32),
+            "flatten_ids": torch.zeros(0, dtype=torch.int32),
+            "_geometry": (means.detach(), quats.detach(), scales.detach(), vm.detach(), Ks[0].detach())}
+    FAKE_STATE["info"] = info
     return img[None].float(), acc[None].float(), info
+
+
+FAKE_STATE: dict = {}
+
+
+def fake_rasterize_to_pixels(means2d, conics, colors, opacities, width, height, tile_size, isect_offsets, flatten_ids,
+                             backgrounds=None, masks=None, packed=False, absgrad=False):
+    """gsplat's rasterize_to_pixels on the last fake_rasterization call's geometry. The geometry it receives must be
+    DETACHED (the shared latent pass gives the latent loss no path to it): checked here."""
+    assert not packed and backgrounds is None
+    for name, t in (("means2d", means2d), ("conics", conics), ("opacities", opacities)):
+        assert not t.requires_grad, f"shared latent pass: {name} not detached"
+    info = FAKE_STATE["info"]
+    assert width == info["width"] and height == info["height"] and flatten_ids is info["flatten_ids"]
+    means, quats, scales, vm, K = info["_geometry"]
+    assert colors.shape == (1, means.shape[0], colors.shape[-1])
+    img, acc = render_reference(means, quats, scales, opacities[0], colors[0], vm, K, width, height)
+    return img[None].float(), acc[None].float()
 
 
 @pytest.fixture
@@ -32,6 +56,7 @@ def cpu_gsplat(monkeypatch):
     import cinenerf_ns.method.model as cm
 
     monkeypatch.setattr(sf, "rasterization", fake_rasterization)
+    monkeypatch.setattr(cm, "rasterize_to_pixels", fake_rasterize_to_pixels)
     monkeypatch.setattr(gsplat.rendering, "rasterization", fake_rasterization)
     plain = getattr(sf.get_viewmat, "_torchdynamo_orig_callable", sf.get_viewmat)  # skip torch.compile on CPU
     monkeypatch.setattr(sf, "get_viewmat", plain)
@@ -72,11 +97,11 @@ def _camera(w=16, h=12, f=30.0):
                    camera_type=CameraType.PERSPECTIVE)
 
 
-@pytest.mark.parametrize("resolution", ["feature", "image"])  # "image" is the default
-def test_training_latent_pass_with_detached_geometry(cpu_gsplat, resolution):
+@pytest.mark.parametrize("mode,resolution", [("shared", "image"), ("separate", "feature"), ("separate", "image")])
+def test_training_latent_pass_with_detached_geometry(cpu_gsplat, mode, resolution):  # shared + image: the default
     from cinenerf_ns.method.feature_grid import feature_map_size
 
-    m = _model(latent_render_resolution=resolution)
+    m = _model(latent_render_mode=mode, latent_render_resolution=resolution)
     m.train()
     m.step = 0
     out = m.get_outputs(_camera())
@@ -122,8 +147,69 @@ def test_latents_fit_a_target_by_gradient_descent(cpu_gsplat):
     assert float(loss) < 0.1 * first
 
 
-def test_image_resolution_and_fused_modes_agree(cpu_gsplat):
+def test_shared_and_separate_modes_give_the_same_image_and_latent_gradient(cpu_gsplat):
     m = _model(latent_render_resolution="image")
+    m.train()
+    m.step = 0
+    batch = {"image": torch.rand(12, 16, 3), "latent_target": torch.rand(6, 8, 3) * 2 - 1}
+    res = {}
+    for mode in ("shared", "separate"):
+        m.config.latent_render_mode = mode
+        out = m.get_outputs(_camera())
+        loss = m.get_loss_dict(out, batch)["latent_loss"]
+        res[mode] = (out["latent"], torch.autograd.grad(loss, [m.gauss_params["latents"]])[0])
+    assert res["shared"][0].shape == (6, 8, 3)
+    assert torch.allclose(res["shared"][0], res["separate"][0], atol=1e-6)
+    assert torch.allclose(res["shared"][1], res["separate"][1], atol=1e-7)
+    assert float(res["shared"][1].abs().sum()) > 0
+
+
+def test_training_step_reads_camera_sizes_once_per_camera(cpu_gsplat, monkeypatch):
+    # a training camera lives on the GPU, where .item() waits for all queued work: after a camera's first step the
+    # latent pass and its loss read no tensor value (the two reads left are splatfacto's own width / height)
+    m = _model()
+    m.train()
+    m.step = 0
+    cam = _camera()
+    cam.metadata = {"cam_idx": 3}
+    batch = {"image": torch.rand(12, 16, 3), "latent_target": torch.rand(6, 8, 3), "latent_all_valid": True,
+             "latent_valid": torch.ones(6, 8, 1, dtype=torch.bool)}
+    m.get_loss_dict(m.get_outputs(cam), batch)
+    assert m._train_camera_hw == {3: (12, 16)}
+    reads = []
+    orig_item = torch.Tensor.item
+    monkeypatch.setattr(torch.Tensor, "item", lambda t: reads.append(t.shape) or orig_item(t))
+    for mode in ("shared", "separate"):
+        reads.clear()
+        m.config.latent_render_mode = mode
+        cam = _camera()
+        cam.metadata = {"cam_idx": 3}
+        losses = m.get_loss_dict(m.get_outputs(cam), batch)
+        assert "latent_loss" in losses and len(reads) == 2, (mode, reads)
+
+
+def test_all_valid_flag_skips_the_mask_with_the_same_loss(cpu_gsplat):
+    m = _model()
+    m.train()
+    m.step = 0
+    out = m.get_outputs(_camera())
+    target = torch.rand(6, 8, 3)
+    ones = torch.ones(6, 8, 1, dtype=torch.bool)
+    masked = m.get_loss_dict(out, {"image": torch.rand(12, 16, 3), "latent_target": target, "latent_valid": ones})
+    flag = m.get_loss_dict(out, {"image": torch.rand(12, 16, 3), "latent_target": target, "latent_valid": ones,
+                                 "latent_all_valid": True})
+    assert torch.allclose(masked["latent_loss"], flag["latent_loss"])
+    # the flag off: the mask counts (half the pixels invalid -> the loss over the other half)
+    half = ones.clone()
+    half[:3] = False
+    part = m.get_loss_dict(out, {"image": torch.rand(12, 16, 3), "latent_target": target, "latent_valid": half,
+                                 "latent_all_valid": False})
+    err = ((out["latent"] - target) ** 2).sum(-1)[3:].mean() / 3
+    assert torch.allclose(part["latent_loss"], err)
+
+
+def test_image_resolution_and_fused_modes_agree(cpu_gsplat):
+    m = _model(latent_render_resolution="image", latent_render_mode="separate")
     m.train()
     m.step = 0
     sep = m.get_outputs(_camera())

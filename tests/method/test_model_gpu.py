@@ -144,3 +144,32 @@ def test_fused_and_separate_latent_images_agree():
     fused = m.get_outputs(_camera())
     assert torch.allclose(sep["latent"], fused["latent"], atol=1e-5)
     assert torch.allclose(sep["rgb"], fused["rgb"], atol=1e-5)
+
+
+def test_shared_latent_pass_equals_separate_pass_and_trains_only_latents():
+    # "shared" reuses the RGB pass's projection and tile lists: same image and latent gradient as a whole second
+    # pass ("separate"), and the latent loss still reaches no geometry; several tiles (64 x 48 px)
+    m = _model(n=400, sh_degree=0)
+    m.train()
+    m.step = 0
+    m.optimizers = {}
+    m.strategy_state = m.strategy.initialize_state(scene_scale=1.0)
+    m.config.num_downscales = 0
+    m.cine_info["feature_long_side"] = 32
+    target = torch.rand(24, 32, 3, device="cuda") * 2 - 1
+    batch = {"image": torch.rand(48, 64, 3, device="cuda"), "latent_target": target}
+    res = {}
+    for mode in ("separate", "shared"):
+        m.config.latent_render_mode = mode
+        out = m.get_outputs(_camera(64, 48, f=40.0))
+        loss = m.get_loss_dict(out, batch)["latent_loss"]
+        names = ("latents", "means", "scales", "quats", "opacities")
+        grads = torch.autograd.grad(loss, [m.gauss_params[k] for k in names], allow_unused=True)
+        res[mode] = (out["latent"], dict(zip(names, grads)))
+    assert res["shared"][0].shape == (48, 64, 3)
+    assert torch.allclose(res["shared"][0], res["separate"][0], atol=1e-5)
+    g_sh, g_sep = res["shared"][1]["latents"], res["separate"][1]["latents"]
+    assert float(g_sh.abs().sum()) > 0 and torch.allclose(g_sh, g_sep, atol=1e-6, rtol=1e-4)
+    for name in ("means", "scales", "quats", "opacities"):
+        g = res["shared"][1][name]
+        assert g is None or float(g.abs().sum()) == 0.0, name

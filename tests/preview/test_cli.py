@@ -208,9 +208,11 @@ def test_options_checked_before_the_scene_is_loaded(inputs, tmp_path, capsys, mo
     import re
 
     import cinenerf_ns.method.checkpoint as ck
+    import cinenerf_ns.scenes as scenes
 
     scene, cam = inputs
     monkeypatch.setattr(ck, "load_splat", lambda *a, **k: pytest.fail("the scene was loaded first"))
+    monkeypatch.setattr(scenes, "load_scene", lambda *a, **k: pytest.fail("the scene was loaded first"))
     (tmp_path / "file").write_text("keep")
     long = json.loads(cam.read_text())
     long["seconds"] = 120.0

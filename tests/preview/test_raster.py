@@ -12,7 +12,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 
 from cinenerf_ns.method.render_reference import render_reference
 from cinenerf_ns.preview import native
-from cinenerf_ns.preview.raster_torch import make_scene, project, render_torch
+from cinenerf_ns.preview.raster_torch import make_scene, project, raster_reference
 
 sys.path.insert(0, str(Path(__file__).parent))
 from _scenes import intrinsics, random_gaussians, random_viewmat  # noqa: E402
@@ -38,7 +38,7 @@ def test_native_is_the_torch_path_float64(seed, n, W, H, spread, threads):
     m, q, s, o, c = random_gaussians(seed, n, spread=spread)
     scene = make_scene(m, q, s, o, c, dtype=torch.float64)
     V, intr = random_viewmat(seed), intrinsics(W, H, 40 + seed % 60)
-    rt, at = render_torch(scene, torch.from_numpy(V), intr, W, H)
+    rt, at = raster_reference(scene, torch.from_numpy(V), intr, W, H)
     rn, an, stats = _native(scene, V, intr, W, H, threads)
     assert rn.shape == (H, W, 3) and an.shape == (H, W, 1)
     assert torch.allclose(rn, rt, atol=1e-10, rtol=0) and torch.allclose(an, at, atol=1e-10, rtol=0)
@@ -53,7 +53,7 @@ def test_native_is_the_torch_path_float32(seed):
     scene = make_scene(m, q, s, o, c, dtype=torch.float32)
     W, H = 96, 54
     V, intr = random_viewmat(seed, jitter=0.1).astype(np.float32), intrinsics(W, H)
-    rt, at = render_torch(scene, torch.from_numpy(V), intr, W, H)
+    rt, at = raster_reference(scene, torch.from_numpy(V), intr, W, H)
     rn, an, _ = _native(scene, V, intr, W, H)
     assert rn.dtype == torch.float32
     assert (rn - rt).abs().max() < 1e-4 and (an - at).abs().max() < 1e-4
@@ -80,7 +80,7 @@ def test_single_tile_equals_reference(seed, n, W, H, scale_hi):
     m, q, s, o, c = (t[inside] for t in (m, q, s, o, c))
     ref_rgb, ref_a = _reference(m, q, s, o, c, V, intr, W, H)
     scene = make_scene(m, q, s, o, c, dtype=torch.float64)
-    rt, at = render_torch(scene, torch.from_numpy(V), intr, W, H)
+    rt, at = raster_reference(scene, torch.from_numpy(V), intr, W, H)
     assert torch.allclose(rt, ref_rgb, atol=1e-9, rtol=0) and torch.allclose(at, ref_a, atol=1e-9, rtol=0)
     if native.render_fn("float64") is not None:
         rn, an, _ = _native(scene, V, intr, W, H)
@@ -96,7 +96,7 @@ def test_multi_tile_equals_reference(seed):
     V, intr = random_viewmat(seed, jitter=0.1), intrinsics(W, H)
     ref_rgb, ref_a = _reference(m, q, s, o, c, V, intr, W, H)
     scene = make_scene(m, q, s, o, c, dtype=torch.float64)
-    rt, at = render_torch(scene, torch.from_numpy(V), intr, W, H)
+    rt, at = raster_reference(scene, torch.from_numpy(V), intr, W, H)
     assert torch.allclose(rt, ref_rgb, atol=1e-9, rtol=0) and torch.allclose(at, ref_a, atol=1e-9, rtol=0)
     assert ref_a.mean() > 0.1
 
@@ -110,7 +110,7 @@ def test_culling_and_empty():
     aside = make_scene(m + torch.tensor([50.0, 0, 0], dtype=torch.float64), q, s, o, c, dtype=torch.float64)
     empty = make_scene(m[:0], q[:0], s[:0], o[:0], c[:0], dtype=torch.float64)
     for scene in (behind, aside, empty):
-        rgb, a = render_torch(scene, torch.eye(4, dtype=torch.float64), intr, W, H)
+        rgb, a = raster_reference(scene, torch.eye(4, dtype=torch.float64), intr, W, H)
         assert rgb.abs().max() == 0 and a.abs().max() == 0
         if native.render_fn("float64") is not None:
             rn, an, stats = _native(scene, np.eye(4), intr, W, H)
@@ -134,6 +134,6 @@ def test_opaque_wall_stops_the_ray():
     scene = make_scene(m, q, s, o, c, dtype=torch.float64)
     W, H = 24, 24
     intr = intrinsics(W, H, 30)
-    for rgb, a in [render_torch(scene, torch.eye(4, dtype=torch.float64), intr, W, H)] + (
+    for rgb, a in [raster_reference(scene, torch.eye(4, dtype=torch.float64), intr, W, H)] + (
             [_native(scene, np.eye(4), intr, W, H)[:2]] if native.render_fn("float64") is not None else []):
         assert a.min() > 0.99 and rgb[..., 0].max() < 2e-3 and rgb[..., 1].min() > 0.98  # T stops near 1e-3

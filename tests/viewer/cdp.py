@@ -80,8 +80,9 @@ class Chromium:
             except TimeoutError:
                 break
 
-    def js(self, expression: str) -> Any:
-        r = self.call("Runtime.evaluate", expression=expression, returnByValue=True, awaitPromise=True)
+    def js(self, expression: str, timeout: float = 30.0) -> Any:
+        r = self.call("Runtime.evaluate", timeout=timeout, expression=expression, returnByValue=True,
+                      awaitPromise=True)
         if "exceptionDetails" in r:
             raise RuntimeError(f"JS error: {r['exceptionDetails']}")
         return r["result"].get("value")
@@ -89,7 +90,9 @@ class Chromium:
     def wait_js(self, expression: str, timeout: float = 30.0, every: float = 0.1) -> Any:
         end = time.monotonic() + timeout
         while time.monotonic() < end:
-            v = self.js(expression)
+            # the page's main thread may be busy for longer than one call's default (decoding a 400k-Gaussian splat
+            # on a loaded 2-core box took over 30 s): each evaluation may use the whole time left
+            v = self.js(expression, timeout=max(end - time.monotonic(), 1.0))
             if v:
                 return v
             time.sleep(every)

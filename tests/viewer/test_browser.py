@@ -339,7 +339,7 @@ def test_the_bundled_room_opens_at_a_training_camera_without_console_errors(tmp_
         assert cams is not None and len(cams.centres) == 150
         np.testing.assert_allclose(viewer.panels.home.position, cams.centres[cams.typical()])
         b = Chromium(viewer.url)
-        b.wait_js("document.body && document.body.innerText.includes('Export camera path')", 60)
+        b.wait_js("document.body && document.body.innerText.includes('Export camera path')", 150)
         assert wait(lambda: len(viewer.server.get_clients()) == 1, 30), "the browser did not connect"
         client = next(iter(viewer.server.get_clients().values()))
         s = viewer.cfg.scale

@@ -315,7 +315,7 @@ def test_model_semantic_scene_answers_text_as_cinesplat_plan_and_the_standalone_
     from cinenerf_ns.viewer.nerfstudio_panel import ModelSnapshot, model_semantic_scene
 
     path = compact_scene_with_labels(tmp_path / "scene_compact.pt", 4)
-    cli = load_scene(str(path), SceneConfig()).extra["semantic"]
+    cli = load_scene(str(path), SceneConfig()).semantics.semantic
     st = load_compact(path)
     names = st.info["label_names"]
     model = SimpleNamespace(codec=st.codec, text_encoder=lambda: cli.text_encoder, cine_info={"label_names": names})

@@ -20,7 +20,7 @@ from viewer_fakes import camera_looking as camera_c2w
 
 from cinenerf_ns.method.training_cameras import camera_poses
 from cinenerf_ns.viewer.demo import demo_scene
-from cinenerf_ns.viewer.standalone import StandaloneConfig, StandaloneViewer, load_scene
+from cinenerf_ns.viewer.standalone import StandaloneConfig, StandaloneViewer, open_scene
 from cinenerf_ns.viewer.views import TrainingCameras, opening_view
 
 REPO = Path(__file__).resolve().parents[2]
@@ -186,7 +186,7 @@ def test_the_fox_capture_opens_at_a_training_camera(fox_dir, fox_splat, tmp_path
     spec.loader.exec_module(acc)
     acc.main(["--scene", str(copy), "--transforms", str(fox_dir / "transforms.json"),
               "--dataparser-transforms", str(tmp_path / "run" / "dataparser_transforms.json")])
-    loaded = load_scene(str(copy))  # the viewer's loader
+    loaded = open_scene(str(copy))  # as the viewer opens it
     cams = loaded.cameras
     np.testing.assert_allclose(cams.c2w, poses)
     home = opening_view(loaded.splat.means, loaded.start_region, cams)

@@ -16,10 +16,11 @@ import torch
 import yaml
 from viewer_fakes import wait_for
 
+from cinenerf_ns.method.scene_files import CheckpointError
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.scene.splat_params import SH_C0, SplatParams
 from cinenerf_ns.viewer.demo import demo_scene
-from cinenerf_ns.viewer.standalone import StandaloneConfig, StandaloneViewer, display_gaussians, load_scene
+from cinenerf_ns.viewer.standalone import StandaloneConfig, StandaloneViewer, display_gaussians, open_scene
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -48,7 +49,7 @@ def write_3dgs_ply(path: Path, d) -> None:
 def test_load_ply_round_trip(tmp_path):
     d = demo_scene().splat
     write_3dgs_ply(tmp_path / "scene.ply", d)
-    sc = load_scene(str(tmp_path / "scene.ply"))
+    sc = open_scene(str(tmp_path / "scene.ply"))
     np.testing.assert_allclose(sc.splat.means, d.means, atol=1e-6)
     np.testing.assert_allclose(sc.splat.rgb(), d.rgb(), atol=1e-5)
     np.testing.assert_allclose(sc.splat.log_scales, d.log_scales, atol=1e-6)
@@ -71,22 +72,22 @@ def test_load_config_and_checkpoint(tmp_path):
         features_dc=(d.rgb() - 0.5) / SH_C0).items()}
     torch.save({"pipeline": {k: v * 0 for k, v in sd.items()}}, run / "nerfstudio_models" / "step-000000099.ckpt")
     torch.save({"pipeline": sd}, run / "nerfstudio_models" / "step-000000999.ckpt")  # newest wins
-    sc = load_scene(str(run / "config.yml"))
+    sc = open_scene(str(run / "config.yml"))
     np.testing.assert_allclose(sc.splat.means, d.means)
     assert sc.data_dir == data and sc.config_path == (run / "config.yml").absolute() and sc.name == "myscene"
 
 
 def test_bad_sources(tmp_path):
-    with pytest.raises(InvalidInputError, match="no such file"):
-        load_scene(str(tmp_path / "nope.ply"))
+    with pytest.raises(InvalidInputError, match="scene not found"):  # scenes.load_scene's messages
+        open_scene(str(tmp_path / "nope.ply"))
     (tmp_path / "x.txt").write_text("hi")
-    with pytest.raises(InvalidInputError, match="expected a config.yml"):
-        load_scene(str(tmp_path / "x.txt"))
+    with pytest.raises(CheckpointError, match=r"suffix '\.txt'.*config.yml"):
+        open_scene(str(tmp_path / "x.txt"))
     from cinenerf_ns.planner.scene.ply import write_ply_vertices
 
     write_ply_vertices(tmp_path / "pts.ply", np.zeros(3, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")]))
     with pytest.raises(InvalidInputError, match="not a Gaussian splat .ply"):
-        load_scene(str(tmp_path / "pts.ply"))
+        open_scene(str(tmp_path / "pts.ply"))
 
 
 def room_splat():
@@ -194,8 +195,8 @@ def test_standalone_compact_scene_answers_text_by_relevancy(tmp_path):
         assert warm.locate_full("armchair") is warm.locate_full("armchair")
         assert len(warm._cache) >= 1
         sem = cli_load(str(path), SceneConfig())
-        assert sem.extra["semantic"]._smoothed is None and not sem.extra["semantic"]._cache  # the CLI stays lazy
-        c_ref, m_ref = sem.extra["semantic"].locate("armchair")
+        assert sem.semantics.semantic._smoothed is None and not sem.semantics.semantic._cache  # the CLI stays lazy
+        c_ref, m_ref = sem.semantics.semantic.locate("armchair")
         c, m, what = v.backend.locate("the armchair")  # word -> label name, as cinesplat-plan maps it
         assert what.startswith("the label 'armchair', best relevancy ")  # what the query matched, in words
         np.testing.assert_allclose(c, c_ref.numpy(), atol=1e-6)

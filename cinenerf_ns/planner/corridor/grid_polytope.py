@@ -13,7 +13,7 @@ obstacles are the few surface voxels in the segment's box instead of the thousan
 The price: the grid is conservative (a voxel is occupied when its centre's ball of radius r + half a
 diagonal touches an ellipsoid), so these polytopes keep up to about one voxel more distance from the scene
 than Prop-2 ones. Segments that are not in free voxels (the last one, ending at a goal right next to an
-object; a shortcut squeezing through a gap) keep the exact Prop-2 polytopes (corridor.py).
+object; a shortcut squeezing through a gap) keep the exact Prop-2 polytopes (polytope.py).
 
 Construction (greedy, nearest first, as Prop. 2's): in voxel units voxel v is the cube [v, v + 1]. Each time,
 the alive surface cube nearest to S is taken, with the exact closest points q (on S) and p (on the cube)

@@ -50,6 +50,7 @@ from torch import Tensor
 
 from ..errors import InvalidInputError, PlanningError
 from ..tensor_pickle import NumpyPickled
+from .polytope_candidates import candidates_near, f64_numpy
 from .polytope_native import native_applies, native_arrays, native_safe_polytope
 from .polytope_planes import cut_by, plane_candidates, segment_frame_np, support_gap
 
@@ -203,64 +204,6 @@ def chebyshev_center(A: ArrayLike, b: ArrayLike) -> tuple[np.ndarray, float]:
     return res.x[:d], float(res.x[-1])
 
 
-# ---------------------------------------------------------------------------------------- candidates
-def candidate_ids(scene, index, box_lo: Tensor, box_hi: Tensor) -> Tensor:
-    """Ids [K] of ellipsoids whose camera-inflated body may meet the box (a superset: bounding-sphere
-    test after the index's coarse AABB query). index: anything with query_box(lo[3], hi[3]) ->
-    LongTensor, or None (then all ellipsoids are scanned)."""
-    return _candidates(scene, index, box_lo, box_hi)[0]
-
-
-def _candidates(scene, index, box_lo, box_hi, box_rot=None, planes=None, ids=None):
-    """(ids [K] on the scene device, means [K, 3] float64 numpy, bounding radii [K] float64 numpy).
-    box_rot [3, 3] (columns = box axes): the box is {x : lo <= box_rot^T x <= hi}.
-    planes: optional (A [F, 3], b [F]) float64 numpy; then only ellipsoids whose inflated body may
-    meet box ∩ {A x <= b} need to be returned (index cells beyond a plane are skipped; needs an index
-    with ``query_box_in_planes`` and ``pad``, else ignored). ids: a precomputed id subset [K] to filter."""
-    r = float(scene.camera_radius)
-    dev = scene.means.device
-    m = scene.means
-    lo = torch.as_tensor(box_lo, device=dev).to(m.dtype)
-    hi = torch.as_tensor(box_hi, device=dev).to(m.dtype)
-    rot = None if box_rot is None else torch.as_tensor(box_rot, device=dev).to(m.dtype)
-    if index is not None or ids is not None:
-        if ids is None:
-            if rot is None:
-                qlo, qhi = lo, hi
-            else:  # world AABB of the oriented box: centre +- |R| half-extents
-                c = rot @ (0.5 * (lo + hi))
-                h = rot.abs() @ (0.5 * (hi - lo))
-                qlo, qhi = c - h, c + h
-            if planes is not None and hasattr(index, "query_box_in_planes") and hasattr(index, "pad"):
-                # padded AABB (pad p) grown by e = max(r - p, 0) contains the inflated body, so query
-                # the region grown by e: box +- e and planes shifted by e |A_f|_1 (cube of half-width e)
-                e = max(r - float(index.pad), 0.0) * (1 + 1e-9)
-                A_p, b_p = planes
-                ids = index.query_box_in_planes(qlo - e, qhi + e, torch.as_tensor(A_p, device=dev),
-                                                torch.as_tensor(b_p + e * np.abs(A_p).sum(-1), device=dev))
-            else:
-                ids = index.query_box(qlo - r, qhi + r)
-        ids = torch.as_tensor(ids, device=dev).long()
-        if ids.numel() == 0:
-            return ids, np.zeros((0, 3)), np.zeros(0)
-        m = m[ids]
-        amax = scene.radii[ids].max(-1).values
-    else:
-        ids = None
-        amax = scene.radii.max(-1).values
-    mb = m if rot is None else m @ rot  # means in box coordinates
-    # distance from the mean to the box <= bounding-sphere radius + r (+ rounding slack)
-    gap = (mb - torch.minimum(torch.maximum(mb, lo), hi)).norm(dim=-1)
-    near = gap <= amax + r + 1e-6 * (1 + m.abs().max(-1).values)
-    sel = torch.nonzero(near).squeeze(-1)
-    out = ids[sel] if ids is not None else sel
-    return out, _np(m[sel]), _np(amax[sel])
-
-
-def _np(x: Tensor) -> np.ndarray:
-    return x.detach().cpu().to(torch.float64).numpy()
-
-
 # ---------------------------------------------------------------------------------------- input checks, the box
 @dataclass
 class _Box:
@@ -287,7 +230,7 @@ class _Box:
 
 def _f64(x: ArrayLike) -> np.ndarray:
     """x (tensor on any device, array or sequence) as a float64 numpy array."""
-    return _np(x) if isinstance(x, Tensor) else np.asarray(x, dtype=np.float64)
+    return f64_numpy(x) if isinstance(x, Tensor) else np.asarray(x, dtype=np.float64)
 
 
 def _checked_seeds(seed_points: ArrayLike, dev) -> Tensor:
@@ -348,11 +291,11 @@ def prepare_native(scene, index) -> bool:
 def _native_polytope(fn, scene, index, seeds_t: Tensor, box: _Box, opts: PolytopeOptions) -> Polytope:
     """safe_polytope through native/polytope.c (one or two seeds [S, 3])."""
     dev = scene.means.device
-    seeds, r = _np(seeds_t), float(scene.camera_radius)
+    seeds, r = f64_numpy(seeds_t), float(scene.camera_radius)
     lo, hi = -box.b[3:], box.b[:3]  # b = (hi, -lo): the box in float64 numpy
     shrink = -1.0 if opts.stop_when_empty is None else float(opts.stop_when_empty)
     n, b, ids, bad_ids, bad_slack, stopped = native_safe_polytope(
-        fn, scene, index, seeds, lo, hi, None if box.rot is None else _np(box.rot), r, opts.margin,
+        fn, scene, index, seeds, lo, hi, None if box.rot is None else f64_numpy(box.rot), r, opts.margin,
         opts.normal, opts.require_seed_inside, opts.near_fraction if opts.two_pass else 0.0, shrink)
     if bad_slack.size:
         raise _seed_not_free(seeds, r, torch.as_tensor(bad_ids, device=dev), bad_slack)
@@ -417,8 +360,8 @@ class _PlaneSet:
             return
         prune, r = self.opts.prune, self.r
         key = _distance_key(self.seeds, mu_all, amax)
-        rot_all = _np(self.scene.rotations[ids])  # [K, 3, 3] one gather, not one per chunk
-        axes_all = _np(self.scene.radii[ids])  # [K, 3]
+        rot_all = f64_numpy(self.scene.rotations[ids])  # [K, 3, 3] one gather, not one per chunk
+        axes_all = f64_numpy(self.scene.radii[ids])  # [K, 3]
         queue = np.arange(K)  # undecided candidates, unordered: only each chunk is sorted
         if prune and self.n:
             # already cut off by a kept plane (exact support test): decided, needs no plane of its own
@@ -518,18 +461,18 @@ def _add_two_pass(planes: _PlaneSet, scene, index, box: _Box, seeds_t: Tensor) -
     if rho is not None:
         probe = _PlaneSet(planes.seeds, scene, planes.opts)
         near0 = _near_box(planes.seeds, seeds_t, box, planes.opts.near_fraction * EMPTY_PROBE_FRACTION)
-        probe.add(*_candidates(scene, index, box.lo, box.hi, box.rot, planes=near0))
+        probe.add(*candidates_near(scene, index, box.lo, box.hi, box.rot, planes=near0))
         if _proven_empty(probe, box, rho):
             planes.n, planes.b, planes.ids, planes.stopped = probe.n, probe.b, probe.ids, True
             return
     near = _near_box(planes.seeds, seeds_t, box, planes.opts.near_fraction)
-    ids0, mu0, am0 = _candidates(scene, index, box.lo, box.hi, box.rot, planes=near)
+    ids0, mu0, am0 = candidates_near(scene, index, box.lo, box.hi, box.rot, planes=near)
     planes.add(ids0, mu0, am0)
     kept = (np.vstack([box.A] + planes.n), np.concatenate([box.b] + planes.b))
     if rho is not None and _proven_empty(planes, box, rho):
         planes.stopped = True  # no ball of radius rho fits already: more planes keep it so
         return
-    ids1, mu1, am1 = _candidates(scene, index, box.lo, box.hi, box.rot, planes=kept)
+    ids1, mu1, am1 = candidates_near(scene, index, box.lo, box.hi, box.rot, planes=kept)
     if ids0.numel() and ids1.numel():
         new1 = ~torch.isin(ids1, ids0)
         new1_np = new1.cpu().numpy()
@@ -607,10 +550,10 @@ def safe_polytope(
                 needs="a CPU scene, a GridIndex on the CPU, prune and one or two seeds")
     if fn is not None:
         return _native_polytope(fn, scene, index, seeds_t, box, opts)
-    planes = _PlaneSet(_np(seeds_t), scene, opts)
+    planes = _PlaneSet(f64_numpy(seeds_t), scene, opts)
     if index is not None and opts.prune and opts.two_pass and hasattr(index, "query_box_in_planes"):
         _add_two_pass(planes, scene, index, box, seeds_t)
     else:
-        planes.add(*_candidates(scene, index, box.lo, box.hi, box.rot))
+        planes.add(*candidates_near(scene, index, box.lo, box.hi, box.rot))
     planes.check_seeds()
     return planes.polytope(box, seeds_t)

@@ -1,4 +1,4 @@
-"""Safe polytopes for all segments of a path in one batched computation (paper Prop. 2, issue 3).
+"""Safe polytopes for all segments of a path in one batched computation (paper Prop. 2).
 
 ``safe_polytope`` (polytope.py) builds one polytope at a time on the host, a few hundred small numpy
 calls each. Here the polytopes of M seed segments are built together with torch (CPU or CUDA tensors,

@@ -4,7 +4,7 @@ offsets n.mu - ||diag(a) R^T n|| - r - margin, and the exact support test that d
 lies entirely beyond a plane.
 
 The kernels run in float64 numpy on the host: they are applied to small chunks (tens of ellipsoids) inside a
-sequential loop, where numpy's per-call cost (~1 us) beats torch's. polytope_batched.py ports them to torch.
+sequential loop, where numpy's per-call cost beats torch's. polytope_batched.py ports them to torch.
 """
 from __future__ import annotations
 

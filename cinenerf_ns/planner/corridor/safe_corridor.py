@@ -1,4 +1,4 @@
-"""Safe flight corridor: one safe polytope per segment of a (shortcut) polyline (issue 3, item 5).
+"""Safe flight corridor: one safe polytope per segment of a (shortcut) polyline.
 
 Polytope m is seeded by the whole segment [w_m, w_{m+1}] (both endpoints, hence the segment, inside),
 in a local box = segment bounding box grown by ``box_margin``. Consecutive polytopes share the
@@ -27,8 +27,9 @@ ending next to the go-to object) need Prop-2 polytopes from either backend.
 (exact midpoints on the segment, so the polyline keeps its shape) until each piece is in free voxels or no longer
 than ``split_long``; consecutive free pieces are merged back into one grid polytope. A Prop-2 polytope's box is the
 segment's bounding box plus the margin, so the ellipsoids it must decide grow with the segment's length: a long
-shortcut segment that grazes one occupied voxel cost a single 1.5-long Prop-2 polytope of 327k candidate ellipsoids
-(16 ms at 1M Gaussians); split, it is a few grid polytopes and one or two short Prop-2 ones (4 ms). Each piece's
+shortcut segment that grazes one occupied voxel cost a single long Prop-2 polytope of hundreds of thousands of
+candidate ellipsoids; split, it is a few grid polytopes and one or two short Prop-2 ones (docs/PLANNER_DEFAULTS.md,
+SPLIT_LONG_MARGINS). Each piece's
 polytope holds the piece, so the guarantee is the same; the corridor only has more, smaller polytopes there.
 """
 from __future__ import annotations

@@ -110,14 +110,6 @@ def point_ellipsoid_distance(
     return _distance_local(w, radii.double()[None].expand_as(w))
 
 
-def pair_distance(points: Tensor, scene: EllipsoidScene, pi: Tensor, gi: Tensor) -> Tensor:
-    """Signed distance [K] for pairs (points[pi[k]], ellipsoid gi[k]) (float64)."""
-    rot = scene.rotations.index_select(0, gi).double()
-    mu = scene.means.index_select(0, gi).double()
-    w = ((points.double().index_select(0, pi) - mu)[:, :, None] * rot).sum(-2)
-    return _distance_local(w, scene.radii.index_select(0, gi))
-
-
 FIRST_BOX_FRACTION = 0.25
 """First search box of clearance(), as a fraction of the index's finest cell: a box of a whole cell gathers
 thousands of point-ellipsoid pairs per point in dense scenes; a quarter cell finds a near surface with
@@ -311,12 +303,6 @@ def _bounds(w: Tensor, rad: Tensor, dist_c: Tensor) -> Tuple[Tensor, Tensor]:
     ub_flat = (w - x).norm(dim=-1)
     ub = torch.where(m > 1, torch.minimum(ub_radial, ub_flat), dist_c - rad.min(-1).values)
     return lb, ub
-
-
-def _upper_bounds(pts: Tensor, scene: EllipsoidScene, pi: Tensor, gi: Tensor) -> Tensor:
-    if pi.numel() == 0:
-        return torch.zeros(0, dtype=torch.float64, device=pts.device)
-    return _bounds(*_pair_geometry(pts, scene, pi, gi))[1]
 
 
 def _min_over_pairs(

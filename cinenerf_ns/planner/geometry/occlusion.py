@@ -17,7 +17,7 @@ surface Gaussians surround it). Two ways, combinable:
   * ``stop_distance``: the sight line stops this far before the target (t_end = 1 - stop / |q - p|),
     i.e. it ends where it enters the target's bounding sphere. Default choice in scoring: the object's
     bounding-sphere radius, because it needs no segmentation and works for any look-at point.
-Ellipsoids here are the planner's obstacle ellipsoids (beta * opacity scaled, see scene.py): the same
+Ellipsoids here are the planner's obstacle ellipsoids (beta * opacity scaled, see scene/ellipsoids.py): the same
 notion of "solid" as for collisions. Counting is exact (not conservative in either direction): the
 broad phase only ever adds candidates, the narrow phase is the exact closed form.
 

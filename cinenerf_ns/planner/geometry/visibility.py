@@ -241,7 +241,7 @@ def _clip_to_box(vol: SplatVolume, p0: np.ndarray, p1: np.ndarray) -> Optional[t
     return p0 + t0 * d, p0 + t1 * d
 
 
-def optical_depth_python(vol: SplatVolume, p0, p1, classes=None, skip=None,
+def optical_depth_walk_reference(vol: SplatVolume, p0, p1, classes=None, skip=None,
                          cut_sigma: float = CUT_SIGMA) -> np.ndarray:
     """optical_depth without the compiled walk: the cells of each segment's pieces, their Gaussians once each."""
     n = len(vol)
@@ -276,7 +276,7 @@ def optical_depth(vol: SplatVolume, p0, p1, classes=None, skip=None, backend: st
                   packed_classes: Optional[np.ndarray] = None) -> np.ndarray:
     """tau [L, 2]: optical depth of each segment p0[l] -> p1[l] ([L, 3] each) through the volume's Gaussians of class 0
     and of class 1 (``classes`` [N] 0/1, default all 0); ``skip`` [L]: a Gaussian each segment ignores (-1: none).
-    backend: "auto" (compiled walk when it loads), "native" or "python" (optical_depth_python: always whole sums).
+    backend: "auto" (the compiled walk when it loads), "native", "python" (optical_depth_walk_reference: whole sums).
     stop1: the compiled walk of a segment may stop once its class-1 depth exceeds this (both sums are then partial;
     its light is below exp(-stop1) anyway): a segment from a subject's sample toward a camera stops inside the subject
     when the subject hides that sample itself. stop0 / after1 [L]: it may also stop once its class-0 depth exceeds
@@ -291,7 +291,7 @@ def optical_depth(vol: SplatVolume, p0, p1, classes=None, skip=None, backend: st
     if fn is None:
         if classes is None and packed_classes is not None:
             classes = np.asarray(packed_classes)[vol.rank]
-        return optical_depth_python(vol, p0, p1, classes, skip, cut_sigma)
+        return optical_depth_walk_reference(vol, p0, p1, classes, skip, cut_sigma)
     n = len(vol)
     p0, p1, skip = _checked_segments(p0, p1, skip, n)
     if len(p0) >= 2**31 - 1:

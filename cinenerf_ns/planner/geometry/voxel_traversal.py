@@ -92,7 +92,8 @@ def segments_in_free_voxels(occupied: np.ndarray, lo: np.ndarray, voxel_size: fl
     """bool [P]: every point of segment p0[i] -> p1[i] (world, [P, 3]) lies in a free voxel of ``occupied``
     ([X, Y, Z] bool, voxel (i, j, k) spans lo + voxel_size * [i, i + 1] x ...); outside the grid counts as
     occupied. True proves the segment safe for the camera (module docstring); False proves nothing.
-    backend: "auto" (native/gridpoly.c's cn_segments_free, the same probes, when it loads), "native" or "python"."""
+    backend: "auto" (native/gridpoly.c's cn_segments_free, the same probes, when it loads), "native" or "python"
+    (segments_in_free_voxels_reference)."""
     a = np.asarray(p0, dtype=np.float64).reshape(-1, 3)
     b = np.asarray(p1, dtype=np.float64).reshape(-1, 3)
     lo = np.asarray(lo, dtype=np.float64).reshape(3)
@@ -105,6 +106,13 @@ def segments_in_free_voxels(occupied: np.ndarray, lo: np.ndarray, voxel_size: fl
     if fn is not None:
         occ = np.ascontiguousarray(occupied, dtype=bool)
         return segments_free_native(fn, occ, np.asarray(occ.shape, dtype=np.int64), lo, voxel_size, a, b)
+    return segments_in_free_voxels_reference(occupied, lo, voxel_size, a, b)
+
+
+def segments_in_free_voxels_reference(occupied: np.ndarray, lo: np.ndarray, voxel_size: float, a: np.ndarray,
+                                      b: np.ndarray) -> np.ndarray:
+    """segments_in_free_voxels in numpy for segments a [P, 3] -> b [P, 3] (P >= 1): the reference of
+    native/gridpoly.c's cn_segments_free (the same probes)."""
     owner, vox = segment_voxels((a - lo) / voxel_size, (b - lo) / voxel_size)
     shape = np.asarray(occupied.shape)
     inside = ((vox >= 0) & (vox < shape)).all(1)

@@ -10,7 +10,7 @@
    every cell the segment passes (Amanatides-Woo), so it finds every Gaussian a brute-force loop finds: the point of
    the segment closest to a Gaussian lies in its cut-off box, hence in a visited cell that lists it.
 
-   The same float64 arithmetic as visibility.py's optical_depth_python, term by term. */
+   The same float64 arithmetic as visibility.py's optical_depth_walk_reference, term by term. */
 #if defined(__clang__)
 #pragma clang fp contract(off)
 #elif defined(__GNUC__)

@@ -1,4 +1,4 @@
-"""Floaters on purpose (issue 37): small, faint, isolated Gaussians (a capture's noise in the air) may be treated as
+"""Floaters on purpose: small, faint, isolated Gaussians (a capture's noise in the air) may be treated as
 non-obstacles. The rule, stated:
 
     a Gaussian is a floater when it is

@@ -167,6 +167,10 @@ def user_box(bounds, what: str = "the planning region (--region)") -> tuple[np.n
     return lo, hi
 
 
+MAX_USER_BOX_FACTOR = 10.0
+"""A user box's longest side may be at most this many times the scene's (its Gaussian means' box)."""
+
+
 def check_user_box(scene: "EllipsoidScene", lo: np.ndarray, hi: np.ndarray, what: str) -> None:
     """InvalidInputError when a user box misses the scene (no Gaussian mean in it or next to it) or is too thin
     for the camera (a side under 4 camera radii: no room to move)."""
@@ -184,6 +188,13 @@ def check_user_box(scene: "EllipsoidScene", lo: np.ndarray, hi: np.ndarray, what
         raise InvalidInputError(
             f"{what} {format_point(lo)}..{format_point(hi)} lies outside the scene, whose Gaussians span "
             f"{format_point(slo)}..{format_point(shi)} (scene units)")
+    span = float(np.max(shi - slo))
+    if float(np.max(hi - lo)) > MAX_USER_BOX_FACTOR * max(span, 4 * r):
+        # the grid's voxels would be that much coarser than over the scene: nothing small would be free or seen
+        raise InvalidInputError(
+            f"{what} {format_point(lo)}..{format_point(hi)} is more than {MAX_USER_BOX_FACTOR:g} x larger than the "
+            f"scene, whose Gaussians span {format_point(slo)}..{format_point(shi)} (longest side {span:.4g} scene "
+            "units): give a box around the part of the scene to plan in")
 
 
 def planning_bounds(scene: "EllipsoidScene", cfg: "PlannerConfig") -> tuple[Tensor, Tensor]:

@@ -1,4 +1,4 @@
-"""Initial path: A* on the occupancy voxel grid, then line-of-sight shortcutting (issue 3, item 4).
+"""Initial path: A* on the occupancy voxel grid, then line-of-sight shortcutting.
 
 26-connected moves cost 1, sqrt(2), sqrt(3) (voxel units). The heuristic is the 3D octile distance
 (the exact path cost on an obstacle-free 26-connected grid): it is >= the Euclidean distance yet
@@ -7,7 +7,7 @@ expand about one voxel per path step instead of a wide Euclidean "cone". A* with
 heuristic and a closed set returns a minimum-cost path.
 
 Two implementations of the same search (same costs, heuristic and tie-breaking, hence the same path):
-the compiled one (native/astar26.c, built with the system C compiler on first use; ~50x faster) when it
+the compiled one (native/astar26.c, built with the system C compiler on first use; much faster) when it
 is available, else the pure-Python one below (``backend`` chooses; tests compare them). A grid with ``landmarks``
 (landmarks.py; coarse_path.py sets them on its block grid) adds their bound in the compiled search only: the same
 minimum cost, possibly another of several equal-cost paths.
@@ -201,7 +201,7 @@ def astar(
         raise RuntimeError(f"the compiled A* is not available: {native_status().get('astar26', 'not loaded')}")
     if fn is not None:
         return _astar_native(grid, start, goal, s, g_, max_expansions, float(heuristic_weight))
-    return _astar_python(grid, start, goal, s, g_, max_expansions, float(heuristic_weight))
+    return _astar_reference(grid, start, goal, s, g_, max_expansions, float(heuristic_weight))
 
 
 def _check_endpoints(grid: AStarGrid, s: tuple, g_: tuple, check_components: bool) -> None:
@@ -221,7 +221,7 @@ def _check_endpoints(grid: AStarGrid, s: tuple, g_: tuple, check_components: boo
             )
 
 
-def _astar_python(grid: AStarGrid, start: int, goal: int, s, g_, max_expansions, weight: float) -> np.ndarray:
+def _astar_reference(grid: AStarGrid, start: int, goal: int, s, g_, max_expansions, weight: float) -> np.ndarray:
     """astar() in pure Python (flat padded indices; the module docstring says why it is written this way)."""
     closed = bytearray(grid.blocked)  # occupied or closed: one lookup per neighbour
     gi, gj, gk = g_

@@ -1,14 +1,13 @@
-"""Fast collision-free voxel paths: budgeted A*, then a 2x-coarse grid, then compiled Dijkstra (issue 3).
+"""Fast collision-free voxel paths: budgeted A*, then a 2x-coarse grid, then compiled Dijkstra.
 
 Pure-Python A* (astar.py) is fast when the straight line is nearly free (a few hundred expansions) but
-floods large regions when the path must climb over a wall or round a big object (10^5 expansions,
-~1 s). This module keeps A* for the easy cases and answers the hard ones on a grid with 8x fewer
+floods large regions when the path must climb over a wall or round a big object (10^5 expansions).
+This module keeps A* for the easy cases and answers the hard ones on a grid with 8x fewer
 voxels, searched by a compiled Dijkstra / A* (native/astar26.c; scikit-image's ``MCP_Geometric`` when
 no compiled kernel loads: 26-connected, step costs 1, sqrt 2, sqrt 3, i.e. the same metric as A*).
-The budget stays the same with the compiled A*: measured on the CPU box (200k, 60 requests), searching
-the whole fine grid instead gave minimum-cost paths that hug obstacles, and the shortcut and corridor
-after them cost more than the search saved (plan median / p95 102 / 210 ms, against 98 / 163 ms with the
-budget, same 60 requests); the coarse route keeps paths in wider free space.
+The budget stays the same with the compiled A*: searching the whole fine grid instead gives minimum-cost paths that
+hug obstacles, and the shortcut and corridor after them cost more than the search saves (docs/PLANNER_DEFAULTS.md);
+the coarse route keeps paths in wider free space.
 
 Coarse grid (conservative): block (I, J, K) covers fine voxels 2I..2I+1 x 2J..2J+1 x 2K..2K+1 and is
 FREE only if all 8 are free (fine voxels beyond the grid count as occupied). A free fine voxel is a

@@ -2,8 +2,8 @@
 
 A* moves between 26-adjacent free voxels, so a diagonal step may pass an occupied voxel at a shared edge or corner.
 The step is safe (each half lies in its own closed free voxel: coarse_path.py), but the exact voxel walk refuses it
-(it counts every voxel within EPS of the segment), so its corridor polytope must be a Prop-2 one: ~0.3 ms at 1M
-Gaussians against ~35 us for a grid polytope, and ~2 such steps a request in the blobs room. Where the step's
+(it counts every voxel within EPS of the segment), so its corridor polytope must be a Prop-2 one, several times
+the cost of a grid polytope (docs/PLANNER_DEFAULTS.md, corner_detours). Where the step's
 neighbourhood has a route of axis-ordered moves through free voxels (the walk proves each of its segments), the
 step is replaced by that route; the shortcut and the corridor then see only walk-free segments there. A step with no
 such route stays as it is.

@@ -1,9 +1,9 @@
-"""Goal and start positions (issue 3, item 6).
+"""Goal and start positions.
 
 closest_safe_point (paper Sec. IV-C): the go-to target (e.g. an object's centroid) is usually inside
 the object. We grow a Prop-2 safe polytope around the target (it may exclude the target itself) and
-project the target onto it (a 3-variable QP: an active-set method, compiled in native/project.c, Clarabel
-as fallback); every point of that polytope is safe, so the projection is a safe goal as close to the
+project the target onto it (projection.py: a 3-variable QP, an active-set method compiled in native/project.c,
+Clarabel as fallback); every point of that polytope is safe, so the projection is a safe goal as close to the
 target as that polytope allows. When the polytope is empty (target deep inside clutter) we fall back to
 the nearest free voxel of the occupancy grid that holds no Gaussian mean, verified with an exact point
 clearance test.
@@ -24,15 +24,13 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..corridor.polytope import aabb_polytope, candidate_ids, chebyshev_center
+from ..corridor.polytope import aabb_polytope
+from ..corridor.polytope_candidates import candidate_ids
 from ..corridor.polytope_planes import closest_t
-from ..dual_active_set import add_face
 from ..errors import GoalUnreachableError, InvalidInputError, StartInCollisionError
-from ..native import choose, goal_window_c, project_dual_c, project_primal_c
+from ..native import choose, goal_window_c
 from ..scene.occupancy import OccupancyGrid
-
-INTERIOR_RADIUS = 1e-9
-"""_project_onto_polytope: a polytope counts as empty unless a ball of this radius (scene units) fits inside."""
+from .projection import INTERIOR_RADIUS, project_onto_polytope
 
 
 class NoFreeStartError(StartInCollisionError):
@@ -40,7 +38,7 @@ class NoFreeStartError(StartInCollisionError):
 
 
 # ------------------------------------------------------------------------------------ grid helpers
-def _grid_arrays(grid):
+def grid_arrays(grid):
     occ = grid.occupied
     occ = occ.detach().cpu().numpy() if isinstance(occ, Tensor) else np.asarray(occ)
     lo = torch.as_tensor(grid.lo).detach().cpu().to(torch.float64).reshape(3)
@@ -83,7 +81,7 @@ def _reachable_mask(reachable, shape):
 def _voxel_to_world(grid, ijk: Tensor) -> Tensor:
     if hasattr(grid, "voxel_to_world"):
         return torch.as_tensor(grid.voxel_to_world(ijk)).detach().cpu().to(torch.float64)
-    _, lo, vs = _grid_arrays(grid)
+    _, lo, vs = grid_arrays(grid)
     return lo + (ijk.to(torch.float64) + 0.5) * vs
 
 
@@ -98,7 +96,7 @@ def _voxel_centres(grid, ijk: np.ndarray, lo: np.ndarray, vs: float) -> np.ndarr
 def _world_to_voxel(grid, x: Tensor) -> Tensor:
     if hasattr(grid, "world_to_voxel"):
         return torch.as_tensor(grid.world_to_voxel(x)).detach().cpu().long()
-    _, lo, vs = _grid_arrays(grid)
+    _, lo, vs = grid_arrays(grid)
     return ((x.to(torch.float64) - lo) / vs).floor().long()
 
 
@@ -141,202 +139,6 @@ def _default_clear(scene, index, margin):
 
 
 # ------------------------------------------------------------------------------------ goal
-def _native_projection_args(A: np.ndarray, b: np.ndarray, target: np.ndarray) -> tuple:
-    """(A [F, 3], b [F], target [3]) as C-contiguous float64 arrays for native/project.c (ValueError on other
-    shapes: the compiled code would read past them)."""
-    A = np.ascontiguousarray(A, dtype=np.float64)
-    b = np.ascontiguousarray(b, dtype=np.float64)
-    if A.ndim != 2 or A.shape[1] != 3 or b.shape != (A.shape[0],):
-        raise ValueError(f"A must be [F, 3] and b [F], got {A.shape} and {b.shape}")
-    return A, b, np.ascontiguousarray(target, dtype=np.float64).reshape(3)
-
-
-def _native_projection_result(code: int, x: np.ndarray, outcomes: dict):
-    """What a native/project.c return code means: x, or outcomes[code]; LinAlgError where numpy's solve raises it,
-    ZeroDivisionError where the Python division by a one-face working set's |a|^2 does (only when it underflows)."""
-    if code == 0:
-        return x
-    if code == -1:
-        raise np.linalg.LinAlgError("Singular matrix")
-    if code == -2:
-        raise ZeroDivisionError("float division by zero")
-    if code in outcomes:
-        return outcomes[code]
-    raise MemoryError("the compiled projection ran out of memory")
-
-
-def project_active_set(A: np.ndarray, b: np.ndarray, target: np.ndarray, x0: np.ndarray,
-                       max_iter: int = 60, backend: str = "auto") -> Optional[np.ndarray]:
-    """argmin_x |x - target|^2 s.t. A x <= b (A [F, 3], b [F]) by the primal active-set method (Nocedal &
-    Wright, Alg. 16.3, Hessian I) from the feasible point x0 [3] -> x [3], or None when it does not
-    finish in ``max_iter`` steps (degenerate vertices can cycle; the caller then uses a QP solver).
-
-    Why not a QP solver: in 3 variables the working set holds at most 3 independent faces, so each step is a
-    3x3 solve, and the whole projection is a few steps of ~10 us where Clarabel's set-up and interior-point
-    iterations cost ~1 ms per goal. Exact up to rounding (the multipliers prove optimality); rounding can leave
-    A x - b at ~1e-16, which the caller removes.
-    backend: "auto" (native/project.c's cn_project_primal, the same steps up to rounding, when it loads),
-    "native" or "python" (this numpy code, the reference); a singular working set raises np.linalg.LinAlgError on
-    both.
-    """
-    fn = choose(backend, project_primal_c, "project", "active-set projection")
-    if fn is not None:
-        A, b, t = _native_projection_args(A, b, target)
-        x0 = np.ascontiguousarray(x0, dtype=np.float64).reshape(3)
-        x = np.empty(3)
-        code = fn(A.ctypes.data, b.ctypes.data, A.shape[0], t.ctypes.data, x0.ctypes.data, int(max_iter),
-                  x.ctypes.data)
-        return _native_projection_result(code, x, {1: None})
-    A = np.asarray(A, dtype=np.float64)  # [F, 3]
-    b = np.asarray(b, dtype=np.float64)  # [F]
-    t = np.asarray(target, dtype=np.float64).reshape(3)
-    x = np.asarray(x0, dtype=np.float64).reshape(3).copy()
-    scale = 1.0 + float(np.abs(t).max()) + float(np.abs(x).max())
-    row_norm = np.sqrt(np.einsum("fi,fi->f", A, A))  # [F]
-    slack = b - A @ x  # [F]
-    W: list[int] = []  # working set: independent faces held with equality
-    for _ in range(max_iter):
-        r = t - x  # [3]
-        if len(W) == 1:
-            m = A[W[0]]
-            lam = np.array([float(m @ r) / float(m @ m)])
-            p = r - lam[0] * m
-        elif W:
-            M = A[W]  # [k, 3]
-            lam = np.linalg.solve(M @ M.T, M @ r)  # [k]  the multipliers when the step below vanishes
-            p = r - M.T @ lam if len(W) < 3 else np.zeros(3)  # 3 independent faces: a vertex
-        else:
-            p, lam = r, None
-        if float(np.abs(p).max()) <= 1e-13 * scale:
-            if lam is None or float(lam.min()) >= -1e-12 * scale:
-                return x  # KKT: x - t + M^T lam = 0 with lam >= 0
-            W.pop(int(np.argmin(lam)))  # a face that pulls the wrong way leaves the working set
-            continue
-        Ap = A @ p  # [F]
-        block = Ap > 1e-14 * float(np.sqrt(p @ p)) * row_norm
-        block[W] = False
-        alpha, j = 1.0, -1
-        ids = np.flatnonzero(block)
-        if len(ids) and W:
-            # a face whose normal lies in the span of the working set's (a repeated plane, or three planes through
-            # one line) has A p = 0 in exact arithmetic; rounding must not let it block and make the set dependent
-            M = A[W]  # [k, 3]
-            off_span = A[ids] - (A[ids] @ M.T) @ np.linalg.solve(M @ M.T, M)  # [c, 3]
-            ids = ids[np.sqrt(np.einsum("ci,ci->c", off_span, off_span)) > 1e-9 * row_norm[ids]]
-        if len(ids):
-            ratio = np.maximum(slack[ids], 0.0) / Ap[ids]
-            k = int(np.argmin(ratio))
-            if ratio[k] < 1.0:
-                alpha, j = float(ratio[k]), int(ids[k])
-        x = x + alpha * p
-        slack = slack - alpha * Ap
-        if j >= 0:
-            W.append(j)
-    return None
-
-
-def project_dual_active_set(A: np.ndarray, b: np.ndarray, target: np.ndarray,
-                            max_iter: Optional[int] = None, backend: str = "auto") -> Union[np.ndarray, None, str]:
-    """argmin_x |x - target|^2 s.t. A x <= b (A [F, 3], b [F]) by the dual active-set method of Goldfarb & Idnani
-    (Math. Programming 27, 1983; Hessian I) -> x [3], None when the polytope is empty, or "unfinished" when it does
-    not finish in ``max_iter`` steps or a step is too ill-conditioned to trust (the caller then solves it another way).
-
-    Why: it needs no feasible start, so the projection of a target onto a polytope that may exclude it (or be empty:
-    closest_safe_point's target deep inside an object) costs a few 3x3 solves instead of an LP for the Chebyshev
-    centre followed by the primal method. It starts at the target (the unconstrained minimum) and adds the most
-    violated face at each step, keeping x the projection of the target onto the working set's faces with
-    nonnegative multipliers (dual feasible); the objective only grows, so faces cannot cycle in exact arithmetic.
-    Empty polytope: the violated face's normal lies in the span of the working set's and no multiplier can shrink
-    (Farkas: a nonnegative combination of faces proves A x <= b infeasible). Rounding leaves A x - b at ~1e-16
-    relative; callers tighten b when they need the point strictly inside.
-    backend: "auto" (native/project.c's cn_project_dual, the same steps up to rounding, when it loads),
-    "native" or "python" (this numpy code, the reference); a singular working set raises np.linalg.LinAlgError on
-    both."""
-    fn = choose(backend, project_dual_c, "project", "dual active-set projection")
-    if fn is not None:
-        A, b, t = _native_projection_args(A, b, target)
-        x = np.empty(3)
-        code = fn(A.ctypes.data, b.ctypes.data, A.shape[0], t.ctypes.data,
-                  50 + 4 * A.shape[0] if max_iter is None else int(max_iter), x.ctypes.data)
-        return _native_projection_result(code, x, {1: None, 2: "unfinished"})
-    A = np.asarray(A, dtype=np.float64)
-    b = np.asarray(b, dtype=np.float64)
-    x = np.asarray(target, dtype=np.float64).reshape(3).copy()
-    F = A.shape[0]
-    if max_iter is None:
-        max_iter = 50 + 4 * F
-    row2 = np.einsum("fi,fi->f", A, A)  # [F] squared row norms
-    scale = 1.0 + float(np.abs(b).max(initial=0.0)) + float(np.abs(x).max())
-    tol = 1e-13 * scale
-    W: list = []  # working set (independent faces held with equality)
-    u = np.zeros(0)  # their multipliers, >= 0
-    it = 0
-    while True:
-        v = A @ x - b  # [F] violation
-        p = int(np.argmax(v)) if F else -1
-        if F == 0 or v[p] <= tol * max(1.0, float(np.sqrt(row2[p]))):
-            return x
-        x, u, it, outcome = add_face(A, b, row2, p, x, W, u, it, max_iter)
-        if outcome == "infeasible":
-            return None  # a nonnegative combination of the working set's faces and face p is infeasible
-        if outcome is not None:
-            return outcome
-
-
-def _project_onto_polytope(A: np.ndarray, b: np.ndarray, target: np.ndarray,
-                           interior: Optional[np.ndarray] = None) -> Optional[np.ndarray]:
-    """argmin |x - target|^2 s.t. A x <= b, returned strictly inside in floating point (A x <= b holds), or None when
-    the polytope has no interior (its Chebyshev radius is at most INTERIOR_RADIUS).
-
-    With ``interior`` strictly inside (e.g. the polytope's seed): ``project_active_set`` from it (Clarabel when that
-    does not finish), then pulled exactly inside along the segment to it (ratio test). Without one:
-    ``project_dual_active_set`` onto the polytope tightened by INTERIOR_RADIUS (b - INTERIOR_RADIUS |a_f|: non-empty
-    exactly when a ball of that radius fits, the rule the Chebyshev centre applied; the point moves by ~that radius
-    and keeps that slack), so no LP is solved; the Chebyshev centre and the primal method only when it does not
-    finish."""
-    A = np.asarray(A, dtype=np.float64)
-    b = np.asarray(b, dtype=np.float64)
-    if interior is not None and float(np.min(b - A @ np.asarray(interior, dtype=np.float64))) > INTERIOR_RADIUS:
-        c = np.asarray(interior, dtype=np.float64)
-    else:
-        try:
-            y = project_dual_active_set(A, b - INTERIOR_RADIUS * np.sqrt(np.einsum("fi,fi->f", A, A)), target)
-        except np.linalg.LinAlgError:  # a working set that rounding made singular: the LP and primal method instead
-            y = "unfinished"
-        if y is None:
-            return None
-        if not isinstance(y, str) and (A @ y <= b).all():
-            return y
-        c, rad = chebyshev_center(A, b)
-        if not (rad > INTERIOR_RADIUS):
-            return None
-    target = np.asarray(target, dtype=np.float64)
-    try:
-        x = project_active_set(A, b, target, c)
-    except np.linalg.LinAlgError:  # a working set that rounding made singular: the QP solver instead
-        x = None
-    if x is None:
-        x = _project_clarabel(A, b, target, c)
-    viol = A @ x - b
-    if (viol > 0).any():
-        ax, ac = A @ x, A @ c
-        alpha = np.max(np.where(viol > 0, viol / np.maximum(ax - ac, 1e-300), 0.0))
-        x = x + min(1.0, alpha * (1 + 1e-9) + 1e-12) * (c - x)
-    return x if (A @ x <= b).all() else None
-
-
-def _project_clarabel(A: np.ndarray, b: np.ndarray, target: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """argmin |x - target|^2 s.t. A x <= b with Clarabel (``c`` when it does not solve)."""
-    import clarabel
-    from scipy import sparse
-
-    P = sparse.csc_matrix(2.0 * np.eye(3))
-    q = -2.0 * target
-    settings = clarabel.DefaultSettings()
-    settings.verbose = False
-    solver = clarabel.DefaultSolver(P, q, sparse.csc_matrix(A), b, [clarabel.NonnegativeConeT(len(b))], settings)
-    sol = solver.solve()
-    return np.asarray(sol.x, dtype=np.float64) if str(sol.status) in ("Solved", "AlmostSolved") else c.copy()
 
 
 def closest_safe_point(
@@ -389,7 +191,7 @@ def closest_safe_point(
     P = aabb_polytope(t_np[None], scene, index, t_np - box_half, t_np + box_half, margin=margin,
                       require_seed_inside=False, stop_when_empty=0.5 * INTERIOR_RADIUS)
     # a proven-empty polytope has no point to project onto (the projection would answer None after ~0.25 ms)
-    x = None if P.proven_empty else _project_onto_polytope(*P.to_numpy(), t_np)
+    x = None if P.proven_empty else project_onto_polytope(*P.to_numpy(), t_np)
     if x is not None:
         x = torch.from_numpy(np.asarray(x, dtype=np.float64))
         return x if dev.type == "cpu" else x.to(dev)
@@ -405,7 +207,7 @@ def closest_safe_point(
 def mean_voxel_mask(scene, grid) -> np.ndarray:
     """bool [X, Y, Z]: the grid's voxels that hold at least one Gaussian mean of ``scene`` (never goals, see
     closest_safe_point step 3). One pass over the means; computed once per prepared scene."""
-    occ, _, _ = _grid_arrays(grid)
+    occ, _, _ = grid_arrays(grid)
     v = _world_to_voxel(grid, scene.means.detach().cpu().to(torch.float64)).numpy()  # [N, 3]
     v = v[((v >= 0) & (v < np.asarray(occ.shape))).all(1)]
     out = np.zeros(occ.shape, dtype=bool)
@@ -486,7 +288,7 @@ def _nearest_free_voxel_centre(t, scene, index, grid, reachable, clear, max_cand
     """closest_safe_point's step 3. backend: "auto" (native/goalwindow.c for each window when the inputs fit:
     _window_native_args), "native" or "python" (the numpy windows, the reference); the same candidates in the same
     order either way."""
-    occ, lo, vs = _grid_arrays(grid)
+    occ, lo, vs = grid_arrays(grid)
     shape = np.asarray(occ.shape)
     reachable = _reachable_mask(reachable, occ.shape)  # free and reachable voxels: computed per window below
     native_args = _window_native_args(grid, occ, reachable, mean_voxels) if backend != "python" else None
@@ -515,7 +317,7 @@ def _nearest_free_voxel_centre(t, scene, index, grid, reachable, clear, max_cand
                 continue
             chunks = ((k, torch.from_numpy(ordered[k:k + 16])) for k in range(0, len(ordered), 16))
         else:
-            any_free, centres, d = _window_numpy(grid, scene, index, occ, reachable, mean_voxels, a, e, lo_np, vs,
+            any_free, centres, d = _window_reference(grid, scene, index, occ, reachable, mean_voxels, a, e, lo_np, vs,
                                                  t_np)
             if any_free and centres is None:
                 if covers_all:
@@ -542,7 +344,7 @@ def _nearest_free_voxel_centre(t, scene, index, grid, reachable, clear, max_cand
     )
 
 
-def _window_numpy(grid, scene, index, occ, reachable, mean_voxels, a, e, lo_np, vs, t_np):
+def _window_reference(grid, scene, index, occ, reachable, mean_voxels, a, e, lo_np, vs, t_np):
     """One window in numpy (the reference): (any voxel free and reachable, candidates' centres [K, 3] or None when
     every free one holds a mean, their distances [K])."""
     win = (slice(a[0], e[0]), slice(a[1], e[1]), slice(a[2], e[2]))
@@ -615,7 +417,7 @@ def sample_free_starts(
     gen = generator if isinstance(generator, torch.Generator) else torch.Generator().manual_seed(int(generator or 0))
     occ = None
     if grid is not None:
-        occ, glo, vs = _grid_arrays(grid)
+        occ, glo, vs = grid_arrays(grid)
         ghi = glo + torch.as_tensor(occ.shape, dtype=torch.float64) * vs
         if blocked is not None:
             if blocked.shape != occ.shape:

@@ -2,7 +2,7 @@
 
 Why: with the octile distance alone, a search whose path must go round a wall expands every block in front of the
 wall that looks closer to the goal than the detour (the octile distance ignores walls). On the procedural room at 1M
-Gaussians with random starts the coarse A* was the planner's largest compiled cost: 1.3 ms median, 4.3 ms p95. The
+Gaussians with random starts the coarse A* was the planner's largest compiled cost (docs/PLANNER_DEFAULTS.md). The
 exact distances D_l from a few landmark blocks bound the remaining cost from below by |D_l(goal) - D_l(n)| (triangle
 inequality), which does see walls; the compiled search takes the larger of the two bounds (native/astar26.c,
 search26_ws_lm) and still returns a minimum-cost path.

@@ -14,7 +14,8 @@ from ..corridor.polytope import Polytope, aabb_polytope
 from ..errors import GoalUnreachableError, PlanningError
 from ..geometry.collision import segments_collide
 from ..geometry.ranges import group_ranks
-from .goal import ComponentMask, _project_onto_polytope, closest_safe_point
+from .goal import ComponentMask, closest_safe_point
+from .projection import project_onto_polytope
 
 if TYPE_CHECKING:
     from ..shots.planner import Planner
@@ -89,10 +90,10 @@ def free_voxel_near(planner: "Planner", p: np.ndarray, comp: Optional[int], max_
 
 
 BLOCKED_PROOF_SPACING = 0.5
-"""_segments_proven_blocked: sample spacing along a segment, in camera radii."""
+"""segments_proven_blocked: sample spacing along a segment, in camera radii."""
 
 
-def _segments_proven_blocked(planner: "Planner", p: np.ndarray, ends: np.ndarray) -> np.ndarray:
+def segments_proven_blocked(planner: "Planner", p: np.ndarray, ends: np.ndarray) -> np.ndarray:
     """bool [K]: segment p -> ends[k] ([K, 3] float64) certainly collides: a sample point on it lies inside an
     ellipsoid or closer than the camera radius to one (the compiled exact distance, capped at the radius; a margin
     of 1e-9 relative keeps rounding out of the proof). All False where the compiled search does not apply."""
@@ -121,14 +122,14 @@ def _first_free_segment(planner: "Planner", p: Tensor, ends: Tensor) -> Optional
     Two cheap tests bound its work: the conservative proof of Planner.segments_free (the occupancy grid's voxel
     walk, then the compiled point tests of short pieces) accepts a segment (that one is returned when the capsule
     test accepts none before it: both are conservative, so it is collision-free either way), and a sample inside
-    the camera radius of an ellipsoid rejects one for certain (_segments_proven_blocked: the capsule test could
+    the camera radius of an ellipsoid rejects one for certain (segments_proven_blocked: the capsule test could
     not accept it either). The capsule test, a Python query of every segment's box, runs only on the segments
     before the first accepted one that are not rejected."""
     ends_np = ends.detach().cpu().numpy()
     p_np = p.detach().cpu().numpy()
     proven = np.flatnonzero(planner.segments_free(np.broadcast_to(p_np, ends_np.shape), ends_np))
     first = int(proven[0]) if proven.size else ends.shape[0]
-    todo = np.flatnonzero(~_segments_proven_blocked(planner, p_np, ends_np[:first]))
+    todo = np.flatnonzero(~segments_proven_blocked(planner, p_np, ends_np[:first]))
     if todo.size:
         # float64 ends (the test runs in float64): rounding them to a float32 scene's dtype
         # could move a segment by ~1e-7, more than the collision margin covers
@@ -190,7 +191,7 @@ def reachable_goal(planner: "Planner", target: np.ndarray, comp: int) -> "Reacha
             bhi = np.minimum(c_np + half, rhi)
             poly = aabb_polytope(c_np[None], planner.scene, prep.index, blo, bhi)
             A, b = poly.to_numpy()
-            x = _project_onto_polytope(A, b, target, interior=c_np)  # the seed: inside
+            x = project_onto_polytope(A, b, target, interior=c_np)  # the seed: inside
         except PlanningError:
             x = None
         on_face = x is not None and bool((np.abs(np.abs(x - c_np) - half) <= 1e-9 * (1 + np.abs(x).max())).any())

@@ -11,7 +11,7 @@ from torch import Tensor
 
 from ..errors import InvalidInputError, StartInCollisionError
 from ..scene.planning_region import ArrayLike, format_point
-from .goal import _grid_arrays, sample_free_starts
+from .goal import grid_arrays, sample_free_starts
 
 if TYPE_CHECKING:
     from ..shots.planner import Planner
@@ -91,7 +91,7 @@ def start_blocked(planner: "Planner") -> np.ndarray:
     cached = prep.start_blocked_of
     if cached is not None and cached[0] is prep.astar_grid.labels and cached[1] == comp:
         return cached[2]
-    occ, _, _ = _grid_arrays(prep.grid)
+    occ, _, _ = grid_arrays(prep.grid)
     blocked = occ | (prep.astar_grid.labels != comp)
     prep.start_blocked_of = (prep.astar_grid.labels, comp, blocked)
     return blocked

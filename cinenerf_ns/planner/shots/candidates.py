@@ -1,59 +1,36 @@
 """K candidate shots for one go-to / look-at, planned in one call with batched stages, scored and ranked.
 
-The same leg stages as Planner.plan (stages.py; same guarantees: every returned shot is verified safe), but the
-expensive collision work is done once for all K candidates instead of K times:
+The same leg stages as Planner.plan (stages.py; every returned shot is verified safe), with the expensive collision
+work done once for all K candidates instead of K times:
 
-  stage            batched how
   start sampling   one sample_free_starts call for K (+ spares) starts
   goal             one closest-safe-point search per free component (cached), not per candidate
   A*               per candidate (a sequential graph search on the CPU voxel grid)
-  shortcut         lock-step greedy line-of-sight pruning: each round tests the candidate segments of
-                   ALL candidates in one conservative segments_free call (one call per round instead of
-                   one per kept point per candidate; stages.legs_shortcut)
-  corridor         per polytope: two-pass safe_polytope (near ellipsoids first, then only the index cells
-                   not already cut off by kept planes)
-  QP               back to back; the constant per-degree matrices (Bernstein Gram, difference operators,
-                   unit Hessians) are cached (trajectory.py lru_cache), only the corridor rows change
-  timing           per candidate (numpy), optionally retimed under DynamicLimits (dynamics.py)
-  verification     dense samples of all K curves in ONE conservative points_free call, exact clearance
-                   of the inconclusive samples of all K in one call (stages.legs_verify: the rule of
-                   safety.verify_shot)
-  scoring          sight lines of all K x scored frames in ONE occlusion call, exact clearance of all
-                   scored frames in ONE call (searched up to ScoreConfig.clearance_cap), then score_terms
-                   per candidate (scoring.py)
+  shortcut         lock-step line-of-sight pruning: each round tests ALL candidates' segments in one call
+  corridor         per polytope (two-pass safe_polytope), or the grid's polytopes (corridor/grid_polytope.py)
+  QP               back to back; the constant per-degree matrices are cached (trajectory/bezier.py)
+  timing           per candidate, optionally retimed under DynamicLimits (dynamics.py)
+  verification     dense samples of all K curves in ONE conservative call, exact clearance of the inconclusive
+                   samples in one call (stages.legs_verify: the rule of safety.verify_shot)
+  scoring          sight lines (or a subject's visibility) and exact clearance of all K x scored frames in one
+                   call each, then score_terms per candidate (scoring.py, candidate_scores.py)
 
-Planning runs on the planner's request device (a CPU mirror of a GPU scene, PlannerConfig.request_device);
-scoring runs on the scene's own device. The QP and A* are CPU work in all cases.
+Planning runs on the planner's request device (a CPU mirror of a GPU scene); scoring on the scene's own device.
 
 A request runs in rounds, each planning as many unused starts as shots are still missing (spares replace failed
-candidates), with one of three round strategies:
+candidates), by one of three strategies (_round_strategy):
   _round_in_process     the stages above, batched across the round's candidates, in this process;
-  _round_in_workers     whole candidates in forked worker processes (PlannerConfig.candidate_workers, workers.py);
-  _round_two_phase      workers find the ways, this process builds every corridor at once, workers finish.
-
-Worker processes: the stages above are Python/numpy work that holds the GIL, so with workers > 0 and k > 1 whole
-candidates (free voxel near the start, goal from a cache the parent fills for the main component first, A*,
-shortcut, corridor, QP, timing / retiming, dense verification) run in forked worker processes, one candidate per
-task, each on one thread. This is parallelism over CPU processes, not vectorised batching: the shortcut and
-verification are then per candidate instead of lock-step over all K, which costs more CPU in total but runs on all
-cores. The parent keeps start sampling, the spare rounds, the safety check of every worker's report
-(UnsafeTrajectoryError exactly as in-process), scoring and ranking. Scoring: by default
-(PlannerConfig.worker_scoring) each worker also computes its shot's score inputs (sight lines and capped exact
-clearance of the scored frames, score_parts on the CPU copy with the compiled searches of native/polytope.c) and
-this process only combines them; otherwise this process scores (on the GPU when the scene is there; CUDA is never
-used in a worker; shots that come back early are scored in chunks while the other workers still run,
-EARLY_SCORE_MIN). Results equal the in-process path's (same starts, shots and ranks; on a GPU scene the score terms
-agree to rounding, the two searches being exact). The workers are forked after prepare() and share the prepared CPU
-state (the CPU mirror of a GPU scene, index, grids) copy-on-write, so they add little memory. Fork only: on macOS /
-Windows (no 'fork' start method) candidates are planned in this process.
-
-When this process builds many-corridor batches with the batched backend (PlannerConfig.corridor_backend, a CUDA
-scene by default) and grid polytopes are off (Planner.use_grid_polytopes), each worker round has two phases around ONE
-batched corridor computation for all its candidates (stages.legs_corridor; the workers cannot use CUDA). With grid
-polytopes (the default) nearly every segment's polytope comes from the occupancy grid or is the goal's (corridor.py),
-cheap CPU work that the workers do themselves, so whole candidates run in the workers. With workers, ``timings``'
-stage keys are sums of the workers' wall times (they overlap) and ``pool_ms`` is the parent's wall time waiting for
-them.
+  _round_in_workers     whole candidates in forked worker processes (PlannerConfig.candidate_workers, workers.py),
+                        one per task on one thread: parallel over CPUs, per candidate rather than lock-step;
+  _round_two_phase      when this process builds batched corridors (a CUDA scene, grid polytopes off): workers
+                        find the ways, this process builds every corridor of the round at once, workers finish.
+The workers are forked after prepare() and share its CPU state copy-on-write (fork only: on macOS / Windows
+candidates are planned in this process); CUDA is never used in a worker. With PlannerConfig.worker_scoring (the
+default) each worker also computes its shot's score inputs on the CPU copy (score_parts, compiled searches) and this
+process combines them, adding a subject's visibility for the whole round in one threaded call; otherwise this process
+scores, shots that come back early in chunks (EARLY_SCORE_MIN). Results equal the in-process path's (same starts,
+shots and ranks; on a GPU scene score terms agree to rounding). With workers, ``timings``' stage keys are sums of the
+workers' wall times (they overlap) and ``pool_ms`` is this process's wall time waiting for them.
 """
 from __future__ import annotations
 
@@ -94,7 +71,7 @@ class RankedShot:
         """Shot.to_dict with the rank, the candidate, the score and the shot's dynamics / verification."""
         d = self.shot.to_dict(include_frames)
         d.update({"rank": self.rank, "candidate": self.candidate, "score": self.score.to_dict()})
-        if getattr(self.shot, "dynamics", None) is not None:
+        if self.shot.dynamics is not None:
             d["dynamics"] = self.shot.dynamics
         if self.shot.safety is not None:
             d["verification"] = self.shot.safety

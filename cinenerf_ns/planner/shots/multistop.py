@@ -5,7 +5,7 @@ Choice (documented): ONE QP over the concatenated corridor, the stops as interpo
      go-to that the start's free component reaches (reach.reachable_goal, as for single shots);
   2. per leg (start -> stop 1, stop 1 -> stop 2, ...): A*, line-of-sight shortcut (all legs in one
      batched call), safe polytope corridor (stages.py, the single shot's leg stages);
-  3. the legs' polytopes and waypoints are concatenated and the corridor QP of trajectory.py is built once;
+  3. the legs' polytopes and waypoints are concatenated and the corridor QP of trajectory/qp.py is built once;
      for every interior stop j joining segments k-1 and k, the equality P_{k-1,D} = stop_j is added (the
      C0..C2 joins then carry the curve through it with continuous velocity and acceleration: the camera
      flies through the stop, it does not halt) and the two control points at the stop drop their polytope
@@ -36,12 +36,10 @@ from ..trajectory.qp import (
     CorridorQP,
     TrajectoryConfig,
     TrajectorySolverError,
-    _point_violation,
-    _project_equalities,
-    _solve_clarabel,
-    _solve_osqp,
     build_corridor_qp,
 )
+from ..trajectory.qp_matrices import point_violation
+from ..trajectory.qp_solvers import project_equalities, solve_clarabel, solve_osqp
 from ..trajectory.timing import arc_length_table
 from . import stages
 from .planner import Planner
@@ -108,7 +106,7 @@ def _with_stops(qp: CorridorQP, config: TrajectoryConfig, stop_segments: List[in
         for seg, i in ((k - 1, d), (k, 0)):
             a, b = qp.polytopes[seg]
             tol = 1e-9 * max(1.0, float(np.abs(p).max()))
-            if _point_violation(a, b, p) > tol:
+            if point_violation(a, b, p) > tol:
                 raise CorridorInfeasibleError(f"stop {j + 1} {np.round(p, 4).tolist()} lies outside its corridor "
                                               "polytope.")
             if not pinned[seg, i]:
@@ -139,7 +137,7 @@ def solve_through_stops(polytopes, waypoints: np.ndarray, start: np.ndarray, goa
     t1 = time.perf_counter()
     # (the stops' interpolation rows are not in dual_qp's equality-free form: "active_set" is solved by Clarabel here)
     solver = "osqp" if config.solver == "osqp" else "clarabel"
-    x, status, iters, outcome = (_solve_osqp if solver == "osqp" else _solve_clarabel)(qp, config)
+    x, status, iters, outcome = (solve_osqp if solver == "osqp" else solve_clarabel)(qp, config)
     if outcome == "infeasible":
         raise CorridorInfeasibleError(
             "no smooth trajectory through the stops fits inside the safe corridor; try fewer stops (--then-go-to), "
@@ -148,7 +146,7 @@ def solve_through_stops(polytopes, waypoints: np.ndarray, start: np.ndarray, goa
     if outcome == "failed":
         raise TrajectorySolverError(f"the {solver} QP solver did not converge (status {status}).")
     m, npts = qp.num_segments, qp.degree + 1
-    cps = _project_equalities(x, qp).reshape(m, npts, 3).copy()
+    cps = project_equalities(x, qp).reshape(m, npts, 3).copy()
     cps[0, : config.rest_at_ends + 1] = start
     cps[-1, npts - 1 - config.rest_at_ends :] = goal
     exact = np.zeros((m, npts), dtype=bool)

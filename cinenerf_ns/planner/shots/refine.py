@@ -1,4 +1,4 @@
-"""Free space at the resolution the obstacles need (issue 37): a go-to that is free but whose free space is not
+"""Free space at the resolution the obstacles need: a go-to that is free but whose free space is not
 connected to the start's at the grid's resolution is not given up at once. The leg is planned again on a finer
 occupancy grid over a box around the start and the go-to (a local fine search: the rest of the region stays coarse),
 and that shot is kept when it ends closer to the go-to than the coarse leg would.
@@ -113,12 +113,12 @@ def enclosed(planner: "Planner", target: np.ndarray, coarse_goal: np.ndarray) ->
     """The target [3] is walled in for the camera (e.g. the free inside of a hollow object): each of 26 rays from it,
     run through its coarse pocket (the box of its free component, or its voxel when occupied), at least as far as
     the coarse goal [3] (at most ENCLOSED_REACH_VOXELS voxels) and ENCLOSED_BEYOND_VOXELS voxels beyond, certainly
-    collides (reach._segments_proven_blocked: a sample inside the
+    collides (reach.segments_proven_blocked: a sample inside the
     camera radius of an ellipsoid). A finer grid cannot connect such a target, so it is not refined. False whenever
     the proof does not apply (then refinement is tried)."""
     from scipy import ndimage
 
-    from ..search.reach import _segments_proven_blocked
+    from ..search.reach import segments_proven_blocked
 
     prep = planner.ready()
     grid, labels = prep.grid, prep.astar_grid.labels
@@ -139,7 +139,7 @@ def enclosed(planner: "Planner", target: np.ndarray, coarse_goal: np.ndarray) ->
         exit_t = np.where(d > 0, (bhi - target) / d, np.where(d < 0, (blo - target) / d, np.inf)).min(axis=1)
     reach = min(float(np.linalg.norm(coarse_goal - target)), ENCLOSED_REACH_VOXELS * vs)
     length = np.minimum(np.maximum(exit_t, reach) + ENCLOSED_BEYOND_VOXELS * vs, ENCLOSED_MAX_VOXELS * vs)
-    return bool(_segments_proven_blocked(planner, np.asarray(target, np.float64), target + length[:, None] * d).all())
+    return bool(segments_proven_blocked(planner, np.asarray(target, np.float64), target + length[:, None] * d).all())
 
 
 def _free(planner: "Planner", p: np.ndarray) -> bool:

@@ -22,7 +22,7 @@ import numpy as np
 from ..atomic import atomic_open
 from ..errors import InvalidInputError
 from ..geometry.ranges import group_ranks
-from ..trajectory.bezier import _to_numpy
+from ..trajectory.bezier import to_numpy
 from ..trajectory.timing import native_bezier
 from .shot import Shot
 
@@ -83,10 +83,10 @@ def dense_samples(shot_or_positions: Any, times: Optional[Any], max_spacing: flo
         f_times, f_pos = shot.times, shot.positions
         traj, tau = shot.trajectory, shot.curve_times
     else:
-        f_pos = _to_numpy(shot_or_positions)
+        f_pos = to_numpy(shot_or_positions)
         if f_pos.ndim != 2 or f_pos.shape[1] != 3 or len(f_pos) == 0:
             raise InvalidInputError(f"positions must have shape [T, 3], got {tuple(f_pos.shape)}.")
-        f_times = np.arange(len(f_pos), dtype=np.float64) if times is None else _to_numpy(times).reshape(-1)
+        f_times = np.arange(len(f_pos), dtype=np.float64) if times is None else to_numpy(times).reshape(-1)
         if f_times.shape != (len(f_pos),):
             raise InvalidInputError(f"times must have shape [{len(f_pos)}], got {f_times.shape}.")
         traj, tau = None, None
@@ -142,7 +142,7 @@ def safety_report(
     if not (max_spacing > 0 and math.isfinite(max_spacing)):
         raise InvalidInputError(f"max_spacing must be positive, got {max_spacing}.")
     t, pos, lengths = dense_samples(shot_or_positions, times, max_spacing)
-    c = _to_numpy(clearance_fn(pos)).reshape(-1)
+    c = to_numpy(clearance_fn(pos)).reshape(-1)
     if c.shape != (len(pos),):
         raise InvalidInputError(f"clearance_fn returned shape {c.shape} for {len(pos)} points.")
     if not np.all(np.isfinite(c)):
@@ -218,9 +218,9 @@ def plot_clearance(
 
 def _ellipses_xy(obstacles: Any, max_count: int):
     """(centres [N,2], widths [N], heights [N], angles_deg [N]) of the xy shadows of ellipsoids."""
-    means = _to_numpy(obstacles.means)
-    rot = _to_numpy(obstacles.rotations)
-    radii = _to_numpy(obstacles.radii)
+    means = to_numpy(obstacles.means)
+    rot = to_numpy(obstacles.rotations)
+    radii = to_numpy(obstacles.radii)
     if len(means) > max_count:  # keep the largest ones: they dominate the picture
         keep = np.argsort(-radii.max(1))[:max_count]
         means, rot, radii = means[keep], rot[keep], radii[keep]
@@ -264,16 +264,16 @@ def plot_paths_topdown(
             )
             ax.update_datalim(np.concatenate([xy - np.maximum(w, h)[:, None] / 2, xy + np.maximum(w, h)[:, None] / 2]))
         else:
-            pts = _to_numpy(obstacles).reshape(-1, 3)
+            pts = to_numpy(obstacles).reshape(-1, 3)
             ax.scatter(pts[:, 0], pts[:, 1], s=1, c="0.4", alpha=0.5, label="obstacles")
     for k, p in enumerate(paths):
-        pos = p.positions if isinstance(p, Shot) else _to_numpy(p)
+        pos = p.positions if isinstance(p, Shot) else to_numpy(p)
         label = labels[k] if labels is not None and k < len(labels) else f"path {k}"
         (line,) = ax.plot(pos[:, 0], pos[:, 1], lw=1.8, label=label)
         ax.plot(pos[0, 0], pos[0, 1], "o", color=line.get_color(), ms=6)
         ax.plot(pos[-1, 0], pos[-1, 1], "s", color=line.get_color(), ms=6)
     for name, pt in (targets or {}).items():
-        pt = _to_numpy(pt).reshape(-1)
+        pt = to_numpy(pt).reshape(-1)
         ax.plot(pt[0], pt[1], "*", ms=14, mec="k", label=name)
     ax.set_aspect("equal", adjustable="datalim")
     ax.autoscale_view()
@@ -300,11 +300,11 @@ def verify_shot(
     (num_samples, num_inconclusive, min_exact_clearance (None when every sample was proven free), safe).
     """
     t, pos, _ = dense_samples(shot, None, max_spacing)
-    ok = np.asarray(_to_numpy(points_free(pos)), dtype=bool).reshape(-1)
+    ok = np.asarray(to_numpy(points_free(pos)), dtype=bool).reshape(-1)
     bad = np.flatnonzero(~ok)
     min_exact = None
     if len(bad):
-        c = _to_numpy(exact_clearance(pos[bad])).reshape(-1)
+        c = to_numpy(exact_clearance(pos[bad])).reshape(-1)
         min_exact = float(c.min())
     return {
         "num_samples": int(len(pos)),

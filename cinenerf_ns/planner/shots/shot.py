@@ -14,7 +14,7 @@ from typing import Any, Callable, Dict, Optional, Sequence
 import numpy as np
 
 from ..errors import InvalidInputError
-from ..trajectory.bezier import BezierTrajectory, _to_numpy
+from ..trajectory.bezier import BezierTrajectory, to_numpy
 from ..trajectory.orientation import look_at_error_deg, look_at_rotations
 from ..trajectory.timing import TimingConfig, arc_length_table, check_frame_count, time_parametrize
 
@@ -41,13 +41,23 @@ class Shot:
     curve_times: Optional[np.ndarray] = None  # [T] the trajectory's own time at each frame (dense resampling)
     safety: Optional[Dict[str, Any]] = None  # the planner's dense exact-clearance report (safety.safety_report)
     goal_target: Optional[np.ndarray] = None  # [3] the requested go-to point (goal is the closest safe point to it)
+    # What a request adds to a planned shot (None until it does): read by the CLI's report and table and the viewer.
+    score: Optional[float] = None  # the shot score's total (ranked candidates: lower is better)
+    rank: Optional[int] = None  # 1 = the best of its request's candidates
+    score_terms: Optional[Dict[str, Any]] = None  # ShotScore.to_dict() of the shot's score
+    goal_moved: Optional[Dict[str, Any]] = None  # Planner.explain_goal: where the go-to moved and why
+    dynamics: Optional[Dict[str, float]] = None  # peaks vs limits after retime_shot (trajectory/dynamics.py)
+    refinement: Optional[Dict[str, Any]] = None  # the local fine grid a refined leg was planned on (refine.py)
+    end_pose: Optional[Any] = None  # the end pose it ends at (shot_targets.ShotTargets.pose_of)
+    subject_view: Optional[Dict[str, Any]] = None  # the look-at object seen from its last frame (view_report)
+    end_pose_note: Optional[str] = None  # why it ends where it does (ShotTargets.note)
 
     def __post_init__(self) -> None:
-        self.times = _to_numpy(self.times).reshape(-1)
-        self.positions = _to_numpy(self.positions)
-        self.rotations = _to_numpy(self.rotations)
+        self.times = to_numpy(self.times).reshape(-1)
+        self.positions = to_numpy(self.positions)
+        self.rotations = to_numpy(self.rotations)
         for name in ("look_at", "goal", "start"):
-            v = _to_numpy(getattr(self, name)).reshape(-1)
+            v = to_numpy(getattr(self, name)).reshape(-1)
             if v.shape != (3,) or not np.all(np.isfinite(v)):
                 raise InvalidInputError(f"Shot.{name} must be a finite 3D point, got {v.tolist()}.")
             setattr(self, name, v)
@@ -63,11 +73,11 @@ class Shot:
         if t > 1 and np.any(np.diff(self.times) <= 0):
             raise InvalidInputError("Shot times must be strictly increasing.")
         if self.clearance is not None:
-            self.clearance = _to_numpy(self.clearance).reshape(-1)
+            self.clearance = to_numpy(self.clearance).reshape(-1)
             if self.clearance.shape != (t,):
                 raise InvalidInputError(f"Shot.clearance must have shape [{t}], got {self.clearance.shape}.")
         if self.curve_times is not None:
-            self.curve_times = _to_numpy(self.curve_times).reshape(-1)
+            self.curve_times = to_numpy(self.curve_times).reshape(-1)
             if self.curve_times.shape != (t,):
                 raise InvalidInputError(f"Shot.curve_times must have shape [{t}], got {self.curve_times.shape}.")
         if self.fps is None:
@@ -100,13 +110,13 @@ class Shot:
         timings["orientation_ms"] = 1e3 * (t2 - t1)
         clearance = None
         if clearance_fn is not None:
-            clearance = _to_numpy(clearance_fn(path.positions)).reshape(-1)
+            clearance = to_numpy(clearance_fn(path.positions)).reshape(-1)
             timings["clearance_ms"] = 1e3 * (time.perf_counter() - t2)
         return cls(
             times=path.times,
             positions=path.positions,
             rotations=rot,
-            look_at=_to_numpy(look_at),
+            look_at=to_numpy(look_at),
             goal=trajectory.end,
             start=trajectory.start,
             trajectory=trajectory,

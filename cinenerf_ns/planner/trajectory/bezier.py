@@ -29,19 +29,19 @@ except ImportError:  # pragma: no cover
     torch = None
 
 
-def _is_torch(x: Any) -> bool:
+def is_torch(x: Any) -> bool:
     return torch is not None and isinstance(x, torch.Tensor)
 
 
-def _to_numpy(x: Any) -> np.ndarray:
-    if _is_torch(x):
+def to_numpy(x: Any) -> np.ndarray:
+    if is_torch(x):
         return x.detach().to("cpu", torch.float64).numpy()
     return np.asarray(x, dtype=np.float64)
 
 
-def _like(out: np.ndarray, ref: Any):
+def same_kind_as(out: np.ndarray, ref: Any):
     """Return `out` as the same kind of array as `ref` (torch float64 on ref's device, else numpy)."""
-    if _is_torch(ref):
+    if is_torch(ref):
         return torch.from_numpy(np.ascontiguousarray(out)).to(ref.device)
     return out
 
@@ -111,8 +111,8 @@ class BezierTrajectory:
     durations: np.ndarray  # [M] float64, > 0
 
     def __post_init__(self) -> None:
-        cp = _to_numpy(self.control_points)
-        dur = _to_numpy(self.durations).reshape(-1)
+        cp = to_numpy(self.control_points)
+        dur = to_numpy(self.durations).reshape(-1)
         if cp.ndim != 3 or cp.shape[1] < 2:
             raise InvalidInputError(
                 f"Bezier control points must have shape [segments, degree+1 >= 2, dim], got {tuple(cp.shape)}."
@@ -166,7 +166,7 @@ class BezierTrajectory:
         Times outside [0, total_duration] are clamped to the ends (the curve is held there). At a join
         the later segment is chosen (u = 0), except at the very end (last segment, u = 1).
         """
-        tt = np.clip(_to_numpy(t).reshape(-1), 0.0, self.total_duration)  # [T]
+        tt = np.clip(to_numpy(t).reshape(-1), 0.0, self.total_duration)  # [T]
         seg = np.searchsorted(self._starts, tt, side="right") - 1
         seg = np.clip(seg, 0, self.num_segments - 1)  # [T]
         u = np.clip((tt - self._starts[seg]) / self.durations[seg], 0.0, 1.0)  # [T]
@@ -185,7 +185,7 @@ class BezierTrajectory:
         pts = self._derivative_points(order)  # [M, n+1, 3]
         basis = bernstein_basis(pts.shape[1] - 1, u)  # [T, n+1]
         out = np.einsum("tj,tjc->tc", basis, pts[seg])  # [T, 3]
-        return _like(out, t)
+        return same_kind_as(out, t)
 
     def speed(self, t: Any) -> np.ndarray:
         """|p'(t)| at global times t [T] -> [T] numpy, for the timing's arc-length integrals (many thousand times per
@@ -230,10 +230,6 @@ class BezierTrajectory:
         if as_torch:
             return torch.from_numpy(times), torch.from_numpy(pos)
         return times, pos
-
-    def control_polygon_length(self) -> float:
-        """Length of the control polygon: an upper bound of the curve length."""
-        return float(np.linalg.norm(np.diff(self.control_points, axis=1), axis=-1).sum())
 
     def to_dict(self) -> dict:
         return {

@@ -1,7 +1,7 @@
 """The corridor QP (qp.py) solved exactly: equalities eliminated, then the dual active-set method of Goldfarb & Idnani.
 
-Why: Clarabel (interior point) spent ~1.3 ms of a ~2 ms QP stage on captured 1M-Gaussian requests, most of it set-up,
-for problems of ~40 free control points of which ~12 faces are active at the optimum. A dual active-set method touches
+Why: Clarabel (interior point) spent most of a QP stage on captured requests in set-up (docs/PLANNER_DEFAULTS.md), for
+problems of ~40 free control points of which ~12 faces are active at the optimum. A dual active-set method touches
 only the faces it adds; here it is a few small dense solves.
 
 1. Equalities eliminated (``reduce``). The pins and the C^c joins fix some control points as affine functions of the
@@ -39,7 +39,7 @@ only the faces it adds; here it is a few small dense solves.
    it with multipliers growing ~1e7-fold per round until they overflow (a near-infeasible corridor: hypothesis found
    one, test_dual_qp.py).
 
-``solve_reduced`` is the numpy reference: dense matrices, every constraint row in Y-space formed explicitly.
+``solve_reduced_reference`` is the numpy reference: dense matrices, every constraint row in Y-space formed explicitly.
 native/dual_qp.c (``backend="auto"``) does the same steps with the structure (Gram entries (w_i . w_j)(a_i . a_j),
 violations from X) and is tested against it. The caller (qp.solve_corridor_qp) still checks every control point
 against the unshrunk polytopes.
@@ -165,7 +165,7 @@ def control_points(red: Reduction, y: np.ndarray) -> np.ndarray:
 
 
 class DualResult(NamedTuple):
-    """What solve_reduced returns."""
+    """What solve_reduced_reference returns."""
 
     points: Optional[np.ndarray]  # [N, 3] control points (outcome "ok"), else None
     outcome: str  # "ok", "infeasible", "unfinished" (max_iter, or a step rounding cannot be trusted); from
@@ -192,7 +192,7 @@ def constraint_rows(red: Reduction, polys: Sequence[Tuple[np.ndarray, np.ndarray
     return np.concatenate(pts), a, np.concatenate(b_rows), 1.0 / np.linalg.norm(a, axis=1)
 
 
-def solve_reduced(red: Reduction, polys: Sequence[Tuple[np.ndarray, np.ndarray]], degree: int, tol: float,
+def solve_reduced_reference(red: Reduction, polys: Sequence[Tuple[np.ndarray, np.ndarray]], degree: int, tol: float,
                   max_iter: Optional[int] = None) -> DualResult:
     """Step 4 of the module docstring, in numpy (the reference): polys per segment (A [F, 3], b' [F]) shrunk by the
     margin; a face counts as met when its point is at most ``tol`` (scene units) outside. A singular working set
@@ -245,7 +245,7 @@ def solve_corridor_dual(durations: np.ndarray, factors: np.ndarray,
         red = reduce(durations, factors, degree, continuity, rest_at_ends, start, goal)
         if red is None:
             return None
-        res = solve_reduced(red, polys, degree, tol, max_iter)
+        res = solve_reduced_reference(red, polys, degree, tol, max_iter)
     except IllConditioned:
         return DualResult(None, "ill-conditioned", 0, 0)
     except np.linalg.LinAlgError:

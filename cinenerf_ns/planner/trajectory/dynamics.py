@@ -212,7 +212,7 @@ def retime(traj: BezierTrajectory, look_at: LookAt, limits: Optional[DynamicLimi
 
 def retime_shot(shot, limits: Optional[DynamicLimits] = None, up: Sequence[float] = (0.0, 0.0, 1.0)):
     """A new Shot: ``shot``'s curve retimed under ``limits`` (its fixed look-at). The peaks reached are
-    attached as ``shot.dynamics`` (a JSON-able dict, see dynamics_report); per-frame clearance is dropped
+    its ``dynamics`` (a JSON-able dict, see dynamics_report); per-frame clearance is dropped
     (it described the old frames)."""
     from ..shots.shot import Shot
 
@@ -223,9 +223,8 @@ def retime_shot(shot, limits: Optional[DynamicLimits] = None, up: Sequence[float
         times=rf.times, positions=rf.positions, rotations=rf.rotations, look_at=shot.look_at, goal=shot.goal,
         start=shot.start, trajectory=shot.trajectory, corridor=shot.corridor, clearance=None,
         timings=dict(shot.timings), fps=(limits or DynamicLimits()).fps, curve_times=rf.curve_times,
-        safety=shot.safety, goal_target=shot.goal_target,
+        safety=shot.safety, goal_target=shot.goal_target, dynamics=dynamics_report(rf, limits or DynamicLimits()),
     )
-    out.dynamics = dynamics_report(rf, limits or DynamicLimits())
     return out
 
 

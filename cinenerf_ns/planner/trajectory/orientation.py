@@ -23,7 +23,7 @@ import numpy as np
 
 from ..errors import InvalidInputError
 from ..native import choose, look_at_c
-from .bezier import _is_torch, _like, _to_numpy
+from .bezier import is_torch, same_kind_as, to_numpy
 
 
 def _normalise(v: np.ndarray) -> np.ndarray:
@@ -78,9 +78,9 @@ def look_at_rotations(
     backend: "auto" (native/orientation.c when it loads, for paths with every frame away from the target and outside
     the cone: the same arithmetic), "native" (the same; other paths still take numpy) or "python".
     """
-    pos = _to_numpy(positions)
-    tgt = _to_numpy(target)
-    upv = _to_numpy(up).reshape(-1)
+    pos = to_numpy(positions)
+    tgt = to_numpy(target)
+    upv = to_numpy(up).reshape(-1)
     if upv.shape == (3,) and np.isfinite(upv).all() and np.abs(upv).max() > 0:
         upv = upv / np.abs(upv).max()  # scaled before any norm: (0, 1e300, 0) is +y, not an overflowed zero vector
     if pos.ndim != 2 or pos.shape[1] != 3 or pos.shape[0] == 0:
@@ -96,7 +96,7 @@ def look_at_rotations(
     if fn is not None and np.isfinite(upv).all():
         rot = _look_at_native(fn, pos, tgt_given, upv / np.linalg.norm(upv), singular_sin)
         if rot is not None:
-            return _like(rot, positions)
+            return same_kind_as(rot, positions)
     if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(tgt)) and np.all(np.isfinite(upv))):
         raise InvalidInputError("positions, target and up must be finite (found NaN or inf).")
     upv = upv / np.linalg.norm(upv)
@@ -140,20 +140,20 @@ def look_at_rotations(
     x = _normalise(x)
     y = _cross(z, x)
     rot = np.stack([x, y, z], axis=-1)  # [T, 3, 3] columns x, y, z
-    return _like(rot, positions)
+    return same_kind_as(rot, positions)
 
 
 def view_directions(rotations: Any):
     """Viewing direction (-z column) of camera-to-world rotations [T,3,3] -> [T,3]."""
-    r = _to_numpy(rotations)
-    return _like(-r[..., :, 2], rotations)
+    r = to_numpy(rotations)
+    return same_kind_as(-r[..., :, 2], rotations)
 
 
 def look_at_error_deg(positions: Any, rotations: Any, target: Any):
     """Angle in degrees between each camera's view direction and the direction to the target, [T]."""
-    pos = _to_numpy(positions)
-    to_target = _to_numpy(target) - pos
-    view = -_to_numpy(rotations)[..., :, 2]
+    pos = to_numpy(positions)
+    to_target = to_numpy(target) - pos
+    view = -to_numpy(rotations)[..., :, 2]
     # atan2(|a x b|, a.b): accurate near 0, where arccos(dot) loses half the digits
     out = np.degrees(np.arctan2(np.linalg.norm(np.cross(to_target, view), axis=-1), np.sum(to_target * view, axis=-1)))
-    return _like(out, positions) if _is_torch(positions) else out
+    return same_kind_as(out, positions) if is_torch(positions) else out

@@ -110,7 +110,7 @@ def arc_length_table(traj: BezierTrajectory, samples_per_segment: int = 64, with
     """(tau [K], s [K]): cumulative arc length at a dense grid of curve times (monotone, s[0] = 0).
     with_speed: also the speed |p'(tau)| [K] at the grid times (same derivative evaluation; for invert_arc_length).
     backend: "auto" (native/timing.c's cn_arc_length_table, the same arithmetic, when it loads), "native" or
-    "python" (the numpy reference below)."""
+    "python" (arc_length_table_reference)."""
     from ..native import arc_length_table_c, choose
 
     nodes, weights = _GL5
@@ -125,6 +125,12 @@ def arc_length_table(traj: BezierTrajectory, samples_per_segment: int = 64, with
         fn(*args, S, nodes.ctypes.data, weights.ctypes.data, tau.ctypes.data, s.ctypes.data,
            None if v is None else v.ctypes.data)
         return (tau, s, v) if with_speed else (tau, s)
+    return arc_length_table_reference(traj, samples_per_segment, with_speed)
+
+
+def arc_length_table_reference(traj: BezierTrajectory, samples_per_segment: int = 64, with_speed: bool = False):
+    """arc_length_table in numpy: the reference of native/timing.c's cn_arc_length_table (the same arithmetic)."""
+    nodes, weights = _GL5
     lin = np.linspace(0.0, 1.0, samples_per_segment + 1)[:-1]
     # per segment start + duration * lin, all segments in one broadcast (the same float64 operations)
     grid = traj.segment_starts[:, None] + traj.durations[:, None] * lin[None, :]  # [M, samples]
@@ -173,7 +179,7 @@ def invert_arc_length(traj: BezierTrajectory, tau_tab: np.ndarray, s_tab: np.nda
     |p'| varies fast, and converging slowly where the curve rests). Newton on
     S(tau) = s_tab[i] + integral_{tau_i}^{tau} |p'| (5-point Gauss-Legendre) brings it to ~1e-12.
     backend: "auto" (native/timing.c's cn_invert_arc_length, the same steps, when it loads and v_tab is given),
-    "native" or "python" (the numpy reference below).
+    "native" or "python" (invert_arc_length_reference).
     """
     from ..native import choose, invert_arc_length_c
 
@@ -190,6 +196,13 @@ def invert_arc_length(traj: BezierTrajectory, tau_tab: np.ndarray, s_tab: np.nda
               len(tt), sq.ctypes.data, len(sq), 1e-11 * max(1.0, traj.total_duration), tau.ctypes.data) < 0:
             raise MemoryError("the compiled arc-length inversion ran out of memory")
         return tau
+    return invert_arc_length_reference(traj, tau_tab, s_tab, s, v_tab)
+
+
+def invert_arc_length_reference(traj: BezierTrajectory, tau_tab: np.ndarray, s_tab: np.ndarray, s: np.ndarray,
+                                v_tab: "np.ndarray | None" = None) -> np.ndarray:
+    """invert_arc_length in numpy: the reference of native/timing.c's cn_invert_arc_length (the same steps)."""
+    nodes, weights = _GL5
     i = np.clip(np.searchsorted(s_tab, s, side="right") - 1, 0, len(s_tab) - 2)  # [T] bracket
     lo, hi = tau_tab[i], tau_tab[i + 1]
     tau = np.interp(s, s_tab, tau_tab) if v_tab is None else np.clip(_hermite_guess(tau_tab, s_tab, v_tab, i, s),

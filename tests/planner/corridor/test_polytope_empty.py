@@ -15,7 +15,7 @@ from cinenerf_ns.planner.corridor.polytope_native import planes_empty_native
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.native import planes_empty_c
 from cinenerf_ns.planner.scene.spatial_index import GridIndex
-from cinenerf_ns.planner.search.goal import INTERIOR_RADIUS, _project_onto_polytope
+from cinenerf_ns.planner.search.projection import INTERIOR_RADIUS, project_onto_polytope
 
 sys.path.insert(0, str(Path(__file__).parents[1]))
 from _corridor_refs import make_scene, random_rotations  # noqa: E402
@@ -115,7 +115,7 @@ def test_stopped_polytope_is_empty_and_only_when_the_full_one_is(backend, seed):
             assert chebyshev_center(As, bs)[1] == -np.inf  # explicitly empty: no point at all
             assert (As[-1] == As[0]).all() and bs[-1] < -bs[3]
             assert chebyshev_center(Af, bf)[1] < rho + BAND  # and the full polytope holds no such ball either
-            assert _project_onto_polytope(Af, bf, t) is None and _project_onto_polytope(As, bs, t) is None
+            assert project_onto_polytope(Af, bf, t) is None and project_onto_polytope(As, bs, t) is None
         else:  # the probe's planes were dropped: the very same polytope
             assert np.array_equal(Af, As) and np.array_equal(bf, bs)
             assert torch.equal(full.ellipsoid_ids, stop.ellipsoid_ids)

@@ -77,7 +77,7 @@ def test_a_wall_hides_and_an_empty_line_does_not():
 def _render_visibility(sc, subject_ids, cam, look, fov_deg=60.0, size=96):
     """Visible fraction of the subject from cam (looking at look) by label rendering with the project's pure-torch
     rasteriser: subject colour through the whole splat / the subject rendered alone."""
-    from cinenerf_ns.preview.raster_torch import make_scene, render_torch
+    from cinenerf_ns.preview.raster_torch import make_scene, raster_reference
 
     opac = sc.opacities.double()
     sig = sc.radii.double() / (sc.beta * opac[:, None])
@@ -103,8 +103,8 @@ def _render_visibility(sc, subject_ids, cam, look, fov_deg=60.0, size=96):
     vm[:3, 3] = -rot @ cam
     fl = (size / 2) / math.tan(math.radians(fov_deg) / 2)
     intr = (fl, fl, size / 2, size / 2)
-    rgb, _ = render_torch(full, torch.as_tensor(vm), intr, size, size)
-    _, a = render_torch(alone, torch.as_tensor(vm), intr, size, size)
+    rgb, _ = raster_reference(full, torch.as_tensor(vm), intr, size, size)
+    _, a = raster_reference(alone, torch.as_tensor(vm), intr, size, size)
     return float(rgb[..., 0].sum() / a.sum())
 
 

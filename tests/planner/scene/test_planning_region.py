@@ -121,6 +121,7 @@ def test_bad_boxes_are_clear_errors(bounds, regex):
     (([20, 20, 20], [21, 21, 21]), r"lies outside the scene, whose Gaussians span"),
     (([-1, -1, 0.5], [1, 1, 0.55]), r"too small for the camera along z"),
     (([0, 0, 0], [0, 1, 1]), r"empty or inverted along x"),
+    (([-1e30, -1e30, -1e30], [1e30, 1e30, 1e30]), r"more than 10 x larger than the scene"),
 ])
 def test_bad_boxes_are_refused_before_the_grid(grove, bounds, regex):
     _, e = grove

@@ -54,7 +54,7 @@ def test_proven_blocked_segments_really_collide(planner, seed, n):
     lo, hi = planner.region()
     p = rng.uniform(lo, hi)
     ends = p + rng.normal(0, 0.15, (n, 3))
-    blocked = reach._segments_proven_blocked(planner, p, ends)
+    blocked = reach.segments_proven_blocked(planner, p, ends)
     scene = planner.scene
     for k in np.flatnonzero(blocked)[:4]:  # float64 brute force: some point of it is within the radius
         assert _segment_clearance(scene, p, ends[k], n=400) < 0

@@ -325,7 +325,7 @@ def test_goal_from_the_small_box_is_as_close_as_from_the_full_box(room, monkeypa
     goal is the reference's."""
     import cinenerf_ns.planner.search.reach as reach_mod
     from cinenerf_ns.planner.corridor.polytope import safe_polytope
-    from cinenerf_ns.planner.search.goal import _project_onto_polytope
+    from cinenerf_ns.planner.search.projection import project_onto_polytope
 
     s, e, pl = room
     monkeypatch.setattr(reach_mod, "GOAL_FIRST_BOX_VOXELS", first_box)
@@ -344,7 +344,7 @@ def test_goal_from_the_small_box_is_as_close_as_from_the_full_box(room, monkeypa
             full = np.maximum(np.abs(target - c.numpy()), vs) + vs
             P = safe_polytope(c[None], e, pl.prepared.index, c - torch.as_tensor(full), c + torch.as_tensor(full))
             A, b = P.to_numpy()
-            ref = _project_onto_polytope(A, b, target, interior=c.numpy())
+            ref = project_onto_polytope(A, b, target, interior=c.numpy())
             assert np.linalg.norm(goal.point - target) <= np.linalg.norm(ref - target) + 1e-9
             assert float(clearance(torch.as_tensor(goal.point)[None], e, pl.prepared.index)[0]) >= 0
             if first_box < 1:

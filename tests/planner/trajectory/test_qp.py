@@ -354,9 +354,10 @@ def _assert_same_qp(fast, ref):
 @settings(max_examples=60, deadline=None)
 @given(seed=st.integers(0, 2**31 - 1), m=st.integers(1, 6), degree=st.integers(1, 7), data=st.data())
 def test_direct_csc_build_matches_coo_reference(seed, m, degree, data):
-    """qp._build (A straight in CSC from cached patterns) gives the arrays of qp._build_coo bit for bit: any degree,
-    continuity, rest_at_ends, face counts, working-set face subsets (None: all) and solver margin."""
-    from cinenerf_ns.planner.trajectory.qp import _build, _build_coo
+    """qp_matrices.assemble_qp (A straight in CSC from cached patterns) gives the arrays of assemble_qp_reference
+    bit for bit: any degree, continuity, rest_at_ends, face counts, working-set face subsets (None: all) and solver
+    margin."""
+    from cinenerf_ns.planner.trajectory.qp_matrices import assemble_qp, assemble_qp_reference
 
     continuity = data.draw(st.integers(0, degree - 1))
     rest = data.draw(st.integers(0, (degree + 1) // 2 - 1))
@@ -369,30 +370,31 @@ def test_direct_csc_build_matches_coo_reference(seed, m, degree, data):
     faces = None
     if data.draw(st.booleans()):
         faces = [np.flatnonzero(rng.random(a.shape[0]) < 0.5) for a, _ in polys]
-    fast = _build(polys, wp, wp[0], wp[-1], cfg, faces)
-    _assert_same_qp(fast, _build_coo(polys, wp, wp[0], wp[-1], cfg, faces))
+    fast = assemble_qp(polys, wp, wp[0], wp[-1], cfg, faces)
+    _assert_same_qp(fast, assemble_qp_reference(polys, wp, wp[0], wp[-1], cfg, faces))
 
 
 def test_direct_csc_build_falls_back_when_a_join_scale_underflows():
-    """A duration ratio whose cube underflows to 0 makes the COO path drop that entry; _build hands over to it."""
-    from cinenerf_ns.planner.trajectory.qp import _build, _build_coo, _equality_pattern
+    """A duration ratio whose cube underflows to 0 makes the COO path drop that entry; assemble_qp hands over to it."""
+    from cinenerf_ns.planner.trajectory.qp_matrices import _equality_pattern, assemble_qp, assemble_qp_reference
 
     wp = np.array([[0.0, 0, 0], [0.01, 0, 0], [1e107, 0, 0]])  # durations 0.05 and 2e107: (0.05 / 2e107)^3 = 0
     polys = [(np.eye(3), np.ones(3))] * 2
     cfg = TrajectoryConfig(continuity=3)
     with np.errstate(over="ignore"):  # the smoothness weight of the 2e107 s segment is 1 / inf = 0
-        ref = _build_coo(polys, wp, wp[0], wp[-1], cfg)
-        fast = _build(polys, wp, wp[0], wp[-1], cfg)
+        ref = assemble_qp_reference(polys, wp, wp[0], wp[-1], cfg)
+        fast = assemble_qp(polys, wp, wp[0], wp[-1], cfg)
     assert np.count_nonzero(ref.eq_dense) < 3 * _equality_pattern(2, cfg.degree, cfg.rest_at_ends, 3).coef.size
     _assert_same_qp(fast, ref)
 
 
 @pytest.mark.parametrize("seed", range(3))
 def test_clarabel_from_lists_matches_scipy_input(seed):
-    """_solve_clarabel hands Clarabel the matrices as lists (_CscLists): the same iterates as the scipy matrices."""
+    """solve_clarabel hands Clarabel the matrices as lists (_CscLists): the same iterates as the scipy matrices."""
     import clarabel
 
-    from cinenerf_ns.planner.trajectory.qp import _solve_clarabel, build_corridor_qp
+    from cinenerf_ns.planner.trajectory.qp import build_corridor_qp
+    from cinenerf_ns.planner.trajectory.qp_solvers import solve_clarabel
 
     cfg = TrajectoryConfig()
     polys, wp = random_corridor(seed, m=4)
@@ -404,7 +406,7 @@ def test_clarabel_from_lists_matches_scipy_input(seed):
         setattr(settings, name, cfg.tolerance)
     cones = [clarabel.ZeroConeT(qp.n_eq), clarabel.NonnegativeConeT(qp.n_in)]
     ref = clarabel.DefaultSolver(qp.P_upper, np.zeros(qp.n), qp.A, qp.b, cones, settings).solve()
-    x, _, iters, outcome = _solve_clarabel(qp, cfg)
+    x, _, iters, outcome = solve_clarabel(qp, cfg)
     assert outcome == "ok" and iters == ref.iterations
     np.testing.assert_array_equal(x, np.asarray(ref.x))
 
@@ -426,12 +428,13 @@ def _project_reference(x, qp):
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 2**31 - 1), m=st.integers(1, 6), degree=st.integers(3, 7), dependent=st.booleans())
 def test_project_equalities_matches_scipy_cholesky(seed, m, degree, dependent):
-    """_project_equalities (LAPACK potrf / potrs directly) gives the plain scipy projection; with a repeated equality
+    """project_equalities (LAPACK potrf / potrs directly) gives the plain scipy projection; with a repeated equality
     row (singular Gram matrix) both take the same branch (least squares when potrf fails, which rounding decides).
     Bit for bit on the CPU box; the H100 host's numpy 2.5 / scipy build differed by 4e-16 (2026-11-26), so to 1e-13."""
     import scipy.sparse as sp
 
-    from cinenerf_ns.planner.trajectory.qp import CorridorQP, _project_equalities, build_corridor_qp
+    from cinenerf_ns.planner.trajectory.qp import CorridorQP, build_corridor_qp
+    from cinenerf_ns.planner.trajectory.qp_solvers import project_equalities
 
     polys, wp = random_corridor(seed % 1000, m=m)
     qp = build_corridor_qp(polys, wp, wp[0], wp[-1], TrajectoryConfig(degree=degree, continuity=2))
@@ -440,4 +443,4 @@ def test_project_equalities_matches_scipy_cholesky(seed, m, degree, dependent):
         qp = CorridorQP.from_matrices(qp.P, a_eq, np.append(qp.b_eq, qp.b_eq[-1]), qp.A_in, qp.b_in, qp.durations,
                                       qp.degree, qp.num_segments, qp.polytopes)
     x = np.random.default_rng(seed).normal(size=qp.n)
-    np.testing.assert_allclose(_project_equalities(x, qp), _project_reference(x, qp), rtol=0, atol=1e-13)
+    np.testing.assert_allclose(project_equalities(x, qp), _project_reference(x, qp), rtol=0, atol=1e-13)

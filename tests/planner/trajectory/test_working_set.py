@@ -86,10 +86,11 @@ def test_first_relaxation_alone_would_leave_the_corridor(monkeypatch):
     cfg = TrajectoryConfig(solver="clarabel")
     pp = [(np.asarray(a), np.asarray(b)) for a, b in polys]
     npts = cfg.degree + 1
-    from cinenerf_ns.planner.trajectory.qp import _build, _solve_with_retry
+    from cinenerf_ns.planner.trajectory.qp_matrices import assemble_qp
+    from cinenerf_ns.planner.trajectory.qp_solvers import solve_with_retry
 
     faces = initial_faces(pp, wp, np.zeros(len(pp)))
-    x = _solve_with_retry(_build(pp, wp, wp[0], wp[-1], cfg, faces), cfg)[0]
+    x = solve_with_retry(assemble_qp(pp, wp, wp[0], wp[-1], cfg, faces), cfg)[0]
     free = free_ranges(len(pp), npts, cfg.rest_at_ends)
     grown, violated = add_violated(x.reshape(len(pp), npts, 3), pp, faces, cfg.margin, free, np.zeros(len(pp)))
     assert violated > 0 and sum(g.size for g in grown) > sum(f.size for f in faces)
