@@ -134,7 +134,7 @@ class RegionMixin:
             info = src.set_region(bounds)
         except (PlanningError, ValueError, TypeError) as err:
             self._fail(what, err)
-            self.region_changed()  # the fold shows the region in use again, not the refused numbers
+            self._show_region(self.region_info())  # the fold shows the region in use again, not the refused numbers
             return None
         return info
 
@@ -167,14 +167,19 @@ class RegionMixin:
         self.show_region_box = bool(on)
         self._region_call("draw_region", self.region_info() if self.show_region_box else None)
 
+    def _show_region(self, info: Optional[RegionInfo]) -> None:
+        """The fold and the box (not the status)."""
+        if info is not None:
+            self._region_call("show_region", info)
+            self._region_call("draw_region", info if self.show_region_box else None)
+
     def region_changed(self) -> None:
         """The planner's region or its state changed (a listener of the region source): the fold, the box and, once a
         region applied on any page is prepared (or failed), the status."""
         info = self.region_info()
         if info is None:
             return
-        self._region_call("show_region", info)
-        self._region_call("draw_region", info if self.show_region_box else None)
+        self._show_region(info)
         if info.generation == 0:  # the opening preparation: the viewer says it (status, details)
             return
         if info.state == "ready":

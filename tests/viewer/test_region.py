@@ -178,6 +178,9 @@ def test_panel_apply_reset_and_show(tmp_path):
         src.finish()
         assert panel.status_level == "ok" and "chosen by: user box" in panel.status
         assert 'cinesplat-plan --region "0 0 0 2 1 1"' in panel.status
+        assert not panel.apply_region((5, 5, 5), (5, 6, 6))  # refused after a region was applied: the error stays
+        assert panel.status_level == "error" and "is empty or inverted along x" in panel.status
+        assert view.regions[-1].rule == "user box" and view.regions[-1].state == "ready"
         assert view.boxes[-1].rule == "user box"
         panel.set_region_box(False)
         assert view.boxes[-1] is None
