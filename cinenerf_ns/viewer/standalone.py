@@ -483,9 +483,9 @@ def check_config(cfg: StandaloneConfig) -> None:
                                 "'procedural' or 'demo'")
     check_number(cfg.port, "--port", 1, 65535, integer=True)
     check_host(cfg.host)
-    out = Path(cfg.output_dir).expanduser()
-    if out.exists() and not out.is_dir():
-        raise InvalidInputError(f"--output-dir {out} exists and is not a folder")
+    from cinenerf_ns.output_set import check_writable
+
+    check_writable(Path(cfg.output_dir))  # a file, under a file, read-only, /proc: said now, not at the first export
     check_number(cfg.camera_radius, "--camera-radius", 0, 10)
     check_number(cfg.safety_margin, "--safety-margin", 0, 10)
     check_number(cfg.grid_resolution, "--grid-resolution", *GRID_RESOLUTION_RANGE, integer=True)

@@ -409,8 +409,13 @@ def test_host_and_port_are_checked_before_loading(tmp_path, capsys):
         with pytest.raises(InvalidInputError, match=f"--port {port} is already in use"):
             check_bind("127.0.0.1", port)
     (tmp_path / "file").write_text("x")
-    with pytest.raises(InvalidInputError, match="--output-dir .* is not a folder"):
+    with pytest.raises(InvalidInputError, match="--output-dir .* is a file; give a folder"):
         check_config(StandaloneConfig(output_dir=tmp_path / "file"))
+    with pytest.raises(InvalidInputError, match="--output-dir .* lies under .*file, which is not a folder"):
+        check_config(StandaloneConfig(output_dir=tmp_path / "file" / "sub"))
+    if Path("/proc/self").is_dir():  # a folder that takes no files: refused at start, not at the first export
+        with pytest.raises(InvalidInputError, match="--output-dir /proc/x: cannot write into /proc"):
+            check_config(StandaloneConfig(output_dir=Path("/proc/x")))
     assert exposure_warning("127.0.0.1") is None and exposure_warning("::1") is None
     assert exposure_warning("localhost") is None
     assert "anyone who can reach this port" in exposure_warning("0.0.0.0")
