@@ -23,6 +23,7 @@ class ShotTargets:
     choice: Optional[EndPoseChoice]
     good_view: bool  # go-to and look-at name the same object: "a good view of X"
     framing: FramingConfig
+    why_no_end_pose: Optional[str] = None  # without a choice: why the shot ends at the go-to point (said to the user)
 
     @property
     def ends_at_poses(self) -> bool:
@@ -45,7 +46,7 @@ class ShotTargets:
     def note(self) -> Optional[str]:
         """What the user should know about the end pose: chosen how, or why there is none."""
         if self.choice is None:
-            return None
+            return self.why_no_end_pose
         what = "a good view of the look-at object" if self.good_view else "the go-to object"
         if not self.choice.poses:
             return f"no end pose around {what} could be used ({self.choice.why()}); planned to the go-to point instead"
@@ -97,7 +98,12 @@ def shot_targets(planner, gm: Dict[str, Any], lm: Dict[str, Any], framing: Frami
                                                               gm.get("text", "go-to"))
         facing = None if facing_from is None else np.asarray(facing_from, np.float64) - subject.centre
         choice = choose_end_poses(planner, subject, goto, framing, component, k=k, facing=facing, samples=samples)
-    return ShotTargets(subject, samples, choice, good_view, framing)
+    why = None
+    if choice is None:  # the framing is then reported, not aimed for: say so rather than ignore it silently
+        why = (f"the go-to is a point, so the shot ends there; the {framing.framing} framing is reported, not aimed for"
+               if end_pose else f"end poses are off, so the shot ends at the go-to point; the {framing.framing} "
+               "framing is reported, not aimed for")
+    return ShotTargets(subject, samples, choice, good_view, framing, why)
 
 
 def start_region_centre(planner) -> np.ndarray:

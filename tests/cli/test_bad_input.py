@@ -498,6 +498,24 @@ def test_framing_and_end_pose_reach_the_report(tmp_path, capsys):
     assert rep["end_pose"] is not None and rep["end_pose"]["framing"] == "close"
 
 
+@pytest.mark.parametrize("extra,said", [
+    (["--go-to", "0.1 0.1 0.3"], "the go-to is a point, so the shot ends there; the close framing is reported"),
+    (["--no-end-pose"], "end poses are off, so the shot ends at the go-to point; the close framing is reported"),
+])
+def test_a_framing_that_is_not_aimed_for_is_said(extra, said, tmp_path, capsys):
+    """--framing with a point go-to or --no-end-pose: the shot ends at the go-to point and the console and the report
+    say the framing is only reported (it was ignored without a word)."""
+    out = tmp_path / "out"
+    code, o, e, dt = _run(SCENE + TARGETS + ["--output-dir", str(out), "--framing", "close", "--start", "0 0 0.7"]
+                          + extra, capsys, out)
+    assert code in (0, None) and "Traceback" not in o + e, e[-400:]
+    import json
+
+    rep = json.loads((out / "shot_report.json").read_text())
+    assert rep["end_pose"] is None and rep["end_pose_note"].startswith(said)
+    assert said[:40] in " ".join(o.split())
+
+
 @pytest.mark.parametrize("value", ["0", "-3", "65", "lots"])
 def test_kernel_threads_from_the_environment_are_checked_before_loading(value, tmp_path, capsys, monkeypatch):
     """$CINENERF_THREADS out of [1, 64] is refused before the scene is loaded (it was clamped to 1 or 64 silently)."""
