@@ -39,6 +39,7 @@ sys.path.insert(0, str(REPO))
 
 from benchmarks._results import append_results, device_name  # noqa: E402
 from benchmarks.scene_families import FAMILIES, given_starts, load_family  # noqa: E402
+from cinenerf_ns.planner.corridor import corridor_options  # noqa: E402
 from cinenerf_ns.planner.shots.candidates import plan_candidates, score_shots  # noqa: E402
 from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig  # noqa: E402
 from cinenerf_ns.planner.shots.scoring import ScoreConfig  # noqa: E402
@@ -174,7 +175,7 @@ def main() -> None:
         f"family {args.family}: {fam.description}, {args.start_mode} starts (sequential row), K={args.k}, "
         f"grid {args.grid_resolution}, "
         f"request_device {args.request_device}, corridor_backend {args.corridor_backend} -> "
-        f"{planner.corridor_backend()}, "
+        f"{corridor_options.corridor_backend(planner.space)}, "
         f"repeats {args.repeats}, prepare {prep_s:.2f} s (not timed below), commit {rev or '?'}",
         "",
         "| variant (request total) | median ms | p95 / max ms | shots | ms / shot | x batched |",

@@ -14,6 +14,7 @@ f in 0, 0.5 (what the planner uses), 1, 2. Prints a table; nothing is appended t
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import sys
 import time
@@ -57,7 +58,7 @@ def main() -> None:
         return real_query(self, *a, **kw)
 
     type(idx).query_points = counting
-    real_lb = pl.clearance_lower_bound
+    real_lb = functools.partial(clearance_queries.clearance_lower_bound, pl.space)
     vs, r = float(prep.grid.voxel_size), float(pl.scene.camera_radius)
 
     def sync():

@@ -39,6 +39,7 @@ sys.path.insert(0, str(REPO))
 
 from benchmarks._results import append_results, device_name  # noqa: E402
 from benchmarks.scene_families import FAMILIES, given_starts, load_family, request_fn  # noqa: E402
+from cinenerf_ns.planner.corridor import corridor_options  # noqa: E402
 from cinenerf_ns.planner.geometry.distance import clearance  # noqa: E402
 from cinenerf_ns.planner.scene.floaters import apply_floater_rule  # noqa: E402
 from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig  # noqa: E402
@@ -193,7 +194,7 @@ def main() -> None:
         "torch_threads": torch.get_num_threads(),
         "n_gaussians": len(scene),
         "grid_resolution": cfg.grid_resolution,
-        "corridor_backend": f"{args.corridor_backend} -> {planner.corridor_backend()}",
+        "corridor_backend": f"{args.corridor_backend} -> {corridor_options.corridor_backend(planner.space)}",
         "grid_shape": list(prep.grid.shape),
         "pairs": args.pairs,
         "seed": args.seed,

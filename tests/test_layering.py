@@ -57,3 +57,119 @@ def test_planner_modules_import_no_private_name_of_another():
            for node in ast.walk(ast.parse(p.read_text())) if isinstance(node, ast.ImportFrom)
            for a in node.names if a.name.startswith("_") and not a.name.startswith("__")]
     assert not bad, bad
+
+
+# ------------------------------------------------------------- inside planner/: context flows down (issue 35, item 1)
+PLANNER = PKG / "planner"
+LOWER = ("search", "geometry", "corridor", "trajectory", "scene")
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(PKG.parent).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _planner_import_graph() -> dict:
+    """{module: set of planner modules it imports} over every import statement (also under TYPE_CHECKING and inside
+    functions); ``from pkg import name`` counts as an import of pkg.name when that is a module."""
+    names = {_module_name(p): p for p in _modules("planner")}
+    graph = {}
+    for mod, path in names.items():
+        package = mod if path.name == "__init__.py" else mod.rsplit(".", 1)[0]
+        deps = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:
+                    up = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                    base = ".".join(up + ([base] if base else []))
+                targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in names else base for a in node.names]
+            else:
+                continue
+            deps |= {t for t in targets if t in names and t != mod}
+        graph[mod] = deps
+    return graph
+
+
+def _package(mod: str) -> str:
+    """The planner sub-package a module belongs to (a top-level planner module is its own)."""
+    rest = mod.split(".")[2:]
+    return rest[0] if rest else "__init__"
+
+
+def test_lower_planner_packages_never_import_shots():
+    """search/, geometry/, corridor/, trajectory/ and scene/ import nothing of shots/, not even under TYPE_CHECKING:
+    they take the prepared planning space (space.py) or plain arrays."""
+    bad = {m: sorted(d for d in deps if _package(d) == "shots")
+           for m, deps in _planner_import_graph().items() if _package(m) in LOWER}
+    assert not {m: d for m, d in bad.items() if d}, bad
+
+
+def test_no_function_outside_shots_takes_a_planner():
+    """0 functions outside shots/ take a Planner: no parameter annotated with Planner and none named ``planner``."""
+    bad = []
+    for p in _modules("planner"):
+        if p.relative_to(PLANNER).parts[0] == "shots":
+            continue
+        for node in ast.walk(ast.parse(p.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+                a = node.args
+                for arg in a.posonlyargs + a.args + a.kwonlyargs + [x for x in (a.vararg, a.kwarg) if x]:
+                    ann = ast.unparse(arg.annotation) if arg.annotation is not None else ""
+                    if arg.arg == "planner" or "Planner" in ann.replace("PlannerConfig", ""):
+                        bad.append(f"{p.relative_to(PKG)}:{node.lineno} {getattr(node, 'name', 'lambda')}({arg.arg})")
+    assert not bad, bad
+
+
+def _cycles(graph: dict) -> list:
+    """The strongly connected components of more than one module (Tarjan, iterative)."""
+    index, low, on, stack, out, counter = {}, {}, set(), [], [], [0]
+    for root in graph:
+        if root in index:
+            continue
+        work = [(root, iter(sorted(graph[root])))]
+        index[root] = low[root] = counter[0]
+        counter[0] += 1
+        stack.append(root)
+        on.add(root)
+        while work:
+            v, it = work[-1]
+            w = next(it, None)
+            if w is not None:
+                if w not in index:
+                    index[w] = low[w] = counter[0]
+                    counter[0] += 1
+                    stack.append(w)
+                    on.add(w)
+                    work.append((w, iter(sorted(graph[w]))))
+                elif w in on:
+                    low[v] = min(low[v], index[w])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[v])
+            if low[v] == index[v]:
+                comp = []
+                while True:
+                    w = stack.pop()
+                    on.discard(w)
+                    comp.append(w)
+                    if w == v:
+                        break
+                if len(comp) > 1:
+                    out.append(sorted(comp))
+    return out
+
+
+def test_cycle_finder_finds_a_circle():
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert _cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_planner_import_graph_has_no_circle_spanning_packages():
+    """The import graph of cinenerf_ns/planner (every import statement) has no circle through two sub-packages (a
+    top-level planner module counts as its own package)."""
+    bad = [c for c in _cycles(_planner_import_graph()) if len({_package(m) for m in c}) > 1]
+    assert not bad, bad

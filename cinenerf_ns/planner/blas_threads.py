@@ -48,3 +48,23 @@ def set_blas_threads(limit: int) -> None:
     ctl = _blas_controller()
     if ctl is not None:
         ctl.limit(limits=int(limit), user_api="blas")  # applied on creation; never restored
+
+
+@contextlib.contextmanager
+def request_threads(threads: Optional[int], on_cpu: bool):
+    """torch CPU threads = ``threads`` while a request runs (restored afterwards; only when its queries run on the
+    CPU, ``on_cpu``): a plan is many small ops, for which extra threads cost more than they give. numpy's / scipy's
+    BLAS threads are capped the same way (blas_threads), on any device: the QP's linear algebra always runs on the
+    CPU. None: both untouched."""
+    import torch
+
+    old = torch.get_num_threads()
+    swap = threads is not None and on_cpu and int(threads) != old
+    if swap:
+        torch.set_num_threads(int(threads))
+    try:
+        with blas_threads(threads):
+            yield
+    finally:
+        if swap:
+            torch.set_num_threads(old)

@@ -19,6 +19,35 @@ from typing import Callable, List, Optional, Sequence, TypeVar
 T = TypeVar("T")
 R = TypeVar("R")
 
+_IN_WORKER = False  # set in a forked candidate worker (shots/workers.py), which must not use CUDA
+
+
+def mark_worker() -> None:
+    """Record that this process is a forked candidate worker (its initializer calls this)."""
+    global _IN_WORKER
+    _IN_WORKER = True
+
+
+def in_worker() -> bool:
+    """True inside a candidate worker process (forked: no CUDA there)."""
+    return _IN_WORKER
+
+
+def fork_available() -> bool:
+    """The 'fork' start method exists here (Linux): the only one whose workers see the prepared planner unpickled."""
+    import multiprocessing as mp
+
+    return "fork" in mp.get_all_start_methods()
+
+
+def usable_cpus() -> int:
+    """CPUs this process may run on (the affinity mask in a container / taskset), else os.cpu_count()."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
 _LOCK = threading.Lock()
 _POOL: Optional[ThreadPoolExecutor] = None
 _POOL_PID = -1

@@ -1,16 +1,16 @@
 """How a planner's requests build their corridors: PlannerConfig.corridor_backend and grid_polytopes resolved for
 the prepared scene and this process, and the keyword arguments of corridor.build_corridor that follow from them.
-Functions of a prepared Planner (planner.py), which exposes them as methods."""
+Functions of a PlanningSpace (space.py)."""
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
 import torch
 
-from ..shots.workers import in_worker, usable_cpus
+from ..host_pool import in_worker, usable_cpus
 
 if TYPE_CHECKING:
-    from ..shots.planner import Planner
+    from ..space import PlanningSpace
 
 GRID_POLYTOPE_MAX_VOXEL = 2.0
 """PlannerConfig.grid_polytopes 'auto': grid polytopes when voxel_size <= this x camera_radius (between a ratio where
@@ -27,52 +27,52 @@ CORRIDOR_THREADS_MAX = 8
 a dozen polytopes to build; docs/PLANNER_DEFAULTS.md)."""
 
 
-def corridor_threads(planner: "Planner") -> int:
+def corridor_threads(space: "PlanningSpace") -> int:
     """config.corridor_threads resolved for this process: 1 in a candidate worker, the value given, else one per
     usable CPU up to CORRIDOR_THREADS_MAX."""
     if in_worker():
         return 1
-    t = planner.config.corridor_threads
+    t = space.config.corridor_threads
     return int(t) if t is not None else max(1, min(CORRIDOR_THREADS_MAX, usable_cpus()))
 
 
-def corridor_backend(planner: "Planner", many: bool = False) -> str:
+def corridor_backend(space: "PlanningSpace", many: bool = False) -> str:
     """config.corridor_backend resolved for this process: 'batched' or 'cpu'. 'auto': for one request's corridor
     (``many`` False) 'cpu', the compiled host polytopes on the request scene (the CPU mirror of a CUDA scene), unless
     requests themselves run on a CUDA scene (request_device 'scene'), then 'batched'; for a many-corridor batch
     (``many``: stages.legs_corridor, the candidates' two-phase rounds) 'batched' on a CUDA scene, else 'cpu'. One
     request's handful of segments is cheaper on the host than in GPU kernel launches and syncs, in median and tail
     (docs/PLANNER_DEFAULTS.md). Always 'cpu' inside a forked candidate worker, where CUDA cannot be used."""
-    b = planner.config.corridor_backend
-    scene = planner.batch_scene
+    b = space.config.corridor_backend
+    scene = space.batch_scene
     if in_worker() or (b == "batched" and scene.device.type == "cuda" and torch.cuda._is_in_bad_fork()):
         return "cpu"
     if b == "auto":
-        on_cuda = (scene if many else planner.scene).device.type == "cuda"
+        on_cuda = (scene if many else space.scene).device.type == "cuda"
         return "batched" if on_cuda else "cpu"
     return b
 
 
-def use_grid_polytopes(planner: "Planner") -> bool:
+def use_grid_polytopes(space: "PlanningSpace") -> bool:
     """config.grid_polytopes resolved for the prepared grid ('auto': voxel_size <= GRID_POLYTOPE_MAX_VOXEL x the
     camera radius)."""
-    g = planner.config.grid_polytopes
+    g = space.config.grid_polytopes
     if g == "auto":
-        return float(planner.ready().grid.voxel_size) <= GRID_POLYTOPE_MAX_VOXEL * float(planner.scene.camera_radius)
+        return float(space.prepared.grid.voxel_size) <= GRID_POLYTOPE_MAX_VOXEL * float(space.scene.camera_radius)
     return bool(g)
 
 
-def corridor_kwargs(planner: "Planner", many: bool = False) -> dict:
+def corridor_kwargs(space: "PlanningSpace", many: bool = False) -> dict:
     """Keyword arguments of build_corridor (after waypoints, scene, index) for the planner's requests: the box margin,
     the planning region, the polytope threads (corridor_threads), the grid's voxels when grid polytopes are on, and
     the resolved corridor backend (corridor_backend; ``many``: for build_corridors over many ways; the batched one
     runs on ``batch_scene`` / its index; the corridor's polytopes end up on the request device)."""
-    prep = planner.ready()
-    kw = dict(box_margin=planner.config.box_margin, region=planner.region(), threads=corridor_threads(planner))
-    if use_grid_polytopes(planner):
+    prep = space.prepared
+    kw = dict(box_margin=space.config.box_margin, region=space.region(), threads=corridor_threads(space))
+    if use_grid_polytopes(space):
         kw["grid"] = prep.voxels
-        kw["split_long"] = SPLIT_LONG_MARGINS * float(planner.config.box_margin)
-    if corridor_backend(planner, many) == "batched":
+        kw["split_long"] = SPLIT_LONG_MARGINS * float(space.config.box_margin)
+    if corridor_backend(space, many) == "batched":
         bidx = prep.batch_index if prep.batch_index is not None else prep.index
-        kw.update(backend="batched", batch_scene=planner.batch_scene, batch_index=bidx)
+        kw.update(backend="batched", batch_scene=space.batch_scene, batch_index=bidx)
     return kw

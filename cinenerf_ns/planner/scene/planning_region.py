@@ -1,6 +1,6 @@
 """The planning region: the box the occupancy grid covers and every path stays in. Its bounds from the scene and the
 configuration, the checks a region must pass before any expensive work, and user points checked against it.
-Pure functions of a scene, a PlannerConfig and the region's corners (Planner delegates to them)."""
+Pure functions of a scene, a PlannerConfig and the region's corners (the Planner and the planning space call them)."""
 from __future__ import annotations
 
 from typing import TYPE_CHECKING, Optional, Sequence, Union
@@ -9,10 +9,11 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ..config import REGION_RULES  # noqa: F401 (re-exported)
 from ..errors import InvalidInputError
 
 if TYPE_CHECKING:
-    from ..shots.planner import PlannerConfig
+    from ..config import PlannerConfig
     from ..trajectory.timing import TimingConfig
     from .ellipsoids import EllipsoidScene
 
@@ -41,10 +42,6 @@ def as_point(x: ArrayLike, what: str) -> np.ndarray:
         raise InvalidInputError(f"{what} must be 3 finite numbers, got {p.tolist()}")
     return p
 
-
-REGION_RULES = ("auto", "dense", "robust")
-"""PlannerConfig.region_rule: without bounds and training cameras, the region follows the dense content ('auto',
-'dense': dense_content_box) or the robust box of all means ('robust': the rule before issue 37)."""
 
 DENSE_BINS = 64
 """dense_content_box: histogram cells along the longest side of the means' robust box."""

@@ -1,9 +1,10 @@
 """Where a shot ends: the closest safe point to the go-to target that the start's free component reaches (paper:
 closest safe point; here also when the target is walled in or outside the planning region), and the free voxels the
-voxel path starts and ends in. Functions of a prepared Planner (planner.py)."""
+voxel path starts and ends in. Functions of a PlanningSpace (space.py)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 from typing import TYPE_CHECKING, Optional
 
 import numpy as np
@@ -12,13 +13,16 @@ from torch import Tensor
 
 from ..corridor.polytope import Polytope, aabb_polytope
 from ..errors import GoalUnreachableError, PlanningError
+from ..geometry.clearance_queries import free_test, points_free
 from ..geometry.collision import segments_collide
 from ..geometry.ranges import group_ranks
+from ..scene.planning_region import distance_outside
 from .goal import ComponentMask, closest_safe_point
 from .projection import project_onto_polytope
+from .shortcut import segments_free
 
 if TYPE_CHECKING:
-    from ..shots.planner import Planner
+    from ..space import PlanningSpace
 
 GOAL_FIRST_BOX_VOXELS = 2.0  # half-width of the goal's first polytope box (reachable_goal, step 2)
 
@@ -52,10 +56,10 @@ class ReachableGoal:
         return [] if self.polytope is None else [self.polytope]
 
 
-def free_voxel_near(planner: "Planner", p: np.ndarray, comp: Optional[int], max_window: int = 16) -> np.ndarray:
+def free_voxel_near(space: "PlanningSpace", p: np.ndarray, comp: Optional[int], max_window: int = 16) -> np.ndarray:
     """Voxel [3] near world point p whose centre joins p by a collision-free segment (and lies in
     free component ``comp`` when given), searched within ``max_window`` voxels."""
-    prep = planner.ready()
+    prep = space.prepared
     grid, labels = prep.grid, prep.astar_grid.labels
     ijk = grid.voxel_of(p)  # [3] int64
     shape = np.array(grid.shape)
@@ -80,7 +84,7 @@ def free_voxel_near(planner: "Planner", p: np.ndarray, comp: Optional[int], max_
             cen = centres[order[lo_:hi_]]
             if cen.shape[0] == 0:
                 break
-            k = _first_free_segment(planner, pt, cen)
+            k = _first_free_segment(space, pt, cen)
             if k is not None:
                 return cand[int(order[lo_ + k])]
     raise GoalUnreachableError(
@@ -93,7 +97,7 @@ BLOCKED_PROOF_SPACING = 0.5
 """segments_proven_blocked: sample spacing along a segment, in camera radii."""
 
 
-def segments_proven_blocked(planner: "Planner", p: np.ndarray, ends: np.ndarray) -> np.ndarray:
+def segments_proven_blocked(space: "PlanningSpace", p: np.ndarray, ends: np.ndarray) -> np.ndarray:
     """bool [K]: segment p -> ends[k] ([K, 3] float64) certainly collides: a sample point on it lies inside an
     ellipsoid or closer than the camera radius to one (the compiled exact distance, capped at the radius; a margin
     of 1e-9 relative keeps rounding out of the proof). All False where the compiled search does not apply."""
@@ -101,7 +105,7 @@ def segments_proven_blocked(planner: "Planner", p: np.ndarray, ends: np.ndarray)
     from ..geometry.distance import native_capped_distance
     from ..native import points_distance_c
 
-    scene, index = planner.scene, planner.ready().index
+    scene, index = space.scene, space.prepared.index
     out = np.zeros(len(ends), dtype=bool)
     fn = points_distance_c() if native_applies(scene, index) else None
     if fn is None or not len(ends):
@@ -115,11 +119,11 @@ def segments_proven_blocked(planner: "Planner", p: np.ndarray, ends: np.ndarray)
     return out
 
 
-def _first_free_segment(planner: "Planner", p: Tensor, ends: Tensor) -> Optional[int]:
+def _first_free_segment(space: "PlanningSpace", p: Tensor, ends: Tensor) -> Optional[int]:
     """Index of the first segment p -> ends[k] ([K, 3], float64) that the swept-capsule test
     (collision.segments_collide) proves collision-free, or None; the same answer as that test on all K, cheaper.
 
-    Two cheap tests bound its work: the conservative proof of Planner.segments_free (the occupancy grid's voxel
+    Two cheap tests bound its work: the conservative proof of shortcut.segments_free (the occupancy grid's voxel
     walk, then the compiled point tests of short pieces) accepts a segment (that one is returned when the capsule
     test accepts none before it: both are conservative, so it is collision-free either way), and a sample inside
     the camera radius of an ellipsoid rejects one for certain (segments_proven_blocked: the capsule test could
@@ -127,21 +131,21 @@ def _first_free_segment(planner: "Planner", p: Tensor, ends: Tensor) -> Optional
     before the first accepted one that are not rejected."""
     ends_np = ends.detach().cpu().numpy()
     p_np = p.detach().cpu().numpy()
-    proven = np.flatnonzero(planner.segments_free(np.broadcast_to(p_np, ends_np.shape), ends_np))
+    proven = np.flatnonzero(segments_free(space, np.broadcast_to(p_np, ends_np.shape), ends_np))
     first = int(proven[0]) if proven.size else ends.shape[0]
-    todo = np.flatnonzero(~segments_proven_blocked(planner, p_np, ends_np[:first]))
+    todo = np.flatnonzero(~segments_proven_blocked(space, p_np, ends_np[:first]))
     if todo.size:
         # float64 ends (the test runs in float64): rounding them to a float32 scene's dtype
         # could move a segment by ~1e-7, more than the collision margin covers
         head = ends[torch.as_tensor(todo, device=ends.device)]
-        coll = segments_collide(p.expand_as(head), head, planner.scene, planner.ready().index)
+        coll = segments_collide(p.expand_as(head), head, space.scene, space.prepared.index)
         free = torch.nonzero(~coll).squeeze(-1)
         if free.numel():
             return int(todo[int(free[0])])
     return first if proven.size else None
 
 
-def reachable_goal(planner: "Planner", target: np.ndarray, comp: int) -> "ReachableGoal":
+def reachable_goal(space: "PlanningSpace", target: np.ndarray, comp: int) -> "ReachableGoal":
     """Closest safe point to ``target`` that the free component ``comp`` reaches, its voxel, and (step 2) the
     safe polytope it was projected onto, which also holds the voxel's centre: the way's last segment, voxel
     centre -> goal, lies in it, so the corridor reuses it instead of building one (see ReachableGoal).
@@ -154,9 +158,9 @@ def reachable_goal(planner: "Planner", target: np.ndarray, comp: int) -> "Reacha
        that voxel's centre; the polytope is convex and holds the centre, so the segment between
        them is safe and the goal stays reachable.
     """
-    prep = planner.ready()
+    prep = space.prepared
     grid, labels = prep.grid, prep.astar_grid.labels
-    rlo, rhi = planner.region()
+    rlo, rhi = space.region()
     half_voxel = 0.5 * float(grid.voxel_size)
     target = np.clip(target, rlo + half_voxel, rhi - half_voxel)  # paths never leave the planning region
     tv = grid.voxel_of(target)  # [3]
@@ -168,14 +172,14 @@ def reachable_goal(planner: "Planner", target: np.ndarray, comp: int) -> "Reacha
     walled_in = inside and labels[tuple(tv)] != comp
     try:
         g = closest_safe_point(
-            target, planner.scene, prep.index, grid, reachable=ComponentMask(labels, comp),
-            clearance_fn=planner.free_test, mean_voxels=prep.mean_voxels,
+            target, space.scene, prep.index, grid, reachable=ComponentMask(labels, comp),
+            clearance_fn=partial(free_test, space), mean_voxels=prep.mean_voxels,
         )
         g = g.detach().cpu().numpy()
-        return ReachableGoal(g, free_voxel_near(planner, g, comp, max_window=2 if walled_in else 16))
+        return ReachableGoal(g, free_voxel_near(space, g, comp, max_window=2 if walled_in else 16))
     except GoalUnreachableError:
         pass
-    ijk = nearest_component_voxel(planner, target, comp)  # [3] int64
+    ijk = nearest_component_voxel(space, target, comp)  # [3] int64
     c_np = grid.centre_of(ijk)  # [3] float64
     vs = float(grid.voxel_size)
     full = np.maximum(np.abs(target - c_np), vs) + vs  # [3] half-widths of the box that reaches the target
@@ -189,7 +193,7 @@ def reachable_goal(planner: "Planner", target: np.ndarray, comp: int) -> "Reacha
         try:
             blo = np.maximum(c_np - half, rlo)  # the box stays in the planning region
             bhi = np.minimum(c_np + half, rhi)
-            poly = aabb_polytope(c_np[None], planner.scene, prep.index, blo, bhi)
+            poly = aabb_polytope(c_np[None], space.scene, prep.index, blo, bhi)
             A, b = poly.to_numpy()
             x = project_onto_polytope(A, b, target, interior=c_np)  # the seed: inside
         except PlanningError:
@@ -202,10 +206,10 @@ def reachable_goal(planner: "Planner", target: np.ndarray, comp: int) -> "Reacha
     return ReachableGoal(x, ijk, poly)
 
 
-def nearest_component_voxel(planner: "Planner", target: np.ndarray, comp: int) -> np.ndarray:
+def nearest_component_voxel(space: "PlanningSpace", target: np.ndarray, comp: int) -> np.ndarray:
     """Voxel [3] of free component ``comp`` whose centre is nearest to world point ``target``
     (growing windows; exact: a voxel outside a window of radius R is more than R voxels away)."""
-    prep = planner.ready()
+    prep = space.prepared
     grid, labels = prep.grid, prep.astar_grid.labels
     shape = np.array(grid.shape)
     lo, vs = grid.lo.detach().cpu().double().numpy(), float(grid.voxel_size)
@@ -225,16 +229,16 @@ def nearest_component_voxel(planner: "Planner", target: np.ndarray, comp: int) -
         R *= 2
 
 
-def explain_goal(planner: "Planner", target, reached, tol: float = 1e-6) -> Optional[dict]:
+def explain_goal(space: "PlanningSpace", target, reached, tol: float = 1e-6) -> Optional[dict]:
     """Why a shot ends away from its go-to target: None when ``reached`` [3] is within ``tol`` of ``target`` [3],
     else {"from", "to", "distance", "why"}, for the report, the CLI and the viewer (a moved goal is never silent)."""
     t, g = (np.asarray(v, dtype=np.float64).reshape(3) for v in (target, reached))
     d = float(np.linalg.norm(g - t))
     if d <= tol:
         return None
-    if planner.distance_outside(t) > 0:
+    if distance_outside(*space.region(), t) > 0:
         why = "the go-to point is outside the planning region; the shot ends at the nearest safe point inside it"
-    elif not bool(planner.points_free(t[None])[0]):
+    elif not bool(points_free(space, t[None])[0]):
         why = ("the camera does not fit at the go-to point (inside an object or wall, or closer than the camera "
                "radius + safety margin); the shot ends at the nearest safe point")
     else:

@@ -1,18 +1,20 @@
 """The line-of-sight shortcut of a voxel path: which segments may join two waypoints (proven collision-free for the
-camera ball, conservative), and which of two shortcuts gives the cheaper corridor. Functions of a prepared Planner."""
+camera ball, conservative), and which of two shortcuts gives the cheaper corridor.
+Functions of a PlanningSpace (space.py)."""
 from __future__ import annotations
 
 from typing import TYPE_CHECKING, Optional
 
 import numpy as np
 
+from ..corridor.corridor_options import use_grid_polytopes
 from ..geometry.collision import points_collide_arrays
 from ..geometry.ranges import group_ranks
 from ..geometry.voxel_traversal import EPS
 from .astar import batched_shortcut
 
 if TYPE_CHECKING:
-    from ..shots.planner import Planner
+    from ..space import PlanningSpace
 
 CLASSIC_SHORTCUT_AFTER = 1
 """shortcut_way also runs the classic shortcut when the grid rule's leaves more than this many segments off the grid."""
@@ -22,7 +24,7 @@ OFF_GRID_SEGMENT_COST = 8.0
 grid polytope: docs/PLANNER_DEFAULTS.md)."""
 
 
-def segments_free(planner: "Planner", p0, p1) -> np.ndarray:
+def segments_free(space: "PlanningSpace", p0, p1) -> np.ndarray:
     """bool [P]: segment p0[i] -> p1[i] proven collision-free for the camera ball (conservative).
 
     First the occupancy grid: a segment whose every point lies in a free voxel is proven clear with no
@@ -30,20 +32,20 @@ def segments_free(planner: "Planner", p0, p1) -> np.ndarray:
     camera radius; a piece lies inside the ball of radius r + |piece|/2 around its midpoint, so proving
     those balls clear (Cor. 1, batched in one call) proves the segment clear. A piece that is not proven
     clear marks its segment as colliding."""
-    prep = planner.ready()
+    prep = space.prepared
     a = np.asarray(p0, dtype=np.float64).reshape(-1, 3)
     b = np.asarray(p1, dtype=np.float64).reshape(-1, 3)
     ok = prep.voxels.segments_free(a, b)
     rest = np.flatnonzero(~ok)
     if rest.size:
-        ok[rest] = segments_free_by_pieces(planner, a[rest], b[rest])
+        ok[rest] = segments_free_by_pieces(space, a[rest], b[rest])
     return ok
 
 
-def segments_free_by_pieces(planner: "Planner", a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def segments_free_by_pieces(space: "PlanningSpace", a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """segments_free's Corollary-1 proof (pieces no longer than the camera radius), for float64 [P, 3] ends."""
-    prep = planner.ready()
-    r = planner.scene.camera_radius
+    prep = space.prepared
+    r = space.scene.camera_radius
     piece = max(r, 0.5 * prep.grid.voxel_size)
     L = np.linalg.norm(b - a, axis=1)  # [P]
     n = np.maximum(1, np.ceil(L / piece).astype(np.int64))  # [P]
@@ -51,15 +53,15 @@ def segments_free_by_pieces(planner: "Planner", a: np.ndarray, b: np.ndarray) ->
     frac = (k + 0.5) / n[owner]  # (k + 1/2) / n per piece
     mids = a[owner] + frac[:, None] * (b - a)[owner]  # float64: no rounding of the pieces
     half = 0.5 * L[owner] / n[owner]
-    hit = points_collide_arrays(mids, planner.scene, prep.index, r + half)  # [pieces]
+    hit = points_collide_arrays(mids, space.scene, prep.index, r + half)  # [pieces]
     bad = np.zeros(len(a), dtype=bool)
     bad[owner[hit]] = True
     return ~bad
 
 
 class FreeVoxels:
-    """Planner.in_free_voxel as flat arrays, built once per prepared scene (free_voxels): the shortcut asks it for
-    thousands of samples per request, a few hundred at a time, where the per-call array set-up and clipping cost
+    """clearance_queries.in_free_voxel as flat arrays, built once per prepared scene (free_voxels): the shortcut asks
+    it for thousands of samples per request, a few hundred at a time, where the per-call array set-up and clipping cost
     more than the lookups. Same answers: the voxel floor((x - lo) / voxel_size), False outside the grid."""
 
     def __init__(self, occupied: np.ndarray, lo: np.ndarray, voxel_size: float) -> None:
@@ -79,9 +81,9 @@ class FreeVoxels:
         return inside & self.free[lin]
 
 
-def free_voxels(planner: "Planner") -> FreeVoxels:
+def free_voxels(space: "PlanningSpace") -> FreeVoxels:
     """The prepared scene's FreeVoxels (built on first use, kept on the PreparedScene)."""
-    prep = planner.ready()
+    prep = space.prepared
     occ = prep.astar_grid._occ
     fv = getattr(prep, "_shortcut_free_voxels", None)
     if fv is None or fv.occupied is not occ:
@@ -90,11 +92,11 @@ def free_voxels(planner: "Planner") -> FreeVoxels:
     return fv
 
 
-def grid_sight(planner: "Planner", p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
+def grid_sight(space: "PlanningSpace", p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
     """bool [P]: every sample (spacing <= half a voxel) of segment p0[i] -> p1[i] farther than one
     voxel from both ends lies in a free voxel of the occupancy grid. Only a cheap pre-filter for
     the shortcut: refusing a segment is always safe (it just keeps the voxel path there)."""
-    fv = free_voxels(planner)
+    fv = free_voxels(space)
     vs = fv.voxel_size
     L = np.linalg.norm(p1 - p0, axis=1)  # [P]
     n = np.maximum(2, np.ceil(L / (0.5 * vs)).astype(np.int64) + 1)  # samples per segment
@@ -108,7 +110,7 @@ def grid_sight(planner: "Planner", p0: np.ndarray, p1: np.ndarray) -> np.ndarray
     return ~bad
 
 
-def shortcut_free(planner: "Planner", p0, p1) -> np.ndarray:
+def shortcut_free(space: "PlanningSpace", p0, p1) -> np.ndarray:
     """bool [P] for the shortcut: grid line of sight (cheap filter), then the conservative segments_free test on the
     survivors (so every accepted segment is proven free).
 
@@ -117,16 +119,16 @@ def shortcut_free(planner: "Planner", p0, p1) -> np.ndarray:
     cheaper than a Prop-2 one. Only segments with an end outside the free voxels (a goal next to an object, a start
     the user placed there) may be proven by Corollary-1 pieces. shortcut_ways decides between this rule and
     shortcut_free_any's."""
-    return shortcut_test(planner, p0, p1, grid_rule=planner.use_grid_polytopes())
+    return shortcut_test(space, p0, p1, grid_rule=use_grid_polytopes(space))
 
 
-def shortcut_free_any(planner: "Planner", p0, p1) -> np.ndarray:
+def shortcut_free_any(space: "PlanningSpace", p0, p1) -> np.ndarray:
     """shortcut_free without the grid rule: every segment may be proven by Corollary-1 pieces (longer jumps, fewer
     segments, but each one that leaves the free voxels needs a Prop-2 polytope)."""
-    return shortcut_test(planner, p0, p1, grid_rule=False)
+    return shortcut_test(space, p0, p1, grid_rule=False)
 
 
-def shortcut_test(planner: "Planner", p0, p1, grid_rule: bool) -> np.ndarray:
+def shortcut_test(space: "PlanningSpace", p0, p1, grid_rule: bool) -> np.ndarray:
     """bool [P]: the shortcut's answer for segments p0[i] -> p1[i] (shortcut_free with or without the grid rule).
 
     The same answer as grid sight AND (grid rule: the exact voxel walk for segments whose ends are both free, else
@@ -135,26 +137,26 @@ def shortcut_test(planner: "Planner", p0, p1, grid_rule: bool) -> np.ndarray:
     for the segments the walk refused and the grid rule leaves open."""
     a = np.asarray(p0, dtype=np.float64).reshape(-1, 3)
     b = np.asarray(p1, dtype=np.float64).reshape(-1, 3)
-    out = planner.ready().voxels.segments_free(a, b)  # [P]
+    out = space.prepared.voxels.segments_free(a, b)  # [P]
     rest = np.flatnonzero(~out)
     if grid_rule and rest.size:
-        fv = free_voxels(planner)
+        fv = free_voxels(space)
         rest = rest[~(fv.contains(a[rest]) & fv.contains(b[rest]))]  # both ends free: only the walk may accept
     if rest.size:
-        rest = rest[grid_sight(planner, a[rest], b[rest])]
+        rest = rest[grid_sight(space, a[rest], b[rest])]
     if rest.size:
-        out[rest] = segments_free_by_pieces(planner, a[rest], b[rest])
+        out[rest] = segments_free_by_pieces(space, a[rest], b[rest])
     return out
 
 
-def segments_off_grid(planner: "Planner", way: np.ndarray) -> int:
+def segments_off_grid(space: "PlanningSpace", way: np.ndarray) -> int:
     """How many segments of a polyline [K, 3] do not lie in free voxels (each needs a Prop-2 polytope unless a
     known one holds it)."""
     w = np.asarray(way, dtype=np.float64)
-    return int((~planner.ready().voxels.segments_free(w[:-1], w[1:])).sum()) if len(w) > 1 else 0
+    return int((~space.prepared.voxels.segments_free(w[:-1], w[1:])).sum()) if len(w) > 1 else 0
 
 
-def choose_way(planner: "Planner", grid_way: np.ndarray, any_way: Optional[np.ndarray]) -> np.ndarray:
+def choose_way(space: "PlanningSpace", grid_way: np.ndarray, any_way: Optional[np.ndarray]) -> np.ndarray:
     """The cheaper corridor of two shortcuts of one path: ``grid_way`` (the grid rule) or ``any_way`` (without
     it; None: not computed). Cost = segments + OFF_GRID_SEGMENT_COST x segments off the grid. In rooms the
     grid rule wins (a Prop-2 polytope only at the goal); in a real capture with floaters and a coarse grid
@@ -162,12 +164,12 @@ def choose_way(planner: "Planner", grid_way: np.ndarray, any_way: Optional[np.nd
     segments, and the classic shortcut's fewer, longer segments are cheaper."""
     if any_way is None:
         return grid_way
-    cost = lambda w: (len(w) - 1) + OFF_GRID_SEGMENT_COST * segments_off_grid(planner, w)  # noqa: E731
+    cost = lambda w: (len(w) - 1) + OFF_GRID_SEGMENT_COST * segments_off_grid(space, w)  # noqa: E731
     return any_way if cost(any_way) < cost(grid_way) else grid_way
 
 
-def shortcut_pass(planner: "Planner", ways: list, grid_rule: bool, backend: str = "auto") -> list:
-    """batched_shortcut(ways, shortcut_test(planner, ., ., grid_rule)): the same polylines, with the grid part of
+def shortcut_pass(space: "PlanningSpace", ways: list, grid_rule: bool, backend: str = "auto") -> list:
+    """batched_shortcut(ways, shortcut_test(space, ., ., grid_rule)): the same polylines, with the grid part of
     every round in one compiled call (gridpoly.c: cn_shortcut_rounds). A round asks its segments farthest first and
     stops at the first one the voxel walk accepts (nearer ones cannot change the farthest free point), so only the
     farther segments that grid sight lets through go to the Corollary-1 pieces, one segments_free_by_pieces call per
@@ -176,8 +178,8 @@ def shortcut_pass(planner: "Planner", ways: list, grid_rule: bool, backend: str 
 
     fn = choose(backend, shortcut_rounds_c, "gridpoly", "shortcut rounds")
     if fn is None or not ways or any(len(w) == 0 for w in ways):
-        return batched_shortcut(ways, lambda p0, p1: shortcut_test(planner, p0, p1, grid_rule))
-    grid = _rounds_grid(planner)
+        return batched_shortcut(ways, lambda p0, p1: shortcut_test(space, p0, p1, grid_rule))
+    grid = _rounds_grid(space)
     pts = np.ascontiguousarray(np.concatenate([np.asarray(w, dtype=np.float64).reshape(-1, 3) for w in ways]))  # [N, 3]
     W, N = len(ways), len(pts)
     o_keep, o_cand, o_nkeep = W + 1, W + 1 + N, W + 1 + 2 * N  # one int64 buffer: off, keep, cand, nkeep, best, ncand
@@ -199,7 +201,7 @@ def shortcut_pass(planner: "Planner", ways: list, grid_rule: bool, backend: str 
         poly = stopped[owner]
         j = cand[off[poly] + rank]  # candidate ends, farthest first per polyline  [C]
         c = keep[off[poly] + nkeep[poly] - 1]  # their current points
-        free = np.flatnonzero(segments_free_by_pieces(planner, pts[off[poly] + c], pts[off[poly] + j]))
+        free = np.flatnonzero(segments_free_by_pieces(space, pts[off[poly] + c], pts[off[poly] + j]))
         for i in stopped:
             hit = free[poly[free] == i]
             keep[off[i] + nkeep[i]] = j[hit[0]] if hit.size else best[i]  # the farthest proven free, else best
@@ -207,11 +209,11 @@ def shortcut_pass(planner: "Planner", ways: list, grid_rule: bool, backend: str 
     return [w[keep[off[i]:off[i] + nkeep[i]]] for i, w in enumerate(ways)]
 
 
-def _rounds_grid(planner: "Planner") -> tuple:
+def _rounds_grid(space: "PlanningSpace") -> tuple:
     """cn_shortcut_rounds' grid arguments (the walk's grid, EPS, the free-voxel grid) and the arrays they point into,
     built once per prepared scene (kept on the PreparedScene with the occupancy arrays they came from)."""
-    prep = planner.ready()
-    vox, fv = prep.voxels, free_voxels(planner)
+    prep = space.prepared
+    vox, fv = prep.voxels, free_voxels(space)
     cached = getattr(prep, "_shortcut_rounds_grid", None)
     if cached is not None and cached[1][0] is vox and cached[1][1] is vox.occupied and cached[1][2] is fv:
         return cached
@@ -226,15 +228,15 @@ def _rounds_grid(planner: "Planner") -> tuple:
     return prep._shortcut_rounds_grid
 
 
-def shortcut_ways(planner: "Planner", ways: list) -> list:
+def shortcut_ways(space: "PlanningSpace", ways: list) -> list:
     """shortcut_way for several polylines, each rule as one lock-step pass (shortcut_pass: the same result as
     astar.shortcut path by path)."""
-    a = shortcut_pass(planner, ways, planner.use_grid_polytopes())
-    if not planner.use_grid_polytopes():
+    a = shortcut_pass(space, ways, use_grid_polytopes(space))
+    if not use_grid_polytopes(space):
         return a
-    redo = [i for i, w in enumerate(a) if segments_off_grid(planner, w) > CLASSIC_SHORTCUT_AFTER]
+    redo = [i for i, w in enumerate(a) if segments_off_grid(space, w) > CLASSIC_SHORTCUT_AFTER]
     if redo:
-        b = shortcut_pass(planner, [ways[i] for i in redo], False)
+        b = shortcut_pass(space, [ways[i] for i in redo], False)
         for i, w in zip(redo, b):
-            a[i] = choose_way(planner, a[i], w)
+            a[i] = choose_way(space, a[i], w)
     return a

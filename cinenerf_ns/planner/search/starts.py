@@ -1,8 +1,9 @@
 """Where shots start: a user-given start checked against the planning region and the scene, or random free starts
 drawn in the free component the capture's cameras see (the start region's, or a closed room's interior).
-Functions of a prepared Planner (planner.py), which exposes them as methods."""
+Functions of a PlanningSpace (space.py)."""
 from __future__ import annotations
 
+from functools import partial
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -10,12 +11,12 @@ import torch
 from torch import Tensor
 
 from ..errors import InvalidInputError, StartInCollisionError
-from ..scene.planning_region import ArrayLike, format_point
+from ..geometry.clearance_queries import clearance, free_test, points_free
+from ..scene.planning_region import distance_outside, format_point
 from .goal import grid_arrays, sample_free_starts
 
 if TYPE_CHECKING:
-    from ..shots.planner import Planner
-    from ..shots.prepared_scene import PreparedScene
+    from ..space import PlanningSpace, PreparedScene
 
 ENCLOSED_COMPONENT_FRACTION = 0.2  # an enclosed free component this large is taken for the capture's room
 
@@ -56,11 +57,11 @@ def start_component(prep: "PreparedScene", start_region) -> int:
     return preferred_component(labels, counts)
 
 
-def main_component(planner: "Planner") -> int:
-    """start_component of the planner's prepared scene and config.start_region. Constant per prepared scene and
+def main_component(space: "PlanningSpace") -> int:
+    """start_component of the prepared planning space and config.start_region. Constant per prepared scene and
     start region: computed once (kept in PreparedScene.main_component_of), not per request."""
-    prep = planner.ready()
-    region = planner.config.start_region
+    prep = space.prepared
+    region = space.config.start_region
     cached = prep.main_component_of
     if cached is not None and cached[0] is region:
         return cached[1]
@@ -69,25 +70,25 @@ def main_component(planner: "Planner") -> int:
     return comp
 
 
-def random_starts(planner: "Planner", n: int, generator: torch.Generator, look_at: np.ndarray) -> Tensor:
+def random_starts(space: "PlanningSpace", n: int, generator: torch.Generator, look_at: np.ndarray) -> Tensor:
     """n random collision-free starts [n, 3] (goal.sample_free_starts) as every request draws them: in
     config.start_region, in the main free component, config.start_look_distance away from ``look_at`` [3] where
     the region allows."""
-    prep = planner.ready()
-    lo, hi = planner.config.start_region or (None, None)
+    prep = space.prepared
+    lo, hi = space.config.start_region or (None, None)
     return sample_free_starts(
-        n, planner.scene, prep.index, prep.grid, generator=generator, region_lo=lo, region_hi=hi,
-        blocked=start_blocked(planner), clearance_fn=planner.free_test,
-        away_from=look_at, away_fraction=planner.config.start_look_distance,
+        n, space.scene, prep.index, prep.grid, generator=generator, region_lo=lo, region_hi=hi,
+        blocked=start_blocked(space), clearance_fn=partial(free_test, space),
+        away_from=look_at, away_fraction=space.config.start_look_distance,
     )
 
 
-def start_blocked(planner: "Planner") -> np.ndarray:
+def start_blocked(space: "PlanningSpace") -> np.ndarray:
     """bool [X, Y, Z]: voxels no random start may lie in (occupied, or outside the main free component). Constant per
     prepared scene and start region like main_component: computed once (PreparedScene.start_blocked_of), where two
     passes over the whole grid per request cost about half a millisecond on the CPU box."""
-    prep = planner.ready()
-    comp = main_component(planner)
+    prep = space.prepared
+    comp = main_component(space)
     cached = prep.start_blocked_of
     if cached is not None and cached[0] is prep.astar_grid.labels and cached[1] == comp:
         return cached[2]
@@ -97,23 +98,24 @@ def start_blocked(planner: "Planner") -> np.ndarray:
     return blocked
 
 
-def checked_start(planner: "Planner", start: ArrayLike, force: bool = False) -> np.ndarray:
-    """A user-given start [3] as float64: InvalidInputError when it lies outside the planning region (unless
-    ``force``: the region then grows to hold it, see Planner.grow_region), StartInCollisionError when the camera
-    would be inside the scene. Only the sign of the clearance is needed: a proof from the grid, else a capped
+def check_start_inside(space: "PlanningSpace", s: np.ndarray) -> None:
+    """InvalidInputError when a user-given start [3] (float64) lies outside the planning region (Planner.checked_start
+    grows the region instead when the start is forced)."""
+    lo, hi = space.region()
+    if distance_outside(lo, hi, s) > 0:
+        raise InvalidInputError(
+            f"the start point {format_point(s)} is outside the planning region {format_point(lo)}.."
+            f"{format_point(hi)} (the training cameras' box grown by region_padding, or the scene's box); pick a "
+            f"start inside it or force it (cinesplat-plan --force-start: the region then grows to hold the start)")
+
+
+def check_start_free(space: "PlanningSpace", s: np.ndarray) -> np.ndarray:
+    """A user-given start [3] (float64, in the planning region) returned as is, or StartInCollisionError when the
+    camera would be inside the scene. Only the sign of the clearance is needed: a proof from the grid, else a capped
     distance."""
-    s = planner.checked_point(start, "start point")
-    if planner.distance_outside(s) > 0:
-        if not force:
-            lo, hi = planner.region()
-            raise InvalidInputError(
-                f"the start point {format_point(s)} is outside the planning region {format_point(lo)}.."
-                f"{format_point(hi)} (the training cameras' box grown by region_padding, or the scene's box); pick a "
-                f"start inside it or force it (cinesplat-plan --force-start: the region then grows to hold the start)")
-        planner.grow_region(s)
-    if bool(planner.points_free(s[None])[0]):
+    if bool(points_free(space, s[None])[0]):
         return s
-    c = float(planner.clearance(s[None], cap=float(planner.ready().grid.voxel_size))[0])
+    c = float(clearance(space, s[None], cap=float(space.prepared.grid.voxel_size))[0])
     if c < 0:
         raise StartInCollisionError(
             f"the start {np.round(s, 4).tolist()} puts the camera inside the scene (clearance {c:.4f}); "

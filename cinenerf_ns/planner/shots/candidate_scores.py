@@ -81,7 +81,7 @@ def score_parts(planner: "Planner", shots: List[Shot], look: np.ndarray, cfg: Sc
             out.append((i, None, clr[o : o + len(i)], None, None))
             o += len(i)
         return out if subject is None else with_visibility(planner, shots, out, subject, cfg)
-    free_grid = None if batch else clearance_queries.free_voxel_grid(planner)  # the CPU copy's compiled test
+    free_grid = None if batch else clearance_queries.free_voxel_grid(planner.space)  # the CPU copy's compiled test
     occ = sight_lines_blocked(pos, targets, scene, index, exclude=exclude, stop_distance=object_radius,
                               free_grid=free_grid).cpu().numpy()  # [sum T', S]
     out, o = [], 0

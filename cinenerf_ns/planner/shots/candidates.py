@@ -44,10 +44,12 @@ from typing import Any, Callable, Dict, List, Optional
 import numpy as np
 import torch
 
+from ..corridor.corridor_options import corridor_backend, use_grid_polytopes
 from ..corridor.safe_corridor import CorridorError
 from ..errors import GoalUnreachableError, InvalidInputError, PlanningError, StartInCollisionError
 from ..geometry.visibility import SubjectSamples
 from ..search.astar import batched_shortcut  # noqa: F401 (re-exported: part of the candidates API)
+from ..search.starts import random_starts
 from ..trajectory.dynamics import DynamicLimits
 from . import stages
 from .candidate_scores import score_from_parts, score_parts, score_shots, with_visibility
@@ -483,7 +485,7 @@ def _round_strategy(req: _CandidateRequest) -> Callable[[_CandidateRequest, List
     planner = req.planner
     if req.pool is None:
         return _round_in_process
-    if planner.corridor_backend(many=True) == "batched" and not planner.use_grid_polytopes():
+    if corridor_backend(planner.space, many=True) == "batched" and not use_grid_polytopes(planner.space):
         return _round_two_phase
     return _round_in_workers
 
@@ -573,7 +575,7 @@ def _plan_candidates(
                             object_samples, exclude, time_budget_s, t_all=time.perf_counter(), subject=subject)
     t = time.perf_counter()
     n_try = k + int(math.ceil(spare_fraction * k))
-    starts = planner.random_starts(n_try, torch.Generator().manual_seed(int(seed)), look_p)
+    starts = random_starts(planner.space, n_try, torch.Generator().manual_seed(int(seed)), look_p)
     req.starts = starts.detach().cpu().numpy()  # [n_try, 3]
     t = req.lap("start_sample_ms", t)
     req.pool = planner.candidate_pool() if k > 1 and use_workers else None

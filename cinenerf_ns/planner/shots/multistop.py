@@ -29,6 +29,7 @@ import scipy.sparse as sp
 import torch
 
 from ..errors import InvalidInputError
+from ..search.starts import random_starts
 from ..trajectory.bezier import BezierTrajectory
 from ..trajectory.dynamics import DynamicLimits, dynamics_report, retime
 from ..trajectory.qp import (
@@ -263,7 +264,8 @@ def plan_multistop(planner: Planner, stops: Sequence[Any], look_at: Any, start: 
     if start is not None:
         s = planner.checked_start(start, force=force_start)  # may grow the region
     else:
-        s = planner.random_starts(1, torch.Generator().manual_seed(int(seed)), looks[0])[0].detach().cpu().numpy()
+        gen = torch.Generator().manual_seed(int(seed))
+        s = random_starts(planner.space, 1, gen, looks[0])[0].detach().cpu().numpy()
     pts, ijks, reached = _stop_goals(planner, s, targets)
     tm["goal_ms"] = 1e3 * (time.perf_counter() - t0)
     t1 = time.perf_counter()

@@ -11,6 +11,7 @@ import torch
 from ..corridor.safe_corridor import CorridorError
 from ..errors import GoalUnreachableError, InvalidInputError, StartInCollisionError
 from ..scene.planning_region import ArrayLike
+from ..search.starts import random_starts
 from . import stages
 
 if TYPE_CHECKING:
@@ -52,7 +53,7 @@ def plan_request(planner: "Planner", goal: ArrayLike, look_at: ArrayLike, start:
         if not pending:
             k = n_candidates - len(shots)
             t0 = time.perf_counter()
-            pts = planner.random_starts(k, gen, look_p)  # [k, 3]
+            pts = random_starts(planner.space, k, gen, look_p)  # [k, 3]
             sample_ms = 1e3 * (time.perf_counter() - t0) / k
             pending = [(p.cpu().numpy(), sample_ms) for p in pts]
         item = pending.pop(0)

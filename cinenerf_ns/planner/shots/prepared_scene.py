@@ -1,13 +1,12 @@
-"""What a Planner builds once per scene and planning region (``PreparedScene``: spatial index, occupancy grid,
-free-space components, coarse grid, surface voxels, mean voxels, distance transform) and how (``prepare_scene``).
-Every request only reads it; the one-time cost is reported in ``timings_ms``, apart from per-plan cost."""
+"""How a Planner builds, once per scene and planning region, what requests read (``prepare_scene``: space.py's
+``PreparedScene``: spatial index, occupancy grid, free-space components, coarse grid, surface voxels, mean voxels,
+distance transform). Every request only reads it; the one-time cost is reported in ``timings_ms``, apart from
+per-plan cost."""
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
-from typing import Any, Optional, Tuple
+from typing import Optional, Tuple
 
-import numpy as np
 from torch import Tensor
 
 from .. import native
@@ -16,11 +15,12 @@ from ..corridor.polytope import prepare_native as prepare_native_polytope
 from ..errors import GoalUnreachableError, InvalidInputError
 from ..geometry.clearance_queries import free_distance_transform
 from ..scene.ellipsoids import EllipsoidScene
-from ..scene.occupancy import OccupancyGrid, build_occupancy
+from ..scene.occupancy import build_occupancy
 from ..scene.spatial_index import GridIndex
 from ..search.astar import AStarGrid
 from ..search.coarse_path import CoarseGrid
 from ..search.goal import mean_voxel_mask
+from ..space import PreparedScene
 
 
 def preload_request_modules() -> None:
@@ -35,26 +35,6 @@ def preload_request_modules() -> None:
             __import__(name)
         except ImportError:  # optional solvers: the request reports what is missing
             pass
-
-
-@dataclass
-class PreparedScene:
-    """What prepare() builds once per scene and planning region; every request reads it."""
-
-    index: GridIndex  # on the request device (Planner.scene's)
-    grid: OccupancyGrid
-    astar_grid: AStarGrid
-    timings_ms: dict
-    coarse: Optional[CoarseGrid] = None  # 2x-coarse blocks for hard path searches (coarse_path.py)
-    batch_index: Optional[GridIndex] = None  # the index on the scene's own device (Planner.batch_scene)
-    free_edt: Optional[np.ndarray] = None  # [X+2, Y+2, Z+2] see clearance_queries.free_distance_transform (lazy)
-    free_voxels: Optional[tuple] = None  # see clearance_queries.free_voxel_grid (lazy)
-    voxels: Optional[VoxelObstacles] = None  # the grid's occupied + surface voxels for grid polytopes
-    mean_voxels: Optional[np.ndarray] = None  # [X, Y, Z] bool voxels holding a Gaussian mean (goal.mean_voxel_mask)
-    main_component_of: Optional[tuple] = None  # (start_region, component) cached by starts.main_component
-    start_blocked_of: Optional[tuple] = None  # (labels, component, blocked mask) cached by starts.start_blocked
-    volume: Optional[Any] = None  # geometry.visibility.SplatVolume of the region (end_pose.visibility_volume, lazy)
-    component_boxes: Optional[list] = None  # ndimage.find_objects of the free components (refine.enclosed, lazy)
 
 
 OVERSIZED_SPLAT = 1000  # a splat of at least this many Gaussians, most of them over half the region, is refused

@@ -139,7 +139,8 @@ def enclosed(planner: "Planner", target: np.ndarray, coarse_goal: np.ndarray) ->
         exit_t = np.where(d > 0, (bhi - target) / d, np.where(d < 0, (blo - target) / d, np.inf)).min(axis=1)
     reach = min(float(np.linalg.norm(coarse_goal - target)), ENCLOSED_REACH_VOXELS * vs)
     length = np.minimum(np.maximum(exit_t, reach) + ENCLOSED_BEYOND_VOXELS * vs, ENCLOSED_MAX_VOXELS * vs)
-    return bool(segments_proven_blocked(planner, np.asarray(target, np.float64), target + length[:, None] * d).all())
+    ends = target + length[:, None] * d
+    return bool(segments_proven_blocked(planner.space, np.asarray(target, np.float64), ends).all())
 
 
 def _free(planner: "Planner", p: np.ndarray) -> bool:

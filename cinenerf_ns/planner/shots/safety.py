@@ -15,16 +15,20 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any, Callable, Dict, Optional, Sequence, Union
+from typing import TYPE_CHECKING, Any, Callable, Dict, Optional, Sequence, Union
 
 import numpy as np
 
 from ..atomic import atomic_open
 from ..errors import InvalidInputError
+from ..geometry import clearance_queries
 from ..geometry.ranges import group_ranks
 from ..trajectory.bezier import to_numpy
 from ..trajectory.timing import native_bezier
 from .shot import Shot
+
+if TYPE_CHECKING:
+    from ..space import PlanningSpace
 
 DEFAULT_THRESHOLDS = (0.0, 0.01, 0.03, 0.05)
 DEFAULT_CLEARANCE_CAP = 0.5
@@ -315,3 +319,11 @@ def verify_shot(
         "method": "conservative test on every sample (the points_free given: the planner's is the occupancy grid, then "
                   "Cor.1), exact distance where inconclusive",
     }
+
+
+def clearance_report(space: "PlanningSpace", shot: Shot, max_spacing: float = 0.02, label: str = "",
+                     cap: float = DEFAULT_CLEARANCE_CAP) -> dict:
+    """safety_report of a shot with the planning space's exact clearance (clearance_queries.clearance on the scene's
+    own device) capped at ``cap`` (bounded work on any scene: far from everything a sample is 'at least the cap')."""
+    return safety_report(shot, lambda p: clearance_queries.clearance(space, p, cap=cap, batch=True),
+                         max_spacing=max_spacing, label=label, clearance_cap=cap)

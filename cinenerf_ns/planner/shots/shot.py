@@ -15,6 +15,7 @@ import numpy as np
 
 from ..errors import InvalidInputError
 from ..trajectory.bezier import BezierTrajectory, to_numpy
+from ..trajectory.dynamics import DynamicLimits, dynamics_report, retime
 from ..trajectory.orientation import look_at_error_deg, look_at_rotations
 from ..trajectory.timing import TimingConfig, arc_length_table, check_frame_count, time_parametrize
 
@@ -247,3 +248,20 @@ class Shot:
 
     def to_json(self, include_frames: bool = False, indent: int = 2) -> str:
         return json.dumps(self.to_dict(include_frames), indent=indent, allow_nan=False)
+
+
+def retime_shot(shot: "Shot", limits: Optional[DynamicLimits] = None,
+                up: Sequence[float] = (0.0, 0.0, 1.0)) -> "Shot":
+    """A new Shot: ``shot``'s curve retimed under ``limits`` (its fixed look-at). The peaks reached are
+    its ``dynamics`` (a JSON-able dict, see dynamics_report); per-frame clearance is dropped
+    (it described the old frames). Here beside Shot: trajectory/dynamics.py retimes curves, not shots."""
+    if shot.trajectory is None:
+        raise InvalidInputError("retiming needs the shot's trajectory (curve); this shot has only frames.")
+    rf = retime(shot.trajectory, shot.look_at, limits, up=up)
+    out = Shot(
+        times=rf.times, positions=rf.positions, rotations=rf.rotations, look_at=shot.look_at, goal=shot.goal,
+        start=shot.start, trajectory=shot.trajectory, corridor=shot.corridor, clearance=None,
+        timings=dict(shot.timings), fps=(limits or DynamicLimits()).fps, curve_times=rf.curve_times,
+        safety=shot.safety, goal_target=shot.goal_target, dynamics=dynamics_report(rf, limits or DynamicLimits()),
+    )
+    return out

@@ -8,21 +8,25 @@ Planner (planner.py) for the scene, its grids and its configuration."""
 from __future__ import annotations
 
 import time
+from functools import partial
 from typing import TYPE_CHECKING, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 import torch
 
+from ..corridor.corridor_options import corridor_kwargs, use_grid_polytopes
 from ..corridor.safe_corridor import Corridor, CorridorError, build_corridor, build_corridors
 from ..errors import GoalUnreachableError, UnsafeTrajectoryError
+from ..geometry.clearance_queries import clearance, points_free
 from ..search.coarse_path import voxel_path
 from ..search.corner_steps import detour_corner_steps
 from ..search.reach import ReachableGoal, free_voxel_near, reachable_goal
-from ..trajectory.dynamics import DynamicLimits, retime_shot
+from ..search.shortcut import shortcut_ways
+from ..trajectory.dynamics import DynamicLimits
 from ..trajectory.qp import solve_corridor_qp
 from . import refine
 from .safety import dense_samples, verify_shot
-from .shot import Shot
+from .shot import Shot, retime_shot
 
 if TYPE_CHECKING:
     from ..trajectory.bezier import BezierTrajectory
@@ -32,7 +36,7 @@ if TYPE_CHECKING:
 # ---------------------------------------------------------------- goal
 def start_voxel(planner: "Planner", start: np.ndarray) -> Tuple[np.ndarray, int]:
     """(the free voxel [3] a leg from ``start`` [3] begins its voxel path in, that voxel's free component)."""
-    s_ijk = free_voxel_near(planner, start, None)
+    s_ijk = free_voxel_near(planner.space, start, None)
     return s_ijk, int(planner.ready().astar_grid.labels[tuple(s_ijk)])
 
 
@@ -41,9 +45,9 @@ def component_goal(planner: "Planner", target: np.ndarray, comp: int,
     """The closest safe point to ``target`` [3] that free component ``comp`` reaches (reach.reachable_goal), found
     once per component when a ``goal_cache`` (component -> ReachableGoal, one target) is given."""
     if goal_cache is None:
-        return reachable_goal(planner, target, comp)
+        return reachable_goal(planner.space, target, comp)
     if comp not in goal_cache:
-        goal_cache[comp] = reachable_goal(planner, target, comp)
+        goal_cache[comp] = reachable_goal(planner.space, target, comp)
     return goal_cache[comp]
 
 
@@ -67,7 +71,7 @@ def voxel_centres(planner: "Planner", a_ijk: np.ndarray, b_ijk: np.ndarray) -> n
         centres = prep.voxels.lo + (np.asarray(path).astype(np.float64) + 0.5) * prep.voxels.voxel_size
     else:
         centres = prep.grid.voxel_to_world(torch.as_tensor(path, device=prep.grid.device)).cpu().numpy()
-    if planner.config.corner_detours and prep.voxels is not None and planner.use_grid_polytopes():
+    if planner.config.corner_detours and prep.voxels is not None and use_grid_polytopes(planner.space):
         centres = detour_corner_steps(prep.voxels.segments_free, centres)[0]
     return centres
 
@@ -92,7 +96,7 @@ def legs_shortcut(planner: "Planner", ways: Sequence[np.ndarray],
                   goals: Sequence[Optional[ReachableGoal]]) -> List[np.ndarray]:
     """The shortcuts of several polylines [K, 3] in one batched call (Planner.shortcut_ways), each completed by its
     goal (ReachableGoal.shortcut_ends; None: a leg to an intermediate stop, see stop_way)."""
-    short = planner.shortcut_ways(list(ways))
+    short = shortcut_ways(planner.space, list(ways))
     return [w if g is None else g.shortcut_ends(w) for w, g in zip(short, goals)]
 
 
@@ -110,14 +114,14 @@ def at_goal_already(way: np.ndarray) -> bool:
 def leg_corridor(planner: "Planner", way: np.ndarray, known=()) -> Corridor:
     """Safe polytopes along a shortcut polyline [K, 3] (corridor.build_corridor with the planner's box margin, backend,
     grid polytopes and planning region); ``known``: the goal's polytope (ReachableGoal.known())."""
-    return build_corridor(way, planner.scene, planner.ready().index, known=known, **planner.corridor_kwargs())
+    return build_corridor(way, planner.scene, planner.ready().index, known=known, **corridor_kwargs(planner.space))
 
 
 def legs_corridor(planner: "Planner", ways: Sequence[np.ndarray], known=()) -> List[Union[Corridor, CorridorError]]:
     """leg_corridor of several polylines [K, 3] in ONE batched computation (corridor.build_corridors: the batched
     backend's polytopes of every leg at once); a leg whose corridor fails gets its CorridorError in its place."""
     return build_corridors(list(ways), planner.scene, planner.ready().index, known=known,
-                           **planner.corridor_kwargs(many=True))
+                           **corridor_kwargs(planner.space, many=True))
 
 
 # ---------------------------------------------------------------- QP, timing + orientation
@@ -130,7 +134,7 @@ def leg_trajectory(planner: "Planner", corridor: Corridor, start: np.ndarray, go
 def leg_shot(planner: "Planner", traj: "BezierTrajectory", corridor: Corridor, look_at: np.ndarray,
              target: np.ndarray, limits: Optional[DynamicLimits] = None, timings: Optional[dict] = None) -> Shot:
     """The frames of a trajectory: timed with the planner's TimingConfig (retimed under ``limits`` when given,
-    dynamics.retime_shot) and aimed at ``look_at`` [3]; ``target`` [3]: the go-to point asked for (shot.goal_target).
+    shot.retime_shot) and aimed at ``look_at`` [3]; ``target`` [3]: the go-to point asked for (shot.goal_target).
     ``timings``: the leg's stage times so far (Shot.from_trajectory adds timing_ms / orientation_ms)."""
     cfg = planner.config
     shot = Shot.from_trajectory(traj, look_at, timing=cfg.timing, up=cfg.up, corridor=corridor, timings=timings)
@@ -153,7 +157,9 @@ def refuse_unsafe(report: dict, curve: str = "the curve") -> dict:
 
 def leg_verify(planner: "Planner", shot: Shot, curve: str = "the curve") -> dict:
     """The exact-clearance verification of a shot (safety.verify_shot), refused when unsafe (refuse_unsafe)."""
-    report = verify_shot(shot, planner.points_free, planner.clearance, max_spacing=planner.config.verify_spacing)
+    space = planner.space
+    report = verify_shot(shot, partial(points_free, space), partial(clearance, space),
+                         max_spacing=planner.config.verify_spacing)
     report["obstacles"] = planner.obstacle_set()
     return refuse_unsafe(report, curve)
 
@@ -165,7 +171,7 @@ def legs_verify(planner: "Planner", shots: Sequence[Shot]) -> List[dict]:
     samples = [dense_samples(sh, None, spacing)[1] for sh in shots]  # [S_i, 3] each
     counts = [len(s) for s in samples]
     pts = np.concatenate(samples)  # [sum S_i, 3]
-    ok = planner.points_free(pts)
+    ok = points_free(planner.space, pts)
     bad = np.flatnonzero(~ok)
     exact = np.full(len(pts), np.inf)
     if bad.size:

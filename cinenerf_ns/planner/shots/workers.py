@@ -28,7 +28,6 @@ closes the pool and plans the request in this process.
 from __future__ import annotations
 
 import multiprocessing as mp
-import os
 import pickle
 import signal
 import weakref
@@ -39,29 +38,13 @@ from typing import Any, Callable, Iterable, Iterator, List, Optional
 import torch
 
 from ..blas_threads import set_blas_threads
+from ..config import validate_workers
 from ..errors import InvalidInputError
+from ..host_pool import fork_available, in_worker, mark_worker, usable_cpus
 from ..native import set_kernel_threads
 
 # the planner a worker serves; set in the child by _init_worker (inherited through fork, never pickled)
 _PLANNER: Any = None
-
-
-def in_worker() -> bool:
-    """True inside a candidate worker process (forked: no CUDA there)."""
-    return _PLANNER is not None
-
-
-def fork_available() -> bool:
-    """The 'fork' start method exists here (Linux): the only one whose workers see the prepared planner unpickled."""
-    return "fork" in mp.get_all_start_methods()
-
-
-def usable_cpus() -> int:
-    """CPUs this process may run on (the affinity mask in a container / taskset), else os.cpu_count()."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        return os.cpu_count() or 1
 
 
 def default_workers() -> int:
@@ -70,18 +53,6 @@ def default_workers() -> int:
     and there are at least 4 CPUs; else 0."""
     n = usable_cpus()
     return n if fork_available() and n >= 4 else 0
-
-
-def validate_workers(value: Any) -> None:
-    """InvalidInputError unless ``value`` is a valid PlannerConfig.candidate_workers (None, 0, or N > 0 where fork
-    exists)."""
-    if value is None:
-        return
-    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-        raise InvalidInputError(f"candidate_workers must be None (auto), 0 (in this process) or a positive integer, "
-                                f"got {value!r}")
-    if value > 0 and not fork_available():
-        raise InvalidInputError("candidate_workers > 0 needs the 'fork' start method (Linux); use None or 0 here")
 
 
 def candidate_workers(planner: Any) -> int:
@@ -123,6 +94,7 @@ def _init_worker(planner_ref: "weakref.ref") -> None:
     set_blas_threads(1)
     set_kernel_threads(1)  # the compiled kernels too: the other workers use the other CPUs
     _PLANNER = planner_ref()
+    mark_worker()
 
 
 def _task(fn: Callable, args: tuple) -> bytes:
@@ -135,8 +107,8 @@ def _call(task: bytes) -> bytes:
     return pickle.dumps(fn(_PLANNER, *args), protocol=pickle.HIGHEST_PROTOCOL)
 
 
-__all__ = ["BrokenProcessPool", "CandidatePool", "candidate_workers", "default_workers", "fork_available", "pool_for",
-           "usable_cpus", "validate_workers"]
+__all__ = ["BrokenProcessPool", "CandidatePool", "candidate_workers", "default_workers", "fork_available", "in_worker",
+           "pool_for", "usable_cpus", "validate_workers"]
 
 
 class CandidatePool:

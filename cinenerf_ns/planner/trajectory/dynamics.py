@@ -210,24 +210,6 @@ def retime(traj: BezierTrajectory, look_at: LookAt, limits: Optional[DynamicLimi
     )
 
 
-def retime_shot(shot, limits: Optional[DynamicLimits] = None, up: Sequence[float] = (0.0, 0.0, 1.0)):
-    """A new Shot: ``shot``'s curve retimed under ``limits`` (its fixed look-at). The peaks reached are
-    its ``dynamics`` (a JSON-able dict, see dynamics_report); per-frame clearance is dropped
-    (it described the old frames)."""
-    from ..shots.shot import Shot
-
-    if shot.trajectory is None:
-        raise InvalidInputError("retiming needs the shot's trajectory (curve); this shot has only frames.")
-    rf = retime(shot.trajectory, shot.look_at, limits, up=up)
-    out = Shot(
-        times=rf.times, positions=rf.positions, rotations=rf.rotations, look_at=shot.look_at, goal=shot.goal,
-        start=shot.start, trajectory=shot.trajectory, corridor=shot.corridor, clearance=None,
-        timings=dict(shot.timings), fps=(limits or DynamicLimits()).fps, curve_times=rf.curve_times,
-        safety=shot.safety, goal_target=shot.goal_target, dynamics=dynamics_report(rf, limits or DynamicLimits()),
-    )
-    return out
-
-
 def dynamics_report(rf: RetimedFrames, limits: DynamicLimits) -> Dict[str, float]:
     """Peaks reached vs the limits, JSON-able."""
     return {

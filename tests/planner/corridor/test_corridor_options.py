@@ -1,4 +1,5 @@
-"""corridor_options.corridor_backend's resolution, on fake planners whose scenes claim a CUDA device (no GPU needed)."""
+"""corridor_options.corridor_backend's resolution, on fake planning spaces whose scenes claim a CUDA device (no GPU
+needed)."""
 from types import SimpleNamespace
 
 import pytest
@@ -45,12 +46,11 @@ def test_candidates_two_phase_rounds_follow_the_many_corridor_backend(monkeypatc
     for batch_dev, grid, want in (("cuda", False, candidates._round_two_phase),
                                   ("cuda", True, candidates._round_in_workers),
                                   ("cpu", False, candidates._round_in_workers)):
-        pl = _fake("auto", batch_dev, "cpu")
-        pl.corridor_backend = lambda many=False, pl=pl: corridor_options.corridor_backend(pl, many)
-        pl.use_grid_polytopes = lambda grid=grid: grid
-        req = SimpleNamespace(planner=pl, pool=object())
+        space = _fake("auto", batch_dev, "cpu")  # the planning space's fields corridor_backend reads
+        monkeypatch.setattr(candidates, "use_grid_polytopes", lambda _space, grid=grid: grid)
+        req = SimpleNamespace(planner=SimpleNamespace(space=space), pool=object())
         assert candidates._round_strategy(req) is want
-    assert candidates._round_strategy(SimpleNamespace(planner=pl, pool=None)) is candidates._round_in_process
+    assert candidates._round_strategy(SimpleNamespace(planner=req.planner, pool=None)) is candidates._round_in_process
 
 
 def test_corridor_threads_resolution(monkeypatch):

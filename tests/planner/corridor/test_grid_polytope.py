@@ -11,6 +11,7 @@ import torch
 from hypothesis import HealthCheck, given, settings, strategies as st
 from scipy.optimize import linprog
 
+from cinenerf_ns.planner.corridor import corridor_options
 from cinenerf_ns.planner.corridor.grid_polytope import (
     VoxelObstacles,
     grid_polytope_planes,
@@ -271,10 +272,11 @@ def test_auto_resolves_by_voxel_size_against_the_camera_radius():
     for res in (24, 96):
         pl = Planner(sc, PlannerConfig(grid_resolution=res))
         vs = pl.prepare().grid.voxel_size
-        assert pl.use_grid_polytopes() == (vs <= GRID_POLYTOPE_MAX_VOXEL * sc.camera_radius)
-        assert ("grid" in pl.corridor_kwargs()) == pl.use_grid_polytopes()
-    assert Planner(sc, PlannerConfig(grid_resolution=24, grid_polytopes=True)).use_grid_polytopes()
-    assert not Planner(sc, PlannerConfig(grid_resolution=96, grid_polytopes=False)).use_grid_polytopes()
+        assert corridor_options.use_grid_polytopes(pl.space) == (vs <= GRID_POLYTOPE_MAX_VOXEL * sc.camera_radius)
+        assert ("grid" in corridor_options.corridor_kwargs(pl.space)) == corridor_options.use_grid_polytopes(pl.space)
+    on, off = (Planner(sc, PlannerConfig(grid_resolution=r, grid_polytopes=g)) for r, g in ((24, True), (96, False)))
+    assert corridor_options.use_grid_polytopes(on.space)
+    assert not corridor_options.use_grid_polytopes(off.space)
     with pytest.raises(InvalidInputError):
         Planner(sc, PlannerConfig(grid_polytopes="yes"))
 

@@ -11,6 +11,7 @@ import torch
 from hypothesis import HealthCheck, given, settings, strategies as st
 from scipy.spatial import HalfspaceIntersection
 
+from cinenerf_ns.planner.corridor import corridor_options
 from cinenerf_ns.planner.corridor.polytope import SeedNotFreeError, chebyshev_center, safe_polytope
 from cinenerf_ns.planner.corridor.polytope_batched import safe_polytopes_batched
 from cinenerf_ns.planner.corridor.safe_corridor import build_corridor
@@ -201,8 +202,9 @@ def test_planner_with_batched_corridor_on_cpu_tensors():
         Planner(e, PlannerConfig(corridor_backend="gpu"))
     pl = Planner(e, PlannerConfig(grid_resolution=64, corridor_backend="batched", candidate_workers=0))
     pl.prepare()
-    assert pl.corridor_backend() == "batched"
-    assert Planner(e, PlannerConfig(corridor_backend="auto")).corridor_backend() == "cpu"  # CPU scene
+    assert corridor_options.corridor_backend(pl.space) == "batched"
+    auto = Planner(e, PlannerConfig(corridor_backend="auto"))
+    assert corridor_options.corridor_backend(auto.space) == "cpu"  # CPU scene
     for seed in range(3):
         sh = pl.plan(s.objects[0].center, s.objects[1].center, seed=seed)[0]
         assert sh.safety["safe"]
@@ -237,7 +239,8 @@ def test_cuda_batched_polytopes_match_cpu_and_plan():
     pl = Planner(e, PlannerConfig(candidate_workers=0))  # requests on the CPU mirror
     pl.prepare()
     # auto: host polytopes on the CPU mirror for one request, batched for many corridors
-    assert pl.corridor_backend() == "cpu" and pl.corridor_backend(many=True) == "batched"
+    assert corridor_options.corridor_backend(pl.space) == "cpu"
+    assert corridor_options.corridor_backend(pl.space, many=True) == "batched"
     assert pl.scene.device.type == "cpu"
     sh = pl.plan(room.objects[0].center, room.objects[1].center, seed=0)[0]
     assert sh.safety["safe"] and all(P.A.device.type == "cpu" for P in sh.corridor.polytopes)

@@ -176,7 +176,7 @@ def test_planner_capped_clearance_with_the_grid_estimate_is_exact():
     g = torch.Generator().manual_seed(0)
     lo, hi = prep.grid.lo, prep.grid.hi
     pts = lo + torch.rand(300, 3, generator=g, dtype=F64) * (hi - lo)
-    est = distance_estimate(pl, pts.numpy())
+    est = distance_estimate(pl.space, pts.numpy())
     assert (est > 0).any() and (est == 0).any()  # free voxels get an estimate, occupied ones the default
     exact = clearance(pts, sc, prep.index)
     for cap in (0.05, 0.2):

@@ -1,6 +1,7 @@
 """Goal points and start sampling (cinenerf_ns/planner/search/goal.py) against exact float64 references."""
 from __future__ import annotations
 
+import functools
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -12,6 +13,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 
 from cinenerf_ns.planner import native
 from cinenerf_ns.planner.errors import GoalUnreachableError, InvalidInputError, StartInCollisionError
+from cinenerf_ns.planner.geometry import clearance_queries
 from cinenerf_ns.planner.search.goal import (
     NoFreeStartError,
     closest_safe_point,
@@ -315,10 +317,11 @@ def test_mean_voxel_mask_gives_the_same_goals_as_the_box_query():
     assert prep.mean_voxels is not None and np.array_equal(prep.mean_voxels, mv) and mv.any()
     for blob in b.blobs[:4]:
         t = torch.as_tensor(blob.center, dtype=torch.float64)
-        kw = dict(reachable=prep.astar_grid.labels > 0, clearance_fn=pl.free_test)
+        kw = dict(reachable=prep.astar_grid.labels > 0,
+                  clearance_fn=functools.partial(clearance_queries.free_test, pl.space))
         a = closest_safe_point(t, scene, prep.index, prep.grid, **kw)
         m = closest_safe_point(t, scene, prep.index, prep.grid, mean_voxels=mv, **kw)
-        assert torch.equal(a, m) and bool(pl.points_free(m[None].numpy())[0])
+        assert torch.equal(a, m) and bool(clearance_queries.points_free(pl.space, m[None].numpy())[0])
 
 
 needs_goalwindow = pytest.mark.skipif(native.goal_window_c() is None,

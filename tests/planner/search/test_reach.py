@@ -14,7 +14,7 @@ from cinenerf_ns.planner.geometry.collision import segments_collide
 from cinenerf_ns.planner.native import points_distance_c
 from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
 from cinenerf_ns.planner.scene.procedural import procedural_room
-from cinenerf_ns.planner.search import reach
+from cinenerf_ns.planner.search import reach, shortcut as shortcut_module
 from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
 
 sys.path.insert(0, str(Path(__file__).parents[1]))
@@ -54,7 +54,7 @@ def test_proven_blocked_segments_really_collide(planner, seed, n):
     lo, hi = planner.region()
     p = rng.uniform(lo, hi)
     ends = p + rng.normal(0, 0.15, (n, 3))
-    blocked = reach.segments_proven_blocked(planner, p, ends)
+    blocked = reach.segments_proven_blocked(planner.space, p, ends)
     scene = planner.scene
     for k in np.flatnonzero(blocked)[:4]:  # float64 brute force: some point of it is within the radius
         assert _segment_clearance(scene, p, ends[k], n=400) < 0
@@ -72,9 +72,9 @@ def test_first_free_segment_is_the_capsule_tests_first_or_proven_free(planner, s
     p = rng.uniform(lo, hi)
     ends = p + rng.normal(0, spread, (n, 3))
     pt, et = torch.as_tensor(p), torch.as_tensor(ends)
-    got = reach._first_free_segment(planner, pt, et)
+    got = reach._first_free_segment(planner.space, pt, et)
     ref_free = np.flatnonzero(~segments_collide(pt.expand_as(et), et, planner.scene, planner.ready().index).numpy())
-    proven = np.flatnonzero(planner.segments_free(np.broadcast_to(p, ends.shape), ends))
+    proven = np.flatnonzero(shortcut_module.segments_free(planner.space, np.broadcast_to(p, ends.shape), ends))
     if got is None:
         assert ref_free.size == 0 and proven.size == 0
         return

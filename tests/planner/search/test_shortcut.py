@@ -13,7 +13,8 @@ from cinenerf_ns.planner.search.shortcut import FreeVoxels, free_voxels, grid_si
 
 
 def in_free_voxel_reference(occ: np.ndarray, lo: np.ndarray, vs: float, p: np.ndarray) -> bool:
-    """One point, plain Python: its voxel floor((p - lo) / vs) is in the grid and free (Planner.in_free_voxel)."""
+    """One point, plain Python: its voxel floor((p - lo) / vs) is in the grid and free (as
+    clearance_queries.in_free_voxel)."""
     ijk = [math.floor((float(p[a]) - float(lo[a])) / vs) for a in range(3)]
     return all(0 <= ijk[a] < occ.shape[a] for a in range(3)) and not bool(occ[ijk[0], ijk[1], ijk[2]])
 
@@ -32,11 +33,11 @@ def grid_sight_reference(occ: np.ndarray, lo: np.ndarray, vs: float, p0: np.ndar
     return True
 
 
-def fake_planner(occ: np.ndarray, lo: np.ndarray, vs: float):
-    """What free_voxels reads of a prepared Planner: the A* grid's occupancy and the grid's corner and voxel size."""
+def fake_space(occ: np.ndarray, lo: np.ndarray, vs: float):
+    """What free_voxels reads of a planning space: the A* grid's occupancy and the grid's corner and voxel size."""
     prep = SimpleNamespace(astar_grid=SimpleNamespace(_occ=occ),
                            grid=SimpleNamespace(lo=torch.as_tensor(lo, dtype=torch.float64), voxel_size=vs))
-    return SimpleNamespace(ready=lambda: prep)
+    return SimpleNamespace(prepared=prep)
 
 
 grids = st.tuples(st.integers(0, 2**31 - 1), st.integers(1, 9), st.integers(1, 9), st.integers(1, 9),
@@ -77,30 +78,30 @@ def test_grid_sight_matches_the_sample_by_sample_reference(spec, n, grid_aligned
     if grid_aligned:  # voxel centres and corners, as the voxel path gives; some segments of length 0
         p0 = lo + (rng.integers(0, max(occ.shape), (n, 3)) + 0.5 * rng.integers(0, 2, (n, 1))) * vs
         p1 = np.where(rng.random((n, 1)) < 0.2, p0, lo + (rng.integers(0, max(occ.shape), (n, 3)) + 0.5) * vs)
-    pl = fake_planner(occ, lo, vs)
-    got = grid_sight(pl, p0, p1)
+    sp = fake_space(occ, lo, vs)
+    got = grid_sight(sp, p0, p1)
     assert got.tolist() == [grid_sight_reference(occ, lo, vs, a, b) for a, b in zip(p0, p1)]
 
 
 def test_free_voxels_is_cached_per_grid():
     occ = np.zeros((3, 3, 3), dtype=bool)
-    pl = fake_planner(occ, np.zeros(3), 0.1)
-    fv = free_voxels(pl)
-    assert free_voxels(pl) is fv
-    pl.ready().astar_grid._occ = occ.copy()  # another grid: rebuilt
-    assert free_voxels(pl) is not fv
+    sp = fake_space(occ, np.zeros(3), 0.1)
+    fv = free_voxels(sp)
+    assert free_voxels(sp) is fv
+    sp.prepared.astar_grid._occ = occ.copy()  # another grid: rebuilt
+    assert free_voxels(sp) is not fv
 
 
-def rounds_planner(occ: np.ndarray, lo: np.ndarray, vs: float):
-    """fake_planner with the voxel walk's grid too (PreparedScene.voxels), as shortcut_pass reads it."""
+def rounds_space(occ: np.ndarray, lo: np.ndarray, vs: float):
+    """fake_space with the voxel walk's grid too (PreparedScene.voxels), as shortcut_pass reads it."""
     from cinenerf_ns.planner.corridor.grid_polytope import VoxelObstacles
 
-    pl = fake_planner(occ, lo, vs)
-    pl.ready().voxels = VoxelObstacles.from_occupied(occ, lo, vs)
-    return pl
+    sp = fake_space(occ, lo, vs)
+    sp.prepared.voxels = VoxelObstacles.from_occupied(occ, lo, vs)
+    return sp
 
 
-def pieces_oracle(pl, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def pieces_oracle(space, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """A stand-in for the Corollary-1 pieces: a fixed pseudo-random answer per segment (any per-segment rule will do:
     shortcut_pass must ask it the segments whose answer can matter and combine the answers as the reference does)."""
     h = np.sin(a @ [12.9898, 78.233, 37.719] + b @ [93.989, 67.345, 11.135]) * 43758.5453
@@ -140,14 +141,14 @@ def test_compiled_shortcut_pass_is_batched_shortcut_of_shortcut_test(spec, n, gr
 
     rng, occ, lo, vs = make_grid(spec)
     occ &= rng.random(occ.shape) < 0.5  # sparser: long free jumps happen
-    pl = rounds_planner(occ, lo, vs)
+    sp = rounds_space(occ, lo, vs)
     ways = random_polylines(rng, occ, lo, vs, n)
     backends = ["python"] + (["native"] if native.shortcut_rounds_c() is not None else [])
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(S, "segments_free_by_pieces", pieces_oracle)
-        want = batched_shortcut(ways, lambda p0, p1: S.shortcut_test(pl, p0, p1, grid_rule))
+        want = batched_shortcut(ways, lambda p0, p1: S.shortcut_test(sp, p0, p1, grid_rule))
         for backend in backends:
-            got = S.shortcut_pass(pl, ways, grid_rule, backend=backend)
+            got = S.shortcut_pass(sp, ways, grid_rule, backend=backend)
             assert len(got) == len(want)
             for g, w, way in zip(got, want, ways):
                 assert g.dtype == way.dtype and np.array_equal(g, w)
@@ -159,12 +160,12 @@ def test_shortcut_pass_edge_cases(monkeypatch):
 
     monkeypatch.setattr(S, "segments_free_by_pieces", pieces_oracle)
     occ = np.zeros((4, 4, 4), dtype=bool)
-    pl = rounds_planner(occ, np.zeros(3), 0.5)
-    assert S.shortcut_pass(pl, [], True) == []
+    sp = rounds_space(occ, np.zeros(3), 0.5)
+    assert S.shortcut_pass(sp, [], True) == []
     ways = [np.array([[0.3, 0.3, 0.3]]), np.array([[0.3, 0.3, 0.3], [1.2, 1.2, 1.2]]), np.full((5, 3), 0.7),
             np.array([[0.25, 0.25, 0.25], [0.75, 0.75, 0.75], [1.25, 0.75, 0.75], [1.75, 1.75, 1.75]])]
     for grid_rule in (True, False):
-        got = S.shortcut_pass(pl, ways, grid_rule)
+        got = S.shortcut_pass(sp, ways, grid_rule)
         assert [g.tolist() for g in got] == [ways[0].tolist(), ways[1].tolist(), ways[2][[0, 4]].tolist(),
                                              ways[3][[0, 3]].tolist()]
 
@@ -178,12 +179,12 @@ def test_grid_sight_sample_exactly_one_voxel_from_an_end_does_not_count(monkeypa
     from cinenerf_ns.planner import native
     from cinenerf_ns.planner.search.astar import batched_shortcut
 
-    monkeypatch.setattr(S, "segments_free_by_pieces", lambda pl, a, b: np.ones(len(a), dtype=bool))
+    monkeypatch.setattr(S, "segments_free_by_pieces", lambda space, a, b: np.ones(len(a), dtype=bool))
     occ = np.zeros((6, 2, 2), dtype=bool)
     occ[1, 0, 0] = True
-    pl = rounds_planner(occ, np.zeros(3), 1.0)
+    sp = rounds_space(occ, np.zeros(3), 1.0)
     way = np.array([[0.5, 0.5, 0.5], [2.5, 0.5, 0.5], [4.5, 0.5, 0.5]])
     want = [way[[0, 2]].tolist()]
-    assert [w.tolist() for w in batched_shortcut([way], lambda p0, p1: S.shortcut_test(pl, p0, p1, False))] == want
+    assert [w.tolist() for w in batched_shortcut([way], lambda p0, p1: S.shortcut_test(sp, p0, p1, False))] == want
     for backend in ["python"] + (["native"] if native.shortcut_rounds_c() is not None else []):
-        assert [w.tolist() for w in S.shortcut_pass(pl, [way], False, backend=backend)] == want
+        assert [w.tolist() for w in S.shortcut_pass(sp, [way], False, backend=backend)] == want

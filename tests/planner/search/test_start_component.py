@@ -1,13 +1,17 @@
 """Which free component random starts come from without a start region (planner.preferred_component)."""
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import torch
 from _shot_scenes import _discs
 from hypothesis import given, settings, strategies as st
 from scipy import ndimage
 
+from cinenerf_ns.planner.geometry import clearance_queries
 from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
+from cinenerf_ns.planner.search import starts as starts_module
 from cinenerf_ns.planner.shots.planner import ENCLOSED_COMPONENT_FRACTION, Planner, PlannerConfig, preferred_component
 
 
@@ -88,7 +92,8 @@ def test_random_starts_in_a_closed_room_without_a_start_region_are_inside_it():
     counts[0] = 0
     comp = pl.main_component()
     assert comp != int(np.argmax(counts))  # the premise: the outside shell is the largest
-    starts = pl.random_starts(20, torch.Generator().manual_seed(0), np.array([0.5, 0.0, 0.25])).numpy()
+    gen = torch.Generator().manual_seed(0)
+    starts = starts_module.random_starts(pl.space, 20, gen, np.array([0.5, 0.0, 0.25])).numpy()
     assert (np.abs(starts[:, :2]) < w / 2).all() and (starts[:, 2] > 0).all() and (starts[:, 2] < h).all()
     shot = pl.plan(np.array([0.6, 0.5, 0.25]), np.array([-0.5, -0.5, 0.1]), seed=1)[0]
     assert (np.abs(shot.positions[:, :2]) < w / 2).all() and (shot.positions[:, 2] > 0).all()
@@ -105,12 +110,13 @@ def test_random_starts_with_the_cached_blocked_mask_are_those_of_both_masks():
     prep = pl.prepare()
     look = np.array([0.5, 0.0, 0.25])
     for seed in range(4):
-        got = pl.random_starts(6, torch.Generator().manual_seed(seed), look)
+        got = starts_module.random_starts(pl.space, 6, torch.Generator().manual_seed(seed), look)
         want = sample_free_starts(
             6, pl.scene, prep.index, prep.grid, generator=torch.Generator().manual_seed(seed),
-            reachable=prep.astar_grid.labels == pl.main_component(), clearance_fn=pl.free_test,
+            reachable=prep.astar_grid.labels == pl.main_component(),
+            clearance_fn=functools.partial(clearance_queries.free_test, pl.space),
             away_from=look, away_fraction=pl.config.start_look_distance)
         assert torch.equal(got, want)
-    assert start_blocked(pl) is start_blocked(pl)
+    assert start_blocked(pl.space) is start_blocked(pl.space)
     occ = np.asarray(prep.grid.occupied.cpu().numpy() if torch.is_tensor(prep.grid.occupied) else prep.grid.occupied)
-    assert np.array_equal(start_blocked(pl), occ | (prep.astar_grid.labels != pl.main_component()))
+    assert np.array_equal(start_blocked(pl.space), occ | (prep.astar_grid.labels != pl.main_component()))

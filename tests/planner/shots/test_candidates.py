@@ -1,6 +1,7 @@
 """Batched candidates: verified safe, ranked by the documented score, views from the open side of a
 walled-off target first; the batched scores equal score_shot's; the batched shortcut equals the
 sequential one; seeded; specific errors."""
+import functools
 import math
 
 import numpy as np
@@ -11,6 +12,7 @@ from _shot_scenes import GO_TO, TARGET, TARGET_RADIUS, walled_target_scene
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.geometry.distance import clearance
 from cinenerf_ns.planner.search.astar import shortcut
+from cinenerf_ns.planner.search.shortcut import segments_free
 from cinenerf_ns.planner.shots.candidates import batched_shortcut, plan_candidates
 from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
 from cinenerf_ns.planner.shots.scoring import ScoreConfig, score_shot
@@ -89,9 +91,10 @@ def test_batched_scores_equal_single_scores(planner, ranked):
 def test_batched_shortcut_equals_sequential(planner):
     rng = np.random.default_rng(0)
     paths = [np.cumsum(rng.uniform(-0.08, 0.08, (n, 3)), 0) + np.array([0.5, 0.0, 0.5]) for n in (2, 3, 9, 14)]
-    got = batched_shortcut(paths, planner.segments_free)
+    free = functools.partial(segments_free, planner.space)
+    got = batched_shortcut(paths, free)
     for p, g in zip(paths, got):
-        assert np.array_equal(g, shortcut(p, planner.segments_free))
+        assert np.array_equal(g, shortcut(p, free))
 
 
 def test_seeded_and_limits(planner):

@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from cinenerf_ns.planner.errors import InvalidInputError
+from cinenerf_ns.planner.geometry import clearance_queries
 from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
 from cinenerf_ns.planner.scene.procedural import procedural_room
 from cinenerf_ns.planner.shots.candidates import plan_candidates
@@ -59,7 +60,7 @@ def test_end_poses_are_free_outside_every_object_and_framed(room):
             for p in ch.poses:
                 assert not _inside_a_box(p.point, r), (a, b, p.point)  # never inside an object (ground truth)
                 assert pl.clearance(p.point[None])[0] >= 0  # exact clearance: the camera ball is free there
-                assert pl.points_free(p.point[None])[0]
+                assert clearance_queries.points_free(pl.space, p.point[None])[0]
                 lo, hi = pl.region()
                 assert np.all(p.point >= lo) and np.all(p.point <= hi)
                 n_total += 1

@@ -6,9 +6,11 @@ import torch
 from hypothesis import given, settings, strategies as st
 
 from cinenerf_ns.planner.errors import InvalidInputError, PlanningError, StartInCollisionError
+from cinenerf_ns.planner.geometry import clearance_queries
 from cinenerf_ns.planner.geometry.distance import clearance
 from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
 from cinenerf_ns.planner.scene.procedural import procedural_room
+from cinenerf_ns.planner.search import shortcut as shortcut_module
 from cinenerf_ns.planner.search.astar import shortcut
 from cinenerf_ns.planner.search.reach import reachable_goal
 from cinenerf_ns.planner.search.shortcut import shortcut_free, shortcut_free_any
@@ -116,7 +118,7 @@ def test_shortcut_filter_only_accepts_proven_free_segments(room):
     lo, hi = pl.prepared.grid.lo.numpy(), pl.prepared.grid.hi.numpy()
     p0 = rng.uniform(lo, hi, (200, 3))
     p1 = p0 + rng.normal(size=(200, 3)) * 0.3
-    fast, exact = shortcut_free(pl, p0, p1), pl.segments_free(p0, p1)
+    fast, exact = shortcut_free(pl.space, p0, p1), shortcut_module.segments_free(pl.space, p0, p1)
     assert not (fast & ~exact).any()
     assert fast.any() and (exact & ~fast).any()  # the filter both passes and refuses some here
     t = np.linspace(0, 1, 200)
@@ -187,7 +189,7 @@ def test_grid_clearance_lower_bound_is_never_optimistic_and_capped_clearance_is_
     def check(fracs):
         pts = lo + np.asarray(fracs) * span  # inside the grid and a little outside it
         exact = clearance(torch.as_tensor(pts), e, None).numpy()  # float64 brute force over all ellipsoids
-        lb = pl.clearance_lower_bound(pts)
+        lb = clearance_queries.clearance_lower_bound(pl.space, pts)
         assert (lb <= exact + 1e-12).all()
         assert ((lb >= 0) | (lb == -np.inf)).all()
         for cap in (0.05, 0.2):
@@ -196,7 +198,7 @@ def test_grid_clearance_lower_bound_is_never_optimistic_and_capped_clearance_is_
     check()
     # the bound does skip work: in this room's open space it proves a large clearance for many points
     g = np.random.default_rng(0).uniform(lo, hi, size=(2000, 3))
-    lb = pl.clearance_lower_bound(g)
+    lb = clearance_queries.clearance_lower_bound(pl.space, g)
     assert (lb > 0.05).mean() > 0.1
     assert (lb <= clearance(torch.as_tensor(g), e, pl.prepared.index).numpy() + 1e-12).all()
 
@@ -223,8 +225,8 @@ def test_points_free_grid_filter_is_never_optimistic(seed, res):
     # float64 brute force by the tests' own vectorised bisection (independent of the package; -1 inside, where only
     # the sign matters here)
     exact = torch.as_tensor(exact_distance(pts.numpy(), sc)).min(-1).values - 0.03
-    grid_free = torch.as_tensor(pl.in_free_voxel(pts.numpy()))
-    free = torch.as_tensor(pl.points_free(pts.numpy()))
+    grid_free = torch.as_tensor(clearance_queries.in_free_voxel(pl.space, pts.numpy()))
+    free = torch.as_tensor(clearance_queries.points_free(pl.space, pts.numpy()))
     assert (exact[grid_free] >= 0).all()
     assert (exact[free] >= 0).all()
     assert (free | ~grid_free).all()  # grid-free points are reported free
@@ -289,26 +291,26 @@ def test_shortcut_ways_equals_shortcut_way_per_path_and_choose_way_takes_the_che
     s, e, pl = grid_room
     rng = np.random.default_rng(4)
     paths = [p for p in _random_voxel_paths(pl, rng, 12) if len(p) >= 2]
-    got = pl.shortcut_ways(paths)
+    got = shortcut_module.shortcut_ways(pl.space, paths)
     for p, g in zip(paths, got):
-        assert np.array_equal(g, pl.shortcut_way(p))
+        assert np.array_equal(g, shortcut_module.shortcut_ways(pl.space, [p])[0])
     # choose_way: segments + OFF_GRID_SEGMENT_COST x off-grid segments, the cheaper wins
     from cinenerf_ns.planner.search.shortcut import OFF_GRID_SEGMENT_COST
 
     for p in paths:
-        a = pl.shortcut_way(p)
-        b = shortcut(p, lambda a, b: shortcut_free_any(pl, a, b))
-        cost = lambda w: (len(w) - 1) + OFF_GRID_SEGMENT_COST * pl.segments_off_grid(w)  # noqa: E731
-        c = pl.choose_way(a, b)
+        a = shortcut_module.shortcut_ways(pl.space, [p])[0]
+        b = shortcut(p, lambda a, b: shortcut_free_any(pl.space, a, b))
+        cost = lambda w: (len(w) - 1) + OFF_GRID_SEGMENT_COST * shortcut_module.segments_off_grid(pl.space, w)  # noqa: E731
+        c = shortcut_module.choose_way(pl.space, a, b)
         assert cost(c) == min(cost(a), cost(b))
-    assert pl.choose_way(paths[0], None) is paths[0]
+    assert shortcut_module.choose_way(pl.space, paths[0], None) is paths[0]
 
 
 def test_grid_rule_shortcut_keeps_interior_segments_in_free_voxels(grid_room):
     s, e, pl = grid_room
     rng = np.random.default_rng(5)
     for p in _random_voxel_paths(pl, rng, 10):
-        g = shortcut(p, lambda a, b: shortcut_free(pl, a, b))
+        g = shortcut(p, lambda a, b: shortcut_free(pl.space, a, b))
         vox = pl.prepared.voxels
         # a segment the shortcut made (not a consecutive pair of the input) lies in free voxels
         idx = [int(np.flatnonzero((p == q).all(1))[0]) for q in g]
@@ -337,7 +339,7 @@ def test_goal_from_the_small_box_is_as_close_as_from_the_full_box(room, monkeypa
     for o in s.objects:
         for _ in range(3):
             target = o.center + rng.uniform(-0.25, 0.25, 3) * o.size
-            goal = reachable_goal(pl, target, comp)
+            goal = reachable_goal(pl.space, target, comp)
             if goal.polytope is None:  # step 1 answered (target free and reachable) or no polytope
                 continue
             c = grid.voxel_to_world(torch.as_tensor(goal.voxel)).double()
@@ -366,13 +368,13 @@ def test_shortcut_test_is_the_grid_sight_and_proof_rule(room, seed, grid_rule, n
     lo, hi = pl.region()
     a = rng.uniform(lo, hi, (n, 3))
     b = a + rng.normal(0, 0.4, (n, 3)) * rng.choice([0.1, 1.0], (n, 1))  # short and long segments
-    sight = grid_sight(pl, a, b)
-    fv = free_voxels(pl)
+    sight = grid_sight(pl.space, a, b)
+    fv = free_voxels(pl.space)
     walk = pl.ready().voxels.segments_free(a, b)
-    proof = segments_free(pl, a, b)
+    proof = segments_free(pl.space, a, b)
     ends_free = fv.contains(a) & fv.contains(b)
     want = sight & np.where(grid_rule & ends_free, walk, proof)
-    assert np.array_equal(shortcut_test(pl, a, b, grid_rule), want)
+    assert np.array_equal(shortcut_test(pl.space, a, b, grid_rule), want)
 
 
 @pytest.mark.parametrize("grid_rule", [True, False])
@@ -392,8 +394,8 @@ def test_compiled_shortcut_pass_is_the_reference_on_a_scene(room, grid_rule):
     for w in ways[::2]:  # a start and a goal point off the centres, possibly in occupied voxels
         w[0] += rng.uniform(-0.5, 0.5, 3) * vs
         w[-1] += rng.uniform(-1.5, 1.5, 3) * vs
-    want = batched_shortcut(ways, lambda p0, p1: shortcut_test(pl, p0, p1, grid_rule))
+    want = batched_shortcut(ways, lambda p0, p1: shortcut_test(pl.space, p0, p1, grid_rule))
     for batch in (ways, ways[:1]):
-        got = shortcut_pass(pl, batch, grid_rule, backend="native")
+        got = shortcut_pass(pl.space, batch, grid_rule, backend="native")
         assert all(np.array_equal(g, w) for g, w in zip(got, want))
     assert any(len(w) < len(p) for w, p in zip(want, ways))

@@ -8,6 +8,7 @@ from hypothesis import given, settings, strategies as st
 from cinenerf_ns.planner.corridor.polytope import Polytope
 from cinenerf_ns.planner.corridor.safe_corridor import Corridor
 from cinenerf_ns.planner.errors import InvalidInputError, StartInCollisionError
+from cinenerf_ns.planner.geometry import clearance_queries
 from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
 from cinenerf_ns.planner.scene.procedural import procedural_room
 from cinenerf_ns.planner.shots.candidates import plan_candidates
@@ -75,7 +76,7 @@ def test_goal_inside_an_object_says_the_camera_does_not_fit(room):
     m = e.means.double().numpy()
     ok = ((m > lo + 0.2) & (m < hi - 0.2)).all(1)
     target = m[np.flatnonzero(ok)[int(torch.argmax(e.radii[torch.as_tensor(ok)].min(-1).values))]]  # deep inside one
-    assert not pl.points_free(target[None])[0]
+    assert not clearance_queries.points_free(pl.space, target[None])[0]
     shot = pl.plan(target, s.objects[1].center, seed=0)[0]
     mv = pl.explain_goal(target, shot.goal)
     assert mv is not None and mv["distance"] > 0 and "does not fit" in mv["why"]
@@ -93,10 +94,10 @@ def test_start_outside_region_is_an_error_unless_forced():
     pl.prepare()
     lo, hi = pl.region()
     start = np.array([lo[0] - 0.1, 0.5 * (lo[1] + hi[1]), 0.5 * (lo[2] + hi[2])])
-    assert not pl.in_free_voxel(start[None])[0]
+    assert not clearance_queries.in_free_voxel(pl.space, start[None])[0]
     with pytest.raises(InvalidInputError, match="outside the planning region.*force"):
         pl.plan(s.objects[0].center, s.objects[1].center, start=start)
-    if not bool(pl.points_free(start[None])[0]):
+    if not bool(clearance_queries.points_free(pl.space, start[None])[0]):
         pytest.skip("the chosen start is not free in this room")
     shot = pl.plan(s.objects[0].center, s.objects[1].center, start=start, force_start=True)[0]
     assert np.allclose(shot.positions[0], start) and shot.safety["safe"]

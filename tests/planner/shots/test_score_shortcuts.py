@@ -47,7 +47,7 @@ def test_free_grid_and_sphere_prefilter_match_reference(seed, stop):
     ref = sight_lines_blocked_reference(cams, tgts, *_arrays(pl), stop_distance=stop)
     plain = sight_lines_blocked(cams, tgts, pl.scene, prep.index, stop_distance=stop, backend="native").numpy()
     fast = sight_lines_blocked(cams, tgts, pl.scene, prep.index, stop_distance=stop, backend="native",
-                               free_grid=clearance_queries.free_voxel_grid(pl)).numpy()
+                               free_grid=clearance_queries.free_voxel_grid(pl.space)).numpy()
     assert np.array_equal(fast, plain)
     assert np.array_equal(fast, ref)
     assert 0 < ref.mean() < 1  # both answers occur
@@ -57,7 +57,7 @@ def test_grazing_lines_match_reference():
     # lines passing just outside / inside one ellipsoid: the prefilter's slack must never drop a hit
     pl = _random_planner(5, 40)
     m, r, a = _arrays(pl)
-    prep, fg = pl.ready(), clearance_queries.free_voxel_grid(pl)
+    prep, fg = pl.ready(), clearance_queries.free_voxel_grid(pl.space)
     rng = np.random.default_rng(7)
     for g in rng.choice(len(m), 10, replace=False):
         axis = r[g][:, int(np.argmax(a[g]))] * a[g].max()  # the longest semi-axis, in world coordinates
@@ -96,7 +96,7 @@ def _old_capped_clearance(pl, pts, cap):
     from cinenerf_ns.planner.geometry.distance import clearance as exact_clearance
 
     out = np.full(len(pts), float(cap))
-    todo = np.flatnonzero(clearance_queries.clearance_lower_bound(pl, pts) < cap)
+    todo = np.flatnonzero(clearance_queries.clearance_lower_bound(pl.space, pts) < cap)
     md = float(cap) + float(pl.scene.camera_radius)
     for i in todo:
         out[i] = exact_clearance(torch.as_tensor(pts[i:i + 1]), pl.scene, pl.ready().index, max_distance=md).item()
@@ -118,10 +118,10 @@ def test_capped_clearance_is_unchanged_and_box_bound_is_a_lower_bound(seed, cap)
     s = pl.scene
     exact = point_ellipsoid_distance(torch.as_tensor(pts), s.means, s.rotations, s.radii).min(1).values.numpy()
     exact = exact - float(s.camera_radius)
-    lb = clearance_queries.box_clearance_bound(pl, pts, cap)
+    lb = clearance_queries.box_clearance_bound(pl.space, pts, cap)
     proven = lb >= cap
     assert np.all(exact[proven] >= cap)  # never optimistic where it decides
     assert np.all(lb[exact > 0] <= exact[exact > 0] + 1e-12)  # a lower bound wherever the camera is clear
-    edt = clearance_queries.clearance_lower_bound(pl, pts) >= cap
+    edt = clearance_queries.clearance_lower_bound(pl.space, pts) >= cap
     assert (proven & ~edt).any()  # it proves points the centre-to-centre bound does not
     assert np.allclose(np.minimum(exact, cap)[exact > 0], new[exact > 0], rtol=0, atol=1e-9)

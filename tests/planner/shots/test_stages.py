@@ -11,6 +11,7 @@ from _shot_scenes import GO_TO, TARGET, walled_target_scene
 from hypothesis import given, settings, strategies as st
 from hypothesis.extra import numpy as hnp
 
+from cinenerf_ns.planner.corridor import corridor_options
 from cinenerf_ns.planner.errors import UnsafeTrajectoryError
 from cinenerf_ns.planner.scene.occupancy import OccupancyGrid
 from cinenerf_ns.planner.shots import stages
@@ -98,7 +99,7 @@ def test_unsafe_reports_are_refused_with_the_curve_named():
 
 STAGE_INTERNALS = {
     "coarse_path": {"voxel_path"}, "corridor": {"build_corridor", "build_corridors"}, "safety": {"verify_shot"},
-    "reach": {"reachable_goal", "free_voxel_near"}, "trajectory": {"solve_corridor_qp"}, "dynamics": {"retime_shot"},
+    "reach": {"reachable_goal", "free_voxel_near"}, "trajectory": {"solve_corridor_qp"}, "shot": {"retime_shot"},
 }
 
 
@@ -137,7 +138,7 @@ def test_corner_detours_leave_the_voxel_path_walk_free_where_they_can():
     r = float(scene.camera_radius)
     pl = Planner(scene, PlannerConfig(up=b.up, start_region=(b.free_lo + r, b.free_hi - r), grid_resolution=48))
     prep = pl.prepare()
-    assert pl.use_grid_polytopes() and pl.config.corner_detours  # the default
+    assert corridor_options.use_grid_polytopes(pl.space) and pl.config.corner_detours  # the default
     labels = prep.astar_grid.labels
     free = np.argwhere(labels == np.bincount(labels[labels > 0]).argmax())
     rng = np.random.default_rng(0)

@@ -5,8 +5,8 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from cinenerf_ns.planner.errors import InvalidInputError
-from cinenerf_ns.planner.shots.shot import Shot
-from cinenerf_ns.planner.trajectory.dynamics import DynamicLimits, frame_peaks, retime, retime_shot, view_vectors
+from cinenerf_ns.planner.shots.shot import Shot, retime_shot
+from cinenerf_ns.planner.trajectory.dynamics import DynamicLimits, frame_peaks, retime, view_vectors
 from cinenerf_ns.planner.trajectory.qp import solve_corridor_qp
 
 BOX = (np.vstack([np.eye(3), -np.eye(3)]), np.full(6, 10.0))
