@@ -38,8 +38,10 @@ SHORT_FLAGS: Dict[tuple, str] = {
     (TimingConfig, "max_speed"): "--max-speed",
     (TimingConfig, "fps"): "--fps",
     (SceneConfig, "camera_radius"): "--camera-radius",
+    (SceneConfig, "opacity_floor"): "--opacity-floor",
 }
-"""(config, field) -> the short alias of its nested flag, for the settings users change daily."""
+"""(config, field) -> the short alias of its nested flag, for the settings users change daily (--opacity-floor:
+the planner's empty-scene message names it)."""
 UNPREFIXED = {(PlannerConfig, "trajectory"), (PlannerConfig, "timing")}
 """Nested configs shown as ``--trajectory.*`` / ``--timing.*`` rather than ``--planner.trajectory.*``."""
 

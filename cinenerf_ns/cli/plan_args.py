@@ -154,7 +154,7 @@ def check_args(args: PlanArgs) -> None:
     check_number(args.obstacles.camera_radius, "--camera-radius", 0, 10)
     check_number(args.safety_margin, "--safety-margin", 0, 10)
     check_number(args.obstacles.beta, "--obstacles.beta", 0, 10, lo_open=True)
-    check_number(args.obstacles.opacity_floor, "--obstacles.opacity-floor", 0, 0.999)
+    check_number(args.obstacles.opacity_floor, "--opacity-floor", 0, 0.999)
     check_number(args.planner.grid_resolution, "--grid-resolution", *GRID_RESOLUTION_RANGE, integer=True)
     check_number(args.planner.memory_budget_mb, "--memory-budget-mb", 64, 2**20)
     check_number(args.semantic_smoothing, "--semantic-smoothing", 0, 256, integer=True)
@@ -321,7 +321,6 @@ def framing_config(args: PlanArgs) -> FramingConfig:
 
 RENAMED_FLAGS = {
     "--beta": "--obstacles.beta",
-    "--opacity-floor": "--obstacles.opacity-floor",
     "--start-look-distance": "--planner.start-look-distance",
     "--grid-polytopes": "--planner.grid-polytopes",
     "--no-no-unseen-fill": "--unseen-fill",

@@ -38,7 +38,8 @@ OPTION_CASES = [
     ("margin-negative", ["--safety-margin", "-1"], r"--safety-margin must be"),
     ("beta-zero", ["--obstacles.beta", "0"], r"--obstacles.beta must be"),
     ("beta-inf", ["--obstacles.beta", "inf"], r"--obstacles.beta must be"),
-    ("opacity-floor", ["--obstacles.opacity-floor", "1.5"], r"--obstacles.opacity-floor must be"),
+    ("opacity-floor", ["--opacity-floor", "1.5"], r"--opacity-floor must be"),
+    ("opacity-floor-nested", ["--obstacles.opacity-floor", "1.5"], r"--opacity-floor must be"),
     ("grid-zero", ["--grid-resolution", "0"], r"--grid-resolution must be an integer in \[8, 1024\]"),
     ("grid-huge", ["--grid-resolution", "100000"], r"--grid-resolution must be"),
     ("grid-over-budget", ["--grid-resolution", "1000", "--memory-budget-mb", "256"],
@@ -105,7 +106,7 @@ OPTION_CASES = [
      r"--memory-budget-mb 1e\+06 is more than the memory available to this process \(about \d+ MB"),
     # issue 35: the planner's configs are nested (--planner.*, --trajectory.*, --obstacles.*): renamed flags say so
     ("renamed-beta", ["--beta", "2"], r"--beta was renamed: use --obstacles.beta"),
-    ("renamed-opacity-floor", ["--opacity-floor=0.1"], r"--opacity-floor was renamed: use --obstacles.opacity-floor"),
+    ("renamed-beta-equals", ["--beta=2"], r"--beta was renamed: use --obstacles.beta"),
     ("renamed-start-look-distance", ["--start-look-distance", "0"], r"use --planner.start-look-distance"),
     ("renamed-grid-polytopes", ["--grid-polytopes", "on"], r"--grid-polytopes was renamed: use --planner.grid-polyt"),
     ("double-negative", ["--no-no-unseen-fill"], r"--no-no-unseen-fill was renamed: use --unseen-fill"),
