@@ -189,3 +189,19 @@ def test_the_surface_tables_name_real_fields():
     for (cls, name), flag in SHORT_FLAGS.items():
         assert name in {f.name for f in dataclasses.fields(cls)} and flag.startswith("--"), (cls, name)
     assert len({c.__name__ for c in CONFIGS}) >= 8
+
+
+def test_the_readme_names_only_flags_that_exist(capsys):
+    """The README's cinesplat-plan section and limits, and its cinesplat-viewer bullet, name flags the commands have."""
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    plan = _flags(_help(PlanArgs, "cinesplat-plan", capsys))
+    viewer = _flags(_help(StandaloneConfig, "cinesplat-viewer", capsys))
+    headless = text[text.index("### Headless"):text.index("### Evaluate")] + text[text.index("## Known limits"):]
+    bullet = next(p for p in text.split("\n* ") if p.startswith("No GPU: `cinesplat-viewer")).split("\n\n")[0]
+    for section, flags in ((headless, plan), (bullet, viewer)):
+        named = _flags(section)
+        assert named, section[:80]
+        for f in named:
+            assert f in flags or (f.endswith(".") and any(g.startswith(f) for g in flags)), f
