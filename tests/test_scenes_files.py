@@ -516,3 +516,17 @@ def test_a_malformed_stored_planning_region_is_a_checkpoint_error():
     for bad in ({"lo": [0, 0, 0], "hi": [0, 1, 1]}, {"lo": [0, 0]}, "everywhere"):
         with pytest.raises(CheckpointError, match="x.npz: its stored planning region is not a valid box"):
             stored_region({"planning_region": bad}, "x.npz")
+
+
+@pytest.mark.parametrize("bad,msg", [
+    ({"lo": [0, 0, 0], "hi": [1, -1, 1]}, "info_json's planning_region is empty or inverted along y"),
+    ({"lo": [0, 0, 0], "hi": [1, float("nan"), 1]}, "info_json's planning_region must be 6 finite numbers"),
+    ({"lo": [0, 0, 0]}, "info_json's planning_region must be {\"lo\": \\[x, y, z\\], \"hi\": \\[x, y, z\\]}"),
+    ([0, 0, 0, 1, 1, 1], "info_json's planning_region must be {\"lo\""),
+])
+def test_a_stored_planning_region_is_checked_when_the_file_loads(bad, msg):
+    from cinenerf_ns.method.scene_files import check_info
+
+    check_info({"planning_region": {"lo": [0, 0, 0], "hi": [1, 2, 3]}}, Path("x.npz"), "info_json")
+    with pytest.raises(CheckpointError, match=f"x.npz: {msg}"):
+        check_info({"planning_region": bad}, Path("x.npz"), "info_json")

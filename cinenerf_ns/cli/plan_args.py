@@ -18,6 +18,7 @@ from cinenerf_ns.option_surface import validated
 from cinenerf_ns.options import check_device, check_number
 from cinenerf_ns.output_set import check_file_size_limit, check_name, check_writable
 from cinenerf_ns.planner.errors import InvalidInputError
+from cinenerf_ns.planner.native import kernel_threads
 from cinenerf_ns.planner.scene.ellipsoids import DEFAULT_SAFETY_MARGIN, SceneConfig
 from cinenerf_ns.planner.scene.planning_region import user_box
 from cinenerf_ns.planner.shots.camera_path import (
@@ -142,6 +143,7 @@ def check_args(args: PlanArgs) -> None:
     planner (Planner.checked_point, check_region, check_timing)."""
     if not isinstance(args.scene, str) or not args.scene.strip():
         raise InvalidInputError("--scene is empty: give a run's config.yml, a compact export, a .ply or 'procedural'")
+    kernel_threads()  # $CINENERF_THREADS, checked before any work
     check_number(args.candidates, "--candidates", 1, MAX_CANDIDATES, integer=True)
     check_number(args.time_budget, "--time-budget", 0, 3600, lo_open=True)
     check_number(args.seed, "--seed", 0, 2**63 - 1, integer=True)

@@ -221,7 +221,8 @@ def _numbers(v: Any, shape: Tuple[int, ...]) -> Optional[np.ndarray]:
 
 def check_info(info: Mapping[str, Any], path: Path, where: str) -> None:
     """A scene's metadata (a compact export's info_json, a run's cine_info): start_region two finite 3-vectors with
-    lo < hi, camera_centres [F, 3] and camera_poses [F, 3, 4] finite, label_names a list of strings. CheckpointError
+    lo < hi, planning_region {"lo", "hi"} a box by the planner's rules (check_planning_region), camera_centres
+    [F, 3] and camera_poses [F, 3, 4] finite, label_names a list of strings. CheckpointError
     naming the field otherwise (none of it is replaced silently)."""
     sr = info.get("start_region")
     if sr is not None:
@@ -232,6 +233,8 @@ def check_info(info: Mapping[str, Any], path: Path, where: str) -> None:
             axes = ", ".join("xyz"[i] for i in np.flatnonzero(a[0] >= a[1]))
             raise CheckpointError(f"{path}: {where}'s start_region is inverted or empty along {axes} (lo "
                                   f"{a[0].tolist()} must be below hi {a[1].tolist()} on every axis)")
+    if info.get("planning_region") is not None:
+        check_planning_region(info["planning_region"], path, where)
     for key, shape, want in (("camera_centres", (-1, 3), "[F, 3] finite camera centres"),
                              ("camera_poses", (-1, 3, 4), "[F, 3, 4] finite camera-to-world poses")):
         if info.get(key) is not None and _numbers(info[key], shape) is None:
@@ -239,6 +242,22 @@ def check_info(info: Mapping[str, Any], path: Path, where: str) -> None:
     names = info.get("label_names")
     if names is not None and not (isinstance(names, list) and all(isinstance(n, str) for n in names)):
         raise CheckpointError(f"{path}: {where}'s label_names must be a list of strings")
+
+
+def check_planning_region(reg: Any, path: Path, where: str) -> None:
+    """A stored planning region (export_compact's planning_region): {"lo": [x, y, z], "hi": [x, y, z]}, finite, lo
+    below hi on every axis (the planner's rule for a user box, planning_region.user_box); CheckpointError naming the
+    field otherwise."""
+    from cinenerf_ns.planner.errors import InvalidInputError
+    from cinenerf_ns.planner.scene.planning_region import user_box
+
+    if not isinstance(reg, Mapping) or not {"lo", "hi"} <= set(reg):
+        raise CheckpointError(f'{path}: {where}\'s planning_region must be {{"lo": [x, y, z], "hi": [x, y, z]}}, got '
+                              f"{str(reg)[:80]}")
+    try:
+        user_box((reg["lo"], reg["hi"]), f"{where}'s planning_region")
+    except InvalidInputError as e:
+        raise CheckpointError(f"{path}: {e}") from None
 
 
 def check_semantics(path: Path, latents: Optional[Tensor], codec: Any, info: Mapping[str, Any],

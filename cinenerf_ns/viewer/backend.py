@@ -83,7 +83,11 @@ class FunctionBackend:
         locate_fn: Optional[LocateFn] = None,
         name: str = "scene",
         planner_name: str = "planner",
+        region_source: Any = None,
     ) -> None:
+        """``region_source``: the planner's planning region (region_box.RegionSource: ``PreparedPlanner``), which the
+        panel shows and lets a page set; None: the panel has no region to show."""
+        self.region_source = region_source
         self._gaussians = gaussians
         self._plan_fn = plan_fn
         self._locate_fn = locate_fn

@@ -196,6 +196,7 @@ class SplatModelBackend:
         self.snapshots_taken = 0
         self._cache: Dict[str, Any] = {}
         self._cache_lock = threading.Lock()
+        self.region_source = ModelRegion(self)  # the panel's planning region (region_box.RegionSource)
 
     def _default_planner(self, scene: EllipsoidScene):
         from .planner_backend import PreparedPlanner
@@ -231,6 +232,9 @@ class SplatModelBackend:
                     if hasattr(planner, "prepare") and not hasattr(planner, "wait_ready"):
                         planner.prepare()
                     self._cache[what] = (scene, planner)
+                    if hasattr(planner, "add_region_listener"):  # a region applied later: the pages follow
+                        planner.add_region_listener(self.region_source.notify)
+                    self.region_source.notify()  # this snapshot's region: the pages show it
                 elif what == "semantic":
                     self._cache[what] = None if self.semantic_fn is None else self.semantic_fn(snap)
             return self._cache[what]
@@ -271,6 +275,59 @@ class SplatModelBackend:
             return None if x is None else torch.as_tensor(np.asarray(x), dtype=scene.dtype, device=scene.device)
 
         return list(planner.plan(t(goal), t(look_at), start=t(start), seed=seed, n_candidates=n_candidates))
+
+
+class ModelRegion:
+    """The planning region of a live model's planner (``SplatModelBackend.region_source``, a region_box.RegionSource).
+    The planner is built at a Plan, again per training step; the region asked for stays in the backend's
+    ``planner_config`` (bounds) for every later one. Before the first Plan no region is prepared: the pages say it is
+    known at the first Plan."""
+
+    def __init__(self, backend: "SplatModelBackend") -> None:
+        self.backend = backend
+        self._listeners: List[Callable[[], None]] = []
+
+    def _planner(self) -> Any:
+        cached = self.backend._cache.get("planner")
+        return None if cached is None else cached[1]
+
+    def region_info(self) -> Any:
+        from .region_box import AUTOMATIC, RegionInfo
+
+        planner = self._planner()
+        info = planner.region_info() if hasattr(planner, "region_info") else None
+        if info is not None:
+            return info
+        bounds = getattr(self.backend.planner_config, "bounds", None)
+        lo, hi = (None, None) if bounds is None else (np.asarray(v, dtype=np.float64) for v in bounds)
+        return RegionInfo(lo, hi, AUTOMATIC if bounds is None else "user box", "later", automatic=bounds is None,
+                          asked=None if bounds is None else (lo, hi))
+
+    def set_region(self, bounds: Any) -> Any:
+        """Checked by the current planner (its rules, before any work; it prepares again in the background) or, before
+        the first Plan, by planning_region.user_box (the rest when the next Plan prepares); kept for later steps."""
+        from cinenerf_ns.planner.scene.planning_region import user_box
+        from cinenerf_ns.planner.shots.planner import PlannerConfig
+
+        planner = self._planner()
+        if bounds is not None:
+            bounds = user_box(bounds, "the planning region")
+        info = planner.set_region(bounds) if hasattr(planner, "set_region") else None
+        base = self.backend.planner_config or PlannerConfig(candidate_workers=0)  # PreparedPlanner's default
+        if isinstance(base, PlannerConfig):
+            self.backend.planner_config = dataclasses.replace(base, bounds=bounds, bounds_rule="user box")
+        if info is None:
+            info = self.region_info()
+            self.notify()
+        return info
+
+    def add_region_listener(self, fn: Callable[[], None]) -> None:
+        self._listeners.append(fn)
+
+    def notify(self) -> None:
+        from .region_box import notify_all
+
+        notify_all(self._listeners)
 
 
 def model_semantic_scene(model: Any, camera_centres: Optional[Callable[[], Optional[np.ndarray]]] = None

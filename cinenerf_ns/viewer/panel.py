@@ -44,6 +44,7 @@ from .panel_types import (  # noqa: F401 - re-exported: callers import the panel
     ShotLike,
     Target,
 )
+from .region_box import RegionMixin
 from .safe_text import check_text
 from .shot_text import (  # noqa: F401 - re-exported: callers import the shot texts from here
     SCORE_RULE,
@@ -65,9 +66,10 @@ MAX_PANEL_CANDIDATES = MAX_CANDIDATES
 
 
 # ----------------------------------------------------------------------------------------- panel
-class CinePanel(OutputMixin):
+class CinePanel(OutputMixin, RegionMixin):
     """All state and logic of the cinematography panel. GUI layers call the public methods (export and preview:
-    :class:`~.panel_output.OutputMixin`)."""
+    :class:`~.panel_output.OutputMixin`; the planning region:
+    :class:`~.region_box.RegionMixin`)."""
 
     IDLE, PLANNING, READY, PLAYING, PAUSED = "idle", "planning", "ready", "playing", "paused"
 

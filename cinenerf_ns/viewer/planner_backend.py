@@ -11,15 +11,19 @@ through unchanged: their messages are written for the user and the panel shows t
 """
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
-from typing import Any, Callable, List, Optional
+from typing import Any, Callable, List, Optional, Sequence
 
 import numpy as np
 
 from cinenerf_ns.planner.errors import PlanningError
+from cinenerf_ns.planner.scene import planning_region
 from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
 from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
+
+from .region_box import AUTOMATIC, RegionInfo, notify_all
 
 StatusFn = Callable[[str, str], None]  # (text, level "busy" | "ok" | "error")
 
@@ -49,11 +53,18 @@ class PreparedPlanner:
         self.prepare_s: Optional[float] = None  # wall time of prepare(), once done
         self.prepare_detail = ""  # its timings, for the details fold
         self.error: Optional[BaseException] = None  # what prepare() raised, re-raised by plan()
-        self._done = threading.Event()
+        self._done = threading.Event()  # the latest preparation's (set_region makes a new one)
         self._started = False
         self._start_lock = threading.Lock()
         self._plan_lock = threading.Lock()  # Planner objects are not assumed thread-safe
-        self._thread: Optional[threading.Thread] = None
+        self._prep_lock = threading.Lock()  # one preparation at a time (set_region while one runs: the next waits)
+        self._thread: Optional[threading.Thread] = None  # the latest preparation's
+        self._generation = 0  # 0: the opening preparation; each set_region adds one
+        self._request: tuple = (0, self.config, self._done)  # (generation, config, done): the latest asked for
+        self._queued = False  # a preparation thread is waiting for _prep_lock: it takes the latest request
+        self._prepared_gen = -1  # the newest generation a preparation took up
+        self._region: Optional[RegionInfo] = None
+        self._listeners: List[Callable[[], None]] = []
 
     # ------------------------------------------------------------------ preparation
     def start(self, background: bool = True) -> "PreparedPlanner":
@@ -62,12 +73,22 @@ class PreparedPlanner:
             if self._started:
                 return self
             self._started = True
+            self._region = self._pending_region(self.config, 0)
+        self._launch(background)
+        return self
+
+    def _launch(self, background: bool) -> None:
+        """Prepare the latest request: on a new thread unless one already waits to (at most one runs and one waits,
+        however often a page clicks Apply)."""
+        with self._start_lock:
+            if self._queued:
+                return
+            self._queued = True
         if background:
             self._thread = threading.Thread(target=self._prepare, name="cine-prepare", daemon=True)
             self._thread.start()
         else:
             self._prepare()
-        return self
 
     def _status(self, text: str, level: str) -> None:
         if self.on_status is not None:
@@ -77,39 +98,121 @@ class PreparedPlanner:
                 pass
 
     def _prepare(self) -> None:
+        with self._prep_lock:
+            with self._start_lock:
+                self._queued = False
+                gen, config, done = self._request
+            try:
+                if gen > self._prepared_gen:  # else prepared (or being replaced) already
+                    self._prepared_gen = gen
+                    self._prepare_now(gen, config)
+            finally:
+                done.set()
+
+    def _prepare_now(self, gen: int, config: PlannerConfig) -> None:
         t0 = time.perf_counter()
         self._status(f"Preparing the planner for {len(self.scene)} obstacles (spatial index, occupancy grid)...",
                      "busy")
         try:
-            planner = Planner(self.scene, self.config)
+            planner = Planner(self.scene, config)
             prep = planner.prepare()
             from cinenerf_ns.planner.shots.end_pose import visibility_volume
 
             t_vol = time.perf_counter()
             visibility_volume(planner)  # the end poses' splat volume, off the first Plan's path
             prep.timings_ms["visibility_ms"] = 1e3 * (time.perf_counter() - t_vol)
-            self.planner = planner
+            lo, hi = planner.region()
+            rule = planner.region_rule()  # computed here, off the UI's threads (a histogram of the means)
+            region = RegionInfo(lo, hi, rule if config.bounds is not None else f"{AUTOMATIC}: {rule}", "ready",
+                                generation=gen, automatic=config.bounds is None, asked=self._asked(config))
+            if gen != self._generation:  # superseded while preparing: a newer region follows
+                planner.close()
+                return
+            with self._plan_lock:  # never under a running plan
+                old, self.planner, self.config, self.error = self.planner, planner, config, None
+                self._region = region
+            if old is not None:
+                old.close()
             self.prepare_s = time.perf_counter() - t0
             detail = ", ".join(f"{k[:-3]} {v:.0f} ms" for k, v in prep.timings_ms.items())
-            self.prepare_detail = f"Planner prepared in {self.prepare_s:.2f} s ({detail})."  # the details fold
-            self._status("Planner ready.", "ok")
+            self.prepare_detail = (f"Planner prepared in {self.prepare_s:.2f} s ({detail}) for "
+                                   f"{region.describe()}.")  # the details fold
+            self._status(f"Planner ready. It plans in {region.describe()}.", "ok")
         except BaseException as err:  # kept and re-raised by plan(): the panel shows it
-            self.error = err
+            if gen != self._generation:
+                return
+            with self._plan_lock:
+                self.error, self.config = err, config
+                asked = self._asked(config)
+                self._region = RegionInfo(*(asked or (None, None)), self._region.rule if self._region else AUTOMATIC,
+                                          "error", str(err), gen, asked is None, asked)
             self.prepare_s = time.perf_counter() - t0
             self._status(f"The planner could not prepare this scene: {err}", "error")
-        finally:
-            self._done.set()
+        self._notify()
 
     def wait_ready(self, timeout: Optional[float] = None) -> bool:
         """Start (in this thread if not started) and wait until prepare() finished; True when usable."""
         if not self._started:
             self.start(background=False)
-        self._done.wait(timeout)
-        return self._done.is_set() and self.planner is not None
+        end = None if timeout is None else time.monotonic() + timeout
+        while True:
+            done = self._done
+            if not done.wait(None if end is None else max(end - time.monotonic(), 0.0)):
+                return False
+            if done is self._done:  # else a newer region was asked for meanwhile: wait for it
+                return self.planner is not None and self.error is None
 
     @property
     def ready(self) -> bool:
-        return self._done.is_set() and self.planner is not None
+        return self._done.is_set() and self.planner is not None and self.error is None
+
+    # ------------------------------------------------------------------ the planning region (region_box.RegionSource)
+    def region_info(self) -> Optional[RegionInfo]:
+        """The planning region in use, or the one being prepared (state 'preparing') or refused by prepare()."""
+        return self._region
+
+    def set_region(self, bounds: Optional[Sequence[Any]]) -> RegionInfo:
+        """Plan in ``bounds`` (lo [3], hi [3]; bounds_rule 'user box') or, with None, the automatic region (training
+        cameras, else the dense content). The box is checked at once, as cinesplat-plan --region is
+        (planning_region.user_box, check_user_box, check_region: InvalidInputError, nothing changes); then the
+        planner is prepared again in the background (a Plan waits for it; one asked for while another prepares
+        replaces it)."""
+        if bounds is not None:
+            lo, hi = planning_region.user_box(bounds, "the planning region")
+            planning_region.check_user_box(self.scene, lo, hi, "the planning region")
+            planning_region.check_region(self.config, float(self.scene.camera_radius), lo, hi)
+            bounds = (lo, hi)
+        config = dataclasses.replace(self.config, bounds=bounds, bounds_rule="user box")
+        with self._start_lock:
+            self._started = True
+            self._generation += 1
+            gen, old, self._done = self._generation, self._done, threading.Event()
+            self._request = (gen, config, self._done)
+            self._region = info = self._pending_region(config, gen)
+        old.set()  # a preparation it replaces may still run: its waiters move on to this one
+        self._notify()
+        self._launch(background=True)
+        return info
+
+    @staticmethod
+    def _asked(config: PlannerConfig) -> tuple:
+        """(lo, hi) of the box a config asks for, None for the automatic region."""
+        if config.bounds is None:
+            return None
+        return tuple(np.asarray(v, dtype=np.float64).reshape(3) for v in config.bounds)
+
+    def _pending_region(self, config: PlannerConfig, gen: int) -> RegionInfo:
+        rule = config.bounds_rule if config.bounds is not None else AUTOMATIC
+        asked = self._asked(config)
+        return RegionInfo(*(asked or (None, None)), rule, "preparing", generation=gen, automatic=asked is None,
+                          asked=asked)
+
+    def add_region_listener(self, fn: Callable[[], None]) -> None:
+        """``fn()`` after every change of the region or its state (on the thread that changed it)."""
+        self._listeners.append(fn)
+
+    def _notify(self) -> None:
+        notify_all(self._listeners)
 
     # ------------------------------------------------------------------ planning
     plans_end_poses = True  # the panel passes its resolved targets and framing (panel._plan_now)

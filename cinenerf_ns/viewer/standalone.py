@@ -33,6 +33,7 @@ from cinenerf_ns.planner.shots.planner import PlannerConfig
 
 from .backend import FunctionBackend, LocateFn, PlanFn, SceneGaussians, label_locate, to_numpy
 from .conventions import VISER_NERFSTUDIO_SCALE_RATIO
+from .region_box import stored_region_config
 from .views import TrainingCameras
 
 if TYPE_CHECKING:
@@ -291,14 +292,15 @@ class StandaloneViewer:
         self.planner: Optional[PreparedPlanner] = None
         if plan_fn is None:
             self.planner = PreparedPlanner(self.obstacles, dataclasses.replace(
-                cfg.planner, start_region=self.loaded.start_region, candidate_workers=0))  # see PreparedPlanner
+                cfg.planner, start_region=self.loaded.start_region, candidate_workers=0,  # see PreparedPlanner
+                **stored_region_config(self.loaded.loaded.planning_region)))
             plan_fn, planner_name = self.planner.plan, PreparedPlanner.name
         else:
             planner_name = "injected planner"
         self.planner_name = planner_name
         display = display_gaussians(sp)
         locate = locate or self.loaded.locate
-        self.backend = FunctionBackend(display, plan_fn, locate, self.loaded.name, planner_name)
+        self.backend = FunctionBackend(display, plan_fn, locate, self.loaded.name, planner_name, self.planner)
         self.server = start_server(viser, cfg.host, cfg.port)
         self.guard = guard_server(self.server, cfg.host, max_connections=cfg.max_pages)
         self.server.scene.set_up_direction("+z")
@@ -323,9 +325,9 @@ class StandaloneViewer:
         else:
             text = "Text queries: object names (or x y z)."
         self.loaded_message = f"Loaded '{self.loaded.name}' ({len(display)} Gaussians). {text}"
-        self.panels.set_status(self.loaded_message, "info", details=(
-            f"Scene loaded in {time.perf_counter() - t0:.1f} s: {len(display)} Gaussians, {len(self.obstacles)} "
-            f"obstacles. Planner: {planner_name}."))
+        self.load_detail = (f"Scene loaded in {time.perf_counter() - t0:.1f} s: {len(display)} Gaussians, "
+                            f"{len(self.obstacles)} obstacles. Planner: {planner_name}.")
+        self.panels.set_status(self.loaded_message, "info", details=self.load_detail)
         if self.planner is not None:
             self.planner.on_status = self._prepare_status
             self.planner.start(background=True)
@@ -338,7 +340,7 @@ class StandaloneViewer:
         (a Plan that failed fast, e.g. text that matches nothing, leaves the panel idle: its message must not be
         overwritten); the preparation's timings go to the details fold."""
         detail = getattr(self.planner, "prepare_detail", "") if self.planner is not None else ""
-        detail = f"{self.panels.details} {detail}".strip()
+        detail = f"{self.load_detail} {detail}".strip()  # the latest preparation's (a new planning region's)
         if level == "error":
             self.panels.set_status(text, "error")
         elif level == "busy":

@@ -32,6 +32,8 @@ from .panel import (
 )
 from .panel_output import Previewer
 from .polytope_mesh import polytope_mesh
+from .region_box import RegionInfo
+from .region_ui import RegionWidgets
 from .safe_text import md_code_block, md_escape
 from .shot_text import SCORE_RULE
 from .views import TrainingCameras, View, highlight_box, opening_view, overview_view
@@ -116,6 +118,7 @@ class ViserPanelUI:
                                                        hint="Where the shot passes closest to the scene, and how close")
                 self.overview_box = gui.add_checkbox("Top-down overview", False,
                                                      hint="See the whole scene from above; untick to go back inside")
+            self.region = RegionWidgets(gui, self.scene, self.scale, root)
             self.status_md = gui.add_markdown("Type where the camera should go and what it should look at, then Plan.")
             self.export_name = gui.add_text("Export name", export_name,
                                             hint="File name; a taken name gets -2, -3, ... (nothing is overwritten)")
@@ -158,6 +161,7 @@ class ViserPanelUI:
         self.preview_button.on_click(guarded(lambda e: p.preview(self.export_name.value)))
         self.preview_download.on_click(guarded(self._send_preview))
         self.overview_box.on_update(guarded(lambda e: self.show_overview(bool(self.overview_box.value))))
+        self.region.attach(p, guarded)
 
         @self.candidate.on_update
         def _(event: viser.GuiEvent) -> None:
@@ -185,6 +189,12 @@ class ViserPanelUI:
         for handle, value in ((self.goto, goto), (self.look_at, look_at)):
             handle.value = value  # the server's state
             push_value(handle)  # and on every screen, whatever the client showed
+
+    def show_region(self, info: RegionInfo) -> None:
+        self.region.show_region(info)
+
+    def draw_region(self, info: Optional[RegionInfo]) -> None:
+        self.region.draw_region(info)
 
     def show_details(self, text: str) -> None:
         self.details_text = text or "(plan first)"  # plain, as the panel said it
@@ -434,6 +444,8 @@ class ClientPanels:
         self.overview: Optional[View] = None
         self.overview_hides: List[Any] = []
         self.panels: Dict[int, CinePanel] = {}
+        # the planner's planning region (region_box.RegionSource, shared by every page), when the backend has one
+        self.region_source = getattr(backend, "region_source", None)
         self.refused: List[int] = []  # pages turned away (too many open)
         self._lock = threading.Lock()
         self._server_panel: Optional[CinePanel] = None
@@ -443,6 +455,8 @@ class ClientPanels:
         """Build a panel for each page that opens (and those already open), close it when the page leaves."""
         self.server.on_client_connect(self._connect)
         self.server.on_client_disconnect(self._disconnect)
+        if self.region_source is not None:  # a region applied on one page: every page's fold and box follow
+            self.region_source.add_region_listener(self.region_changed)
         return self
 
     def use_home_as_initial_camera(self) -> None:
@@ -461,7 +475,9 @@ class ClientPanels:
         ui.gaussian_means, ui.home, ui.overview = self.gaussian_means, self.home, self.overview
         ui.overview_hides = self.overview_hides
         panel = CinePanel(self.backend, ui, self.config, self.exporter, self.previewer, self.limits)
+        panel.region_source = self.region_source
         ui.attach(panel)
+        panel.region_changed()
         if self.status:
             panel._set_status(self.status, self.status_level)
         if self.details:
@@ -516,6 +532,13 @@ class ClientPanels:
                 p._set_status(text, level)
                 if details is not None:
                     p._call_view("show_details", details)
+
+    def region_changed(self) -> None:
+        """The planner's region or its state changed: every page's fold and box (and status, see
+        RegionMixin.region_changed) follow."""
+        if not self._closed:
+            for p in self.all():
+                p.region_changed()
 
     def close(self) -> None:
         self._closed = True

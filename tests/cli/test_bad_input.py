@@ -507,3 +507,15 @@ def test_framing_and_end_pose_reach_the_report(tmp_path, capsys):
     rep = json.loads((out / "shot_report.json").read_text())
     assert rep["candidates"][0]["subject_view"]["framing"] == "close"
     assert rep["end_pose"] is not None and rep["end_pose"]["framing"] == "close"
+
+
+@pytest.mark.parametrize("value", ["0", "-3", "65", "lots"])
+def test_kernel_threads_from_the_environment_are_checked_before_loading(value, tmp_path, capsys, monkeypatch):
+    """$CINENERF_THREADS out of [1, 64] is refused before the scene is loaded (it was clamped to 1 or 64 silently)."""
+    import cinenerf_ns.cli.plan as plan
+
+    monkeypatch.setenv("CINENERF_THREADS", value)
+    monkeypatch.setattr(plan, "load_scene", lambda *a, **k: pytest.fail("the scene was loaded first"))
+    out = tmp_path / "out"
+    code, o, e, dt = _run(SCENE + TARGETS + ["--output-dir", str(out)], capsys, out)
+    _check(code, o, e, dt, r"CINENERF_THREADS must be a whole number in \[1, 64\]", out)

@@ -357,4 +357,59 @@ def test_the_bundled_room_opens_at_a_training_camera_without_console_errors(tmp_
     finally:
         if b is not None:
             b.close()
-        assert viewer.close(), "the text-query warm-up or the planner's preparation still runs after close()"
+        # the warm-up stops after the label in progress: seconds on a quiet box, more than 10 s on a loaded one
+        assert viewer.close(join_s=90), "the text-query warm-up or the planner's preparation still runs after close()"
+
+
+# the three inputs of the vector widget labelled `name` (INPUT_FOR's search, for three inputs)
+VECTOR_INPUTS = INPUT_FOR.replace(
+    "const inp = n && n.querySelector('input:not([type=hidden])');",
+    "const inp = n ? [...n.querySelectorAll('input:not([type=hidden])')] : [];").replace(
+    "if (inp) return inp;", "if (inp.length >= 3) return inp.slice(0, 3);")
+assert VECTOR_INPUTS.count("slice(0, 3)") == 1 and "querySelectorAll" in VECTOR_INPUTS
+
+
+def test_the_planning_region_fold_sets_the_box_from_the_page(viewer, tmp_path):
+    """The "Planning region" fold in a real page: the box is drawn, corners typed into the vector inputs reach the
+    server through the guard, Apply region prepares the planner again and the page says the rule ('user box')."""
+    from cdp import Chromium
+
+    b = Chromium(viewer.url)
+    artifacts = Path(os.environ.get("CINENERF_ARTIFACTS") or tmp_path / "artifacts")
+    artifacts.mkdir(parents=True, exist_ok=True)
+    try:
+        b.wait_js("document.body && document.body.innerText.includes('Planning region')", 60)
+        pp = page_panel(viewer)
+        assert wait(lambda: any(h.name == "/cine/region/box" for h in pp.view.region._nodes), 20)
+        assert "chosen by: automatic: " in pp.view.region.rule_text
+        # the fold's title: the innermost element that says it (the fold starts closed)
+        assert b.js("(() => { const e = [...document.querySelectorAll('*')].filter(x => x.innerText && "
+                    "x.innerText.trim() === 'Planning region').pop(); if (!e) return false; e.click(); "
+                    "return true; })()"), "no 'Planning region' fold"
+        assert b.wait_js(f"({VECTOR_INPUTS})('Low corner') !== null", 20), "the fold shows no corners"
+        want = {"Low corner": (-0.8, -0.8, 0.05), "High corner": (0.5, 0.6, 0.95)}
+        for label, values in want.items():
+            handle = pp.view.region.lo if label == "Low corner" else pp.view.region.hi
+            for tries in range(3):
+                for k, v in enumerate(values):
+                    b.js(f"(() => {{ const e = ({VECTOR_INPUTS})({json.dumps(label)})[{k}]; e.focus(); e.select(); "
+                         "return true; })()")
+                    b.insert_text(str(v))
+                    b.js(f"({VECTOR_INPUTS})({json.dumps(label)})[{k}].blur()")
+                    time.sleep(0.2)  # past the client's 50 ms GUI-message throttle
+                if wait(lambda h=handle, v=values: np.allclose(h.value, v), 10):
+                    break
+            assert np.allclose(handle.value, values), (label, handle.value)
+        click(b, "Apply region")
+        assert wait(lambda: "chosen by: user box" in pp.status and pp.status_level == "ok", 120), pp.status
+        assert b.wait_js("document.body.innerText.includes('chosen by: user box')", 20)
+        info = viewer.planner.region_info()
+        assert info.rule == "user box" and np.all(info.lo <= np.array(want["Low corner"]) + 1e-9)
+        # the corners stay as typed (the box drawn is the prepared one, rounded out to whole voxels)
+        assert b.js(f"({VECTOR_INPUTS})('High corner').map(e => e.value).join(' ')") == "0.5 0.6 0.95"
+        b.pump(1.0)
+        b.screenshot(artifacts / "browser_planning_region.png")
+        ours, viser_own = console_errors(b)
+        assert ours == [] and len(viser_own) <= 1, ours + viser_own
+    finally:
+        b.close()

@@ -55,7 +55,9 @@ def test_prepares_once_in_background_and_reports(room):
     assert planner.wait_ready(60) and planner.ready
     assert planner._thread is not None and planner._thread.name == "cine-prepare"
     assert statuses[0][1] == "busy" and "Preparing the planner" in statuses[0][0]
-    assert statuses[-1] == ("Planner ready.", "ok")  # its timings go to the details fold
+    # its timings go to the details fold; the status says the planning region and the rule that chose it
+    assert statuses[-1][1] == "ok" and statuses[-1][0].startswith("Planner ready. It plans in the planning region (")
+    assert statuses[-1][0].endswith("chosen by: automatic: training cameras.")
     assert planner.prepare_detail.startswith("Planner prepared in ") and " ms" in planner.prepare_detail
     prepared = planner.planner.prepared
     planner.start()  # a second start does nothing

@@ -100,6 +100,7 @@ def test_drawing_follows_options(ui_panel):
 
 def test_status_and_play_buttons(ui_panel):
     panel, ui = ui_panel
+    assert not ui.region.folder.visible  # a backend with no planning region: no fold for it
     panel.request_plan("", "x").result(10)
     assert ui.status_md.content.endswith(md_escape("'Go to' is empty: type an object (e.g. 'the chair') or coordinates "
                                                    "'x y z'"))

@@ -85,13 +85,17 @@ def compile_library(src: Path, stem: str, flags: Sequence[str]) -> Tuple[Optiona
 _FLAGS = {"visibility": ["-O2", "-pthread"]}
 """Compiler flags of the libraries that need more than -O2 (visibility.c splits its segments over threads)."""
 _THREADS: Optional[int] = None
+MAX_KERNEL_THREADS = 64
+"""Most threads a compiled kernel starts (visibility.c's MAX_THREADS)."""
 
 
 def set_kernel_threads(n: Optional[int]) -> None:
     """Threads a multi-threaded kernel may use in this process (None: the default, kernel_threads). A forked candidate
     worker sets 1: its siblings use the other CPUs."""
     global _THREADS
-    _THREADS = None if n is None else max(1, int(n))
+    if n is not None and not 1 <= int(n) <= MAX_KERNEL_THREADS:
+        raise InvalidInputError(f"kernel threads must be in [1, {MAX_KERNEL_THREADS}], got {n}")
+    _THREADS = None if n is None else int(n)
 
 
 def kernel_threads() -> int:
@@ -102,9 +106,13 @@ def kernel_threads() -> int:
     env = os.environ.get("CINENERF_THREADS", "").strip()
     if env:
         try:
-            return max(1, int(env))
+            n = int(env)
         except ValueError:
-            raise InvalidInputError(f"CINENERF_THREADS must be a whole number >= 1, got {env[:20]!r}") from None
+            n = 0
+        if not 1 <= n <= MAX_KERNEL_THREADS:  # never clamped silently
+            raise InvalidInputError(f"CINENERF_THREADS must be a whole number in [1, {MAX_KERNEL_THREADS}], got "
+                                    f"{env[:20]!r}")
+        return n
     try:
         cpus = len(os.sched_getaffinity(0))
     except (AttributeError, OSError):

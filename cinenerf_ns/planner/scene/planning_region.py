@@ -244,6 +244,18 @@ def check_start_region(lo: np.ndarray, hi: np.ndarray) -> None:
                                 f"{format_point(lo)} is above hi {format_point(hi)} there (a damaged scene file?)")
 
 
+def starts_within(start_region, lo: np.ndarray, hi: np.ndarray) -> Optional[tuple]:
+    """The start region (where random starts are drawn: the training cameras' box) cut to a given planning region [lo,
+    hi]: their intersection, or None (starts anywhere in the region) when a user's box leaves the cameras out (no
+    random start could be drawn otherwise)."""
+    if start_region is None:
+        return None
+    slo, shi = (np.asarray(v, dtype=np.float64).reshape(3) for v in start_region)
+    ilo = np.maximum(slo, np.asarray(lo, dtype=np.float64))
+    ihi = np.minimum(shi, np.asarray(hi, dtype=np.float64))
+    return (ilo, ihi) if (ihi > ilo).all() else None
+
+
 def check_region(cfg: "PlannerConfig", camera_radius: float, lo: np.ndarray, hi: np.ndarray) -> None:
     """InvalidInputError when the camera sphere is too large for the planning region [lo, hi] or the voxel grid
     would not fit config.memory_budget_mb (both named by their options, with the allowed range)."""

@@ -199,6 +199,9 @@ class Planner:
         self.scene = self.batch_scene
         lo, hi = self.planning_bounds()
         self.check_region(lo.cpu().numpy(), hi.cpu().numpy())  # before any expensive work
+        if self.config.bounds is not None and self.config.start_region is not None:  # random starts inside the box
+            inside = planning_region.starts_within(self.config.start_region, lo.cpu().numpy(), hi.cpu().numpy())
+            self.config = replace(self.config, start_region=inside)
         self.scene, self.prepared = prepare_scene(self.batch_scene, self.config.grid_resolution, lo, hi,
                                                   mirror=self._mirror_to_cpu())
         if self.config.plan_cpu_threads is not None:

@@ -244,9 +244,12 @@ def test_kernel_threads_setting(monkeypatch):
     monkeypatch.setattr(native, "_THREADS", None)
     monkeypatch.setenv("CINENERF_THREADS", "3")
     assert native.kernel_threads() == 3
-    monkeypatch.setenv("CINENERF_THREADS", "lots")
-    with pytest.raises(InvalidInputError, match="CINENERF_THREADS must be a whole number"):
-        native.kernel_threads()
+    for bad in ("lots", "0", "-3", "65", "1.5"):  # refused, never clamped
+        monkeypatch.setenv("CINENERF_THREADS", bad)
+        with pytest.raises(InvalidInputError, match=r"CINENERF_THREADS must be a whole number in \[1, 64\]"):
+            native.kernel_threads()
+    with pytest.raises(InvalidInputError, match="kernel threads must be in"):
+        native.set_kernel_threads(0)
     monkeypatch.delenv("CINENERF_THREADS")
     assert 1 <= native.kernel_threads() <= 8
     native.set_kernel_threads(1)

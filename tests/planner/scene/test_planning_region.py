@@ -147,3 +147,30 @@ def test_an_evenly_spread_scene_keeps_the_robust_box():
     lo, hi = (t.cpu().numpy() for t in pl.planning_bounds())
     assert (hi - lo).min() > 1.8  # about the [-1, 1] cube, not a corner of it
     assert pl.region_rule().startswith("robust box of all means")
+
+
+def test_random_starts_stay_in_a_user_box_that_leaves_the_cameras_out():
+    """A user box cuts the start region (the training cameras' box) to their intersection; a box that leaves the
+    cameras out entirely draws random starts anywhere in it (they once raised 'start region is empty')."""
+    from cinenerf_ns.planner.scene.planning_region import starts_within
+    from cinenerf_ns.planner.scene.procedural import procedural_room
+
+    lo, hi = np.zeros(3), np.ones(3)
+    cut = starts_within((np.full(3, -1.0), np.full(3, 0.5)), lo, hi)
+    np.testing.assert_array_equal(cut[0], lo)
+    np.testing.assert_array_equal(cut[1], np.full(3, 0.5))
+    assert starts_within((np.full(3, 2.0), np.full(3, 3.0)), lo, hi) is None
+    assert starts_within(None, lo, hi) is None
+
+    torch.set_num_threads(1)
+    r = procedural_room(2000, seed=0)
+    scene = EllipsoidScene.from_splat(r.means, r.quats, r.log_scales, r.opacity_logits)
+    flo, fhi = np.asarray(r.free_lo), np.asarray(r.free_hi)
+    cameras = (flo + 0.03, flo + 0.3 * (fhi - flo))  # one corner of the room
+    box = (np.r_[flo[:2] + 0.6 * (fhi - flo)[:2], flo[2] + 0.02], fhi - 0.02)  # the opposite corner
+    planner = Planner(scene, PlannerConfig(grid_resolution=32, start_region=cameras, bounds=box, candidate_workers=0))
+    shots = planner.plan((box[0] + box[1]) / 2, box[1] - 0.05, seed=0, n_candidates=2)
+    rlo, rhi = planner.region()
+    assert planner.config.start_region is None and shots
+    for s in shots:
+        assert np.all(s.positions >= rlo - 1e-9) and np.all(s.positions <= rhi + 1e-9)
