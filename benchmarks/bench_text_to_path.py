@@ -18,6 +18,7 @@ import datetime
 import sys
 import time
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -28,8 +29,6 @@ sys.path.insert(0, str(REPO))
 from benchmarks._results import append_results, device_name  # noqa: E402
 from cinenerf_ns.planner.errors import PlanningError  # noqa: E402
 from cinenerf_ns.planner.scene.ellipsoids import SceneConfig  # noqa: E402
-from cinenerf_ns.planner.shots.planner import PlannerConfig  # noqa: E402
-from cinenerf_ns.planner.trajectory.timing import TimingConfig  # noqa: E402
 from cinenerf_ns.viewer.planner_backend import PreparedPlanner  # noqa: E402
 from cinenerf_ns.viewer.standalone import StandaloneConfig, open_scene, warm_semantics  # noqa: E402
 
@@ -68,15 +67,14 @@ def main() -> None:
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        ls = open_scene(a.scene, scene_config=SceneConfig.with_margin(vc.camera_radius, vc.safety_margin),
+        ls = open_scene(a.scene, scene_config=SceneConfig.with_margin(vc.obstacles.camera_radius, vc.safety_margin),
                         device=a.device)
     load_s = time.perf_counter() - t0
     if ls.locate is None or ls.obstacles is None:
         sys.exit(f"{a.scene}: no text semantics or obstacles to plan around")
     t0 = time.perf_counter()
-    planner = PreparedPlanner(ls.obstacles, PlannerConfig(
-        grid_resolution=vc.grid_resolution, start_region=ls.start_region, timing=TimingConfig(max_speed=vc.max_speed),
-        candidate_workers=0)).start(background=True)
+    planner = PreparedPlanner(ls.obstacles, replace(vc.planner, start_region=ls.start_region,
+                                                    candidate_workers=0)).start(background=True)
     th = None if a.no_warm else warm_semantics(ls)
     planner.wait_ready()
     prep_s = time.perf_counter() - t0

@@ -87,10 +87,12 @@ def test_cinesplat_preview_renders_each_kind(scene_files, kind, tmp_path):
 @pytest.mark.parametrize("kind", KINDS)
 def test_cinesplat_plan_plans_on_each_kind(scene_files, kind, tmp_path):
     from cinenerf_ns.cli.plan import PlanArgs, run_plan
+    from cinenerf_ns.planner.shots.planner import PlannerConfig
 
     room = procedural_room(N, seed=SEED)
     go = " ".join(f"{v:.4f}" for v in (room.free_lo + room.free_hi) / 2)
     look = " ".join(f"{v:.4f}" for v in room.objects[0].center)
-    s = run_plan(PlanArgs(scene=scene_files[kind], go_to=go, look_at=look, candidates=1, grid_resolution=40,
-                          workers=0, seed=0, output_dir=tmp_path))
+    s = run_plan(PlanArgs(scene=scene_files[kind], go_to=go, look_at=look, candidates=1,
+                          workers=0, seed=0, output_dir=tmp_path,
+                          planner=PlannerConfig(grid_resolution=40)))
     assert len(s["candidates"]) == 1 and (tmp_path / "shot_0.json").exists()

@@ -19,11 +19,11 @@ from __future__ import annotations
 import json
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Dict, List, Optional
 
 import numpy as np
-import tyro
 from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
@@ -31,9 +31,9 @@ from rich.table import Table
 from rich.text import Text
 
 from cinenerf_ns.console_text import error_line, lit
+from cinenerf_ns.option_surface import parse
 from cinenerf_ns.output_set import OutputSet
 from cinenerf_ns.planner.errors import PlanningError
-from cinenerf_ns.planner.scene.ellipsoids import SceneConfig
 from cinenerf_ns.planner.scene.floaters import apply_floater_rule
 from cinenerf_ns.planner.shots import stages
 from cinenerf_ns.planner.shots.camera_path import (
@@ -42,17 +42,24 @@ from cinenerf_ns.planner.shots.camera_path import (
 )
 from cinenerf_ns.planner.shots.candidates import RankedShot
 from cinenerf_ns.planner.shots.multistop import plan_multistop
-from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
+from cinenerf_ns.planner.shots.planner import Planner
 from cinenerf_ns.planner.shots.safety import plot_clearance, plot_paths_topdown
 from cinenerf_ns.planner.shots.scoring import ScoreConfig
 from cinenerf_ns.planner.trajectory.dynamics import DynamicLimits
-from cinenerf_ns.planner.trajectory.timing import TimingConfig
 from cinenerf_ns.scenes import LoadedScene, _word_match, load_scene, parse_point, resolve_match
 from cinenerf_ns.shot_request import ShotRequest, plan_request
 from cinenerf_ns.shot_targets import ShotTargets, end_pose_count, shot_targets, start_region_centre
 from cinenerf_ns.signals import interrupted, signals_as_interrupts
 
-from .plan_args import PlanArgs, check_args, framing_config, memory_budget, parse_region, worker_count
+from .plan_args import (
+    RENAMED_FLAGS,
+    PlanArgs,
+    check_args,
+    framing_config,
+    memory_budget,
+    parse_region,
+    worker_count,
+)
 
 CONSOLE = Console(emoji=False)  # user text is printed as typed (console_text)
 ERRORS = Console(stderr=True, emoji=False)
@@ -94,7 +101,7 @@ def _limits(args: PlanArgs) -> Optional[DynamicLimits]:
     if args.max_acceleration is None and args.max_angular_rate is None:
         return None
     return DynamicLimits(
-        max_speed=args.max_speed, fps=args.fps,
+        max_speed=args.planner.timing.max_speed, fps=args.planner.timing.fps,
         max_acceleration=DynamicLimits.max_acceleration if args.max_acceleration is None else args.max_acceleration,
         max_angular_rate_deg=(DynamicLimits.max_angular_rate_deg if args.max_angular_rate is None
                               else args.max_angular_rate),
@@ -185,8 +192,7 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
     check_args(args)
     memory_budget_mb = memory_budget(args, console)
     workers = worker_count(args, console)
-    scfg = SceneConfig.with_margin(args.camera_radius, args.safety_margin, beta=args.beta,
-                                   opacity_floor=args.opacity_floor)
+    scfg = replace(args.obstacles, camera_radius=args.obstacles.camera_radius + args.safety_margin)
     t_all = time.perf_counter()
     # auto_refresh=False: no refresh thread. plan_candidates forks worker processes, and a fork while another thread
     # holds an output lock can hang the child; the bar is redrawn at each stage instead (prog.update(refresh=True)).
@@ -196,7 +202,7 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
         loaded = load_scene(args.scene, scfg, args.device, args.threshold, smooth_neighbors=args.semantic_smoothing,
                             object_cluster=args.object_cluster, object_centre=args.object_centre, up=args.up,
                             drop_support=not args.keep_support, centre_relevancy=args.centre_relevancy,
-                            unseen_fill=not args.no_unseen_fill)
+                            unseen_fill=args.unseen_fill)
         for note in loaded.notes:
             console.print(f"note: {note}", markup=False, highlight=False)
         prog.update(task, advance=1, description="resolving targets", refresh=True)
@@ -206,14 +212,9 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
         stop_looks = [resolve_match(t, loaded, f"look-at {i + 2}")["point"] for i, t in enumerate(args.then_look_at)]
         prog.update(task, advance=1, description="preparing (index, occupancy grid)", refresh=True)
         loaded.scene, floaters = apply_floater_rule(loaded.scene, args.ignore_floaters)
-        pcfg = PlannerConfig(
-            grid_resolution=args.grid_resolution, up=tuple(args.up),
-            timing=TimingConfig(max_speed=args.max_speed, fps=args.fps),
-            start_region=loaded.start_region, candidate_workers=workers, memory_budget_mb=memory_budget_mb,
-            start_look_distance=args.start_look_distance,
-            grid_polytopes={"auto": "auto", "on": True, "off": False}[args.grid_polytopes],
-            **_region_config(args, loaded), obstacles_note=floaters.obstacle_note(),
-        )
+        pcfg = replace(args.planner, up=tuple(args.up), start_region=loaded.start_region, candidate_workers=workers,
+                       memory_budget_mb=memory_budget_mb, **_region_config(args, loaded),
+                       obstacles_note=floaters.obstacle_note())
         planner = Planner(loaded.scene, pcfg)
         prep = planner.prepare()
         goal, look, start = _resolve(args, planner, gm, lm)
@@ -268,7 +269,7 @@ def _summary(args, loaded, planner, prep, gm, lm, goal, look, shots, scores, mul
         "look_at": {**strip(lm), "point": look.tolist(), "resolved": lm["description"]},
         "planning_region": {"lo": lo.tolist(), "hi": hi.tolist(), "rule": planner.region_rule()},
         "prepare_ms": prep.timings_ms,
-        "camera_radius": args.camera_radius,
+        "camera_radius": args.obstacles.camera_radius,
         "safety_margin": args.safety_margin,
         "clearance_note": "clearances are measured from the camera sphere of radius camera_radius + safety_margin",
         "requested_candidates": args.candidates,
@@ -357,8 +358,8 @@ def _fmt3(p) -> str:
 def main(argv: Optional[List[str]] = None) -> int:
     """Parse ``argv`` (default: sys.argv), run; returns the exit status: 0, 2 for a user error (message on stderr),
     130 when interrupted (143 on SIGTERM, 129 on SIGHUP). Nothing partial is left behind in either case."""
-    args = tyro.cli(PlanArgs, args=argv)
     try:
+        args = parse(PlanArgs, argv, "cinesplat-plan", RENAMED_FLAGS)
         with signals_as_interrupts():  # SIGTERM / SIGHUP unwind like Ctrl-C: nothing is left behind
             run_plan(args)
     except KeyboardInterrupt as e:

@@ -1,6 +1,7 @@
-"""``cinesplat-plan``'s options (PlanArgs: one flag each, ``--help`` from the field docstrings) and their checks, all
-made before the scene is loaded (check_args); the machine-dependent ones (memory budget, worker processes) say what
-they chose."""
+"""``cinesplat-plan``'s options (PlanArgs: the request's flags, and the planner's configs nested the nerfstudio way,
+``--planner.*``, ``--trajectory.*``, ``--timing.*``, ``--obstacles.*``, ``--score.*``: option_surface.py) and their
+checks, all made before the scene is loaded (check_args); the machine-dependent ones (memory budget, worker
+processes) say what they chose."""
 from __future__ import annotations
 
 import os
@@ -13,6 +14,7 @@ import numpy as np
 from rich.console import Console
 
 from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY, OBJECT_CLUSTER, SMOOTH_NEIGHBORS
+from cinenerf_ns.option_surface import validated
 from cinenerf_ns.options import check_device, check_number
 from cinenerf_ns.output_set import check_file_size_limit, check_name, check_writable
 from cinenerf_ns.planner.errors import InvalidInputError
@@ -28,7 +30,7 @@ from cinenerf_ns.planner.shots.camera_path import (
 from cinenerf_ns.planner.shots.framing import FramingConfig
 from cinenerf_ns.planner.shots.planner import GRID_RESOLUTION_RANGE, MAX_CANDIDATES, PlannerConfig
 from cinenerf_ns.planner.shots.scoring import ScoreConfig
-from cinenerf_ns.planner.trajectory.timing import MAX_FPS, MIN_FPS, TimingConfig
+from cinenerf_ns.planner.trajectory.timing import MAX_FPS, MIN_FPS
 from cinenerf_ns.scenes import parse_point
 
 
@@ -43,6 +45,10 @@ class PlanArgs:
     """Where the camera should end: text (needs a semantic scene) or 'x y z'."""
     look_at: str
     """What every frame looks at: text or 'x y z'."""
+    then_go_to: Tuple[str, ...] = ()
+    """Further stops after --go-to, in order (text or 'x y z' each): one smooth shot through all stops."""
+    then_look_at: Tuple[str, ...] = ()
+    """Look-at of each further stop (one per --then-go-to); empty: every stop looks at --look-at."""
     framing: Literal["wide", "medium", "close"] = "medium"
     """How large the look-at object is in the last frame: wide 0.15-0.35, medium 0.35-0.6, close 0.6-0.85 of the
     frame (its larger relative extent), kept whole in frame."""
@@ -56,9 +62,6 @@ class PlanArgs:
     """Plan from a --start outside the planning region (the region grows to hold it) instead of refusing it."""
     seed: int = 0
     """Seed of the random starts (same seed, same starts)."""
-    start_look_distance: float = PlannerConfig.start_look_distance
-    """Random starts keep at least this fraction of the start region's longest side from the look-at point when the
-    region allows (an opening frame that shows the subject). 0: uniform random starts. Ignored with --start."""
     candidates: int = 1
     """Number of shots from different random starts, 1-64."""
     time_budget: float = 60.0
@@ -77,25 +80,15 @@ class PlanArgs:
     """Width and height of the preview videos, pixels (16-4096 each)."""
     preview_fps: float = DEFAULT_PREVIEW_FPS
     """Frame rate of the preview videos (1-120; frames are taken from the camera path, never interpolated)."""
-    fps: float = TimingConfig.fps
-    """Frames per second of the exported path, 1-240."""
-    max_speed: float = TimingConfig.max_speed
-    """Camera speed cap, scene units per second."""
     fov: float = DEFAULT_FOV_DEG
     """Vertical field of view of the exported camera, degrees (1-179)."""
     width: int = DEFAULT_RENDER_SIZE[0]
     """Render width written into the camera path, pixels."""
     height: int = DEFAULT_RENDER_SIZE[1]
     """Render height written into the camera path, pixels."""
-    camera_radius: float = SceneConfig.camera_radius
-    """Camera body sphere radius, scene units (paper: 0.03)."""
     safety_margin: float = DEFAULT_SAFETY_MARGIN
-    """Extra distance (scene units) kept from every ellipsoid on top of camera_radius: a splat only approximates the
-    real surfaces. Clearances in the report are measured from the camera sphere grown by this margin."""
-    beta: float = SceneConfig.beta
-    """Ellipsoid size in sigmas (paper: 2), scaled by each Gaussian's opacity."""
-    opacity_floor: float = SceneConfig.opacity_floor
-    """Gaussians below this opacity are not obstacles."""
+    """Extra distance (scene units) kept from every ellipsoid on top of the camera radius: a splat only approximates
+    the real surfaces. Clearances in the report are measured from the camera sphere grown by this margin."""
     region: Optional[str] = None
     """Planning region 'x0 y0 z0 x1 y1 z1' (two corners, scene units): every path stays in it. Default: the region
     stored in a compact export, else the training cameras' box grown, else the box of the dense content (far background,
@@ -104,13 +97,6 @@ class PlanArgs:
     """Treat small, faint, isolated Gaussians (a capture's noise in the air) as non-obstacles: on, off, or auto (on
     when they are at least 1% of the Gaussians). The rule is in the report, with how many were ignored; shots are
     verified against the obstacles that remain (cinenerf_ns/planner/scene/floaters.py)."""
-    grid_resolution: int = PlannerConfig.grid_resolution
-    """A* voxels along the longest side of the planning region (8-1024, within --memory-budget-mb)."""
-    memory_budget_mb: float = PlannerConfig.memory_budget_mb
-    """Memory the voxel grid may take, MB; a finer grid is refused with the largest resolution that fits."""
-    grid_polytopes: Literal["auto", "on", "off"] = "auto"
-    """Corridor polytopes from the occupancy grid where the path lies in free voxels (same safety, cheaper, up to a
-    voxel more conservative); auto: on when the voxels are at most 2 camera radii."""
     threshold: Optional[float] = None
     """Relevancy threshold of text queries, in (0, 1) (default: the scene's)."""
     semantic_smoothing: int = SMOOTH_NEIGHBORS
@@ -127,17 +113,13 @@ class PlanArgs:
     centre_relevancy: float = CENTRE_RELEVANCY
     """Estimate a text target's centre only from its Gaussians with relevancy above this, in [0, 1) (the confident
     core; the whole selection when the core is under a quarter of it). 0: off."""
-    no_unseen_fill: bool = False
-    """Estimate a text target's volume centre from its Gaussians alone, without filling the part of the object that
-    no training camera saw."""
+    unseen_fill: bool = True
+    """Fill the part of a text target that no training camera saw when estimating its volume centre;
+    --no-unseen-fill: from its Gaussians alone."""
     device: str = "cpu"
     """torch device of the scene tensors ('cpu' or 'cuda')."""
     up: Tuple[float, float, float] = (0.0, 0.0, 1.0)
     """World up direction (nerfstudio scenes: +z)."""
-    then_go_to: Tuple[str, ...] = ()
-    """Further stops after --go-to, in order (text or 'x y z' each): one smooth shot through all stops."""
-    then_look_at: Tuple[str, ...] = ()
-    """Look-at of each further stop (one per --then-go-to); empty: every stop looks at --look-at."""
     max_acceleration: Optional[float] = None
     """Acceleration limit of the exported frames, units/s^2 (enables dynamic limits; default 0.5 when another limit
     is set)."""
@@ -146,8 +128,13 @@ class PlanArgs:
     object_radius: Optional[float] = None
     """Bounding-sphere radius of the look-at object for scoring (framing size; sight lines stop at it). Default: the
     procedural object's half diagonal, else 0.1."""
+    planner: PlannerConfig = field(default_factory=PlannerConfig)
+    """The planner's settings: grid, region rules, corridor, workers (--trajectory.* and --timing.* are its curve and
+    its clock)."""
+    obstacles: SceneConfig = field(default_factory=SceneConfig)
+    """How the splat's Gaussians become obstacles (--safety-margin is added to the camera radius)."""
     score: ScoreConfig = field(default_factory=ScoreConfig)
-    """Weights of the shot score (its fov_deg is replaced by --fov)."""
+    """Weights and scales of the shot score that ranks random-start candidates (its field of view is --fov)."""
 
 
 def check_args(args: PlanArgs) -> None:
@@ -160,20 +147,21 @@ def check_args(args: PlanArgs) -> None:
     check_number(args.candidates, "--candidates", 1, MAX_CANDIDATES, integer=True)
     check_number(args.time_budget, "--time-budget", 0, 3600, lo_open=True)
     check_number(args.seed, "--seed", 0, 2**63 - 1, integer=True)
-    check_number(args.fps, "--fps", MIN_FPS, MAX_FPS)
-    check_number(args.max_speed, "--max-speed", 0, 100, lo_open=True)
+    timing = args.planner.timing
+    check_number(timing.fps, "--fps", MIN_FPS, MAX_FPS)
+    check_number(timing.max_speed, "--max-speed", 0, 100, lo_open=True)
     check_number(args.fov, "--fov", 1, 179)
     check_number(args.width, "--width", 16, 8192, integer=True)
     check_number(args.height, "--height", 16, 8192, integer=True)
-    check_number(args.camera_radius, "--camera-radius", 0, 10)
+    check_number(args.obstacles.camera_radius, "--camera-radius", 0, 10)
     check_number(args.safety_margin, "--safety-margin", 0, 10)
-    check_number(args.beta, "--beta", 0, 10, lo_open=True)
-    check_number(args.opacity_floor, "--opacity-floor", 0, 0.999)
-    check_number(args.grid_resolution, "--grid-resolution", *GRID_RESOLUTION_RANGE, integer=True)
-    check_number(args.memory_budget_mb, "--memory-budget-mb", 64, 2**20)
+    check_number(args.obstacles.beta, "--obstacles.beta", 0, 10, lo_open=True)
+    check_number(args.obstacles.opacity_floor, "--opacity-floor", 0, 0.999)
+    check_number(args.planner.grid_resolution, "--grid-resolution", *GRID_RESOLUTION_RANGE, integer=True)
+    check_number(args.planner.memory_budget_mb, "--memory-budget-mb", 64, 2**20)
     check_number(args.semantic_smoothing, "--semantic-smoothing", 0, 256, integer=True)
     check_number(args.object_cluster, "--object-cluster", 0, 0.5)
-    check_number(args.start_look_distance, "--start-look-distance", 0, 0.99)
+    check_number(args.planner.start_look_distance, "--planner.start-look-distance", 0, 0.99)
     if not (0.0 <= args.centre_relevancy < 1.0):
         raise InvalidInputError(f"--centre-relevancy must be in [0, 1) (0: the centre from the whole selection), "
                                 f"got {args.centre_relevancy}")
@@ -206,8 +194,20 @@ def check_args(args: PlanArgs) -> None:
         check_number(args.preview_fps, "--preview-fps", 1, 120)
     check_writable(Path(args.output_dir))
     check_file_size_limit(Path(args.output_dir))
-    args.score.validate()
+    args.planner.grid_polytopes = grid_polytopes(args.planner.grid_polytopes)
+    validated("--planner", args.planner.validate)
+    validated("--trajectory", args.planner.trajectory.validate)
+    validated("--score", args.score.validate)
     framing_config(args).validate()
+
+
+def grid_polytopes(value: Any) -> Any:
+    """--planner.grid-polytopes as PlannerConfig takes it: True / False / 'auto' (also 'on' / 'off')."""
+    key = value.strip().lower() if isinstance(value, str) else value
+    choices = {"auto": "auto", "on": True, "true": True, "off": False, "false": False, True: True, False: False}
+    if key not in choices:
+        raise InvalidInputError(f"--planner.grid-polytopes must be auto, on (True) or off (False), got {value!r}")
+    return choices[key]
 
 
 def unit_up(up: Any) -> Tuple[float, float, float]:
@@ -275,7 +275,7 @@ def memory_budget(args: PlanArgs, console: Console) -> float:
     """--memory-budget-mb trusted only up to the memory available: a larger explicit budget is refused, the default
     is lowered to what is available (said)."""
     avail = available_memory_mb()
-    budget = float(args.memory_budget_mb)
+    budget = float(args.planner.memory_budget_mb)
     if avail is None or budget <= avail:
         return budget
     if budget != PlannerConfig.memory_budget_mb:
@@ -319,3 +319,13 @@ def parse_region(text: str) -> Tuple[np.ndarray, np.ndarray]:
 def framing_config(args: PlanArgs) -> FramingConfig:
     """The framing band --framing names, for the frame --fov / --width / --height describe."""
     return FramingConfig(args.framing, float(args.fov), float(args.width) / float(args.height))
+
+
+RENAMED_FLAGS = {
+    "--beta": "--obstacles.beta",
+    "--start-look-distance": "--planner.start-look-distance",
+    "--grid-polytopes": "--planner.grid-polytopes",
+    "--no-no-unseen-fill": "--unseen-fill",
+    "--score.fov-deg": "--fov",
+}
+"""Flags of cinesplat-plan that changed name: the old spelling fails with the new one."""

@@ -21,15 +21,15 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, List, Optional, Tuple
+from typing import TYPE_CHECKING, Annotated, Any, List, Optional, Tuple
 
 import numpy as np
+import tyro
 
 from cinenerf_ns.planner.errors import InvalidInputError, PlanningError
 from cinenerf_ns.planner.scene.ellipsoids import DEFAULT_SAFETY_MARGIN, EllipsoidScene, SceneConfig, quat_wxyz_to_rotmat
 from cinenerf_ns.planner.scene.splat_params import NO_COLOUR_GREY, SplatParams
 from cinenerf_ns.planner.shots.planner import PlannerConfig
-from cinenerf_ns.planner.trajectory.timing import TimingConfig
 
 from .backend import FunctionBackend, LocateFn, PlanFn, SceneGaussians, label_locate, to_numpy
 from .conventions import VISER_NERFSTUDIO_SCALE_RATIO
@@ -239,7 +239,7 @@ class SplatPreviewer:
 class StandaloneConfig:
     """cinesplat-viewer: plan, watch and export camera paths in the browser, no GPU needed."""
 
-    load_config: str = "demo"
+    load_config: Annotated[str, tyro.conf.arg(aliases=("--scene",))] = "demo"
     """A run's config.yml (or run folder / .ckpt), a compact export (.pt/.npz), a Gaussian-splat .ply,
     'procedural[:N[:SEED]]' (generated test room with named objects), 'demo' (the bundled trained room of
     `make demo`) or 'demo-tiny' (a tiny built-in labelled scene)."""
@@ -252,22 +252,20 @@ class StandaloneConfig:
     """Where exported camera paths (camera_paths/) and preview videos (previews/) are written."""
     max_pages: int = 8
     """Browser pages served at once (each has its own panel and is sent the whole splat); more are refused."""
-    camera_radius: float = SceneConfig.camera_radius
-    """Camera body radius in scene units (obstacle model)."""
     safety_margin: float = DEFAULT_SAFETY_MARGIN
     """Extra distance kept from every ellipsoid on top of the camera radius (as cinesplat-plan's --safety-margin)."""
-    grid_resolution: int = PlannerConfig.grid_resolution
-    """A* voxels along the longest side of the planning region (as cinesplat-plan's --grid-resolution)."""
-    max_speed: float = TimingConfig.max_speed
-    """Camera speed cap of planned shots, scene units per second."""
     device: str = "cpu"
     """torch device of the obstacle scene and the planner ('cpu' or 'cuda')."""
-    n_candidates: int = 3
-    """Default number of candidate shots per Plan."""
+    candidates: int = 3
+    """Default number of candidate shots per Plan (the panel's "Candidates")."""
     max_display_gaussians: int = 1_000_000
     """Draw at most this many Gaussians in the browser (highest opacity first); planning uses all."""
     scale: float = VISER_NERFSTUDIO_SCALE_RATIO
     """viser units per scene unit (nerfstudio's viewer uses 10)."""
+    planner: PlannerConfig = dataclasses.field(default_factory=PlannerConfig)
+    """The planner's settings, as cinesplat-plan's --planner.* (--trajectory.*, --timing.*: its curve and clock)."""
+    obstacles: SceneConfig = dataclasses.field(default_factory=SceneConfig)
+    """How the splat's Gaussians become obstacles, as cinesplat-plan's --obstacles.*."""
 
 
 class StandaloneViewer:
@@ -280,9 +278,6 @@ class StandaloneViewer:
                  plan_fn: Optional[PlanFn] = None) -> None:
         import viser
 
-        from cinenerf_ns.planner.shots.planner import PlannerConfig
-        from cinenerf_ns.planner.trajectory.timing import TimingConfig
-
         from .panel import PanelConfig, ServerLimits
         from .planner_backend import PreparedPlanner
         from .viser_guard import guard_server
@@ -290,15 +285,14 @@ class StandaloneViewer:
 
         t0 = time.perf_counter()
         self.cfg = cfg
-        scfg = SceneConfig.with_margin(cfg.camera_radius, cfg.safety_margin)
+        scfg = dataclasses.replace(cfg.obstacles, camera_radius=cfg.obstacles.camera_radius + cfg.safety_margin)
         self.loaded = open_scene(cfg.load_config, None, scfg, cfg.device)
         sp = self.loaded.splat
         self.obstacles = self.loaded.obstacles
         self.planner: Optional[PreparedPlanner] = None
         if plan_fn is None:
-            self.planner = PreparedPlanner(self.obstacles, PlannerConfig(
-                grid_resolution=cfg.grid_resolution, start_region=self.loaded.start_region,
-                timing=TimingConfig(max_speed=cfg.max_speed), candidate_workers=0,  # see PreparedPlanner
+            self.planner = PreparedPlanner(self.obstacles, dataclasses.replace(
+                cfg.planner, start_region=self.loaded.start_region, candidate_workers=0,  # see PreparedPlanner
                 **stored_region_config(self.loaded.loaded.planning_region)))
             plan_fn, planner_name = self.planner.plan, PreparedPlanner.name
         else:
@@ -315,7 +309,7 @@ class StandaloneViewer:
             self.server, self.backend,
             PanelConfig(data_dir=self.loaded.data_dir, config_path=self.loaded.config_path,
                         output_dir=Path(cfg.output_dir).expanduser().absolute(),
-                        n_candidates=cfg.n_candidates, scene_note=self.loaded.scene_note),
+                        n_candidates=cfg.candidates, scene_note=self.loaded.scene_note),
             scale=cfg.scale, default_goto=self.loaded.default_goto, default_look_at=self.loaded.default_look_at,
             previewer=SplatPreviewer(sp), export_name=f"{self.loaded.name}-shot", start_region=self.loaded.start_region,
             cameras=self.loaded.cameras, limits=ServerLimits(max_clients=cfg.max_pages),
@@ -475,6 +469,7 @@ def exposure_warning(host: str) -> Optional[str]:
 def check_config(cfg: StandaloneConfig) -> None:
     """The options' ranges, before the scene is loaded (messages name the option); the scene-relative checks (camera
     radius against the scene, grid against memory) follow in the planner, shown in the status line."""
+    from cinenerf_ns.option_surface import validated
     from cinenerf_ns.options import check_number
     from cinenerf_ns.planner.shots.planner import GRID_RESOLUTION_RANGE, MAX_CANDIDATES
 
@@ -486,16 +481,18 @@ def check_config(cfg: StandaloneConfig) -> None:
     from cinenerf_ns.output_set import check_writable
 
     check_writable(Path(cfg.output_dir))  # a file, under a file, read-only, /proc: said now, not at the first export
-    check_number(cfg.camera_radius, "--camera-radius", 0, 10)
+    check_number(cfg.obstacles.camera_radius, "--camera-radius", 0, 10)
     check_number(cfg.safety_margin, "--safety-margin", 0, 10)
-    check_number(cfg.grid_resolution, "--grid-resolution", *GRID_RESOLUTION_RANGE, integer=True)
-    check_number(cfg.max_speed, "--max-speed", 0, 100, lo_open=True)
-    check_number(cfg.n_candidates, "--n-candidates", 1, MAX_CANDIDATES, integer=True)
+    check_number(cfg.planner.grid_resolution, "--grid-resolution", *GRID_RESOLUTION_RANGE, integer=True)
+    check_number(cfg.planner.timing.max_speed, "--max-speed", 0, 100, lo_open=True)
+    check_number(cfg.candidates, "--candidates", 1, MAX_CANDIDATES, integer=True)
     check_number(cfg.max_pages, "--max-pages", 1, 64, integer=True)
     check_number(cfg.max_display_gaussians, "--max-display-gaussians", 1, 50_000_000, integer=True)
     check_number(cfg.scale, "--scale", 0, 1e6, lo_open=True)
     if cfg.device != "cpu" and not str(cfg.device).startswith("cuda"):
         raise InvalidInputError(f"--device must be 'cpu' or 'cuda', got {cfg.device!r}")
+    validated("--planner", cfg.planner.validate)
+    validated("--trajectory", cfg.planner.trajectory.validate)
 
 
 # How long Ctrl+C waits for the viewer's background computations (the text-query warm-up stops after its current label,
@@ -567,18 +564,20 @@ def entrypoint(argv: Optional[List[str]] = None) -> None:
     """cinesplat-viewer: user errors (options, scene files) end with a message on stderr and exit status 2."""
     import sys
 
-    import tyro
     from rich.console import Console
 
     from cinenerf_ns.console_text import error_line
+    from cinenerf_ns.option_surface import parse
 
-    cfg = tyro.cli(StandaloneConfig, args=argv)
     try:
-        main(cfg)
+        main(parse(StandaloneConfig, argv, "cinesplat-viewer", RENAMED_FLAGS))
     except (PlanningError, FileNotFoundError, ValueError, OSError) as e:  # CheckpointError, QueryError, port in use
         Console(stderr=True, emoji=False).print(error_line("cinesplat-viewer", e), soft_wrap=True)
         sys.exit(2)
 
+
+RENAMED_FLAGS = {"--n-candidates": "--candidates"}
+"""Flags of cinesplat-viewer that changed name (to cinesplat-plan's): the old spelling fails with the new one."""
 
 if __name__ == "__main__":
     entrypoint()

@@ -36,9 +36,10 @@ OPTION_CASES = [
     ("radius-nan", ["--camera-radius", "nan"], r"--camera-radius must be"),
     ("radius-room-size", ["--camera-radius", "5"], r"camera sphere .* too large for this scene"),
     ("margin-negative", ["--safety-margin", "-1"], r"--safety-margin must be"),
-    ("beta-zero", ["--beta", "0"], r"--beta must be"),
-    ("beta-inf", ["--beta", "inf"], r"--beta must be"),
+    ("beta-zero", ["--obstacles.beta", "0"], r"--obstacles.beta must be"),
+    ("beta-inf", ["--obstacles.beta", "inf"], r"--obstacles.beta must be"),
     ("opacity-floor", ["--opacity-floor", "1.5"], r"--opacity-floor must be"),
+    ("opacity-floor-nested", ["--obstacles.opacity-floor", "1.5"], r"--opacity-floor must be"),
     ("grid-zero", ["--grid-resolution", "0"], r"--grid-resolution must be an integer in \[8, 1024\]"),
     ("grid-huge", ["--grid-resolution", "100000"], r"--grid-resolution must be"),
     ("grid-over-budget", ["--grid-resolution", "1000", "--memory-budget-mb", "256"],
@@ -54,7 +55,7 @@ OPTION_CASES = [
     ("smoothing-negative", ["--semantic-smoothing", "-1"], r"--semantic-smoothing must be"),
     ("cluster-two", ["--object-cluster", "2"], r"--object-cluster must be"),
     ("centre-relevancy-one", ["--centre-relevancy", "1"], r"--centre-relevancy must be in \[0, 1\)"),
-    ("start-look-distance-one", ["--start-look-distance", "1"], r"--start-look-distance must be"),
+    ("start-look-distance-one", ["--planner.start-look-distance", "1"], r"--planner.start-look-distance must be"),
     ("workers-negative", ["--workers", "-1"], r"--workers must be"),
     ("acceleration-zero", ["--max-acceleration", "0"], r"--max-acceleration must be"),
     ("angular-rate-negative", ["--max-angular-rate", "-5"], r"--max-angular-rate must be"),
@@ -103,6 +104,16 @@ OPTION_CASES = [
     ("output-proc", ["--output-dir", "/proc/cinesplat"], r"--output-dir /proc/cinesplat: cannot write into /proc"),
     ("memory-budget-huge", ["--memory-budget-mb", "1000000"],
      r"--memory-budget-mb 1e\+06 is more than the memory available to this process \(about \d+ MB"),
+    # issue 35: the planner's configs are nested (--planner.*, --trajectory.*, --obstacles.*): renamed flags say so
+    ("renamed-beta", ["--beta", "2"], r"--beta was renamed: use --obstacles.beta"),
+    ("renamed-beta-equals", ["--beta=2"], r"--beta was renamed: use --obstacles.beta"),
+    ("renamed-start-look-distance", ["--start-look-distance", "0"], r"use --planner.start-look-distance"),
+    ("renamed-grid-polytopes", ["--grid-polytopes", "on"], r"--grid-polytopes was renamed: use --planner.grid-polyt"),
+    ("double-negative", ["--no-no-unseen-fill"], r"--no-no-unseen-fill was renamed: use --unseen-fill"),
+    ("score-fov", ["--score.fov-deg", "40"], r"--score.fov-deg was renamed: use --fov"),
+    ("grid-polytopes-bad", ["--planner.grid-polytopes", "sometimes"], r"--planner.grid-polytopes must be auto, on"),
+    ("trajectory-invalid", ["--trajectory.continuity", "9"], r"--trajectory: continuity order must be in"),
+    ("planner-invalid", ["--planner.corridor-backend", "gpu"], r"--planner: corridor_backend must be"),
 ]
 
 
@@ -464,9 +475,9 @@ def test_memory_budget_is_trusted_up_to_the_memory_available(monkeypatch):
     args = plan_args.PlanArgs(scene="procedural", go_to="sofa", look_at="lamp")
     assert plan_args.memory_budget(args, console) == 1000.0
     assert "note: memory budget 1000 MB (the default 4096 MB is more than the memory available" in console.export_text()
-    args.memory_budget_mb = 512.0
+    args.planner.memory_budget_mb = 512.0
     assert plan_args.memory_budget(args, console) == 512.0
-    args.memory_budget_mb = 2000.0
+    args.planner.memory_budget_mb = 2000.0
     with pytest.raises(plan_args.InvalidInputError, match=r"--memory-budget-mb 2000 is more than .* give at most 1000"):
         plan_args.memory_budget(args, console)
     monkeypatch.setattr(plan_args, "available_memory_mb", lambda: None)  # unknown: the budget as given

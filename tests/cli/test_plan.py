@@ -9,7 +9,13 @@ from cinenerf_ns.cli.plan import PlanArgs, run_plan
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.scene.ply import write_splat_ply
 from cinenerf_ns.planner.scene.procedural import procedural_room
+from cinenerf_ns.planner.shots.planner import PlannerConfig
 from cinenerf_ns.scenes import _word_match, parse_point, word_matches
+
+
+def grid(resolution: int, **planner) -> PlannerConfig:
+    """--grid-resolution (and other --planner.* settings) as PlanArgs takes them."""
+    return PlannerConfig(grid_resolution=resolution, **planner)
 
 
 def test_parse_point():
@@ -61,7 +67,7 @@ def test_procedural_text_plan(tmp_path):
     from nerfstudio.cameras.camera_paths import get_path_from_json
 
     s = run_plan(PlanArgs(scene="procedural:3000:1", go_to="the armchair", look_at="floor lamp", candidates=2,
-                          output_dir=tmp_path, grid_resolution=64))
+                          output_dir=tmp_path, planner=grid(64)))
     assert len(s["candidates"]) == 2
     for c in s["candidates"]:
         d = json.loads(open(c["camera_path"]).read())
@@ -81,7 +87,7 @@ def test_ply_points_and_errors(tmp_path):
     g = room.objects[0].center
     lk = room.objects[1].center
     s = run_plan(PlanArgs(scene=str(ply), go_to=" ".join(map(str, g)), look_at=" ".join(map(str, lk)),
-                          output_dir=tmp_path / "o", grid_resolution=64, start="0 0 0.7"))
+                          output_dir=tmp_path / "o", planner=grid(64), start="0 0 0.7"))
     assert np.allclose(s["candidates"][0]["start"], [0, 0, 0.7])
     with pytest.raises(InvalidInputError, match="no semantics"):
         run_plan(PlanArgs(scene=str(ply), go_to="armchair", look_at="0 0 0", output_dir=tmp_path / "x"))
@@ -97,7 +103,7 @@ def test_ranked_candidates_with_limits_in_table_and_report(tmp_path):
 
     con = Console(record=True, width=250)
     s = run_plan(PlanArgs(scene="procedural:3000:1", go_to="the armchair", look_at="floor lamp", candidates=3,
-                          output_dir=tmp_path, grid_resolution=64, max_angular_rate=40.0, max_acceleration=0.4),
+                          output_dir=tmp_path, planner=grid(64), max_angular_rate=40.0, max_acceleration=0.4),
                  console=con)
     cands = s["candidates"]
     assert [c["rank"] for c in cands] == [1, 2, 3]
@@ -118,19 +124,19 @@ def test_ranked_candidates_with_limits_in_table_and_report(tmp_path):
 def test_multi_stop(tmp_path):
     room = procedural_room(3000, seed=1)
     s = run_plan(PlanArgs(scene="procedural:3000:1", go_to="armchair", then_go_to=("table",), look_at="floor lamp",
-                          then_look_at=("vase",), output_dir=tmp_path, grid_resolution=64, start="0 0 0.8"))
+                          then_look_at=("vase",), output_dir=tmp_path, planner=grid(64), start="0 0 0.8"))
     c = s["candidates"][0]
     assert len(c["stops"]) == 2 and c["verification"]["safe"]
     assert np.allclose(c["stop_look_ats"][1], room.object("vase").center)
     assert c["max_look_at_error_deg"] < 1e-3
     with pytest.raises(InvalidInputError, match="then-look-at"):
         run_plan(PlanArgs(scene="procedural:3000:1", go_to="armchair", then_go_to=("table", "sofa"), look_at="vase",
-                          then_look_at=("vase",), output_dir=tmp_path / "x", grid_resolution=64))
+                          then_look_at=("vase",), output_dir=tmp_path / "x", planner=grid(64)))
 
 
 def test_workers_option(tmp_path):
     """--workers 2 plans the same ranked candidates as in-process; a negative count is a clear error."""
-    kw = dict(scene="procedural:3000:1", go_to="the armchair", look_at="floor lamp", candidates=3, grid_resolution=64)
+    kw = dict(scene="procedural:3000:1", go_to="the armchair", look_at="floor lamp", candidates=3, planner=grid(64))
     a = run_plan(PlanArgs(output_dir=tmp_path / "a", workers=0, **kw))
     b = run_plan(PlanArgs(output_dir=tmp_path / "b", workers=2, **kw))
     assert [c["start"] for c in a["candidates"]] == [c["start"] for c in b["candidates"]]
@@ -216,7 +222,7 @@ def test_load_scene_passes_centre_relevancy():
 
 def test_no_unseen_fill_reaches_the_locator(monkeypatch, tmp_path):
     """--no-unseen-fill turns the volume centre's camera fill off (default: on)."""
-    seen = [_load_scene_kwargs(monkeypatch, "unseen_fill", output_dir=tmp_path / str(f), no_unseen_fill=f)
+    seen = [_load_scene_kwargs(monkeypatch, "unseen_fill", output_dir=tmp_path / str(f), unseen_fill=not f)
             for f in (False, True)]
     assert seen == [[True], [False]]
 
@@ -239,14 +245,13 @@ def test_load_scene_gives_the_bundled_scene_its_training_cameras():
 
 
 def test_start_look_distance_option(tmp_path):
-    """--start-look-distance reaches the planner: 0 gives the uniform starts, a bad fraction a clear error."""
-    kw = dict(scene="procedural:3000:1", go_to="the armchair", look_at="floor lamp", candidates=3, grid_resolution=64,
-              workers=0)
-    a = run_plan(PlanArgs(output_dir=tmp_path / "a", **kw))
-    b = run_plan(PlanArgs(output_dir=tmp_path / "b", start_look_distance=0.0, **kw))
+    """--planner.start-look-distance reaches the planner: 0 gives the uniform starts, a bad fraction a clear error."""
+    kw = dict(scene="procedural:3000:1", go_to="the armchair", look_at="floor lamp", candidates=3, workers=0)
+    a = run_plan(PlanArgs(output_dir=tmp_path / "a", planner=grid(64), **kw))
+    b = run_plan(PlanArgs(output_dir=tmp_path / "b", planner=grid(64, start_look_distance=0.0), **kw))
     assert [c["start"] for c in a["candidates"]] != [c["start"] for c in b["candidates"]]
-    with pytest.raises(InvalidInputError, match="--start-look-distance"):
-        run_plan(PlanArgs(output_dir=tmp_path / "c", start_look_distance=1.0, **kw))
+    with pytest.raises(InvalidInputError, match="--planner.start-look-distance"):
+        run_plan(PlanArgs(output_dir=tmp_path / "c", planner=grid(64, start_look_distance=1.0), **kw))
     assert not (tmp_path / "c").exists()
 
 
@@ -304,7 +309,7 @@ def test_rerun_with_fewer_candidates_leaves_no_stale_shot(tmp_path):
     import os
     import stat
 
-    kw = dict(scene="procedural:3000:1", go_to="the armchair", look_at="floor lamp", grid_resolution=48, workers=0,
+    kw = dict(scene="procedural:3000:1", go_to="the armchair", look_at="floor lamp", planner=grid(48), workers=0,
               output_dir=tmp_path)
     run_plan(PlanArgs(candidates=3, **kw))
     assert sorted(p.name for p in tmp_path.glob("shot_?.json")) == ["shot_0.json", "shot_1.json", "shot_2.json"]
@@ -333,7 +338,7 @@ def test_interrupted_run_writes_nothing(tmp_path, monkeypatch, capsys):
 def test_moved_goal_is_reported(tmp_path, capsys):
     """A go-to inside the room's wall band but outside the planning region ends inside it; the report and the
     summary say from where to where and why."""
-    s = run_plan(PlanArgs(scene="procedural:3000:1", go_to="1.9 0 0.5", look_at="floor lamp", grid_resolution=48,
+    s = run_plan(PlanArgs(scene="procedural:3000:1", go_to="1.9 0 0.5", look_at="floor lamp", planner=grid(48),
                           workers=0, output_dir=tmp_path))
     mv = s["candidates"][0]["goal_moved"]
     assert mv is not None and mv["distance"] > 0.1 and "outside the planning region" in mv["why"]
@@ -344,7 +349,7 @@ def test_moved_goal_is_reported(tmp_path, capsys):
 
 def test_preview_videos_per_candidate(tmp_path):
     """--preview writes one mp4 + contact sheet per candidate beside the camera paths; the report names them."""
-    s = run_plan(PlanArgs(scene="procedural:3000:1", go_to="the armchair", look_at="floor lamp", grid_resolution=48,
+    s = run_plan(PlanArgs(scene="procedural:3000:1", go_to="the armchair", look_at="floor lamp", planner=grid(48),
                           workers=0, candidates=2, preview=True, preview_size=(64, 36), preview_fps=5,
                           output_dir=tmp_path))
     for k in range(2):
@@ -357,7 +362,7 @@ def test_preview_videos_per_candidate(tmp_path):
 def test_end_pose_and_framing_in_report_and_table(tmp_path, capsys):
     """An object go-to ends at a chosen end pose (reported with why), the look-at object's view per candidate;
     --no-end-pose keeps the go-to centre rule; the same object twice is a good view of it."""
-    kw = dict(scene="procedural:20000:0", look_at="floor lamp", grid_resolution=64)
+    kw = dict(scene="procedural:20000:0", look_at="floor lamp", planner=grid(64))
     s = run_plan(PlanArgs(go_to="the armchair", candidates=3, framing="close", output_dir=tmp_path / "a", **kw))
     rep = json.loads(open(s["report"]).read())
     assert rep["end_pose"]["framing"] == "close" and rep["end_pose"]["poses"]
@@ -392,7 +397,7 @@ def test_planning_region_rules_in_report_and_export(tmp_path, capsys):
 
     g = grove_scene(20_000, seed=1, background_fraction=0.1)
     ply = g.write_ply(tmp_path / "grove.ply")
-    common = dict(go_to="-0.3 0.2 0.5", look_at="0.5 0.5 0.5", start="0.6 -0.5 0.6", grid_resolution=48)
+    common = dict(go_to="-0.3 0.2 0.5", look_at="0.5 0.5 0.5", start="0.6 -0.5 0.6", planner=grid(48))
     s = run_plan(PlanArgs(scene=str(ply), output_dir=tmp_path / "a", **common))
     reg = s["planning_region"]
     assert reg["rule"] == "dense content"
@@ -417,7 +422,7 @@ def test_ignore_floaters_reports_the_count_and_the_verified_obstacles(tmp_path, 
 
     ply = grove_scene(20_000, seed=3).write_ply(tmp_path / "grove.ply")
     common = dict(scene=str(ply), go_to="-0.3 0.2 0.5", look_at="0.5 0.5 0.5", start="0.6 -0.5 0.6",
-                  grid_resolution=48)
+                  planner=grid(48))
     s = run_plan(PlanArgs(output_dir=tmp_path / "on", ignore_floaters="on", **common))
     fl = s["floaters"]
     assert fl["ignored"] and fl["ignored_gaussians"] > 0 and "opacity <=" in fl["rule"]

@@ -130,10 +130,12 @@ def click(b, text: str) -> None:
 
 @pytest.fixture()
 def viewer(tmp_path):
+    from cinenerf_ns.planner.shots.planner import PlannerConfig
     from cinenerf_ns.viewer.standalone import StandaloneConfig, StandaloneViewer
 
     v = StandaloneViewer(StandaloneConfig(load_config="procedural:3000", port=free_port(), host="127.0.0.1",
-                                          output_dir=tmp_path / "data", grid_resolution=64))
+                                          output_dir=tmp_path / "data",
+                                          planner=PlannerConfig(grid_resolution=64)))
     assert v.planner.wait_ready(120), v.panels.status
     yield v
     v.close()

@@ -19,6 +19,7 @@ from viewer_fakes import wait_for
 from cinenerf_ns.method.scene_files import CheckpointError
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.scene.splat_params import SH_C0, SplatParams
+from cinenerf_ns.planner.shots.planner import PlannerConfig
 from cinenerf_ns.viewer.demo import demo_scene
 from cinenerf_ns.viewer.standalone import StandaloneConfig, StandaloneViewer, display_gaussians, open_scene
 
@@ -100,7 +101,8 @@ def room_splat():
 
 def viewer_for(source, tmp_path, **kw) -> StandaloneViewer:
     return StandaloneViewer(StandaloneConfig(load_config=source, port=free_port(), host="127.0.0.1",
-                                             output_dir=kw.pop("output_dir", tmp_path), grid_resolution=48, **kw))
+                                             output_dir=kw.pop("output_dir", tmp_path),
+                                             planner=PlannerConfig(grid_resolution=48), **kw))
 
 
 def test_standalone_on_ply_plans_with_coordinates(tmp_path):
@@ -265,7 +267,10 @@ def test_cli_help():
     (["--camera-radius", "-1"], r"--camera-radius must be"),
     (["--grid-resolution", "100000"], r"--grid-resolution must be an integer in \[8, 1024\]"),
     (["--max-speed", "0"], r"--max-speed must be"),
-    (["--n-candidates", "500"], r"--n-candidates must be an integer in \[1, 64\]"),
+    (["--candidates", "500"], r"--candidates must be an integer in \[1, 64\]"),
+    (["--n-candidates", "5"], r"--n-candidates was renamed: use --candidates"),
+    (["--scene", "/nonexistent/scene.npz"], r"scene\.npz"),
+    (["--trajectory.smoothness-order", "9"], r"--trajectory: smoothness_order must be in"),
     (["--device", "tpu"], r"--device must be"),
     (["--load-config", "/nonexistent/scene.npz"], r"scene\.npz"),
     (["--load-config", "procedural:abc"], r"bad procedural scene"),

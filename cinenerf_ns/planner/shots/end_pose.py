@@ -60,12 +60,19 @@ class EndPoseConfig:
     min_separation_deg: float = 25.0
     """End poses of different candidates are at least this far apart as seen from the subject."""
     w_visibility: float = 6.0
+    """Weight of the subject's hidden fraction, seen through the splat (the evaluated viewpoints only)."""
     w_size: float = 1.0
+    """Weight of the subject's size outside the framing's band (framing.size_cost)."""
     w_whole: float = 10.0
+    """Weight of a subject cut off by the frame's edge (0 or 1)."""
     w_goto: float = 0.5
+    """Weight of the distance to the go-to object's box, in units of the subject's distance from it."""
     w_elevation: float = 0.3
+    """Weight of ((elevation - eye_elevation_deg) / 45 deg)^2."""
     w_goto_fill: float = 4.0
+    """Weight of the go-to object's frame coverage above GOTO_FILL_FREE (the evaluated viewpoints only)."""
     w_facing: float = 0.5
+    """Same go-to and look-at object: weight of (1 - cos(angle to the facing direction)) / 2."""
 
     def validate(self) -> None:
         for k in ("directions", "evaluated", "samples"):

@@ -1,0 +1,118 @@
+"""How the planner's config dataclasses appear on cinesplat-plan's and cinesplat-viewer's command lines: nested the
+nerfstudio way (``--planner.grid-resolution``, ``--trajectory.smoothness-weight``, ``--score.w-occlusion``), each
+field declared once, in its config.
+
+A tyro constructor rule (``REGISTRY``, passed to ``tyro.cli`` by ``parse``) adjusts how those dataclasses are shown,
+without touching them: it hides the fields a command fills itself (COMMAND_SET), gives the few flags users type daily
+their short spelling as an alias (SHORT_FLAGS), lifts the planner's trajectory and timing settings out of the
+``--planner.`` prefix (UNPREFIXED) and makes every field's docstring one line of help. A flag that was renamed fails
+with its new name (``renamed_flag``) instead of tyro's generic "unrecognized option"."""
+from __future__ import annotations
+
+import dataclasses
+import functools
+import sys
+import threading
+from typing import Annotated, Any, Callable, Dict, List, Optional, Sequence, Type, TypeVar
+
+import tyro
+from tyro.constructors import ConstructorRegistry, StructConstructorSpec, StructFieldSpec, StructTypeInfo
+
+from cinenerf_ns.planner.errors import InvalidInputError
+from cinenerf_ns.planner.scene.ellipsoids import SceneConfig
+from cinenerf_ns.planner.shots.planner import PlannerConfig
+from cinenerf_ns.planner.shots.scoring import ScoreConfig
+from cinenerf_ns.planner.trajectory.timing import TimingConfig
+
+T = TypeVar("T")
+
+COMMAND_SET: Dict[type, tuple] = {
+    PlannerConfig: ("bounds", "bounds_rule", "start_region", "up", "obstacles_note", "candidate_workers"),
+    ScoreConfig: ("fov_deg",),
+}
+"""Config fields a command sets itself (from --region or the scene, --up, the floater rule, --workers, --fov): not
+flags of their own."""
+SHORT_FLAGS: Dict[tuple, str] = {
+    (PlannerConfig, "grid_resolution"): "--grid-resolution",
+    (PlannerConfig, "memory_budget_mb"): "--memory-budget-mb",
+    (TimingConfig, "max_speed"): "--max-speed",
+    (TimingConfig, "fps"): "--fps",
+    (SceneConfig, "camera_radius"): "--camera-radius",
+    (SceneConfig, "opacity_floor"): "--opacity-floor",
+}
+"""(config, field) -> the short alias of its nested flag, for the settings users change daily (--opacity-floor:
+the planner's empty-scene message names it)."""
+UNPREFIXED = {(PlannerConfig, "trajectory"), (PlannerConfig, "timing")}
+"""Nested configs shown as ``--trajectory.*`` / ``--timing.*`` rather than ``--planner.trajectory.*``."""
+
+_busy = threading.local()
+
+
+def one_line(text: Optional[str]) -> Optional[str]:
+    """A field docstring as one line of help (tyro keeps a docstring's line breaks)."""
+    return None if text is None else " ".join(str(text).split())
+
+
+def _help(helptext: Any) -> Optional[str]:
+    return one_line(helptext() if callable(helptext) else helptext)
+
+
+def _field_type(owner: type, f: StructFieldSpec) -> Any:
+    if f.name in COMMAND_SET.get(owner, ()):
+        return Annotated[f.type, tyro.conf.Suppress]
+    if (owner, f.name) in SHORT_FLAGS:
+        return Annotated[f.type, tyro.conf.arg(aliases=(SHORT_FLAGS[(owner, f.name)],))]
+    if (owner, f.name) in UNPREFIXED:
+        return Annotated[f.type, tyro.conf.arg(prefix_name=False)]
+    return f.type
+
+
+def _rule(info: StructTypeInfo) -> Optional[StructConstructorSpec]:
+    """tyro's own spec of a cinenerf_ns dataclass, with COMMAND_SET hidden, SHORT_FLAGS, UNPREFIXED, one-line help."""
+    t = info.type
+    busy = getattr(_busy, "types", None)
+    if busy is None:
+        busy = _busy.types = set()
+    if not dataclasses.is_dataclass(t) or not t.__module__.startswith("cinenerf_ns") or t in busy:
+        return None
+    busy.add(t)
+    try:
+        base = ConstructorRegistry.get_struct_spec(info)  # the default dataclass rule (this rule declines: busy)
+    finally:
+        busy.discard(t)
+    if not isinstance(base, StructConstructorSpec):
+        return None
+    fields = tuple(dataclasses.replace(f, type=_field_type(t, f), helptext=functools.partial(_help, f.helptext))
+                   for f in base.fields)
+    return StructConstructorSpec(instantiate=base.instantiate, fields=fields)
+
+
+REGISTRY = ConstructorRegistry()
+REGISTRY.struct_rule(_rule)
+
+
+def renamed_flag(argv: Sequence[str], renamed: Dict[str, str]) -> Optional[str]:
+    """The message for the first flag of ``argv`` that was renamed (``renamed``: old flag -> new), else None."""
+    for a in argv:
+        old = str(a).split("=", 1)[0]
+        if old in renamed:
+            return f"{old} was renamed: use {renamed[old]}"
+    return None
+
+
+def parse(cls: Type[T], argv: Optional[Sequence[str]], prog: str, renamed: Dict[str, str]) -> T:
+    """``tyro.cli`` of a command's options with this module's rule (tyro's own parse errors exit with status 2); a
+    renamed flag is an InvalidInputError naming its replacement."""
+    args: List[str] = list(sys.argv[1:] if argv is None else argv)
+    message = renamed_flag(args, renamed)
+    if message is not None:
+        raise InvalidInputError(message)
+    return tyro.cli(cls, args=args, prog=prog, registry=REGISTRY)
+
+
+def validated(what: str, check: Callable[[], None]) -> None:
+    """Run a config's validate(); its InvalidInputError is said with the flag prefix it belongs to."""
+    try:
+        check()
+    except InvalidInputError as e:
+        raise InvalidInputError(f"{what}: {e}") from e
