@@ -330,7 +330,7 @@ class SubjectSamples:
     ids: np.ndarray  # [S] int64: the volume Gaussian each sample is the mean of (-1: not a Gaussian)
     members: np.ndarray  # [K] int64: the subject's own Gaussians (class 1); empty for a point
     box: Optional[tuple] = None  # (lo [3], hi [3]) of the members' cut-off boxes (subject_box); None for a point
-    _packed: Optional[tuple] = field(default=None, repr=False, compare=False)  # (id(vol), packed_classes(vol))
+    _packed: Optional[tuple] = field(default=None, repr=False, compare=False)  # (vol, packed_classes(vol))
 
     @classmethod
     def of_point(cls, point) -> "SubjectSamples":
@@ -373,11 +373,11 @@ class SubjectSamples:
     def packed_classes(self, vol: SplatVolume) -> np.ndarray:
         """uint8 [N]: classes(N) in the volume's row order (what the compiled walk reads), built from the members'
         rows in O(K) and kept for the next call with the same volume (end poses, then the candidates' scores)."""
-        key = id(vol)
-        if self._packed is None or self._packed[0] != key:
+        # the volume itself, not its id: a re-prepared planner's new volume may reuse a freed one's address
+        if self._packed is None or self._packed[0] is not vol:
             c = np.zeros(len(vol), np.uint8)
             c[vol.rank[self.members]] = 1
-            self._packed = (key, c)
+            self._packed = (vol, c)
         return self._packed[1]
 
 
