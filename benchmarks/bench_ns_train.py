@@ -51,6 +51,7 @@ VARIANTS: Dict[str, List[str]] = {
     "cinesplat-feature": _CINE + ["--pipeline.model.latent-render-mode", "separate",
                                   "--pipeline.model.latent-render-resolution", "feature"],
     "cinesplat-every2": _CINE + ["--pipeline.model.latent-every", "2"],
+    "cinesplat-nostream": _CINE + ["--pipeline.model.latent-side-stream", "False"],
     # the latent pass never runs: what cinesplat costs besides it (param group, viewer panel, datamanager)
     "cinesplat-nolatent": _CINE + ["--pipeline.model.latent-start-step", "100000000"],
 }

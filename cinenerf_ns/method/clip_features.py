@@ -278,15 +278,19 @@ class DenseClipExtractor:
     def __init__(self, cfg: ClipFeatureConfig, device: torch.device | str = "cpu", model=None):
         self.cfg = cfg
         self.device = torch.device(device)
-        self.model = model if model is not None else load_clip(cfg, self.device)[0]
-        self.model.to(self.device)
+        self.dtype = torch.float16 if (cfg.half_precision and self.device.type == "cuda") else torch.float32
+        if model is not None:
+            self.model = model.to(self.device).to(self.dtype)
+        else:
+            # only the image tower goes to the device, cast BEFORE the copy: a float32 ViT-B/16 with its text tower
+            # on the GPU (~600 MB) was the peak of a whole cinesplat run, above splatfacto's training peak
+            self.model = load_clip(cfg, "cpu")[0]
+            self.model.visual.to(self.dtype).to(self.device)
         self.dense = _dense_fn(self.model)
         self.mult = _patch_multiple(self.model)
         mean, std = _image_mean_std(self.model)
         self.mean = mean.to(self.device).view(1, 3, 1, 1)
         self.std = std.to(self.device).view(1, 3, 1, 1)
-        self.dtype = torch.float16 if (cfg.half_precision and self.device.type == "cuda") else torch.float32
-        self.model.to(self.dtype)
 
     @property
     def feature_dim(self) -> int:

@@ -155,7 +155,7 @@ class FeatureCodec(nn.Module):
         return dots * torch.rsqrt(sq.clamp_min(1e-24))[:, None]
 
 
-def reconstruction_error(codec: FeatureCodec, feats: Tensor, batch: int = 65536) -> float:
+def reconstruction_error(codec: FeatureCodec, feats: Tensor, batch: int = 16384) -> float:
     """Mean ``1 - cos(f_dec(f_enc(P)), P)`` over rows of feats [M, D]."""
     tot, n = 0.0, 0
     with torch.no_grad():
@@ -185,11 +185,15 @@ def train_codec(
     if feats.shape[0] > cfg.max_samples and weights is None:
         idx = torch.randperm(feats.shape[0], generator=gen)[: cfg.max_samples]
         feats = feats[idx]
-    x = F.normalize(feats.float(), dim=-1).to(device)  # [M, D]
-    w = None if weights is None else (weights.float() / weights.float().sum()).to(device)
+    x = F.normalize(feats.float(), dim=-1)  # [M, D], on feats' device
+    w = None if weights is None else (weights.float() / weights.float().sum()).to(x.device)
     codec = FeatureCodec(x.shape[1], cfg, device=device)
     with torch.no_grad():
         codec.center.copy_(x.mean(0) if w is None else (x * w[:, None]).sum(0))
+    # on a GPU the samples wait in float16 (batches are widened to float32): 1M x 512 floats would otherwise be
+    # 2 GB next to the training, and the fox's 154k of them (315 MB) made setup cinesplat's memory peak
+    x = x.to(device, torch.float16 if torch.device(device).type == "cuda" else torch.float32)
+    w = None if w is None else w.to(device)
     t0 = time.perf_counter()
     err0 = reconstruction_error(codec, x)
     opt = torch.optim.Adam(codec.parameters(), lr=cfg.lr)
@@ -210,7 +214,7 @@ def train_codec(
                 idx = torch.randint(0, x.shape[0], (min(cfg.batch_size, x.shape[0]),), device=x.device, generator=dgen)
             else:
                 idx = torch.multinomial(w, cfg.batch_size, replacement=True, generator=dgen)
-            xb = x[idx]
+            xb = x[idx].float()
             rec = codec(xb)
             loss = (1 - (rec * xb).sum(-1)).mean()
             opt.zero_grad(set_to_none=True)

@@ -216,7 +216,8 @@ def prepare_semantic_targets(
         settings["label_transform"] = label_transform_key  # e.g. the cameras' distortion (undistortion changes ids)
 
         def compute() -> FeatureMaps:
-            enc = make_text_encoder(clip_config, device)
+            # a few label names: the text tower runs on the CPU, so setup never holds a float32 CLIP on the GPU
+            enc = make_text_encoder(clip_config, "cpu")
             return compute_label_maps(
                 image_paths, image_sizes, clip_config.feature_long_side, label_dir_path, table_path, enc,
                 label_transform

@@ -68,6 +68,10 @@ class CineSplatModelConfig(SplatfactoModelConfig):
     host sync; "separate": a whole second gsplat pass on detached geometry (same gradients, slower); "fused": 3 extra
     channels of the RGB pass (one rasterization, but the latent loss also reaches the geometry: use a small
     weight)."""
+    latent_side_stream: bool = True
+    """"shared" mode on CUDA: rasterize the latents on a second CUDA stream, so that their forward and backward
+    kernels (autograd runs a backward on its forward's stream) overlap the RGB pass's instead of queueing behind
+    them: gsplat's small-image passes leave most of the GPU idle. Same images and gradients."""
     latent_render_resolution: Literal["feature", "image"] = "image"
     """"image": render at the RGB pass's resolution, area-downsample to the feature map; "feature": render at the
     map's size with a separate pass (fewer pixels but slower on a GPU: a few crowded tiles). "shared" and "fused"
@@ -116,6 +120,7 @@ class CineSplatModel(SplatfactoModel):
         if "label_embeddings" in meta:
             self.label_embeddings = meta["label_embeddings"].float().clone()
         self._train_camera_hw: Dict[int, Tuple[int, int]] = {}  # cam_idx -> (H, W), see _camera_hw
+        self._latent_stream: Optional[torch.cuda.Stream] = None  # latent_side_stream's stream, made on first use
         self._query_text = ""
         self._query_relevancy: Optional[Tensor] = None  # [N] cached per query / per point count
         self._text_encoder = None
@@ -302,9 +307,13 @@ class CineSplatModel(SplatfactoModel):
     def get_outputs(self, camera: Cameras) -> Dict[str, Union[torch.Tensor, List]]:
         if not isinstance(camera, Cameras):
             return {}
-        if self.training and self.config.latent_render_mode == "fused" and self._latents_active():
+        if self.training and not self._latents_active():
+            # a step without the latent pass is splatfacto's step: no camera set-up of our own (its intrinsics and
+            # pose refinement cost host syncs; they had made latent_every=2 slower than every step)
+            return super().get_outputs(camera)
+        if self.training and self.config.latent_render_mode == "fused":
             return self._get_outputs_fused(camera)
-        if self.training and self.config.latent_render_mode == "shared" and self._latents_active():
+        if self.training and self.config.latent_render_mode == "shared":
             h, w = self._latent_target_size(camera)
             H, W = self._camera_hw(camera)
             d = self._get_downscale_factor()
@@ -317,24 +326,22 @@ class CineSplatModel(SplatfactoModel):
         # and the int width/height do not always round-trip (e.g. 270 -> 67 -> 268)
         viewmat, K, W, H = self._camera_setup(camera)
         target_hw = self._latent_target_size(camera)
-        latents_on = self.training and self._latents_active()
         outputs = super().get_outputs(camera)
-        if self.training:
-            if latents_on:
-                Hd, Wd = self.last_size  # splatfacto's pass (1/2^k of the image early in training)
-                # "image" never renders below the feature map: pooling would then upsample
-                if self.config.latent_render_resolution == "feature" or target_hw[0] > Hd or target_hw[1] > Wd:
-                    h, w = target_hw
-                    Ks = K.clone()
-                    Ks[:, 0, :] *= w / W
-                    Ks[:, 1, :] *= h / H
-                    lat, _ = self.render_latents(viewmat, Ks, w, h)
-                else:
-                    d = self._get_downscale_factor()
-                    Ks = K.clone()
-                    Ks[:, :2, :] /= d  # splatfacto's convention: pixel scale exactly 1/d, size floor(W/d)
-                    lat, _ = self.render_latents(viewmat, Ks, Wd, Hd)
-                outputs["latent"] = lat  # [h, w, 3] (or [H/d, W/d, 3], area-pooled to [h, w] in the loss)
+        if self.training:  # the latent pass is on (off steps returned above)
+            Hd, Wd = self.last_size  # splatfacto's pass (1/2^k of the image early in training)
+            # "image" never renders below the feature map: pooling would then upsample
+            if self.config.latent_render_resolution == "feature" or target_hw[0] > Hd or target_hw[1] > Wd:
+                h, w = target_hw
+                Ks = K.clone()
+                Ks[:, 0, :] *= w / W
+                Ks[:, 1, :] *= h / H
+                lat, _ = self.render_latents(viewmat, Ks, w, h)
+            else:
+                d = self._get_downscale_factor()
+                Ks = K.clone()
+                Ks[:, :2, :] /= d  # splatfacto's convention: pixel scale exactly 1/d, size floor(W/d)
+                lat, _ = self.render_latents(viewmat, Ks, Wd, Hd)
+            outputs["latent"] = lat  # [h, w, 3] (or [H/d, W/d, 3], area-pooled to [h, w] in the loss)
             return outputs
         # eval / viewer: latent (visualised) and relevancy images
         crop_ids = self._crop_ids()
@@ -357,7 +364,7 @@ class CineSplatModel(SplatfactoModel):
         tile lists, all DETACHED, so only the latents get this loss's gradient. Same image as ``render_latents`` on
         that camera (same projection, same sort), without re-projecting or re-sorting. Returns [Hd, Wd, 3]."""
         info = self.info
-        render, _ = rasterize_to_pixels(
+        args = (
             info["means2d"].detach(),
             info["conics"].detach(),
             self.latents[None],  # [1, N, 3]: one camera, not packed
@@ -367,8 +374,22 @@ class CineSplatModel(SplatfactoModel):
             info["tile_size"],
             info["isect_offsets"],
             info["flatten_ids"],
-            packed=False,
         )
+        if not (self.config.latent_side_stream and self.latents.is_cuda):
+            render, _ = rasterize_to_pixels(*args, packed=False)
+            return render[0]
+        main = torch.cuda.current_stream(self.latents.device)
+        side = self._latent_stream
+        if side is None:
+            side = self._latent_stream = torch.cuda.Stream(device=self.latents.device)
+        side.wait_stream(main)  # the projection and tile lists were written on the main stream
+        with torch.cuda.stream(side):
+            render, _ = rasterize_to_pixels(*args, packed=False)
+        main.wait_stream(side)
+        for t in args:  # memory the main stream frees must not be reused while the side stream still reads it
+            if isinstance(t, Tensor):
+                t.record_stream(side)
+        render.record_stream(main)
         return render[0]
 
     def _get_outputs_fused(self, camera: Cameras) -> Dict[str, Union[torch.Tensor, List]]:

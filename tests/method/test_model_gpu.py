@@ -173,3 +173,27 @@ def test_shared_latent_pass_equals_separate_pass_and_trains_only_latents():
     for name in ("means", "scales", "quats", "opacities"):
         g = res["shared"][1][name]
         assert g is None or float(g.abs().sum()) == 0.0, name
+
+
+def test_side_stream_latents_equal_main_stream_latents():
+    # latent_side_stream: the same "shared" image and latent gradient, computed on a second CUDA stream
+    m = _model(n=400, sh_degree=0)
+    m.train()
+    m.step = 0
+    m.optimizers = {}
+    m.strategy_state = m.strategy.initialize_state(scene_scale=1.0)
+    m.config.num_downscales = 0
+    m.config.latent_render_mode = "shared"
+    m.cine_info["feature_long_side"] = 32
+    target = torch.rand(24, 32, 3, device="cuda") * 2 - 1
+    batch = {"image": torch.rand(48, 64, 3, device="cuda"), "latent_target": target}
+    res = {}
+    for side in (False, True):
+        m.config.latent_side_stream = side
+        out = m.get_outputs(_camera(64, 48, f=40.0))
+        loss = m.get_loss_dict(out, batch)["latent_loss"] + out["rgb"].mean()
+        (g,) = torch.autograd.grad(loss, [m.gauss_params["latents"]])
+        res[side] = (out["latent"].clone(), g)
+    assert m._latent_stream is not None
+    assert torch.equal(res[True][0], res[False][0])
+    assert float(res[True][1].abs().sum()) > 0 and torch.allclose(res[True][1], res[False][1], atol=1e-7)
