@@ -146,9 +146,9 @@ def test_fused_and_separate_latent_images_agree():
     assert torch.allclose(sep["rgb"], fused["rgb"], atol=1e-5)
 
 
-def test_shared_latent_pass_equals_separate_pass_and_trains_only_latents():
-    # "shared" reuses the RGB pass's projection and tile lists: same image and latent gradient as a whole second
-    # pass ("separate"), and the latent loss still reaches no geometry; several tiles (64 x 48 px)
+def _latent_training_model():
+    """A 400-Gaussian model in training mode at full resolution (64 x 48 px, several tiles) with a 32 x 24 latent
+    target batch."""
     m = _model(n=400, sh_degree=0)
     m.train()
     m.step = 0
@@ -157,7 +157,13 @@ def test_shared_latent_pass_equals_separate_pass_and_trains_only_latents():
     m.config.num_downscales = 0
     m.cine_info["feature_long_side"] = 32
     target = torch.rand(24, 32, 3, device="cuda") * 2 - 1
-    batch = {"image": torch.rand(48, 64, 3, device="cuda"), "latent_target": target}
+    return m, {"image": torch.rand(48, 64, 3, device="cuda"), "latent_target": target}
+
+
+def test_shared_latent_pass_equals_separate_pass_and_trains_only_latents():
+    # "shared" reuses the RGB pass's projection and tile lists: same image and latent gradient as a whole second
+    # pass ("separate"), and the latent loss still reaches no geometry; several tiles (64 x 48 px)
+    m, batch = _latent_training_model()
     res = {}
     for mode in ("separate", "shared"):
         m.config.latent_render_mode = mode
@@ -177,16 +183,8 @@ def test_shared_latent_pass_equals_separate_pass_and_trains_only_latents():
 
 def test_side_stream_latents_equal_main_stream_latents():
     # latent_side_stream: the same "shared" image and latent gradient, computed on a second CUDA stream
-    m = _model(n=400, sh_degree=0)
-    m.train()
-    m.step = 0
-    m.optimizers = {}
-    m.strategy_state = m.strategy.initialize_state(scene_scale=1.0)
-    m.config.num_downscales = 0
+    m, batch = _latent_training_model()
     m.config.latent_render_mode = "shared"
-    m.cine_info["feature_long_side"] = 32
-    target = torch.rand(24, 32, 3, device="cuda") * 2 - 1
-    batch = {"image": torch.rand(48, 64, 3, device="cuda"), "latent_target": target}
     res = {}
     for side in (False, True):
         m.config.latent_side_stream = side
