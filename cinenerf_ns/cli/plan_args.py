@@ -14,6 +14,7 @@ import numpy as np
 from rich.console import Console
 
 from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY, OBJECT_CLUSTER, SMOOTH_NEIGHBORS
+from cinenerf_ns.option_ranges import check_config_ranges
 from cinenerf_ns.option_surface import validated
 from cinenerf_ns.options import check_device, check_number
 from cinenerf_ns.output_set import check_file_size_limit, check_name, check_writable
@@ -28,9 +29,8 @@ from cinenerf_ns.planner.shots.camera_path import (
     DEFAULT_RENDER_SIZE,
 )
 from cinenerf_ns.planner.shots.framing import FramingConfig
-from cinenerf_ns.planner.shots.planner import GRID_RESOLUTION_RANGE, MAX_CANDIDATES, PlannerConfig
+from cinenerf_ns.planner.shots.planner import MAX_CANDIDATES, PlannerConfig
 from cinenerf_ns.planner.shots.scoring import ScoreConfig
-from cinenerf_ns.planner.trajectory.timing import MAX_FPS, MIN_FPS
 from cinenerf_ns.scenes import parse_point
 
 
@@ -147,21 +147,14 @@ def check_args(args: PlanArgs) -> None:
     check_number(args.candidates, "--candidates", 1, MAX_CANDIDATES, integer=True)
     check_number(args.time_budget, "--time-budget", 0, 3600, lo_open=True)
     check_number(args.seed, "--seed", 0, 2**63 - 1, integer=True)
-    timing = args.planner.timing
-    check_number(timing.fps, "--fps", MIN_FPS, MAX_FPS)
-    check_number(timing.max_speed, "--max-speed", 0, 100, lo_open=True)
+    # every number of the nested configs (--planner.*, --trajectory.*, --timing.*, --obstacles.*, --score.*)
+    check_config_ranges([("--planner", args.planner), ("--obstacles", args.obstacles), ("--score", args.score)])
     check_number(args.fov, "--fov", 1, 179)
     check_number(args.width, "--width", 16, 8192, integer=True)
     check_number(args.height, "--height", 16, 8192, integer=True)
-    check_number(args.obstacles.camera_radius, "--camera-radius", 0, 10)
     check_number(args.safety_margin, "--safety-margin", 0, 10)
-    check_number(args.obstacles.beta, "--obstacles.beta", 0, 10, lo_open=True)
-    check_number(args.obstacles.opacity_floor, "--opacity-floor", 0, 0.999)
-    check_number(args.planner.grid_resolution, "--grid-resolution", *GRID_RESOLUTION_RANGE, integer=True)
-    check_number(args.planner.memory_budget_mb, "--memory-budget-mb", 64, 2**20)
     check_number(args.semantic_smoothing, "--semantic-smoothing", 0, 256, integer=True)
     check_number(args.object_cluster, "--object-cluster", 0, 0.5)
-    check_number(args.planner.start_look_distance, "--planner.start-look-distance", 0, 0.99)
     if not (0.0 <= args.centre_relevancy < 1.0):
         raise InvalidInputError(f"--centre-relevancy must be in [0, 1) (0: the centre from the whole selection), "
                                 f"got {args.centre_relevancy}")

@@ -469,9 +469,10 @@ def exposure_warning(host: str) -> Optional[str]:
 def check_config(cfg: StandaloneConfig) -> None:
     """The options' ranges, before the scene is loaded (messages name the option); the scene-relative checks (camera
     radius against the scene, grid against memory) follow in the planner, shown in the status line."""
+    from cinenerf_ns.option_ranges import check_config_ranges
     from cinenerf_ns.option_surface import validated
     from cinenerf_ns.options import check_number
-    from cinenerf_ns.planner.shots.planner import GRID_RESOLUTION_RANGE, MAX_CANDIDATES
+    from cinenerf_ns.planner.shots.planner import MAX_CANDIDATES
 
     if not isinstance(cfg.load_config, str) or not cfg.load_config.strip():
         raise InvalidInputError("--load-config is empty: give a run's config.yml, a compact export, a .ply, "
@@ -481,10 +482,8 @@ def check_config(cfg: StandaloneConfig) -> None:
     from cinenerf_ns.output_set import check_writable
 
     check_writable(Path(cfg.output_dir))  # a file, under a file, read-only, /proc: said now, not at the first export
-    check_number(cfg.obstacles.camera_radius, "--camera-radius", 0, 10)
+    check_config_ranges([("--planner", cfg.planner), ("--obstacles", cfg.obstacles)])
     check_number(cfg.safety_margin, "--safety-margin", 0, 10)
-    check_number(cfg.planner.grid_resolution, "--grid-resolution", *GRID_RESOLUTION_RANGE, integer=True)
-    check_number(cfg.planner.timing.max_speed, "--max-speed", 0, 100, lo_open=True)
     check_number(cfg.candidates, "--candidates", 1, MAX_CANDIDATES, integer=True)
     check_number(cfg.max_pages, "--max-pages", 1, 64, integer=True)
     check_number(cfg.max_display_gaussians, "--max-display-gaussians", 1, 50_000_000, integer=True)
