@@ -146,8 +146,8 @@ def enclosed(planner: "Planner", target: np.ndarray, coarse_goal: np.ndarray) ->
 def _free(planner: "Planner", p: np.ndarray) -> bool:
     """Exact clearance of the camera centre p [3] >= 0 (the compiled distance capped at the camera radius: inside an
     ellipsoid is NaN, not measured; Planner.clearance where the compiled search does not apply)."""
-    from ..corridor.polytope_native import native_applies
     from ..geometry.distance import native_capped_distance
+    from ..geometry.native_scene import native_applies
     from ..native import points_distance_c
 
     scene, index = planner.scene, planner.ready().index
