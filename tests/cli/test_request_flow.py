@@ -24,6 +24,7 @@ import pytest
 
 import cinenerf_ns.shot_request as shot_request
 from cinenerf_ns.cli.plan import PlanArgs, run_plan
+from cinenerf_ns.planner.config import PlannerConfig
 
 
 def unit(module: str) -> str:
@@ -88,7 +89,7 @@ def test_re_entry_finder_finds_a_call_back_up():
 @pytest.mark.parametrize("start", [None, "-0.3 0.3 0.2"], ids=["random-starts", "given-start"])
 def test_a_cinesplat_plan_request_re_enters_no_module_it_has_left(tmp_path, start):
     args = PlanArgs(scene="procedural:20000", go_to="0.2 -0.2 0.1", look_at="0 0 0", start=start, candidates=2,
-                    output_dir=tmp_path)
+                    output_dir=tmp_path, planner=PlannerConfig(grid_resolution=48))  # a coarser grid: a quicker prepare
     chains = trace(lambda: run_plan(args), shot_request.plan_request.__code__)
     modules = {m for c in chains for m, _ in c}
     hops = hand_offs(chains)
