@@ -69,15 +69,28 @@ def _module_name(path: Path) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-def _planner_import_graph() -> dict:
-    """{module: set of planner modules it imports} over every import statement (also under TYPE_CHECKING and inside
-    functions); ``from pkg import name`` counts as an import of pkg.name when that is a module."""
-    names = {_module_name(p): p for p in _modules("planner")}
+def _type_checking_imports(tree: ast.AST) -> set:
+    """The import nodes under ``if TYPE_CHECKING:`` (annotations only: never executed)."""
+    out = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and ast.unparse(node.test) in ("TYPE_CHECKING", "typing.TYPE_CHECKING"):
+            out |= {id(n) for stmt in node.body for n in ast.walk(stmt) if isinstance(n, (ast.Import, ast.ImportFrom))}
+    return out
+
+
+def _import_graph(sources: dict, runtime_only: bool = False) -> dict:
+    """{module: set of modules of ``sources`` it imports}. sources: {dotted module: (source text, is a package
+    __init__)}. Every import statement counts, also inside functions and (unless ``runtime_only``) under
+    TYPE_CHECKING; ``from pkg import name`` counts as an import of pkg.name when that is a module."""
     graph = {}
-    for mod, path in names.items():
-        package = mod if path.name == "__init__.py" else mod.rsplit(".", 1)[0]
+    for mod, (text, is_init) in sources.items():
+        package = mod if is_init else mod.rsplit(".", 1)[0]
+        tree = ast.parse(text)
+        skip = _type_checking_imports(tree) if runtime_only else set()
         deps = set()
-        for node in ast.walk(ast.parse(path.read_text())):
+        for node in ast.walk(tree):
+            if id(node) in skip:
+                continue
             if isinstance(node, ast.Import):
                 targets = [a.name for a in node.names]
             elif isinstance(node, ast.ImportFrom):
@@ -85,12 +98,18 @@ def _planner_import_graph() -> dict:
                 if node.level:
                     up = package.split(".")[: len(package.split(".")) - (node.level - 1)]
                     base = ".".join(up + ([base] if base else []))
-                targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in names else base for a in node.names]
+                targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in sources else base for a in node.names]
             else:
                 continue
-            deps |= {t for t in targets if t in names and t != mod}
+            deps |= {t for t in targets if t in sources and t != mod}
         graph[mod] = deps
     return graph
+
+
+def _planner_import_graph(runtime_only: bool = False) -> dict:
+    """The import graph of cinenerf_ns/planner's modules (see _import_graph)."""
+    return _import_graph({_module_name(p): (p.read_text(), p.name == "__init__.py") for p in _modules("planner")},
+                         runtime_only)
 
 
 def _package(mod: str) -> str:
@@ -173,3 +192,49 @@ def test_planner_import_graph_has_no_circle_spanning_packages():
     top-level planner module counts as its own package)."""
     bad = [c for c in _cycles(_planner_import_graph()) if len({_package(m) for m in c}) > 1]
     assert not bad, bad
+
+
+def _package_graph(graph: dict) -> dict:
+    """The module graph folded onto planner sub-packages: {package: set of other packages it imports}."""
+    out = {}
+    for m, deps in graph.items():
+        out.setdefault(_package(m), set()).update(_package(d) for d in deps if _package(d) != _package(m))
+    for deps in list(out.values()):
+        for d in deps:
+            out.setdefault(d, set())
+    return out
+
+
+def test_package_cycle_finder_counts_imports_inside_functions():
+    """Planted: geometry.a imports corridor.b inside a function, corridor.b imports geometry.c at the top: no module
+    circle, but geometry and corridor import each other; a TYPE_CHECKING import is left out of the runtime graph."""
+    P = "cinenerf_ns.planner"
+    planted = {f"{P}.geometry.a": ("def f():\n    from ..corridor.b import g\n", False),
+               f"{P}.corridor.b": ("from ..geometry.c import h\n", False),
+               f"{P}.geometry.c": ("", False),
+               f"{P}.search.d": ("import typing\nif typing.TYPE_CHECKING:\n    from ..space import S\n", False),
+               f"{P}.space": ("from .search import d\n", False),
+               f"{P}.search": ("", True)}
+    assert _cycles(_import_graph(planted)) == [[f"{P}.search.d", f"{P}.space"]]  # geometry.a, corridor.b, c: none
+    assert _cycles(_package_graph(_import_graph(planted))) == [["corridor", "geometry"], ["search", "space"]]
+    assert _cycles(_package_graph(_import_graph(planted, runtime_only=True))) == [["corridor", "geometry"]]
+
+
+def test_planner_packages_import_each_other_one_way():
+    """Issue 35: no two planner sub-packages (a top-level planner module counts as its own) import each other, through
+    any chain of imports that run: at module level or inside functions."""
+    bad = _cycles(_package_graph(_planner_import_graph(runtime_only=True)))
+    assert not bad, bad
+
+
+def test_type_only_package_circles_are_the_planning_space_s():
+    """With annotations (TYPE_CHECKING imports) counted, the one package circle left is the planning space's: search/,
+    geometry/ and corridor/ annotate the ``PlanningSpace`` they take, and space.py annotates the grids they build for it
+    (AStarGrid, CoarseGrid, VoxelObstacles). Nothing imports across at run time (the test above); this keeps the
+    type-only circle from growing."""
+    pg = _package_graph(_planner_import_graph())
+    assert _cycles(pg) == [["corridor", "geometry", "search", "space"]]
+    runtime, circle = _package_graph(_planner_import_graph(runtime_only=True)), set(_cycles(pg)[0])
+    type_only = sorted((a, b) for a in circle for b in (pg[a] - runtime[a]) & circle)
+    assert type_only == [("corridor", "space"), ("geometry", "space"), ("search", "space"), ("space", "corridor"),
+                         ("space", "search")], type_only

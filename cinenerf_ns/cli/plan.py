@@ -115,7 +115,7 @@ def _targets(args: PlanArgs, planner: Planner, loaded: LoadedScene, gm: Dict[str
         return None
     if start is not None:
         start = planner.checked_start(start, force=args.force_start)  # may grow the region: before the component
-        comp, facing = stages.start_voxel(planner, start)[1], start
+        comp, facing = stages.start_voxel(planner.space, start)[1], start
     else:
         comp, facing = planner.main_component(), start_region_centre(planner)
     k = 1 if start is not None else end_pose_count(args.candidates)

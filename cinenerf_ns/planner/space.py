@@ -71,6 +71,10 @@ class PlanningSpace:
         """The prepared planning region (lo [3], hi [3]) float64: the occupancy grid's box. Paths stay inside it."""
         return grid_region(self.prepared.grid)
 
+    def obstacle_set(self) -> str:
+        """The obstacle set shots are planned and verified against (config.obstacles_note, else every ellipsoid)."""
+        return self.config.obstacles_note or f"all {len(self.scene)} ellipsoids of the scene"
+
     def request_threads(self):
         """Context: torch / BLAS threads = config.plan_cpu_threads while a request runs (blas_threads.request_threads;
         the requests' scene is on the CPU or mirrored there)."""

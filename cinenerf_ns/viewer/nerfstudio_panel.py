@@ -268,8 +268,7 @@ class SplatModelBackend:
             if prep is not None and not getattr(planner, "_reported_prepare", False):
                 planner._reported_prepare = True  # the first Plan on a new snapshot also paid prepare()
                 for s in shots:
-                    if isinstance(getattr(s, "timings", None), dict):
-                        s.timings["prepare_ms"] = 1e3 * prep
+                    s.timings["prepare_ms"] = 1e3 * prep
             return shots
         def t(x):
             return None if x is None else torch.as_tensor(np.asarray(x), dtype=scene.dtype, device=scene.device)

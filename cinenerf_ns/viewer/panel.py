@@ -41,7 +41,7 @@ from .panel_types import (  # noqa: F401 - re-exported: callers import the panel
     PlanRequest,
     PlanResult,
     ServerLimits,
-    ShotLike,
+    Shot,
     Target,
 )
 from .region_box import RegionMixin
@@ -104,7 +104,7 @@ class CinePanel(OutputMixin, RegionMixin):
         self._lock = threading.RLock()  # state; held while joining the animation thread
         self._t_lock = threading.Lock()  # playback time / end-of-shot state, shared with the animation thread
         self._state = self.IDLE
-        self._shots: List[ShotLike] = []
+        self._shots: List[Shot] = []
         self._targets: List[Target] = []
         self._selected = 0
         self._t = 0.0  # playback time since the shot's first sample, seconds
@@ -129,7 +129,7 @@ class CinePanel(OutputMixin, RegionMixin):
         return self._generation > 0
 
     @property
-    def shots(self) -> List[ShotLike]:
+    def shots(self) -> List[Shot]:
         return list(self._shots)
 
     @property
@@ -137,7 +137,7 @@ class CinePanel(OutputMixin, RegionMixin):
         return self._selected
 
     @property
-    def shot(self) -> Optional[ShotLike]:
+    def shot(self) -> Optional[Shot]:
         with self._lock:
             return self._shots[self._selected] if self._shots else None
 
@@ -301,9 +301,8 @@ class CinePanel(OutputMixin, RegionMixin):
             raise GoalUnreachableError(
                 f"the planner found no collision-free shot to '{req.goto}' (try a new random start)"
             )
-        for i, s in enumerate(shots):
-            check_shot(s, f"candidate {i + 1}")
-        shots = sort_by_score(shots)  # best (lowest score) first
+        # only Shots the panel can play; best (lowest score) first
+        shots = sort_by_score([check_shot(s, f"candidate {i + 1}") for i, s in enumerate(shots)])
         with self._lock:
             if self._superseded(req):
                 return None  # a newer Plan arrived while planning: drop this result
@@ -337,13 +336,13 @@ class CinePanel(OutputMixin, RegionMixin):
             more = "pick another candidate, " if len(shots) > 1 else ""
             text += f" Next: Play it again, {more}or Export camera path."
         self._set_status(text, "warn" if result.warning else "ok")
-        inner = timings_detail(getattr(shots[0], "timings", None) or {})
+        inner = timings_detail(shots[0].timings)
         by = getattr(self.backend, "planner_name", None)
         self._call_view("show_details", (
             f"Planner{f': {by}' if by else ''}, seed {req.seed}. Total {timings['total_s']:.2f} s: queries "
             f"{timings['query_s']:.2f} s, planning {timings['plan_s']:.2f} s{f' ({inner})' if inner else ''}, "
             f"drawing {timings['draw_s']:.2f} s."
-            + (f" End pose: {shots[0].end_pose_note}." if getattr(shots[0], "end_pose_note", None) else "")))
+            + (f" End pose: {shots[0].end_pose_note}." if shots[0].end_pose_note else "")))
 
     def wait_idle(self, timeout: float = 30.0) -> bool:
         """Block until no plan request is pending (tests, benchmarks, CLI)."""
@@ -456,7 +455,7 @@ class CinePanel(OutputMixin, RegionMixin):
         if was_playing:
             self.view.set_playing(False)
 
-    def _animate(self, shot: ShotLike, stop: threading.Event) -> None:
+    def _animate(self, shot: Shot, stop: threading.Event) -> None:
         # Never takes self._lock: callers hold it while joining this thread (see _stop_animation).
         times = to_numpy(shot.times)
         positions, rotations = to_numpy(shot.positions), to_numpy(shot.rotations)

@@ -16,7 +16,7 @@ from cinenerf_ns.planner.errors import InvalidInputError
 
 from .backend import to_numpy
 from .export import check_export_name, command_lines, render_command, unique_json_path, write_json_unique
-from .panel_types import ExportResult
+from .panel_types import ExportResult, Shot
 from .safe_text import check_text, client_path
 
 log = logging.getLogger(__name__)
@@ -33,12 +33,10 @@ class OutputMixin:
         self.last_preview: Optional[Path] = None
 
     # ------------------------------------------------------------------ export
-    def _camera_path(self, shot: Any, fps: int, width: int, height: int) -> Dict[str, Any]:
+    def _camera_path(self, shot: Shot, fps: int, width: int, height: int) -> Dict[str, Any]:
         """The nerfstudio camera-path dict of ``shot``, re-timed to ``fps`` (ns-render plays frames at the file's
         own rate: re-time, never relabel)."""
-        if hasattr(shot, "resampled"):
-            shot = shot.resampled(fps)
-        return self.exporter(shot, self.config.fov_deg, width, height, fps)
+        return self.exporter(shot.resampled(fps), self.config.fov_deg, width, height, fps)
 
     @property
     def output_root(self) -> Path:

@@ -1,4 +1,5 @@
-"""The panel's interfaces and plain data: what a shot, a backend and a view must offer, its settings, targets.
+"""The panel's interfaces and plain data: what a backend and a view must offer, its settings, targets. Shots are the
+planner's ``Shot`` (planner/shots/shot.py), read as fields.
 
 No viser import; tensors may be torch (any device) or numpy, converted with ``backend.to_numpy``.
 """
@@ -17,24 +18,10 @@ from cinenerf_ns.planner.shots.camera_path import (
     DEFAULT_PREVIEW_SIZE,
     DEFAULT_RENDER_SIZE,
 )
+from cinenerf_ns.planner.shots.shot import Shot
 from cinenerf_ns.planner.trajectory.timing import TimingConfig
 
 from .backend import SceneGaussians
-
-
-@runtime_checkable
-class ShotLike(Protocol):
-    """What the panel reads from a planned shot (``cinenerf_ns.planner.shots.shot.Shot`` satisfies it).
-
-    Required: ``times`` [T] seconds, increasing; ``positions`` [T, 3]; ``rotations`` [T, 3, 3]
-    camera-to-world rotations, nerfstudio convention (camera looks along -z, y up).
-    Optional, used when present: ``clearance`` [T] (or ``min_clearance`` float), ``corridor`` (with
-    ``.polytopes``, each ``.A`` [F,3] / ``.b`` [F] or an ``(A, b)`` pair), ``look_at`` [3], ``goal`` [3],
-    ``start`` [3], ``timings`` dict of seconds. Tensors may be torch (any device) or numpy."""
-
-    times: Any
-    positions: Any
-    rotations: Any
 
 
 @runtime_checkable
@@ -55,7 +42,7 @@ class PanelBackend(Protocol):
     def plan(
         self, goal: np.ndarray, look_at: np.ndarray, start: Optional[np.ndarray] = None, seed: int = 0,
         n_candidates: int = 1,
-    ) -> Sequence[ShotLike]:
+    ) -> Sequence[Shot]:
         """Collision-free shots from ``start`` (None: the planner picks a free start from ``seed``)
         to ``goal`` looking at ``look_at``. Raises ``PlanningError`` subclasses on failure."""
         ...
@@ -115,7 +102,7 @@ class PanelView(Protocol):
 
     def show_candidates(self, labels: List[str], selected: int) -> None: ...
 
-    def draw_shot(self, shot: Optional[ShotLike], options: DisplayOptions) -> None:
+    def draw_shot(self, shot: Optional[Shot], options: DisplayOptions) -> None:
         """Draw (or with None, remove) path, frustums, corridor and clearance labels."""
 
     def draw_targets(self, targets: List[Target], options: DisplayOptions) -> None: ...
@@ -192,7 +179,7 @@ class PlanRequest:
 
 @dataclass
 class PlanResult:
-    shots: List[ShotLike]
+    shots: List[Shot]
     targets: List[Target]
     timings: Dict[str, float]
     warning: str = ""

@@ -276,7 +276,7 @@ class PreparedPlanner:
         as_match = lambda t: {"point": np.asarray(t.point, np.float64), "text": t.text,  # noqa: E731
                               **({} if t.mask is None else {"mask": np.asarray(t.mask, bool)})}
         if start is not None:
-            comp, facing = stages.start_voxel(self.planner, self.planner.checked_start(start))[1], start
+            comp, facing = stages.start_voxel(self.planner.space, self.planner.checked_start(start))[1], start
         else:
             comp, facing = self.planner.main_component(), start_region_centre(self.planner)
         return shot_targets(self.planner, as_match(goal_t), as_match(look_t), FramingConfig(framing), comp,

@@ -1,6 +1,7 @@
 """What the panel says about shots and queries, in the user's words (pure functions; no viewer state).
 
-Shots: ``times`` [T] s, ``positions`` [T, 3], ``rotations`` [T, 3, 3] (see :class:`~.panel_types.ShotLike`).
+Shots are the planner's ``Shot`` (planner/shots/shot.py): ``times`` [T] s, ``positions`` [T, 3], ``rotations``
+[T, 3, 3], and the fields a request fills (clearance, safety, score, subject_view, goal_moved); read as fields.
 """
 from __future__ import annotations
 
@@ -9,20 +10,22 @@ from typing import Any, Dict, List, Optional, Sequence
 import numpy as np
 
 from cinenerf_ns.planner.errors import PlanningError
+from cinenerf_ns.planner.shots.shot import Shot
 
 from .backend import to_numpy
 
 SCORE_RULE = "lower score is better"
 
 
-def check_shot(shot: Any, what: str = "shot") -> None:
-    """Raise PlanningError when a shot lacks what the panel needs or holds NaN."""
-    try:
-        times = to_numpy(shot.times).reshape(-1)
-        pos = to_numpy(shot.positions)
-        rot = to_numpy(shot.rotations)
-    except AttributeError as err:
-        raise PlanningError(f"the planner returned a malformed {what}: {err}") from err
+def check_shot(shot: Any, what: str = "shot") -> Shot:
+    """``shot`` itself when it is a ``Shot`` the panel can play; PlanningError when it is something else, has fewer
+    than two frames or holds NaN."""
+    if not isinstance(shot, Shot):
+        raise PlanningError(f"the planner returned a malformed {what}: a {type(shot).__name__}, not a "
+                            f"cinenerf_ns.planner Shot")
+    times = to_numpy(shot.times).reshape(-1)
+    pos = to_numpy(shot.positions)
+    rot = to_numpy(shot.rotations)
     t = len(times)
     if t < 2 or pos.shape != (t, 3) or rot.shape != (t, 3, 3):
         raise PlanningError(
@@ -33,30 +36,22 @@ def check_shot(shot: Any, what: str = "shot") -> None:
         raise PlanningError(f"the planner returned a {what} with NaN/inf samples")
     if not np.all(np.diff(times) > 0):
         raise PlanningError(f"the planner returned a {what} whose times do not increase")
+    return shot
 
 
-def min_clearance(shot: Any) -> Optional[float]:
-    """Smallest clearance the shot reports: per-frame ``clearance`` [T], else ``min_clearance``, else the
-    planner's dense verification (``safety['min_exact_clearance']``, None when every sample was proven free)."""
-    c = getattr(shot, "clearance", None)
-    if c is not None:
-        c = to_numpy(c).reshape(-1)
+def min_clearance(shot: Shot) -> Optional[float]:
+    """Smallest clearance the shot reports: per-frame ``clearance`` [T], else the planner's dense verification
+    (``safety['min_exact_clearance']``, None when every sample was proven free)."""
+    if shot.clearance is not None:
+        c = to_numpy(shot.clearance).reshape(-1)
         return float(c.min()) if c.size else None
-    m = getattr(shot, "min_clearance", None)
-    if m is not None:
-        return float(m)
-    safety = getattr(shot, "safety", None)
-    m = safety.get("min_exact_clearance") if isinstance(safety, dict) else None
+    m = None if shot.safety is None else shot.safety.get("min_exact_clearance")
     return None if m is None else float(m)
 
 
-def shot_score(shot: Any) -> Optional[float]:
+def shot_score(shot: Shot) -> Optional[float]:
     """The candidate's ranking score when the planner gives one (``shot.score``), else None."""
-    s = getattr(shot, "score", None)
-    try:
-        return None if s is None else float(s)
-    except (TypeError, ValueError):
-        return None
+    return None if shot.score is None else float(shot.score)
 
 
 def timings_detail(timings: Dict[str, Any]) -> str:
@@ -74,7 +69,7 @@ def timings_detail(timings: Dict[str, Any]) -> str:
     return ", ".join(out)
 
 
-def shot_summary(shot: Any) -> str:
+def shot_summary(shot: Shot) -> str:
     times = to_numpy(shot.times)
     pos = to_numpy(shot.positions)
     length = float(np.linalg.norm(np.diff(pos, axis=0), axis=1).sum())
@@ -85,10 +80,10 @@ def shot_summary(shot: Any) -> str:
             f"{'' if score is None else f', score {score:.3g}'}{subject_view_text(shot)}")
 
 
-def subject_view_text(shot: Any) -> str:
+def subject_view_text(shot: Shot) -> str:
     """', the look-at object 96% visible at the end (seen in 100% of frames), size 0.45 (medium 0.35-0.6)' from the
     shot's subject_view (PreparedPlanner), else ''."""
-    v = getattr(shot, "subject_view", None)
+    v = shot.subject_view
     if not v:
         return ""
     out = ""
@@ -101,10 +96,10 @@ def subject_view_text(shot: Any) -> str:
     return out
 
 
-def goal_note(shot: Any) -> str:
+def goal_note(shot: Shot) -> str:
     """' Note: the go-to point moved ...' when the planner ended the shot away from the go-to target (planner
     explain_goal: from where to where and why), else ''."""
-    mv = getattr(shot, "goal_moved", None)
+    mv = shot.goal_moved
     if not mv:
         return ""
     f = lambda p: "(" + ", ".join(f"{v:.3f}" for v in p) + ")"  # noqa: E731
@@ -112,7 +107,7 @@ def goal_note(shot: Any) -> str:
             f"{mv['why']}.")
 
 
-def candidate_label(i: int, shot: Any) -> str:
+def candidate_label(i: int, shot: Shot) -> str:
     """Dropdown entry: ``'<n>: <duration> s, clearance <min>[, score <s>]'`` (the panel parses the number)."""
     times = to_numpy(shot.times)
     c = min_clearance(shot)
@@ -121,7 +116,7 @@ def candidate_label(i: int, shot: Any) -> str:
             f"{'' if score is None else f', score {score:.3g}'}")
 
 
-def sort_by_score(shots: Sequence[Any]) -> List[Any]:
+def sort_by_score(shots: Sequence[Shot]) -> List[Shot]:
     """Candidates best first: ascending ``score`` (lower is better); shots without a score keep their order after
     the scored ones (a stable sort)."""
     scored = [s for s in shots if shot_score(s) is not None]

@@ -26,7 +26,7 @@ from .panel import (
     PanelBackend,
     PanelConfig,
     ServerLimits,
-    ShotLike,
+    Shot,
     Target,
     min_clearance,
 )
@@ -339,7 +339,7 @@ class ViserPanelUI:
                 add(self.scene.add_label(f"{base}/label", f"{t.role}: {text}{what}",
                                                 position=top * self.scale))
 
-    def draw_shot(self, shot: Optional[ShotLike], options: DisplayOptions) -> None:
+    def draw_shot(self, shot: Optional[Shot], options: DisplayOptions) -> None:
         """The path (a spline), 8 camera frustums along it (white at the ends) and labels at its start and end; the
         corridor and the closest approach when asked.
 
@@ -378,19 +378,15 @@ class ViserPanelUI:
                 i, text = closest_approach(shot)
                 add(self.scene.add_label(f"{base}/clearance_min", text, position=pos[i] * self.scale))
 
-    def _draw_corridor(self, shot: ShotLike, base: str) -> None:
-        corridor = getattr(shot, "corridor", None)
-        polys = getattr(corridor, "polytopes", corridor) if corridor is not None else None
+    def _draw_corridor(self, shot: Shot, base: str) -> None:
+        polys = None if shot.corridor is None else shot.corridor.polytopes
         if not polys:
             self._nodes["shot"].append(self.scene.add_label(
                 f"{base}/corridor_none", "(this planner gave no corridor)",
                 position=to_numpy(shot.positions)[0] * self.scale))
             return
         for k, poly in enumerate(polys):
-            A, b = (poly.A, poly.b) if hasattr(poly, "A") else poly
-            seed = getattr(poly, "seed", None)
-            seed = None if seed is None else to_numpy(seed).reshape(-1, 3).mean(0)
-            mesh = polytope_mesh(to_numpy(A), to_numpy(b), seed)
+            mesh = polytope_mesh(to_numpy(poly.A), to_numpy(poly.b), to_numpy(poly.seed).reshape(-1, 3).mean(0))
             if mesh is None:
                 continue
             verts, faces = mesh
@@ -410,12 +406,11 @@ def push_value(handle: Any) -> None:
     handle.value = value
 
 
-def closest_approach(shot: ShotLike) -> "tuple[int, str]":
+def closest_approach(shot: Shot) -> "tuple[int, str]":
     """(frame index, label) of the shot's minimum clearance: the per-frame ``clearance`` [T] when given, else the
     shot's reported minimum at the path's middle."""
-    clear = getattr(shot, "clearance", None)
-    if clear is not None and to_numpy(clear).size:
-        c = to_numpy(clear).reshape(-1)  # [T]
+    if shot.clearance is not None and shot.clearance.size:
+        c = to_numpy(shot.clearance).reshape(-1)  # [T]
         i = int(np.argmin(c))
         return i, f"closest approach {c[i]:.3f}"
     m = min_clearance(shot)

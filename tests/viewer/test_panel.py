@@ -111,6 +111,9 @@ def test_empty_and_malformed_planner_output(tmp_path):
     backend.plan = bad
     assert panel.request_plan("chair", "lamp").result(10) is None
     assert "NaN" in view.last_status[0] and view.last_status[1] == "error"
+    backend.plan = lambda *a, **k: [type("Duck", (), {"times": [0, 1], "positions": [[0] * 3] * 2})()]
+    assert panel.request_plan("chair", "lamp").result(10) is None  # a look-alike is refused
+    assert "malformed candidate 1: a Duck, not a cinenerf_ns.planner Shot" in view.last_status[0]
     panel.close()
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from viewer_fakes import FakeBackend, FakeView, camera_looking
+from viewer_fakes import FakeBackend, FakeView, camera_looking, line_shot
 
 from cinenerf_ns.viewer.panel import CinePanel, PanelConfig, Target, same_place_warning
 from cinenerf_ns.viewer.shot_text import sort_by_score
@@ -111,11 +111,9 @@ def test_speed_error_clears_with_a_good_speed_and_plans_clear_old_outputs(tmp_pa
 
 
 def test_candidates_sorted_lower_score_first(tmp_path):
-    class S:
-        def __init__(self, score):
-            self.score = score
-
-    shots = [S(None), S(3.0), S(1.0), S(None), S(2.0)]
+    shots = [line_shot([0, 0, 0], [1, 0, 0], [0, 1, 0]) for _ in range(5)]
+    for s, score in zip(shots, (None, 3.0, 1.0, None, 2.0)):
+        s.score = score
     assert [s.score for s in sort_by_score(shots)] == [1.0, 2.0, 3.0, None, None]
     assert sort_by_score(shots)[3] is shots[0]  # unscored keep their order
 

@@ -3,12 +3,14 @@ candidate dropdown wiring; polytope meshes against their defining inequalities."
 from __future__ import annotations
 
 import socket
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import torch
 from viewer_fakes import line_shot
 
+from cinenerf_ns.planner.corridor.polytope import Polytope
+from cinenerf_ns.planner.corridor.safe_corridor import Corridor
 from cinenerf_ns.viewer.backend import FunctionBackend, SceneGaussians
 from cinenerf_ns.viewer.panel import PanelConfig
 from cinenerf_ns.viewer.polytope_mesh import chebyshev_center, polytope_mesh
@@ -52,9 +54,10 @@ def ui_panel(tmp_path):
     means = np.random.default_rng(0).uniform(-1, 1, (50, 3))
     mask = np.zeros(50, bool)
     mask[:5] = True
-    corridor = SimpleNamespace(polytopes=[SimpleNamespace(A=box([1, -0.2, 0.3], [2.1, 0.2, 0.7])[0],
-                                                          b=box([1, -0.2, 0.3], [2.1, 0.2, 0.7])[1], seed=None),
-                                          box([-0.1, -0.2, 0.3], [1.1, 0.2, 0.7])])
+    boxes = [box([1, -0.2, 0.3], [2.1, 0.2, 0.7]), box([-0.1, -0.2, 0.3], [1.1, 0.2, 0.7])]
+    corridor = Corridor([Polytope(torch.as_tensor(A), torch.as_tensor(b), torch.as_tensor(s)[None])
+                         for (A, b), s in zip(boxes, ([1.5, 0, 0.5], [0.5, 0, 0.5]))],
+                        torch.tensor([[2.0, 0, 0.5], [1, 0, 0.5], [0, 0, 0.5]], dtype=torch.float64))
 
     def plan(goal, look_at, start=None, seed=0, n_candidates=1):
         shots = [line_shot([2, 0, 0.5], [0, 0, 0.5], look_at) for _ in range(n_candidates)]

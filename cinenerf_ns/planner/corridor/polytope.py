@@ -49,9 +49,10 @@ import torch
 from torch import Tensor
 
 from ..errors import InvalidInputError, PlanningError
+from ..geometry.native_scene import native_applies, native_arrays
 from ..tensor_pickle import NumpyPickled
 from .polytope_candidates import candidates_near, f64_numpy
-from .polytope_native import native_applies, native_arrays, native_safe_polytope
+from .polytope_native import native_safe_polytope
 from .polytope_planes import cut_by, plane_candidates, segment_frame_np, support_gap
 
 ArrayLike = Union[Tensor, np.ndarray, Sequence[float]]

@@ -233,7 +233,7 @@ def _native_points_collide(fn, scene: EllipsoidScene, index, pts: Tensor, rad: T
     """points_collide through native/polytope.c (float64 CPU points [P, 3], radii [P])."""
     import numpy as np
 
-    from ..corridor.polytope_native import native_arrays
+    from .native_scene import native_arrays
 
     p = np.ascontiguousarray(pts.cpu().numpy(), dtype=np.float64)
     rr = np.ascontiguousarray(rad.cpu().numpy(), dtype=np.float64)
@@ -256,8 +256,8 @@ def points_collide(
     backend: "auto" (the compiled test, native/polytope.c's cn_points_collide, for a CPU scene with a GridIndex
     on the CPU when it loads; the same pair rule below, one point at a time, stopping at its first collision),
     "native" (error if it does not apply) or "python"."""
-    from ..corridor.polytope_native import native_applies
     from ..native import choose, points_collide_c
+    from .native_scene import native_applies
 
     fn = choose(backend, points_collide_c, "polytope", "point test", applies=native_applies(scene, index),
                 needs="a CPU scene and a GridIndex on the CPU")
@@ -292,8 +292,8 @@ def points_collide_arrays(points, scene: EllipsoidScene, index, radius, margin: 
     few hundred points at a time (the shortcut's Corollary-1 pieces). Same answers as points_collide."""
     import numpy as np
 
-    from ..corridor.polytope_native import native_applies, native_arrays
     from ..native import points_collide_c
+    from .native_scene import native_applies, native_arrays
 
     fn = points_collide_c() if native_applies(scene, index) else None
     if fn is None:

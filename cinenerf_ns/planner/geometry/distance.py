@@ -123,7 +123,7 @@ finding, dropping the nearest one reported inf."""
 
 def native_capped_distance(fn, pts: Tensor, scene: EllipsoidScene, index, cap: float) -> Tensor:
     """min(cap, distance to the nearest ellipsoid) [P] through native/polytope.c (NaN where a point is inside one)."""
-    from ..corridor.polytope_native import native_arrays
+    from .native_scene import native_arrays
 
     p = np.ascontiguousarray(pts.cpu().numpy(), dtype=np.float64)
     out = np.empty(p.shape[0], dtype=np.float64)
@@ -165,8 +165,8 @@ def clearance(
     if not bool(torch.isfinite(pts).all()):
         raise InvalidInputError("points contain NaN or inf")
     pts = pts.double()
-    from ..corridor.polytope_native import native_applies
     from ..native import choose, points_distance_c
+    from .native_scene import native_applies
 
     fn = choose(backend, points_distance_c, "polytope", "capped distance",
                 applies=max_distance is not None and math.isfinite(max_distance) and not return_index

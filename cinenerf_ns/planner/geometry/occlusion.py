@@ -72,7 +72,7 @@ def _local(x: Tensor, scene: EllipsoidScene, g: Tensor, translate: bool) -> Tens
 def _native_blocked(fn, a: Tensor, b: Tensor, scene: EllipsoidScene, index, piece_len: float,
                     exclude: Optional[Tensor], free_grid: Optional[tuple] = None) -> Tensor:
     """bool [L]: segment a[l] -> b[l] meets an ellipsoid (not excluded), through native/polytope.c."""
-    from ..corridor.polytope_native import native_arrays
+    from .native_scene import native_arrays
 
     arr = native_arrays(scene, index)
     p0 = np.ascontiguousarray(a.cpu().numpy(), dtype=np.float64)
@@ -136,8 +136,8 @@ def sight_lines_blocked(
     if live.numel() == 0:
         return blocked.reshape(T, S)
     piece_len = max(float(index.levels[0].cell), 1e-6)
-    from ..corridor.polytope_native import native_applies
     from ..native import choose, segments_blocked_c
+    from .native_scene import native_applies
 
     fn = choose(backend, segments_blocked_c, "polytope", "sight-line test", applies=native_applies(scene, index),
                 needs="a CPU scene and a GridIndex on the CPU")

@@ -214,7 +214,7 @@ def dist26():
 
 
 _I32 = ctypes.c_int32
-# the scene and index arguments every polytope.c entry point starts with (polytope_native.native_arrays' "args")
+# the scene and index arguments every polytope.c entry point starts with (geometry/native_scene.py: native_arrays)
 _SCENE_INDEX = [_P, _P, _P, _P, _I32,  # scene: means, rotations, radii, packed rows [N, 12] float32, float32 flag
                 _P, _I32, _P, _P, _P, _P, _P, _F64]  # index: origin, levels, cells, dims, offsets*, ids*, homes*, pad
 

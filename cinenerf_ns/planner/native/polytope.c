@@ -15,7 +15,7 @@
      little.
 
    Index dedupe: an ellipsoid is listed in every cell of its level that its padded AABB meets (a box of cells). Each
-   entry carries home bits (polytope_native.native_arrays: bit i set when the entry's cell is the first of that box
+   entry carries home bits (native_scene.native_arrays: bit i set when the entry's cell is the first of that box
    along axis i, so the index does not also list the ellipsoid in the previous cell along i). A copy in a visited
    cell is skipped when, along some axis, the cell is not the first of the query's range, the entry's home bit is
    clear and the previous cell along that axis is not culled (second pass): that cell then holds a copy too and is
@@ -26,7 +26,7 @@
    Memory: the index lists each ellipsoid in several cells, so the gather is bound by cache misses. It reads one
    packed float32 row per ellipsoid ([N, 12]: padded AABB lo rounded down, hi rounded up, mean, max semi-axis
    rounded up, min semi-axis rounded down, 1 unused), one cache line instead of three arrays.
-   polytope_native.native_arrays stores these rows and the means, rotations and radii in spatial (Morton) order and
+   native_scene.native_arrays stores these rows and the means, rotations and radii in spatial (Morton) order and
    gives the index ids as positions in that order, so the rows of one cell's ellipsoids lie close together; the ids
    this file returns are such positions (the caller maps them back to scene ids). Rounding only ever widens these
    tests; planes and exact tests use the scene's own values (float32 or float64 scene arrays, f32 flag), computed in

@@ -101,8 +101,8 @@ def segments_proven_blocked(space: "PlanningSpace", p: np.ndarray, ends: np.ndar
     """bool [K]: segment p -> ends[k] ([K, 3] float64) certainly collides: a sample point on it lies inside an
     ellipsoid or closer than the camera radius to one (the compiled exact distance, capped at the radius; a margin
     of 1e-9 relative keeps rounding out of the proof). All False where the compiled search does not apply."""
-    from ..corridor.polytope_native import native_applies
     from ..geometry.distance import native_capped_distance
+    from ..geometry.native_scene import native_applies
     from ..native import points_distance_c
 
     scene, index = space.scene, space.prepared.index

@@ -116,9 +116,9 @@ def _candidate_way(planner: Planner, start: np.ndarray, goal_p: np.ndarray, goal
     """Goal and voxel path of one candidate: (reach.ReachableGoal, polyline [K, 3] for the shortcut (its
     way_to_shortcut), t). The goal is found once per free component (goal_cache). Laps goal_ms and astar_ms.
     Raises GoalUnreachableError / StartInCollisionError. The leg's stages (stages.leg_goal, leg_way)."""
-    goal, s_ijk = stages.leg_goal(planner, start, goal_p, goal_cache)
+    goal, s_ijk = stages.leg_goal(planner.space, start, goal_p, goal_cache)
     t = lap("goal_ms", t)
-    return goal, stages.leg_way(planner, start, s_ijk, goal), lap("astar_ms", t)
+    return goal, stages.leg_way(planner.space, start, s_ijk, goal), lap("astar_ms", t)
 
 
 def _candidate_trajectory(planner: Planner, way: np.ndarray, start: np.ndarray, g: np.ndarray, lap, t: float,
@@ -126,9 +126,9 @@ def _candidate_trajectory(planner: Planner, way: np.ndarray, start: np.ndarray, 
     """Corridor and Bezier QP of one shortcut polyline: (corridor, trajectory, t). Laps corridor_ms and qp_ms.
     known: the goal's polytope (ReachableGoal.known()). Raises CorridorError / PlanningError. The leg's stages
     (stages.leg_corridor: 'cpu' backend in a worker; stages.leg_trajectory)."""
-    corridor = stages.leg_corridor(planner, way, known)
+    corridor = stages.leg_corridor(planner.space, way, known)
     t = lap("corridor_ms", t)
-    return corridor, stages.leg_trajectory(planner, corridor, start, g), lap("qp_ms", t)
+    return corridor, stages.leg_trajectory(planner.space, corridor, start, g), lap("qp_ms", t)
 
 
 def _plan_candidate_task(planner: Planner, config, start: np.ndarray, goal_p: np.ndarray, look_p: np.ndarray,
@@ -149,7 +149,7 @@ def _plan_candidate_task(planner: Planner, config, start: np.ndarray, goal_p: np
         return out
     t = time.perf_counter()
     try:  # the corridor here, in the worker ('cpu' backend: no CUDA after fork)
-        corridor = stages.leg_corridor(planner, way["way"], way["known"])
+        corridor = stages.leg_corridor(planner.space, way["way"], way["known"])
     except (GoalUnreachableError, PlanningError) as e:  # CorridorError and the rest, as in-process
         out["error"] = str(e)
         return out
@@ -194,7 +194,7 @@ def _candidate_way_task(planner: Planner, config, start: np.ndarray, goal_p: np.
         goal, way, t = _candidate_way(planner, start, goal_p, goal_cache, lap, t)
     except (GoalUnreachableError, StartInCollisionError) as e:
         return result(None, None, str(e))
-    way = stages.leg_shortcut(planner, way, goal)  # == stages.legs_shortcut on this path alone (tested)
+    way = stages.leg_shortcut(planner.space, way, goal)  # == stages.legs_shortcut on this path alone (tested)
     lap("shortcut_ms", t)
     if stages.at_goal_already(way):
         return result(None, None, "the start is already at the goal")
@@ -213,13 +213,13 @@ def _candidate_finish_task(planner: Planner, config, corridor, start: np.ndarray
 
     t = time.perf_counter()
     try:
-        traj = stages.leg_trajectory(planner, corridor, start, g)
+        traj = stages.leg_trajectory(planner.space, corridor, start, g)
     except (GoalUnreachableError, PlanningError) as e:
         return {"shot": None, "error": str(e), "timings": tm}
     t = lap("qp_ms", t)
-    sh = stages.leg_shot(planner, traj, corridor, look_p, goal_p, limits)
+    sh = stages.leg_shot(planner.space, traj, corridor, look_p, goal_p, limits)
     t = lap("timing_ms", t)
-    sh.safety = stages.legs_verify(planner, [sh])[0]  # the parent refuses unsafe shots (stages.refuse_unsafe)
+    sh.safety = stages.legs_verify(planner.space, [sh])[0]  # the parent refuses unsafe shots (stages.refuse_unsafe)
     lap("verify_ms", t)
     out = {"shot": sh, "error": None, "timings": tm, "score_parts": None}
     _worker_score(planner, out, look_p, score)
@@ -349,7 +349,7 @@ def _round_in_process(req: _CandidateRequest, batch: List[int], t: float) -> flo
         except (GoalUnreachableError, StartInCollisionError) as e:
             req.errors.append(str(e))
             t = time.perf_counter()
-    ways = stages.legs_shortcut(planner, [p["way"] for p in plans], [p["reach"] for p in plans])
+    ways = stages.legs_shortcut(planner.space, [p["way"] for p in plans], [p["reach"] for p in plans])
     t = lap("shortcut_ms", t)
     for p, way in zip(plans, ways):
         if req.over_budget():
@@ -364,7 +364,8 @@ def _round_in_process(req: _CandidateRequest, batch: List[int], t: float) -> flo
             req.errors.append(str(e))
             t = time.perf_counter()
             continue
-        req.add(p["cand"], stages.leg_shot(planner, traj, corridor, req.look_p, req.goal_of(p["cand"]), req.limits))
+        req.add(p["cand"], stages.leg_shot(planner.space, traj, corridor, req.look_p, req.goal_of(p["cand"]),
+                                           req.limits))
         t = lap("timing_ms", t)
     return t
 
@@ -454,7 +455,7 @@ def _round_two_phase(req: _CandidateRequest, batch: List[int], t: float) -> floa
         return t
     # the goals' polytopes, one per distinct goal (each task returns its own copy of its component's goal)
     known = list({tuple(r["goal"]): p for _, r in ways for p in r["known"]}.values())
-    corridors = stages.legs_corridor(req.planner, [r["way"] for _, r in ways], known=known)
+    corridors = stages.legs_corridor(req.planner.space, [r["way"] for _, r in ways], known=known)
     t = lap("corridor_ms", t)
     todo = []
     for (ci, r), c in zip(ways, corridors):
@@ -527,7 +528,7 @@ def _ranked(req: _CandidateRequest, t: float, timings: Optional[Dict[str, float]
     if req.pool is not None:
         reports = [sh.safety for sh in shots]  # verified in the workers (same rule, CPU state)
     else:
-        reports = stages.legs_verify(planner, shots)
+        reports = stages.legs_verify(planner.space, shots)
         t = lap("verify_ms", t)
     for sh, rep in zip(shots, reports):
         sh.safety = stages.refuse_unsafe(rep, "a candidate curve")
@@ -585,7 +586,7 @@ def _plan_candidates(
         # the main component's goal once here (inherited by every task) instead of once per worker
         for g, cache in zip(req.goal_p, req.goal_caches):
             try:
-                stages.component_goal(planner, g, planner.main_component(), cache)
+                stages.component_goal(planner.space, g, planner.main_component(), cache)
             except GoalUnreachableError:
                 pass  # each candidate then fails with this error in its worker, as in the in-process path
         t = req.lap("goal_ms", t)

@@ -194,10 +194,10 @@ def _stop_goals(planner: Planner, start: np.ndarray, targets: List[np.ndarray]) 
     """The chain's points: (points [3] (the start, then the closest safe point to each stop that the start's free
     component reaches), their voxels [3], their ReachableGoals (None for the start)). InvalidInputError when a stop
     coincides with the point before it."""
-    s_ijk, comp = stages.start_voxel(planner, start)
+    s_ijk, comp = stages.start_voxel(planner.space, start)
     pts, ijks, reached = [start], [s_ijk], [None]
     for g in targets:
-        goal = stages.component_goal(planner, g, comp)
+        goal = stages.component_goal(planner.space, g, comp)
         pts.append(np.asarray(goal.point, np.float64))
         ijks.append(np.asarray(goal.voxel))
         reached.append(goal)
@@ -213,7 +213,7 @@ def _chained_corridor(planner: Planner, ways: List[np.ndarray], pts: list,
     at the legs' joins, the segment index each interior stop starts [S-1])."""
     polys, wps, stop_segments = [], [pts[0][None]], []
     for i, w in enumerate(ways):
-        cor = stages.leg_corridor(planner, w, known)
+        cor = stages.leg_corridor(planner.space, w, known)
         if i > 0:
             stop_segments.append(len(polys))
         polys.extend(cor.constraints())
@@ -270,12 +270,12 @@ def plan_multistop(planner: Planner, stops: Sequence[Any], look_at: Any, start: 
     tm["goal_ms"] = 1e3 * (time.perf_counter() - t0)
     t1 = time.perf_counter()
     last = len(targets) - 1  # legs i -> i + 1; the last one ends at the final stop like a single shot's leg
-    ways = [stages.stop_way(planner, pts[i], ijks[i], reached[i + 1]) if i < last
-            else stages.leg_way(planner, pts[i], ijks[i], reached[-1]) for i in range(len(targets))]
+    ways = [stages.stop_way(planner.space, pts[i], ijks[i], reached[i + 1]) if i < last
+            else stages.leg_way(planner.space, pts[i], ijks[i], reached[-1]) for i in range(len(targets))]
     tm["astar_ms"] = 1e3 * (time.perf_counter() - t1)
     t2 = time.perf_counter()
     # only the last way ends in its stop's polytope (ReachableGoal), reused below; see stages.stop_way for the others
-    ways = stages.legs_shortcut(planner, ways, [None] * last + [reached[-1]])
+    ways = stages.legs_shortcut(planner.space, ways, [None] * last + [reached[-1]])
     known = reached[-1].known()
     tm["shortcut_ms"] = 1e3 * (time.perf_counter() - t2)
     t3 = time.perf_counter()
@@ -292,7 +292,7 @@ def plan_multistop(planner: Planner, stops: Sequence[Any], look_at: Any, start: 
     shot = Shot(times=rf.times, positions=rf.positions, rotations=rf.rotations, look_at=looks[-1], goal=pts[-1],
                 start=pts[0], trajectory=traj, fps=limits.fps, curve_times=rf.curve_times, goal_target=targets[-1])
     t6 = time.perf_counter()
-    shot.safety = stages.leg_verify(planner, shot, "the multi-stop curve")
+    shot.safety = stages.leg_verify(planner.space, shot, "the multi-stop curve")
     tm["verify_ms"] = 1e3 * (time.perf_counter() - t6)
     tm["plan_ms"] = 1e3 * (time.perf_counter() - t0)
     shot.timings = dict(tm)

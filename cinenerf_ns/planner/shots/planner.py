@@ -32,7 +32,7 @@ from ..scene.planning_region import GRID_BYTES_PER_VOXEL, ArrayLike  # noqa: F40
 from ..search import reach, starts
 from ..search.starts import ENCLOSED_COMPONENT_FRACTION, preferred_component  # noqa: F401 (re-exported)
 from ..space import PlanningSpace, PreparedScene
-from .plan_request import MAX_CANDIDATES, plan_request  # noqa: F401 (MAX_CANDIDATES re-exported)
+from .plan_request import MAX_CANDIDATES, check_candidates, plan_request  # noqa: F401 (MAX_CANDIDATES re-exported)
 from .prepared_scene import prepare_scene
 from .safety import DEFAULT_CLEARANCE_CAP, clearance_report
 from .shot import Shot
@@ -89,7 +89,7 @@ class Planner:
     @property
     def space(self) -> PlanningSpace:
         """The prepared planning space (prepare() on first use) that every stage below shots/ reads; built again
-        when scene, prepared scene or config were replaced since (grow_region, refine.refined_planner)."""
+        when scene, prepared scene or config were replaced since (grow_region)."""
         prep, sp = self.ready(), self._space
         if sp is None or sp.prepared is not prep or sp.scene is not self.scene or sp.config is not self.config \
                 or sp.batch_scene is not self.batch_scene:
@@ -215,7 +215,18 @@ class Planner:
         Every returned shot's exact clearance along the densely sampled curve is >= 0; explain_goal says why a
         shot ends away from ``goal``."""
         with self.request_threads():
-            return plan_request(self, goal, look_at, start, seed, n_candidates, force_start)
+            check_candidates(n_candidates)
+            self.ready()  # prepare on first use, before the request clock starts
+            goal_p = self.checked_point(goal, "go-to point")
+            look_p = self.checked_point(look_at, "look-at point")
+            self.check_timing()
+            t_req = time.perf_counter()
+            starts, check_ms = [], None
+            if start is not None:
+                starts = [self.checked_start(start, force=force_start)]
+                check_ms = 1e3 * (time.perf_counter() - t_req)  # a given start's region + sign-of-clearance check
+                n_candidates = 1
+            return plan_request(self.space, goal_p, look_p, starts, seed, n_candidates, t_req, check_ms)
 
     def request_threads(self):
         """Context: torch CPU threads and numpy's / scipy's BLAS threads = config.plan_cpu_threads while a request

@@ -5,7 +5,7 @@ and that shot is kept when it ends closer to the go-to than the coarse leg would
 
 The fine grid is built by the same conservative rasteriser (scene/occupancy.py: a free voxel keeps the camera ball
 clear of every ellipsoid, never optimistic) over the same scene and spatial index, and the leg is planned by the same
-stages (stages.plan_leg on a sub-planner whose planning region is the box), so every shot is still verified by the
+stages (stages.plan_leg on a planning space whose region is the box), so every shot is still verified by the
 exact clearance check before it is returned."""
 from __future__ import annotations
 
@@ -19,10 +19,12 @@ import torch
 
 from ..corridor.safe_corridor import CorridorError
 from ..errors import GoalUnreachableError, InvalidInputError
+from ..geometry.clearance_queries import clearance
 from ..scene.occupancy import occupancy_columns
+from ..scene.planning_region import distance_outside
+from ..space import PlanningSpace
 
 if TYPE_CHECKING:
-    from .planner import Planner
     from .shot import Shot
 
 REFINE_VOXEL_RADII = 2 / math.sqrt(3)
@@ -43,17 +45,17 @@ REFINE_MIN_MARGIN_VOXELS = 3
 """... and by at least this many coarse voxels."""
 
 
-def refine_box(planner: "Planner", start: np.ndarray, target: np.ndarray) -> Optional[Tuple[np.ndarray, np.ndarray,
+def refine_box(space: "PlanningSpace", start: np.ndarray, target: np.ndarray) -> Optional[Tuple[np.ndarray, np.ndarray,
                                                                                            int]]:
     """(lo [3], hi [3], grid resolution) of the fine grid for a leg start -> target ([3] each), inside the planning
     region; None when it would exceed REFINE_MAX_VOXELS or REFINE_MAX_COLUMNS."""
-    rlo, rhi = planner.region()
-    vs = float(planner.ready().grid.voxel_size)
+    rlo, rhi = space.region()
+    vs = float(space.prepared.grid.voxel_size)
     margin = max(REFINE_MARGIN * float(np.linalg.norm(target - start)), REFINE_MIN_MARGIN_VOXELS * vs)
     lo = np.maximum(np.minimum(start, target) - margin, rlo)
     hi = np.minimum(np.maximum(start, target) + margin, rhi)
     side = hi - lo
-    want = int(math.ceil(vs / (REFINE_VOXEL_RADII * float(planner.scene.camera_radius)) - 1e-9))
+    want = int(math.ceil(vs / (REFINE_VOXEL_RADII * float(space.scene.camera_radius)) - 1e-9))
     factor = min(max(want, REFINE_MIN_FACTOR), REFINE_MAX_FACTOR)
     fine = vs / factor
     if float(np.prod(np.ceil(side / fine))) > REFINE_MAX_VOXELS:
@@ -63,10 +65,10 @@ def refine_box(planner: "Planner", start: np.ndarray, target: np.ndarray) -> Opt
     grid_side = np.ceil(side / (float(side.max()) / res) - 1e-9) * (float(side.max()) / res)
     lo = np.maximum(rlo, np.minimum(lo, rhi - grid_side))
     hi = lo + side
-    dev = planner.scene.device
+    dev = space.scene.device
     bounds = tuple(torch.as_tensor(v, dtype=torch.float64, device=dev) for v in (lo, hi))
     # only Gaussians whose mean is within their largest possible reach of the box can have columns in it
-    sc = planner.scene
+    sc = space.scene
     grow = float(sc.radii.detach().max()) + float(sc.camera_radius) + math.sqrt(3) * fine
     m = sc.means.detach().double()
     near = torch.nonzero(((m >= bounds[0] - grow) & (m <= bounds[1] + grow)).all(1)).squeeze(-1)
@@ -75,21 +77,20 @@ def refine_box(planner: "Planner", start: np.ndarray, target: np.ndarray) -> Opt
     return lo, hi, res
 
 
-def refined_planner(planner: "Planner", lo: np.ndarray, hi: np.ndarray, resolution: int) -> "Planner":
-    """A prepared sub-planner over [lo, hi] at ``resolution``: the same scene (the request's, e.g. the CPU mirror),
+def refined_space(space: "PlanningSpace", lo: np.ndarray, hi: np.ndarray, resolution: int) -> PlanningSpace:
+    """A prepared planning space over [lo, hi] at ``resolution``: the same scene (the request's, e.g. the CPU mirror),
     its spatial index reused, the configuration otherwise the same (no workers, no further refinement)."""
-    from .planner import Planner
     from .prepared_scene import prepare_scene
 
-    cfg = replace(planner.config, bounds=(lo, hi), bounds_rule="local refinement", grid_resolution=int(resolution),
+    cfg = replace(space.config, bounds=(lo, hi), bounds_rule="local refinement", grid_resolution=int(resolution),
                   candidate_workers=0, refine_disconnected=False)
-    sub = Planner(planner.scene, cfg)
-    dev = planner.scene.device
-    sub.scene, sub.prepared = prepare_scene(
-        planner.scene, int(resolution), torch.as_tensor(lo, dtype=torch.float64, device=dev),
-        torch.as_tensor(hi, dtype=torch.float64, device=dev), mirror=False, index=planner.ready().index,
+    cfg.validate()
+    dev = space.scene.device
+    scene, prepared = prepare_scene(
+        space.scene, int(resolution), torch.as_tensor(lo, dtype=torch.float64, device=dev),
+        torch.as_tensor(hi, dtype=torch.float64, device=dev), mirror=False, index=space.prepared.index,
         light=True)
-    return sub
+    return PlanningSpace(scene, space.scene, cfg, prepared)
 
 
 REFINE_MIN_MISS_VOXELS = 5
@@ -109,7 +110,7 @@ def _directions() -> np.ndarray:
     return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
-def enclosed(planner: "Planner", target: np.ndarray, coarse_goal: np.ndarray) -> bool:
+def enclosed(space: "PlanningSpace", target: np.ndarray, coarse_goal: np.ndarray) -> bool:
     """The target [3] is walled in for the camera (e.g. the free inside of a hollow object): each of 26 rays from it,
     run through its coarse pocket (the box of its free component, or its voxel when occupied), at least as far as
     the coarse goal [3] (at most ENCLOSED_REACH_VOXELS voxels) and ENCLOSED_BEYOND_VOXELS voxels beyond, certainly
@@ -120,7 +121,7 @@ def enclosed(planner: "Planner", target: np.ndarray, coarse_goal: np.ndarray) ->
 
     from ..search.reach import segments_proven_blocked
 
-    prep = planner.ready()
+    prep = space.prepared
     grid, labels = prep.grid, prep.astar_grid.labels
     vs = float(grid.voxel_size)
     lo = grid.lo.detach().cpu().double().numpy()
@@ -140,64 +141,64 @@ def enclosed(planner: "Planner", target: np.ndarray, coarse_goal: np.ndarray) ->
     reach = min(float(np.linalg.norm(coarse_goal - target)), ENCLOSED_REACH_VOXELS * vs)
     length = np.minimum(np.maximum(exit_t, reach) + ENCLOSED_BEYOND_VOXELS * vs, ENCLOSED_MAX_VOXELS * vs)
     ends = target + length[:, None] * d
-    return bool(segments_proven_blocked(planner.space, np.asarray(target, np.float64), ends).all())
+    return bool(segments_proven_blocked(space, np.asarray(target, np.float64), ends).all())
 
 
-def _free(planner: "Planner", p: np.ndarray) -> bool:
+def _free(space: "PlanningSpace", p: np.ndarray) -> bool:
     """Exact clearance of the camera centre p [3] >= 0 (the compiled distance capped at the camera radius: inside an
     ellipsoid is NaN, not measured; Planner.clearance where the compiled search does not apply)."""
-    from ..corridor.polytope_native import native_applies
     from ..geometry.distance import native_capped_distance
+    from ..geometry.native_scene import native_applies
     from ..native import points_distance_c
 
-    scene, index = planner.scene, planner.ready().index
+    scene, index = space.scene, space.prepared.index
     r = float(scene.camera_radius)
     fn = points_distance_c() if native_applies(scene, index) else None
     if fn is None:
-        return bool(planner.clearance(p[None], cap=r)[0] >= 0.0)
+        return bool(clearance(space, p[None], cap=r)[0] >= 0.0)
     d = float(native_capped_distance(fn, torch.from_numpy(p[None].copy()), scene, index, r)[0])
     return not math.isnan(d) and d >= r
 
 
-def needs_refinement(planner: "Planner", goal_point: np.ndarray, target: np.ndarray, tol: float = 1e-6) -> bool:
+def needs_refinement(space: "PlanningSpace", goal_point: np.ndarray, target: np.ndarray, tol: float = 1e-6) -> bool:
     """The coarse leg would end at least REFINE_MIN_MISS_VOXELS coarse voxels away from ``target`` [3] although the
     target is in the planning region, free (exact clearance >= 0) and not walled in (enclosed): its free space is
     not connected to the start's at the grid's resolution."""
-    if not planner.config.refine_disconnected or float(np.linalg.norm(goal_point - target)) <= tol:
+    if not space.config.refine_disconnected or float(np.linalg.norm(goal_point - target)) <= tol:
         return False
-    if float(np.linalg.norm(goal_point - target)) < REFINE_MIN_MISS_VOXELS * float(planner.ready().grid.voxel_size):
+    if float(np.linalg.norm(goal_point - target)) < REFINE_MIN_MISS_VOXELS * float(space.prepared.grid.voxel_size):
         return False
-    if planner.distance_outside(target) > 0:
+    if distance_outside(*space.region(), target) > 0:
         return False
     target = np.asarray(target, dtype=np.float64)
-    if not _free(planner, target):
+    if not _free(space, target):
         return False
-    return not enclosed(planner, target, np.asarray(goal_point, dtype=np.float64))
+    return not enclosed(space, target, np.asarray(goal_point, dtype=np.float64))
 
 
-def refined_leg(planner: "Planner", start: np.ndarray, target: np.ndarray, look_at: np.ndarray,
+def refined_leg(space: "PlanningSpace", start: np.ndarray, target: np.ndarray, look_at: np.ndarray,
                 coarse_goal: np.ndarray) -> Optional["Shot"]:
-    """The leg start -> target planned on a fine grid over refine_box (stages.plan_leg on refined_planner: verified
+    """The leg start -> target planned on a fine grid over refine_box (stages.plan_leg on refined_space: verified
     by the exact check), when it ends closer to ``target`` than ``coarse_goal`` [3]; else None. Its timings get
     refine_ms (the fine grid's build + the leg) and its ``refinement`` says where and how fine."""
     from . import stages
 
-    box = refine_box(planner, start, target)
+    box = refine_box(space, start, target)
     if box is None:
         return None
     lo, hi, res = box
     t0 = time.perf_counter()
     try:
-        sub = refined_planner(planner, lo, hi, res)
+        sub = refined_space(space, lo, hi, res)
         t1 = time.perf_counter()
         shot = stages.plan_leg(sub, start, target, look_at, {})
     except (GoalUnreachableError, CorridorError, InvalidInputError):
         return None
-    if np.linalg.norm(shot.goal - target) >= np.linalg.norm(coarse_goal - target) - 0.5 * sub.ready().grid.voxel_size:
+    if np.linalg.norm(shot.goal - target) >= np.linalg.norm(coarse_goal - target) - 0.5 * sub.prepared.grid.voxel_size:
         return None  # not closer by half a fine voxel: the coarse leg stays
     shot.timings["refine_grid_ms"] = 1e3 * (t1 - t0)
     shot.timings["refine_ms"] = 1e3 * (time.perf_counter() - t0)
     shot.refinement = {"lo": lo.tolist(), "hi": hi.tolist(), "voxel_size": float(sub.prepared.grid.voxel_size),
-                       "coarse_voxel_size": float(planner.ready().grid.voxel_size),
+                       "coarse_voxel_size": float(space.prepared.grid.voxel_size),
                        "grid_shape": list(sub.prepared.grid.shape)}
     return shot

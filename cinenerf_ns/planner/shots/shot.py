@@ -9,7 +9,7 @@ import json
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Dict, Optional, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Dict, Optional, Sequence
 
 import numpy as np
 
@@ -19,9 +19,20 @@ from ..trajectory.dynamics import DynamicLimits, dynamics_report, retime
 from ..trajectory.orientation import look_at_error_deg, look_at_rotations
 from ..trajectory.timing import TimingConfig, arc_length_table, check_frame_count, time_parametrize
 
+if TYPE_CHECKING:
+    from ..corridor.safe_corridor import Corridor
+
 
 def _finite_or_none(x: Optional[float]) -> Optional[float]:
     return None if x is None or not math.isfinite(x) else float(x)
+
+
+def _point(name: str, value: Any) -> np.ndarray:
+    """Shot.<name> as a finite float [3] numpy point, else InvalidInputError."""
+    v = to_numpy(value).reshape(-1)
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise InvalidInputError(f"Shot.{name} must be a finite 3D point, got {v.tolist()}.")
+    return v
 
 
 @dataclass
@@ -35,7 +46,7 @@ class Shot:
     goal: np.ndarray  # [3] where the camera ends (the closest safe point to the go-to target)
     start: np.ndarray  # [3] where the camera starts
     trajectory: Optional[BezierTrajectory] = None  # the smooth curve the frames sample
-    corridor: Any = None  # the safe corridor (planner's Corridor) the curve lies in, if any
+    corridor: Optional[Corridor] = None  # the safe corridor the curve lies in, if any
     clearance: Optional[np.ndarray] = None  # [T] exact clearance of each frame (camera radius included)
     timings: Dict[str, float] = field(default_factory=dict)  # stage -> milliseconds
     fps: Optional[float] = None  # frame rate of `times` (derived from times when None)
@@ -57,11 +68,8 @@ class Shot:
         self.times = to_numpy(self.times).reshape(-1)
         self.positions = to_numpy(self.positions)
         self.rotations = to_numpy(self.rotations)
-        for name in ("look_at", "goal", "start"):
-            v = to_numpy(getattr(self, name)).reshape(-1)
-            if v.shape != (3,) or not np.all(np.isfinite(v)):
-                raise InvalidInputError(f"Shot.{name} must be a finite 3D point, got {v.tolist()}.")
-            setattr(self, name, v)
+        self.look_at, self.goal, self.start = (_point(name, v) for name, v in (
+            ("look_at", self.look_at), ("goal", self.goal), ("start", self.start)))
         t = len(self.times)
         if t < 1 or self.positions.shape != (t, 3) or self.rotations.shape != (t, 3, 3):
             raise InvalidInputError(

@@ -3,8 +3,8 @@ Bezier QP -> timing + look-at orientation -> verified by exact clearance (paper 
 
 The only place a leg is planned. ``plan_leg`` runs the whole leg for one start (Planner.plan); ranked candidates
 (candidates.py) and multi-stop shots (multistop.py) compose the same stage functions, the ``legs_*`` ones batching a
-stage across candidates (one call for all of them) or chaining legs across stops. Every function takes a prepared
-Planner (planner.py) for the scene, its grids and its configuration."""
+stage across candidates (one call for all of them) or chaining legs across stops. Every function takes the prepared
+planning space (space.py's PlanningSpace: the scene, its grids and its configuration), never the Planner."""
 from __future__ import annotations
 
 import time
@@ -29,80 +29,80 @@ from .safety import dense_samples, verify_shot
 from .shot import Shot, retime_shot
 
 if TYPE_CHECKING:
+    from ..space import PlanningSpace
     from ..trajectory.bezier import BezierTrajectory
-    from .planner import Planner
 
 
 # ---------------------------------------------------------------- goal
-def start_voxel(planner: "Planner", start: np.ndarray) -> Tuple[np.ndarray, int]:
+def start_voxel(space: "PlanningSpace", start: np.ndarray) -> Tuple[np.ndarray, int]:
     """(the free voxel [3] a leg from ``start`` [3] begins its voxel path in, that voxel's free component)."""
-    s_ijk = free_voxel_near(planner.space, start, None)
-    return s_ijk, int(planner.ready().astar_grid.labels[tuple(s_ijk)])
+    s_ijk = free_voxel_near(space, start, None)
+    return s_ijk, int(space.prepared.astar_grid.labels[tuple(s_ijk)])
 
 
-def component_goal(planner: "Planner", target: np.ndarray, comp: int,
+def component_goal(space: "PlanningSpace", target: np.ndarray, comp: int,
                    goal_cache: Optional[dict] = None) -> ReachableGoal:
     """The closest safe point to ``target`` [3] that free component ``comp`` reaches (reach.reachable_goal), found
     once per component when a ``goal_cache`` (component -> ReachableGoal, one target) is given."""
     if goal_cache is None:
-        return reachable_goal(planner.space, target, comp)
+        return reachable_goal(space, target, comp)
     if comp not in goal_cache:
-        goal_cache[comp] = reachable_goal(planner.space, target, comp)
+        goal_cache[comp] = reachable_goal(space, target, comp)
     return goal_cache[comp]
 
 
-def leg_goal(planner: "Planner", start: np.ndarray, target: np.ndarray,
+def leg_goal(space: "PlanningSpace", start: np.ndarray, target: np.ndarray,
              goal_cache: dict) -> Tuple[ReachableGoal, np.ndarray]:
     """(where the leg ends, the free voxel [3] it starts in): the goal is found once per free component of the start
     (``goal_cache``: component -> ReachableGoal, shared by the candidates of one request)."""
-    s_ijk, comp = start_voxel(planner, start)
-    return component_goal(planner, target, comp, goal_cache), s_ijk
+    s_ijk, comp = start_voxel(space, start)
+    return component_goal(space, target, comp, goal_cache), s_ijk
 
 
 # ---------------------------------------------------------------- voxel path
-def voxel_centres(planner: "Planner", a_ijk: np.ndarray, b_ijk: np.ndarray) -> np.ndarray:
+def voxel_centres(space: "PlanningSpace", a_ijk: np.ndarray, b_ijk: np.ndarray) -> np.ndarray:
     """The world centres [K, 3] of the voxel path from voxel ``a_ijk`` to ``b_ijk`` (A* with the configured weight,
     hard cases on the coarse grid: coarse_path.voxel_path), with its corner-cutting steps detoured through free voxels
     where they can be (config.corner_detours, with grid polytopes: corner_steps.py)."""
-    prep = planner.ready()
-    path = voxel_path(prep.astar_grid, prep.coarse, a_ijk, b_ijk, astar_weight=planner.config.astar_weight)  # [K, 3]
+    prep = space.prepared
+    path = voxel_path(prep.astar_grid, prep.coarse, a_ijk, b_ijk, astar_weight=space.config.astar_weight)  # [K, 3]
     if prep.voxels is not None and prep.grid.device.type == "cpu":
         # OccupancyGrid.voxel_to_world's arithmetic in numpy (the same float64 operations, so the same centres)
         centres = prep.voxels.lo + (np.asarray(path).astype(np.float64) + 0.5) * prep.voxels.voxel_size
     else:
         centres = prep.grid.voxel_to_world(torch.as_tensor(path, device=prep.grid.device)).cpu().numpy()
-    if planner.config.corner_detours and prep.voxels is not None and use_grid_polytopes(planner.space):
+    if space.config.corner_detours and prep.voxels is not None and use_grid_polytopes(space):
         centres = detour_corner_steps(prep.voxels.segments_free, centres)[0]
     return centres
 
 
-def leg_way(planner: "Planner", start: np.ndarray, s_ijk: np.ndarray, goal: ReachableGoal) -> np.ndarray:
+def leg_way(space: "PlanningSpace", start: np.ndarray, s_ijk: np.ndarray, goal: ReachableGoal) -> np.ndarray:
     """The polyline [K, 3] the shortcut prunes: the start, the voxel path's centres, and the goal point unless the
     goal's polytope holds the last segment (ReachableGoal.way_to_shortcut)."""
-    return goal.way_to_shortcut(start, voxel_centres(planner, s_ijk, goal.voxel))
+    return goal.way_to_shortcut(start, voxel_centres(space, s_ijk, goal.voxel))
 
 
-def stop_way(planner: "Planner", start: np.ndarray, s_ijk: np.ndarray, stop: ReachableGoal) -> np.ndarray:
+def stop_way(space: "PlanningSpace", start: np.ndarray, s_ijk: np.ndarray, stop: ReachableGoal) -> np.ndarray:
     """The polyline [K, 3] of a leg that ends at an intermediate stop of a multi-stop shot: the start, the voxel path's
     centres and the stop's point. Never shortened at the stop (the curve passes through it with continuous
     derivatives, and the goal's projection puts a point on a face of its polytope, which leaves such a junction
     little room)."""
-    centres = voxel_centres(planner, s_ijk, stop.voxel)
+    centres = voxel_centres(space, s_ijk, stop.voxel)
     return np.concatenate([start[None], centres, np.asarray(stop.point, np.float64)[None]])
 
 
 # ---------------------------------------------------------------- shortcut
-def legs_shortcut(planner: "Planner", ways: Sequence[np.ndarray],
+def legs_shortcut(space: "PlanningSpace", ways: Sequence[np.ndarray],
                   goals: Sequence[Optional[ReachableGoal]]) -> List[np.ndarray]:
     """The shortcuts of several polylines [K, 3] in one batched call (Planner.shortcut_ways), each completed by its
     goal (ReachableGoal.shortcut_ends; None: a leg to an intermediate stop, see stop_way)."""
-    short = shortcut_ways(planner.space, list(ways))
+    short = shortcut_ways(space, list(ways))
     return [w if g is None else g.shortcut_ends(w) for w, g in zip(short, goals)]
 
 
-def leg_shortcut(planner: "Planner", way: np.ndarray, goal: ReachableGoal) -> np.ndarray:
+def leg_shortcut(space: "PlanningSpace", way: np.ndarray, goal: ReachableGoal) -> np.ndarray:
     """The shortcut of one leg's polyline [K, 3] (legs_shortcut of one)."""
-    return legs_shortcut(planner, [way], [goal])[0]
+    return legs_shortcut(space, [way], [goal])[0]
 
 
 def at_goal_already(way: np.ndarray) -> bool:
@@ -111,32 +111,33 @@ def at_goal_already(way: np.ndarray) -> bool:
 
 
 # ---------------------------------------------------------------- corridor
-def leg_corridor(planner: "Planner", way: np.ndarray, known=()) -> Corridor:
+def leg_corridor(space: "PlanningSpace", way: np.ndarray, known=()) -> Corridor:
     """Safe polytopes along a shortcut polyline [K, 3] (corridor.build_corridor with the planner's box margin, backend,
     grid polytopes and planning region); ``known``: the goal's polytope (ReachableGoal.known())."""
-    return build_corridor(way, planner.scene, planner.ready().index, known=known, **corridor_kwargs(planner.space))
+    return build_corridor(way, space.scene, space.prepared.index, known=known, **corridor_kwargs(space))
 
 
-def legs_corridor(planner: "Planner", ways: Sequence[np.ndarray], known=()) -> List[Union[Corridor, CorridorError]]:
+def legs_corridor(space: "PlanningSpace", ways: Sequence[np.ndarray], known=()) -> List[Union[Corridor, CorridorError]]:
     """leg_corridor of several polylines [K, 3] in ONE batched computation (corridor.build_corridors: the batched
     backend's polytopes of every leg at once); a leg whose corridor fails gets its CorridorError in its place."""
-    return build_corridors(list(ways), planner.scene, planner.ready().index, known=known,
-                           **corridor_kwargs(planner.space, many=True))
+    return build_corridors(list(ways), space.scene, space.prepared.index, known=known,
+                           **corridor_kwargs(space, many=True))
 
 
 # ---------------------------------------------------------------- QP, timing + orientation
-def leg_trajectory(planner: "Planner", corridor: Corridor, start: np.ndarray, goal: np.ndarray) -> "BezierTrajectory":
+def leg_trajectory(space: "PlanningSpace", corridor: Corridor, start: np.ndarray,
+                   goal: np.ndarray) -> "BezierTrajectory":
     """The Bezier QP of one corridor from ``start`` [3] to ``goal`` [3] (control points inside the polytopes)."""
     return solve_corridor_qp(corridor.constraints(), corridor.waypoints.cpu().numpy(), start, goal,
-                             planner.config.trajectory)
+                             space.config.trajectory)
 
 
-def leg_shot(planner: "Planner", traj: "BezierTrajectory", corridor: Corridor, look_at: np.ndarray,
+def leg_shot(space: "PlanningSpace", traj: "BezierTrajectory", corridor: Corridor, look_at: np.ndarray,
              target: np.ndarray, limits: Optional[DynamicLimits] = None, timings: Optional[dict] = None) -> Shot:
     """The frames of a trajectory: timed with the planner's TimingConfig (retimed under ``limits`` when given,
     shot.retime_shot) and aimed at ``look_at`` [3]; ``target`` [3]: the go-to point asked for (shot.goal_target).
     ``timings``: the leg's stage times so far (Shot.from_trajectory adds timing_ms / orientation_ms)."""
-    cfg = planner.config
+    cfg = space.config
     shot = Shot.from_trajectory(traj, look_at, timing=cfg.timing, up=cfg.up, corridor=corridor, timings=timings)
     if limits is not None:
         shot = retime_shot(shot, limits, up=cfg.up)
@@ -155,27 +156,27 @@ def refuse_unsafe(report: dict, curve: str = "the curve") -> dict:
     return report
 
 
-def leg_verify(planner: "Planner", shot: Shot, curve: str = "the curve") -> dict:
+def leg_verify(space: "PlanningSpace", shot: Shot, curve: str = "the curve") -> dict:
     """The exact-clearance verification of a shot (safety.verify_shot), refused when unsafe (refuse_unsafe)."""
-    space = planner.space
+    space = space
     report = verify_shot(shot, partial(points_free, space), partial(clearance, space),
-                         max_spacing=planner.config.verify_spacing)
-    report["obstacles"] = planner.obstacle_set()
+                         max_spacing=space.config.verify_spacing)
+    report["obstacles"] = space.obstacle_set()
     return refuse_unsafe(report, curve)
 
 
-def legs_verify(planner: "Planner", shots: Sequence[Shot]) -> List[dict]:
+def legs_verify(space: "PlanningSpace", shots: Sequence[Shot]) -> List[dict]:
     """safety.verify_shot's rule for several shots with one conservative and one exact call for all of them. The
     reports are returned, not refused: the caller passes each through refuse_unsafe."""
-    spacing = planner.config.verify_spacing
+    spacing = space.config.verify_spacing
     samples = [dense_samples(sh, None, spacing)[1] for sh in shots]  # [S_i, 3] each
     counts = [len(s) for s in samples]
     pts = np.concatenate(samples)  # [sum S_i, 3]
-    ok = points_free(planner.space, pts)
+    ok = points_free(space, pts)
     bad = np.flatnonzero(~ok)
     exact = np.full(len(pts), np.inf)
     if bad.size:
-        exact[bad] = planner.clearance(pts[bad])
+        exact[bad] = clearance(space, pts[bad])
     out, o = [], 0
     for n in counts:
         e = exact[o : o + n]
@@ -186,25 +187,25 @@ def legs_verify(planner: "Planner", shots: Sequence[Shot]) -> List[dict]:
             "min_exact_clearance": mn, "safe": bool(mn is None or mn >= 0.0),
             "method": "conservative test on every sample (occupancy grid, then Cor.1), exact distance where "
                       "inconclusive (batched over candidates)",
-            "obstacles": planner.obstacle_set(),
+            "obstacles": space.obstacle_set(),
         })
         o += n
     return out
 
 
 # ---------------------------------------------------------------- the whole leg
-def plan_leg(planner: "Planner", start: np.ndarray, target: np.ndarray, look_at: np.ndarray, goal_cache: dict,
+def plan_leg(space: "PlanningSpace", start: np.ndarray, target: np.ndarray, look_at: np.ndarray, goal_cache: dict,
              sample_ms: float = 0.0) -> Shot:
     """One verified shot from ``start`` [3] to the closest safe point to ``target`` [3] the start reaches, every frame
     looking at ``look_at`` [3]. Each stage's milliseconds go to ``shot.timings`` (with ``sample_ms``, the time the
     start took to draw). Raises GoalUnreachableError, CorridorError, PlanningError."""
     tm: dict = {"start_sample_ms": sample_ms}
     t0 = time.perf_counter()
-    goal, s_ijk = leg_goal(planner, start, target, goal_cache)
+    goal, s_ijk = leg_goal(space, start, target, goal_cache)
     t1 = time.perf_counter()
     tm["goal_ms"] = 1e3 * (t1 - t0)
-    if refine.needs_refinement(planner, goal.point, target):  # free but not connected here: a finer grid first
-        shot = refine.refined_leg(planner, start, target, look_at, goal.point)
+    if refine.needs_refinement(space, goal.point, target):  # free but not connected here: a finer grid first
+        shot = refine.refined_leg(space, start, target, look_at, goal.point)
         if shot is not None:
             shot.timings = {**shot.timings, "start_sample_ms": sample_ms, "goal_ms": tm["goal_ms"],
                             "plan_ms": 1e3 * (time.perf_counter() - t0) + sample_ms}
@@ -212,23 +213,23 @@ def plan_leg(planner: "Planner", start: np.ndarray, target: np.ndarray, look_at:
     if not np.array_equal(goal.point, target):
         tm["refine_ms"] = 1e3 * (time.perf_counter() - t1)  # the check (and a refinement that did not help)
         t1 = time.perf_counter()
-    way = leg_way(planner, start, s_ijk, goal)
+    way = leg_way(space, start, s_ijk, goal)
     t2 = time.perf_counter()
     tm["astar_ms"] = 1e3 * (t2 - t1)
-    way = leg_shortcut(planner, way, goal)
+    way = leg_shortcut(space, way, goal)
     t3 = time.perf_counter()
     tm["shortcut_ms"] = 1e3 * (t3 - t2)
     if at_goal_already(way):
         raise GoalUnreachableError("the start is already at the goal; pick another start")
-    corridor = leg_corridor(planner, way, goal.known())
+    corridor = leg_corridor(space, way, goal.known())
     t4 = time.perf_counter()
     tm["corridor_ms"] = 1e3 * (t4 - t3)
-    traj = leg_trajectory(planner, corridor, start, goal.point)
+    traj = leg_trajectory(space, corridor, start, goal.point)
     t5 = time.perf_counter()
     tm["qp_ms"] = 1e3 * (t5 - t4)
-    shot = leg_shot(planner, traj, corridor, look_at, target, timings=tm)
+    shot = leg_shot(space, traj, corridor, look_at, target, timings=tm)
     t6 = time.perf_counter()
-    shot.safety = leg_verify(planner, shot)
+    shot.safety = leg_verify(space, shot)
     t7 = time.perf_counter()
     tm["verify_ms"] = 1e3 * (t7 - t6)
     tm["plan_ms"] = 1e3 * (t7 - t0) + sample_ms

@@ -110,7 +110,7 @@ def _extent(A, b, axis, sgn) -> float:
     return float(r.x[axis])
 
 
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.integers(0, 10_000), st.sampled_from([0.1, 0.25, 0.4]), st.sampled_from(["python", "auto"]))
 def test_grid_polytope_holds_the_segment_and_meets_no_occupied_voxel(seed, fill, backend):
     """Both the Python construction and (auto) the compiled one (native/gridpoly.c), which must give the same

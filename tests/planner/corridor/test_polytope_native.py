@@ -314,9 +314,9 @@ def test_points_collide_arrays_refusals():
 @settings(**SETTINGS)
 @given(seed=st.integers(0, 2**31 - 1), cell=st.sampled_from([None, 0.04, 0.1, 0.25]), pad=st.sampled_from([None, 0.0]))
 def test_home_bits_say_whether_the_previous_cell_lists_the_ellipsoid(seed, cell, pad):
-    """polytope_native's home bits against their definition, by brute force over the index's CSR lists: bit i of an
+    """native_scene's home bits against their definition, by brute force over the index's CSR lists: bit i of an
     entry (cell c, ellipsoid g) is set exactly when the level does not list g in the cell c - e_i."""
-    from cinenerf_ns.planner.corridor.polytope_native import native_arrays
+    from cinenerf_ns.planner.geometry.native_scene import native_arrays
 
     rng = np.random.default_rng(seed)
     scene = random_scene(rng, 120, amin=0.005, amax=0.2, camera_radius=0.03)

@@ -119,7 +119,7 @@ def test_sphere_boundary_cases():
         points_collide(torch.zeros(3), sc)
 
 
-@settings(max_examples=40, deadline=None)
+@settings(max_examples=20, deadline=None)
 @given(seed=st.integers(0, 100_000))
 def test_general_camera_conservative(seed):
     g = torch.Generator().manual_seed(seed)

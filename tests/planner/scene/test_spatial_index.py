@@ -57,7 +57,7 @@ def test_query_points_scans_when_boxes_dwarf_the_cells(seed, tiny, radius):
     assert pi.tolist() == sorted(pi.tolist())
 
 
-@settings(max_examples=40, deadline=None)
+@settings(max_examples=20, deadline=None)
 @given(seed=st.integers(0, 10_000), radius=st.floats(0.0, 0.3))
 def test_never_misses_an_ellipsoid_within_radius(seed, radius):
     sc = random_scene(150, seed, camera_radius=0.04)

@@ -55,7 +55,7 @@ def test_a_grove_pair_that_fails_at_grid_96_today_reaches_its_go_to(dense_grove)
 
 def test_refine_box_holds_both_ends_and_resolves_the_camera(dense_grove):
     _, scene, robust, pair = dense_grove
-    lo, hi, res = refine.refine_box(robust, pair.start, pair.goal)
+    lo, hi, res = refine.refine_box(robust.space, pair.start, pair.goal)
     rlo, rhi = robust.region()
     assert (lo >= rlo).all() and (hi <= rhi).all()
     for p in (pair.start, pair.goal):
@@ -75,8 +75,8 @@ def test_refined_grid_is_never_optimistic():
     pl = Planner(scene, PlannerConfig(grid_resolution=32))
     pl.prepare()
     lo, hi = np.array([-1.2, -1.2, 0.0]), np.array([1.2, 1.2, 1.0])
-    sub = refine.refined_planner(pl, lo, hi, 96)
-    grid = sub.ready().grid
+    sub = refine.refined_space(pl.space, lo, hi, 96)
+    grid = sub.prepared.grid
     free = np.argwhere(~grid.numpy())
     assert len(free) and grid.voxel_size < pl.ready().grid.voxel_size
     glo, vs = grid.lo.double().numpy(), float(grid.voxel_size)
@@ -114,11 +114,11 @@ def test_a_walled_in_target_is_not_refined(dense_grove):
     start, centre = np.array([0.7, 0.0, 0.0]), np.zeros(3)
     shot = pl.plan(centre, np.array([0.0, 0.0, -0.34]), start=start)[0]
     assert np.linalg.norm(shot.goal - centre) > 0.2 and shot.refinement is None
-    assert refine.enclosed(pl, centre, shot.goal)
-    assert not refine.needs_refinement(pl, shot.goal, centre)
+    assert refine.enclosed(pl.space, centre, shot.goal)
+    assert not refine.needs_refinement(pl.space, shot.goal, centre)
     _, _, robust, pair = dense_grove
     old = robust.plan(pair.goal, pair.look_at, start=pair.start)[0]
-    assert not refine.enclosed(robust, pair.goal, old.goal)
+    assert not refine.enclosed(robust.space, pair.goal, old.goal)
 
 
 def test_the_fine_grid_stays_in_the_planning_region(dense_grove):
@@ -126,9 +126,9 @@ def test_the_fine_grid_stays_in_the_planning_region(dense_grove):
     _, _, robust, _ = dense_grove
     rlo, rhi = robust.region()
     for start, goal in ((rhi - 0.1, rhi - [0.9, 0.7, 0.5]), (rlo + 0.1, rlo + [0.8, 0.6, 0.45])):
-        box = refine.refine_box(robust, start, goal)
+        box = refine.refine_box(robust.space, start, goal)
         assert box is not None
-        sub = refine.refined_planner(robust, *box)
+        sub = refine.refined_space(robust.space, *box)
         glo, ghi = sub.region()
         assert (glo >= rlo - 1e-9).all() and (ghi <= rhi + 1e-9).all()
         for p in (start, goal):

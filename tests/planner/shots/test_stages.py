@@ -32,20 +32,20 @@ def _legs(pl):
     cache = {}
     out = []
     for s in STARTS:
-        goal, s_ijk = stages.leg_goal(pl, s, GO_TO, cache)
-        out.append((s, goal, stages.leg_way(pl, s, s_ijk, goal)))
+        goal, s_ijk = stages.leg_goal(pl.space, s, GO_TO, cache)
+        out.append((s, goal, stages.leg_way(pl.space, s, s_ijk, goal)))
     return out
 
 
 def test_plan_leg_is_the_composition_of_the_stages(planner):
     for s, goal, way in _legs(planner):
-        short = stages.leg_shortcut(planner, way, goal)
+        short = stages.leg_shortcut(planner.space, way, goal)
         assert not stages.at_goal_already(short)
-        corridor = stages.leg_corridor(planner, short, goal.known())
-        traj = stages.leg_trajectory(planner, corridor, s, goal.point)
-        shot = stages.leg_shot(planner, traj, corridor, TARGET, GO_TO)
-        shot.safety = stages.leg_verify(planner, shot)
-        leg = stages.plan_leg(planner, s, GO_TO, TARGET, {})
+        corridor = stages.leg_corridor(planner.space, short, goal.known())
+        traj = stages.leg_trajectory(planner.space, corridor, s, goal.point)
+        shot = stages.leg_shot(planner.space, traj, corridor, TARGET, GO_TO)
+        shot.safety = stages.leg_verify(planner.space, shot)
+        leg = stages.plan_leg(planner.space, s, GO_TO, TARGET, {})
         np.testing.assert_array_equal(leg.positions, shot.positions)
         np.testing.assert_array_equal(leg.rotations, shot.rotations)
         assert leg.safety == shot.safety and np.array_equal(leg.goal_target, GO_TO)
@@ -55,19 +55,20 @@ def test_plan_leg_is_the_composition_of_the_stages(planner):
 
 def test_batched_stages_equal_the_one_leg_stages(planner):
     legs = _legs(planner)
-    ways = stages.legs_shortcut(planner, [w for _, _, w in legs], [g for _, g, _ in legs])
+    ways = stages.legs_shortcut(planner.space, [w for _, _, w in legs], [g for _, g, _ in legs])
     for (_, goal, way), w in zip(legs, ways):
-        np.testing.assert_array_equal(w, stages.leg_shortcut(planner, way, goal))
+        np.testing.assert_array_equal(w, stages.leg_shortcut(planner.space, way, goal))
     known = [p for _, g, _ in legs for p in g.known()][:1]
-    corridors = stages.legs_corridor(planner, ways, known=known)
+    corridors = stages.legs_corridor(planner.space, ways, known=known)
     shots = []
     for (s, goal, _), w, c in zip(legs, ways, corridors):
-        one = stages.leg_corridor(planner, w, known)
+        one = stages.leg_corridor(planner.space, w, known)
         assert len(c) == len(one)
         np.testing.assert_allclose(c.waypoints.cpu().numpy(), one.waypoints.cpu().numpy(), rtol=0, atol=0)
-        shots.append(stages.leg_shot(planner, stages.leg_trajectory(planner, one, s, goal.point), one, TARGET, GO_TO))
-    for shot, rep in zip(shots, stages.legs_verify(planner, shots)):
-        one = stages.leg_verify(planner, shot)
+        traj = stages.leg_trajectory(planner.space, one, s, goal.point)
+        shots.append(stages.leg_shot(planner.space, traj, one, TARGET, GO_TO))
+    for shot, rep in zip(shots, stages.legs_verify(planner.space, shots)):
+        one = stages.leg_verify(planner.space, shot)
         for key in ("num_samples", "max_sample_spacing", "num_inconclusive", "safe"):
             assert rep[key] == one[key]
         assert (rep["min_exact_clearance"] is None) == (one["min_exact_clearance"] is None)
@@ -77,16 +78,16 @@ def test_batched_stages_equal_the_one_leg_stages(planner):
 
 def test_stop_way_ends_at_the_stop_and_leg_way_as_the_goal_says(planner):
     s = STARTS[0]
-    s_ijk, comp = stages.start_voxel(planner, s)
-    stop = stages.component_goal(planner, np.array([-0.5, -0.5, 0.6]), comp)
-    way = stages.stop_way(planner, s, s_ijk, stop)
+    s_ijk, comp = stages.start_voxel(planner.space, s)
+    stop = stages.component_goal(planner.space, np.array([-0.5, -0.5, 0.6]), comp)
+    way = stages.stop_way(planner.space, s, s_ijk, stop)
     assert np.array_equal(way[0], s) and np.array_equal(way[-1], stop.point)
-    goal = stages.component_goal(planner, GO_TO, comp)
-    leg = stages.leg_way(planner, s, s_ijk, goal)
-    assert np.array_equal(leg, goal.way_to_shortcut(s, stages.voxel_centres(planner, s_ijk, goal.voxel)))
+    goal = stages.component_goal(planner.space, GO_TO, comp)
+    leg = stages.leg_way(planner.space, s, s_ijk, goal)
+    assert np.array_equal(leg, goal.way_to_shortcut(s, stages.voxel_centres(planner.space, s_ijk, goal.voxel)))
     cache = {}
-    assert stages.component_goal(planner, GO_TO, comp, cache) is cache[comp]
-    assert stages.component_goal(planner, GO_TO, comp, cache) is cache[comp]  # found once per component
+    assert stages.component_goal(planner.space, GO_TO, comp, cache) is cache[comp]
+    assert stages.component_goal(planner.space, GO_TO, comp, cache) is cache[comp]  # found once per component
 
 
 def test_unsafe_reports_are_refused_with_the_curve_named():
@@ -148,7 +149,7 @@ def test_corner_detours_leave_the_voxel_path_walk_free_where_they_can():
         ways = {}
         for v in (False, True):
             pl.config.corner_detours = v
-            ways[v] = stages.voxel_centres(pl, a, g)
+            ways[v] = stages.voxel_centres(pl.space, a, g)
             refused[v] += int((~prep.voxels.segments_free(ways[v][:-1], ways[v][1:])).sum())
         pos = [int(np.flatnonzero((ways[True] == p).all(1))[0]) for p in ways[False]]
         assert pos == sorted(pos) and pos[0] == 0 and pos[-1] == len(ways[True]) - 1
