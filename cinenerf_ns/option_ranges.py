@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, Dict, NamedTuple, Sequence, Tuple
 
-from cinenerf_ns.option_surface import COMMAND_SET, SHORT_FLAGS, UNPREFIXED
+from cinenerf_ns.option_surface import COMMAND_SET, UNPREFIXED, flag_name
 from cinenerf_ns.options import check_number
 from cinenerf_ns.planner.config import GRID_RESOLUTION_RANGE, PlannerConfig
 from cinenerf_ns.planner.scene.ellipsoids import SceneConfig
@@ -82,11 +82,6 @@ RANGES: Dict[Tuple[type, str], Range] = {
     (ScoreConfig, "clearance_cap"): Range(0.0, 1e6, lo_open=True, none_ok=True),
 }
 """(config, field) -> allowed values of every number a command line can set."""
-
-
-def flag_name(owner: type, field: str, prefix: str) -> str:
-    """The flag a user types for ``owner.field`` under ``prefix`` (e.g. '--planner'): its short alias if it has one."""
-    return SHORT_FLAGS.get((owner, field), f"{prefix}.{field.replace('_', '-')}")
 
 
 def _nested_prefix(owner: type, field: str, prefix: str) -> str:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import re
 import sys
 import threading
 from typing import Annotated, Any, Callable, Dict, List, Optional, Sequence, Type, TypeVar
@@ -110,9 +111,31 @@ def parse(cls: Type[T], argv: Optional[Sequence[str]], prog: str, renamed: Dict[
     return tyro.cli(cls, args=args, prog=prog, registry=REGISTRY)
 
 
+def flag_name(owner: type, field: str, prefix: str) -> str:
+    """The flag a user types for ``owner.field`` under ``prefix`` (e.g. '--planner'): its short alias if it has one."""
+    return SHORT_FLAGS.get((owner, field), f"{prefix}.{field.replace('_', '-')}")
+
+
+def with_flag_names(message: str, config: Any, prefix: str) -> str:
+    """``message`` with each field name of ``config`` (a dataclass under ``prefix``) written as the user's flag:
+    a config's validate() speaks of 'active_set_tolerance', the command line of '--trajectory.active-set-tolerance'."""
+    owner = type(config)
+    for f in dataclasses.fields(config):
+        if "_" in f.name and not dataclasses.is_dataclass(getattr(config, f.name)):
+            message = re.sub(rf"(?<![\w.-]){re.escape(f.name)}(?![\w-])", flag_name(owner, f.name, prefix), message)
+    return message
+
+
 def validated(what: str, check: Callable[[], None]) -> None:
-    """Run a config's validate(); its InvalidInputError is said with the flag prefix it belongs to."""
+    """Run a config's validate() (a bound method); its InvalidInputError is said with the flags it is about, or with
+    the flag prefix it belongs to when it names no field."""
     try:
         check()
     except InvalidInputError as e:
-        raise InvalidInputError(f"{what}: {e}") from e
+        config = getattr(check, "__self__", None)
+        message = str(e)
+        if dataclasses.is_dataclass(config):
+            named = with_flag_names(message, config, what)
+            if named != message:
+                raise InvalidInputError(named) from e
+        raise InvalidInputError(f"{what}: {message}") from e

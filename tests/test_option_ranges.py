@@ -126,3 +126,18 @@ def test_the_viewer_checks_the_same_ranges():
                 "cinesplat-viewer", VIEWER_RENAMED)
     with pytest.raises(InvalidInputError, match="^--trajectory.smoothness-weight must be"):
         check_config(cfg)
+
+
+@pytest.mark.parametrize("argv, expect", [
+    (["--trajectory.margin", "0"], "--trajectory.active-set-tolerance must be below the polytope margin"),
+    (["--trajectory.rest-at-ends", "3"], "--trajectory.rest-at-ends=3 pins 4 control points"),
+    (["--trajectory.smoothness-weight", "0", "--trajectory.length-weight", "0"],
+     "--trajectory.smoothness-weight and --trajectory.length-weight must be >= 0 and not both zero"),
+    (["--planner.region-rule", "nope"], "--planner.region-rule must be one of"),
+])
+def test_relations_between_fields_are_said_with_the_flags(argv, expect, tmp_path):
+    args = parse(PlanArgs, TARGETS + ["--output-dir", str(tmp_path / "out")] + argv, "cinesplat-plan",
+                 RENAMED_FLAGS)
+    with pytest.raises(InvalidInputError) as e:
+        check_args(args)
+    assert str(e.value).startswith(expect), str(e.value)

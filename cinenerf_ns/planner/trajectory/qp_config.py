@@ -59,7 +59,7 @@ class TrajectoryConfig:
 
     def validate(self) -> None:
         if self.degree < 1:
-            raise InvalidInputError(f"Bezier degree must be >= 1, got {self.degree}.")
+            raise InvalidInputError(f"degree (of the Bezier segments) must be >= 1, got {self.degree}.")
         if not 0 <= self.continuity < self.degree:
             raise InvalidInputError(
                 f"continuity order must be in [0, degree-1] = [0, {self.degree - 1}], got {self.continuity}."
@@ -74,7 +74,8 @@ class TrajectoryConfig:
                 f"more than a degree-{self.degree} segment has; use a higher degree or fewer rest derivatives."
             )
         if self.smoothness_weight < 0 or self.length_weight < 0 or self.smoothness_weight + self.length_weight == 0:
-            raise InvalidInputError("cost weights must be >= 0 and not both zero.")
+            raise InvalidInputError(f"smoothness_weight and length_weight must be >= 0 and not both zero, got "
+                                    f"{self.smoothness_weight:g} and {self.length_weight:g}.")
         if self.nominal_speed <= 0 or self.min_segment_duration <= 0:
             raise InvalidInputError("nominal_speed and min_segment_duration must be positive.")
         if self.solver not in SOLVERS:
@@ -82,5 +83,5 @@ class TrajectoryConfig:
         if self.margin < 0 or self.osqp_margin < 0:
             raise InvalidInputError(f"margins must be >= 0, got {self.margin}, {self.osqp_margin}.")
         if self.solver == "active_set" and not 0 <= self.active_set_tolerance < max(self.margin, 1e-300):
-            raise InvalidInputError(f"active_set_tolerance must be in [0, margin) = [0, {self.margin:g}) (0 with "
-                                    f"margin 0), got {self.active_set_tolerance:g}.")
+            raise InvalidInputError(f"active_set_tolerance must be below the polytope margin ({self.margin:g}; "
+                                    f"0 when the margin is 0), got {self.active_set_tolerance:g}.")

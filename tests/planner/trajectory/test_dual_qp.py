@@ -306,9 +306,9 @@ def test_active_set_tolerance_is_checked_against_the_margin():
     """The face tolerance must stay below the margin that absorbs it; other solvers do not read it."""
     from cinenerf_ns.planner.errors import InvalidInputError
 
-    with pytest.raises(InvalidInputError, match="active_set_tolerance must be in"):
+    with pytest.raises(InvalidInputError, match="active_set_tolerance must be below the polytope margin"):
         TrajectoryConfig(margin=1e-12).validate()
-    with pytest.raises(InvalidInputError, match="active_set_tolerance must be in"):
+    with pytest.raises(InvalidInputError, match="active_set_tolerance must be below the polytope margin"):
         TrajectoryConfig(active_set_tolerance=-1.0).validate()
     TrajectoryConfig(margin=0.0, active_set_tolerance=0.0).validate()
     TrajectoryConfig(solver="clarabel", margin=0.0).validate()
