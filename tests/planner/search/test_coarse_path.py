@@ -87,8 +87,60 @@ def test_wall_forces_coarse_route_and_fallback():
     assert (np.abs(p - np.round(p)) > 0.25).any()  # went through block centres
     occ2 = np.zeros((20, 20, 12), dtype=bool)
     occ2[10, :, :] = True
-    occ2[10, 9, 5] = False  # one-voxel hole: no free block on it, fine Dijkstra fallback
+    occ2[10, 9, 5] = False  # one-voxel hole: no free block on it; one side escapes through it to the other's blocks
     ag2, cg2 = AStarGrid(occ2), CoarseGrid(AStarGrid(occ2))
     p2 = voxel_path(ag2, cg2, (1, 1, 1), (18, 18, 10), astar_budget=5)
     check_path_safe(p2, occ2, (1, 1, 1), (18, 18, 10))
-    assert np.allclose(p2, np.round(p2))  # fine voxels only
+    assert (np.abs(p2 - np.round(p2)) > 0.25).any() and (np.abs(p2 - (10, 9, 5)).max(1) < 1e-12).any()
+    cg2._escapes.clear()
+    cg2._largest = -1  # no escape target: the coarse route gives up and the fine Dijkstra answers
+    p3 = voxel_path(ag2, cg2, (1, 1, 1), (18, 18, 10), astar_budget=5)
+    check_path_safe(p3, occ2, (1, 1, 1), (18, 18, 10))
+    assert np.allclose(p3, np.round(p3))  # fine voxels only
+
+
+def _pocket_grid(tunnel: int) -> tuple:
+    """A 24 x 16 x 12 room whose goal sits in a pocket of free blocks walled off from the rest at the coarse level:
+    the pocket (fine x 16..19) opens to the room through a tunnel one fine voxel wide and ``tunnel`` voxels long."""
+    occ = np.zeros((24, 16, 12), dtype=bool)
+    occ[14:22, :, :] = True
+    occ[16:20, 4:8, 4:8] = False  # the pocket: 2 x 2 x 2 free blocks
+    occ[14:16, 5, 5] = False  # a one-voxel tunnel from the room (x < 14) into the pocket
+    if tunnel > 2:
+        occ[14:16, 5, 5] = True
+        occ[16 - tunnel:16, 5, 5] = False
+    return occ
+
+
+@pytest.mark.parametrize("tunnel", [2, 9])
+def test_a_goal_in_a_coarse_pocket_escapes_to_the_main_component(tunnel):
+    occ = _pocket_grid(tunnel)
+    ag = AStarGrid(occ)
+    cg = CoarseGrid(ag)
+    s, g = np.array([1, 1, 1]), np.array([17, 5, 5])
+    assert cg.labels[tuple(s // 2)] != cg.labels[tuple(g // 2)]  # the pocket is its own coarse component
+    p = cg.path(s, g, window=1)  # a window too small to join them: the pocket's end escapes
+    assert p is not None
+    check_path_safe(p, occ, s, g)
+    q = voxel_path(ag, cg, s, g, astar_budget=5, window=1)
+    check_path_safe(q, occ, s, g)
+
+
+@settings(**SETTINGS)
+@given(seed=st.integers(0, 2**31 - 1), density=st.floats(0.05, 0.45), window=st.sampled_from([0, 1, 3]))
+def test_coarse_route_with_escapes_is_safe_and_found_when_components_join(seed, density, window):
+    """CoarseGrid.path on random grids (brute-force safety of every segment); whenever it gives up, the fine grid
+    still joins the ends (voxel_path's fallback) or they are not joined at all (scipy's Dijkstra decides)."""
+    rng = np.random.default_rng(seed)
+    shape = (12, 10, 8)
+    occ = rng.random(shape) < density
+    free = np.argwhere(~occ)
+    if len(free) < 2:
+        return
+    s, g = free[rng.integers(len(free))], free[rng.integers(len(free))]
+    cg = CoarseGrid(AStarGrid(occ))
+    p = cg.path(s, g, window)
+    if p is not None:
+        check_path_safe(p, occ, s, g)
+        dist = dijkstra(grid_graph(occ), indices=np.ravel_multi_index(tuple(s), shape))
+        assert np.isfinite(dist[np.ravel_multi_index(tuple(g), shape)])
