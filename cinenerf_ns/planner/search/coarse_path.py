@@ -40,6 +40,10 @@ from .astar import AStarGrid, SearchBudgetExhausted, astar
 from .landmarks import landmark_tables
 
 FINE_BUDGET = 800  # fine A* expansions before the coarse route (see voxel_path)
+COARSE_DETOUR = 1.5
+"""voxel_path: a coarse route longer than this x the straight distance is checked against the fine search's path (the
+shorter one is kept): blocks keep paths in wide free space, but where the fine grid passes between thin obstacles
+(the grove's trunks) they can go round the whole group, twice the way (docs/PLANNER_DEFAULTS.md)."""
 
 
 def _mcp_path(costs: np.ndarray, start, ends: np.ndarray, grid: Optional[AStarGrid] = None) -> Optional[np.ndarray]:
@@ -198,10 +202,12 @@ class CoarseGrid:
 
 def voxel_path(
     fine: AStarGrid, coarse: Optional[CoarseGrid], s, g, *, astar_budget: int = FINE_BUDGET, window: int = 6,
-    astar_weight: float = 1.0,
+    astar_weight: float = 1.0, detour_budget: Optional[int] = None,
 ) -> np.ndarray:
     """Collision-free path float64 [K, 3] (fine voxel index units, s first, g last) between free fine
-    voxels s and g: A* with ``astar_budget`` expansions, else the coarse route, else the fine Dijkstra.
+    voxels s and g: A* with ``astar_budget`` expansions, else the coarse route, else the fine search (also when the
+    coarse route is over COARSE_DETOUR x the straight distance: the shorter of the two; ``detour_budget``: that check's
+    fine A* gives up after this many expansions and the coarse route stays, None: no limit).
     astar_weight: heuristic weight of the A* (1: minimum-cost path; w > 1: cost at most w x minimum, far fewer
     expansions; see PlannerConfig.astar_weight).
     astar_budget: fine A* expansions before the coarse route, the same with the compiled and the Python A* (the
@@ -213,14 +219,25 @@ def voxel_path(
         return astar(fine, s, g, max_expansions=astar_budget, heuristic_weight=astar_weight).astype(np.float64)
     except SearchBudgetExhausted:
         pass
-    if coarse is not None:
-        p = coarse.path(s, g, window)
-        if p is not None:
-            return p
+    route = coarse.path(s, g, window) if coarse is not None else None
+    if route is not None and _length(route) <= COARSE_DETOUR * float(np.linalg.norm(np.subtract(g, s))):
+        return route
+    if route is not None and detour_budget is not None:
+        try:
+            p = astar(fine, s, g, max_expansions=detour_budget).astype(np.float64)
+        except SearchBudgetExhausted:
+            return route
+        return route if _length(route) <= _length(p) else p
     costs = coarse.fine_costs if coarse is not None else np.where(fine._occ, np.inf, 1.0)
     # the prepared fine grid (the same occupancy as costs): no padded copy and no new search workspace per call
     # (10.6 -> 7.3 ms a call on the 1M grove, whose canopy splits the coarse grid into two components)
     p = _mcp_path(costs, np.asarray(s), np.asarray(g, dtype=np.int64)[None], grid=fine)
     if p is None:  # cannot happen: astar() checked that s and g share a free component
         raise GoalUnreachableError(f"no collision-free voxel path from {tuple(s)} to {tuple(g)}")
-    return p.astype(np.float64)
+    p = p.astype(np.float64)
+    return route if route is not None and _length(route) <= _length(p) else p
+
+
+def _length(path: np.ndarray) -> float:
+    """Length of a polyline [K, 3] (fine voxel units)."""
+    return float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())

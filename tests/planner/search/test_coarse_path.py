@@ -12,7 +12,7 @@ from test_astar import grid_graph
 
 from cinenerf_ns.planner.errors import GoalUnreachableError
 from cinenerf_ns.planner.search.astar import AStarGrid, SearchBudgetExhausted, astar
-from cinenerf_ns.planner.search.coarse_path import CoarseGrid, voxel_path
+from cinenerf_ns.planner.search.coarse_path import COARSE_DETOUR, CoarseGrid, voxel_path
 
 SETTINGS = dict(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
@@ -144,3 +144,25 @@ def test_coarse_route_with_escapes_is_safe_and_found_when_components_join(seed, 
         check_path_safe(p, occ, s, g)
         dist = dijkstra(grid_graph(occ), indices=np.ravel_multi_index(tuple(s), shape))
         assert np.isfinite(dist[np.ravel_multi_index(tuple(g), shape)])
+
+
+def test_a_coarse_detour_round_a_wall_gives_way_to_the_fine_path_through_its_gap():
+    """The coarse grid joins both sides of a wall only through a far opening, the fine grid through a one-voxel gap on
+    the straight line: the coarse route (over COARSE_DETOUR x the straight distance) is checked against the fine one
+    and the shorter kept."""
+    occ = np.zeros((30, 40, 8), dtype=bool)
+    occ[15, :, :] = True
+    occ[15, 5, 3] = False  # the gap: on no free block
+    occ[14:16, 36:40, :] = False  # the far opening, block aligned
+    occ[14, :36, :] = True
+    occ[14, 5, 3] = False
+    s, g = np.array([2, 5, 3]), np.array([28, 5, 3])
+    ag, cg = AStarGrid(occ), CoarseGrid(AStarGrid(occ))
+    route = cg.path(s, g, 6)
+    assert route is not None and np.linalg.norm(np.diff(route, axis=0), axis=1).sum() > COARSE_DETOUR * 26
+    p = voxel_path(ag, cg, s, g, astar_budget=5)
+    check_path_safe(p, occ, s, g)
+    shape = occ.shape
+    dist = dijkstra(grid_graph(occ), indices=np.ravel_multi_index(tuple(s), shape))
+    ref = dist[np.ravel_multi_index(tuple(g), shape)]
+    assert np.linalg.norm(np.diff(p, axis=0), axis=1).sum() <= ref + 1e-9
