@@ -127,11 +127,12 @@ class CoarseGrid:
         p = _mcp_path(sub, v - a, ijk[ok])
         return None if p is None else p + a
 
-    def _ends(self, s: np.ndarray, g: np.ndarray, window: int):
+    def _ends(self, s: np.ndarray, g: np.ndarray, window: int, escape: bool = True):
         """(head, tail): fine paths from s and from g to free blocks of ONE coarse component, or None. The nearest
         free block of an end may lie in a small pocket of the coarse grid (a few blocks walled in by occupied ones,
         e.g. under a canopy) while the fine grid joins it to the other end's component: within the window each end
-        is tried in the other end's component, then the end in the smaller component escapes (_escaped_ends)."""
+        is tried in the other end's component, then (``escape``) each end outside the largest one escapes into it
+        (_escaped_ends)."""
         head, tail = self._to_free_block(s, window), self._to_free_block(g, window)
         if head is None or tail is None:
             return None
@@ -144,7 +145,7 @@ class CoarseGrid:
         head2 = self._to_free_block(s, window, label=lg)
         if head2 is not None:
             return head2, tail
-        return self._escaped_ends(head, tail, ls, lg)
+        return self._escaped_ends(head, tail, ls, lg) if escape else None
 
     def _escaped_ends(self, head: np.ndarray, tail: np.ndarray, ls: int, lg: int):
         """_ends when no window joins the ends' coarse components ``ls`` (of head's block) and ``lg`` (of tail's):
@@ -184,11 +185,12 @@ class CoarseGrid:
         cache[key] = g.unflat_many(out[:k]) if k > 0 else None
         return cache[key]
 
-    def path(self, s, g, window: int = 6) -> Optional[np.ndarray]:
+    def path(self, s, g, window: int = 6, escape: bool = True) -> Optional[np.ndarray]:
         """Path float64 [K, 3] (fine index units) from fine voxel s to fine voxel g through free
-        blocks, or None when the coarse route does not exist (caller falls back to the fine grid)."""
+        blocks, or None when the coarse route does not exist (caller falls back to the fine grid). ``escape``: ends in
+        coarse pockets may escape to the largest coarse component (_ends); False: such a route does not exist."""
         s, g = np.asarray(s, dtype=np.int64), np.asarray(g, dtype=np.int64)
-        ends = self._ends(s, g, window)
+        ends = self._ends(s, g, window, escape)
         if ends is None:
             return None
         head, tail = ends
@@ -206,8 +208,11 @@ def voxel_path(
 ) -> np.ndarray:
     """Collision-free path float64 [K, 3] (fine voxel index units, s first, g last) between free fine
     voxels s and g: A* with ``astar_budget`` expansions, else the coarse route, else the fine search (also when the
-    coarse route is over COARSE_DETOUR x the straight distance: the shorter of the two; ``detour_budget``: that check's
-    fine A* gives up after this many expansions and the coarse route stays, None: no limit).
+    coarse route is over COARSE_DETOUR x the straight distance: the shorter of the two). ``detour_budget`` (ranked
+    candidates, whose searches must stay cheap and share a go-to): the coarse route's ends may escape coarse pockets
+    (CoarseGrid.path), and that check's fine A* gives up after this many expansions, keeping the coarse route; None
+    (one shot: the shortest voxel path it can get): no escapes, no limit (an escape is paid by each request's own
+    go-to, and its route is then mostly a detour the whole fine search replaces anyway).
     astar_weight: heuristic weight of the A* (1: minimum-cost path; w > 1: cost at most w x minimum, far fewer
     expansions; see PlannerConfig.astar_weight).
     astar_budget: fine A* expansions before the coarse route, the same with the compiled and the Python A* (the
@@ -219,7 +224,7 @@ def voxel_path(
         return astar(fine, s, g, max_expansions=astar_budget, heuristic_weight=astar_weight).astype(np.float64)
     except SearchBudgetExhausted:
         pass
-    route = coarse.path(s, g, window) if coarse is not None else None
+    route = coarse.path(s, g, window, escape=detour_budget is not None) if coarse is not None else None
     if route is not None and _length(route) <= COARSE_DETOUR * float(np.linalg.norm(np.subtract(g, s))):
         return route
     if route is not None and detour_budget is not None:

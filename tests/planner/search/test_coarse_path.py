@@ -40,8 +40,9 @@ def check_path_safe(path: np.ndarray, occ: np.ndarray, s, g, samples: int = 33):
 
 @settings(**SETTINGS)
 @given(seed=st.integers(0, 2**31 - 1), shape=st.tuples(st.integers(1, 12), st.integers(1, 12), st.integers(1, 10)),
-       density=st.floats(0.0, 0.5), budget=st.sampled_from([0, 5, 2000]), window=st.sampled_from([1, 3, 6]))
-def test_voxel_path_is_safe_and_complete(seed, shape, density, budget, window):
+       density=st.floats(0.0, 0.5), budget=st.sampled_from([0, 5, 2000]), window=st.sampled_from([1, 3, 6]),
+       detour=st.sampled_from([None, 0, 50]))
+def test_voxel_path_is_safe_and_complete(seed, shape, density, budget, window, detour):
     rng = np.random.default_rng(seed)
     occ = rng.random(shape) < density
     free = np.argwhere(~occ)
@@ -54,9 +55,9 @@ def test_voxel_path_is_safe_and_complete(seed, shape, density, budget, window):
     cg = CoarseGrid(ag)
     if not np.isfinite(ref):
         with pytest.raises(GoalUnreachableError):
-            voxel_path(ag, cg, s, g, astar_budget=budget, window=window)
+            voxel_path(ag, cg, s, g, astar_budget=budget, window=window, detour_budget=detour)
         return
-    path = voxel_path(ag, cg, s, g, astar_budget=budget, window=window)
+    path = voxel_path(ag, cg, s, g, astar_budget=budget, window=window, detour_budget=detour)
     check_path_safe(path, occ, s, g)
     # the path is a curve from s to g through free space: never shorter than the optimal grid path
     # (the grid metric's optimum is >= Euclidean length of any free curve only up to corner cuts, so
@@ -89,14 +90,15 @@ def test_wall_forces_coarse_route_and_fallback():
     occ2[10, :, :] = True
     occ2[10, 9, 5] = False  # one-voxel hole: no free block on it; one side escapes through it to the other's blocks
     ag2, cg2 = AStarGrid(occ2), CoarseGrid(AStarGrid(occ2))
-    p2 = voxel_path(ag2, cg2, (1, 1, 1), (18, 18, 10), astar_budget=5)
+    p2 = voxel_path(ag2, cg2, (1, 1, 1), (18, 18, 10), astar_budget=5, detour_budget=10**6)  # candidates' rule
     check_path_safe(p2, occ2, (1, 1, 1), (18, 18, 10))
     assert (np.abs(p2 - np.round(p2)) > 0.25).any() and (np.abs(p2 - (10, 9, 5)).max(1) < 1e-12).any()
-    cg2._escapes.clear()
-    cg2._largest = -1  # no escape target: the coarse route gives up and the fine Dijkstra answers
-    p3 = voxel_path(ag2, cg2, (1, 1, 1), (18, 18, 10), astar_budget=5)
-    check_path_safe(p3, occ2, (1, 1, 1), (18, 18, 10))
-    assert np.allclose(p3, np.round(p3))  # fine voxels only
+    for budget in (None, 10**6):  # one shot: no escapes; or no escape target: the fine search answers
+        cg2._escapes.clear()
+        cg2._largest = -1 if budget else cg2._largest
+        p3 = voxel_path(ag2, cg2, (1, 1, 1), (18, 18, 10), astar_budget=5, detour_budget=budget)
+        check_path_safe(p3, occ2, (1, 1, 1), (18, 18, 10))
+        assert np.allclose(p3, np.round(p3))  # fine voxels only
 
 
 def _pocket_grid(tunnel: int) -> tuple:
@@ -122,8 +124,10 @@ def test_a_goal_in_a_coarse_pocket_escapes_to_the_main_component(tunnel):
     p = cg.path(s, g, window=1)  # a window too small to join them: the pocket's end escapes
     assert p is not None
     check_path_safe(p, occ, s, g)
-    q = voxel_path(ag, cg, s, g, astar_budget=5, window=1)
-    check_path_safe(q, occ, s, g)
+    assert cg.path(s, g, window=1, escape=False) is None
+    for budget in (None, 10**6):
+        q = voxel_path(ag, cg, s, g, astar_budget=5, window=1, detour_budget=budget)
+        check_path_safe(q, occ, s, g)
 
 
 @settings(**SETTINGS)
