@@ -61,6 +61,8 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--grid-resolution", type=int, default=96)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--max-voxel-radii", default="default",
+                    help="PlannerConfig.max_voxel_radii: a number, 'none' (exactly --grid-resolution) or 'default'")
     ap.add_argument("--request-device", default="auto", choices=["auto", "scene"],
                     help="PlannerConfig.request_device: auto = per-request queries on a CPU mirror of a GPU scene")
     ap.add_argument("--workers", type=int, default=None,
@@ -78,6 +80,8 @@ def main() -> None:
     planner = Planner(scene, PlannerConfig(grid_resolution=args.grid_resolution, request_device=args.request_device,
                                            start_region=fam.start_region, up=fam.up,
                                            corridor_backend=args.corridor_backend))
+    if args.max_voxel_radii != "default":
+        planner.config.max_voxel_radii = None if args.max_voxel_radii == "none" else float(args.max_voxel_radii)
     t0 = time.perf_counter()
     planner.prepare()
     _sync(dev)
@@ -173,7 +177,8 @@ def main() -> None:
         f"`{' '.join(['python benchmarks/bench_candidates.py', *sys.argv[1:]])}`",
         "",
         f"family {args.family}: {fam.description}, {args.start_mode} starts (sequential row), K={args.k}, "
-        f"grid {args.grid_resolution}, "
+        f"grid {args.grid_resolution} (max_voxel_radii {planner.config.max_voxel_radii}: "
+        f"{list(planner.ready().grid.shape)}), "
         f"request_device {args.request_device}, corridor_backend {args.corridor_backend} -> "
         f"{corridor_options.corridor_backend(planner.space)}, "
         f"repeats {args.repeats}, prepare {prep_s:.2f} s (not timed below), commit {rev or '?'}",

@@ -68,6 +68,9 @@ def main() -> None:
                     help="PlannerConfig.region_rule without training cameras (robust: the rule before issue 37)")
     ap.add_argument("--no-refine", action="store_true",
                     help="PlannerConfig.refine_disconnected=False (the behaviour before issue 37)")
+    ap.add_argument("--max-voxel-radii", default="default",
+                    help="PlannerConfig.max_voxel_radii: a number, 'none' (exactly --grid-resolution: the rule before "
+                         "the finer open-scene grids) or 'default'")
     ap.add_argument("--ignore-floaters", default="off", choices=["auto", "on", "off"],
                     help="scene/floaters.py: plan without the small, faint, isolated Gaussians (the independent exact "
                          "check then also reports the clearance to every Gaussian)")
@@ -102,6 +105,8 @@ def main() -> None:
                         refine_disconnected=not args.no_refine)
     if args.grid_resolution is not None:
         cfg.grid_resolution = args.grid_resolution
+    if args.max_voxel_radii != "default":
+        cfg.max_voxel_radii = None if args.max_voxel_radii == "none" else float(args.max_voxel_radii)
     if args.start_look_distance is not None:
         cfg.start_look_distance = args.start_look_distance
     planner = Planner(scene, cfg)
@@ -282,7 +287,7 @@ def main() -> None:
         "",
         f"family {args.family}: {fam.description}, region {result['region_rule']}"
         + ("" if not args.no_refine else ", no refinement")
-        + f", grid_resolution {cfg.grid_resolution} {result['grid_shape']}, "
+        + f", grid_resolution {cfg.grid_resolution} (max_voxel_radii {cfg.max_voxel_radii}) {result['grid_shape']}, "
         f"{args.pairs} requests ({args.start_mode} start, "
         + (f"floaters ignored: {floaters.count} of {floaters.total} Gaussians, "
            f"{result['floaters'].get('shots_through_ignored_floaters', 0)} shots pass through one "

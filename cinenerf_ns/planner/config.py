@@ -28,6 +28,10 @@ class PlannerConfig:
 
     grid_resolution: int = 96
     """Voxels along the longest side of the planning bounds (A* grid; conservative occupancy)."""
+    max_voxel_radii: Optional[float] = 1.9
+    """The grid is made finer than grid_resolution where its voxel would be longer than this many camera radii (a wide
+    open region: gaps between thin obstacles stay open, corridors take grid polytopes), up to AUTO_RESOLUTION_MAX
+    voxels and the memory budget (planning_region.grid_resolution_for); None: exactly grid_resolution."""
     bounds: Optional[tuple] = None
     """(lo[3], hi[3]) planning region in scene units (cinesplat-plan --region); None: chosen by the rules of
     planning_region.planning_bounds (training cameras, else the dense content)."""
@@ -130,6 +134,11 @@ class PlannerConfig:
         if isinstance(res, bool) or not isinstance(res, (int, np.integer)) or not lo_r <= res <= hi_r:
             raise InvalidInputError(f"grid_resolution (--grid-resolution) must be an integer in [{lo_r}, {hi_r}] "
                                     f"voxels along the planning region's longest side, got {res!r}")
+        v = self.max_voxel_radii
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
+                              or not (math.isfinite(v) and v > 0)):
+            raise InvalidInputError(f"max_voxel_radii must be None or a finite number > 0 (camera radii per voxel), "
+                                    f"got {v!r}")
         mb = self.memory_budget_mb
         if isinstance(mb, bool) or not isinstance(mb, (int, float)) or not (math.isfinite(mb) and mb >= 64):
             raise InvalidInputError(f"memory_budget_mb (--memory-budget-mb) must be a number >= 64, got {mb!r}")

@@ -6,6 +6,7 @@ import pytest
 from cinenerf_ns.planner.corridor.corridor_options import corridor_kwargs
 from cinenerf_ns.planner.geometry.clearance_queries import clearance, points_free
 from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
+from cinenerf_ns.planner.scene.planning_region import grid_resolution_for
 from cinenerf_ns.planner.scene.procedural import procedural_room
 from cinenerf_ns.planner.search.starts import main_component
 from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
@@ -39,7 +40,8 @@ def test_a_space_built_without_a_planner_answers_as_the_planners(room):
     pl = Planner(room, cfg)
     pl.prepare()
     lo, hi = pl.planning_bounds()
-    scene, prep = prepare_scene(room, cfg.grid_resolution, lo, hi, mirror=False)
+    res = grid_resolution_for(cfg, float(room.camera_radius), lo.cpu().numpy(), hi.cpu().numpy())  # prepare()'s
+    scene, prep = prepare_scene(room, res, lo, hi, mirror=False)
     sp = PlanningSpace(scene, scene, cfg, prep)
     rng = np.random.default_rng(0)
     rlo, rhi = sp.region()

@@ -3,6 +3,7 @@ configuration, the checks a region must pass before any expensive work, and user
 Pure functions of a scene, a PlannerConfig and the region's corners (the Planner and the planning space call them)."""
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING, Optional, Sequence, Union
 
 import numpy as np
@@ -273,6 +274,30 @@ def check_region(cfg: "PlannerConfig", camera_radius: float, lo: np.ndarray, hi:
         raise InvalidInputError(
             f"--grid-resolution {res} needs about {need:.0f} MB for its voxel grid ({voxels:.3g} voxels), more "
             f"than the memory budget {budget:g} MB (--memory-budget-mb); at most {fits} fits")
+
+
+AUTO_RESOLUTION_MAX = 192
+"""PlannerConfig.max_voxel_radii raises the grid resolution up to this many voxels along the longest side (192^3 / 2 is
+about 3.5M voxels, prepared in seconds)."""
+
+
+def grid_resolution_for(cfg: "PlannerConfig", camera_radius: float, lo: np.ndarray, hi: np.ndarray) -> int:
+    """The voxels along the longest side of [lo, hi] a planner prepares: cfg.grid_resolution, raised while a voxel
+    would be longer than cfg.max_voxel_radii camera radii, up to AUTO_RESOLUTION_MAX and what cfg.memory_budget_mb
+    holds (the raise is cut, never refused: check_region refuses only the grid_resolution asked for)."""
+    res = int(cfg.grid_resolution)
+    if cfg.max_voxel_radii is None or not camera_radius > 0:
+        return res
+    side = np.asarray(hi, dtype=np.float64) - np.asarray(lo, dtype=np.float64)
+    longest = float(side.max())
+    want = min(AUTO_RESOLUTION_MAX, int(math.ceil(longest / (float(cfg.max_voxel_radii) * float(camera_radius)))))
+    if want <= res:
+        return res
+    voxels = float(np.prod(np.ceil(side / (longest / want))))
+    budget_voxels = float(cfg.memory_budget_mb) * 2**20 / GRID_BYTES_PER_VOXEL
+    if voxels > budget_voxels:
+        want = int(want * (budget_voxels / voxels) ** (1 / 3))
+    return max(res, want)
 
 
 def check_timing(t: "TimingConfig", lo: np.ndarray, hi: np.ndarray) -> None:

@@ -18,9 +18,12 @@ safe cube too. Segments used by a returned path, all safe:
   * between a free fine voxel's centre and the centre of the free block that contains it: both in
     that block (convex).
 Start and goal voxels inside an occupied block reach a free block by a short fine search in a
-window around them. If anything fails (no free block nearby, blocks in different coarse components,
-e.g. a gap only one fine voxel wide) the exact fine Dijkstra answers, so a path is found whenever the
-fine grid connects start and goal (same guarantee as astar()).
+window around them. When the two blocks lie in different coarse components (a pocket of free blocks walled in at
+the coarse level, e.g. under a grove's canopy, that the fine grid joins through gaps one voxel wide), an end outside
+the largest coarse component escapes into it by a fine Dijkstra to the nearest fine voxel of one of its blocks
+(cached per end: the candidates of a request share their go-to's). If anything still fails (no free block nearby, no
+escape) the exact fine Dijkstra answers, so a path is found whenever the fine grid connects start and goal (same
+guarantee as astar()).
 
 Coordinates: paths are float64 [K, 3] in FINE voxel index units, fine voxel (i, j, k) has centre
 (i, j, k) and block (I, J, K) has centre (2I + 0.5, 2J + 0.5, 2K + 0.5); world = lo + (p + 0.5) * voxel.
@@ -37,6 +40,10 @@ from .astar import AStarGrid, SearchBudgetExhausted, astar
 from .landmarks import landmark_tables
 
 FINE_BUDGET = 800  # fine A* expansions before the coarse route (see voxel_path)
+COARSE_DETOUR = 1.5
+"""voxel_path: a coarse route longer than this x the straight distance is checked against the fine search's path (the
+shorter one is kept): blocks keep paths in wide free space, but where the fine grid passes between thin obstacles
+(the grove's trunks) they can go round the whole group, twice the way (docs/PLANNER_DEFAULTS.md)."""
 
 
 def _mcp_path(costs: np.ndarray, start, ends: np.ndarray, grid: Optional[AStarGrid] = None) -> Optional[np.ndarray]:
@@ -98,32 +105,96 @@ class CoarseGrid:
         self.labels = self.block_grid.labels  # 26-connected components of free blocks
         # landmark bounds for the block A* (landmarks.py: same minimum cost, far fewer expansions round walls)
         self.block_grid.landmarks = landmark_tables(self.block_grid)
+        sizes = np.bincount(self.labels.ravel())
+        self._largest = int(np.argmax(sizes[1:])) + 1 if len(sizes) > 1 else 0  # the main coarse component (0: none)
+        self._label_masks: dict = {}  # coarse component -> uint8 mask of its fine voxels (padded fine layout)
+        self._escapes: dict = {}  # (fine voxel, component) -> _escape's path: candidates share their go-to's
 
-    def _to_free_block(self, v: np.ndarray, window: int) -> Optional[np.ndarray]:
+    def _to_free_block(self, v: np.ndarray, window: int, label: Optional[int] = None) -> Optional[np.ndarray]:
         """Fine path int64 [K, 3] from free fine voxel v to the nearest fine voxel (within ``window``
-        voxels) whose block is free; [v] when v's own block is free; None when there is none."""
-        if not self.occupied[tuple(v // 2)]:
+        voxels) whose block is free (and, with ``label``, in that coarse component); [v] when v's own block
+        qualifies; None when there is none."""
+        own = tuple(v // 2)
+        if not self.occupied[own] and (label is None or self.labels[own] == label):
             return v[None].copy()
         shape = np.asarray(self.fine_costs.shape)
         a = np.maximum(v - window, 0)
         e = np.minimum(v + window + 1, shape)
         sub = self.fine_costs[a[0]:e[0], a[1]:e[1], a[2]:e[2]]
         ijk = np.argwhere(np.isfinite(sub))  # window-local free voxels
-        ends = ijk[~self.occupied[tuple(((ijk + a) // 2).T)]]
-        p = _mcp_path(sub, v - a, ends)
+        blocks = tuple(((ijk + a) // 2).T)
+        ok = ~self.occupied[blocks] if label is None else self.labels[blocks] == label  # labels: 0 = occupied
+        p = _mcp_path(sub, v - a, ijk[ok])
         return None if p is None else p + a
 
-    def path(self, s, g, window: int = 6) -> Optional[np.ndarray]:
-        """Path float64 [K, 3] (fine index units) from fine voxel s to fine voxel g through free
-        blocks, or None when the coarse route does not exist (caller falls back to the fine grid)."""
-        s, g = np.asarray(s, dtype=np.int64), np.asarray(g, dtype=np.int64)
-        head = self._to_free_block(s, window)
-        tail = self._to_free_block(g, window)
+    def _ends(self, s: np.ndarray, g: np.ndarray, window: int, escape: bool = True):
+        """(head, tail): fine paths from s and from g to free blocks of ONE coarse component, or None. The nearest
+        free block of an end may lie in a small pocket of the coarse grid (a few blocks walled in by occupied ones,
+        e.g. under a canopy) while the fine grid joins it to the other end's component: within the window each end
+        is tried in the other end's component, then (``escape``) each end outside the largest one escapes into it
+        (_escaped_ends)."""
+        head, tail = self._to_free_block(s, window), self._to_free_block(g, window)
         if head is None or tail is None:
             return None
-        bs, bg = head[-1] // 2, tail[-1] // 2
-        if self.labels[tuple(bs)] != self.labels[tuple(bg)]:
+        ls, lg = (int(self.labels[tuple(p[-1] // 2)]) for p in (head, tail))
+        if ls == lg:
+            return head, tail
+        tail2 = self._to_free_block(g, window, label=ls)
+        if tail2 is not None:
+            return head, tail2
+        head2 = self._to_free_block(s, window, label=lg)
+        if head2 is not None:
+            return head2, tail
+        return self._escaped_ends(head, tail, ls, lg) if escape else None
+
+    def _escaped_ends(self, head: np.ndarray, tail: np.ndarray, ls: int, lg: int):
+        """_ends when no window joins the ends' coarse components ``ls`` (of head's block) and ``lg`` (of tail's):
+        each end outside the largest coarse component escapes into it (_escape); None when one cannot (without the
+        compiled search, or when the fine grid does not join them)."""
+        big = self._largest
+        if big <= 0:  # no free block at all
             return None
+        if ls != big:
+            head = self._escape(head[0], big)
+        if lg != big and head is not None:
+            tail = self._escape(tail[0], big)
+        return None if head is None or tail is None else (head, tail)
+
+    def _escape(self, v: np.ndarray, label: int) -> Optional[np.ndarray]:
+        """Shortest fine path int64 [K, 3] from free fine voxel v to the nearest fine voxel whose block is free and in
+        coarse component ``label`` (compiled Dijkstra over the whole fine grid), or None."""
+        if native_search26() is None or label <= 0:
+            return None
+        key = (*(int(x) for x in v), int(label))
+        cache = self._escapes
+        if key in cache:
+            return cache[key]
+        masks = self._label_masks
+        if label not in masks:
+            if len(masks) >= 4:
+                masks.clear()
+            X, Y, Z = self.fine.shape
+            fine = (self.labels == label).repeat(2, 0).repeat(2, 1).repeat(2, 2)[:X, :Y, :Z]
+            m = np.zeros(self.fine.padded_shape, dtype=np.uint8)
+            m[1:-1, 1:-1, 1:-1] = fine
+            masks[label] = m.reshape(-1)
+        g = self.fine
+        k, out = g.native_search(g.flat(key[:3]), 0, masks[label])
+        if len(cache) >= 64:
+            cache.clear()
+        cache[key] = g.unflat_many(out[:k]) if k > 0 else None
+        return cache[key]
+
+    def path(self, s, g, window: int = 6, escape: bool = True) -> Optional[np.ndarray]:
+        """Path float64 [K, 3] (fine index units) from fine voxel s to fine voxel g through free
+        blocks, or None when the coarse route does not exist (caller falls back to the fine grid). ``escape``: ends in
+        coarse pockets may escape to the largest coarse component (_ends); False: such a route does not exist."""
+        s, g = np.asarray(s, dtype=np.int64), np.asarray(g, dtype=np.int64)
+        ends = self._ends(s, g, window, escape)
+        if ends is None:
+            return None
+        head, tail = ends
+        bs, bg = head[-1] // 2, tail[-1] // 2
         blocks = _mcp_path(self.costs, bs, bg[None], grid=self.block_grid)
         if blocks is None:
             return None
@@ -133,10 +204,15 @@ class CoarseGrid:
 
 def voxel_path(
     fine: AStarGrid, coarse: Optional[CoarseGrid], s, g, *, astar_budget: int = FINE_BUDGET, window: int = 6,
-    astar_weight: float = 1.0,
+    astar_weight: float = 1.0, detour_budget: Optional[int] = None,
 ) -> np.ndarray:
     """Collision-free path float64 [K, 3] (fine voxel index units, s first, g last) between free fine
-    voxels s and g: A* with ``astar_budget`` expansions, else the coarse route, else the fine Dijkstra.
+    voxels s and g: A* with ``astar_budget`` expansions, else the coarse route, else the fine search (also when the
+    coarse route is over COARSE_DETOUR x the straight distance: the shorter of the two). ``detour_budget`` (ranked
+    candidates, whose searches must stay cheap and share a go-to): the coarse route's ends may escape coarse pockets
+    (CoarseGrid.path), and that check's fine A* gives up after this many expansions, keeping the coarse route; None
+    (one shot: the shortest voxel path it can get): no escapes, no limit (an escape is paid by each request's own
+    go-to, and its route is then mostly a detour the whole fine search replaces anyway).
     astar_weight: heuristic weight of the A* (1: minimum-cost path; w > 1: cost at most w x minimum, far fewer
     expansions; see PlannerConfig.astar_weight).
     astar_budget: fine A* expansions before the coarse route, the same with the compiled and the Python A* (the
@@ -148,14 +224,25 @@ def voxel_path(
         return astar(fine, s, g, max_expansions=astar_budget, heuristic_weight=astar_weight).astype(np.float64)
     except SearchBudgetExhausted:
         pass
-    if coarse is not None:
-        p = coarse.path(s, g, window)
-        if p is not None:
-            return p
+    route = coarse.path(s, g, window, escape=detour_budget is not None) if coarse is not None else None
+    if route is not None and _length(route) <= COARSE_DETOUR * float(np.linalg.norm(np.subtract(g, s))):
+        return route
+    if route is not None and detour_budget is not None:
+        try:
+            p = astar(fine, s, g, max_expansions=detour_budget).astype(np.float64)
+        except SearchBudgetExhausted:
+            return route
+        return route if _length(route) <= _length(p) else p
     costs = coarse.fine_costs if coarse is not None else np.where(fine._occ, np.inf, 1.0)
     # the prepared fine grid (the same occupancy as costs): no padded copy and no new search workspace per call
     # (10.6 -> 7.3 ms a call on the 1M grove, whose canopy splits the coarse grid into two components)
     p = _mcp_path(costs, np.asarray(s), np.asarray(g, dtype=np.int64)[None], grid=fine)
     if p is None:  # cannot happen: astar() checked that s and g share a free component
         raise GoalUnreachableError(f"no collision-free voxel path from {tuple(s)} to {tuple(g)}")
-    return p.astype(np.float64)
+    p = p.astype(np.float64)
+    return route if route is not None and _length(route) <= _length(p) else p
+
+
+def _length(path: np.ndarray) -> float:
+    """Length of a polyline [K, 3] (fine voxel units)."""
+    return float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())

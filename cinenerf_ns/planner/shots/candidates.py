@@ -118,7 +118,8 @@ def _candidate_way(planner: Planner, start: np.ndarray, goal_p: np.ndarray, goal
     Raises GoalUnreachableError / StartInCollisionError. The leg's stages (stages.leg_goal, leg_way)."""
     goal, s_ijk = stages.leg_goal(planner.space, start, goal_p, goal_cache)
     t = lap("goal_ms", t)
-    return goal, stages.leg_way(planner.space, start, s_ijk, goal), lap("astar_ms", t)
+    way = stages.leg_way(planner.space, start, s_ijk, goal, stages.CANDIDATE_DETOUR_EXPANSIONS)
+    return goal, way, lap("astar_ms", t)
 
 
 def _candidate_trajectory(planner: Planner, way: np.ndarray, start: np.ndarray, g: np.ndarray, lap, t: float,

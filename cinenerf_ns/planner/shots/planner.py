@@ -73,8 +73,9 @@ class Planner:
         if self.config.bounds is not None and self.config.start_region is not None:  # random starts inside the box
             inside = planning_region.starts_within(self.config.start_region, lo.cpu().numpy(), hi.cpu().numpy())
             self.config = replace(self.config, start_region=inside)
-        self.scene, self.prepared = prepare_scene(self.batch_scene, self.config.grid_resolution, lo, hi,
-                                                  mirror=self._mirror_to_cpu())
+        res = planning_region.grid_resolution_for(self.config, float(self.scene.camera_radius), lo.cpu().numpy(),
+                                                  hi.cpu().numpy())
+        self.scene, self.prepared = prepare_scene(self.batch_scene, res, lo, hi, mirror=self._mirror_to_cpu())
         self._space = PlanningSpace(self.scene, self.batch_scene, self.config, self.prepared)
         if self.config.plan_cpu_threads is not None:
             t = time.perf_counter()

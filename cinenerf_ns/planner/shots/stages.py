@@ -60,12 +60,20 @@ def leg_goal(space: "PlanningSpace", start: np.ndarray, target: np.ndarray,
 
 
 # ---------------------------------------------------------------- voxel path
-def voxel_centres(space: "PlanningSpace", a_ijk: np.ndarray, b_ijk: np.ndarray) -> np.ndarray:
+CANDIDATE_DETOUR_EXPANSIONS = 20_000
+"""Ranked candidates check a coarse detour against at most this many fine A* expansions (voxel_path's detour_budget),
+one shot against the whole fine search: 32 candidates to one go-to in a pocket under the 1M grove's canopy paid
+5-60 ms each for the whole search (docs/PLANNER_DEFAULTS.md)."""
+
+
+def voxel_centres(space: "PlanningSpace", a_ijk: np.ndarray, b_ijk: np.ndarray,
+                  detour_budget: Optional[int] = None) -> np.ndarray:
     """The world centres [K, 3] of the voxel path from voxel ``a_ijk`` to ``b_ijk`` (A* with the configured weight,
     hard cases on the coarse grid: coarse_path.voxel_path), with its corner-cutting steps detoured through free voxels
-    where they can be (config.corner_detours, with grid polytopes: corner_steps.py)."""
+    where they can be (config.corner_detours, with grid polytopes: corner_steps.py). ``detour_budget``: voxel_path's."""
     prep = space.prepared
-    path = voxel_path(prep.astar_grid, prep.coarse, a_ijk, b_ijk, astar_weight=space.config.astar_weight)  # [K, 3]
+    path = voxel_path(prep.astar_grid, prep.coarse, a_ijk, b_ijk, astar_weight=space.config.astar_weight,
+                      detour_budget=detour_budget)  # [K, 3]
     if prep.voxels is not None and prep.grid.device.type == "cpu":
         # OccupancyGrid.voxel_to_world's arithmetic in numpy (the same float64 operations, so the same centres)
         centres = prep.voxels.lo + (np.asarray(path).astype(np.float64) + 0.5) * prep.voxels.voxel_size
@@ -76,10 +84,12 @@ def voxel_centres(space: "PlanningSpace", a_ijk: np.ndarray, b_ijk: np.ndarray) 
     return centres
 
 
-def leg_way(space: "PlanningSpace", start: np.ndarray, s_ijk: np.ndarray, goal: ReachableGoal) -> np.ndarray:
+def leg_way(space: "PlanningSpace", start: np.ndarray, s_ijk: np.ndarray, goal: ReachableGoal,
+            detour_budget: Optional[int] = None) -> np.ndarray:
     """The polyline [K, 3] the shortcut prunes: the start, the voxel path's centres, and the goal point unless the
-    goal's polytope holds the last segment (ReachableGoal.way_to_shortcut)."""
-    return goal.way_to_shortcut(start, voxel_centres(space, s_ijk, goal.voxel))
+    goal's polytope holds the last segment (ReachableGoal.way_to_shortcut). ``detour_budget``: voxel_path's (None
+    for one shot: a coarse detour is always checked against the whole fine search)."""
+    return goal.way_to_shortcut(start, voxel_centres(space, s_ijk, goal.voxel, detour_budget))
 
 
 def stop_way(space: "PlanningSpace", start: np.ndarray, s_ijk: np.ndarray, stop: ReachableGoal) -> np.ndarray:

@@ -6,10 +6,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings, strategies as st
 
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
-from cinenerf_ns.planner.scene.planning_region import check_start_region, dense_content_box, user_box
+from cinenerf_ns.planner.scene.planning_region import (
+    AUTO_RESOLUTION_MAX,
+    GRID_BYTES_PER_VOXEL,
+    check_start_region,
+    dense_content_box,
+    grid_resolution_for,
+    user_box,
+)
 from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
 from cinenerf_ns.synthetic.grove import grove_scene
 
@@ -174,3 +182,43 @@ def test_random_starts_stay_in_a_user_box_that_leaves_the_cameras_out():
     assert planner.config.start_region is None and shots
     for s in shots:
         assert np.all(s.positions >= rlo - 1e-9) and np.all(s.positions <= rhi + 1e-9)
+
+
+@settings(max_examples=200, deadline=None)
+@given(side=st.tuples(*[st.floats(0.05, 40.0)] * 3), r=st.floats(1e-3, 0.5), res=st.integers(8, 300),
+       radii=st.one_of(st.none(), st.floats(0.2, 8.0)), budget=st.floats(64, 8192))
+def test_grid_resolution_for_raises_only_as_far_as_asked_and_allowed(side, r, res, radii, budget):
+    cfg = PlannerConfig(grid_resolution=res, max_voxel_radii=radii, memory_budget_mb=budget)
+    lo = np.zeros(3)
+    hi = np.asarray(side, dtype=np.float64)
+    got = grid_resolution_for(cfg, r, lo, hi)
+    longest = float(hi.max())
+    assert isinstance(got, int) and got >= res
+    if radii is None:
+        assert got == res
+        return
+    assert got <= max(res, AUTO_RESOLUTION_MAX)
+    if got > res:  # a raise: never finer than asked, within the memory budget
+        assert longest / got >= radii * r * (1 - 1e-12) or longest / (got - 1) > radii * r
+        voxels = float(np.prod(np.ceil(hi / (longest / got))))
+        assert voxels * GRID_BYTES_PER_VOXEL / 2**20 <= budget * (1 + 1e-9)
+    elif longest / res > radii * r:  # not raised although coarse: capped or out of budget
+        want = int(np.ceil(longest / (radii * r)))
+        capped = min(want, AUTO_RESOLUTION_MAX) <= res
+        over = float(np.prod(np.ceil(hi / (longest / min(want, AUTO_RESOLUTION_MAX))))) * GRID_BYTES_PER_VOXEL / 2**20
+        assert capped or over > budget
+
+
+def test_the_grove_region_is_planned_at_voxels_under_two_camera_radii(grove):
+    pl = Planner(grove[1], PlannerConfig())
+    lo, hi = (v.cpu().numpy() for v in pl.planning_bounds())
+    r = float(pl.scene.camera_radius)
+    res = grid_resolution_for(pl.config, r, lo, hi)
+    assert res > 96 and float((hi - lo).max()) / res <= 1.9 * r
+    assert grid_resolution_for(PlannerConfig(max_voxel_radii=None), r, lo, hi) == 96
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf"), True, "2"])
+def test_max_voxel_radii_is_validated(bad):
+    with pytest.raises(InvalidInputError, match="max_voxel_radii"):
+        PlannerConfig(max_voxel_radii=bad).validate()

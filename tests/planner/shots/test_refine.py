@@ -22,7 +22,8 @@ def dense_grove():
     failure of issue 37 at 40k Gaussians: heavier background and floaters than the family's default)."""
     g = grove_scene(40_000, seed=0, background_fraction=0.12, floater_fraction=0.2)
     scene = EllipsoidScene.from_params(g.splat, config=SceneConfig.with_margin())
-    robust = Planner(scene, PlannerConfig(grid_resolution=96, region_rule="robust", refine_disconnected=False))
+    robust = Planner(scene, PlannerConfig(grid_resolution=96, region_rule="robust", refine_disconnected=False,
+                                          max_voxel_radii=None))
     robust.prepare()
     pairs, _ = grove_pairs(g, scene, robust.ready().index, 1, seed=0, spacing=0.05)
     return g, scene, robust, pairs[0]
