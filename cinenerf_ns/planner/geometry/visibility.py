@@ -75,6 +75,9 @@ class SplatVolume:
     half: np.ndarray  # [N, 3] float64: half widths of each Gaussian's cut-off box
     sigma_max: np.ndarray  # [N] float64: each Gaussian's largest sigma
     cover: np.ndarray  # [N] float64: opacity x the area of its two largest axes (what it covers on screen)
+    memo: dict = field(default_factory=dict, repr=False, compare=False)
+    """What callers derive from this volume and keep for later requests (shots/target_object.py: objects' set-up);
+    a re-prepared planner builds a new volume, so nothing in it outlives the volume it was derived from."""
 
     def __len__(self) -> int:
         return int(self.means.shape[0])

@@ -30,7 +30,7 @@ import numpy as np
 from ..errors import InvalidInputError
 from ..geometry.visibility import SplatVolume, SubjectSamples, subject_visibility
 from .framing import FramingConfig, project, size_cost, subject_size
-from .target_object import TargetObject
+from .target_object import TargetObject, subject_samples
 
 if TYPE_CHECKING:
     from .planner import Planner
@@ -300,7 +300,7 @@ def choose_end_poses(planner: "Planner", subject: TargetObject, goto: Optional[T
     vol = visibility_volume(planner)
     if samples is None:
         samples = (SubjectSamples.of_point(c) if subject.is_point
-                   else SubjectSamples.of_members(vol, subject.members, cfg.samples))
+                   else subject_samples(vol, subject.members, cfg.samples))
     vis = subject_visibility(vol, pts[top], samples)
     gfill = (frame_coverage(pts[top], c, up, goto, framing) if goto is not None and not goto.is_point
              else np.zeros(len(top)))

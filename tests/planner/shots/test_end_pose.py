@@ -182,9 +182,9 @@ def test_scene_members_through_source_index_and_its_host_copy():
     assert scene.source_index is not None and scene.source_index.tolist() == [0, 2, 3, 5]
     mask = np.array([1, 1, 0, 1, 0, 0], bool)  # splat Gaussians 0, 1 (dropped), 3
     np.testing.assert_array_equal(scene_members(scene, mask), [0, 2])
-    first = T._SOURCES[id(scene.source_index)][1]
+    first = T._SOURCES[id(scene.source_index)][1][0]
     np.testing.assert_array_equal(scene_members(scene, mask), [0, 2])
-    assert T._SOURCES[id(scene.source_index)][1] is first  # not copied again
+    assert T._SOURCES[id(scene.source_index)][1][0] is first  # not copied again
     scene.source_index = torch.tensor([1, 2, 3, 4])
     np.testing.assert_array_equal(scene_members(scene, mask), [0, 2])  # the new tensor's own copy: splat 1 and 3
     with pytest.raises(InvalidInputError, match="the scene's Gaussians come from more"):
