@@ -163,9 +163,10 @@ def _to_up(dirs: np.ndarray, up: np.ndarray) -> np.ndarray:
     return dirs @ rot.T
 
 
-def _directions(subject: TargetObject, goto: Optional[TargetObject], up: np.ndarray, cfg: EndPoseConfig) -> np.ndarray:
-    """Unit directions [D, 3] from the subject within the elevation limits: the sphere's, plus toward the go-to."""
-    d = _to_up(fibonacci_directions(cfg.directions), up)
+def _directions(subject: TargetObject, goto: Optional[TargetObject], up: np.ndarray,
+                cfg: EndPoseConfig) -> tuple:
+    """(toward the go-to [D', 3], the sphere's [D, 3]): unit directions from the subject within the elevation limits
+    (the viewpoints' directions are the first, then the second)."""
     extra = []
     if goto is not None:
         g = goto.centre - subject.centre
@@ -177,10 +178,53 @@ def _directions(subject: TargetObject, goto: Optional[TargetObject], up: np.ndar
                 for el in (cfg.eye_elevation_deg, cfg.eye_elevation_deg + 20):
                     a, e = math.radians(az), math.radians(el)
                     extra.append(math.cos(e) * (math.cos(a) * g + math.sin(a) * side) + math.sin(e) * up)
-    if extra:
-        d = np.concatenate([np.array(extra), d])
+    return _in_elevation(np.array(extra).reshape(-1, 3), up, cfg), _in_elevation(
+        _to_up(fibonacci_directions(cfg.directions), up), up, cfg)
+
+
+def _in_elevation(d: np.ndarray, up: np.ndarray, cfg: EndPoseConfig) -> np.ndarray:
     el = np.degrees(np.arcsin(np.clip(d @ up, -1, 1)))
     return d[(el >= cfg.min_elevation_deg) & (el <= cfg.max_elevation_deg)]
+
+
+def _fills(framing: FramingConfig) -> tuple:
+    """The sizes viewpoints are placed for: the aimed-for size, sizes in the band, and beyond it (rooms too small for
+    a wide view of a large subject still get the closest size they allow)."""
+    lo_b, aim, hi_b = framing.band
+    return (aim, 0.5 * (lo_b + aim), 0.5 * (aim + hi_b), lo_b, hi_b, min(0.95, 1.15 * hi_b))
+
+
+def _ring(subject: TargetObject, dirs: np.ndarray, up: np.ndarray, framing: FramingConfig) -> tuple:
+    """(d [D], pts [F, D, 3], size [F, D], whole [F, D]) of the viewpoints along directions dirs [D, 3] from the
+    subject: d the distance for the aimed-for size (size ~ 1 / distance, two corrections from a first guess), pts at
+    the distances of each of _fills, and the subject's size and wholeness from each."""
+    c = subject.centre
+    aim = framing.band[1]
+    th, tv = framing.tan_half()
+    d = np.full(len(dirs), subject.radius() / (aim * min(th, tv)))
+    for _ in range(2):
+        s, _ = subject_size(c[None] + d[:, None] * dirs, c, up, subject.outline_points(), subject.pad, framing)
+        d = d * np.clip(s / aim, 0.25, 4.0)
+    pts = np.stack([c[None] + (d * aim / f)[:, None] * dirs for f in _fills(framing)])  # [F, D, 3]
+    size, whole = subject_size(pts.reshape(-1, 3), c, up, subject.outline_points(), subject.pad, framing)
+    return d, pts, size.reshape(pts.shape[:2]), whole.reshape(pts.shape[:2])
+
+
+def _sphere_ring(subject: TargetObject, dirs: np.ndarray, up: np.ndarray, framing: FramingConfig,
+                 cfg: EndPoseConfig) -> tuple:
+    """_ring of the sphere's directions, kept with the subject's set-up (subject.memo) for the next request that
+    frames the same object from the same look-at point the same way (arrays read-only)."""
+    if subject.memo is None:
+        return _ring(subject, dirs, up, framing)
+    key = ("ring", framing.framing, float(framing.fov_deg), float(framing.aspect), up.tobytes(),
+           subject.centre.tobytes(), cfg.directions, float(cfg.min_elevation_deg), float(cfg.max_elevation_deg))
+    got = subject.memo.get(key)
+    if got is None:
+        got = _ring(subject, dirs, up, framing)
+        for a in got:
+            a.setflags(write=False)
+        subject.memo[key] = got
+    return got
 
 
 def _box_distance(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -243,6 +287,53 @@ def _to_evaluate(cost: np.ndarray, dirs: np.ndarray, n_eval: int, cos_sep: float
     return np.array(sorted(picked, key=lambda i: (cost[i], i)), dtype=np.int64)
 
 
+def _greedy(order: np.ndarray, vis: np.ndarray, dirs: np.ndarray, k: int, cos_sep: float) -> List[int]:
+    """Up to k positions of ``order`` (best first): the best, then the next best far enough (directions dirs, cosines
+    below cos_sep) from those chosen that still show the subject (at least half of it, and not much less than the
+    best pose does)."""
+    chosen: List[int] = []
+    if len(order) == 0:
+        return chosen
+    floor = min(float(vis[order[0]]), max(0.5, float(vis[order[0]]) - 0.25))
+    for i in order:
+        if len(chosen) >= k:
+            break
+        if (not chosen or vis[i] >= floor) and all(float(dirs[i] @ dirs[j]) < cos_sep for j in chosen):
+            chosen.append(int(i))
+    return chosen
+
+
+def _choose_lazily(cost: np.ndarray, terms, top: np.ndarray, dir_all: np.ndarray, k: int, cfg: EndPoseConfig,
+                   cos_sep: float) -> tuple:
+    """(chosen, total, vis, gfill): the k end poses among viewpoints top [E] (by cost [E], ascending) as if every one
+    had its total cost = cost + w_visibility (1 - visibility) + w_goto_fill (coverage above GOTO_FILL_FREE) computed,
+    with ``terms(rows) -> (visibility, coverage)`` called on as few as decide it: a viewpoint not yet evaluated costs at
+    least its cost, so the evaluated ones whose total is at most the next one's cost come first, in their order (ties
+    keep the order of top), whatever the rest give. total, vis, gfill [E]: NaN where not evaluated."""
+    n = len(top)
+    total, vis, gfill = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
+    dirs = dir_all[top]
+    e, step = 0, max(2, k)
+    while True:
+        nxt = min(n, e + step)
+        vis[e:nxt], gfill[e:nxt] = terms(top[e:nxt])
+        total[e:nxt] = (cost[e:nxt] + cfg.w_visibility * (1 - vis[e:nxt])
+                        + cfg.w_goto_fill * np.maximum(0.0, gfill[e:nxt] - GOTO_FILL_FREE))
+        e, step = nxt, 2 * step
+        order = np.argsort(total[:e], kind="stable")
+        bound = cost[e] if e < n else math.inf
+        settled = order[total[:e][order] <= bound]  # a prefix of the full order
+        chosen = _greedy(settled, vis, dirs, k, cos_sep)
+        if len(chosen) >= k or e == n:
+            break
+    for i in order:  # too few distinct ones (everything evaluated): the next best in order
+        if len(chosen) >= k:
+            break
+        if int(i) not in chosen:
+            chosen.append(int(i))
+    return chosen, total, vis, gfill
+
+
 def choose_end_poses(planner: "Planner", subject: TargetObject, goto: Optional[TargetObject], framing: FramingConfig,
                      component: int, k: int = 1, config: Optional[EndPoseConfig] = None,
                      facing: Optional[np.ndarray] = None,
@@ -258,29 +349,24 @@ def choose_end_poses(planner: "Planner", subject: TargetObject, goto: Optional[T
     planner.ready()  # prepared before anything is sampled (raises a clear error otherwise)
     up = np.asarray(planner.config.up, np.float64)
     up = up / np.linalg.norm(up)
-    lo_b, aim, hi_b = framing.band
-    dirs = _directions(subject, goto, up, cfg)  # [D, 3]
+    extra, sphere = _directions(subject, goto, up, cfg)  # [D', 3], [D, 3]
     c = subject.centre
-    # distance for the aimed-for size along each direction: size ~ 1 / distance, two corrections from a first guess
-    th, tv = framing.tan_half()
-    d = np.full(len(dirs), subject.radius() / (aim * min(th, tv)))
-    for _ in range(2):
-        s, _ = subject_size(c[None] + d[:, None] * dirs, c, up, subject.outline_points(), subject.pad, framing)
-        d = d * np.clip(s / aim, 0.25, 4.0)
-    # the aimed-for size, sizes in the band, and beyond it (rooms too small for a wide view of a large subject still
-    # get the closest size they allow)
-    fills = (aim, 0.5 * (lo_b + aim), 0.5 * (aim + hi_b), lo_b, hi_b, min(0.95, 1.15 * hi_b))
-    pts = np.concatenate([c[None] + (d * aim / f)[:, None] * dirs for f in fills])  # [len(fills) * D, 3]
-    dir_all = np.concatenate([dirs] * len(fills))
+    # the viewpoints: for each of the framing's sizes, toward the go-to, then around the sphere
+    rings = [_ring(subject, extra, up, framing)] if len(extra) else []
+    rings.append(_sphere_ring(subject, sphere, up, framing, cfg))
+    d = np.concatenate([r[0] for r in rings])
+    pts = np.concatenate([r[1] for r in rings], axis=1).reshape(-1, 3)  # [len(fills) * D, 3]
+    size = np.concatenate([r[2] for r in rings], axis=1).reshape(-1)
+    whole = np.concatenate([r[3] for r in rings], axis=1).reshape(-1)
+    dir_all = np.concatenate([np.concatenate([extra, sphere])] * len(_fills(framing)))
     considered = len(pts)
     notes: List[str] = []
     keep = _feasible(planner, pts, (subject, goto), component)
-    pts, dir_all = pts[keep], dir_all[keep]
+    pts, dir_all, size, whole = pts[keep], dir_all[keep], size[keep], whole[keep]
     if len(pts) == 0:
         notes.append("every sampled viewpoint is occupied, unreachable from the start, inside the go-to or subject, "
                      "or outside the planning region")
         return EndPoseChoice([], considered, 0, framing.framing, 1e3 * (time.perf_counter() - t0), notes)
-    size, whole = subject_size(pts, c, up, subject.outline_points(), subject.pad, framing)
     elev = np.degrees(np.arcsin(np.clip(dir_all @ up, -1, 1)))
     cost = (cfg.w_size * size_cost(size, framing) + cfg.w_whole * (~whole)
             + cfg.w_elevation * ((elev - cfg.eye_elevation_deg) / 45.0) ** 2)
@@ -301,25 +387,13 @@ def choose_end_poses(planner: "Planner", subject: TargetObject, goto: Optional[T
     if samples is None:
         samples = (SubjectSamples.of_point(c) if subject.is_point
                    else subject_samples(vol, subject.members, cfg.samples))
-    vis = subject_visibility(vol, pts[top], samples)
-    gfill = (frame_coverage(pts[top], c, up, goto, framing) if goto is not None and not goto.is_point
-             else np.zeros(len(top)))
-    total = cost[top] + cfg.w_visibility * (1 - vis) + cfg.w_goto_fill * np.maximum(0.0, gfill - GOTO_FILL_FREE)
-    order = np.argsort(total, kind="stable")
-    chosen: List[int] = []
-    # alternatives must still show the subject: at least half of it, and not much less than the best pose does
-    floor = min(float(vis[order[0]]), max(0.5, float(vis[order[0]]) - 0.25))
-    for i in order:  # the best, then the next best far enough (as seen from the subject) from those chosen
-        if len(chosen) >= k:
-            break
-        if (not chosen or vis[i] >= floor) and all(float(dir_all[top[i]] @ dir_all[top[j]]) < cos_sep
-                                                   for j in chosen):
-            chosen.append(int(i))
-    for i in order:  # too few distinct ones: the next best in order
-        if len(chosen) >= k:
-            break
-        if int(i) not in chosen:
-            chosen.append(int(i))
+
+    def terms(rows: np.ndarray) -> tuple:  # (visibility, go-to coverage) of viewpoints pts[rows]
+        gf = (frame_coverage(pts[rows], c, up, goto, framing) if goto is not None and not goto.is_point
+              else np.zeros(len(rows)))
+        return subject_visibility(vol, pts[rows], samples), gf
+
+    chosen, total, vis, gfill = _choose_lazily(cost[top], terms, top, dir_all, k, cfg, cos_sep)
     poses = [EndPose(point=pts[top[i]].copy(), cost=float(total[i]), visibility=float(vis[i]), size=float(size[top[i]]),
                      whole=bool(whole[top[i]]), goto_distance=float(gdist[top[i]]), goto_fill=float(gfill[i]),
                      elevation_deg=float(elev[top[i]])) for i in chosen]

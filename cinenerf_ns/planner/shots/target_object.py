@@ -31,6 +31,7 @@ class TargetObject:
     pad: float
     spacing: float
     outline: Optional[np.ndarray] = None  # [H, 3] the extent's convex hull vertices (None: the extent itself)
+    memo: Optional[dict] = field(default=None, repr=False, compare=False)  # its ObjectParts.derived (None: not kept)
 
     def outline_points(self) -> np.ndarray:
         """The points whose projection bounds the object's: the convex hull's vertices (a perspective projection maps
@@ -70,7 +71,7 @@ class TargetObject:
         else:
             c = parts.mean_centre(vol)
         return cls(name=name, centre=c, members=parts.members, extent=parts.extent, pad=parts.pad,
-                   spacing=parts.spacing, outline=parts.outline)
+                   spacing=parts.spacing, outline=parts.outline, memo=parts.derived)
 
 
 OBJECT_MEMO = 8
