@@ -334,6 +334,7 @@ class SubjectSamples:
     members: np.ndarray  # [K] int64: the subject's own Gaussians (class 1); empty for a point
     box: Optional[tuple] = None  # (lo [3], hi [3]) of the members' cut-off boxes (subject_box); None for a point
     _packed: Optional[tuple] = field(default=None, repr=False, compare=False)  # (vol, packed_classes(vol))
+    _seen: Optional[tuple] = field(default=None, repr=False, compare=False)  # (vol, {camera bytes: visible fraction})
 
     @classmethod
     def of_point(cls, point) -> "SubjectSamples":
@@ -371,6 +372,7 @@ class SubjectSamples:
     def __getstate__(self) -> dict:
         state = dict(self.__dict__)
         state["_packed"] = None  # O(N) bytes, rebuilt in O(K) where needed: never pickled
+        state["_seen"] = None
         return state
 
     def packed_classes(self, vol: SplatVolume) -> np.ndarray:
@@ -407,10 +409,31 @@ def box_exit(p0: np.ndarray, p1: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> 
     return np.where(hit, np.clip(t_far, 0.0, 1.0), 0.0)
 
 
+SEEN_MAX = 4096
+"""subject_visibility keeps at most this many cameras' visible fractions per subject (then starts afresh)."""
+
+
 def subject_visibility(vol: SplatVolume, cameras, subject: SubjectSamples, backend: str = "auto") -> np.ndarray:
     """Visible fraction [M] in [0, 1] of the subject from each camera [M, 3] (module docstring): through the whole splat
-    relative to the subject rendered alone. A camera from which the subject alone shows nothing (inside it) gets 0."""
+    relative to the subject rendered alone. A camera from which the subject alone shows nothing (inside it) gets 0.
+    A camera's fraction depends on nothing else in the call, so those of cameras at exactly the same point as one
+    asked before (for this volume; e.g. a shot's last frame at the end pose the search scored) are taken as kept."""
     cam = np.asarray(cameras, np.float64).reshape(-1, 3)
+    if subject._seen is None or subject._seen[0] is not vol or len(subject._seen[1]) > SEEN_MAX:
+        subject._seen = (vol, {})
+    seen = subject._seen[1]
+    keys = [(backend, row.tobytes()) for row in cam]
+    out = np.array([seen.get(key, np.nan) for key in keys], np.float64)
+    todo = np.flatnonzero(np.isnan(out))
+    if todo.size:
+        out[todo] = _visibility(vol, cam[todo], subject, backend)
+        for i in todo:
+            seen[keys[i]] = float(out[i])
+    return out
+
+
+def _visibility(vol: SplatVolume, cam: np.ndarray, subject: SubjectSamples, backend: str) -> np.ndarray:
+    """subject_visibility of cameras cam [M, 3], all walked."""
     m, s = len(cam), len(subject.points)
     # from each sample toward the camera: the subject's own Gaussians come first, and a sample the subject hides
     # itself stops there (STOP_SELF) instead of walking the whole way

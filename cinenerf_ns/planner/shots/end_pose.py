@@ -28,7 +28,8 @@ from typing import TYPE_CHECKING, List, Optional
 import numpy as np
 
 from ..errors import InvalidInputError
-from ..geometry.visibility import SplatVolume, SubjectSamples, subject_visibility
+from ..geometry.visibility import MIN_SEGMENTS_PER_THREAD, SplatVolume, SubjectSamples, subject_visibility
+from ..native import kernel_threads
 from .framing import FramingConfig, project, size_cost, subject_size
 from .target_object import TargetObject, subject_samples
 
@@ -304,16 +305,17 @@ def _greedy(order: np.ndarray, vis: np.ndarray, dirs: np.ndarray, k: int, cos_se
 
 
 def _choose_lazily(cost: np.ndarray, terms, top: np.ndarray, dir_all: np.ndarray, k: int, cfg: EndPoseConfig,
-                   cos_sep: float) -> tuple:
+                   cos_sep: float, first: int = 2) -> tuple:
     """(chosen, total, vis, gfill): the k end poses among viewpoints top [E] (by cost [E], ascending) as if every one
     had its total cost = cost + w_visibility (1 - visibility) + w_goto_fill (coverage above GOTO_FILL_FREE) computed,
     with ``terms(rows) -> (visibility, coverage)`` called on as few as decide it: a viewpoint not yet evaluated costs at
     least its cost, so the evaluated ones whose total is at most the next one's cost come first, in their order (ties
-    keep the order of top), whatever the rest give. total, vis, gfill [E]: NaN where not evaluated."""
+    keep the order of top), whatever the rest give. The first batch has max(2, k, first) viewpoints, each next one
+    twice as many. total, vis, gfill [E]: NaN where not evaluated."""
     n = len(top)
     total, vis, gfill = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
     dirs = dir_all[top]
-    e, step = 0, max(2, k)
+    e, step = 0, max(2, k, int(first))
     while True:
         nxt = min(n, e + step)
         vis[e:nxt], gfill[e:nxt] = terms(top[e:nxt])
@@ -393,7 +395,9 @@ def choose_end_poses(planner: "Planner", subject: TargetObject, goto: Optional[T
               else np.zeros(len(rows)))
         return subject_visibility(vol, pts[rows], samples), gf
 
-    chosen, total, vis, gfill = _choose_lazily(cost[top], terms, top, dir_all, k, cfg, cos_sep)
+    # the first batch keeps every thread of the compiled walk busy (MIN_SEGMENTS_PER_THREAD segments each)
+    first = -(-kernel_threads() * MIN_SEGMENTS_PER_THREAD // len(samples.points))
+    chosen, total, vis, gfill = _choose_lazily(cost[top], terms, top, dir_all, k, cfg, cos_sep, first)
     poses = [EndPose(point=pts[top[i]].copy(), cost=float(total[i]), visibility=float(vis[i]), size=float(size[top[i]]),
                      whole=bool(whole[top[i]]), goto_distance=float(gdist[top[i]]), goto_fill=float(gfill[i]),
                      elevation_deg=float(elev[top[i]])) for i in chosen]

@@ -252,8 +252,9 @@ def _choose_all_reference(cost, vis, gfill, dirs, k, cfg, cos_sep):
 
 
 @settings(max_examples=80, deadline=None)
-@given(seed=st.integers(0, 10_000), n=st.integers(1, 30), k=st.integers(1, 8), ties=st.booleans())
-def test_lazy_choice_is_the_choice_with_every_viewpoint_evaluated(seed, n, k, ties):
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 30), k=st.integers(1, 8), ties=st.booleans(),
+       first=st.integers(1, 12))
+def test_lazy_choice_is_the_choice_with_every_viewpoint_evaluated(seed, n, k, ties, first):
     from cinenerf_ns.planner.shots.end_pose import _choose_lazily
 
     rng = np.random.default_rng(seed)
@@ -273,7 +274,7 @@ def test_lazy_choice_is_the_choice_with_every_viewpoint_evaluated(seed, n, k, ti
         asked.extend(pos.tolist())
         return vis[pos], gfill[pos]
 
-    chosen, total, v, g = _choose_lazily(cost, terms, top, dir_all, k, cfg, cos_sep)
+    chosen, total, v, g = _choose_lazily(cost, terms, top, dir_all, k, cfg, cos_sep, first)
     want, want_total = _choose_all_reference(cost, vis, gfill, dirs, k, cfg, cos_sep)
     assert chosen == want
     assert sorted(asked) == list(range(len(asked)))  # each evaluated once, cheapest first
