@@ -293,3 +293,30 @@ def test_kept_fractions_are_those_of_a_fresh_subject(seed, n, backend):
     vol2 = SplatVolume.build(sc, -2 * np.ones(3), 2 * np.ones(3))
     subject_visibility(vol2, cams[:1], s, backend=backend)
     assert s._seen[0] is vol2 and len(s._seen[1]) == 1
+
+
+@pytest.mark.skipif(native.optical_depth_c() is None, reason="the compiled walk did not load")
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 300), n_seg=st.integers(1, 60),
+       flat=st.sampled_from([(-3.5, -1.5), (-7.0, -1.0)]), cut=st.sampled_from([3.0, 1.5]))
+def test_the_first_sphere_test_leaves_the_sums_bit_for_bit(seed, n, n_seg, flat, cut):
+    """The compiled walk's cheap first test (volume.sphere: a segment beyond cut * sigma_max of the mean) leaves out
+    only Gaussians the whole test leaves out: the same sums, to the bit, as without it (sphere None), with the early
+    stops on and off, on round and very flat Gaussians (their sphere is far larger than their cut-off ellipsoid)."""
+    import dataclasses
+
+    rng = np.random.default_rng(seed)
+    vol = SplatVolume.build(_scene(rng, n, log_scale=flat), -np.ones(3), np.ones(3), cut_sigma=cut)
+    bare = dataclasses.replace(vol, sphere=None)
+    # segments from Gaussians' means and from points near their cut-off, to anywhere
+    near = vol.means[rng.integers(0, n, n_seg)] + rng.normal(size=(n_seg, 3)) * np.exp(flat[1])
+    p0 = np.where(rng.random((n_seg, 1)) < 0.5, np.clip(near, -1, 1), rng.uniform(-1, 1, (n_seg, 3)))
+    p1 = rng.uniform(-1, 1, (n_seg, 3))  # inside the box: the reference does not clip
+    cls = rng.random(n) < 0.3
+    skip = rng.integers(-1, n, n_seg)
+    for kw in (dict(), dict(stop1=2.0, stop0=3.0, after1=rng.random(n_seg))):
+        got = optical_depth(vol, p0, p1, cls, skip, backend="native", cut_sigma=cut, **kw)
+        np.testing.assert_array_equal(got, optical_depth(bare, p0, p1, cls, skip, backend="native", cut_sigma=cut,
+                                                         **kw))
+    np.testing.assert_allclose(optical_depth(vol, p0, p1, cls, skip, backend="native", cut_sigma=cut),
+                               optical_depth_reference(vol, p0, p1, cls, skip, cut_sigma=cut), rtol=1e-9, atol=1e-12)
