@@ -17,6 +17,11 @@ alpha-composited transmittance to samples of Y's Gaussians) and how much of the 
 The best viewpoints, at least ``min_separation_deg`` apart around Y, are the end poses (ranked candidates each get
 one). When X and Y are the same object ("a good view of X"), there is no distance term; the facing direction (the
 start region's centre as seen from Y) is preferred instead.
+
+Cost per request: the visibility (the walk through the splat) is computed for the cheapest of the evaluated
+viewpoints first, in batches, until no viewpoint left could change the choice (its total is at least its cheap
+terms): the same end poses as computing it for all. The sphere's viewpoints and the subject's size from each are kept
+with the subject's set-up (target_object.object_parts) for later requests that frame the same object.
 """
 from __future__ import annotations
 

@@ -1,6 +1,7 @@
 """A go-to or look-at target as the planner sees it: a point, or an object (its Gaussians in the obstacle scene)."""
 from __future__ import annotations
 
+import threading
 import weakref
 from collections import OrderedDict
 from dataclasses import dataclass, field
@@ -76,6 +77,7 @@ class TargetObject:
 
 OBJECT_MEMO = 8
 """Objects whose set-up (ObjectParts) a volume keeps, least recently used dropped first."""
+_MEMO_LOCK = threading.Lock()
 
 
 @dataclass
@@ -112,16 +114,18 @@ def object_parts(vol: SplatVolume, members, name: str = "object", seed: int = 0)
         raise InvalidInputError(f"the object '{name}' has no Gaussians among the obstacles")
     if m[0] < 0 or m[-1] >= len(vol):
         raise InvalidInputError(f"object member ids must be in [0, {len(vol)}), got {m[0]}..{m[-1]}")
-    memo = vol.memo.setdefault("objects", OrderedDict())
     key = (int(seed), m.size, int(m[0]), int(m[-1]), int(m[:: max(1, m.size // 64)].sum()))
-    hit = memo.get(key)
-    if hit is not None and np.array_equal(hit.members, m):
-        memo.move_to_end(key)
-        return hit
-    parts = _build_parts(vol, m, seed)
-    memo[key] = parts
-    while len(memo) > OBJECT_MEMO:
-        memo.popitem(last=False)
+    with _MEMO_LOCK:  # requests of several viewer clients may run at once
+        memo = vol.memo.setdefault("objects", OrderedDict())
+        hit = memo.get(key)
+        if hit is not None and np.array_equal(hit.members, m):
+            memo.move_to_end(key)
+            return hit
+    parts = _build_parts(vol, m, seed)  # outside the lock: the slow part
+    with _MEMO_LOCK:
+        memo[key] = parts
+        while len(memo) > OBJECT_MEMO:
+            memo.popitem(last=False)
     return parts
 
 
