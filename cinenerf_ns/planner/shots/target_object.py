@@ -5,7 +5,7 @@ import threading
 import weakref
 from collections import OrderedDict
 from dataclasses import dataclass, field
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 
@@ -32,12 +32,19 @@ class TargetObject:
     pad: float
     spacing: float
     outline: Optional[np.ndarray] = None  # [H, 3] the extent's convex hull vertices (None: the extent itself)
-    memo: Optional[dict] = field(default=None, repr=False, compare=False)  # its ObjectParts.derived (None: not kept)
+    parts: Optional["ObjectParts"] = field(default=None, repr=False, compare=False)  # kept set-up (of_members)
 
     def outline_points(self) -> np.ndarray:
         """The points whose projection bounds the object's: the convex hull's vertices (a perspective projection maps
         the hull onto the hull of the projected vertices, so their box is the extent's, when all are in front)."""
+        if self.outline is None and self.parts is not None:
+            self.outline = self.parts.hull()  # on first use: a go-to object never needs it
         return self.extent if self.outline is None else self.outline
+
+    @property
+    def memo(self) -> Optional[dict]:
+        """What later stages derive from this object and keep with its set-up (None: not kept)."""
+        return None if self.parts is None else self.parts.derived
 
     @property
     def is_point(self) -> bool:
@@ -72,7 +79,7 @@ class TargetObject:
         else:
             c = parts.mean_centre(vol)
         return cls(name=name, centre=c, members=parts.members, extent=parts.extent, pad=parts.pad,
-                   spacing=parts.spacing, outline=parts.outline, memo=parts.derived)
+                   spacing=parts.spacing, parts=parts)
 
 
 OBJECT_MEMO = 8
@@ -90,9 +97,18 @@ class ObjectParts:
     extent: np.ndarray  # [P, 3]
     pad: float
     spacing: float
-    outline: Optional[np.ndarray]
     derived: dict = field(default_factory=dict, repr=False)
+    _hull: Any = field(default=False, repr=False)  # False: not yet computed
     _mean: Optional[np.ndarray] = field(default=None, repr=False)
+
+    def hull(self) -> Optional[np.ndarray]:
+        """The extent's convex hull vertices [H, 3] (read-only), or None when too few or flat; made on first use."""
+        if self._hull is False:
+            h = _hull(self.extent)
+            if h is not None:
+                h.setflags(write=False)
+            self._hull = h
+        return self._hull
 
     def mean_centre(self, vol: SplatVolume) -> np.ndarray:
         """The members' mean [3] (a copy), one column at a time (numpy's axis-0 mean of [K, 3] is ~10x slower)."""
@@ -134,11 +150,9 @@ def _build_parts(vol: SplatVolume, m: np.ndarray, seed: int) -> ObjectParts:
     pick = None if m.size <= EXTENT_POINTS else np.sort(np.random.default_rng(seed).choice(
         m.size, EXTENT_POINTS, replace=False))
     ext = np.take(vol.means, m if pick is None else m[pick], axis=0)  # [P, 3] (np.take: faster than m-indexing)
-    hull = _hull(ext)
-    for a in (m, ext) + (() if hull is None else (hull,)):
+    for a in (m, ext):
         a.setflags(write=False)
-    return ObjectParts(members=m, extent=ext, pad=float(np.median(np.take(vol.sigma_max, m))), spacing=_spacing(ext),
-                       outline=hull)
+    return ObjectParts(members=m, extent=ext, pad=float(np.median(np.take(vol.sigma_max, m))), spacing=_spacing(ext))
 
 
 def subject_samples(vol: SplatVolume, members, n_samples: int, seed: int = 0) -> SubjectSamples:

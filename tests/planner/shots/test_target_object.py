@@ -79,8 +79,12 @@ def test_object_set_up_is_kept_and_equals_a_fresh_build():
     np.testing.assert_array_equal(b.centre, np.ones(3))
     np.testing.assert_allclose(a.centre, vol.means[members].mean(0), rtol=0, atol=1e-12)
     f = _fresh(vol, members, None)
-    for k in ("members", "extent", "outline", "centre"):
+    for k in ("members", "extent", "centre"):
         np.testing.assert_array_equal(getattr(a, k), getattr(f, k))
+    assert a.outline is None  # the hull is made on first use (a go-to object never needs it)
+    np.testing.assert_array_equal(a.outline_points(), f.outline_points())
+    np.testing.assert_array_equal(a.outline_points(), T._hull(np.array(a.extent)))
+    assert a.outline_points() is b.outline_points()  # made once for the object
     assert (a.pad, a.spacing) == (f.pad, f.spacing)
     mask = np.zeros(len(vol), bool)
     mask[members] = True
