@@ -19,9 +19,10 @@ one). When X and Y are the same object ("a good view of X"), there is no distanc
 start region's centre as seen from Y) is preferred instead.
 
 Cost per request: the visibility (the walk through the splat) is computed for the cheapest of the evaluated
-viewpoints first, in batches, until no viewpoint left could change the choice (its total is at least its cheap
-terms): the same end poses as computing it for all. The sphere's viewpoints and the subject's size from each are kept
-with the subject's set-up (target_object.object_parts) for later requests that frame the same object.
+viewpoints first (by their cost with the go-to coverage), in batches, until no viewpoint left could change the
+choice (its total is at least those terms): the same end poses as computing it for all. The sphere's viewpoints
+and the subject's size from each are kept with the subject's set-up (target_object.object_parts) for later requests
+that frame the same object.
 """
 from __future__ import annotations
 
@@ -309,27 +310,36 @@ def _greedy(order: np.ndarray, vis: np.ndarray, dirs: np.ndarray, k: int, cos_se
     return chosen
 
 
-def _choose_lazily(cost: np.ndarray, terms, top: np.ndarray, dir_all: np.ndarray, k: int, cfg: EndPoseConfig,
+def _choose_lazily(cost: np.ndarray, gfill: np.ndarray, visibility, dirs: np.ndarray, k: int, cfg: EndPoseConfig,
                    cos_sep: float, first: int = 2) -> tuple:
-    """(chosen, total, vis, gfill): the k end poses among viewpoints top [E] (by cost [E], ascending) as if every one
-    had its total cost = cost + w_visibility (1 - visibility) + w_goto_fill (coverage above GOTO_FILL_FREE) computed,
-    with ``terms(rows) -> (visibility, coverage)`` called on as few as decide it: a viewpoint not yet evaluated costs at
-    least its cost, so the evaluated ones whose total is at most the next one's cost come first, in their order (ties
-    keep the order of top), whatever the rest give. The first batch has max(2, k, first) viewpoints, each next one
-    twice as many. total, vis, gfill [E]: NaN where not evaluated."""
-    n = len(top)
-    total, vis, gfill = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
-    dirs = dir_all[top]
+    """(chosen, total, vis): the k end poses among E viewpoints (cost [E] ascending, go-to coverage gfill [E], view
+    directions dirs [E, 3]) as if every one had its total = cost + w_visibility (1 - visibility) + w_goto_fill
+    (coverage above GOTO_FILL_FREE) computed, with ``visibility(positions) -> [len]`` called on as few as decide it:
+    a viewpoint j not yet evaluated has a total of at least base_j = cost_j + its coverage term (floating-point sums
+    are monotone), so an evaluated one whose total is below every unevaluated base (or equal with an earlier
+    position: ties keep the order of positions) comes before all of them, whatever they give. Viewpoints are
+    evaluated by base, max(2, k, first) first, each next batch twice as many. total, vis [E]: NaN where not
+    evaluated."""
+    n = len(cost)
+    fill = cfg.w_goto_fill * np.maximum(0.0, gfill - GOTO_FILL_FREE)
+    base = cost + fill
+    by_base = np.argsort(base, kind="stable")
+    total, vis = np.full(n, np.nan), np.full(n, np.nan)
     e, step = 0, max(2, k, int(first))
     while True:
-        nxt = min(n, e + step)
-        vis[e:nxt], gfill[e:nxt] = terms(top[e:nxt])
-        total[e:nxt] = (cost[e:nxt] + cfg.w_visibility * (1 - vis[e:nxt])
-                        + cfg.w_goto_fill * np.maximum(0.0, gfill[e:nxt] - GOTO_FILL_FREE))
-        e, step = nxt, 2 * step
-        order = np.argsort(total[:e], kind="stable")
-        bound = cost[e] if e < n else math.inf
-        settled = order[total[:e][order] <= bound]  # a prefix of the full order
+        rows = by_base[e: e + step]
+        vis[rows] = visibility(rows)
+        total[rows] = cost[rows] + cfg.w_visibility * (1 - vis[rows]) + fill[rows]
+        e, step = e + len(rows), 2 * step
+        done = by_base[:e]
+        order = done[np.lexsort((done, total[done]))]  # by total, ties by position (as a stable sort of all)
+        rest = by_base[e:]
+        if len(rest):  # settled: below every unevaluated base, or equal to those with a later position only
+            t_o = total[order][:, None]
+            ok = np.all((base[rest][None] > t_o) | ((base[rest][None] == t_o) & (rest[None] > order[:, None])), 1)
+            settled = order[: int(np.argmin(ok)) if not ok.all() else len(order)]  # a prefix of the full order
+        else:
+            settled = order
         chosen = _greedy(settled, vis, dirs, k, cos_sep)
         if len(chosen) >= k or e == n:
             break
@@ -338,7 +348,7 @@ def _choose_lazily(cost: np.ndarray, terms, top: np.ndarray, dir_all: np.ndarray
             break
         if int(i) not in chosen:
             chosen.append(int(i))
-    return chosen, total, vis, gfill
+    return chosen, total, vis
 
 
 def choose_end_poses(planner: "Planner", subject: TargetObject, goto: Optional[TargetObject], framing: FramingConfig,
@@ -395,14 +405,12 @@ def choose_end_poses(planner: "Planner", subject: TargetObject, goto: Optional[T
         samples = (SubjectSamples.of_point(c) if subject.is_point
                    else subject_samples(vol, subject.members, cfg.samples))
 
-    def terms(rows: np.ndarray) -> tuple:  # (visibility, go-to coverage) of viewpoints pts[rows]
-        gf = (frame_coverage(pts[rows], c, up, goto, framing) if goto is not None and not goto.is_point
-              else np.zeros(len(rows)))
-        return subject_visibility(vol, pts[rows], samples), gf
-
+    gfill = (frame_coverage(pts[top], c, up, goto, framing) if goto is not None and not goto.is_point
+             else np.zeros(len(top)))
     # the first batch keeps every thread of the compiled walk busy (MIN_SEGMENTS_PER_THREAD segments each)
     first = -(-kernel_threads() * MIN_SEGMENTS_PER_THREAD // len(samples.points))
-    chosen, total, vis, gfill = _choose_lazily(cost[top], terms, top, dir_all, k, cfg, cos_sep, first)
+    chosen, total, vis = _choose_lazily(cost[top], gfill, lambda rows: subject_visibility(vol, pts[top[rows]], samples),
+                                        dir_all[top], k, cfg, cos_sep, first)
     poses = [EndPose(point=pts[top[i]].copy(), cost=float(total[i]), visibility=float(vis[i]), size=float(size[top[i]]),
                      whole=bool(whole[top[i]]), goto_distance=float(gdist[top[i]]), goto_fill=float(gfill[i]),
                      elevation_deg=float(elev[top[i]])) for i in chosen]

@@ -263,21 +263,17 @@ def test_lazy_choice_is_the_choice_with_every_viewpoint_evaluated(seed, n, k, ti
     gfill = rng.choice([0.0, 0.25, 0.5], n) if ties else rng.uniform(0, 0.6, n)
     dirs = rng.normal(size=(n, 3))
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-    top = rng.permutation(n)  # viewpoints' rows, in the order of cost
-    dir_all = np.empty((n, 3))
-    dir_all[top] = dirs
     cfg, cos_sep = EndPoseConfig(), math.cos(math.radians(25.0))
     asked = []
 
-    def terms(rows):
-        pos = np.array([int(np.flatnonzero(top == r)[0]) for r in rows], np.int64)
-        asked.extend(pos.tolist())
-        return vis[pos], gfill[pos]
+    def visibility(pos):
+        asked.extend(int(i) for i in pos)
+        return vis[pos]
 
-    chosen, total, v, g = _choose_lazily(cost, terms, top, dir_all, k, cfg, cos_sep, first)
+    chosen, total, v = _choose_lazily(cost, gfill, visibility, dirs, k, cfg, cos_sep, first)
     want, want_total = _choose_all_reference(cost, vis, gfill, dirs, k, cfg, cos_sep)
     assert chosen == want
-    assert sorted(asked) == list(range(len(asked)))  # each evaluated once, cheapest first
+    assert len(asked) == len(set(asked))  # each evaluated once
     np.testing.assert_array_equal(total[chosen], want_total[chosen])
     np.testing.assert_array_equal(v[chosen], vis[chosen])
 
