@@ -11,6 +11,10 @@ centre). Interleaved, per request:
   end pose   shot_targets (subject samples + end poses) + plan_candidates to the end poses, scored by visibility
   baseline   plan_candidates to the go-to object's centre, scored by sight lines (the rule before end poses)
 
+--cold forgets, before each request, what the scene's SplatVolume keeps between requests (objects' set-up, the
+subject's samples, viewpoints and visible fractions: target_object.object_parts): every request then pays what the
+first request naming its objects pays.
+
 Reports median / p95 / max of both wholes (what the user waits for) and of the end-pose search alone, and appends
 them to benchmarks/RESULTS.md with the date and the device.
 """
@@ -30,6 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks._results import append_results, device_name  # noqa: E402
 from benchmarks.scene_families import FAMILIES, load_family  # noqa: E402
 from cinenerf_ns.planner.shots.candidates import plan_candidates  # noqa: E402
+from cinenerf_ns.planner.shots.end_pose import visibility_volume  # noqa: E402
 from cinenerf_ns.planner.shots.framing import FramingConfig  # noqa: E402
 from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig  # noqa: E402
 from cinenerf_ns.shot_targets import end_pose_count, shot_targets, start_region_centre  # noqa: E402
@@ -74,6 +79,7 @@ def main() -> None:
     ap.add_argument("--framing", default="medium")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-record", action="store_true")
+    ap.add_argument("--cold", action="store_true", help="forget the objects' kept set-up before each request")
     a = ap.parse_args()
     ks = a.k or [1]
     with warnings.catch_warnings():
@@ -99,7 +105,7 @@ def main() -> None:
     rng = np.random.default_rng(a.seed)
     framing = FramingConfig(a.framing)
     lines = [f"### End poses: whole request, {a.family} ({len(fam.scene)} Gaussians), {datetime.date.today()}, "
-             f"{device_name(a.device)}", "",
+             f"{device_name(a.device)}" + (", cold (nothing kept between requests)" if a.cold else ""), "",
              f"{fam.description}; prepare {prep_s:.1f} s; {a.requests} requests per k, object pairs seeded, both "
              "modes interleaved; median / p95 / max ms", "",
              "| k | end pose: whole request | baseline: whole request | end-pose search alone | end poses found |",
@@ -112,6 +118,8 @@ def main() -> None:
             gm = {"point": ca, "mask": source_mask(ma), "text": na}
             lm = {"point": cb, "mask": source_mask(mb), "text": nb}
             goal, look = planner.checked_point(ca, "go-to"), planner.checked_point(cb, "look-at")
+            if a.cold:
+                visibility_volume(planner).memo.clear()
             t0 = time.perf_counter()
             tg = shot_targets(planner, gm, lm, framing, planner.main_component(), k=end_pose_count(k),
                               facing_from=start_region_centre(planner))

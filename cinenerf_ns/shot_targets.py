@@ -11,7 +11,7 @@ import numpy as np
 from cinenerf_ns.planner.geometry.visibility import SubjectSamples
 from cinenerf_ns.planner.shots.end_pose import EndPoseChoice, EndPoseConfig, choose_end_poses, visibility_volume
 from cinenerf_ns.planner.shots.framing import FramingConfig, subject_size
-from cinenerf_ns.planner.shots.target_object import TargetObject, scene_members
+from cinenerf_ns.planner.shots.target_object import TargetObject, scene_members, subject_samples
 
 
 @dataclass
@@ -86,7 +86,7 @@ def shot_targets(planner, gm: Dict[str, Any], lm: Dict[str, Any], framing: Frami
     if members is not None and members.size:
         vol = visibility_volume(planner)
         subject = TargetObject.of_members(vol, members, look, lm.get("text", "look-at"))
-        samples = SubjectSamples.of_members(vol, subject.members, EndPoseConfig.samples)  # end poses' and scores'
+        samples = subject_samples(vol, subject.members, EndPoseConfig.samples)  # end poses' and scores'
     else:
         subject = TargetObject.point(look, object_radius, lm.get("text", "look-at"))
         samples = SubjectSamples.of_point(look)

@@ -50,6 +50,9 @@ MAX_CELLS = 512
 """A Gaussian whose cut-off box spans more cells than this is tested for every segment instead of listed in cells."""
 CELLS_LONG_SIDE = 128
 """Cells along the volume box's longest side (the cell is never smaller than the median Gaussian's cut-off box)."""
+SPHERE_MARGIN = 1e-6
+"""The compiled walk's first test leaves a Gaussian out only beyond CUT_SIGMA sigma_max (1 + this) of the segment:
+far beyond rounding, so it leaves out only Gaussians the whole test leaves out."""
 
 
 @dataclass
@@ -75,6 +78,12 @@ class SplatVolume:
     half: np.ndarray  # [N, 3] float64: half widths of each Gaussian's cut-off box
     sigma_max: np.ndarray  # [N] float64: each Gaussian's largest sigma
     cover: np.ndarray  # [N] float64: opacity x the area of its two largest axes (what it covers on screen)
+    sphere: Optional[np.ndarray] = field(default=None, repr=False)
+    """[N, 4] float64 in ``packed``'s row order: mean, sigma_max^2 (1 + SPHERE_MARGIN): the compiled walk's cheap
+    first test (a segment farther from the mean than CUT_SIGMA of them misses the Gaussian's cut-off)."""
+    memo: dict = field(default_factory=dict, repr=False, compare=False)
+    """What callers derive from this volume and keep for later requests (shots/target_object.py: objects' set-up);
+    a re-prepared planner builds a new volume, so nothing in it outlives the volume it was derived from."""
 
     def __len__(self) -> int:
         return int(self.means.shape[0])
@@ -115,13 +124,14 @@ class SplatVolume:
         rank[perm] = np.arange(len(perm))
         packed = np.concatenate([means, whiten.reshape(-1, 9), opac[:, None]], 1)[perm]
         sig_sorted = np.sort(sigma, axis=1)
+        sphere = np.concatenate([means, (sig_sorted[:, 2:] ** 2) * (1 + SPHERE_MARGIN)], 1)[perm]
         return cls(means=np.ascontiguousarray(means), whiten=np.ascontiguousarray(whiten), opacity=opac,
                    half=half, sigma_max=sig_sorted[:, 2].copy(), cover=opac * sig_sorted[:, 1] * sig_sorted[:, 2],
                    lo=lo, cell=float(cell), dims=dims, cell_start=start,
                    cell_ids=np.ascontiguousarray(rank[listed].astype(np.int32)), ccell=float(ccell), cdims=cdims,
                    ccell_start=cstart, ccell_ids=np.ascontiguousarray(rank[clisted].astype(np.int32)),
                    big=np.ascontiguousarray(rank[big].astype(np.int32)), packed=np.ascontiguousarray(packed),
-                   rank=rank, perm=perm)
+                   rank=rank, perm=perm, sphere=np.ascontiguousarray(sphere))
 
 
 def _cell_lists(ids: np.ndarray, glo: np.ndarray, ghi: np.ndarray, lo: np.ndarray, cell: float, dims: np.ndarray,
@@ -309,7 +319,7 @@ def optical_depth(vol: SplatVolume, p0, p1, classes=None, skip=None, backend: st
         return tau
     dims = np.ascontiguousarray(vol.dims, np.int64)
     cdims = np.ascontiguousarray(vol.cdims, np.int64)
-    rc = fn(vol.packed.ctypes.data, cls.ctypes.data, n,
+    rc = fn(vol.packed.ctypes.data, None if vol.sphere is None else vol.sphere.ctypes.data, cls.ctypes.data, n,
             vol.lo.ctypes.data, vol.cell, dims.ctypes.data, vol.cell_start.ctypes.data, vol.cell_ids.ctypes.data,
             vol.ccell, cdims.ctypes.data, vol.ccell_start.ctypes.data, vol.ccell_ids.ctypes.data,
             vol.big.ctypes.data, len(vol.big), float(cut_sigma) ** 2, p0.ctypes.data, p1.ctypes.data,
@@ -331,6 +341,7 @@ class SubjectSamples:
     members: np.ndarray  # [K] int64: the subject's own Gaussians (class 1); empty for a point
     box: Optional[tuple] = None  # (lo [3], hi [3]) of the members' cut-off boxes (subject_box); None for a point
     _packed: Optional[tuple] = field(default=None, repr=False, compare=False)  # (vol, packed_classes(vol))
+    _seen: Optional[tuple] = field(default=None, repr=False, compare=False)  # (vol, {camera bytes: visible fraction})
 
     @classmethod
     def of_point(cls, point) -> "SubjectSamples":
@@ -368,6 +379,7 @@ class SubjectSamples:
     def __getstate__(self) -> dict:
         state = dict(self.__dict__)
         state["_packed"] = None  # O(N) bytes, rebuilt in O(K) where needed: never pickled
+        state["_seen"] = None
         return state
 
     def packed_classes(self, vol: SplatVolume) -> np.ndarray:
@@ -404,10 +416,31 @@ def box_exit(p0: np.ndarray, p1: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> 
     return np.where(hit, np.clip(t_far, 0.0, 1.0), 0.0)
 
 
+SEEN_MAX = 4096
+"""subject_visibility keeps at most this many cameras' visible fractions per subject (then starts afresh)."""
+
+
 def subject_visibility(vol: SplatVolume, cameras, subject: SubjectSamples, backend: str = "auto") -> np.ndarray:
     """Visible fraction [M] in [0, 1] of the subject from each camera [M, 3] (module docstring): through the whole splat
-    relative to the subject rendered alone. A camera from which the subject alone shows nothing (inside it) gets 0."""
+    relative to the subject rendered alone. A camera from which the subject alone shows nothing (inside it) gets 0.
+    A camera's fraction depends on nothing else in the call, so those of cameras at exactly the same point as one
+    asked before (for this volume; e.g. a shot's last frame at the end pose the search scored) are taken as kept."""
     cam = np.asarray(cameras, np.float64).reshape(-1, 3)
+    if subject._seen is None or subject._seen[0] is not vol or len(subject._seen[1]) > SEEN_MAX:
+        subject._seen = (vol, {})
+    seen = subject._seen[1]
+    keys = [(backend, row.tobytes()) for row in cam]
+    out = np.array([seen.get(key, np.nan) for key in keys], np.float64)
+    todo = np.flatnonzero(np.isnan(out))
+    if todo.size:
+        out[todo] = _visibility(vol, cam[todo], subject, backend)
+        for i in todo:
+            seen[keys[i]] = float(out[i])
+    return out
+
+
+def _visibility(vol: SplatVolume, cam: np.ndarray, subject: SubjectSamples, backend: str) -> np.ndarray:
+    """subject_visibility of cameras cam [M, 3], all walked."""
     m, s = len(cam), len(subject.points)
     # from each sample toward the camera: the subject's own Gaussians come first, and a sample the subject hides
     # itself stops there (STOP_SELF) instead of walking the whole way

@@ -405,7 +405,8 @@ def optical_depth_c():
     """The compiled optical depth of segments through semi-transparent Gaussians (visibility.c: cn_optical_depth;
     geometry/visibility.py), or None."""
     return _function("visibility", "cn_optical_depth",
-                     [_P, _P, _I64,  # packed [N, 13] (mean, whitening rows, opacity), class [N] uint8, N
+                     [_P, _P, _P, _I64,  # packed [N, 13] (mean, whitening rows, opacity), sph [N, 4] (mean, bound)
+                      # or NULL, class [N] uint8, N
                       _P, _F64, _P, _P, _P,  # grid lo [3], cell, dims [3], cell starts [C + 1], cell ids [E] int32
                       _F64, _P, _P, _P,  # coarse grid (same lo): cell (<= 0: none), dims, cell starts, cell ids
                       _P, _I64, _F64,  # big ids int32, their count, cut-off m^2

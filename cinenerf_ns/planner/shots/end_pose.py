@@ -17,6 +17,12 @@ alpha-composited transmittance to samples of Y's Gaussians) and how much of the 
 The best viewpoints, at least ``min_separation_deg`` apart around Y, are the end poses (ranked candidates each get
 one). When X and Y are the same object ("a good view of X"), there is no distance term; the facing direction (the
 start region's centre as seen from Y) is preferred instead.
+
+Cost per request: the visibility (the walk through the splat) is computed for the cheapest of the evaluated
+viewpoints first (by their cost with the go-to coverage), in batches, until no viewpoint left could change the
+choice (its total is at least those terms): the same end poses as computing it for all. The sphere's viewpoints
+and the subject's size from each are kept with the subject's set-up (target_object.object_parts) for later requests
+that frame the same object.
 """
 from __future__ import annotations
 
@@ -28,9 +34,10 @@ from typing import TYPE_CHECKING, List, Optional
 import numpy as np
 
 from ..errors import InvalidInputError
-from ..geometry.visibility import SplatVolume, SubjectSamples, subject_visibility
+from ..geometry.visibility import MIN_SEGMENTS_PER_THREAD, SplatVolume, SubjectSamples, subject_visibility
+from ..native import kernel_threads
 from .framing import FramingConfig, project, size_cost, subject_size
-from .target_object import TargetObject
+from .target_object import TargetObject, subject_samples
 
 if TYPE_CHECKING:
     from .planner import Planner
@@ -163,9 +170,10 @@ def _to_up(dirs: np.ndarray, up: np.ndarray) -> np.ndarray:
     return dirs @ rot.T
 
 
-def _directions(subject: TargetObject, goto: Optional[TargetObject], up: np.ndarray, cfg: EndPoseConfig) -> np.ndarray:
-    """Unit directions [D, 3] from the subject within the elevation limits: the sphere's, plus toward the go-to."""
-    d = _to_up(fibonacci_directions(cfg.directions), up)
+def _directions(subject: TargetObject, goto: Optional[TargetObject], up: np.ndarray,
+                cfg: EndPoseConfig) -> tuple:
+    """(toward the go-to [D', 3], the sphere's [D, 3]): unit directions from the subject within the elevation limits
+    (the viewpoints' directions are the first, then the second)."""
     extra = []
     if goto is not None:
         g = goto.centre - subject.centre
@@ -177,10 +185,53 @@ def _directions(subject: TargetObject, goto: Optional[TargetObject], up: np.ndar
                 for el in (cfg.eye_elevation_deg, cfg.eye_elevation_deg + 20):
                     a, e = math.radians(az), math.radians(el)
                     extra.append(math.cos(e) * (math.cos(a) * g + math.sin(a) * side) + math.sin(e) * up)
-    if extra:
-        d = np.concatenate([np.array(extra), d])
+    return _in_elevation(np.array(extra).reshape(-1, 3), up, cfg), _in_elevation(
+        _to_up(fibonacci_directions(cfg.directions), up), up, cfg)
+
+
+def _in_elevation(d: np.ndarray, up: np.ndarray, cfg: EndPoseConfig) -> np.ndarray:
     el = np.degrees(np.arcsin(np.clip(d @ up, -1, 1)))
     return d[(el >= cfg.min_elevation_deg) & (el <= cfg.max_elevation_deg)]
+
+
+def _fills(framing: FramingConfig) -> tuple:
+    """The sizes viewpoints are placed for: the aimed-for size, sizes in the band, and beyond it (rooms too small for
+    a wide view of a large subject still get the closest size they allow)."""
+    lo_b, aim, hi_b = framing.band
+    return (aim, 0.5 * (lo_b + aim), 0.5 * (aim + hi_b), lo_b, hi_b, min(0.95, 1.15 * hi_b))
+
+
+def _ring(subject: TargetObject, dirs: np.ndarray, up: np.ndarray, framing: FramingConfig) -> tuple:
+    """(d [D], pts [F, D, 3], size [F, D], whole [F, D]) of the viewpoints along directions dirs [D, 3] from the
+    subject: d the distance for the aimed-for size (size ~ 1 / distance, two corrections from a first guess), pts at
+    the distances of each of _fills, and the subject's size and wholeness from each."""
+    c = subject.centre
+    aim = framing.band[1]
+    th, tv = framing.tan_half()
+    d = np.full(len(dirs), subject.radius() / (aim * min(th, tv)))
+    for _ in range(2):
+        s, _ = subject_size(c[None] + d[:, None] * dirs, c, up, subject.outline_points(), subject.pad, framing)
+        d = d * np.clip(s / aim, 0.25, 4.0)
+    pts = np.stack([c[None] + (d * aim / f)[:, None] * dirs for f in _fills(framing)])  # [F, D, 3]
+    size, whole = subject_size(pts.reshape(-1, 3), c, up, subject.outline_points(), subject.pad, framing)
+    return d, pts, size.reshape(pts.shape[:2]), whole.reshape(pts.shape[:2])
+
+
+def _sphere_ring(subject: TargetObject, dirs: np.ndarray, up: np.ndarray, framing: FramingConfig,
+                 cfg: EndPoseConfig) -> tuple:
+    """_ring of the sphere's directions, kept with the subject's set-up (subject.memo) for the next request that
+    frames the same object from the same look-at point the same way (arrays read-only)."""
+    if subject.memo is None:
+        return _ring(subject, dirs, up, framing)
+    key = ("ring", framing.framing, float(framing.fov_deg), float(framing.aspect), up.tobytes(),
+           subject.centre.tobytes(), cfg.directions, float(cfg.min_elevation_deg), float(cfg.max_elevation_deg))
+    got = subject.memo.get(key)
+    if got is None:
+        got = _ring(subject, dirs, up, framing)
+        for a in got:
+            a.setflags(write=False)
+        subject.memo[key] = got
+    return got
 
 
 def _box_distance(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -243,6 +294,63 @@ def _to_evaluate(cost: np.ndarray, dirs: np.ndarray, n_eval: int, cos_sep: float
     return np.array(sorted(picked, key=lambda i: (cost[i], i)), dtype=np.int64)
 
 
+def _greedy(order: np.ndarray, vis: np.ndarray, dirs: np.ndarray, k: int, cos_sep: float) -> List[int]:
+    """Up to k positions of ``order`` (best first): the best, then the next best far enough (directions dirs, cosines
+    below cos_sep) from those chosen that still show the subject (at least half of it, and not much less than the
+    best pose does)."""
+    chosen: List[int] = []
+    if len(order) == 0:
+        return chosen
+    floor = min(float(vis[order[0]]), max(0.5, float(vis[order[0]]) - 0.25))
+    for i in order:
+        if len(chosen) >= k:
+            break
+        if (not chosen or vis[i] >= floor) and all(float(dirs[i] @ dirs[j]) < cos_sep for j in chosen):
+            chosen.append(int(i))
+    return chosen
+
+
+def _choose_lazily(cost: np.ndarray, gfill: np.ndarray, visibility, dirs: np.ndarray, k: int, cfg: EndPoseConfig,
+                   cos_sep: float, first: int = 2) -> tuple:
+    """(chosen, total, vis): the k end poses among E viewpoints (cost [E] ascending, go-to coverage gfill [E], view
+    directions dirs [E, 3]) as if every one had its total = cost + w_visibility (1 - visibility) + w_goto_fill
+    (coverage above GOTO_FILL_FREE) computed, with ``visibility(positions) -> [len]`` called on as few as decide it:
+    a viewpoint j not yet evaluated has a total of at least base_j = cost_j + its coverage term (floating-point sums
+    are monotone), so an evaluated one whose total is below every unevaluated base (or equal with an earlier
+    position: ties keep the order of positions) comes before all of them, whatever they give. Viewpoints are
+    evaluated by base, max(2, k, first) first, each next batch twice as many. total, vis [E]: NaN where not
+    evaluated."""
+    n = len(cost)
+    fill = cfg.w_goto_fill * np.maximum(0.0, gfill - GOTO_FILL_FREE)
+    base = cost + fill
+    by_base = np.argsort(base, kind="stable")
+    total, vis = np.full(n, np.nan), np.full(n, np.nan)
+    e, step = 0, max(2, k, int(first))
+    while True:
+        rows = by_base[e: e + step]
+        vis[rows] = visibility(rows)
+        total[rows] = cost[rows] + cfg.w_visibility * (1 - vis[rows]) + fill[rows]
+        e, step = e + len(rows), 2 * step
+        done = by_base[:e]
+        order = done[np.lexsort((done, total[done]))]  # by total, ties by position (as a stable sort of all)
+        rest = by_base[e:]
+        if len(rest):  # settled: below every unevaluated base, or equal to those with a later position only
+            t_o = total[order][:, None]
+            ok = np.all((base[rest][None] > t_o) | ((base[rest][None] == t_o) & (rest[None] > order[:, None])), 1)
+            settled = order[: int(np.argmin(ok)) if not ok.all() else len(order)]  # a prefix of the full order
+        else:
+            settled = order
+        chosen = _greedy(settled, vis, dirs, k, cos_sep)
+        if len(chosen) >= k or e == n:
+            break
+    for i in order:  # too few distinct ones (everything evaluated): the next best in order
+        if len(chosen) >= k:
+            break
+        if int(i) not in chosen:
+            chosen.append(int(i))
+    return chosen, total, vis
+
+
 def choose_end_poses(planner: "Planner", subject: TargetObject, goto: Optional[TargetObject], framing: FramingConfig,
                      component: int, k: int = 1, config: Optional[EndPoseConfig] = None,
                      facing: Optional[np.ndarray] = None,
@@ -258,29 +366,24 @@ def choose_end_poses(planner: "Planner", subject: TargetObject, goto: Optional[T
     planner.ready()  # prepared before anything is sampled (raises a clear error otherwise)
     up = np.asarray(planner.config.up, np.float64)
     up = up / np.linalg.norm(up)
-    lo_b, aim, hi_b = framing.band
-    dirs = _directions(subject, goto, up, cfg)  # [D, 3]
+    extra, sphere = _directions(subject, goto, up, cfg)  # [D', 3], [D, 3]
     c = subject.centre
-    # distance for the aimed-for size along each direction: size ~ 1 / distance, two corrections from a first guess
-    th, tv = framing.tan_half()
-    d = np.full(len(dirs), subject.radius() / (aim * min(th, tv)))
-    for _ in range(2):
-        s, _ = subject_size(c[None] + d[:, None] * dirs, c, up, subject.outline_points(), subject.pad, framing)
-        d = d * np.clip(s / aim, 0.25, 4.0)
-    # the aimed-for size, sizes in the band, and beyond it (rooms too small for a wide view of a large subject still
-    # get the closest size they allow)
-    fills = (aim, 0.5 * (lo_b + aim), 0.5 * (aim + hi_b), lo_b, hi_b, min(0.95, 1.15 * hi_b))
-    pts = np.concatenate([c[None] + (d * aim / f)[:, None] * dirs for f in fills])  # [len(fills) * D, 3]
-    dir_all = np.concatenate([dirs] * len(fills))
+    # the viewpoints: for each of the framing's sizes, toward the go-to, then around the sphere
+    rings = [_ring(subject, extra, up, framing)] if len(extra) else []
+    rings.append(_sphere_ring(subject, sphere, up, framing, cfg))
+    d = np.concatenate([r[0] for r in rings])
+    pts = np.concatenate([r[1] for r in rings], axis=1).reshape(-1, 3)  # [len(fills) * D, 3]
+    size = np.concatenate([r[2] for r in rings], axis=1).reshape(-1)
+    whole = np.concatenate([r[3] for r in rings], axis=1).reshape(-1)
+    dir_all = np.concatenate([np.concatenate([extra, sphere])] * len(_fills(framing)))
     considered = len(pts)
     notes: List[str] = []
     keep = _feasible(planner, pts, (subject, goto), component)
-    pts, dir_all = pts[keep], dir_all[keep]
+    pts, dir_all, size, whole = pts[keep], dir_all[keep], size[keep], whole[keep]
     if len(pts) == 0:
         notes.append("every sampled viewpoint is occupied, unreachable from the start, inside the go-to or subject, "
                      "or outside the planning region")
         return EndPoseChoice([], considered, 0, framing.framing, 1e3 * (time.perf_counter() - t0), notes)
-    size, whole = subject_size(pts, c, up, subject.outline_points(), subject.pad, framing)
     elev = np.degrees(np.arcsin(np.clip(dir_all @ up, -1, 1)))
     cost = (cfg.w_size * size_cost(size, framing) + cfg.w_whole * (~whole)
             + cfg.w_elevation * ((elev - cfg.eye_elevation_deg) / 45.0) ** 2)
@@ -300,26 +403,14 @@ def choose_end_poses(planner: "Planner", subject: TargetObject, goto: Optional[T
     vol = visibility_volume(planner)
     if samples is None:
         samples = (SubjectSamples.of_point(c) if subject.is_point
-                   else SubjectSamples.of_members(vol, subject.members, cfg.samples))
-    vis = subject_visibility(vol, pts[top], samples)
+                   else subject_samples(vol, subject.members, cfg.samples))
+
     gfill = (frame_coverage(pts[top], c, up, goto, framing) if goto is not None and not goto.is_point
              else np.zeros(len(top)))
-    total = cost[top] + cfg.w_visibility * (1 - vis) + cfg.w_goto_fill * np.maximum(0.0, gfill - GOTO_FILL_FREE)
-    order = np.argsort(total, kind="stable")
-    chosen: List[int] = []
-    # alternatives must still show the subject: at least half of it, and not much less than the best pose does
-    floor = min(float(vis[order[0]]), max(0.5, float(vis[order[0]]) - 0.25))
-    for i in order:  # the best, then the next best far enough (as seen from the subject) from those chosen
-        if len(chosen) >= k:
-            break
-        if (not chosen or vis[i] >= floor) and all(float(dir_all[top[i]] @ dir_all[top[j]]) < cos_sep
-                                                   for j in chosen):
-            chosen.append(int(i))
-    for i in order:  # too few distinct ones: the next best in order
-        if len(chosen) >= k:
-            break
-        if int(i) not in chosen:
-            chosen.append(int(i))
+    # the first batch keeps every thread of the compiled walk busy (MIN_SEGMENTS_PER_THREAD segments each)
+    first = -(-kernel_threads() * MIN_SEGMENTS_PER_THREAD // len(samples.points))
+    chosen, total, vis = _choose_lazily(cost[top], gfill, lambda rows: subject_visibility(vol, pts[top[rows]], samples),
+                                        dir_all[top], k, cfg, cos_sep, first)
     poses = [EndPose(point=pts[top[i]].copy(), cost=float(total[i]), visibility=float(vis[i]), size=float(size[top[i]]),
                      whole=bool(whole[top[i]]), goto_distance=float(gdist[top[i]]), goto_fill=float(gfill[i]),
                      elevation_deg=float(elev[top[i]])) for i in chosen]

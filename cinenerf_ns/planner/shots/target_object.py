@@ -1,14 +1,16 @@
 """A go-to or look-at target as the planner sees it: a point, or an object (its Gaussians in the obstacle scene)."""
 from __future__ import annotations
 
+import threading
 import weakref
-from dataclasses import dataclass
-from typing import Optional
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from typing import Any, Optional
 
 import numpy as np
 
 from ..errors import InvalidInputError
-from ..geometry.visibility import SplatVolume
+from ..geometry.visibility import SplatVolume, SubjectSamples
 from ..scene.ellipsoids import EllipsoidScene
 
 EXTENT_POINTS = 512
@@ -30,11 +32,19 @@ class TargetObject:
     pad: float
     spacing: float
     outline: Optional[np.ndarray] = None  # [H, 3] the extent's convex hull vertices (None: the extent itself)
+    parts: Optional["ObjectParts"] = field(default=None, repr=False, compare=False)  # kept set-up (of_members)
 
     def outline_points(self) -> np.ndarray:
         """The points whose projection bounds the object's: the convex hull's vertices (a perspective projection maps
         the hull onto the hull of the projected vertices, so their box is the extent's, when all are in front)."""
+        if self.outline is None and self.parts is not None:
+            self.outline = self.parts.hull()  # on first use: a go-to object never needs it
         return self.extent if self.outline is None else self.outline
+
+    @property
+    def memo(self) -> Optional[dict]:
+        """What later stages derive from this object and keep with its set-up (None: not kept)."""
+        return None if self.parts is None else self.parts.derived
 
     @property
     def is_point(self) -> bool:
@@ -61,26 +71,102 @@ class TargetObject:
     def of_members(cls, vol: SplatVolume, members, centre, name: str = "object",
                    seed: int = 0) -> "TargetObject":
         """An object from its Gaussians ``members`` (bool [N] mask or indices into the obstacle scene, whose
-        SplatVolume ``vol`` holds their means and scales in float64: no tensor conversion per request)."""
-        m = np.asarray(members)
-        if m.dtype == bool:
-            if m.shape != (len(vol),):
-                raise InvalidInputError(f"an object mask must be [N={len(vol)}], got {m.shape}")
-            m = np.flatnonzero(m)
-        m = _sorted_unique(m.astype(np.int64).reshape(-1))
-        if m.size == 0:
-            raise InvalidInputError(f"the object '{name}' has no Gaussians among the obstacles")
-        if m[0] < 0 or m[-1] >= len(vol):
-            raise InvalidInputError(f"object member ids must be in [0, {len(vol)}), got {m[0]}..{m[-1]}")
-        pick = None if m.size <= EXTENT_POINTS else np.sort(np.random.default_rng(seed).choice(
-            m.size, EXTENT_POINTS, replace=False))
-        ext = np.take(vol.means, m if pick is None else m[pick], axis=0)  # [P, 3] (np.take: faster than m-indexing)
+        SplatVolume ``vol`` holds their means and scales in float64: no tensor conversion per request). What depends
+        only on the members (extent, pad, spacing, hull) is kept on the volume for the next request (object_parts)."""
+        parts = object_parts(vol, members, name, seed)
         if centre is not None:
             c = np.asarray(centre, np.float64).reshape(3)
-        else:  # the members' mean, one column at a time (numpy's axis-0 mean of [K, 3] is ~10x slower)
-            c = np.array([np.take(vol.means[:, a], m).mean() for a in range(3)])
-        return cls(name=name, centre=c, members=m, extent=ext, pad=float(np.median(np.take(vol.sigma_max, m))),
-                   spacing=_spacing(ext), outline=_hull(ext))
+        else:
+            c = parts.mean_centre(vol)
+        return cls(name=name, centre=c, members=parts.members, extent=parts.extent, pad=parts.pad,
+                   spacing=parts.spacing, parts=parts)
+
+
+OBJECT_MEMO = 8
+"""Objects whose set-up (ObjectParts) a volume keeps, least recently used dropped first."""
+_MEMO_LOCK = threading.Lock()
+
+
+@dataclass
+class ObjectParts:
+    """What an object's set-up derives from its members alone (arrays read-only: shared by every request that names
+    the same Gaussians), and what later stages derive from them (``derived``: e.g. the subject's visibility samples,
+    end_pose's viewpoint sizes), kept with it."""
+
+    members: np.ndarray  # [K] int64, sorted, unique
+    extent: np.ndarray  # [P, 3]
+    pad: float
+    spacing: float
+    derived: dict = field(default_factory=dict, repr=False)
+    _hull: Any = field(default=False, repr=False)  # False: not yet computed
+    _mean: Optional[np.ndarray] = field(default=None, repr=False)
+
+    def hull(self) -> Optional[np.ndarray]:
+        """The extent's convex hull vertices [H, 3] (read-only), or None when too few or flat; made on first use."""
+        if self._hull is False:
+            h = _hull(self.extent)
+            if h is not None:
+                h.setflags(write=False)
+            self._hull = h
+        return self._hull
+
+    def mean_centre(self, vol: SplatVolume) -> np.ndarray:
+        """The members' mean [3] (a copy), one column at a time (numpy's axis-0 mean of [K, 3] is ~10x slower)."""
+        if self._mean is None:
+            self._mean = np.array([np.take(vol.means[:, a], self.members).mean() for a in range(3)])
+        return self._mean.copy()
+
+
+def object_parts(vol: SplatVolume, members, name: str = "object", seed: int = 0) -> ObjectParts:
+    """The set-up of the object whose Gaussians are ``members`` (bool [N] mask or ids): taken from the volume's memo
+    when the same members (same ids, compared in full) were set up before with the same seed, built otherwise."""
+    m = np.asarray(members)
+    if m.dtype == bool:
+        if m.shape != (len(vol),):
+            raise InvalidInputError(f"an object mask must be [N={len(vol)}], got {m.shape}")
+        m = np.flatnonzero(m)
+    m = _sorted_unique(m.astype(np.int64).reshape(-1))
+    if m.size == 0:
+        raise InvalidInputError(f"the object '{name}' has no Gaussians among the obstacles")
+    if m[0] < 0 or m[-1] >= len(vol):
+        raise InvalidInputError(f"object member ids must be in [0, {len(vol)}), got {m[0]}..{m[-1]}")
+    key = (int(seed), m.size, int(m[0]), int(m[-1]), int(m[:: max(1, m.size // 64)].sum()))
+    with _MEMO_LOCK:  # requests of several viewer clients may run at once
+        memo = vol.memo.setdefault("objects", OrderedDict())
+        hit = memo.get(key)
+        if hit is not None and np.array_equal(hit.members, m):
+            memo.move_to_end(key)
+            return hit
+    parts = _build_parts(vol, m, seed)  # outside the lock: the slow part
+    with _MEMO_LOCK:
+        memo[key] = parts
+        while len(memo) > OBJECT_MEMO:
+            memo.popitem(last=False)
+    return parts
+
+
+def _build_parts(vol: SplatVolume, m: np.ndarray, seed: int) -> ObjectParts:
+    """ObjectParts of sorted unique member ids m [K] (their arrays made read-only)."""
+    pick = None if m.size <= EXTENT_POINTS else np.sort(np.random.default_rng(seed).choice(
+        m.size, EXTENT_POINTS, replace=False))
+    ext = np.take(vol.means, m if pick is None else m[pick], axis=0)  # [P, 3] (np.take: faster than m-indexing)
+    for a in (m, ext):
+        a.setflags(write=False)
+    return ObjectParts(members=m, extent=ext, pad=float(np.median(np.take(vol.sigma_max, m))), spacing=_spacing(ext))
+
+
+def subject_samples(vol: SplatVolume, members, n_samples: int, seed: int = 0) -> SubjectSamples:
+    """SubjectSamples.of_members of an object's Gaussians, kept with its ObjectParts (the same draw, its box and its
+    packed classes for the next request that looks at the same object; arrays read-only)."""
+    parts = object_parts(vol, members)
+    key = ("samples", int(n_samples), int(seed))
+    got = parts.derived.get(key)
+    if got is None:
+        got = SubjectSamples.of_members(vol, parts.members, n_samples, seed)
+        for a in (got.points, got.weights, got.ids):
+            a.setflags(write=False)
+        parts.derived[key] = got
+    return got
 
 
 def _sorted_unique(ids: np.ndarray) -> np.ndarray:
@@ -122,25 +208,39 @@ def scene_members(scene: EllipsoidScene, source_mask: Optional[np.ndarray]) -> O
         if mask.shape != (len(scene),):
             raise InvalidInputError(f"object mask has {mask.shape[0]} entries for a scene of {len(scene)} Gaussians")
         return np.flatnonzero(mask)
-    src, top = _source_on_host(scene.source_index)
+    src, top, inv, ascending = _source_on_host(scene.source_index)
     if src.size and top >= mask.shape[0]:
         raise InvalidInputError(f"object mask has {mask.shape[0]} entries, the scene's Gaussians come from more")
-    return np.flatnonzero(mask[src])
+    if inv is None:  # a source Gaussian behind several obstacles: the gather over all of them
+        return np.flatnonzero(mask[src])
+    ids = inv[np.flatnonzero(mask[: top + 1])]  # each selected source Gaussian's obstacle (-1: none)
+    ids = ids[ids >= 0]
+    return ids if ascending else np.sort(ids)
 
 
-_SOURCES: dict = {}  # id(tensor) -> (weak reference to it, its host copy [N] int64, its largest value)
+_SOURCES: dict = {}  # id(tensor) -> (weak reference, _source_on_host's answer)
 
 
 def _source_on_host(source_index) -> tuple:
-    """(scene.source_index as a host array, its largest value), copied once per tensor: on a GPU scene the copy and
-    its max are a device sync and an 8 MB transfer at 1M Gaussians, per object per request otherwise."""
+    """(scene.source_index as a host array [N] int64, its largest value, its inverse inv [top + 1] (the obstacle of
+    each source Gaussian, -1: none; None when a source Gaussian has several), whether the source ids grow with the
+    obstacle index), made once per tensor: on a GPU scene the copy and its max are a device sync and an 8 MB
+    transfer at 1M Gaussians, per object per request otherwise; the inverse turns a mask's selection into obstacle
+    ids in O(K) after one pass over the mask, instead of a gather over all N obstacles."""
     key = id(source_index)
     hit = _SOURCES.get(key)
     if hit is not None and hit[0]() is source_index:
-        return hit[1], hit[2]
-    src = source_index.detach().cpu().numpy()
+        return hit[1]
+    src = source_index.detach().cpu().numpy().astype(np.int64, copy=False)
     top = int(src.max()) if src.size else -1
+    ascending = bool(np.all(src[1:] > src[:-1]))
+    inv = None
+    if src.size and int(src.min()) >= 0:
+        inv = np.full(top + 1, -1, np.int64)
+        inv[src] = np.arange(src.size)
+        if int(np.count_nonzero(inv >= 0)) != src.size:  # not one obstacle per source Gaussian
+            inv = None
     for k in [k for k, v in _SOURCES.items() if v[0]() is None]:  # forget tensors that are gone
         del _SOURCES[k]
-    _SOURCES[key] = (weakref.ref(source_index), src, top)
-    return src, top
+    _SOURCES[key] = (weakref.ref(source_index), (src, top, inv, ascending))
+    return src, top, inv, ascending

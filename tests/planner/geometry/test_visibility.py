@@ -149,15 +149,20 @@ def test_subject_visibility_of_a_point_and_bad_input():
         SplatVolume.build(sc, np.ones(3), -np.ones(3))
 
 
+def _subject_scene(seed: int, n: int) -> tuple:
+    """(rng, scene, its volume over [-1, 1]^3, a subject's members: the Gaussians within 0.4 of the first)."""
+    rng = np.random.default_rng(seed)
+    sc = _scene(rng, n, spread=0.8, opacity=(0.5, 0.99))
+    vol = SplatVolume.build(sc, -np.ones(3), np.ones(3))
+    return rng, sc, vol, np.flatnonzero(np.linalg.norm(vol.means - vol.means[0], axis=1) < 0.4)
+
+
 @settings(max_examples=15, deadline=None)
 @given(seed=st.integers(0, 10_000), n=st.integers(20, 250))
 def test_early_stops_do_not_change_the_visible_fraction(seed, n):
     """subject_visibility stops hidden samples early (STOP_SELF and the subject's box): the same fraction as whole
     sums from the brute-force reference, within what the stops may drop (exp(-12) of a sample's weight)."""
-    rng = np.random.default_rng(seed)
-    sc = _scene(rng, n, spread=0.8, opacity=(0.5, 0.99))
-    vol = SplatVolume.build(sc, -np.ones(3), np.ones(3))
-    members = np.flatnonzero(np.linalg.norm(vol.means - vol.means[0], axis=1) < 0.4)
+    rng, sc, vol, members = _subject_scene(seed, n)
     samples = SubjectSamples.of_members(vol, members, n_samples=24, seed=seed)
     cams = rng.uniform(-1, 1, (6, 3))
     got = subject_visibility(vol, cams, samples)
@@ -258,3 +263,60 @@ def test_kernel_threads_setting(monkeypatch):
     with pytest.raises(InvalidInputError, match="threads must be >= 1"):
         optical_depth(SplatVolume.build(_scene(np.random.default_rng(0), 5), -np.ones(3), np.ones(3)),
                       np.zeros((2, 3)), np.ones((2, 3)), threads=0)
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(20, 200), backend=st.sampled_from(BACKENDS))
+def test_kept_fractions_are_those_of_a_fresh_subject(seed, n, backend):
+    """Cameras asked again (alone or among others, for the same volume) get the fractions a fresh subject computes,
+    without walking them again; another volume, or a pickled copy, starts afresh."""
+    import pickle
+
+    from cinenerf_ns.planner.geometry import visibility as V
+
+    rng, sc, vol, members = _subject_scene(seed, n)
+    s = SubjectSamples.of_members(vol, members, n_samples=12, seed=seed)
+    cams = rng.uniform(-1, 1, (7, 3))
+    first = subject_visibility(vol, cams[:4], s, backend=backend)
+    walked = []
+    real = V._visibility
+    try:
+        V._visibility = lambda v, c, sub, b: walked.append(len(c)) or real(v, c, sub, b)
+        both = subject_visibility(vol, cams[[6, 2, 5, 0]], s, backend=backend)
+        assert walked == [2]  # cameras 6 and 5 only
+    finally:
+        V._visibility = real
+    fresh = SubjectSamples.of_members(vol, members, n_samples=12, seed=seed)
+    np.testing.assert_array_equal(both, subject_visibility(vol, cams[[6, 2, 5, 0]], fresh, backend=backend))
+    np.testing.assert_array_equal(both[[1, 3]], first[[2, 0]])
+    assert pickle.loads(pickle.dumps(s))._seen is None
+    vol2 = SplatVolume.build(sc, -2 * np.ones(3), 2 * np.ones(3))
+    subject_visibility(vol2, cams[:1], s, backend=backend)
+    assert s._seen[0] is vol2 and len(s._seen[1]) == 1
+
+
+@pytest.mark.skipif(native.optical_depth_c() is None, reason="the compiled walk did not load")
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 300), n_seg=st.integers(1, 60),
+       flat=st.sampled_from([(-3.5, -1.5), (-7.0, -1.0)]), cut=st.sampled_from([3.0, 1.5]))
+def test_the_first_sphere_test_leaves_the_sums_bit_for_bit(seed, n, n_seg, flat, cut):
+    """The compiled walk's cheap first test (volume.sphere: a segment beyond cut * sigma_max of the mean) leaves out
+    only Gaussians the whole test leaves out: the same sums, to the bit, as without it (sphere None), with the early
+    stops on and off, on round and very flat Gaussians (their sphere is far larger than their cut-off ellipsoid)."""
+    import dataclasses
+
+    rng = np.random.default_rng(seed)
+    vol = SplatVolume.build(_scene(rng, n, log_scale=flat), -np.ones(3), np.ones(3), cut_sigma=cut)
+    bare = dataclasses.replace(vol, sphere=None)
+    # segments from Gaussians' means and from points near their cut-off, to anywhere
+    near = vol.means[rng.integers(0, n, n_seg)] + rng.normal(size=(n_seg, 3)) * np.exp(flat[1])
+    p0 = np.where(rng.random((n_seg, 1)) < 0.5, np.clip(near, -1, 1), rng.uniform(-1, 1, (n_seg, 3)))
+    p1 = rng.uniform(-1, 1, (n_seg, 3))  # inside the box: the reference does not clip
+    cls = rng.random(n) < 0.3
+    skip = rng.integers(-1, n, n_seg)
+    for kw in (dict(), dict(stop1=2.0, stop0=3.0, after1=rng.random(n_seg))):
+        got = optical_depth(vol, p0, p1, cls, skip, backend="native", cut_sigma=cut, **kw)
+        np.testing.assert_array_equal(got, optical_depth(bare, p0, p1, cls, skip, backend="native", cut_sigma=cut,
+                                                         **kw))
+    np.testing.assert_allclose(optical_depth(vol, p0, p1, cls, skip, backend="native", cut_sigma=cut),
+                               optical_depth_reference(vol, p0, p1, cls, skip, cut_sigma=cut), rtol=1e-9, atol=1e-12)

@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings, strategies as st
 
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.geometry import clearance_queries
@@ -182,9 +183,9 @@ def test_scene_members_through_source_index_and_its_host_copy():
     assert scene.source_index is not None and scene.source_index.tolist() == [0, 2, 3, 5]
     mask = np.array([1, 1, 0, 1, 0, 0], bool)  # splat Gaussians 0, 1 (dropped), 3
     np.testing.assert_array_equal(scene_members(scene, mask), [0, 2])
-    first = T._SOURCES[id(scene.source_index)][1]
+    first = T._SOURCES[id(scene.source_index)][1][0]
     np.testing.assert_array_equal(scene_members(scene, mask), [0, 2])
-    assert T._SOURCES[id(scene.source_index)][1] is first  # not copied again
+    assert T._SOURCES[id(scene.source_index)][1][0] is first  # not copied again
     scene.source_index = torch.tensor([1, 2, 3, 4])
     np.testing.assert_array_equal(scene_members(scene, mask), [0, 2])  # the new tensor's own copy: splat 1 and 3
     with pytest.raises(InvalidInputError, match="the scene's Gaussians come from more"):
@@ -227,3 +228,66 @@ def test_frame_coverage_matches_a_cell_by_cell_reference():
         up = np.array([0.0, 0.0, 1.0])
         got = frame_coverage(cams, look, up, obj, FramingConfig("medium"))
         np.testing.assert_array_equal(got, _frame_coverage_reference(cams, look, up, obj, FramingConfig("medium")))
+
+
+def _choose_all_reference(cost, vis, gfill, dirs, k, cfg, cos_sep):
+    """The choice with every viewpoint's total computed (what choose_end_poses did before evaluating lazily)."""
+    from cinenerf_ns.planner.shots.end_pose import GOTO_FILL_FREE
+
+    total = cost + cfg.w_visibility * (1 - vis) + cfg.w_goto_fill * np.maximum(0.0, gfill - GOTO_FILL_FREE)
+    order = np.argsort(total, kind="stable")
+    chosen = []
+    floor = min(float(vis[order[0]]), max(0.5, float(vis[order[0]]) - 0.25))
+    for i in order:
+        if len(chosen) >= k:
+            break
+        if (not chosen or vis[i] >= floor) and all(float(dirs[i] @ dirs[j]) < cos_sep for j in chosen):
+            chosen.append(int(i))
+    for i in order:
+        if len(chosen) >= k:
+            break
+        if int(i) not in chosen:
+            chosen.append(int(i))
+    return chosen, total
+
+
+@settings(max_examples=80, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 30), k=st.integers(1, 8), ties=st.booleans(),
+       first=st.integers(1, 12))
+def test_lazy_choice_is_the_choice_with_every_viewpoint_evaluated(seed, n, k, ties, first):
+    from cinenerf_ns.planner.shots.end_pose import _choose_lazily
+
+    rng = np.random.default_rng(seed)
+    cost = np.sort(rng.uniform(0, 3, n) if not ties else rng.integers(0, 3, n).astype(float))
+    vis = rng.choice([0.0, 0.3, 0.6, 1.0], n) if ties else rng.uniform(0, 1, n)
+    gfill = rng.choice([0.0, 0.25, 0.5], n) if ties else rng.uniform(0, 0.6, n)
+    dirs = rng.normal(size=(n, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    cfg, cos_sep = EndPoseConfig(), math.cos(math.radians(25.0))
+    asked = []
+
+    def visibility(pos):
+        asked.extend(int(i) for i in pos)
+        return vis[pos]
+
+    chosen, total, v = _choose_lazily(cost, gfill, visibility, dirs, k, cfg, cos_sep, first)
+    want, want_total = _choose_all_reference(cost, vis, gfill, dirs, k, cfg, cos_sep)
+    assert chosen == want
+    assert len(asked) == len(set(asked))  # each evaluated once
+    np.testing.assert_array_equal(total[chosen], want_total[chosen])
+    np.testing.assert_array_equal(v[chosen], vis[chosen])
+
+
+def test_the_sphere_ring_kept_with_the_subject_equals_a_fresh_one(room):
+    from cinenerf_ns.planner.shots.end_pose import _directions, _ring, _sphere_ring
+
+    r, scene, pl = room
+    subject = _obj(r, scene, r.objects[1].name)
+    up = np.array([0.0, 0.0, 1.0])
+    cfg, framing = EndPoseConfig(), FramingConfig("wide")
+    _, sphere = _directions(subject, None, up, cfg)
+    first = _sphere_ring(subject, sphere, up, framing, cfg)
+    assert _sphere_ring(subject, sphere, up, framing, cfg) is first  # kept
+    for a, b in zip(first, _ring(subject, sphere, up, framing)):
+        np.testing.assert_array_equal(a, b)
+    assert _sphere_ring(subject, sphere, up, FramingConfig("close"), cfg) is not first
