@@ -35,6 +35,7 @@ THREADS = Range(1, 256, integer=True, none_ok=True)
 
 RANGES: Dict[Tuple[type, str], Range] = {
     (PlannerConfig, "grid_resolution"): Range(*GRID_RESOLUTION_RANGE, integer=True),
+    (PlannerConfig, "max_voxel_radii"): Range(0.0, 100.0, lo_open=True, none_ok=True),
     (PlannerConfig, "start_look_distance"): Range(0.0, 0.99),
     (PlannerConfig, "astar_weight"): Range(1.0, 100.0),
     (PlannerConfig, "box_margin"): Range(0.0, 100.0, lo_open=True),

@@ -267,7 +267,8 @@ def _summary(args, loaded, planner, prep, gm, lm, goal, look, shots, scores, mul
         "scene": loaded.source,
         "go_to": {**strip(gm), "point": goal.tolist(), "resolved": gm["description"]},
         "look_at": {**strip(lm), "point": look.tolist(), "resolved": lm["description"]},
-        "planning_region": {"lo": lo.tolist(), "hi": hi.tolist(), "rule": planner.region_rule()},
+        "planning_region": {"lo": lo.tolist(), "hi": hi.tolist(), "rule": planner.region_rule(),
+                            "grid_shape": list(prep.grid.shape), "grid_note": planner.grid_note},
         "prepare_ms": prep.timings_ms,
         "camera_radius": args.obstacles.camera_radius,
         "safety_margin": args.safety_margin,
@@ -320,7 +321,8 @@ def _print_summary(args, console, loaded, gm, lm, shots, scores, multi, reports,
     console.print(table)
     reg = summary["planning_region"]
     console.print(f"planning region {_fmt3(reg['lo'])}..{_fmt3(reg['hi'])} ({reg['rule']}); obstacles: "
-                  f"{summary['floaters']['obstacles']}")
+                  f"{summary['floaters']['obstacles']}" + (f"; {reg['grid_note']}" if reg["grid_note"] else ""),
+                  markup=False, emoji=False)
     band = framing_config(args).band
     console.print("score: lower is better (every term in the report); seen: frames with at least half of the look-at "
                   "object visible; end: its visible share in the last frame; size: its size in the last frame "

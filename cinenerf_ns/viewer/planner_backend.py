@@ -137,7 +137,8 @@ class PreparedPlanner:
             detail = ", ".join(f"{k[:-3]} {v:.0f} ms" for k, v in prep.timings_ms.items())
             self.prepare_detail = (f"Planner prepared in {self.prepare_s:.2f} s ({detail}) for "
                                    f"{region.describe()}.")  # the details fold
-            self._status(f"Planner ready. It plans in {region.describe()}.", "ok")
+            note = f" ({planner.grid_note})" if planner.grid_note else ""  # a finer grid than asked for is said
+            self._status(f"Planner ready. It plans in {region.describe()}{note}.", "ok")
         except BaseException as err:  # kept and re-raised by plan(): the panel shows it
             if gen != self._generation:
                 return

@@ -1,4 +1,5 @@
 """cinesplat-plan: outputs exist and are valid, text and point targets, specific errors."""
+import dataclasses
 import json
 
 import numpy as np
@@ -431,3 +432,19 @@ def test_ignore_floaters_reports_the_count_and_the_verified_obstacles(tmp_path, 
     s = run_plan(PlanArgs(output_dir=tmp_path / "off", **common))  # the default keeps every Gaussian
     assert not s["floaters"]["ignored"] and s["floaters"]["ignored_gaussians"] == 0
     assert s["candidates"][0]["verification"]["obstacles"].startswith("all ")
+
+
+def test_a_grid_made_finer_is_said(tmp_path, capsys):
+    """--grid-resolution below what max_voxel_radii asks for is raised, and the report and the summary say so; with
+    --planner.max-voxel-radii None the grid is the one asked for, and nothing is said."""
+    s = run_plan(PlanArgs(scene="procedural:3000:1", go_to="1 0 0.5", look_at="floor lamp", planner=grid(16),
+                          workers=0, output_dir=tmp_path / "a"))
+    reg = json.loads(open(s["report"]).read())["planning_region"]
+    assert max(reg["grid_shape"]) > 16 and reg["grid_note"].startswith(f"grid {max(reg['grid_shape'])} voxels")
+    assert "made finer so that a voxel" in " ".join(capsys.readouterr().out.split())
+    kept = dataclasses.replace(grid(16), max_voxel_radii=None)
+    s = run_plan(PlanArgs(scene="procedural:3000:1", go_to="1 0 0.5", look_at="floor lamp", planner=kept, workers=0,
+                          output_dir=tmp_path / "b"))
+    reg = json.loads(open(s["report"]).read())["planning_region"]
+    assert max(reg["grid_shape"]) == 16 and reg["grid_note"] is None
+    assert "made finer" not in " ".join(capsys.readouterr().out.split())

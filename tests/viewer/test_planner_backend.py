@@ -57,7 +57,8 @@ def test_prepares_once_in_background_and_reports(room):
     assert statuses[0][1] == "busy" and "Preparing the planner" in statuses[0][0]
     # its timings go to the details fold; the status says the planning region and the rule that chose it
     assert statuses[-1][1] == "ok" and statuses[-1][0].startswith("Planner ready. It plans in the planning region (")
-    assert statuses[-1][0].endswith("chosen by: automatic: training cameras.")
+    note = planner.planner.grid_note  # a grid made finer than asked for is said after the region
+    assert statuses[-1][0].endswith("chosen by: automatic: training cameras" + (f" ({note})." if note else "."))
     assert planner.prepare_detail.startswith("Planner prepared in ") and " ms" in planner.prepare_detail
     prepared = planner.planner.prepared
     planner.start()  # a second start does nothing

@@ -52,6 +52,7 @@ class Planner:
         self.batch_scene = scene  # the scene on its own device: big batched queries (candidate scoring)
         self.scene = scene  # the scene on the request device (a CPU mirror after prepare() when 'auto' + GPU)
         self._region_rule: Optional[str] = None  # region_rule(), computed once
+        self.grid_note: Optional[str] = None  # set by prepare() when the grid is finer than config.grid_resolution
         self.prepared: Optional[PreparedScene] = None
         self._space: Optional[PlanningSpace] = None  # see space
         self._pool: Optional[tuple] = None  # (PreparedScene, processes, CandidatePool), see candidate_pool()
@@ -75,6 +76,10 @@ class Planner:
             self.config = replace(self.config, start_region=inside)
         res = planning_region.grid_resolution_for(self.config, float(self.scene.camera_radius), lo.cpu().numpy(),
                                                   hi.cpu().numpy())
+        self.grid_note = None if res == self.config.grid_resolution else (
+            f"grid {res} voxels along the longest side, not {self.config.grid_resolution}: made finer so that a voxel "
+            f"is at most {self.config.max_voxel_radii:g} camera radii (--planner.max-voxel-radii; None keeps "
+            f"--grid-resolution)")
         self.scene, self.prepared = prepare_scene(self.batch_scene, res, lo, hi, mirror=self._mirror_to_cpu())
         self._space = PlanningSpace(self.scene, self.batch_scene, self.config, self.prepared)
         if self.config.plan_cpu_threads is not None:
