@@ -113,7 +113,7 @@ OPTION_CASES = [
     ("score-fov", ["--score.fov-deg", "40"], r"--score.fov-deg was renamed: use --fov"),
     ("grid-polytopes-bad", ["--planner.grid-polytopes", "sometimes"], r"--planner.grid-polytopes must be auto, on"),
     ("trajectory-invalid", ["--trajectory.continuity", "9"], r"--trajectory: continuity order must be in"),
-    ("planner-invalid", ["--planner.corridor-backend", "gpu"], r"--planner: corridor_backend must be"),
+    ("planner-invalid", ["--planner.corridor-backend", "gpu"], r"--planner.corridor-backend must be"),
 ]
 
 

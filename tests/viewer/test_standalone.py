@@ -270,7 +270,7 @@ def test_cli_help():
     (["--candidates", "500"], r"--candidates must be an integer in \[1, 64\]"),
     (["--n-candidates", "5"], r"--n-candidates was renamed: use --candidates"),
     (["--scene", "/nonexistent/scene.npz"], r"scene\.npz"),
-    (["--trajectory.smoothness-order", "9"], r"--trajectory: smoothness_order must be in"),
+    (["--trajectory.smoothness-order", "9"], r"--trajectory.smoothness-order must be in"),
     (["--device", "tpu"], r"--device must be"),
     (["--load-config", "/nonexistent/scene.npz"], r"scene\.npz"),
     (["--load-config", "procedural:abc"], r"bad procedural scene"),

@@ -293,10 +293,14 @@ def grid_resolution_for(cfg: "PlannerConfig", camera_radius: float, lo: np.ndarr
     want = min(AUTO_RESOLUTION_MAX, int(math.ceil(longest / (float(cfg.max_voxel_radii) * float(camera_radius)))))
     if want <= res:
         return res
-    voxels = float(np.prod(np.ceil(side / (longest / want))))
+    def n_voxels(w: int) -> float:
+        return float(np.prod(np.ceil(side / (longest / w))))
+
     budget_voxels = float(cfg.memory_budget_mb) * 2**20 / GRID_BYTES_PER_VOXEL
-    if voxels > budget_voxels:
-        want = int(want * (budget_voxels / voxels) ** (1 / 3))
+    if n_voxels(want) > budget_voxels:
+        want = int(want * (budget_voxels / n_voxels(want)) ** (1 / 3))
+        while want > res and n_voxels(want) > budget_voxels:  # the cube root ignores the sides' rounding up
+            want -= 1
     return max(res, want)
 
 
