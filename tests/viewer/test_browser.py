@@ -149,7 +149,15 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
     artifacts.mkdir(parents=True, exist_ok=True)
     timings = {}
     try:
-        b.wait_js("document.body && document.body.innerText.includes('Export camera path')", 60)
+        try:
+            b.wait_js("document.body && document.body.innerText.includes('Export camera path')", 60)
+        except TimeoutError:
+            # seen once in 8 fresh-clone runs (2026-11-28): say what the page was doing, for the next one to read
+            state = b.js("JSON.stringify({ready: document.readyState, url: location.href, "
+                         "text: (document.body ? document.body.innerText : '').slice(0, 300)})", timeout=10)
+            b.screenshot(artifacts / "browser_no_panel.png")
+            raise AssertionError(f"no panel after 60 s: page {state}; viser clients {len(viewer.server.get_clients())}"
+                                 f"; console {b.console[-10:]}") from None
         assert viewer.server.get_clients(), "the browser did not connect"
         b.pump(3.0)  # the splat loads and the first frames render
         ours, viser_own = console_errors(b)
