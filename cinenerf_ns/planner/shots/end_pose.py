@@ -246,7 +246,7 @@ def frame_coverage(cameras: np.ndarray, look_at: np.ndarray, up: np.ndarray, obj
     pts = obj.extent if len(obj.extent) <= max_points else obj.extent[:: int(math.ceil(len(obj.extent) / max_points))]
     x, y, depth = project(cameras, look_at, up, pts, framing)  # [M, P]
     th, tv = framing.tan_half()
-    r = obj.pad + obj.spacing
+    r = obj.pad + obj.gap()
     nx, ny = COVERAGE_RASTER
     cx = (np.arange(nx) + 0.5) / nx * 2 - 1
     cy = (np.arange(ny) + 0.5) / ny * 2 - 1

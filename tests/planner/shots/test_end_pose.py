@@ -201,7 +201,7 @@ def _frame_coverage_reference(cameras, look_at, up, obj, framing):
 
     x, y, depth = project(cameras, look_at, up, obj.extent, framing)
     th, tv = framing.tan_half()
-    r = obj.pad + obj.spacing
+    r = obj.pad + obj.gap()
     nx, ny = COVERAGE_RASTER
     out = []
     for m in range(len(cameras)):
