@@ -361,14 +361,13 @@ class SubjectSamples:
             raise InvalidInputError("the subject has no Gaussians")
         if ids[0] < 0 or ids[-1] >= len(vol):
             raise InvalidInputError(f"subject Gaussian ids must be in [0, {len(vol)})")
-        w = vol.cover[ids]
-        c = np.cumsum(w)
+        box, c = _member_box(vol, ids, cover=True)  # the members' box and their cover's running sum: one pass
         # inverse-CDF draws (what Generator.choice(p=...) does, without its O(K) checks per call)
         pick = np.minimum(np.searchsorted(c, np.random.default_rng(seed).random(int(n_samples)) * c[-1],
                                           side="right"), ids.size - 1)
         u, counts = np.unique(pick, return_counts=True)
         return cls(points=vol.means[ids[u]].copy(), weights=counts.astype(np.float64), ids=ids[u].astype(np.int64),
-                   members=ids, box=subject_box(vol, ids))
+                   members=ids, box=box)
 
     def classes(self, n: int) -> np.ndarray:
         """uint8 [n]: 1 for the subject's own Gaussians."""
@@ -393,9 +392,34 @@ class SubjectSamples:
         return self._packed[1]
 
 
-def subject_box(vol: SplatVolume, members: np.ndarray) -> tuple:
+def subject_box(vol: SplatVolume, members: np.ndarray, backend: str = "auto") -> tuple:
     """(lo [3], hi [3]): the box of the members' cut-off boxes, at the volume's cut-off (every point where one of
-    them attenuates)."""
+    them attenuates). backend: "auto" (native/targets.c when it loads: the same bits), "native", "python"."""
+    return _member_box(vol, members, False, backend)[0]
+
+
+def _member_box(vol: SplatVolume, members: np.ndarray, cover: bool = False, backend: str = "auto") -> tuple:
+    """(subject_box, np.cumsum(vol.cover[members]) when ``cover``, else None), members [K] valid ids, K >= 1: in one
+    compiled pass when it loads (the same bits as numpy: the same subtractions, additions and sequential sum)."""
+    from ..native import choose, member_box_c
+
+    arrays = (vol.means, vol.half, vol.cover)
+    fn = choose(backend, member_box_c, "targets", "member box",
+                applies=all(a.dtype == np.float64 and a.flags.c_contiguous for a in arrays),
+                needs="the volume's arrays C-contiguous float64")
+    if fn is not None:
+        ids = np.ascontiguousarray(members, np.int64)
+        lo, hi = np.empty(3), np.empty(3)
+        cum = np.empty(ids.size) if cover else None
+        rc = fn(ids.ctypes.data, ids.size, vol.means.ctypes.data, vol.half.ctypes.data,
+                vol.cover.ctypes.data if cover else None, lo.ctypes.data, hi.ctypes.data,
+                cum.ctypes.data if cover else None)
+        if rc == 0:
+            return (lo, hi), cum
+    return _member_box_reference(vol, members), (np.cumsum(vol.cover[members]) if cover else None)
+
+
+def _member_box_reference(vol: SplatVolume, members: np.ndarray) -> tuple:
     m = np.take(vol.means, members, axis=0)  # [K, 3] (np.take: several times faster than fancy indexing here)
     half = np.take(vol.half, members, axis=0)
     # per column: numpy's reductions along axis 0 of a [K, 3] array are about 10x slower than over a column

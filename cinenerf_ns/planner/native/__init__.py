@@ -413,3 +413,22 @@ def optical_depth_c():
                       _P, _P, _P, _I64, _F64,  # p0 [L, 3], p1 [L, 3], skip [L] int64, L, stop1,
                       _F64, _P, _P, _I64],  # stop0, after1 [L] or NULL, out tau [L, 2], threads
                      _I64)
+
+
+def member_box_c():
+    """The compiled box of an object's Gaussians' cut-off boxes and running sum of their cover (targets.c:
+    cn_member_box; geometry/visibility.py subject_box, SubjectSamples.of_members), or None."""
+    return _function("targets", "cn_member_box",
+                     [_P, _I64, _P, _P, _P,  # members [K] int64, K, means [N, 3], half [N, 3], cover [N] or NULL
+                      _P, _P, _P],  # out: lo [3], hi [3], cum [K] (or NULL without cover)
+                     _I64)
+
+
+def subject_size_c():
+    """The compiled size and wholeness of a subject in cameras' frames (targets.c: cn_subject_size;
+    shots/framing.py subject_size), or None."""
+    return _function("targets", "cn_subject_size",
+                     [_P, _I64, _P, _P, _P, _I64,  # cameras [M, 3], M, look-at [3], up [3], points [P, 3], P
+                      _F64, _F64, _F64, _F64,  # pad, tan half fov across, down, in-frame limit
+                      _P, _P],  # out: size [M], whole [M] uint8
+                     _I64)

@@ -88,10 +88,34 @@ def project(cameras: np.ndarray, look_at: np.ndarray, up: np.ndarray, points: np
 
 
 def subject_size(cameras: np.ndarray, look_at: np.ndarray, up: np.ndarray, extent: np.ndarray, pad: float,
-                 cfg: FramingConfig) -> Tuple[np.ndarray, np.ndarray]:
+                 cfg: FramingConfig, backend: str = "auto") -> Tuple[np.ndarray, np.ndarray]:
     """(size [M], whole [M] bool) of a subject whose extent points are ``extent`` [P, 3] grown by ``pad`` (scene units):
     its larger relative extent in each camera's frame (module docstring), and whether every point lies in front of
-    the camera and inside IN_FRAME of the frame."""
+    the camera and inside IN_FRAME of the frame. backend: "auto" (native/targets.c when it loads and applies: one
+    look-at point, finite inputs; the same up to rounding), "native", "python" (subject_size_reference)."""
+    from ..native import choose, subject_size_c
+
+    cam = np.ascontiguousarray(np.asarray(cameras, np.float64).reshape(-1, 3))
+    look = np.ascontiguousarray(np.asarray(look_at, np.float64))
+    pts = np.ascontiguousarray(np.asarray(extent, np.float64).reshape(-1, 3))
+    fn = choose(backend, subject_size_c, "targets", "subject size", applies=look.shape == (3,) and len(pts) > 0,
+                needs="one look-at point and at least one extent point")
+    if fn is not None:
+        upv = np.ascontiguousarray(np.asarray(up, np.float64).reshape(3))
+        size, whole = np.empty(len(cam)), np.empty(len(cam), np.uint8)
+        th, tv = cfg.tan_half()
+        rc = fn(cam.ctypes.data, len(cam), look.ctypes.data, upv.ctypes.data, pts.ctypes.data, len(pts), float(pad),
+                th, tv, IN_FRAME, size.ctypes.data, whole.ctypes.data)
+        if rc == 0:
+            return size, whole.astype(bool)
+        if backend == "native":
+            raise RuntimeError("the compiled subject size does not apply here (it needs finite inputs)")
+    return subject_size_reference(cam, look, up, pts, pad, cfg)
+
+
+def subject_size_reference(cameras: np.ndarray, look_at: np.ndarray, up: np.ndarray, extent: np.ndarray, pad: float,
+                           cfg: FramingConfig) -> Tuple[np.ndarray, np.ndarray]:
+    """subject_size in numpy (float64): the reference of the compiled path."""
     x, y, depth = project(cameras, look_at, up, extent, cfg)
     th, tv = cfg.tan_half()
     z = np.maximum(depth, 1e-9)

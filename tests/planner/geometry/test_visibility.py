@@ -320,3 +320,28 @@ def test_the_first_sphere_test_leaves_the_sums_bit_for_bit(seed, n, n_seg, flat,
                                                          **kw))
     np.testing.assert_allclose(optical_depth(vol, p0, p1, cls, skip, backend="native", cut_sigma=cut),
                                optical_depth_reference(vol, p0, p1, cls, skip, cut_sigma=cut), rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.skipif(native.member_box_c() is None, reason="the compiled member box did not load here")
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 300), k=st.integers(1, 300))
+def test_compiled_member_box_and_draws_are_numpys_bit_for_bit(seed, n, k):
+    """subject_box and SubjectSamples.of_members' draw (the cover's running sum) with and without the compiled pass:
+    the same bits; and the box holds the float64 box of every member's cut-off box."""
+    from cinenerf_ns.planner.geometry.visibility import _member_box, subject_box
+
+    rng = np.random.default_rng(seed)
+    vol = SplatVolume.build(_scene(rng, n, spread=float(rng.uniform(0.2, 3.0))), -np.ones(3), np.ones(3))
+    ids = np.unique(rng.integers(0, n, k))
+    (lo, hi), cum = _member_box(vol, ids, cover=True, backend="native")
+    (lo_p, hi_p), cum_p = _member_box(vol, ids, cover=True, backend="python")
+    assert lo.tobytes() == lo_p.tobytes() and hi.tobytes() == hi_p.tobytes() and cum.tobytes() == cum_p.tobytes()
+    for a, b in zip(subject_box(vol, ids, backend="native"), subject_box(vol, ids, backend="python")):
+        assert a.tobytes() == b.tobytes()
+    want_lo = np.min([vol.means[i] - vol.half[i] for i in ids], axis=0)  # member by member
+    want_hi = np.max([vol.means[i] + vol.half[i] for i in ids], axis=0)
+    np.testing.assert_array_equal(lo, want_lo)
+    np.testing.assert_array_equal(hi, want_hi)
+    np.testing.assert_allclose(cum[-1], math.fsum(vol.cover[ids]), rtol=1e-12)
+    s = SubjectSamples.of_members(vol, ids, 16, seed)
+    assert s.box[0].tobytes() == lo_p.tobytes() and s.box[1].tobytes() == hi_p.tobytes()

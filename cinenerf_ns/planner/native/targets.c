@@ -1,0 +1,117 @@
+/* What an object target's first request derives from its Gaussians (shots/target_object.py, shots/framing.py),
+   compiled: one pass where numpy makes a temporary array per operation.
+
+   cn_member_box: the box of the members' cut-off boxes (geometry/visibility.py subject_box) and the running sum of
+   their cover (SubjectSamples.of_members' draw), with numpy's arithmetic (m - h, m + h; a sequential sum): the same
+   bits as the numpy path.
+
+   cn_subject_size: framing.subject_size of cameras looking at one point (framing.camera_axes, framing.project),
+   with numpy's arithmetic in numpy's order (np.cross's products and differences, np.linalg.norm's (x*x + y*y) + z*z)
+   except the projections, which numpy takes as one matrix product (BLAS: its own order of the three products'
+   sum): here (a0 q0 + a1 q1) + a2 q2 - (a0 c0 + a1 c1) + a2 c2; so the two agree to rounding
+   (tests/planner/test_native.py). A non-finite input returns 2 and the caller takes the numpy path. */
+#if defined(__clang__)
+#pragma clang fp contract(off)
+#elif defined(__GNUC__)
+#pragma GCC optimize("fp-contract=off")
+#endif
+#include <math.h>
+#include <stdint.h>
+
+/* members [K] (valid ids, K >= 1); means, half [N, 3]; cover [N] or NULL; out lo [3], hi [3], cum [K] (if cover). */
+int64_t cn_member_box(const int64_t *members, int64_t K, const double *means, const double *half,
+                      const double *cover, double *lo, double *hi, double *cum) {
+    double l0 = INFINITY, l1 = INFINITY, l2 = INFINITY, h0 = -INFINITY, h1 = -INFINITY, h2 = -INFINITY;
+    double acc = 0.0;
+    int nan = 0;
+    for (int64_t k = 0; k < K; k++) {
+        const double *m = means + 3 * members[k], *h = half + 3 * members[k];
+        double a0 = m[0] - h[0], a1 = m[1] - h[1], a2 = m[2] - h[2];
+        double b0 = m[0] + h[0], b1 = m[1] + h[1], b2 = m[2] + h[2];
+        nan |= (a0 != a0) | (a1 != a1) | (a2 != a2) | (b0 != b0) | (b1 != b1) | (b2 != b2);
+        if (a0 < l0) l0 = a0;
+        if (a1 < l1) l1 = a1;
+        if (a2 < l2) l2 = a2;
+        if (b0 > h0) h0 = b0;
+        if (b1 > h1) h1 = b1;
+        if (b2 > h2) h2 = b2;
+        if (cover) {
+            acc += cover[members[k]];
+            cum[k] = acc;
+        }
+    }
+    lo[0] = l0; lo[1] = l1; lo[2] = l2;
+    hi[0] = h0; hi[1] = h1; hi[2] = h2;
+    return nan ? 2 : 0;  /* numpy's min / max propagate NaN: the caller takes the numpy path */
+}
+
+static inline double norm3(double x, double y, double z) {
+    return sqrt((x * x + y * y) + z * z);
+}
+
+static inline void cross3(const double *a, const double *b, double *o) {
+    o[0] = a[1] * b[2] - a[2] * b[1];
+    o[1] = a[2] * b[0] - a[0] * b[2];
+    o[2] = a[0] * b[1] - a[1] * b[0];
+}
+
+static inline double dot3(const double *a, const double *q) {
+    return (a[0] * q[0] + a[1] * q[1]) + a[2] * q[2];
+}
+
+/* cams [M, 3]; look [3]; up [3] (unit); pts [P, 3] (P >= 1); pad; th, tv: tangents of half the fov; in_frame;
+   out size [M], whole [M] (0 / 1). Returns 0, or 2 for a non-finite input (nothing written then). */
+int64_t cn_subject_size(const double *cams, int64_t M, const double *look, const double *up, const double *pts,
+                        int64_t P, double pad, double th, double tv, double in_frame, double *size, uint8_t *whole) {
+    for (int64_t i = 0; i < 3 * M; i++)
+        if (!isfinite(cams[i])) return 2;
+    for (int64_t i = 0; i < 3 * P; i++)
+        if (!isfinite(pts[i])) return 2;
+    for (int i = 0; i < 3; i++)
+        if (!isfinite(look[i]) || !isfinite(up[i])) return 2;
+    if (!isfinite(pad) || !isfinite(th) || !isfinite(tv) || !isfinite(in_frame)) return 2;
+    const double ex[3] = {1.0, 0.0, 0.0}, ey[3] = {0.0, 1.0, 0.0};
+    const double *other = fabs(up[0]) < 0.9 ? ex : ey;
+    for (int64_t m = 0; m < M; m++) {
+        const double *c = cams + 3 * m;
+        double f[3] = {look[0] - c[0], look[1] - c[1], look[2] - c[2]}, r[3], u[3], alt[3];
+        double fn = norm3(f[0], f[1], f[2]);
+        fn = fn > 1e-12 ? fn : 1e-12;
+        f[0] = f[0] / fn; f[1] = f[1] / fn; f[2] = f[2] / fn;
+        cross3(f, up, r);
+        double rn = norm3(r[0], r[1], r[2]);
+        if (rn > 1e-9) {
+            r[0] = r[0] / rn; r[1] = r[1] / rn; r[2] = r[2] / rn;
+        } else {
+            cross3(f, other, alt);
+            double an = norm3(alt[0], alt[1], alt[2]);
+            an = an > 1e-12 ? an : 1e-12;
+            r[0] = alt[0] / an; r[1] = alt[1] / an; r[2] = alt[2] / an;
+        }
+        cross3(r, f, u);
+        double ef = dot3(f, c), er = dot3(r, c), eu = dot3(u, c);
+        double xmax = -INFINITY, xmin = INFINITY, ymax = -INFINITY, ymin = INFINITY;
+        double dmin = INFINITY, axmax = -INFINITY, aymax = -INFINITY, pxmax = -INFINITY, pymax = -INFINITY;
+        for (int64_t p = 0; p < P; p++) {
+            const double *q = pts + 3 * p;
+            double depth = dot3(f, q) - ef;
+            double z = depth > 1e-9 ? depth : 1e-9;
+            double x = (dot3(r, q) - er) / (z * th), y = (dot3(u, q) - eu) / (z * tv);
+            double px = pad / (z * th), py = pad / (z * tv);
+            double a;
+            if ((a = x + px) > xmax) xmax = a;
+            if ((a = x - px) < xmin) xmin = a;
+            if ((a = y + py) > ymax) ymax = a;
+            if ((a = y - py) < ymin) ymin = a;
+            if (depth < dmin) dmin = depth;
+            if ((a = fabs(x)) > axmax) axmax = a;
+            if ((a = fabs(y)) > aymax) aymax = a;
+            if (px > pxmax) pxmax = px;
+            if (py > pymax) pymax = py;
+        }
+        double w = (xmax - xmin) / 2, h = (ymax - ymin) / 2;
+        size[m] = w > h ? w : h;  /* np.maximum(w, h) (neither is NaN: inputs are finite) */
+        whole[m] = (dmin > pad) && (axmax + pxmax <= in_frame) && (aymax + pymax <= in_frame);
+    }
+    return 0;
+}
