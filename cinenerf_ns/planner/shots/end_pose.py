@@ -20,13 +20,14 @@ start region's centre as seen from Y) is preferred instead.
 
 Cost per request: the visibility (the walk through the splat) is computed for the cheapest of the evaluated
 viewpoints first (by their cost with the go-to coverage), in batches, until no viewpoint left could change the
-choice (its total is at least those terms): the same end poses as computing it for all. The sphere's viewpoints
-and the subject's size from each are kept with the subject's set-up (target_object.object_parts) for later requests
-that frame the same object.
+choice (its total is at least those terms): the same end poses as computing it for all. The subject's size is made
+only for the free viewpoints (feasibility needs no size). The sphere's viewpoints and the sizes made from them are
+kept with the subject's set-up (target_object.object_parts) for later requests that frame the same object.
 """
 from __future__ import annotations
 
 import math
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, List, Optional
@@ -201,10 +202,35 @@ def _fills(framing: FramingConfig) -> tuple:
     return (aim, 0.5 * (lo_b + aim), 0.5 * (aim + hi_b), lo_b, hi_b, min(0.95, 1.15 * hi_b))
 
 
-def _ring(subject: TargetObject, dirs: np.ndarray, up: np.ndarray, framing: FramingConfig) -> tuple:
-    """(d [D], pts [F, D, 3], size [F, D], whole [F, D]) of the viewpoints along directions dirs [D, 3] from the
-    subject: d the distance for the aimed-for size (size ~ 1 / distance, two corrections from a first guess), pts at
-    the distances of each of _fills, and the subject's size and wholeness from each."""
+@dataclass
+class _Ring:
+    """Viewpoints along directions [D, 3] from the subject: ``d`` [D] the distance for the aimed-for size, ``pts``
+    [F, D, 3] at the distances of each of _fills (read-only); the subject's size and wholeness from each viewpoint are
+    made on first use (sizes(): a request sizes only its free viewpoints) and kept."""
+
+    d: np.ndarray
+    pts: np.ndarray
+    size: np.ndarray  # [F * D]; valid where done
+    whole: np.ndarray  # [F * D] bool; valid where done
+    done: np.ndarray  # [F * D] bool
+    lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def sizes(self, rows: np.ndarray, subject: TargetObject, up: np.ndarray, framing: FramingConfig) -> tuple:
+        """(size, whole) of the viewpoints ``rows`` (flat indices into pts [F * D]): each camera's answer depends on
+        nothing else in the call, so sizing a few now and others later gives what sizing all at once does."""
+        rows = np.asarray(rows, np.int64)
+        with self.lock:  # viewer clients may share a kept ring
+            todo = np.unique(rows[~self.done[rows]])
+            if todo.size:
+                sz, wh = subject_size(self.pts.reshape(-1, 3)[todo], subject.centre, up, subject.outline_points(),
+                                      subject.pad, framing)
+                self.size[todo], self.whole[todo], self.done[todo] = sz, wh, True
+            return self.size[rows].copy(), self.whole[rows].copy()
+
+
+def _ring(subject: TargetObject, dirs: np.ndarray, up: np.ndarray, framing: FramingConfig) -> _Ring:
+    """The _Ring of directions dirs [D, 3] from the subject: d from a first guess and two corrections (size ~
+    1 / distance), its sizes not yet made."""
     c = subject.centre
     aim = framing.band[1]
     th, tv = framing.tan_half()
@@ -213,14 +239,16 @@ def _ring(subject: TargetObject, dirs: np.ndarray, up: np.ndarray, framing: Fram
         s, _ = subject_size(c[None] + d[:, None] * dirs, c, up, subject.outline_points(), subject.pad, framing)
         d = d * np.clip(s / aim, 0.25, 4.0)
     pts = np.stack([c[None] + (d * aim / f)[:, None] * dirs for f in _fills(framing)])  # [F, D, 3]
-    size, whole = subject_size(pts.reshape(-1, 3), c, up, subject.outline_points(), subject.pad, framing)
-    return d, pts, size.reshape(pts.shape[:2]), whole.reshape(pts.shape[:2])
+    for a in (d, pts):
+        a.setflags(write=False)
+    n = pts.shape[0] * pts.shape[1]
+    return _Ring(d, pts, np.zeros(n), np.zeros(n, bool), np.zeros(n, bool))
 
 
 def _sphere_ring(subject: TargetObject, dirs: np.ndarray, up: np.ndarray, framing: FramingConfig,
-                 cfg: EndPoseConfig) -> tuple:
+                 cfg: EndPoseConfig) -> _Ring:
     """_ring of the sphere's directions, kept with the subject's set-up (subject.memo) for the next request that
-    frames the same object from the same look-at point the same way (arrays read-only)."""
+    frames the same object from the same look-at point the same way."""
     if subject.memo is None:
         return _ring(subject, dirs, up, framing)
     key = ("ring", framing.framing, float(framing.fov_deg), float(framing.aspect), up.tobytes(),
@@ -228,10 +256,23 @@ def _sphere_ring(subject: TargetObject, dirs: np.ndarray, up: np.ndarray, framin
     got = subject.memo.get(key)
     if got is None:
         got = _ring(subject, dirs, up, framing)
-        for a in got:
-            a.setflags(write=False)
         subject.memo[key] = got
     return got
+
+
+def _ring_sizes(rings: list, idx: np.ndarray, subject: TargetObject, up: np.ndarray, framing: FramingConfig) -> tuple:
+    """(size, whole) [len(idx)] of viewpoints idx (flat indices into the rings' points concatenated along the
+    directions, [F, sum D, 3]), each from its ring (sized on first use)."""
+    widths = [r.pts.shape[1] for r in rings]
+    f, j = np.divmod(idx, sum(widths))
+    size, whole = np.zeros(len(idx)), np.zeros(len(idx), bool)
+    off = 0
+    for r, w in zip(rings, widths):
+        sel = (j >= off) & (j < off + w)
+        if sel.any():
+            size[sel], whole[sel] = r.sizes(f[sel] * w + j[sel] - off, subject, up, framing)
+        off += w
+    return size, whole
 
 
 def _box_distance(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -371,15 +412,14 @@ def choose_end_poses(planner: "Planner", subject: TargetObject, goto: Optional[T
     # the viewpoints: for each of the framing's sizes, toward the go-to, then around the sphere
     rings = [_ring(subject, extra, up, framing)] if len(extra) else []
     rings.append(_sphere_ring(subject, sphere, up, framing, cfg))
-    d = np.concatenate([r[0] for r in rings])
-    pts = np.concatenate([r[1] for r in rings], axis=1).reshape(-1, 3)  # [len(fills) * D, 3]
-    size = np.concatenate([r[2] for r in rings], axis=1).reshape(-1)
-    whole = np.concatenate([r[3] for r in rings], axis=1).reshape(-1)
+    d = np.concatenate([r.d for r in rings])
+    pts = np.concatenate([r.pts for r in rings], axis=1).reshape(-1, 3)  # [len(fills) * D, 3]
     dir_all = np.concatenate([np.concatenate([extra, sphere])] * len(_fills(framing)))
     considered = len(pts)
     notes: List[str] = []
     keep = _feasible(planner, pts, (subject, goto), component)
-    pts, dir_all, size, whole = pts[keep], dir_all[keep], size[keep], whole[keep]
+    size, whole = _ring_sizes(rings, np.flatnonzero(keep), subject, up, framing)  # the free viewpoints only
+    pts, dir_all = pts[keep], dir_all[keep]
     if len(pts) == 0:
         notes.append("every sampled viewpoint is occupied, unreachable from the start, inside the go-to or subject, "
                      "or outside the planning region")
