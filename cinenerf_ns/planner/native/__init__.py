@@ -432,3 +432,10 @@ def subject_size_c():
                       _F64, _F64, _F64, _F64,  # pad, tan half fov across, down, in-frame limit
                       _P, _P],  # out: size [M], whole [M] uint8
                      _I64)
+
+
+def nearest_gaps_c():
+    """The compiled distance of each point to its nearest other point (targets.c: cn_nearest_gaps;
+    shots/target_object.py's spacing), or None."""
+    return _function("targets", "cn_nearest_gaps", [_P, _I64, _P, _P],  # points [P, 3], P, order by x [P], out [P]
+                     _I64)

@@ -223,10 +223,20 @@ def _hull(points: np.ndarray) -> Optional[np.ndarray]:
         return None
 
 
-def _spacing(points: np.ndarray) -> float:
-    """Median distance from each point [P, 3] to its nearest other point (0 for fewer than two points)."""
+def _spacing(points: np.ndarray, backend: str = "auto") -> float:
+    """Median distance from each point [P, 3] to its nearest other point (0 for fewer than two points). backend:
+    "auto" (native/targets.c's sweep along x when it loads), "native", "python" (a k-d tree)."""
     if len(points) < 2:
         return 0.0
+    from ..native import choose, nearest_gaps_c
+
+    fn = choose(backend, nearest_gaps_c, "targets", "nearest gaps")
+    if fn is not None and np.all(np.isfinite(points)):
+        pts = np.ascontiguousarray(points, np.float64)
+        order = np.ascontiguousarray(np.argsort(pts[:, 0], kind="stable"), np.int64)
+        d = np.empty(len(pts))
+        fn(pts.ctypes.data, len(pts), order.ctypes.data, d.ctypes.data)
+        return float(np.median(d))
     from scipy.spatial import cKDTree
 
     d, _ = cKDTree(points).query(points, k=2)

@@ -8,6 +8,7 @@ import pytest
 import torch
 from hypothesis import given, settings, strategies as st
 
+from cinenerf_ns.planner import native
 from cinenerf_ns.planner.geometry.visibility import SplatVolume, SubjectSamples
 from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
 from cinenerf_ns.planner.shots import target_object as T
@@ -142,3 +143,27 @@ def test_exact_median_equals_numpys(seed, n, kind):
         v[rng.integers(0, n)] = np.nan
     want, got = np.median(v), T.exact_median(v, sample=int(rng.integers(1, 64)))
     assert (np.isnan(want) and np.isnan(got)) or got == want
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 600), kind=st.sampled_from(["cloud", "grid", "repeats", "flat"]))
+def test_spacing_is_the_brute_force_median_gap(seed, n, kind):
+    """The typical gap between extent points: compiled sweep, k-d tree and every pair (float64) agree."""
+    rng = np.random.default_rng(seed)
+    pts = rng.normal(size=(n, 3)) * rng.uniform(0.01, 2.0, 3)
+    if kind == "grid":  # many equal distances and equal x
+        pts = np.round(pts * 4) / 4
+    elif kind == "repeats":  # duplicates: gap 0
+        pts = pts[rng.integers(0, n, n)]
+    elif kind == "flat":
+        pts[:, 0] = 0.5
+    if n < 2:
+        assert T._spacing(pts) == 0.0
+        return
+    d2 = ((pts[:, None] - pts[None]) ** 2).sum(-1)
+    np.fill_diagonal(d2, np.inf)
+    want = float(np.median(np.sqrt(d2.min(1))))
+    for backend in ["python"] + (["native"] if native.nearest_gaps_c() else []):
+        np.testing.assert_allclose(T._spacing(pts, backend), want, rtol=1e-12, atol=1e-300)
+    if native.nearest_gaps_c():
+        assert T._spacing(pts, "native") == T._spacing(pts, "python")
