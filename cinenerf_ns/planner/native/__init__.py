@@ -439,3 +439,12 @@ def nearest_gaps_c():
     shots/target_object.py's spacing), or None."""
     return _function("targets", "cn_nearest_gaps", [_P, _I64, _P, _P],  # points [P, 3], P, order by x [P], out [P]
                      _I64)
+
+
+def coverage_c():
+    """The compiled raster of a go-to object's frame coverage (targets.c: cn_coverage; shots/end_pose.py
+    frame_coverage), or None."""
+    return _function("targets", "cn_coverage",
+                     [_P, _P, _P, _P, _P, _I64, _I64,  # x, y, rx, ry [M, P], front [M, P] uint8, M, P
+                      _P, _I64, _P, _I64, _P, _P],  # cx [nx], nx, cy [ny], ny, scratch [nx ny] uint8, out [M]
+                     _I64)

@@ -144,3 +144,46 @@ int64_t cn_nearest_gaps(const double *pts, int64_t P, const int64_t *order, doub
     }
     return 0;
 }
+
+/* end_pose.frame_coverage's raster, given numpy's projections: x, y, rx, ry [M, P] (frame coordinates and disc half
+   axes, half-frame units), front [M, P] (0 / 1); cell centres cx [nx], cy [ny] (ascending, evenly spaced over
+   [-1, 1]); out [M]: the share of cells whose centre lies in a front point's disc, ((cx - x) / rx)^2 +
+   ((cy - y) / ry)^2 <= 1 with numpy's operations (the same cells: the same bits). Each point tests only the cells
+   within its disc's box grown by one cell: a cell beyond it has |cx - x| > rx (1 + 1e-9), whose quotient rounds
+   above 1. scratch [nx ny] bytes. */
+static inline void cell_range(double c, double r, int64_t n, int64_t *lo, int64_t *hi) {
+    double a = ((c - r * (1 + 1e-9)) + 1.0) * (double)n / 2.0 - 0.5, b = ((c + r * (1 + 1e-9)) + 1.0) * (double)n / 2.0 - 0.5;
+    if (!(isfinite(a) && isfinite(b))) {
+        *lo = 0;
+        *hi = n - 1;
+        return;
+    }
+    *lo = a - 1 < 0 ? 0 : (a - 1 > (double)(n - 1) ? n : (int64_t)floor(a - 1));
+    *hi = b + 1 < 0 ? -1 : (b + 1 > (double)(n - 1) ? n - 1 : (int64_t)ceil(b + 1));
+}
+
+int64_t cn_coverage(const double *x, const double *y, const double *rx, const double *ry, const uint8_t *front,
+                    int64_t M, int64_t P, const double *cx, int64_t nx, const double *cy, int64_t ny,
+                    uint8_t *covered, double *out) {
+    for (int64_t m = 0; m < M; m++) {
+        for (int64_t c = 0; c < nx * ny; c++) covered[c] = 0;
+        for (int64_t p = m * P; p < (m + 1) * P; p++) {
+            if (!front[p]) continue;
+            int64_t i0, i1, j0, j1;
+            cell_range(x[p], rx[p], nx, &i0, &i1);
+            cell_range(y[p], ry[p], ny, &j0, &j1);
+            for (int64_t j = j0; j <= j1; j++) {
+                double dy = (cy[j] - y[p]) / ry[p];
+                for (int64_t i = i0; i <= i1; i++) {
+                    if (covered[j * nx + i]) continue;
+                    double dx = (cx[i] - x[p]) / rx[p];
+                    if (dx * dx + dy * dy <= 1.0) covered[j * nx + i] = 1;
+                }
+            }
+        }
+        int64_t count = 0;
+        for (int64_t c = 0; c < nx * ny; c++) count += covered[c];
+        out[m] = (double)count / (double)(nx * ny);
+    }
+    return 0;
+}

@@ -281,9 +281,12 @@ def _box_distance(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndar
 
 
 def frame_coverage(cameras: np.ndarray, look_at: np.ndarray, up: np.ndarray, obj: TargetObject,
-                   framing: FramingConfig, max_points: int = 128) -> np.ndarray:
+                   framing: FramingConfig, max_points: int = 128, backend: str = "auto") -> np.ndarray:
     """Approximate fraction [M] of each camera's frame that an object covers: cells of a COVERAGE_RASTER whose centre
-    lies within (pad + spacing) of one of its extent points, projected (points behind the camera are left out)."""
+    lies within (pad + spacing) of one of its extent points, projected (points behind the camera are left out).
+    backend: of the raster ("auto": native/targets.c when it loads, the same cells; "native"; "python")."""
+    from ..native import choose, coverage_c
+
     pts = obj.extent if len(obj.extent) <= max_points else obj.extent[:: int(math.ceil(len(obj.extent) / max_points))]
     x, y, depth = project(cameras, look_at, up, pts, framing)  # [M, P]
     th, tv = framing.tan_half()
@@ -294,6 +297,15 @@ def frame_coverage(cameras: np.ndarray, look_at: np.ndarray, up: np.ndarray, obj
     front = depth > 1e-6  # [M, P]
     z = np.where(front, depth, 1.0)
     rx, ry = r / (z * th), r / (z * tv)  # [M, P] the disc's half axes in half-frame units
+    fn = choose(backend, coverage_c, "targets", "frame coverage")
+    if fn is not None:
+        m, p = x.shape
+        arrs = [np.ascontiguousarray(a, np.float64) for a in (x, y, rx, ry, cx, cy)]
+        f8 = np.ascontiguousarray(front, np.uint8)
+        out, scratch = np.empty(m), np.empty(nx * ny, np.uint8)
+        fn(*(a.ctypes.data for a in arrs[:4]), f8.ctypes.data, m, p, arrs[4].ctypes.data, nx, arrs[5].ctypes.data,
+           ny, scratch.ctypes.data, out.ctypes.data)
+        return out
     dx = (cx[None, :, None] - x[:, None, :]) / rx[:, None, :]  # [M, nx, P]
     dy = (cy[None, :, None] - y[:, None, :]) / ry[:, None, :]  # [M, ny, P]
     inside = ((dx[:, None, :, :] ** 2 + dy[:, :, None, :] ** 2 <= 1.0) & front[:, None, None, :]).any(-1)
