@@ -448,3 +448,9 @@ def coverage_c():
                      [_P, _P, _P, _P, _P, _I64, _I64,  # x, y, rx, ry [M, P], front [M, P] uint8, M, P
                       _P, _I64, _P, _I64, _P, _P],  # cx [nx], nx, cy [ny], ny, scratch [nx ny] uint8, out [M]
                      _I64)
+
+
+def bracket_c():
+    """The compiled pass of target_object.exact_median (targets.c: cn_bracket), or None."""
+    return _function("targets", "cn_bracket", [_P, _I64, _F64, _F64, _P, _P],  # v [n], n, lo, hi, out mid [n],
+                     _I64)  # out counts [2] (below lo, above hi)

@@ -187,3 +187,19 @@ int64_t cn_coverage(const double *x, const double *y, const double *rx, const do
     }
     return 0;
 }
+
+/* One pass of target_object.exact_median: v [n]; out mid [<= n] the values in [lo, hi] (in order), counts [2] those
+   below lo and above hi (a NaN is neither: the caller sees the counts not add up). Returns how many are in mid. */
+int64_t cn_bracket(const double *v, int64_t n, double lo, double hi, double *mid, int64_t *counts) {
+    int64_t below = 0, above = 0, c = 0;
+    for (int64_t i = 0; i < n; i++) {
+        double a = v[i];
+        below += a < lo;
+        above += a > hi;
+        mid[c] = a;
+        c += (a >= lo) & (a <= hi);
+    }
+    counts[0] = below;
+    counts[1] = above;
+    return c;
+}
