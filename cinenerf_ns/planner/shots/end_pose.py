@@ -215,6 +215,12 @@ class _Ring:
     done: np.ndarray  # [F * D] bool
     lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
+    def __getstate__(self) -> dict:  # a lock is not pickled: a copy gets its own
+        return {k: v for k, v in self.__dict__.items() if k != "lock"}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state, lock=threading.Lock())
+
     def sizes(self, rows: np.ndarray, subject: TargetObject, up: np.ndarray, framing: FramingConfig) -> tuple:
         """(size, whole) of the viewpoints ``rows`` (flat indices into pts [F * D]): each camera's answer depends on
         nothing else in the call, so sizing a few now and others later gives what sizing all at once does."""

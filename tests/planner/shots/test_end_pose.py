@@ -5,6 +5,7 @@ rasteriser); the framing's size measure against brute-force projection."""
 from __future__ import annotations
 
 import math
+import pickle
 
 import numpy as np
 import pytest
@@ -312,3 +313,6 @@ def test_the_sphere_ring_kept_with_the_subject_equals_a_fresh_one(room):
     np.testing.assert_allclose(size, want[0], rtol=1e-13)
     np.testing.assert_array_equal(whole, want[1])
     assert _sphere_ring(subject, sphere, up, FramingConfig("close"), cfg) is not first
+    copy = pickle.loads(pickle.dumps(first))  # kept with the subject: picklable, with its own lock
+    np.testing.assert_array_equal(copy.sizes(np.arange(n), subject, up, framing)[0], first.size)
+    assert copy.lock is not first.lock
