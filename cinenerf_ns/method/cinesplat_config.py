@@ -4,8 +4,8 @@ Both are splatfacto's recipe (same optimisers, schedules, densification) plus
 * the ``latents`` optimizer group (per-Gaussian 3-dim code, eq. 3),
 * ``CineSplatDatamanager`` (CLIP / label features -> codec -> per-image latent targets),
 * schedules whose checkpointed state holds python floats (loads under torch>=2.6 ``weights_only``).
-``cinesplat-lite``: 15k steps, lower feature resolution (48 px long side), one CLIP scale, shorter codec fit,
-latent pass every 2nd step: for quick looks and small GPUs.
+``cinesplat-lite``: 15k steps, lower feature resolution (48 px long side), one CLIP scale, shorter codec fit: for
+quick looks and small GPUs. Both run the latent pass every 2nd step (``latent_every``).
 """
 
 from __future__ import annotations
@@ -19,12 +19,16 @@ from nerfstudio.engine.optimizers import AdamOptimizerConfig
 from nerfstudio.engine.trainer import Trainer, TrainerConfig
 from nerfstudio.pipelines.base_pipeline import VanillaPipelineConfig
 from nerfstudio.plugins.types import MethodSpecification
+from nerfstudio.utils.rich_utils import CONSOLE
 
+from cinenerf_ns.console_text import lit
 from cinenerf_ns.method.clip_features import ClipFeatureConfig
 from cinenerf_ns.method.codec import CodecConfig
+from cinenerf_ns.method.config_ranges import check_training_config
 from cinenerf_ns.method.datamanager import CineSplatDatamanagerConfig
 from cinenerf_ns.method.model import CineSplatModelConfig
 from cinenerf_ns.method.schedulers import FloatExponentialDecaySchedulerConfig
+from cinenerf_ns.planner.errors import InvalidInputError
 
 
 @dataclass
@@ -33,7 +37,20 @@ class CineSplatTrainerConfig(TrainerConfig):
 
     _target: Type = field(default_factory=lambda: Trainer)
 
+    def __post_init__(self) -> None:
+        # ns-train builds this from the command line, then saves config.yml: a bad number stops it before that
+        self.check_numbers()
+
+    def check_numbers(self) -> None:
+        """The numbers cinesplat adds to ns-train, in range; else one line naming the flag, exit status 2."""
+        try:
+            check_training_config(self.pipeline.model, self.pipeline.datamanager)
+        except InvalidInputError as e:
+            CONSOLE.print(f"[bold red]cinesplat:[/bold red] {lit(e)}", emoji=False)
+            raise SystemExit(2) from None
+
     def setup(self, **kwargs):
+        self.check_numbers()  # again for `--load-config` (a YAML config is built without __post_init__)
         dm = self.pipeline.datamanager
         if isinstance(dm, CineSplatDatamanagerConfig) and dm.output_dir_hint is None and dm.feature_cache_dir is None:
             # <output_dir>/<experiment>/cinesplat_cache: shared by runs of the same experiment
@@ -88,7 +105,7 @@ def make_cinesplat_config(lite: bool = False) -> CineSplatTrainerConfig:
                 clip=clip,
                 codec=codec,
             ),
-            model=CineSplatModelConfig(latent_every=2 if lite else 1),
+            model=CineSplatModelConfig(),
         ),
         optimizers=_optimizers(max_steps),
         viewer=ViewerConfig(num_rays_per_chunk=1 << 15),
@@ -103,5 +120,5 @@ cinesplat = MethodSpecification(
 
 cinesplat_lite = MethodSpecification(
     config=make_cinesplat_config(lite=True),
-    description="cinesplat, cheaper: 15k steps, 48 px feature maps, one CLIP scale, latent pass every 2nd step",
+    description="cinesplat, cheaper: 15k steps, 48 px feature maps, one CLIP scale",
 )

@@ -60,8 +60,10 @@ class CineSplatModelConfig(SplatfactoModelConfig):
     latent_loss_weight: float = 1.0
     """Weight of the latent L2 loss. Only the latents receive its gradient and they have their own Adam
     optimizer, so in "shared" and "separate" modes this mostly scales the logged value."""
-    latent_every: int = 1
-    """Render the latent pass and add its loss every this many steps (>1 trades latent quality for speed)."""
+    latent_every: int = 2
+    """Render the latent pass and add its loss every this many steps. The 3-dim latents need far fewer updates than
+    the geometry, and a step without the pass is exactly splatfacto's step, so 2 keeps label selection and costs
+    about half the pass; 1: every step (slower)."""
     latent_render_mode: Literal["shared", "separate", "fused"] = "shared"
     """"shared": the 3 latent channels are rasterized on the RGB pass's projection and tile lists (its detached 2D
     means / conics / opacities): exact eq. 3 gradients (latents only) without a second projection, tile sort or

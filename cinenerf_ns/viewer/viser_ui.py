@@ -504,8 +504,10 @@ class ClientPanels:
             return
         try:
             panel = self.make(client)
-        except Exception:  # a page that left while its panel was built
-            log.debug("building the panel of client %s failed", client.client_id, exc_info=True)
+        except Exception:  # a page that left while its panel was built: expected; any other failure: said
+            gone = client.client_id not in self.server.get_clients()
+            (log.debug if gone else log.warning)("building the panel of page %s failed%s", client.client_id,
+                                                 " (the page had left)" if gone else "", exc_info=True)
             return
         with self._lock:
             self.panels[client.client_id] = panel

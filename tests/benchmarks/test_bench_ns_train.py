@@ -81,9 +81,10 @@ def test_runs_spec_and_every_variant_parses_with_ns_train_cli():
     assert b.parse_runs("splatfacto@4, cinesplat@2") == [("splatfacto", 4), ("cinesplat", 2)]
     with pytest.raises(SystemExit):
         b.parse_runs("nope@4")
-    expect = {"cinesplat": ("shared", "image", 1, 0), "cinesplat-separate": ("separate", "image", 1, 0),
-              "cinesplat-fused": ("fused", "image", 1, 0), "cinesplat-feature": ("separate", "feature", 1, 0),
-              "cinesplat-every2": ("shared", "image", 2, 0), "cinesplat-nolatent": ("shared", "image", 1, 100000000)}
+    expect = {"cinesplat": ("shared", "image", 2, 0), "cinesplat-separate": ("separate", "image", 2, 0),
+              "cinesplat-fused": ("fused", "image", 2, 0), "cinesplat-feature": ("separate", "feature", 2, 0),
+              "cinesplat-every1": ("shared", "image", 1, 0), "cinesplat-every3": ("shared", "image", 3, 0),
+              "cinesplat-nolatent": ("shared", "image", 2, 100000000)}
     for name in b.VARIANTS:
         cfg = tyro.cli(AnnotatedBaseConfigUnion,
                        args=b.ns_train_args(name, Path("/data/fox"), 2, 3000, Path("/tmp/w"), "t", "viewer"))
@@ -95,4 +96,4 @@ def test_runs_spec_and_every_variant_parses_with_ns_train_cli():
             continue
         assert cfg.method_name == "cinesplat" and cfg.pipeline.datamanager.clip.random_weights
         got = (m.latent_render_mode, m.latent_render_resolution, m.latent_every, m.latent_start_step)
-        assert got == expect.get(name, ("shared", "image", 1, 0)), name
+        assert got == expect.get(name, ("shared", "image", 2, 0)), name

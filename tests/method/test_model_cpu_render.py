@@ -130,8 +130,18 @@ def test_latent_start_step_and_every(cpu_gsplat):
     assert seen == [False, False, True, False, True]
 
 
-def test_latents_fit_a_target_by_gradient_descent(cpu_gsplat):
+def test_the_default_runs_the_latent_pass_every_second_step(cpu_gsplat):
     m = _model()
+    m.train()
+    seen = []
+    for step in range(4):
+        m.step = step
+        seen.append("latent" in m.get_outputs(_camera()))
+    assert seen == [True, False, True, False]
+
+
+def test_latents_fit_a_target_by_gradient_descent(cpu_gsplat):
+    m = _model(latent_every=1)  # a latent loss on every step of the loop
     m.train()
     opt = torch.optim.Adam([m.gauss_params["latents"]], lr=0.05)
     target = torch.tensor([0.4, -0.3, 0.6]).expand(6, 8, 3)

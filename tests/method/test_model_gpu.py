@@ -86,7 +86,7 @@ def test_training_steps_densify_and_fit_latents():
     from cinenerf_ns.method.cinesplat_config import make_cinesplat_config
 
     m = _model(n=200, warmup_length=5, refine_every=5, densify_grad_thresh=1e-7, stop_split_at=40, sh_degree=0,
-               num_downscales=0)
+               num_downscales=0, latent_every=1)  # the latent loss on every step this test reads it
     m.train()
     opts = Optimizers(make_cinesplat_config().optimizers, m.get_param_groups())
     target = torch.tensor([0.3, -0.5, 0.7], device="cuda").expand(8, 8, 3).contiguous()

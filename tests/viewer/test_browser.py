@@ -157,6 +157,8 @@ def test_plan_fly_export_in_headless_chromium(viewer, tmp_path):
                          "text: (document.body ? document.body.innerText : '').slice(0, 300)})", timeout=10)
             b.screenshot(artifacts / "browser_no_panel.png")
             raise AssertionError(f"no panel after 60 s: page {state}; viser clients {len(viewer.server.get_clients())}"
+                                 f", panels {list(viewer.panels.panels)}, refused pages {viewer.panels.refused}, "
+                                 f"refused connections {sorted(viewer.guard.refused_clients)}"
                                  f"; console {b.console[-10:]}") from None
         assert viewer.server.get_clients(), "the browser did not connect"
         b.pump(3.0)  # the splat loads and the first frames render
