@@ -15,8 +15,10 @@ centre). Interleaved, per request:
 subject's samples, viewpoints and visible fractions: target_object.object_parts): every request then pays what the
 first request naming its objects pays.
 
-Reports median / p95 / max of both wholes (what the user waits for) and of the end-pose search alone, and appends
-them to benchmarks/RESULTS.md with the date and the device.
+Reports median / p95 / max of both wholes (what the user waits for) and of the end-pose search alone, the host CPU
+time of both (process time, all threads: on a busy shared host less disturbed than wall time; run with
+CINENERF_THREADS=1 for one thread's work) and the median over requests of their difference, and appends them to
+benchmarks/RESULTS.md with the date and the device.
 """
 from __future__ import annotations
 
@@ -108,10 +110,11 @@ def main() -> None:
              f"{device_name(a.device)}" + (", cold (nothing kept between requests)" if a.cold else ""), "",
              f"{fam.description}; prepare {prep_s:.1f} s; {a.requests} requests per k, object pairs seeded, both "
              "modes interleaved; median / p95 / max ms", "",
-             "| k | end pose: whole request | baseline: whole request | end-pose search alone | end poses found |",
-             "|---|---|---|---|---|"]
+             "| k | end pose: whole request | baseline: whole request | end-pose search alone | end poses found | "
+             "host CPU: end pose | host CPU: baseline | CPU difference (median) |",
+             "|---|---|---|---|---|---|---|---|"]
     for k in ks:
-        with_ep, base, search, found = [], [], [], 0
+        with_ep, base, search, found, cpu_ep, cpu_base = [], [], [], 0, [], []
         for i in range(a.requests + 1):  # the first request of each k warms caches and workers: not counted
             ia, ib = rng.choice(len(objs), 2, replace=False)
             (na, ca, ma), (nb, cb, mb) = objs[ia], objs[ib]
@@ -120,21 +123,24 @@ def main() -> None:
             goal, look = planner.checked_point(ca, "go-to"), planner.checked_point(cb, "look-at")
             if a.cold:
                 visibility_volume(planner).memo.clear()
-            t0 = time.perf_counter()
+            c0, t0 = time.process_time(), time.perf_counter()
             tg = shot_targets(planner, gm, lm, framing, planner.main_component(), k=end_pose_count(k),
                               facing_from=start_region_centre(planner))
             goals = tg.goals(goal)
             plan_candidates(planner, goals if len(goals) > 1 else goals[0], look, k=k, seed=i, subject=tg.samples)
-            t1 = time.perf_counter()
+            c1, t1 = time.process_time(), time.perf_counter()
             plan_candidates(planner, goal, look, k=k, seed=i)
-            t2 = time.perf_counter()
+            c2, t2 = time.process_time(), time.perf_counter()
             if i == 0:
                 continue
             with_ep.append(1e3 * (t1 - t0))
             base.append(1e3 * (t2 - t1))
+            cpu_ep.append(1e3 * (c1 - c0))
+            cpu_base.append(1e3 * (c2 - c1))
             search.append(tg.choice.ms if tg.choice is not None else 0.0)
             found += bool(tg.choice is not None and tg.choice.poses)
-        row = f"| {k} | {stats(with_ep)} | {stats(base)} | {stats(search)} | {found}/{a.requests} |"
+        row = (f"| {k} | {stats(with_ep)} | {stats(base)} | {stats(search)} | {found}/{a.requests} | {stats(cpu_ep)} | "
+               f"{stats(cpu_base)} | {np.median(np.subtract(cpu_ep, cpu_base)):+.1f} |")
         print(row, flush=True)
         lines.append(row)
     text = "\n".join(lines) + "\n"
