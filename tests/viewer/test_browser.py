@@ -10,13 +10,13 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import socket
 import time
 from pathlib import Path
 from typing import Optional
 
 import numpy as np
 import pytest
+from _xdist import free_port
 from cdp import CHROMIUM
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
@@ -42,10 +42,6 @@ INPUT_FOR = """
 """
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def type_into(b, label: str, text: str, viewer=None, handle: str = "", notes: Optional[dict] = None) -> None:
