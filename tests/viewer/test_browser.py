@@ -42,8 +42,6 @@ INPUT_FOR = """
 """
 
 
-
-
 def type_into(b, label: str, text: str, viewer=None, handle: str = "", notes: Optional[dict] = None) -> None:
     """Types into the box labelled ``label`` as a person does. With ``viewer`` and ``handle`` (the page panel's
     ``view`` attribute of that box) it waits until the server holds the text before the next action, as a person

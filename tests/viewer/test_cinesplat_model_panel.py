@@ -23,8 +23,6 @@ torch.set_num_threads(1)
 D = 16
 
 
-
-
 def make_model(n=200, panel=True, codec=True) -> CineSplatModel:
     meta = {}
     if codec:

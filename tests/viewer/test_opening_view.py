@@ -26,8 +26,6 @@ from cinenerf_ns.viewer.views import TrainingCameras, opening_view
 REPO = Path(__file__).resolve().parents[2]
 
 
-
-
 def no_planning(*args, **kwargs):  # the injected planner: these tests never plan
     return []
 

@@ -27,8 +27,6 @@ from cinenerf_ns.viewer.standalone import StandaloneConfig, StandaloneViewer, di
 REPO = Path(__file__).resolve().parents[2]
 
 
-
-
 def write_3dgs_ply(path: Path, d) -> None:
     from cinenerf_ns.planner.scene.ply import write_ply_vertices
 

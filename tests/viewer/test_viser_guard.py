@@ -31,8 +31,6 @@ PAYLOADS = [
 ]
 
 
-
-
 # ----------------------------------------------------------------------------------------- markdown
 def rendered(md_text: str) -> str:
     """``md_text`` rendered as CommonMark with raw HTML allowed (as viser's client renders markdown)."""
