@@ -12,7 +12,7 @@ TORCH_SPEC ?= torch==2.14.1 torchvision==0.29.1
 NERFSTUDIO_SPEC ?= nerfstudio==1.1.5
 PIP := $(VPY) -m pip --disable-pip-version-check
 PYTEST_ARGS ?=
-# one pytest worker per core; tests that open network ports run in one worker (tests/conftest.py)
+# one pytest worker per core; the headless-Chromium tests run on one worker, one after another (tests/_xdist.py)
 PYTEST_PARALLEL ?= -n auto --dist loadgroup
 
 FUZZ_FACTOR ?= 10

@@ -57,15 +57,32 @@ def pytest_collection_modifyitems(config, items):
     has_cuda = _cuda()
     has_fox = (FOX / "transforms.json").exists()
     for item in items:
-        # `make test` runs pytest-xdist workers; tests that bind a port (their module defines free_port) share one
-        # worker so two workers never race for the same free port
-        if getattr(getattr(item, "module", None), "free_port", None) is not None:
-            item.add_marker(pytest.mark.xdist_group("ports"))
         if "gpu" in item.keywords and not has_cuda:
             item.add_marker(pytest.mark.skip(reason="needs a CUDA device (run scripts/gpu_check.sh on a GPU machine)"))
         if "fox" in item.keywords and not has_fox:
             item.add_marker(pytest.mark.skip(reason=f"sample scene not found at {FOX} "
                                              "(../shared/data/fox beside the checkout)"))
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """`make test` (--dist loadgroup): the browser tests on one worker (tests/_xdist.py says why and how)."""
+    if config.getvalue("dist") == "loadgroup":
+        import _xdist
+
+        return _xdist.make_scheduler(config, log)
+    return None
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _ports_of_this_run(tmp_path_factory):
+    """Under xdist, the run's folder where free_port (tests/_xdist.py) records the ports it hands out: the parent of the
+    workers' basetemps (popen-gw0, popen-gw1, ...), which pytest removes with old runs."""
+    import _xdist
+
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        _xdist.RUN_DIR = tmp_path_factory.getbasetemp().parent / "ports"
+    yield
 
 
 @pytest.fixture(scope="session")

@@ -2,6 +2,7 @@
 of nerfstudio, gsplat, viser or the rest of the package; no module outside cli/ imports cli/; the method never imports
 the viewer (its panel is attached through an entry point)."""
 import ast
+import functools
 from pathlib import Path
 
 import pytest
@@ -9,8 +10,14 @@ import pytest
 PKG = Path(__file__).resolve().parents[1] / "cinenerf_ns"
 
 
+@functools.lru_cache(maxsize=None)
+def _tree(path: Path) -> ast.AST:
+    """A module's syntax tree, parsed once per test process (the tests only read it)."""
+    return ast.parse(path.read_text(), filename=str(path))
+
+
 def _imports(path: Path):
-    tree = ast.parse(path.read_text(), filename=str(path))
+    tree = _tree(path)
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             yield from (a.name for a in node.names)
@@ -54,7 +61,7 @@ def test_planner_public_names_resolve():
 def test_planner_modules_import_no_private_name_of_another():
     """A name two planner modules share is public (issue 35): no ``from .x import _name`` inside planner/."""
     bad = [(str(p.relative_to(PKG)), node.module, a.name) for p in _modules("planner")
-           for node in ast.walk(ast.parse(p.read_text())) if isinstance(node, ast.ImportFrom)
+           for node in ast.walk(_tree(p)) if isinstance(node, ast.ImportFrom)
            for a in node.names if a.name.startswith("_") and not a.name.startswith("__")]
     assert not bad, bad
 
@@ -106,8 +113,10 @@ def _import_graph(sources: dict, runtime_only: bool = False) -> dict:
     return graph
 
 
+@functools.lru_cache(maxsize=None)
 def _planner_import_graph(runtime_only: bool = False) -> dict:
-    """The import graph of cinenerf_ns/planner's modules (see _import_graph)."""
+    """The import graph of cinenerf_ns/planner's modules (see _import_graph); read once per test process (callers do
+    not change it)."""
     return _import_graph({_module_name(p): (p.read_text(), p.name == "__init__.py") for p in _modules("planner")},
                          runtime_only)
 
@@ -132,7 +141,7 @@ def test_no_function_outside_shots_takes_a_planner():
     for p in _modules("planner"):
         if p.relative_to(PLANNER).parts[0] == "shots":
             continue
-        for node in ast.walk(ast.parse(p.read_text())):
+        for node in ast.walk(_tree(p)):
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
                 a = node.args
                 for arg in a.posonlyargs + a.args + a.kwonlyargs + [x for x in (a.vararg, a.kwarg) if x]:

@@ -3,13 +3,13 @@ nerfstudio's own Viewer finds it and installs the panel; the panel plans with th
 snapshot of the model's Gaussians and answers text through the model's latents + codec."""
 from __future__ import annotations
 
-import socket
 import threading
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import torch
+from _xdist import free_port
 from nerfstudio.data.scene_box import SceneBox
 from torch import nn
 
@@ -21,12 +21,6 @@ from cinenerf_ns.viewer.panel import CinePanel
 
 torch.set_num_threads(1)
 D = 16
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def make_model(n=200, panel=True, codec=True) -> CineSplatModel:

@@ -4,25 +4,19 @@ train_lock (and plans without it), rebuilds the real planner per step, and the r
 (built on CPU) carries the control and answers text through its latents + codec."""
 from __future__ import annotations
 
-import socket
 import threading
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import torch
+from _xdist import free_port
 from torch import nn
 
 from cinenerf_ns.planner.scene.splat_params import SplatParams
 from cinenerf_ns.viewer.nerfstudio_panel import CinePanelControl, LockedBackend, SplatModelBackend
 from cinenerf_ns.viewer.panel import CinePanel, PanelBackend
 from cinenerf_ns.viewer.planner_backend import PreparedPlanner
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class TinySplatModel(nn.Module):

@@ -8,7 +8,6 @@ from __future__ import annotations
 import importlib.util
 import json
 import shutil
-import socket
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -16,6 +15,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from _xdist import free_port
 from viewer_fakes import camera_looking as camera_c2w
 
 from cinenerf_ns.method.training_cameras import camera_poses
@@ -24,12 +24,6 @@ from cinenerf_ns.viewer.standalone import StandaloneConfig, StandaloneViewer, op
 from cinenerf_ns.viewer.views import TrainingCameras, opening_view
 
 REPO = Path(__file__).resolve().parents[2]
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def no_planning(*args, **kwargs):  # the injected planner: these tests never plan

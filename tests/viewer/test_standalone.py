@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from _xdist import free_port
 from viewer_fakes import wait_for
 
 from cinenerf_ns.method.scene_files import CheckpointError
@@ -24,12 +25,6 @@ from cinenerf_ns.viewer.demo import demo_scene
 from cinenerf_ns.viewer.standalone import StandaloneConfig, StandaloneViewer, display_gaussians, open_scene
 
 REPO = Path(__file__).resolve().parents[2]
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def write_3dgs_ply(path: Path, d) -> None:

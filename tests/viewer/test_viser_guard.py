@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import html
 import re
-import socket
 
 import numpy as np
 import pytest
+from _xdist import free_port
 from hypothesis import given, settings, strategies as st
 from raw_client import RawClient
 from viewer_fakes import FakeBackend, wait_for as wait
@@ -29,12 +29,6 @@ PAYLOADS = [
     "# heading\n```\n<b>bold</b>\n```",
     "**bold** _em_ `code` | a | b |\n|---|---|",
 ]
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 # ----------------------------------------------------------------------------------------- markdown

@@ -2,11 +2,10 @@
 candidate dropdown wiring; polytope meshes against their defining inequalities."""
 from __future__ import annotations
 
-import socket
-
 import numpy as np
 import pytest
 import torch
+from _xdist import free_port
 from viewer_fakes import line_shot
 
 from cinenerf_ns.planner.corridor.polytope import Polytope
@@ -16,12 +15,6 @@ from cinenerf_ns.viewer.panel import PanelConfig
 from cinenerf_ns.viewer.polytope_mesh import chebyshev_center, polytope_mesh
 from cinenerf_ns.viewer.safe_text import md_escape
 from cinenerf_ns.viewer.viser_ui import attach_cine_panel
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def box(lo, hi):
