@@ -47,6 +47,7 @@ from torch import Tensor
 from ..errors import InvalidInputError, PlanningError
 from ..host_pool import ordered_map
 from ..tensor_pickle import NumpyPickled
+from .corridor_trim import MERGE_ROOM, REGION_A, merged_pieces, region_rows
 from .polytope import Polytope, SeedNotFreeError, aabb_polytope, chebyshev_center, safe_polytope
 from .polytope_batched import safe_polytopes_batched
 from .polytope_planes import segment_frame_np
@@ -70,6 +71,7 @@ class Corridor(NumpyPickled):
     n_grid_segments: int = 0  # segments whose polytope came from the occupancy grid (grid_polytope.py)
     n_known_segments: int = 0  # segments that reused a ``known`` polytope (e.g. the goal's)
     n_long_pieces: int = 0  # extra segments from splitting long off-grid segments (``split_long``)
+    n_merged: int = 0  # segments merged into a neighbour's polytope (``merge``: corridor_trim.merged_pieces)
     region: Optional[tuple] = None  # (lo [3], hi [3]) the planning region: every polytope is cut to it
 
     def __len__(self) -> int:
@@ -77,13 +79,17 @@ class Corridor(NumpyPickled):
 
     def constraints(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """[(A [F,3], b [F])] float64 numpy, one per segment (what the trajectory QP consumes). With a region each
-        polytope also gets the region's six faces: the curve (in the control points' hull) stays inside it."""
+        polytope also gets those of the region's six faces it does not imply already (corridor_trim.region_rows: its
+        own box face on the same axis row, at or inside the region's): the curve (in the control points' hull) stays
+        inside the region."""
         out = [p.to_numpy() for p in self.polytopes]
         if self.region is None:
             return out
         lo, hi = (np.asarray(v, dtype=np.float64).reshape(3) for v in self.region)
-        box_a, box_b = np.vstack([np.eye(3), -np.eye(3)]), np.concatenate([hi, -lo])  # [6, 3], [6]
-        return [(np.concatenate((a, box_a)), np.concatenate((b, box_b))) for a, b in out]  # (vstack: ~1.5 us more each)
+        box_b = np.concatenate([hi, -lo])  # [6]
+        need = region_rows(out, lo, hi)  # [M, 6]
+        return [(np.concatenate((a, REGION_A[nd])), np.concatenate((b, box_b[nd]))) if nd.any() else (a, b)
+                for (a, b), nd in zip(out, need)]
 
     @property
     def num_faces(self) -> list[int]:
@@ -144,6 +150,7 @@ def build_corridor(
     region=None,
     split_long: Optional[float] = None,
     threads: int = 1,
+    merge: bool = False,
 ) -> Corridor:
     """Corridor of safe polytopes along a polyline of camera centres.
 
@@ -169,6 +176,9 @@ def build_corridor(
     docstring); None: never.
     threads: how many Prop-2 (host) polytopes may be built at once (host_pool.ordered_map: their compiled kernel
     releases the GIL); the same polytopes, in the same order, whatever the number.
+    merge: consecutive segments one of whose polytopes holds both (with corridor_trim.MERGE_ROOM to spare) become one
+    segment in that polytope (corridor_trim.merged_pieces; host polytopes only): the corridor's waypoints are then a
+    subsequence of the path's (same first and last), M may be < K-1, and every polytope is one built for the path.
     Raises InvalidInputError (bad waypoints), CorridorError (a segment cannot be covered).
     """
     _check_options(box, box_margin, backend, split_long, threads)
@@ -184,7 +194,7 @@ def build_corridor(
     else:
         batched = pre
     pieces = _path_pieces(w, batched, scene, index, box_margin, max_split_depth, kw, stats, box, threads)
-    out = _assemble(pieces, stats, min_overlap, exact_overlap, scene.means.device)
+    out = _assemble(pieces, stats, min_overlap, exact_overlap, scene.means.device, merge)
     out.region = region
     return out
 
@@ -227,7 +237,7 @@ def build_corridors(waypoint_list, scene, index=None, **options) -> list:
         except CorridorError as e:
             out.append(e)
             continue
-        cor = _assemble(pieces, stats, o["min_overlap"], o["exact_overlap"], scene.means.device)
+        cor = _assemble(pieces, stats, o["min_overlap"], o["exact_overlap"], scene.means.device, o["merge"])
         cor.region = o["region"]
         out.append(cor)
     return out
@@ -445,9 +455,19 @@ def _probed_overlap(p0: Polytope, p1: Polytope, w_prev: Tensor, wj: Tensor, w_ne
     return float(((b - c @ A.T) / norms).min(dim=-1).values.max())
 
 
-def _assemble(pieces, stats, min_overlap: float, exact_overlap: bool, dev) -> Corridor:
+def _assemble(pieces, stats, min_overlap: float, exact_overlap: bool, dev, merge: bool = False) -> Corridor:
     """The Corridor of a path's pieces (waypoints float64 numpy), with the junctions' overlap radii (thin ones warned
-    about); its waypoints on ``dev``."""
+    about); its waypoints on ``dev``. ``merge``: consecutive pieces merged first (corridor_trim.merged_pieces) when
+    every polytope is on the host."""
+    on_host = torch.device(dev).type == "cpu" and all(
+        p.A.device.type == "cpu" and p.b.device.type == "cpu" for p, _, _ in pieces)
+    # the junctions' slacks in numpy on the CPU (views of the same float64 planes): ~8 torch calls per junction on
+    # [F]-vectors cost ~30 us, a tenth of that in numpy
+    planes = [(p.A.detach().numpy(), p.b.detach().numpy()) for p, _, _ in pieces] if on_host else None
+    if merge and on_host and all(p.A.dtype == torch.float64 and p.b.dtype == torch.float64 for p, _, _ in pieces):
+        n = len(pieces)
+        pieces, planes = merged_pieces(pieces, planes, MERGE_ROOM)
+        stats["merged"] = n - len(pieces)
     polys = [p for p, _, _ in pieces]
     wps_np = np.stack([pieces[0][1]] + [p1 for _, _, p1 in pieces])  # [M+1, 3]
     wps = torch.from_numpy(wps_np)
@@ -456,10 +476,7 @@ def _assemble(pieces, stats, min_overlap: float, exact_overlap: bool, dev) -> Co
 
     radii = []
     thin = []
-    # the junctions' slacks in numpy on the CPU (views of the same float64 planes): ~8 torch calls per junction on
-    # [F]-vectors cost ~30 us, a tenth of that in numpy
-    host = wps.device.type == "cpu" and all(p.A.device.type == "cpu" and p.b.device.type == "cpu" for p in polys)
-    planes = [(p.A.detach().numpy(), p.b.detach().numpy()) for p in polys] if host else None
+    host = on_host
     for m in range(len(polys) - 1):
         wj = wps[m + 1]
         if host:
@@ -494,4 +511,5 @@ def _assemble(pieces, stats, min_overlap: float, exact_overlap: bool, dev) -> Co
         n_grid_segments=stats.get("grid_segments", 0),
         n_known_segments=stats.get("known_segments", 0),
         n_long_pieces=stats.get("long_pieces", 0),
+        n_merged=stats.get("merged", 0),
     )

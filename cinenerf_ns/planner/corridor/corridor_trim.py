@@ -1,0 +1,74 @@
+"""Fewer segments and rows for the corridor QP, the same safe polytopes (issue 37: the 1M grove's finer grid gave the
+QP ~20 short segments a request).
+
+``merged_pieces``: consecutive corridor pieces (polytope, w_m, w_{m+1}) become one piece (P, w_m, w_{m+2}) when one of
+their two polytopes holds both outer ends with at least ``tol`` of room; a polytope is convex, so it then holds the
+whole straight segment w_m -> w_{m+2}, which is all a corridor asks of a piece. No polytope is built, cut or changed:
+the pieces keep only polytopes the corridor had, each still proven safe, so the guarantee is the same; the QP gets
+fewer segments (fewer variables, joins and face rows) and the dropped waypoint no longer bends its durations.
+
+``region_rows``: the planning region's six faces that a polytope does not already imply. Corridor.constraints() adds
+them to every polytope, but a polytope whose own box face is the same axis row (a == +-e_i exactly) with an offset at or
+inside the region's implies that face: every point that meets its row meets the region's. Such faces only cost the QP
+rows (6 of ~18 a polytope on the grove); the feasible set, so the QP's optimum, is unchanged."""
+from __future__ import annotations
+
+from typing import List, Sequence, Tuple
+
+import numpy as np
+
+MERGE_ROOM = 1e-3
+"""Scene units: merged_pieces merges two pieces only when the polytope it keeps holds the other piece's far end this
+far inside every face (build_corridor's default min_overlap: the junction with the next piece keeps room for the
+joins)."""
+
+REGION_A = np.vstack([np.eye(3), -np.eye(3)])  # [6, 3] the region box's outward normals: x <= hi, -x <= -lo
+REGION_A.flags.writeable = False
+
+
+def region_rows(planes: Sequence[Tuple[np.ndarray, np.ndarray]], lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """bool [M, 6]: which of the region box's faces (REGION_A x <= [hi, -lo]) polytope m (A [F, 3], b [F] float64)
+    must still get: False where one of its own rows equals that face's normal exactly and its offset is <= the
+    region's (so the region's face is implied)."""
+    m = len(planes)
+    need = np.ones((m, 6), dtype=bool)
+    if m == 0:
+        return need
+    counts = np.array([a.shape[0] for a, _ in planes])
+    if (counts == 0).any():  # an empty row set implies nothing (and reduceat needs >= 1 row per polytope)
+        return need
+    a = np.concatenate([a for a, _ in planes])  # [F_all, 3]
+    b = np.concatenate([b for _, b in planes])  # [F_all]
+    box_b = np.concatenate([hi, -lo])  # [6]
+    implies = (a[:, None, :] == REGION_A[None]).all(-1) & (b[:, None] <= box_b[None])  # [F_all, 6]
+    starts = np.zeros(m, dtype=np.int64)
+    np.cumsum(counts[:-1], out=starts[1:])
+    return ~np.logical_or.reduceat(implies, starts, axis=0)
+
+
+def _holds(planes: Tuple[np.ndarray, np.ndarray], x: np.ndarray, tol: float) -> bool:
+    """Every face of (A [F, 3], b [F]) is at least ``tol`` (scene units) from x [3] on its inner side."""
+    a, b = planes
+    return bool(((b - a @ x) >= tol * np.sqrt((a * a).sum(1))).all())
+
+
+def merged_pieces(pieces: list, planes: List[Tuple[np.ndarray, np.ndarray]], tol: float) -> Tuple[list, list]:
+    """(pieces, planes) with consecutive pieces merged (module docstring), in order: pieces [(polytope, p0 [3],
+    p1 [3])] (p1 of one is p0 of the next), planes[i] = pieces[i]'s polytope as float64 (A [F, 3], b [F]). A merge
+    keeps the first piece's polytope when it holds the second's end, else the second's when it holds the first's
+    start, each with ``tol`` of room (> 0: the junction with the next piece keeps room too); greedy from the
+    start."""
+    if len(pieces) < 2:
+        return list(pieces), list(planes)
+    out, out_planes = [pieces[0]], [planes[0]]
+    for q, qp in zip(pieces[1:], planes[1:]):
+        poly, a, _ = out[-1]
+        q_poly, _, c = q
+        if _holds(out_planes[-1], c, tol):
+            out[-1] = (poly, a, c)
+        elif _holds(qp, a, tol):
+            out[-1], out_planes[-1] = (q_poly, a, c), qp
+        else:
+            out.append(q)
+            out_planes.append(qp)
+    return out, out_planes
