@@ -40,7 +40,9 @@ def region_rows(planes: Sequence[Tuple[np.ndarray, np.ndarray]], lo: np.ndarray,
     a = np.concatenate([a for a, _ in planes])  # [F_all, 3]
     b = np.concatenate([b for _, b in planes])  # [F_all]
     box_b = np.concatenate([hi, -lo])  # [6]
-    implies = (a[:, None, :] == REGION_A[None]).all(-1) & (b[:, None] <= box_b[None])  # [F_all, 6]
+    # row == +-e_i exactly: two zero components and +-1 in the third (REGION_A's order: +x, +y, +z, -x, -y, -z)
+    axis = (a == 0.0).sum(1) == 2  # [F_all]
+    implies = np.concatenate([a == 1.0, a == -1.0], axis=1) & axis[:, None] & (b[:, None] <= box_b[None])
     starts = np.zeros(m, dtype=np.int64)
     np.cumsum(counts[:-1], out=starts[1:])
     return ~np.logical_or.reduceat(implies, starts, axis=0)

@@ -53,6 +53,14 @@ from .polytope_batched import safe_polytopes_batched
 from .polytope_planes import segment_frame_np
 
 
+def _host_planes(p: Polytope) -> tuple[np.ndarray, np.ndarray]:
+    """Polytope.to_numpy: views of CPU float64 planes without its four conversions each (the QP's input per request)."""
+    a, b = p.A, p.b
+    if a.device.type == "cpu" and b.device.type == "cpu" and a.dtype == torch.float64 and b.dtype == torch.float64:
+        return a.detach().numpy(), b.detach().numpy()
+    return p.to_numpy()
+
+
 class CorridorError(PlanningError):
     """A path segment stays within the camera radius of the scene even after splitting."""
 
@@ -82,7 +90,7 @@ class Corridor(NumpyPickled):
         polytope also gets those of the region's six faces it does not imply already (corridor_trim.region_rows: its
         own box face on the same axis row, at or inside the region's): the curve (in the control points' hull) stays
         inside the region."""
-        out = [p.to_numpy() for p in self.polytopes]
+        out = [_host_planes(p) for p in self.polytopes]
         if self.region is None:
             return out
         lo, hi = (np.asarray(v, dtype=np.float64).reshape(3) for v in self.region)

@@ -36,8 +36,13 @@ def reach(waypoints: np.ndarray) -> np.ndarray:
 
 
 def face_norms(polys: Sequence[Tuple[np.ndarray, np.ndarray]]) -> List[np.ndarray]:
-    """Per polytope the [F] norms of its face normals (rows of A): taken once per QP, every round uses them."""
-    return [np.linalg.norm(a, axis=1) for a, _ in polys]
+    """Per polytope the [F] norms of its face normals (rows of A): taken once per QP, every round uses them (one
+    computation over all rows, then views per polytope)."""
+    if not polys:
+        return []
+    a = np.concatenate([a for a, _ in polys])  # [F_all, 3]
+    norms = np.sqrt(np.einsum("ij,ij->i", a, a))
+    return np.split(norms, np.cumsum([p[0].shape[0] for p in polys[:-1]]))
 
 
 def initial_faces(polys: Sequence[Tuple[np.ndarray, np.ndarray]], waypoints: np.ndarray,
