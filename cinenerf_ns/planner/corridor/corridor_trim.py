@@ -48,28 +48,29 @@ def region_rows(planes: Sequence[Tuple[np.ndarray, np.ndarray]], lo: np.ndarray,
     return ~np.logical_or.reduceat(implies, starts, axis=0)
 
 
-def merged_pieces(pieces: list, planes: List[Tuple[np.ndarray, np.ndarray]], tol: float) -> Tuple[list, list]:
-    """(pieces, planes) with consecutive pieces merged (module docstring), in order: pieces [(polytope, p0 [3],
-    p1 [3])] (p1 of one is p0 of the next), planes[i] = pieces[i]'s polytope as float64 (A [F, 3], b [F]). A merge
-    keeps the first piece's polytope when it holds the second's end, else the second's when it holds the first's
-    start, each with ``tol`` of room at every face (> 0: the junction with the next piece keeps room too); greedy from
-    the start. Which polytope holds which waypoint is one product of all faces with all waypoints (a Python test per
-    pair cost ~0.4 ms a request on the 1M grove)."""
-    m = len(pieces)
-    if m < 2:
-        return list(pieces), list(planes)
+def slack_table(planes: Sequence[Tuple[np.ndarray, np.ndarray]], w: np.ndarray):
+    """[M, K] float64: the distance min_f (b_f - a_f . w_j) / |a_f| of waypoint w_j (w [K, 3]) inside polytope i
+    (planes[i] = (A [F, 3], b [F]); negative: outside), one product of all faces with all waypoints; None when a
+    polytope has no face (never from a corridor)."""
     counts = np.array([a.shape[0] for a, _ in planes])
-    if (counts == 0).any():  # (never from a corridor) reduceat needs >= 1 row per polytope: nothing is merged
-        return list(pieces), list(planes)
-    w = np.stack([pieces[0][1]] + [p1 for _, _, p1 in pieces])  # [M+1, 3]
-    a = np.concatenate([a for a, _ in planes])  # [F_all, 3]
-    b = np.concatenate([b for _, b in planes])
-    room = (b[:, None] - a @ w.T) >= tol * np.sqrt(np.einsum("ij,ij->i", a, a))[:, None]  # [F_all, M+1]
-    starts = np.zeros(m, dtype=np.int64)
+    if len(planes) == 0 or (counts == 0).any():  # reduceat needs >= 1 row per polytope
+        return None
+    a = np.concatenate([a for a, _ in planes]).astype(np.float64, copy=False)  # [F_all, 3]
+    b = np.concatenate([b for _, b in planes]).astype(np.float64, copy=False)
+    dist = (b[:, None] - a @ w.T) / np.sqrt(np.einsum("ij,ij->i", a, a))[:, None]  # [F_all, K]
+    starts = np.zeros(len(planes), dtype=np.int64)
     np.cumsum(counts[:-1], out=starts[1:])
-    holds = np.logical_and.reduceat(room, starts, axis=0).tolist()  # [M][M+1]: polytope i holds waypoint j
-    runs = [[0, 0, 1]]  # (polytope, first waypoint, last waypoint) of each output piece
-    for k in range(1, m):  # piece k: waypoints k -> k + 1
+    return np.minimum.reduceat(dist, starts, axis=0)
+
+
+def merged_runs(slack: np.ndarray, tol: float) -> List[Tuple[int, int, int]]:
+    """The pieces k (waypoints k -> k + 1, polytope k) of slack_table's slack [M, M+1] merged greedily from the start
+    (module docstring): [(polytope, first waypoint, last waypoint)] in order. A merge keeps the current polytope when
+    it holds the next piece's end with ``tol`` of room, else the next piece's polytope when that holds the current
+    start with ``tol`` of room (> 0: the junction with the next piece keeps room too)."""
+    holds = (slack >= tol).tolist()  # [M][M+1]
+    runs = [[0, 0, 1]]
+    for k in range(1, slack.shape[0]):
         run = runs[-1]
         if holds[run[0]][k + 1]:
             run[2] = k + 1
@@ -77,5 +78,17 @@ def merged_pieces(pieces: list, planes: List[Tuple[np.ndarray, np.ndarray]], tol
             run[0], run[2] = k, k + 1
         else:
             runs.append([k, k, k + 1])
-    out = [(pieces[i][0], pieces[s][1], pieces[e - 1][2]) for i, s, e in runs]
-    return out, [planes[i] for i, _, _ in runs]
+    return [tuple(r) for r in runs]
+
+
+def merged_pieces(pieces: list, planes: List[Tuple[np.ndarray, np.ndarray]], tol: float) -> Tuple[list, list]:
+    """(pieces, planes) with consecutive pieces merged (merged_runs), in order: pieces [(polytope, p0 [3], p1 [3])]
+    (p1 of one is p0 of the next), planes[i] = pieces[i]'s polytope as float64 (A [F, 3], b [F])."""
+    if len(pieces) < 2:
+        return list(pieces), list(planes)
+    w = np.stack([pieces[0][1]] + [p1 for _, _, p1 in pieces])  # [M+1, 3]
+    slack = slack_table(planes, w)
+    if slack is None:
+        return list(pieces), list(planes)
+    runs = merged_runs(slack, tol)
+    return [(pieces[i][0], pieces[s][1], pieces[e - 1][2]) for i, s, e in runs], [planes[i] for i, _, _ in runs]

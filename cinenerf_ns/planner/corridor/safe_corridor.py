@@ -47,7 +47,7 @@ from torch import Tensor
 from ..errors import InvalidInputError, PlanningError
 from ..host_pool import ordered_map
 from ..tensor_pickle import NumpyPickled
-from .corridor_trim import MERGE_ROOM, REGION_A, merged_pieces, region_rows
+from .corridor_trim import MERGE_ROOM, REGION_A, merged_runs, region_rows, slack_table
 from .polytope import Polytope, SeedNotFreeError, aabb_polytope, chebyshev_center, safe_polytope
 from .polytope_batched import safe_polytopes_batched
 from .polytope_planes import segment_frame_np
@@ -463,35 +463,47 @@ def _probed_overlap(p0: Polytope, p1: Polytope, w_prev: Tensor, wj: Tensor, w_ne
     return float(((b - c @ A.T) / norms).min(dim=-1).values.max())
 
 
+def _host_junctions(pieces, merge: bool, stats: dict):
+    """(pieces, the junctions' lower bounds [M-1] of the overlap radius) for CPU polytopes, from one slack table of
+    every polytope at every waypoint (corridor_trim.slack_table: a junction's bound is the smaller distance of its
+    waypoint inside the two polytopes); ``merge`` (float64 planes): the pieces merged first (corridor_trim.merged_runs,
+    stats["merged"]). (pieces, None) when the table does not apply."""
+    planes = [(p.A.detach().numpy(), p.b.detach().numpy()) for p, _, _ in pieces]
+    w = np.stack([pieces[0][1]] + [p1 for _, _, p1 in pieces])  # [M+1, 3]
+    slack = slack_table(planes, w)
+    if slack is None:
+        return pieces, None
+    m = len(pieces)
+    if merge and all(p.A.dtype == torch.float64 and p.b.dtype == torch.float64 for p, _, _ in pieces):
+        runs = merged_runs(slack, MERGE_ROOM)
+        stats["merged"] = m - len(runs)
+        pieces = [(pieces[i][0], pieces[s][1], pieces[e - 1][2]) for i, s, e in runs]
+    else:
+        runs = [(k, k, k + 1) for k in range(m)]
+    poly, end = np.array([r[0] for r in runs]), np.array([r[2] for r in runs])
+    return pieces, np.minimum(slack[poly[:-1], end[:-1]], slack[poly[1:], end[:-1]]).tolist()
+
+
 def _assemble(pieces, stats, min_overlap: float, exact_overlap: bool, dev, merge: bool = False) -> Corridor:
     """The Corridor of a path's pieces (waypoints float64 numpy), with the junctions' overlap radii (thin ones warned
-    about); its waypoints on ``dev``. ``merge``: consecutive pieces merged first (corridor_trim.merged_pieces) when
+    about); its waypoints on ``dev``. ``merge``: consecutive pieces merged first (corridor_trim.merged_runs) when
     every polytope is on the host."""
-    on_host = torch.device(dev).type == "cpu" and all(
-        p.A.device.type == "cpu" and p.b.device.type == "cpu" for p, _, _ in pieces)
-    # the junctions' slacks in numpy on the CPU (views of the same float64 planes): ~8 torch calls per junction on
-    # [F]-vectors cost ~30 us, a tenth of that in numpy
-    planes = [(p.A.detach().numpy(), p.b.detach().numpy()) for p, _, _ in pieces] if on_host else None
-    if merge and on_host and all(p.A.dtype == torch.float64 and p.b.dtype == torch.float64 for p, _, _ in pieces):
-        n = len(pieces)
-        pieces, planes = merged_pieces(pieces, planes, MERGE_ROOM)
-        stats["merged"] = n - len(pieces)
+    lbs = None
+    if torch.device(dev).type == "cpu" and all(p.A.device.type == "cpu" and p.b.device.type == "cpu"
+                                               for p, _, _ in pieces):
+        # the junctions' slacks in numpy on the CPU, all at once (per junction, ~8 torch calls on [F]-vectors cost
+        # ~30 us, and numpy per junction a tenth of that)
+        pieces, lbs = _host_junctions(pieces, merge, stats)
     polys = [p for p, _, _ in pieces]
-    wps_np = np.stack([pieces[0][1]] + [p1 for _, _, p1 in pieces])  # [M+1, 3]
-    wps = torch.from_numpy(wps_np)
+    wps = torch.from_numpy(np.stack([pieces[0][1]] + [p1 for _, _, p1 in pieces]))  # [M+1, 3]
     if torch.device(dev).type != "cpu":
         wps = wps.to(dev)
 
     radii = []
     thin = []
-    host = on_host
     for m in range(len(polys) - 1):
         wj = wps[m + 1]
-        if host:
-            (a0, b0), (a1, b1), x = planes[m], planes[m + 1], wps_np[m + 1]
-            lb = float(min((b0 - a0 @ x).min(), (b1 - a1 @ x).min()))
-        else:
-            lb = float(torch.minimum(polys[m].slack(wj), polys[m + 1].slack(wj)))
+        lb = lbs[m] if lbs is not None else float(torch.minimum(polys[m].slack(wj), polys[m + 1].slack(wj)))
         if lb < min_overlap and not exact_overlap:
             lb = max(lb, _probed_overlap(polys[m], polys[m + 1], wps[m], wj, wps[m + 2], min_overlap))
         rad = lb

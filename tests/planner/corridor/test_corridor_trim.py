@@ -9,7 +9,7 @@ import numpy as np
 import torch
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from cinenerf_ns.planner.corridor.corridor_trim import MERGE_ROOM, REGION_A, merged_pieces, region_rows
+from cinenerf_ns.planner.corridor.corridor_trim import MERGE_ROOM, REGION_A, merged_pieces, region_rows, slack_table
 from cinenerf_ns.planner.corridor.polytope import Polytope
 from cinenerf_ns.planner.corridor.safe_corridor import Corridor, build_corridor
 
@@ -154,3 +154,39 @@ def test_corridor_constraints_skip_implied_region_faces():
     assert a1.shape[0] == out.A.shape[0] + 1
     np.testing.assert_array_equal(a1[-1], [1.0, 0.0, 0.0])
     assert b1[-1] == 1.0
+
+
+@settings(**SETTINGS)
+@given(seed=st.integers(0, 2**31 - 1), m=st.integers(1, 7), k=st.integers(1, 9))
+def test_slack_table_is_the_per_face_distance(seed, m, k):
+    """slack_table[i, j] = min over polytope i's faces of (b - a . w_j) / |a| (float64 loop), rows of any norm."""
+    rng = np.random.default_rng(seed)
+    planes = [(rng.normal(size=(f, 3)) * rng.uniform(0.2, 3.0, (f, 1)), rng.normal(size=f))
+              for f in rng.integers(1, 12, m)]
+    w = rng.normal(size=(k, 3))
+    got = slack_table(planes, w)
+    for i, (a, b) in enumerate(planes):
+        for j in range(k):
+            ref = min((b[f] - sum(a[f, c] * w[j, c] for c in range(3))) / np.sqrt(sum(a[f, c] ** 2 for c in range(3)))
+                      for f in range(len(b)))
+            assert abs(got[i, j] - ref) <= 1e-12 * (1 + abs(ref) + np.abs(w[j]).sum() * 10)
+    assert slack_table(planes + [(np.zeros((0, 3)), np.zeros(0))], w) is None
+
+
+def test_junction_bounds_match_the_per_junction_slacks():
+    """_assemble's junction bounds from the slack table: the per-junction min of both polytopes' slacks at the shared
+    waypoint (unit rows: the formula it replaced), with and without merging."""
+    import cinenerf_ns.planner.corridor.safe_corridor as corridor_mod
+
+    rng = np.random.default_rng(3)
+    pts = np.cumsum(rng.normal(scale=0.2, size=(7, 3)), axis=0)
+    pieces = [(box_polytope(np.minimum(pts[i], pts[i + 1]) - 0.05, np.maximum(pts[i], pts[i + 1]) + 0.3, 2, rng),
+               pts[i], pts[i + 1]) for i in range(6)]
+    pieces = [(p, a, c) for p, a, c in pieces if bool(p.contains(np.stack([a, c])).all())] or pieces[:1]
+    for merge in (False, True):
+        got, lbs = corridor_mod._host_junctions(list(pieces), merge, {})
+        for m in range(len(got) - 1):
+            x = got[m][2]
+            ref = min((got[m][0].b.numpy() - got[m][0].A.numpy() @ x).min(),
+                      (got[m + 1][0].b.numpy() - got[m + 1][0].A.numpy() @ x).min())
+            assert abs(lbs[m] - ref) <= 1e-12
