@@ -468,6 +468,8 @@ def _host_junctions(pieces, merge: bool, stats: dict):
     every polytope at every waypoint (corridor_trim.slack_table: a junction's bound is the smaller distance of its
     waypoint inside the two polytopes); ``merge`` (float64 planes): the pieces merged first (corridor_trim.merged_runs,
     stats["merged"]). (pieces, None) when the table does not apply."""
+    if len(pieces) == 1:  # no junction, nothing to merge
+        return pieces, []
     planes = [(p.A.detach().numpy(), p.b.detach().numpy()) for p, _, _ in pieces]
     w = np.stack([pieces[0][1]] + [p1 for _, _, p1 in pieces])  # [M+1, 3]
     slack = slack_table(planes, w)
