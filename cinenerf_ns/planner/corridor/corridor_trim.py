@@ -22,6 +22,11 @@ MERGE_ROOM = 1e-3
 far inside every face (build_corridor's default min_overlap: the junction with the next piece keeps room for the
 joins)."""
 
+TABLE_MIN_SEGMENTS = 6
+"""Corridors of at least this many segments take the array paths (merging, the slack table, region_rows); shorter
+ones keep the per-segment loops they had, which cost less below it (CPU box: ~20-40 us of fixed array set-up against a
+few segments' loops; the procedural room's corridors have 2-5 segments) and merge nothing."""
+
 REGION_A = np.vstack([np.eye(3), -np.eye(3)])  # [6, 3] the region box's outward normals: x <= hi, -x <= -lo
 REGION_A.flags.writeable = False
 

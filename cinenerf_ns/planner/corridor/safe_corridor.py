@@ -47,7 +47,7 @@ from torch import Tensor
 from ..errors import InvalidInputError, PlanningError
 from ..host_pool import ordered_map
 from ..tensor_pickle import NumpyPickled
-from .corridor_trim import MERGE_ROOM, REGION_A, merged_runs, region_rows, slack_table
+from .corridor_trim import MERGE_ROOM, REGION_A, TABLE_MIN_SEGMENTS, merged_runs, region_rows, slack_table
 from .polytope import Polytope, SeedNotFreeError, aabb_polytope, chebyshev_center, safe_polytope
 from .polytope_batched import safe_polytopes_batched
 from .polytope_planes import segment_frame_np
@@ -95,6 +95,8 @@ class Corridor(NumpyPickled):
             return out
         lo, hi = (np.asarray(v, dtype=np.float64).reshape(3) for v in self.region)
         box_b = np.concatenate([hi, -lo])  # [6]
+        if len(out) < TABLE_MIN_SEGMENTS:  # all six faces each: cheaper than finding those implied
+            return [(np.concatenate((a, REGION_A)), np.concatenate((b, box_b))) for a, b in out]
         need = region_rows(out, lo, hi)  # [M, 6]
         return [(np.concatenate((a, REGION_A[nd])), np.concatenate((b, box_b[nd]))) if nd.any() else (a, b)
                 for (a, b), nd in zip(out, need)]
@@ -185,7 +187,8 @@ def build_corridor(
     threads: how many Prop-2 (host) polytopes may be built at once (host_pool.ordered_map: their compiled kernel
     releases the GIL); the same polytopes, in the same order, whatever the number.
     merge: consecutive segments one of whose polytopes holds both (with corridor_trim.MERGE_ROOM to spare) become one
-    segment in that polytope (corridor_trim.merged_pieces; host polytopes only): the corridor's waypoints are then a
+    segment in that polytope (corridor_trim.merged_runs; host polytopes, corridors of corridor_trim.TABLE_MIN_SEGMENTS
+    segments or more): the corridor's waypoints are then a
     subsequence of the path's (same first and last), M may be < K-1, and every polytope is one built for the path.
     Raises InvalidInputError (bad waypoints), CorridorError (a segment cannot be covered).
     """
@@ -467,9 +470,12 @@ def _host_junctions(pieces, merge: bool, stats: dict):
     """(pieces, the junctions' lower bounds [M-1] of the overlap radius) for CPU polytopes, from one slack table of
     every polytope at every waypoint (corridor_trim.slack_table: a junction's bound is the smaller distance of its
     waypoint inside the two polytopes); ``merge`` (float64 planes): the pieces merged first (corridor_trim.merged_runs,
-    stats["merged"]). (pieces, None) when the table does not apply."""
-    if len(pieces) == 1:  # no junction, nothing to merge
-        return pieces, []
+    stats["merged"]). (pieces, None) when the table does not apply. Below corridor_trim.TABLE_MIN_SEGMENTS pieces:
+    the bounds junction by junction (the same values), nothing merged."""
+    if len(pieces) < TABLE_MIN_SEGMENTS:  # a few junctions: one by one, nothing merged
+        planes = [(p.A.detach().numpy(), p.b.detach().numpy()) for p, _, _ in pieces]
+        return pieces, [float(min((b0 - a0 @ x).min(), (b1 - a1 @ x).min()))
+                        for (a0, b0), (a1, b1), (_, _, x) in zip(planes[:-1], planes[1:], pieces[:-1])]
     planes = [(p.A.detach().numpy(), p.b.detach().numpy()) for p, _, _ in pieces]
     w = np.stack([pieces[0][1]] + [p1 for _, _, p1 in pieces])  # [M+1, 3]
     slack = slack_table(planes, w)

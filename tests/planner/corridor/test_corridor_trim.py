@@ -9,7 +9,14 @@ import numpy as np
 import torch
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from cinenerf_ns.planner.corridor.corridor_trim import MERGE_ROOM, REGION_A, merged_pieces, region_rows, slack_table
+from cinenerf_ns.planner.corridor.corridor_trim import (
+    MERGE_ROOM,
+    REGION_A,
+    TABLE_MIN_SEGMENTS,
+    merged_pieces,
+    region_rows,
+    slack_table,
+)
 from cinenerf_ns.planner.corridor.polytope import Polytope
 from cinenerf_ns.planner.corridor.safe_corridor import Corridor, build_corridor
 
@@ -119,7 +126,7 @@ def test_region_rows_drop_only_implied_faces(seed, m, shift):
 
 
 @settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(seed=st.integers(0, 2**31 - 1), n=st.integers(1, 10), k=st.integers(2, 7))
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(1, 10), k=st.integers(2, 12))
 def test_merged_corridor_is_safe_and_covers_the_path(seed, n, k):
     """build_corridor(merge=True) on random scenes: its waypoints are a subsequence of the unmerged corridor's (same
     ends), each of its polytopes is one of that corridor's (the same planes) and holds its segment, and the exact
@@ -143,17 +150,21 @@ def test_merged_corridor_is_safe_and_covers_the_path(seed, n, k):
 
 
 def test_corridor_constraints_skip_implied_region_faces():
-    """A polytope inside the region keeps its own rows only; one that sticks out gets the region's face there."""
+    """From TABLE_MIN_SEGMENTS polytopes up, a polytope inside the region keeps its own rows only and one that sticks
+    out gets the region's face there; shorter corridors get all six faces on every polytope (cheaper than the test)."""
     rng = np.random.default_rng(0)
     inside = box_polytope([-0.5, -0.5, -0.5], [0.5, 0.5, 0.5], 2, rng)
     out = box_polytope([-0.5, -0.5, -0.5], [1.5, 0.5, 0.5], 0, rng)
     region = (np.full(3, -1.0), np.full(3, 1.0))
-    cor = Corridor([inside, out], torch.zeros(3, 3, dtype=torch.float64), region=region)
-    (a0, b0), (a1, b1) = cor.constraints()
+    m = TABLE_MIN_SEGMENTS
+    cor = Corridor([out] + [inside] * (m - 1), torch.zeros(m + 1, 3, dtype=torch.float64), region=region)
+    (a1, b1), (a0, b0), *_ = cor.constraints()
     np.testing.assert_array_equal(a0, inside.A.numpy())
     assert a1.shape[0] == out.A.shape[0] + 1
     np.testing.assert_array_equal(a1[-1], [1.0, 0.0, 0.0])
     assert b1[-1] == 1.0
+    short = Corridor([out, inside], torch.zeros(3, 3, dtype=torch.float64), region=region).constraints()
+    assert [a.shape[0] for a, _ in short] == [out.A.shape[0] + 6, inside.A.shape[0] + 6]
 
 
 @settings(**SETTINGS)
