@@ -25,7 +25,7 @@ docs/PLANNER_DEFAULTS.md)."""
 MERGE_SEGMENTS = True
 """A request's corridors merge consecutive segments that one of their polytopes holds (build_corridor's ``merge``,
 corridor_trim.merged_pieces): the same safe polytopes, fewer QP segments (1M grove, grid 128: ~16% fewer;
-benchmarks/RESULTS.md, issue 37 fourth pass)."""
+docs/PLANNER_DEFAULTS.md, benchmarks/RESULTS.md issue 37 fourth pass)."""
 
 
 CORRIDOR_THREADS_MAX = 8
