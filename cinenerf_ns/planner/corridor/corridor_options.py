@@ -22,6 +22,12 @@ polytope is split so that its free runs take grid polytopes and its Prop-2 boxes
 docs/PLANNER_DEFAULTS.md)."""
 
 
+MERGE_SEGMENTS = True
+"""A request's corridors merge consecutive segments that one of their polytopes holds (build_corridor's ``merge``,
+corridor_trim.merged_pieces): the same safe polytopes, fewer QP segments (1M grove, grid 128: ~16% fewer;
+docs/PLANNER_DEFAULTS.md, benchmarks/RESULTS.md issue 37 fourth pass)."""
+
+
 CORRIDOR_THREADS_MAX = 8
 """PlannerConfig.corridor_threads None: at most this many threads build a request's polytopes (a request has a few to
 a dozen polytopes to build; docs/PLANNER_DEFAULTS.md)."""
@@ -64,11 +70,13 @@ def use_grid_polytopes(space: "PlanningSpace") -> bool:
 
 def corridor_kwargs(space: "PlanningSpace", many: bool = False) -> dict:
     """Keyword arguments of build_corridor (after waypoints, scene, index) for the planner's requests: the box margin,
-    the planning region, the polytope threads (corridor_threads), the grid's voxels when grid polytopes are on, and
-    the resolved corridor backend (corridor_backend; ``many``: for build_corridors over many ways; the batched one
-    runs on ``batch_scene`` / its index; the corridor's polytopes end up on the request device)."""
+    the planning region, the polytope threads (corridor_threads), segment merging (MERGE_SEGMENTS), the grid's voxels
+    when grid polytopes are on, and the resolved corridor backend (corridor_backend; ``many``: for build_corridors over
+    many ways; the batched one runs on ``batch_scene`` / its index; the corridor's polytopes end up on the request
+    device)."""
     prep = space.prepared
-    kw = dict(box_margin=space.config.box_margin, region=space.region(), threads=corridor_threads(space))
+    kw = dict(box_margin=space.config.box_margin, region=space.region(), threads=corridor_threads(space),
+              merge=MERGE_SEGMENTS)
     if use_grid_polytopes(space):
         kw["grid"] = prep.voxels
         kw["split_long"] = SPLIT_LONG_MARGINS * float(space.config.box_margin)

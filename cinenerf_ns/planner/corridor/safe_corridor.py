@@ -47,9 +47,18 @@ from torch import Tensor
 from ..errors import InvalidInputError, PlanningError
 from ..host_pool import ordered_map
 from ..tensor_pickle import NumpyPickled
+from .corridor_trim import MERGE_ROOM, REGION_A, TABLE_MIN_SEGMENTS, merged_runs, region_rows, slack_table
 from .polytope import Polytope, SeedNotFreeError, aabb_polytope, chebyshev_center, safe_polytope
 from .polytope_batched import safe_polytopes_batched
 from .polytope_planes import segment_frame_np
+
+
+def _host_planes(p: Polytope) -> tuple[np.ndarray, np.ndarray]:
+    """Polytope.to_numpy: views of CPU float64 planes without its four conversions each (the QP's input per request)."""
+    a, b = p.A, p.b
+    if a.device.type == "cpu" and b.device.type == "cpu" and a.dtype == torch.float64 and b.dtype == torch.float64:
+        return a.detach().numpy(), b.detach().numpy()
+    return p.to_numpy()
 
 
 class CorridorError(PlanningError):
@@ -70,6 +79,7 @@ class Corridor(NumpyPickled):
     n_grid_segments: int = 0  # segments whose polytope came from the occupancy grid (grid_polytope.py)
     n_known_segments: int = 0  # segments that reused a ``known`` polytope (e.g. the goal's)
     n_long_pieces: int = 0  # extra segments from splitting long off-grid segments (``split_long``)
+    n_merged: int = 0  # segments merged into a neighbour's polytope (``merge``: corridor_trim.merged_pieces)
     region: Optional[tuple] = None  # (lo [3], hi [3]) the planning region: every polytope is cut to it
 
     def __len__(self) -> int:
@@ -77,13 +87,19 @@ class Corridor(NumpyPickled):
 
     def constraints(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """[(A [F,3], b [F])] float64 numpy, one per segment (what the trajectory QP consumes). With a region each
-        polytope also gets the region's six faces: the curve (in the control points' hull) stays inside it."""
-        out = [p.to_numpy() for p in self.polytopes]
+        polytope also gets those of the region's six faces it does not imply already (corridor_trim.region_rows: its
+        own box face on the same axis row, at or inside the region's): the curve (in the control points' hull) stays
+        inside the region."""
+        out = [_host_planes(p) for p in self.polytopes]
         if self.region is None:
             return out
         lo, hi = (np.asarray(v, dtype=np.float64).reshape(3) for v in self.region)
-        box_a, box_b = np.vstack([np.eye(3), -np.eye(3)]), np.concatenate([hi, -lo])  # [6, 3], [6]
-        return [(np.concatenate((a, box_a)), np.concatenate((b, box_b))) for a, b in out]  # (vstack: ~1.5 us more each)
+        box_b = np.concatenate([hi, -lo])  # [6]
+        if len(out) < TABLE_MIN_SEGMENTS:  # all six faces each: cheaper than finding those implied
+            return [(np.concatenate((a, REGION_A)), np.concatenate((b, box_b))) for a, b in out]
+        need = region_rows(out, lo, hi)  # [M, 6]
+        return [(np.concatenate((a, REGION_A[nd])), np.concatenate((b, box_b[nd]))) if nd.any() else (a, b)
+                for (a, b), nd in zip(out, need)]
 
     @property
     def num_faces(self) -> list[int]:
@@ -144,6 +160,7 @@ def build_corridor(
     region=None,
     split_long: Optional[float] = None,
     threads: int = 1,
+    merge: bool = False,
 ) -> Corridor:
     """Corridor of safe polytopes along a polyline of camera centres.
 
@@ -169,6 +186,10 @@ def build_corridor(
     docstring); None: never.
     threads: how many Prop-2 (host) polytopes may be built at once (host_pool.ordered_map: their compiled kernel
     releases the GIL); the same polytopes, in the same order, whatever the number.
+    merge: consecutive segments one of whose polytopes holds both (with corridor_trim.MERGE_ROOM to spare) become one
+    segment in that polytope (corridor_trim.merged_runs; host polytopes, corridors of corridor_trim.TABLE_MIN_SEGMENTS
+    segments or more): the corridor's waypoints are then a
+    subsequence of the path's (same first and last), M may be < K-1, and every polytope is one built for the path.
     Raises InvalidInputError (bad waypoints), CorridorError (a segment cannot be covered).
     """
     _check_options(box, box_margin, backend, split_long, threads)
@@ -184,7 +205,7 @@ def build_corridor(
     else:
         batched = pre
     pieces = _path_pieces(w, batched, scene, index, box_margin, max_split_depth, kw, stats, box, threads)
-    out = _assemble(pieces, stats, min_overlap, exact_overlap, scene.means.device)
+    out = _assemble(pieces, stats, min_overlap, exact_overlap, scene.means.device, merge)
     out.region = region
     return out
 
@@ -227,7 +248,7 @@ def build_corridors(waypoint_list, scene, index=None, **options) -> list:
         except CorridorError as e:
             out.append(e)
             continue
-        cor = _assemble(pieces, stats, o["min_overlap"], o["exact_overlap"], scene.means.device)
+        cor = _assemble(pieces, stats, o["min_overlap"], o["exact_overlap"], scene.means.device, o["merge"])
         cor.region = o["region"]
         out.append(cor)
     return out
@@ -445,28 +466,52 @@ def _probed_overlap(p0: Polytope, p1: Polytope, w_prev: Tensor, wj: Tensor, w_ne
     return float(((b - c @ A.T) / norms).min(dim=-1).values.max())
 
 
-def _assemble(pieces, stats, min_overlap: float, exact_overlap: bool, dev) -> Corridor:
+def _host_junctions(pieces, merge: bool, stats: dict):
+    """(pieces, the junctions' lower bounds [M-1] of the overlap radius) for CPU polytopes, from one slack table of
+    every polytope at every waypoint (corridor_trim.slack_table: a junction's bound is the smaller distance of its
+    waypoint inside the two polytopes); ``merge`` (float64 planes): the pieces merged first (corridor_trim.merged_runs,
+    stats["merged"]). (pieces, None) when the table does not apply. Below corridor_trim.TABLE_MIN_SEGMENTS pieces:
+    the bounds junction by junction (the same values), nothing merged."""
+    if len(pieces) < TABLE_MIN_SEGMENTS:  # a few junctions: one by one, nothing merged
+        planes = [(p.A.detach().numpy(), p.b.detach().numpy()) for p, _, _ in pieces]
+        return pieces, [float(min((b0 - a0 @ x).min(), (b1 - a1 @ x).min()))
+                        for (a0, b0), (a1, b1), (_, _, x) in zip(planes[:-1], planes[1:], pieces[:-1])]
+    planes = [(p.A.detach().numpy(), p.b.detach().numpy()) for p, _, _ in pieces]
+    w = np.stack([pieces[0][1]] + [p1 for _, _, p1 in pieces])  # [M+1, 3]
+    slack = slack_table(planes, w)
+    if slack is None:
+        return pieces, None
+    m = len(pieces)
+    if merge and all(p.A.dtype == torch.float64 and p.b.dtype == torch.float64 for p, _, _ in pieces):
+        runs = merged_runs(slack, MERGE_ROOM)
+        stats["merged"] = m - len(runs)
+        pieces = [(pieces[i][0], pieces[s][1], pieces[e - 1][2]) for i, s, e in runs]
+    else:
+        runs = [(k, k, k + 1) for k in range(m)]
+    poly, end = np.array([r[0] for r in runs]), np.array([r[2] for r in runs])
+    return pieces, np.minimum(slack[poly[:-1], end[:-1]], slack[poly[1:], end[:-1]]).tolist()
+
+
+def _assemble(pieces, stats, min_overlap: float, exact_overlap: bool, dev, merge: bool = False) -> Corridor:
     """The Corridor of a path's pieces (waypoints float64 numpy), with the junctions' overlap radii (thin ones warned
-    about); its waypoints on ``dev``."""
+    about); its waypoints on ``dev``. ``merge``: consecutive pieces merged first (corridor_trim.merged_runs) when
+    every polytope is on the host."""
+    lbs = None
+    if torch.device(dev).type == "cpu" and all(p.A.device.type == "cpu" and p.b.device.type == "cpu"
+                                               for p, _, _ in pieces):
+        # the junctions' slacks in numpy on the CPU, all at once (per junction, ~8 torch calls on [F]-vectors cost
+        # ~30 us, and numpy per junction a tenth of that)
+        pieces, lbs = _host_junctions(pieces, merge, stats)
     polys = [p for p, _, _ in pieces]
-    wps_np = np.stack([pieces[0][1]] + [p1 for _, _, p1 in pieces])  # [M+1, 3]
-    wps = torch.from_numpy(wps_np)
+    wps = torch.from_numpy(np.stack([pieces[0][1]] + [p1 for _, _, p1 in pieces]))  # [M+1, 3]
     if torch.device(dev).type != "cpu":
         wps = wps.to(dev)
 
     radii = []
     thin = []
-    # the junctions' slacks in numpy on the CPU (views of the same float64 planes): ~8 torch calls per junction on
-    # [F]-vectors cost ~30 us, a tenth of that in numpy
-    host = wps.device.type == "cpu" and all(p.A.device.type == "cpu" and p.b.device.type == "cpu" for p in polys)
-    planes = [(p.A.detach().numpy(), p.b.detach().numpy()) for p in polys] if host else None
     for m in range(len(polys) - 1):
         wj = wps[m + 1]
-        if host:
-            (a0, b0), (a1, b1), x = planes[m], planes[m + 1], wps_np[m + 1]
-            lb = float(min((b0 - a0 @ x).min(), (b1 - a1 @ x).min()))
-        else:
-            lb = float(torch.minimum(polys[m].slack(wj), polys[m + 1].slack(wj)))
+        lb = lbs[m] if lbs is not None else float(torch.minimum(polys[m].slack(wj), polys[m + 1].slack(wj)))
         if lb < min_overlap and not exact_overlap:
             lb = max(lb, _probed_overlap(polys[m], polys[m + 1], wps[m], wj, wps[m + 2], min_overlap))
         rad = lb
@@ -494,4 +539,5 @@ def _assemble(pieces, stats, min_overlap: float, exact_overlap: bool, dev) -> Co
         n_grid_segments=stats.get("grid_segments", 0),
         n_known_segments=stats.get("known_segments", 0),
         n_long_pieces=stats.get("long_pieces", 0),
+        n_merged=stats.get("merged", 0),
     )

@@ -53,7 +53,7 @@ from .qp_matrices import (
     segment_factors,
 )
 from .qp_solvers import project_equalities, solve_with_retry
-from .working_set import face_norms, free_ranges, solve_with_working_set
+from .working_set import ARRAY_MIN_SEGMENTS, face_norms, free_ranges, solve_with_working_set
 
 __all__ = ["CorridorInfeasibleError", "CorridorQP", "SOLVERS", "TrajectoryConfig", "TrajectorySolverError",
            "build_corridor_qp", "solve_corridor_qp"]
@@ -152,11 +152,26 @@ def _num_inequalities(polys, free) -> int:
 
 def _corridor_violation(cps: np.ndarray, polys, free, solver: str) -> float:
     """The largest a_f . P - b_f of a free control point against its true (unshrunk) polytope (-inf when none is free);
-    TrajectorySolverError when it is > 0: a point outside the true polytope is never returned."""
-    worst = -np.inf
-    for k, ((a, b), (lo, hi)) in enumerate(zip(polys, free)):
-        if hi > lo:
-            worst = max(worst, float(np.max(cps[k, lo:hi] @ a.T - b)))
+    TrajectorySolverError when it is > 0: a point outside the true polytope is never returned. From
+    working_set.ARRAY_MIN_SEGMENTS segments up all faces at once: each face row against every control point of its
+    segment, the pinned ones masked out."""
+    if len(polys) < ARRAY_MIN_SEGMENTS:  # a few segments: the loop is cheaper than the gather
+        worst = max((float(np.max(cps[k, lo:hi] @ a.T - b)) for k, ((a, b), (lo, hi)) in enumerate(zip(polys, free))
+                     if hi > lo), default=-np.inf)
+        return _refuse_outside(worst, solver)
+    counts = np.array([a.shape[0] for a, _ in polys])
+    seg = np.repeat(np.arange(len(polys)), counts)  # [F_all] segment of each face
+    a = np.concatenate([a for a, _ in polys])  # [F_all, 3]
+    b = np.concatenate([b for _, b in polys])
+    lo, hi = np.array(free, dtype=np.int64).reshape(-1, 2).T  # [M] each
+    idx = np.arange(cps.shape[1])
+    vals = np.einsum("fc,fic->fi", a, cps[seg]) - b[:, None]  # [F_all, D+1]
+    keep = (idx[None] >= lo[seg, None]) & (idx[None] < hi[seg, None])
+    return _refuse_outside(float(vals[keep].max()) if keep.any() else -np.inf, solver)
+
+
+def _refuse_outside(worst: float, solver: str) -> float:
+    """``worst`` (the largest violation of a free control point), or TrajectorySolverError when it is > 0."""
     if worst > 0:
         raise TrajectorySolverError(
             f"The {solver} solution leaves the corridor by {worst:.2e}; increase TrajectoryConfig."

@@ -91,24 +91,32 @@ def segment_durations(waypoints: np.ndarray, config: TrajectoryConfig) -> np.nda
 
 
 def as_polytopes(polytopes: Sequence[Any]) -> List[Tuple[np.ndarray, np.ndarray]]:
+    """[(A [F, 3], b [F])] float64 numpy of (A, b) pairs or objects with .A / .b; InvalidInputError for a bad shape or a
+    NaN / inf coefficient (one finiteness check over all of them: per polytope it cost more than the rest)."""
     out = []
     for k, poly in enumerate(polytopes):
-        if hasattr(poly, "A") and hasattr(poly, "b"):
-            a, b = poly.A, poly.b
+        if (type(poly) is tuple and len(poly) == 2 and type(poly[0]) is np.ndarray and type(poly[1]) is np.ndarray
+                and poly[0].dtype == np.float64 and poly[1].dtype == np.float64):
+            a, b = poly[0], poly[1].reshape(-1)  # what Corridor.constraints gives: no conversion
         else:
-            try:
-                a, b = poly
-            except (TypeError, ValueError):
-                raise InvalidInputError(f"polytope {k} must be an (A, b) pair or have .A and .b") from None
-        a = to_numpy(a)
-        b = to_numpy(b).reshape(-1)
+            if hasattr(poly, "A") and hasattr(poly, "b"):
+                a, b = poly.A, poly.b
+            else:
+                try:
+                    a, b = poly
+                except (TypeError, ValueError):
+                    raise InvalidInputError(f"polytope {k} must be an (A, b) pair or have .A and .b") from None
+            a = to_numpy(a)
+            b = to_numpy(b).reshape(-1)
         if a.ndim != 2 or a.shape[1] != 3 or a.shape[0] != b.shape[0] or a.shape[0] == 0:
             raise InvalidInputError(
                 f"polytope {k}: A must be [F, 3] and b [F] with F >= 1, got A {a.shape}, b {b.shape}."
             )
-        if not (np.isfinite(a).all() and np.isfinite(b).all()):  # (methods: ~1 us less than np.all per call)
-            raise InvalidInputError(f"polytope {k} has NaN or inf coefficients.")
         out.append((a, b))
+    if out and not (np.isfinite(np.concatenate([a.ravel() for a, _ in out])).all()
+                    and np.isfinite(np.concatenate([b for _, b in out])).all()):
+        k = next(k for k, (a, b) in enumerate(out) if not (np.isfinite(a).all() and np.isfinite(b).all()))
+        raise InvalidInputError(f"polytope {k} has NaN or inf coefficients.")
     return out
 
 

@@ -35,9 +35,19 @@ def reach(waypoints: np.ndarray) -> np.ndarray:
     return np.maximum(np.maximum(padded[:-2], padded[1:-1]), padded[2:])
 
 
+ARRAY_MIN_SEGMENTS = 6
+"""face_norms and qp._corridor_violation work on all faces at once from this many segments up (the 1M grove's ~17),
+per segment below it (the procedural room's 2-5), where the arrays' set-up costs more than the loop."""
+
+
 def face_norms(polys: Sequence[Tuple[np.ndarray, np.ndarray]]) -> List[np.ndarray]:
-    """Per polytope the [F] norms of its face normals (rows of A): taken once per QP, every round uses them."""
-    return [np.linalg.norm(a, axis=1) for a, _ in polys]
+    """Per polytope the [F] norms of its face normals (rows of A): taken once per QP, every round uses them (one
+    computation over all rows, then views per polytope)."""
+    if len(polys) < ARRAY_MIN_SEGMENTS:  # a few polytopes: per polytope is cheaper than the concatenation and split
+        return [np.linalg.norm(a, axis=1) for a, _ in polys]
+    a = np.concatenate([a for a, _ in polys])  # [F_all, 3]
+    norms = np.linalg.norm(a, axis=1)  # (row by row: the same values as per polytope)
+    return np.split(norms, np.cumsum([p[0].shape[0] for p in polys[:-1]]))
 
 
 def initial_faces(polys: Sequence[Tuple[np.ndarray, np.ndarray]], waypoints: np.ndarray,
