@@ -244,7 +244,7 @@ def main() -> None:
             tab.add_column(c, justify="right" if c != "stage" else "left")
         for k, v in stages.items():
             if v:
-                tab.add_row(k, f"{v['median']:.1f}", f"{v['p95']:.1f}", f"{v['max']:.1f}")
+                tab.add_row(k, f"{v['median']:.2f}", f"{v['p95']:.2f}", f"{v['max']:.2f}")
         for k, v in prepare_ms.items():
             tab.add_row(f"prepare: {k}", f"{v:.0f}", "", "")
         Console().print(tab)
