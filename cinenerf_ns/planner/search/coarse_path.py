@@ -44,6 +44,11 @@ COARSE_DETOUR = 1.5
 """voxel_path: a coarse route longer than this x the straight distance is checked against the fine search's path (the
 shorter one is kept): blocks keep paths in wide free space, but where the fine grid passes between thin obstacles
 (the grove's trunks) they can go round the whole group, twice the way (docs/PLANNER_DEFAULTS.md)."""
+SHOT_DETOUR_EXPANSIONS = 5_000
+"""voxel_path for one shot: that check's fine A* gives up after this many expansions and keeps the coarse route. A
+pass between thin obstacles is found in a few hundred; where a wall really imposes the detour (random starts behind
+the procedural room's furniture) an unbounded fine A* expands everything in front of it: 30-125 ms a request at 1M
+(docs/PLANNER_DEFAULTS.md)."""
 
 
 def _mcp_path(costs: np.ndarray, start, ends: np.ndarray, grid: Optional[AStarGrid] = None) -> Optional[np.ndarray]:
@@ -211,8 +216,9 @@ def voxel_path(
     coarse route is over COARSE_DETOUR x the straight distance: the shorter of the two). ``detour_budget`` (ranked
     candidates, whose searches must stay cheap and share a go-to): the coarse route's ends may escape coarse pockets
     (CoarseGrid.path), and that check's fine A* gives up after this many expansions, keeping the coarse route; None
-    (one shot: the shortest voxel path it can get): no escapes, no limit (an escape is paid by each request's own
-    go-to, and its route is then mostly a detour the whole fine search replaces anyway).
+    (one shot): no escapes (an escape is paid by each request's own go-to, and its route is then mostly a detour the
+    fine search replaces anyway), and the check's budget is SHOT_DETOUR_EXPANSIONS. Without a coarse route the fine
+    search is whole.
     astar_weight: heuristic weight of the A* (1: minimum-cost path; w > 1: cost at most w x minimum, far fewer
     expansions; see PlannerConfig.astar_weight).
     astar_budget: fine A* expansions before the coarse route, the same with the compiled and the Python A* (the
@@ -227,9 +233,12 @@ def voxel_path(
     route = coarse.path(s, g, window, escape=detour_budget is not None) if coarse is not None else None
     if route is not None and _length(route) <= COARSE_DETOUR * float(np.linalg.norm(np.subtract(g, s))):
         return route
-    if route is not None and detour_budget is not None:
+    if route is not None:
+        # the fine search for a shorter way than the coarse detour (between thin obstacles the blocks cannot pass),
+        # bounded: where a wall really imposes the detour, the fine A* would expand everything in front of it too
+        budget = detour_budget if detour_budget is not None else SHOT_DETOUR_EXPANSIONS
         try:
-            p = astar(fine, s, g, max_expansions=detour_budget).astype(np.float64)
+            p = astar(fine, s, g, max_expansions=budget).astype(np.float64)
         except SearchBudgetExhausted:
             return route
         return route if _length(route) <= _length(p) else p
@@ -239,8 +248,7 @@ def voxel_path(
     p = _mcp_path(costs, np.asarray(s), np.asarray(g, dtype=np.int64)[None], grid=fine)
     if p is None:  # cannot happen: astar() checked that s and g share a free component
         raise GoalUnreachableError(f"no collision-free voxel path from {tuple(s)} to {tuple(g)}")
-    p = p.astype(np.float64)
-    return route if route is not None and _length(route) <= _length(p) else p
+    return p.astype(np.float64)
 
 
 def _length(path: np.ndarray) -> float:

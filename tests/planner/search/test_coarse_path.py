@@ -170,3 +170,27 @@ def test_a_coarse_detour_round_a_wall_gives_way_to_the_fine_path_through_its_gap
     dist = dijkstra(grid_graph(occ), indices=np.ravel_multi_index(tuple(s), shape))
     ref = dist[np.ravel_multi_index(tuple(g), shape)]
     assert np.linalg.norm(np.diff(p, axis=0), axis=1).sum() <= ref + 1e-9
+
+
+def test_one_shot_detour_check_is_bounded_and_keeps_the_coarse_route(monkeypatch):
+    """Where a wall really imposes the detour, the one-shot check's fine A* stops after SHOT_DETOUR_EXPANSIONS and the
+    (safe) coarse route is kept; with room for the whole fine search the shorter fine path wins, as before."""
+    import cinenerf_ns.planner.search.coarse_path as cp
+
+    occ = np.zeros((30, 40, 8), dtype=bool)
+    occ[14:16, :36, :] = True  # a wall, its only opening far from the straight line (block aligned)
+    s, g = np.array([2, 5, 3]), np.array([28, 5, 3])
+    ag, cg = AStarGrid(occ), CoarseGrid(AStarGrid(occ))
+    route = cg.path(s, g, 6)
+    assert route is not None and np.linalg.norm(np.diff(route, axis=0), axis=1).sum() > COARSE_DETOUR * 26
+    monkeypatch.setattr(cp, "SHOT_DETOUR_EXPANSIONS", 50)  # far fewer than the fine search round the wall needs
+    p = voxel_path(ag, cg, s, g, astar_budget=5)
+    check_path_safe(p, occ, s, g)
+    np.testing.assert_array_equal(p, route)
+    monkeypatch.setattr(cp, "SHOT_DETOUR_EXPANSIONS", 10**9)
+    q = voxel_path(ag, cg, s, g, astar_budget=5)
+    check_path_safe(q, occ, s, g)
+    shape = occ.shape
+    ref = dijkstra(grid_graph(occ), indices=np.ravel_multi_index(tuple(s), shape))[np.ravel_multi_index(tuple(g), shape)]
+    assert np.linalg.norm(np.diff(q, axis=0), axis=1).sum() <= ref + 1e-9
+    assert np.linalg.norm(np.diff(q, axis=0), axis=1).sum() < np.linalg.norm(np.diff(p, axis=0), axis=1).sum()
