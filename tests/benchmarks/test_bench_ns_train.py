@@ -97,3 +97,70 @@ def test_runs_spec_and_every_variant_parses_with_ns_train_cli():
         assert cfg.method_name == "cinesplat" and cfg.pipeline.datamanager.clip.random_weights
         got = (m.latent_render_mode, m.latent_render_resolution, m.latent_every, m.latent_start_step)
         assert got == expect.get(name, ("shared", "image", 2, 0)), name
+
+
+def test_lane_queues_latin_runs_every_cell_on_every_gpu_and_deal_splits():
+    runs = [("splatfacto", 4), ("cinesplat", 4), ("splatfacto", 2), ("cinesplat", 2)]
+    assert b.lane_queues(runs, 2, 1, "latin") == [[(n, d, r) for r in range(2) for n, d in runs]]
+    q = b.lane_queues(runs, 1, 4, "latin")
+    assert [len(x) for x in q] == [4, 4, 4, 4]
+    for k, lane in enumerate(q):
+        assert sorted((n, d) for n, d, _ in lane) == sorted(runs)  # every cell on every GPU
+        assert {r for _, _, r in lane} == {k}  # a ratio compares two runs of one GPU
+    for slot in range(4):  # at any moment the lanes run four different cells
+        assert len({q[k][slot][:2] for k in range(4)}) == 4
+    q2 = b.lane_queues(runs, 2, 4, "latin")
+    assert [r for _, _, r in q2[1]] == [1] * 4 + [5] * 4
+    d = b.lane_queues(runs, 1, 4, "deal")
+    assert d == [[("splatfacto", 4, 0)], [("cinesplat", 4, 0)], [("splatfacto", 2, 0)], [("cinesplat", 2, 0)]]
+    assert b.lane_queues(runs[:2], 1, 3, "deal") == [[("splatfacto", 4, 0)], [("cinesplat", 4, 0)], []]
+
+
+def test_cpu_split_gives_disjoint_equal_slices():
+    import os
+
+    cpus = sorted(os.sched_getaffinity(0))
+    sl = b.cpu_split(2)
+    assert len(sl) == 2
+    if len(cpus) >= 2:
+        assert not set(sl[0]) & set(sl[1]) and len(sl[0]) == len(sl[1]) == len(cpus) // 2
+    assert b.ratio_window(3000) == 500 and b.ratio_window(30000) == 5000 and b.ratio_window(1000) == 500
+
+
+def test_summary_over_repeats():
+    def row(name, rep, ms, psnr, mem=100.0):
+        return {"name": name, "downscale": 4, "repeat": rep, "stats": {"n": 10, "median": ms},
+                "result": {"peak_mem_mib": mem, "eval": {"psnr": psnr, "ssim": 0.5}}}
+
+    rows = [row("splatfacto", 0, 10.0, 20.0), row("cinesplat", 0, 11.0, 20.1, 110.0),
+            row("splatfacto", 1, 12.0, 20.0), row("cinesplat", 1, 12.6, 19.8, 120.0),
+            row("splatfacto", 2, 10.0, 20.0), row("cinesplat", 2, 10.8, 20.0, 100.0),
+            row("cinesplat", 3, 99.0, 0.0)]  # no splatfacto of repeat 3: not paired
+    out = b.summary(rows)
+    assert out[2] == ("| cinesplat | 4 | 3 | 1.080 [1.050, 1.100] | 1.10 [1.00, 1.20] | +0.00 [-0.20, +0.10] | "
+                      "+0.0000 [+0.0000, +0.0000] |")
+
+
+def test_child_stops_at_the_deadline_and_keeps_the_steps(tmp_path, monkeypatch):
+    from nerfstudio.configs.base_config import LoggingConfig
+    from nerfstudio.utils import writer
+    from nerfstudio.utils.writer import EventName, TimeWriter
+
+    done = []
+
+    def fake_ns_train():
+        writer.setup_local_writer(LoggingConfig(), max_iter=30)
+        for step in range(30):
+            with TimeWriter(writer, EventName.ITER_TRAIN_TIME, step=step):
+                pass
+            done.append(step)
+
+    monkeypatch.setenv("BENCH_NS_TRAIN_DEADLINE", "0")  # long past: the first step's timer ends training
+    out = tmp_path / "r.json"
+    old_argv = list(sys.argv)
+    try:
+        b.child(out, ["splatfacto"], entry=fake_ns_train)
+    finally:
+        sys.argv = old_argv
+    res = json.loads(out.read_text())
+    assert res["stopped_at_step"] == 0 and [s for s, _ in res["raw"]] == [0] and done == []
