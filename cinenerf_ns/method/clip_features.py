@@ -28,6 +28,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from cinenerf_ns.method.seeding import cpu_seeded
+
 
 class ClipWeightsError(RuntimeError):
     """CLIP weights could not be loaded; the message says how to provide them for training (ns-train options), and
@@ -98,8 +100,7 @@ def load_clip(cfg: ClipFeatureConfig, device: torch.device | str = "cpu"):
     if open_clip.get_model_config(cfg.model_name) is None:
         raise ClipWeightsError(f"unknown open_clip model '{cfg.model_name}' (see open_clip.list_models())")
     if cfg.random_weights:
-        with torch.random.fork_rng(devices=[]):
-            torch.manual_seed(cfg.random_seed)
+        with cpu_seeded(cfg.random_seed):  # CPU only: the CUDA stream training draws from stays the user's
             model = open_clip.create_model(cfg.model_name, pretrained=None, device="cpu")
     else:
         src = str(cfg.checkpoint_path) if cfg.checkpoint_path else cfg.pretrained

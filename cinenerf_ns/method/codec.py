@@ -22,6 +22,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from cinenerf_ns.method.seeding import cpu_seeded
+
 
 @dataclass
 class CodecConfig:
@@ -103,17 +105,13 @@ class FeatureCodec(nn.Module):
         if cfg.backend == "tcnn" and not tcnn_available(device):
             raise RuntimeError("codec backend 'tcnn' requested but tinycudann is not importable on a CUDA device")
         self.backend = "tcnn" if use_tcnn else "torch"
-        gen_state = torch.random.get_rng_state()
-        torch.manual_seed(cfg.seed)
-        try:
+        with cpu_seeded(cfg.seed):  # the CUDA stream training draws from stays the user's (--machine.seed)
             if use_tcnn:
                 self.enc = _TcnnMLP(self.feature_dim, cfg.latent_dim, cfg.hidden_dim, cfg.num_layers, cfg.seed)
                 self.dec = _TcnnMLP(cfg.latent_dim, self.feature_dim, cfg.hidden_dim, cfg.num_layers, cfg.seed + 1)
             else:
                 self.enc = _torch_mlp(self.feature_dim, cfg.latent_dim, cfg.hidden_dim, cfg.num_layers)
                 self.dec = _torch_mlp(cfg.latent_dim, self.feature_dim, cfg.hidden_dim, cfg.num_layers)
-        finally:
-            torch.random.set_rng_state(gen_state)
         # mean of the training features: the MLPs model the residual around it. CLIP features of one scene
         # share a large common component (pairwise cosines 0.6-0.9), so without centring the decoder first
         # learns the mean and the semantic differences converge much later.
