@@ -20,7 +20,9 @@ from typing import Any, Optional
 
 RUN_DIR: Optional[Path] = None  # set under xdist by tests/conftest.py (the run's folder of ports handed out)
 
-GROUPS = {"tests/viewer/test_browser.py": "browser"}  # test file (relative to the repository) -> its xdist group
+# test file (relative to the repository) -> its xdist group. "ns-train": that file's tests share one Python process (a
+# module-scoped fixture), which runs once only when they run on one worker.
+GROUPS = {"tests/viewer/test_browser.py": "browser", "tests/method/test_ns_train_cli.py": "ns-train"}
 
 
 def reserve(port: int, run_dir: Optional[Path] = None) -> bool:

@@ -22,9 +22,11 @@ def test_the_browser_tests_are_one_unit_of_work(request):
     pytest.importorskip("xdist")
     cls = scheduler_class()
     sched = cls.__new__(cls)  # _split_scope reads only the node id (a full scheduler needs the controller's nodes)
+    grouped = {"tests/method/test_ns_train_cli.py": "ns-train"}  # files whose tests share one module fixture
     for item in request.session.items:
-        want = "browser" if "browser" in item.keywords else item.nodeid
+        want = "browser" if "browser" in item.keywords else grouped.get(item.nodeid.split("::")[0], item.nodeid)
         assert sched._split_scope(item.nodeid) == want, item.nodeid
-    assert set(GROUPS.values()) == {"browser"}
+    assert set(GROUPS.values()) == {"browser", "ns-train"}
+    assert {f: g for f, g in GROUPS.items() if g != "browser"} == grouped
     hooks = request.config.hook.pytest_xdist_make_scheduler.get_hookimpls()
     assert any(h.plugin_name.endswith("conftest.py") for h in hooks), [h.plugin_name for h in hooks]

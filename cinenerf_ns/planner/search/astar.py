@@ -21,11 +21,11 @@ from __future__ import annotations
 
 import heapq
 import math
+import sys
 import threading
 from typing import Callable, Optional, Sequence, Union
 
 import numpy as np
-import torch
 
 from ..errors import GoalUnreachableError, InvalidInputError, StartInCollisionError
 from ..native import (
@@ -37,6 +37,14 @@ from ..native import (
 )
 
 _SQ2, _SQ3 = math.sqrt(2.0), math.sqrt(3.0)
+
+
+def _is_tensor(v) -> bool:
+    """``v`` is a torch tensor. torch is not imported for this (this module takes numpy and torch alike, and a process
+    that plans on numpy grids, e.g. a compiled-kernel probe, need not load torch): a tensor exists only once torch is
+    imported."""
+    torch = sys.modules.get("torch")
+    return torch is not None and isinstance(v, torch.Tensor)
 
 
 class SearchBudgetExhausted(GoalUnreachableError):
@@ -153,7 +161,7 @@ class AStarGrid:
 
 
 def _as_ijk(v, shape, what: str) -> tuple[int, int, int]:
-    a = np.asarray(torch.as_tensor(v).cpu() if isinstance(v, torch.Tensor) else v).reshape(-1)
+    a = np.asarray(v.cpu() if _is_tensor(v) else v).reshape(-1)
     if a.shape != (3,) or not np.all(np.isfinite(a.astype(float))) or np.any(a != np.round(a)):
         raise InvalidInputError(f"{what} voxel must be 3 integers, got {a.tolist()}")
     ijk = tuple(int(x) for x in a)
@@ -314,7 +322,7 @@ def shortcut(
     path and is taken even if ``segment_free`` refuses it, so the output is never worse than the input.
     The first and last points are kept.
     """
-    is_torch = isinstance(points, torch.Tensor)
+    is_torch = _is_tensor(points)
     pts = points if is_torch else np.asarray(points, dtype=np.float64)
     K = int(pts.shape[0])
     if pts.ndim != 2 or pts.shape[-1] != 3:
@@ -331,7 +339,7 @@ def shortcut(
             p1 = pts[js]
             p0 = pts[[i] * len(js)]
             free = segment_free(p0, p1)
-            free = free.detach().cpu().numpy() if isinstance(free, torch.Tensor) else np.asarray(free)
+            free = free.detach().cpu().numpy() if _is_tensor(free) else np.asarray(free)
             free = free.reshape(-1).astype(bool)
             if free.shape[0] != len(js):
                 raise InvalidInputError(f"segment_free returned {free.shape[0]} answers for {len(js)} segments")
