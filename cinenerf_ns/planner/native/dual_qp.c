@@ -75,18 +75,26 @@ typedef struct {
     const double *T;  /* [N, n] */
     const int64_t *lo, *hi;
     const double *L;  /* [n, n] lower */
+    const double *U;  /* [n, n] row-major, upper triangle = L^T (the QR's R, kept in B): rows read contiguously */
     const double *t;  /* [N, 3] */
 } Map;
 
-/* X [N, 3] = T L^-T Y + t; Z [n, 3] work */
+/* X [N, 3] = T L^-T Y + t; Z [n, 3] work. L^T = U is read by rows (contiguous), the three columns at once: the
+   same operations in the same order as column by column through L (a stride-n walk, ~25% of the solve) */
 static void points_of(const Map *mp, const double *Y, double *Z, double *X) {
     int64_t n = mp->n;
-    for (int64_t i = n - 1; i >= 0; i--)
-        for (int c = 0; c < 3; c++) {
-            double s = Y[i * 3 + c];
-            for (int64_t j = i + 1; j < n; j++) s -= mp->L[j * n + i] * Z[j * 3 + c];
-            Z[i * 3 + c] = s / mp->L[i * n + i];
+    for (int64_t i = n - 1; i >= 0; i--) {
+        const double *urow = mp->U + i * n;
+        double s0 = Y[i * 3], s1 = Y[i * 3 + 1], s2 = Y[i * 3 + 2];
+        for (int64_t j = i + 1; j < n; j++) {
+            double u = urow[j];
+            s0 -= u * Z[j * 3];
+            s1 -= u * Z[j * 3 + 1];
+            s2 -= u * Z[j * 3 + 2];
         }
+        double dg = urow[i];
+        Z[i * 3] = s0 / dg, Z[i * 3 + 1] = s1 / dg, Z[i * 3 + 2] = s2 / dg;
+    }
     for (int64_t p = 0; p < mp->N; p++) {
         double x0 = mp->t[p * 3], x1 = mp->t[p * 3 + 1], x2 = mp->t[p * 3 + 2];
         const double *row = mp->T + p * n;
@@ -278,7 +286,7 @@ int64_t cn_corridor_dual(int64_t m, int64_t degree, int64_t cont, int64_t fr, co
         for (int c = 0; c < 3; c++) Y[i * 3 + c] = -Ft[i * 3 + c];
     }
     for (int64_t f = 0; f < face_start[m]; f++) inv_norm[f] = 1.0 / sqrt(dot3(A + 3 * f, A + 3 * f));
-    Map mp = {n, N, npts, T, lo, hi, Lf, t};
+    Map mp = {n, N, npts, T, lo, hi, Lf, B, t};
 
     /* step 4: dual active set */
     for (;;) {
