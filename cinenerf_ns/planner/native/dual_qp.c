@@ -293,13 +293,27 @@ int64_t cn_corridor_dual(int64_t m, int64_t degree, int64_t cont, int64_t fr, co
         points_of(&mp, Y, Z, X);
         if (n == 0 || K == 0) break;
         int64_t pp = -1, pf = -1;
-        double vp = 0.0;
+        double vp = -INFINITY;
+        int nan_seen = 0;
+        /* the first largest violation (numpy's argmax); a NaN (never with finite input) takes the exact rule below */
         for (int64_t p = 0; p < N; p++) {
             if (kind[p] != FREE && kind[p] != JOINED) continue;
             int64_t s = p / npts;
             for (int64_t f = face_start[s]; f < face_start[s + 1]; f++) {
                 double vv = (dot3(A + 3 * f, X + 3 * p) - b[f]) * inv_norm[f];
-                if (pp < 0 || (vp == vp && (vv > vp || vv != vv))) pp = p, pf = f, vp = vv;
+                nan_seen |= vv != vv;
+                if (vv > vp) pp = p, pf = f, vp = vv;
+            }
+        }
+        if (nan_seen || pp < 0) {  /* argmax's rule with NaN (the first NaN wins) or all -inf (the first wins) */
+            pp = -1, vp = 0.0;
+            for (int64_t p = 0; p < N; p++) {
+                if (kind[p] != FREE && kind[p] != JOINED) continue;
+                int64_t s = p / npts;
+                for (int64_t f = face_start[s]; f < face_start[s + 1]; f++) {
+                    double vv = (dot3(A + 3 * f, X + 3 * p) - b[f]) * inv_norm[f];
+                    if (pp < 0 || (vp == vp && (vv > vp || vv != vv))) pp = p, pf = f, vp = vv;
+                }
             }
         }
         if (vp <= tol) break;
