@@ -74,19 +74,29 @@ static int push(item_t **heap, int64_t *size, int64_t *cap, int *owned, item_t i
     return 0;
 }
 
+/* Floyd's pop: the hole left by the top goes down along the smaller children to a leaf (one comparison a level), then
+   the last item rises from there (it usually belongs near the bottom). Items are distinct (f, h, n): a node is pushed
+   again only with a smaller g, so a smaller f: the heap's order is total and every pop returns the same item as with
+   the usual sift-down, whatever the layout. */
 static item_t pop(item_t *hp, int64_t *size) {
     item_t top = hp[0];
     item_t last = hp[--(*size)];
     int64_t n = *size, i = 0;
+    if (n == 0) return top;
     for (;;) {
         int64_t c = 2 * i + 1;
         if (c >= n) break;
         if (c + 1 < n && less(&hp[c + 1], &hp[c])) c++;
-        if (!less(&hp[c], &last)) break;
         hp[i] = hp[c];
         i = c;
     }
-    if (n > 0) hp[i] = last;
+    while (i > 0) {
+        int64_t p = (i - 1) >> 1;
+        if (!less(&last, &hp[p])) break;
+        hp[i] = hp[p];
+        i = p;
+    }
+    hp[i] = last;
     return top;
 }
 
