@@ -102,6 +102,76 @@ def test_kept_workspace_gives_the_fresh_search_every_time():
 
 
 @needs_native
+@settings(max_examples=40, deadline=None,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(seed=st.integers(0, 2**31 - 1), density=st.floats(0.0, 0.45), weight=st.sampled_from([1.0, 1.5]),
+       budgets=st.lists(st.sampled_from([0, 1, 3, 30, 200, -1]), min_size=1, max_size=4),
+       heap_items=st.sampled_from([1, 8, 64, 32_768]), other=st.booleans())
+def test_resumed_search_is_the_fresh_search(monkeypatch, seed, density, weight, budgets, heap_items, other):
+    """search26_wsr: an A* its budget stopped goes on in the next call of the same search from where it stopped (the
+    open list kept in the workspace's buffer, ``heap_items`` of them: a larger list is copied back when it fits, else
+    not kept), expansions counted from the first call; so every call answers what a fresh search with that call's
+    budget answers (the Python A*), also when another search (``other``) runs in between and drops the kept one."""
+    from cinenerf_ns.planner.search import astar as astar_mod
+
+    monkeypatch.setattr(astar_mod, "RESUME_HEAP_ITEMS", heap_items)
+    rng = np.random.default_rng(seed)
+    occ = rng.random((34, 33, 30)) < density
+    G = AStarGrid(occ)
+    assert G._blocked_np.size >= astar_mod.WORKSPACE_MIN_VOXELS
+    free = np.argwhere(~occ)
+    if len(free) < 2:
+        return
+    s, g = free[rng.integers(len(free))], free[rng.integers(len(free))]
+    resumed = 0
+    for budget in sorted(budgets, key=lambda b: b if b >= 0 else 1 << 40):
+        ws = getattr(G._local, "ws", None)
+        resumed += ws is not None and ws.pending is not None
+        outcomes = []
+        for grid, backend in ((G, "native"), (AStarGrid(occ), "python")):
+            try:
+                outcomes.append(astar(grid, s, g, max_expansions=None if budget < 0 else budget, backend=backend,
+                                      heuristic_weight=weight).tolist())
+            except SearchBudgetExhausted:
+                outcomes.append("budget")
+            except GoalUnreachableError:
+                outcomes.append("unreachable")
+        assert outcomes[0] == outcomes[1], budget
+        if other:  # an unrelated search drops the kept one: the next call starts afresh
+            t = free[rng.integers(len(free))]
+            try:
+                astar(G, t, s, max_expansions=5, backend="native")
+            except GoalUnreachableError:
+                pass
+    assert resumed <= len(budgets)
+
+
+@needs_native
+def test_budget_then_unbounded_resumes():
+    """The case coarse_path.voxel_path relies on: a fine A* stopped by its budget, then the same search unbounded,
+    resumes (the kept open list is used) and returns the fresh search's path."""
+    from cinenerf_ns.planner.search.astar import WORKSPACE_MIN_VOXELS
+
+    occ = np.zeros((40, 40, 30), bool)
+    occ[20, :, :25] = True  # a wall: the straight line fails, the search floods
+    G = AStarGrid(occ)
+    assert G._blocked_np.size >= WORKSPACE_MIN_VOXELS
+    with pytest.raises(SearchBudgetExhausted):
+        astar(G, (0, 5, 0), (39, 5, 0), max_expansions=100, backend="native")
+    ws = G._local.ws
+    assert ws.pending is not None and ws.state[0] > 0 and ws.state[1] == 100
+    gen = ws.gen
+    p = astar(G, (0, 5, 0), (39, 5, 0), backend="native")
+    assert ws.pending is None and ws.gen == gen + 1  # resumed with the kept generation, then advanced
+    assert np.array_equal(p, astar(occ, (0, 5, 0), (39, 5, 0), backend="python"))
+    fine = np.where(occ, np.inf, 1.0)
+    with pytest.raises(SearchBudgetExhausted):
+        astar(G, (0, 5, 0), (39, 5, 0), max_expansions=100, backend="native")
+    q = coarse_path._mcp_path(fine, np.array([0, 5, 0]), np.array([[39, 5, 0]]), grid=G)  # voxel_path's fallback
+    assert np.array_equal(q, p)
+
+
+@needs_native
 def test_native_long_path_on_a_big_grid():
     """A whole-grid search (a wall with one hole in the far corner) on the planner's grid size."""
     occ = np.zeros((96, 96, 57), bool)

@@ -208,6 +208,13 @@ def search26_ws_lm():
                      [_P, _I64, _I64, _I64, _I64, _I64, _P, _F64, _I64, _P, _I64, _P, _I64, _P, _P, _P, _I64], _I64)
 
 
+def search26_wsr():
+    """search26_ws_lm that a budget may interrupt and a later call resume (astar26.c: search26_wsr), or None."""
+    return _function("astar26", "search26_wsr",
+                     [_P, _I64, _I64, _I64, _I64, _I64, _P, _F64, _I64, _P, _I64, _P, _I64, _P, _P, _P, _I64, _P, _I64,
+                      _P], _I64)
+
+
 def dist26():
     """The compiled shortest-path distances from one voxel to all (astar26.c: dist26), or None."""
     return _function("astar26", "dist26", [_P, _I64, _I64, _I64, _I64, _P], _I64)

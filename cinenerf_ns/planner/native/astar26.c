@@ -26,10 +26,14 @@
  * stamp[n] == 2 gen + 1, unseen otherwise (any older stamp), so g and parent are read only for voxels seen in this
  * call. Why: glibc serves repeated ~10 MB callocs from the heap once the first is freed, and then clears every
  * byte: ~0.3 ms per call on a 96 x 96 x 57 grid even for a search of ten voxels, several calls per plan.
+ * search26_wsr also keeps the open list in a caller's buffer when its budget runs out, and a later call with the same
+ * search resumes it (astar.py: a fine A* over its budget whose coarse route fails goes on from where it stopped
+ * instead of starting again: the same path).
  */
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
+#include <string.h>
 
 typedef struct {
     double f, h;
@@ -42,13 +46,21 @@ static int less(const item_t *a, const item_t *b) {
     return a->n < b->n;
 }
 
-static int push(item_t **heap, int64_t *size, int64_t *cap, item_t it) {
+/* *owned == 0: *heap is the caller's buffer (search26_wsr), never realloc'd: a full one is copied into a new one */
+static int push(item_t **heap, int64_t *size, int64_t *cap, int *owned, item_t it) {
     if (*size == *cap) {
         int64_t nc = *cap * 2;
-        item_t *nh = (item_t *)realloc(*heap, (size_t)nc * sizeof(item_t));
+        item_t *nh;
+        if (*owned) {
+            nh = (item_t *)realloc(*heap, (size_t)nc * sizeof(item_t));
+        } else {
+            nh = (item_t *)malloc((size_t)nc * sizeof(item_t));
+            if (nh) memcpy(nh, *heap, (size_t)*size * sizeof(item_t));
+        }
         if (!nh) return -1;
         *heap = nh;
         *cap = nc;
+        *owned = 1;
     }
     item_t *hp = *heap;
     int64_t i = (*size)++;
@@ -62,19 +74,29 @@ static int push(item_t **heap, int64_t *size, int64_t *cap, item_t it) {
     return 0;
 }
 
+/* Floyd's pop: the hole left by the top goes down along the smaller children to a leaf (one comparison a level), then
+   the last item rises from there (it usually belongs near the bottom). Items are distinct (f, h, n): a node is pushed
+   again only with a smaller g, so a smaller f: the heap's order is total and every pop returns the same item as with
+   the usual sift-down, whatever the layout. */
 static item_t pop(item_t *hp, int64_t *size) {
     item_t top = hp[0];
     item_t last = hp[--(*size)];
     int64_t n = *size, i = 0;
+    if (n == 0) return top;
     for (;;) {
         int64_t c = 2 * i + 1;
         if (c >= n) break;
         if (c + 1 < n && less(&hp[c + 1], &hp[c])) c++;
-        if (!less(&hp[c], &last)) break;
         hp[i] = hp[c];
         i = c;
     }
-    if (n > 0) hp[i] = last;
+    while (i > 0) {
+        int64_t p = (i - 1) >> 1;
+        if (!less(&last, &hp[p])) break;
+        hp[i] = hp[p];
+        i = p;
+    }
+    hp[i] = last;
     return top;
 }
 
@@ -103,7 +125,8 @@ static void moves26(int64_t sx, int64_t sy, int64_t *off, double *cost, int *di_
 
 static int64_t search_core(const uint8_t *blocked, int64_t PX, int64_t PY, int64_t PZ, int64_t start, int64_t goal,
                            const uint8_t *target, double weight, int64_t max_expansions, int64_t *out, int64_t out_cap,
-                           uint32_t *stamp, uint32_t gen, double *g, int64_t *parent, const float *lm, int64_t L) {
+                           uint32_t *stamp, uint32_t gen, double *g, int64_t *parent, const float *lm, int64_t L,
+                           item_t *ext_heap, int64_t ext_cap, int64_t *state) {
     const uint32_t OPEN = 2u * gen, CLOSED = 2u * gen + 1u;
     const double SQ2 = sqrt(2.0), SQ3 = sqrt(3.0);
     const double c1 = weight * (SQ2 - 1.0), c2 = weight * (SQ3 - SQ2);
@@ -125,23 +148,27 @@ static int64_t search_core(const uint8_t *blocked, int64_t PX, int64_t PY, int64
                 nl++;
             }
         }
-    int64_t cap = 1024, size = 0;
-    item_t *heap = (item_t *)malloc((size_t)cap * sizeof(item_t));
-    int64_t result = -1;
-    if (!heap) {
+    const int resume = ext_heap && state && state[0] > 0;
+    int64_t cap = ext_heap ? ext_cap : 1024, size = resume ? state[0] : 0;
+    int owned = !ext_heap;
+    item_t *heap = ext_heap ? ext_heap : (item_t *)malloc((size_t)cap * sizeof(item_t));
+    int64_t result = -1, expansions = resume ? state[1] : 0;
+    if (state) state[0] = 0; /* not resumable unless set again below */
+    if (!heap || cap < 1) {
         result = -4;
         goto done;
     }
     const int64_t gi = goal / sx, gj = (goal % sx) / sy, gk = goal % sy;
-    g[start] = 0.0;
-    parent[start] = -1;
-    stamp[start] = OPEN;
-    item_t s0 = {0.0, 0.0, start};
-    if (push(&heap, &size, &cap, s0)) {
-        result = -4;
-        goto done;
+    if (!resume) {
+        g[start] = 0.0;
+        parent[start] = -1;
+        stamp[start] = OPEN;
+        item_t s0 = {0.0, 0.0, start};
+        if (push(&heap, &size, &cap, &owned, s0)) {
+            result = -4;
+            goto done;
+        }
     }
-    int64_t expansions = 0;
     int found = 0;
     while (size > 0) {
         item_t it = pop(heap, &size);
@@ -152,12 +179,15 @@ static int64_t search_core(const uint8_t *blocked, int64_t PX, int64_t PY, int64
             found = 1;
             break;
         }
-        stamp[cur] = CLOSED;
-        expansions++;
-        if (max_expansions >= 0 && expansions > max_expansions) {
+        if (max_expansions >= 0 && expansions >= max_expansions) {
+            /* the budget is spent before cur is expanded: cur goes back (it was the minimum, so the open list is the
+               one an unbounded search has here) and a resumed call continues exactly where this one stopped */
+            push(&heap, &size, &cap, &owned, it); /* cannot grow: it was just popped */
             result = -2;
             goto done;
         }
+        stamp[cur] = CLOSED;
+        expansions++;
         const double gc = g[cur];
         const int64_t ci = cur / sx, cj = (cur % sx) / sy, ck = cur % sy;
         const int64_t dgi = gi - ci, dgj = gj - cj, dgk = gk - ck;
@@ -181,7 +211,7 @@ static int64_t search_core(const uint8_t *blocked, int64_t PX, int64_t PY, int64
                     if (v > h) h = v;
                 }
                 item_t ni = {ng + h, h, n};
-                if (push(&heap, &size, &cap, ni)) {
+                if (push(&heap, &size, &cap, &owned, ni)) {
                     result = -4;
                     goto done;
                 }
@@ -204,7 +234,15 @@ static int64_t search_core(const uint8_t *blocked, int64_t PX, int64_t PY, int64
         result = k;
     }
 done:
-    free(heap);
+    if (result == -2 && state && ext_heap) { /* keep the open list for a resumed call (search26_wsr) */
+        if (!owned) {
+            state[0] = size, state[1] = expansions;
+        } else if (size <= ext_cap) {
+            memcpy(ext_heap, heap, (size_t)size * sizeof(item_t));
+            state[0] = size, state[1] = expansions;
+        }
+    }
+    if (owned) free(heap);
     return result;
 }
 
@@ -217,7 +255,7 @@ int64_t search26(const uint8_t *blocked, int64_t PX, int64_t PY, int64_t PZ, int
     int64_t r = -4;
     if (stamp && g && parent)
         r = search_core(blocked, PX, PY, PZ, start, goal, target, weight, max_expansions, out, out_cap, stamp, 1u, g,
-                        parent, NULL, 0);
+                        parent, NULL, 0, NULL, 0, NULL);
     free(stamp);
     free(g);
     free(parent);
@@ -232,7 +270,7 @@ int64_t search26_ws(const uint8_t *blocked, int64_t PX, int64_t PY, int64_t PZ, 
                     uint32_t *stamp, int64_t gen, double *g, int64_t *parent) {
     if (gen < 1 || gen >= 2147483647LL) return -5;
     return search_core(blocked, PX, PY, PZ, start, goal, target, weight, max_expansions, out, out_cap, stamp,
-                       (uint32_t)gen, g, parent, NULL, 0);
+                       (uint32_t)gen, g, parent, NULL, 0, NULL, 0, NULL);
 }
 
 /* search26_ws with landmark tables lm float32 [L][PX PY PZ] (dist26's output per landmark; see the header): the same
@@ -242,7 +280,23 @@ int64_t search26_ws_lm(const uint8_t *blocked, int64_t PX, int64_t PY, int64_t P
                        uint32_t *stamp, int64_t gen, double *g, int64_t *parent, const float *lm, int64_t L) {
     if (gen < 1 || gen >= 2147483647LL) return -5;
     return search_core(blocked, PX, PY, PZ, start, goal, target, weight, max_expansions, out, out_cap, stamp,
-                       (uint32_t)gen, g, parent, lm, L);
+                       (uint32_t)gen, g, parent, lm, L, NULL, 0, NULL);
+}
+
+/* search26_ws_lm (lm NULL: no landmarks) that a budget may interrupt and a later call resume. heap: the caller's
+ * buffer of heap_cap items (24 bytes each: double f, double h, int64 n); state int64 [2] (open-list size, expansions):
+ * state[0] == 0 starts a new search; after a -2 (max_expansions spent) state[0] > 0 when the open list was kept in
+ * heap (it fit), and a call with the SAME blocked, start, goal, weight, landmarks, stamp, gen, g and parent (nothing
+ * else searched with them in between) and that state continues the search where it stopped, expansions counted
+ * from the first call: the same pops, hence the same result, as one call with the larger budget. Any other return
+ * sets state[0] = 0. */
+int64_t search26_wsr(const uint8_t *blocked, int64_t PX, int64_t PY, int64_t PZ, int64_t start, int64_t goal,
+                     const uint8_t *target, double weight, int64_t max_expansions, int64_t *out, int64_t out_cap,
+                     uint32_t *stamp, int64_t gen, double *g, int64_t *parent, const float *lm, int64_t L,
+                     void *heap, int64_t heap_cap, int64_t *state) {
+    if (gen < 1 || gen >= 2147483647LL) return -5;
+    return search_core(blocked, PX, PY, PZ, start, goal, target, weight, max_expansions, out, out_cap, stamp,
+                       (uint32_t)gen, g, parent, lm, L, (item_t *)heap, heap_cap, state);
 }
 
 /* Shortest 26-connected path cost (1, sqrt 2, sqrt 3 per step) from start to every voxel, as float32 dist
@@ -256,6 +310,7 @@ int64_t dist26(const uint8_t *blocked, int64_t PX, int64_t PY, int64_t PZ, int64
     double *g = (double *)malloc((size_t)N * sizeof(double));
     uint8_t *done = (uint8_t *)calloc((size_t)N, 1);
     int64_t cap = 1024, size = 0, reached = -4;
+    int owned = 1;
     item_t *heap = (item_t *)malloc((size_t)cap * sizeof(item_t));
     if (!g || !done || !heap) goto out;
     for (int64_t i = 0; i < N; i++) g[i] = INFINITY;
@@ -263,7 +318,7 @@ int64_t dist26(const uint8_t *blocked, int64_t PX, int64_t PY, int64_t PZ, int64
     if (!blocked[start]) {
         g[start] = 0.0;
         item_t s0 = {0.0, 0.0, start};
-        if (push(&heap, &size, &cap, s0)) {
+        if (push(&heap, &size, &cap, &owned, s0)) {
             reached = -4;
             goto out;
         }
@@ -281,7 +336,7 @@ int64_t dist26(const uint8_t *blocked, int64_t PX, int64_t PY, int64_t PZ, int64
             if (ng < g[n]) {
                 g[n] = ng;
                 item_t ni = {ng, 0.0, n};
-                if (push(&heap, &size, &cap, ni)) {
+                if (push(&heap, &size, &cap, &owned, ni)) {
                     reached = -4;
                     goto out;
                 }

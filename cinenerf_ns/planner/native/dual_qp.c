@@ -6,8 +6,9 @@
      conditions reach), so B = blockdiag(F_k) T is built per segment over those columns, and its Householder QR stays
      inside each column's row envelope (a banded matrix: ~50 rows x ~45 columns, ~10 of each touched per column);
    - a face row in Y-space is w_p a_f^T, so two rows' inner product is (w_p . w_q)(a_f . a_g) and the working set's
-     Gram matrix is kept and grown / shrunk instead of rebuilt; w_p = U^-T T[p]^T is solved for a point only when one
-     of its faces joins the working set;
+     Gram matrix is kept as its Cholesky factor, updated when a face joins or leaves (O(k^2) a step, where the
+     reference solves with the whole matrix; w_p is zero before lo[p], so its products start there); w_p = U^-T T[p]^T
+     is solved for a point only when one of its faces joins the working set;
    - violations are computed from the control points X = T U^-1 Y + t, as the reference does.
    The decisions are the reference's (first maximum, its dependency and ratio tests, "t2 < 0: unfinished"); sums run
    in another order and the QR's reflectors may differ in sign from LAPACK's (Y differs by those signs; X does not), so
@@ -28,40 +29,45 @@
 
 enum { FREE = 0, START = 1, GOAL = 2, JOINED = 3 };
 
-/* G [k, k] y = c [k] by Gaussian elimination with partial pivoting; G and c overwritten, c by y */
-static int gauss_solve(int64_t k, double *G, double *c) {
-    for (int64_t col = 0; col < k; col++) {
-        int64_t piv = col;
-        double best = fabs(G[col * k + col]);
-        for (int64_t i = col + 1; i < k; i++) {
-            double a = fabs(G[i * k + col]);
-            if (a > best) best = a, piv = i;
-        }
-        if (best == 0.0) return CN_SINGULAR;
-        if (piv != col) {
-            for (int64_t j = 0; j < k; j++) {
-                double s = G[col * k + j];
-                G[col * k + j] = G[piv * k + j];
-                G[piv * k + j] = s;
-            }
-            double s = c[col];
-            c[col] = c[piv];
-            c[piv] = s;
-        }
-        double d = G[col * k + col];
-        for (int64_t i = col + 1; i < k; i++) {
-            double f = G[i * k + col] / d;
-            if (f == 0.0) continue;
-            for (int64_t j = col + 1; j < k; j++) G[i * k + j] -= f * G[col * k + j];
-            c[i] -= f * c[col];
-        }
+/* The working set's Gram matrix G [k, k] is kept as its Cholesky factor: G = R^T R, R upper triangular [k, k] stored
+   with row stride ld. Joining a face appends a column (O(k^2)), leaving removes one and restores the triangle by Givens
+   rotations (O(k^2)); a solve is two triangular ones (O(k^2)): no factorisation from scratch per step (O(k^3)). */
+
+/* G r = c: z = R^-T c (kept in z: the new column of R when the face joins), then r = R^-1 z; CN_SINGULAR on a zero
+   pivot */
+static int chol_solve(int64_t k, const double *R, int64_t ld, const double *c, double *z, double *r) {
+    for (int64_t i = 0; i < k; i++) {
+        double s = c[i];
+        for (int64_t j = 0; j < i; j++) s -= R[j * ld + i] * z[j];
+        if (R[i * ld + i] == 0.0) return CN_SINGULAR;
+        z[i] = s / R[i * ld + i];
     }
     for (int64_t i = k - 1; i >= 0; i--) {
-        double s = c[i];
-        for (int64_t j = i + 1; j < k; j++) s -= G[i * k + j] * c[j];
-        c[i] = s / G[i * k + i];
+        double s = z[i];
+        for (int64_t j = i + 1; j < k; j++) s -= R[i * ld + j] * r[j];
+        r[i] = s / R[i * ld + i];
     }
     return 0;
+}
+
+/* R [k, k] -> R [k-1, k-1] of G without row and column q: column q removed, then Givens rotations of rows (i, i+1),
+   i = q..k-2, zero the subdiagonal the removal leaves (G = R^T R is unchanged by them) */
+static void chol_remove(int64_t k, double *R, int64_t ld, int64_t q) {
+    for (int64_t i = 0; i < k; i++)
+        for (int64_t j = q; j + 1 < k; j++) R[i * ld + j] = R[i * ld + j + 1];
+    for (int64_t i = q; i + 1 < k; i++) {
+        double a = R[i * ld + i], b = R[(i + 1) * ld + i];
+        double h = hypot(a, b);
+        if (h == 0.0) continue;
+        double c = a / h, sn = b / h;
+        R[i * ld + i] = h;
+        R[(i + 1) * ld + i] = 0.0;
+        for (int64_t j = i + 1; j + 1 < k; j++) {
+            double x = R[i * ld + j], y = R[(i + 1) * ld + j];
+            R[i * ld + j] = c * x + sn * y;
+            R[(i + 1) * ld + j] = -sn * x + c * y;
+        }
+    }
 }
 
 typedef struct {
@@ -69,18 +75,26 @@ typedef struct {
     const double *T;  /* [N, n] */
     const int64_t *lo, *hi;
     const double *L;  /* [n, n] lower */
+    const double *U;  /* [n, n] row-major, upper triangle = L^T (the QR's R, kept in B): rows read contiguously */
     const double *t;  /* [N, 3] */
 } Map;
 
-/* X [N, 3] = T L^-T Y + t; Z [n, 3] work */
+/* X [N, 3] = T L^-T Y + t; Z [n, 3] work. L^T = U is read by rows (contiguous), the three columns at once: the
+   same operations in the same order as column by column through L (a stride-n walk, ~25% of the solve) */
 static void points_of(const Map *mp, const double *Y, double *Z, double *X) {
     int64_t n = mp->n;
-    for (int64_t i = n - 1; i >= 0; i--)
-        for (int c = 0; c < 3; c++) {
-            double s = Y[i * 3 + c];
-            for (int64_t j = i + 1; j < n; j++) s -= mp->L[j * n + i] * Z[j * 3 + c];
-            Z[i * 3 + c] = s / mp->L[i * n + i];
+    for (int64_t i = n - 1; i >= 0; i--) {
+        const double *urow = mp->U + i * n;
+        double s0 = Y[i * 3], s1 = Y[i * 3 + 1], s2 = Y[i * 3 + 2];
+        for (int64_t j = i + 1; j < n; j++) {
+            double u = urow[j];
+            s0 -= u * Z[j * 3];
+            s1 -= u * Z[j * 3 + 1];
+            s2 -= u * Z[j * 3 + 2];
         }
+        double dg = urow[i];
+        Z[i * 3] = s0 / dg, Z[i * 3 + 1] = s1 / dg, Z[i * 3 + 2] = s2 / dg;
+    }
     for (int64_t p = 0; p < mp->N; p++) {
         double x0 = mp->t[p * 3], x1 = mp->t[p * 3 + 1], x2 = mp->t[p * 3 + 2];
         const double *row = mp->T + p * n;
@@ -132,7 +146,7 @@ int64_t cn_corridor_dual(int64_t m, int64_t degree, int64_t cont, int64_t fr, co
     int64_t cap = 3 * n + 1;
     size_t rows_ = (size_t)m * fr, F_ = (size_t)face_start[m];
     size_t nd = (size_t)N * n + 2 * (size_t)N + (size_t)N * 3 + (size_t)n * n + 3 * (size_t)n * 3 + (size_t)N * 3 +
-                (size_t)N * n + 2 * (size_t)cap * cap + 3 * (size_t)cap + F_ + rows_ * n + rows_ * 3;
+                (size_t)N * n + (size_t)cap * cap + 4 * (size_t)cap + F_ + rows_ * n + rows_ * 3;
     size_t ni = 3 * (size_t)N + 2 * (size_t)cap + 2 * (size_t)n;
     double *buf = calloc(nd + 1, sizeof(double));
     int64_t *ibuf = calloc(ni + 1, sizeof(int64_t));
@@ -145,8 +159,8 @@ int64_t cn_corridor_dual(int64_t m, int64_t degree, int64_t cont, int64_t fr, co
 #define TAKE(count) (next += (count), next - (count))
     double *T = TAKE((size_t)N * n), *cs = TAKE(N), *cg = TAKE(N), *t = TAKE((size_t)N * 3);
     double *Lf = TAKE((size_t)n * n), *Y = TAKE((size_t)n * 3), *Z = TAKE((size_t)n * 3), *zdir = TAKE((size_t)n * 3);
-    double *X = TAKE((size_t)N * 3), *wc = TAKE((size_t)N * n), *G = TAKE((size_t)cap * cap);
-    double *Gt = TAKE((size_t)cap * cap), *u = TAKE(cap), *rv = TAKE(cap), *aw = TAKE(cap), *inv_norm = TAKE(F_);
+    double *X = TAKE((size_t)N * 3), *wc = TAKE((size_t)N * n), *R = TAKE((size_t)cap * cap);
+    double *zc = TAKE(cap), *u = TAKE(cap), *rv = TAKE(cap), *aw = TAKE(cap), *inv_norm = TAKE(F_);
     double *B = TAKE(rows_ * n), *Ft = TAKE(rows_ * 3);
 #undef TAKE
     int64_t *lo = ibuf, *hi = lo + N, *have_w = hi + N, *Wp = have_w + N, *Wf = Wp + cap, *rfirst = Wf + cap;
@@ -272,20 +286,34 @@ int64_t cn_corridor_dual(int64_t m, int64_t degree, int64_t cont, int64_t fr, co
         for (int c = 0; c < 3; c++) Y[i * 3 + c] = -Ft[i * 3 + c];
     }
     for (int64_t f = 0; f < face_start[m]; f++) inv_norm[f] = 1.0 / sqrt(dot3(A + 3 * f, A + 3 * f));
-    Map mp = {n, N, npts, T, lo, hi, Lf, t};
+    Map mp = {n, N, npts, T, lo, hi, Lf, B, t};
 
     /* step 4: dual active set */
     for (;;) {
         points_of(&mp, Y, Z, X);
         if (n == 0 || K == 0) break;
         int64_t pp = -1, pf = -1;
-        double vp = 0.0;
+        double vp = -INFINITY;
+        int nan_seen = 0;
+        /* the first largest violation (numpy's argmax); a NaN (never with finite input) takes the exact rule below */
         for (int64_t p = 0; p < N; p++) {
             if (kind[p] != FREE && kind[p] != JOINED) continue;
             int64_t s = p / npts;
             for (int64_t f = face_start[s]; f < face_start[s + 1]; f++) {
                 double vv = (dot3(A + 3 * f, X + 3 * p) - b[f]) * inv_norm[f];
-                if (pp < 0 || (vp == vp && (vv > vp || vv != vv))) pp = p, pf = f, vp = vv;
+                nan_seen |= vv != vv;
+                if (vv > vp) pp = p, pf = f, vp = vv;
+            }
+        }
+        if (nan_seen || pp < 0) {  /* argmax's rule with NaN (the first NaN wins) or all -inf (the first wins) */
+            pp = -1, vp = 0.0;
+            for (int64_t p = 0; p < N; p++) {
+                if (kind[p] != FREE && kind[p] != JOINED) continue;
+                int64_t s = p / npts;
+                for (int64_t f = face_start[s]; f < face_start[s + 1]; f++) {
+                    double vv = (dot3(A + 3 * f, X + 3 * p) - b[f]) * inv_norm[f];
+                    if (pp < 0 || (vp == vp && (vv > vp || vv != vv))) pp = p, pf = f, vp = vv;
+                }
             }
         }
         if (vp <= tol) break;
@@ -299,8 +327,11 @@ int64_t cn_corridor_dual(int64_t m, int64_t degree, int64_t cont, int64_t fr, co
         double wpwp = dot(wp, wp, n), apap = dot3(ap, ap);
         double row2 = wpwp * apap;
         double beta = b[pf] - dot3(ap, t + 3 * pp);
-        /* aw[i] = (w_i . w_p)(a_i . a_p): N_W ap */
-        for (int64_t i = 0; i < k; i++) aw[i] = dot(wc + Wp[i] * n, wp, n) * dot3(A + 3 * Wf[i], ap);
+        /* aw[i] = (w_i . w_p)(a_i . a_p): N_W ap (w_q is zero before lo[q]) */
+        for (int64_t i = 0; i < k; i++) {
+            int64_t j0 = lo[Wp[i]] > lo[pp] ? lo[Wp[i]] : lo[pp];
+            aw[i] = (j0 < n ? dot(wc + Wp[i] * n + j0, wp + j0, n - j0) : 0.0) * dot3(A + 3 * Wf[i], ap);
+        }
         double up = 0.0;
         for (;;) {
             it++;
@@ -308,9 +339,7 @@ int64_t cn_corridor_dual(int64_t m, int64_t degree, int64_t cont, int64_t fr, co
                 ret = CN_UNFINISHED;
                 goto done;
             }
-            memcpy(Gt, G, (size_t)k * k * sizeof(double));
-            memcpy(rv, aw, (size_t)k * sizeof(double));
-            if (k && gauss_solve(k, Gt, rv) != 0) {
+            if (k && chol_solve(k, R, cap, aw, zc, rv) != 0) {
                 ret = CN_SINGULAR;
                 goto done;
             }
@@ -320,7 +349,7 @@ int64_t cn_corridor_dual(int64_t m, int64_t degree, int64_t cont, int64_t fr, co
             for (int64_t i = 0; i < k; i++) {
                 const double *wi = wc + Wp[i] * n, *ai = A + 3 * Wf[i];
                 double ri = rv[i];
-                for (int64_t j = 0; j < n; j++) {
+                for (int64_t j = lo[Wp[i]]; j < n; j++) {
                     double s = ri * wi[j];
                     zdir[j * 3] += s * ai[0];
                     zdir[j * 3 + 1] += s * ai[1];
@@ -357,34 +386,22 @@ int64_t cn_corridor_dual(int64_t m, int64_t degree, int64_t cont, int64_t fr, co
                 for (int64_t j = 0; j < 3 * n; j++) Y[j] += st * zdir[j];
             for (int64_t i = 0; i < k; i++) u[i] -= st * rv[i];
             up += st;
-            if (st == t2) {  /* full step: face (pp, pf) joins; its Gram row and column appended */
+            if (st == t2) {  /* full step: face (pp, pf) joins; R gains the column (R^-T aw, sqrt(row2 - |R^-T aw|^2)) */
                 if (k + 1 > cap) {
                     ret = CN_UNFINISHED;
                     goto done;
                 }
-                for (int64_t i = k - 1; i >= 0; i--)  /* G is [k, k] row-major: widened to [k+1, k+1] from the end */
-                    for (int64_t j = k - 1; j >= 0; j--) G[i * (k + 1) + j] = G[i * k + j];
-                for (int64_t i = 0; i < k; i++) {
-                    G[i * (k + 1) + k] = aw[i];
-                    G[k * (k + 1) + i] = aw[i];
-                }
-                G[k * (k + 1) + k] = row2;
+                for (int64_t i = 0; i < k; i++) R[i * cap + k] = zc[i], R[k * cap + i] = 0.0;
+                double d2 = row2;  /* the Schur complement of G's new row: R^T R = G as stored */
+                for (int64_t i = 0; i < k; i++) d2 -= zc[i] * zc[i];
+                R[k * cap + k] = sqrt(d2 > 0.0 ? d2 : zz);  /* rounding: |zdir|^2, the same in exact arithmetic */
                 Wp[k] = pp, Wf[k] = pf, u[k] = up;
                 k++;
                 break;
             }
-            /* partial step: face jdrop leaves; its row and column removed */
+            /* partial step: face jdrop leaves; R of the Gram matrix without its row and column */
             int64_t kk = k - 1;
-            for (int64_t i = 0, ri = 0; i < k; i++) {
-                if (i == jdrop) continue;
-                for (int64_t j = 0, rj = 0; j < k; j++) {
-                    if (j == jdrop) continue;
-                    Gt[ri * kk + rj] = G[i * k + j];
-                    rj++;
-                }
-                ri++;
-            }
-            memcpy(G, Gt, (size_t)kk * kk * sizeof(double));
+            chol_remove(k, R, cap, jdrop);
             for (int64_t i = jdrop; i < kk; i++) Wp[i] = Wp[i + 1], Wf[i] = Wf[i + 1], u[i] = u[i + 1], aw[i] = aw[i + 1];
             k = kk;
         }

@@ -34,6 +34,7 @@ from ..native import (
     search26 as native_search26,
     search26_ws as native_search26_ws,
     search26_ws_lm as native_search26_ws_lm,
+    search26_wsr as native_search26_wsr,
 )
 
 _SQ2, _SQ3 = math.sqrt(2.0), math.sqrt(3.0)
@@ -56,6 +57,10 @@ _C1, _C2 = _SQ2 - 1.0, _SQ3 - _SQ2  # octile: a + (sqrt2-1) b + (sqrt3-sqrt2) c 
 
 # grids with fewer padded voxels search with per-call arrays (a 13^3 window: calloc is cheaper than keeping one)
 WORKSPACE_MIN_VOXELS = 32_768
+RESUME_HEAP_ITEMS = 32_768
+"""Open-list items a workspace keeps for a resumed search (786 kB): an A* stopped after its budget of expansions has at
+most 26 per expansion (coarse_path.FINE_BUDGET = 800: 20,801); a larger open list is not kept (the next call starts
+again: the same result)."""
 
 
 class _SearchWorkspace:
@@ -68,8 +73,14 @@ class _SearchWorkspace:
         self.parent = np.empty(n, dtype=np.int64)  # [N]
         self.out = np.empty(n, dtype=np.int64)  # [N] the path (a path never visits a voxel twice)
         self.gen = 1
+        # search26_wsr: the open list of a search its budget stopped, kept for a later call of the same search
+        self.heap = np.empty(3 * RESUME_HEAP_ITEMS)  # [items, (f, h, n)] float64, float64, int64 (24 bytes an item)
+        self.state = np.zeros(2, dtype=np.int64)  # open-list size (0: nothing kept), expansions so far
+        self.pending: Optional[tuple] = None  # (start, goal, weight, landmarks) of the kept search, gen not advanced
 
     def advance(self) -> None:
+        self.pending = None
+        self.state[0] = 0
         self.gen += 1
         if self.gen >= 2**31 - 1:  # stamps are uint32 (2 gen + 1): start over from cleared stamps
             self.stamp[:] = 0
@@ -111,10 +122,14 @@ class AStarGrid:
         ``self.landmarks`` too when set: the same minimum cost, fewer expansions), or with ``target`` (uint8, the
         padded layout) Dijkstra to the nearest marked voxel. -> (k, out): k >= 0 path voxels out[:k] (flat, start
         first; valid until this thread's next search on this grid), else the C status. Needs the compiled library
-        (callers check native.search26())."""
+        (callers check native.search26()).
+        An A* that ``limit`` stopped (-2) is kept (search26_wsr), and the next call on this grid and thread for the
+        same start, goal and weight resumes it, its expansions counted from the first call: the same result as a new
+        search, without the first one's work again (coarse_path.voxel_path: the fine search after a budgeted one)."""
         tgt = None if target is None else target.ctypes.data
         args = (self._blocked_np.ctypes.data, *self.padded_shape, int(start), int(goal), tgt, float(weight), int(limit))
-        lm_fn = native_search26_ws_lm() if self.landmarks is not None and target is None else None
+        use_lm = self.landmarks is not None and target is None
+        lm_fn = native_search26_ws_lm() if use_lm else None
         ws_fn = native_search26_ws() if self._blocked_np.size >= WORKSPACE_MIN_VOXELS or lm_fn else None
         if ws_fn is None:
             out = np.empty(self._blocked_np.size, dtype=np.int64)
@@ -122,13 +137,24 @@ class AStarGrid:
         ws = getattr(self._local, "ws", None)
         if ws is None:
             ws = self._local.ws = _SearchWorkspace(self._blocked_np.size)
+        # an A* (no target) the same as the one a budget stopped last on this grid and thread goes on from there
+        key = None if target is not None else (int(start), int(goal), float(weight), use_lm)
+        if ws.pending is not None and ws.pending != key:
+            ws.advance()
         ws_args = (*args, ws.out.ctypes.data, ws.out.size, ws.stamp.ctypes.data, ws.gen, ws.g.ctypes.data,
                    ws.parent.ctypes.data)
-        if lm_fn is not None:
+        wsr_fn = native_search26_wsr() if key is not None else None
+        if wsr_fn is not None:
+            lm = (self.landmarks.ctypes.data, self.landmarks.shape[0]) if use_lm else (None, 0)
+            k = int(wsr_fn(*ws_args, *lm, ws.heap.ctypes.data, RESUME_HEAP_ITEMS, ws.state.ctypes.data))
+        elif lm_fn is not None:
             k = int(lm_fn(*ws_args, self.landmarks.ctypes.data, self.landmarks.shape[0]))
         else:
             k = int(ws_fn(*ws_args))
-        ws.advance()
+        if k == -2 and wsr_fn is not None and ws.state[0] > 0:
+            ws.pending = key  # stamps, g, parent and the open list stay as they are (gen not advanced)
+        else:
+            ws.advance()
         return k, ws.out
 
     @property

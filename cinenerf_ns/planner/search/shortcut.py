@@ -47,12 +47,14 @@ def segments_free_by_pieces(space: "PlanningSpace", a: np.ndarray, b: np.ndarray
     prep = space.prepared
     r = space.scene.camera_radius
     piece = max(r, 0.5 * prep.grid.voxel_size)
-    L = np.linalg.norm(b - a, axis=1)  # [P]
+    d = b - a  # [P, 3]
+    L = np.sqrt(np.add.reduce(d * d, axis=1))  # [P] (np.linalg.norm's arithmetic, without its checks)
     n = np.maximum(1, np.ceil(L / piece).astype(np.int64))  # [P]
     owner, k = group_ranks(n)
-    frac = (k + 0.5) / n[owner]  # (k + 1/2) / n per piece
-    mids = a[owner] + frac[:, None] * (b - a)[owner]  # float64: no rounding of the pieces
-    half = 0.5 * L[owner] / n[owner]
+    n_o = n[owner]
+    frac = (k + 0.5) / n_o  # (k + 1/2) / n per piece
+    mids = a[owner] + frac[:, None] * d[owner]  # float64: no rounding of the pieces
+    half = 0.5 * L[owner] / n_o
     hit = points_collide_arrays(mids, space.scene, prep.index, r + half)  # [pieces]
     bad = np.zeros(len(a), dtype=bool)
     bad[owner[hit]] = True
