@@ -243,7 +243,64 @@ class VoxelObstacles:
         return None if got[0] is None else got
 
     def __getstate__(self) -> dict:  # the kept compiled functions are not pickled (workers load their own)
-        return {k: v for k, v in self.__dict__.items() if k != "_compiled_args"}
+        return {k: v for k, v in self.__dict__.items() if k not in ("_compiled_args", "_compiled_many_args")}
+
+    def polytopes(self, w: np.ndarray, box_margin: float, margin: float = 1e-6, skip=None, device=None,
+                  backend: str = "auto") -> list:
+        """[Polytope | None] per segment w[i] -> w[i + 1] of the polyline w [M+1, 3] (float64 world): what polytope()
+        gives each segment (None where it gives None, or where ``skip`` [M] bool is set). backend "auto": one
+        cn_grid_polytopes_world call for the whole polyline (the same rows as polytope()'s call per segment; its
+        planes share one buffer); "python": polytope() per segment (its Python construction)."""
+        if backend not in ("auto", "python"):
+            raise InvalidInputError(f"VoxelObstacles.polytopes backend must be 'auto' or 'python', got {backend!r}")
+        pts = np.array(w, dtype=np.float64, order="C").reshape(-1, 3)  # a copy: the seeds are views of it
+        M = pts.shape[0] - 1
+        skip = np.zeros(max(M, 0), dtype=bool) if skip is None else np.asarray(skip, dtype=bool).reshape(-1)
+        many = self._compiled_many() if backend == "auto" else None
+        if many is None or M < 1:
+            return [None if skip[i] else self.polytope(pts[i], pts[i + 1], box_margin, margin, device=device,
+                                                       backend=backend) for i in range(M)]
+        fn, occ_p, srf_p, shp_p, lo_p = many
+        skip8 = np.ascontiguousarray(skip, dtype=np.uint8)
+        counts = np.empty(M, dtype=np.int64)
+        cap = FIRST_CAP * M
+        while True:
+            out = np.empty(4 * cap)  # normals [cap, 3], offsets [cap]
+            op = out.ctypes.data
+            F = int(fn(occ_p, srf_p, shp_p, lo_p, self.voxel_size, pts.ctypes.data, M, skip8.ctypes.data,
+                       float(box_margin), float(margin), EPS, cap, op, op + 8 * 3 * cap, counts.ctypes.data))
+            if F != -2:
+                break
+            cap *= 4
+        if F < 0:
+            raise MemoryError("the compiled grid polytopes ran out of memory")
+        dev = torch.device("cpu") if device is None else torch.device(device)
+        At = torch.from_numpy(out[:3 * F].reshape(F, 3))
+        bt = torch.from_numpy(out[3 * cap:3 * cap + F])
+        seeds = torch.from_numpy(pts)
+        if dev.type != "cpu":
+            At, bt, seeds = At.to(dev), bt.to(dev), seeds.to(dev)
+        res, s = [], 0
+        for i, f in enumerate(counts.tolist()):
+            if f <= 0:
+                res.append(None)
+                continue
+            res.append(Polytope(A=At[s:s + f], b=bt[s:s + f], seed=seeds[i:i + 2], ellipsoid_ids=None))
+            s += f
+        return res
+
+    def _compiled_many(self) -> Optional[tuple]:
+        """(cn_grid_polytopes_world, then _compiled()'s pointers to occupied, surface, shape and lo), kept on the grid,
+        or None when the compiled kernels do not load."""
+        got = self.__dict__.get("_compiled_many_args")
+        if got is None:
+            from ..native import choose, grid_polytopes_world_c
+
+            fast = self._compiled()
+            fn = choose("auto", grid_polytopes_world_c, "gridpoly", "grid polytopes") if fast is not None else None
+            got = (None,) if fn is None else (fn, *fast[2:6])
+            self.__dict__["_compiled_many_args"] = got
+        return None if got[0] is None else got
 
     def polytope(self, p0, p1, box_margin: float, margin: float = 1e-6, device=None,
                  backend: str = "auto") -> Optional[Polytope]:

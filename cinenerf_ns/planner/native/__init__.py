@@ -311,6 +311,16 @@ def grid_polytope_world_c():
                      _I64)  # a, c, box margin, margin, eps, cap, out normals [cap, 3], out offsets [cap]
 
 
+def grid_polytopes_world_c():
+    """The compiled grid polytopes of a polyline's segments in one call (gridpoly.c: cn_grid_polytopes_world), or
+    None."""
+    return _function("gridpoly", "cn_grid_polytopes_world",
+                     [_P, _P, _P, _P, _F64,  # occ, surface, dims, lo, voxel size
+                      _P, _I64, _P, _F64, _F64, _F64,  # points [n + 1, 3], n, skip [n], box margin, margin, eps
+                      _I64, _P, _P, _P],  # cap, out normals [cap, 3], out offsets [cap], counts [n]
+                     _I64)
+
+
 def hidden_voxels_c():
     """The compiled sampled sight lines (voxelrays.c: cn_hidden_voxels; method/object_centre.hidden_voxels), or None."""
     return _function("voxelrays", "cn_hidden_voxels", [_P, _I64, _I64, _I64, _P, _I64, _P, _I64, _F64, _P], _I64)

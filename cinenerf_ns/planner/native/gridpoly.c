@@ -441,3 +441,32 @@ int64_t cn_grid_polytope_world(const uint8_t *occ, const uint8_t *surface, const
     }
     return F + 6;
 }
+
+/* cn_grid_polytope_world for every segment pts[i] -> pts[i + 1] (i < n) of a polyline in one call (the corridor's
+   grid polytopes: one call per path instead of one per segment; each segment's rows are those cn_grid_polytope_world
+   gives it alone). skip [n] (or NULL): segments to leave out (they get count 0). The rows go one segment after the
+   other into out_n [cap, 3] / out_b [cap]; counts [n] gets each segment's row count, or -4 / -3 (no grid polytope),
+   0 (skipped). Returns the total number of rows, -2 (more than cap rows in all: call again with more room) or -1
+   (out of memory). */
+int64_t cn_grid_polytopes_world(const uint8_t *occ, const uint8_t *surface, const int64_t *shape, const double *lo,
+                                double vs, const double *pts, int64_t n, const uint8_t *skip, double box_margin,
+                                double margin, double eps, int64_t cap, double *out_n, double *out_b,
+                                int64_t *counts) {
+    int64_t used = 0;
+    for (int64_t i = 0; i < n; i++) {
+        if (skip && skip[i]) {
+            counts[i] = 0;
+            continue;
+        }
+        int64_t F = cn_grid_polytope_world(occ, surface, shape, lo, vs, pts + 3 * i, pts + 3 * (i + 1), box_margin,
+                                           margin, eps, cap - used, out_n + 3 * used, out_b + used);
+        if (F == -3 || F == -4) {
+            counts[i] = F;
+            continue;
+        }
+        if (F < 0) return F;
+        counts[i] = F;
+        used += F;
+    }
+    return used;
+}

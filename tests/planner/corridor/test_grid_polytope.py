@@ -402,3 +402,39 @@ def test_grid_polytope_refuses_an_unknown_backend():
     grid = VoxelObstacles.from_occupied(np.zeros((4, 4, 4), dtype=bool), np.zeros(3), 0.25)
     with pytest.raises(InvalidInputError, match="backend"):
         grid.polytope(np.full(3, 0.3), np.full(3, 0.6), 0.1, backend="fast")
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.integers(0, 10_000), st.sampled_from([0.05, 0.2, 0.35]), st.integers(2, 9), st.sampled_from([7, 256]))
+def test_a_polylines_grid_polytopes_in_one_call_are_the_per_segment_ones(seed, fill, k, first_cap):
+    """VoxelObstacles.polytopes (one cn_grid_polytopes_world call for a polyline's segments, rows in one buffer, some
+    segments skipped) gives each segment what polytope() gives it alone, bit for bit (None included, skipped segments
+    None), and its Python path (polytope()'s Python construction per segment) the same None pattern and normals with
+    offsets within rounding; a tiny first buffer (FIRST_CAP 7) is retried with more room."""
+    from cinenerf_ns.planner.corridor import grid_polytope as gp
+
+    rng = np.random.default_rng(seed)
+    occ = rng.random((14, 12, 10)) < fill
+    lo, vs = np.array([-0.3, 0.2, 1.0]), 0.25
+    grid = VoxelObstacles.from_occupied(occ, lo, vs)
+    if grid._compiled() is None or grid._compiled_many() is None:
+        pytest.skip("no C compiler: the compiled grid kernels are not built")
+    w = lo + rng.uniform(-0.5, 14.5, (k, 3)) * vs * rng.choice([0.3, 1.0])
+    skip = rng.random(k - 1) < 0.25
+    old = gp.FIRST_CAP
+    gp.FIRST_CAP = first_cap
+    try:
+        got = grid.polytopes(w, 0.3, 1e-9, skip=skip)
+    finally:
+        gp.FIRST_CAP = old
+    py = grid.polytopes(w, 0.3, 1e-9, skip=skip, backend="python")
+    assert len(got) == len(py) == k - 1
+    for i in range(k - 1):
+        ref = None if skip[i] else grid.polytope(w[i], w[i + 1], 0.3, 1e-9)
+        assert (got[i] is None) == (ref is None) == (py[i] is None)
+        if ref is not None:
+            assert torch.equal(got[i].A, ref.A) and torch.equal(got[i].b, ref.b) and torch.equal(got[i].seed, ref.seed)
+            assert torch.equal(py[i].A, ref.A)
+            np.testing.assert_allclose(py[i].b.numpy(), ref.b.numpy(), rtol=0, atol=1e-12)
+    with pytest.raises(InvalidInputError, match="backend"):
+        grid.polytopes(w, 0.3, backend="fast")
