@@ -164,3 +164,39 @@ def test_child_stops_at_the_deadline_and_keeps_the_steps(tmp_path, monkeypatch):
         sys.argv = old_argv
     res = json.loads(out.read_text())
     assert res["stopped_at_step"] == 0 and [s for s, _ in res["raw"]] == [0] and done == []
+
+
+def test_child_stops_a_real_trainer_loop_through_stop_training(tmp_path, monkeypatch):
+    """With a Trainer, the deadline sets ``stop_training`` (nerfstudio's own way out of the loop): the loop ends after
+    that step and the run is still measured and evaluated like one that reached its last step."""
+    from types import SimpleNamespace
+
+    from nerfstudio.configs.base_config import LoggingConfig
+    from nerfstudio.engine import trainer as trainer_mod
+    from nerfstudio.utils import writer
+    from nerfstudio.utils.writer import EventName, TimeWriter
+
+    def loop(self):  # Trainer.train's loop, reduced to what the listener relies on
+        writer.setup_local_writer(LoggingConfig(), max_iter=50)
+        for step in range(50):
+            if self.stop_training:
+                break
+            with TimeWriter(writer, EventName.ITER_TRAIN_TIME, step=step):
+                pass
+            self.step = step
+
+    monkeypatch.setattr(trainer_mod.Trainer, "train", loop)  # the child wraps this one
+    fake = SimpleNamespace(
+        stop_training=False, step=0, config=SimpleNamespace(method_name="fake"),
+        pipeline=SimpleNamespace(model=SimpleNamespace(num_points=7),
+                                 get_average_eval_image_metrics=lambda step, get_std: {"psnr": 20.0 + step}))
+    monkeypatch.setenv("BENCH_NS_TRAIN_DEADLINE", "0")
+    out = tmp_path / "r.json"
+    old_argv = list(sys.argv)
+    try:
+        b.child(out, ["fake"], entry=lambda: trainer_mod.Trainer.train(fake))
+    finally:
+        sys.argv = old_argv
+    res = json.loads(out.read_text())
+    assert fake.stop_training and res["stopped_at_step"] == 0 and [s for s, _ in res["raw"]] == [0]
+    assert res["gaussians"] == 7 and res["eval"] == {"psnr": 20.0} and res["method"] == "fake"
