@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
@@ -155,6 +156,22 @@ def test_smooth_latents_matches_brute_force():
     ref = (lat[idx] * w[..., None]).sum(1) / w.sum(1, keepdim=True)
     torch.testing.assert_close(out, ref, rtol=1e-5, atol=1e-6)
     assert smooth_latents(means, op, lat, 1) is lat
+
+
+def test_knn_indices_in_leaf_order_are_the_plain_querys():
+    """Asking the tree in its leaf order changes the order of the work, not one answer (clustered points, k = 32)."""
+    from scipy.spatial import cKDTree
+
+    from cinenerf_ns.method.semantic_scene import knn_indices
+
+    rng = np.random.default_rng(0)
+    centres = rng.uniform(-3, 3, (40, 3))
+    pts = (centres[rng.integers(0, 40, 6000)] + rng.normal(0, 0.05, (6000, 3))).astype(np.float32)
+    pts = pts[rng.permutation(len(pts))]  # no spatial order, as a trained splat
+    _, ref = cKDTree(pts).query(pts, k=32)
+    got = knn_indices(pts, 32)
+    assert got.dtype == ref.dtype and np.array_equal(got, ref)
+    assert np.array_equal(got[:, 0], np.arange(len(pts)))  # itself first (distinct points)
 
 
 def test_dominant_cluster_keeps_the_heaviest_connected_group():
