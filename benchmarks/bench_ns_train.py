@@ -4,7 +4,7 @@
     python benchmarks/bench_ns_train.py --data ../shared/data/fox \
         [--runs splatfacto@4,cinesplat@4,splatfacto@2,cinesplat@2] [--steps 3000] [--repeats 1]
         [--window 1000:3000] [--work /tmp/bench_ns_train] [--out-json FILE] [--record benchmarks/RESULTS.md|none]
-        [--gpus 0,1,2,3 [--layout latin|deal]]
+        [--gpus 0,1,2,3 [--layout latin|deal]] [--stop-after-s S]
 
 Every run is its own process running nerfstudio's ``ns-train`` entry point unchanged (same seed, same data, the
 method's default schedule cut at ``--steps``, the default viewer with ``--viewer.quit-on-train-completion True``),
@@ -22,7 +22,9 @@ The child process only listens:
   downloads; offline both methods build it through ``compat.offline_safe_lpips("cached")`` and it is reported
   n/a when the weights are not cached.
 Reported per run over the step window (default 1000-3000): median, p95, max, mean of the per-step times and the
-median of the console's running mean; ratios to splatfacto's median at the same downscale (per repeat).
+median of the console's running mean; ratios to splatfacto's median at the same downscale (per repeat), and over the
+repeats their median [min, max]. ``--stop-after-s`` ends a run's training after S seconds through nerfstudio's own
+``stop_training`` (the table says at which step) and measures it as after its last step.
 
 Variants (``--runs NAME@DOWNSCALE``): see VARIANTS; cinesplat variants use random-weight CLIP (offline, same speed).
 """
