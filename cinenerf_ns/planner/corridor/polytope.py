@@ -510,6 +510,20 @@ def _add_two_pass(planes: _PlaneSet, scene, index, box: _Box, seeds_t: Tensor) -
 AABB_FACES = np.vstack([np.eye(3), -np.eye(3)])  # [6, 3] an axis-aligned box's faces, the first planes
 
 
+def _box_fits(seeds: np.ndarray, lo, hi, inside: bool) -> bool:
+    """aabb_polytope's fast-path test for seeds [S, 3] and a box lo, hi [3] (numpy): all finite, hi > lo, and (inside)
+    every seed in [lo, hi]; on Python floats (~2 us; eight numpy reductions took ~10). False for other shapes."""
+    if not (isinstance(lo, np.ndarray) and isinstance(hi, np.ndarray) and lo.shape == hi.shape == (3,)):
+        return False
+    lo_l, hi_l, pts = lo.tolist(), hi.tolist(), seeds.tolist()
+    isf = math.isfinite
+    if not all(isf(a) and isf(b) and a < b for a, b in zip(lo_l, hi_l)):
+        return False
+    if not all(isf(v) for p in pts for v in p):
+        return False
+    return not inside or all(a <= v <= b for p in pts for v, a, b in zip(p, lo_l, hi_l))
+
+
 def aabb_polytope(seeds: np.ndarray, scene, index, box_lo: np.ndarray, box_hi: np.ndarray, *,
                   options: Optional[PolytopeOptions] = None, **option_fields) -> Polytope:
     """safe_polytope(seeds, scene, index, box_lo, box_hi, ...) for float64 numpy seeds [S, 3] (a corridor segment,
@@ -521,9 +535,8 @@ def aabb_polytope(seeds: np.ndarray, scene, index, box_lo: np.ndarray, box_hi: n
 
     lo, hi = box_lo, box_hi
     fn = safe_polytope_c() if opts.backend == "auto" and opts.prune and native_applies(scene, index) else None
-    if fn is None or seeds.shape not in ((1, 3), (2, 3)) or seeds.dtype != np.float64 or not (
-            np.isfinite(seeds).all() and np.isfinite(lo).all() and np.isfinite(hi).all() and (hi > lo).all()
-            and (not opts.require_seed_inside or ((seeds >= lo).all() and (seeds <= hi).all()))):
+    if fn is None or seeds.shape not in ((1, 3), (2, 3)) or seeds.dtype != np.float64 or not _box_fits(
+            seeds, lo, hi, opts.require_seed_inside):
         return safe_polytope(seeds, scene, index, lo, hi, options=opts)  # its checks and messages, or other paths
     r = float(scene.camera_radius)
     shrink = -1.0 if opts.stop_when_empty is None else float(opts.stop_when_empty)
