@@ -275,17 +275,19 @@ class VoxelObstacles:
         if F < 0:
             raise MemoryError("the compiled grid polytopes ran out of memory")
         dev = torch.device("cpu") if device is None else torch.device(device)
-        At = torch.from_numpy(out[:3 * F].reshape(F, 3))
-        bt = torch.from_numpy(out[3 * cap:3 * cap + F])
+        An, bn = out[:3 * F].reshape(F, 3), out[3 * cap:3 * cap + F]
         seeds = torch.from_numpy(pts)
-        if dev.type != "cpu":
-            At, bt, seeds = At.to(dev), bt.to(dev), seeds.to(dev)
+        on_cpu = dev.type == "cpu"
+        if not on_cpu:
+            At, bt, seeds = torch.from_numpy(An).to(dev), torch.from_numpy(bn).to(dev), seeds.to(dev)
         res, s = [], 0
         for i, f in enumerate(counts.tolist()):
             if f <= 0:
                 res.append(None)
                 continue
-            res.append(Polytope(A=At[s:s + f], b=bt[s:s + f], seed=seeds[i:i + 2], ellipsoid_ids=None))
+            # on the CPU the planes are views of the buffer's rows, kept as numpy too (Polytope.host_arrays)
+            res.append(Polytope.from_numpy(An[s:s + f], bn[s:s + f], seeds[i:i + 2]) if on_cpu
+                       else Polytope(A=At[s:s + f], b=bt[s:s + f], seed=seeds[i:i + 2], ellipsoid_ids=None))
             s += f
         return res
 

@@ -54,10 +54,11 @@ from .polytope_planes import segment_frame_np
 
 
 def _host_planes(p: Polytope) -> tuple[np.ndarray, np.ndarray]:
-    """Polytope.to_numpy: views of CPU float64 planes without its four conversions each (the QP's input per request)."""
-    a, b = p.A, p.b
-    if a.device.type == "cpu" and b.device.type == "cpu" and a.dtype == torch.float64 and b.dtype == torch.float64:
-        return a.detach().numpy(), b.detach().numpy()
+    """Polytope.to_numpy: views of CPU float64 planes (Polytope.host_arrays, kept) without its four conversions each
+    (the QP's input per request)."""
+    got = p.host_arrays()
+    if got is not None and got[0].dtype == np.float64 and got[1].dtype == np.float64:
+        return got
     return p.to_numpy()
 
 
@@ -300,8 +301,9 @@ def _known_polytope(known, a: np.ndarray, b: np.ndarray, dev):
     whole segment), on ``dev``, or None."""
     for p in known:
         pa = p if p.A.device == dev else p.to(dev)
-        if pa.A.device.type == "cpu":
-            A, c = pa.A.detach().numpy(), pa.b.detach().numpy()
+        got = pa.host_arrays()
+        if got is not None:
+            A, c = got
             inside = bool((A @ a <= c).all()) and bool((A @ b <= c).all())
         else:
             inside = bool(pa.contains(torch.from_numpy(np.stack([a, b])).to(dev)).all())
@@ -465,23 +467,22 @@ def _probed_overlap(p0: Polytope, p1: Polytope, w_prev: Tensor, wj: Tensor, w_ne
     return float(((b - c @ A.T) / norms).min(dim=-1).values.max())
 
 
-def _host_junctions(pieces, merge: bool, stats: dict):
-    """(pieces, the junctions' lower bounds [M-1] of the overlap radius) for CPU polytopes, from one slack table of
+def _host_junctions(pieces, planes: list, merge: bool, stats: dict):
+    """(pieces, the junctions' lower bounds [M-1] of the overlap radius) for CPU polytopes (planes: their
+    Polytope.host_arrays, in order), from one slack table of
     every polytope at every waypoint (corridor_trim.slack_table: a junction's bound is the smaller distance of its
     waypoint inside the two polytopes); ``merge`` (float64 planes): the pieces merged first (corridor_trim.merged_runs,
     stats["merged"]). (pieces, None) when the table does not apply. Below corridor_trim.TABLE_MIN_SEGMENTS pieces:
     the bounds junction by junction (the same values), nothing merged."""
     if len(pieces) < TABLE_MIN_SEGMENTS:  # a few junctions: one by one, nothing merged
-        planes = [(p.A.detach().numpy(), p.b.detach().numpy()) for p, _, _ in pieces]
         return pieces, [float(min((b0 - a0 @ x).min(), (b1 - a1 @ x).min()))
                         for (a0, b0), (a1, b1), (_, _, x) in zip(planes[:-1], planes[1:], pieces[:-1])]
-    planes = [(p.A.detach().numpy(), p.b.detach().numpy()) for p, _, _ in pieces]
     w = np.stack([pieces[0][1]] + [p1 for _, _, p1 in pieces])  # [M+1, 3]
     slack = slack_table(planes, w)
     if slack is None:
         return pieces, None
     m = len(pieces)
-    if merge and all(p.A.dtype == torch.float64 and p.b.dtype == torch.float64 for p, _, _ in pieces):
+    if merge and all(a.dtype == np.float64 and b.dtype == np.float64 for a, b in planes):
         runs = merged_runs(slack, MERGE_ROOM)
         stats["merged"] = m - len(runs)
         pieces = [(pieces[i][0], pieces[s][1], pieces[e - 1][2]) for i, s, e in runs]
@@ -496,11 +497,11 @@ def _assemble(pieces, stats, min_overlap: float, exact_overlap: bool, dev, merge
     about); its waypoints on ``dev``. ``merge``: consecutive pieces merged first (corridor_trim.merged_runs) when
     every polytope is on the host."""
     lbs = None
-    if torch.device(dev).type == "cpu" and all(p.A.device.type == "cpu" and p.b.device.type == "cpu"
-                                               for p, _, _ in pieces):
+    planes = [p.host_arrays() for p, _, _ in pieces] if torch.device(dev).type == "cpu" else [None]
+    if all(h is not None for h in planes):
         # the junctions' slacks in numpy on the CPU, all at once (per junction, ~8 torch calls on [F]-vectors cost
         # ~30 us, and numpy per junction a tenth of that)
-        pieces, lbs = _host_junctions(pieces, merge, stats)
+        pieces, lbs = _host_junctions(pieces, planes, merge, stats)
     polys = [p for p, _, _ in pieces]
     wps = torch.from_numpy(np.stack([pieces[0][1]] + [p1 for _, _, p1 in pieces]))  # [M+1, 3]
     if torch.device(dev).type != "cpu":
@@ -509,6 +510,9 @@ def _assemble(pieces, stats, min_overlap: float, exact_overlap: bool, dev, merge
     radii = []
     thin = []
     for m in range(len(polys) - 1):
+        if lbs is not None and lbs[m] >= min_overlap and not exact_overlap:  # the usual junction: room enough
+            radii.append(lbs[m])
+            continue
         wj = wps[m + 1]
         lb = lbs[m] if lbs is not None else float(torch.minimum(polys[m].slack(wj), polys[m + 1].slack(wj)))
         if lb < min_overlap and not exact_overlap:

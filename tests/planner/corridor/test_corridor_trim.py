@@ -195,7 +195,7 @@ def test_junction_bounds_match_the_per_junction_slacks():
                pts[i], pts[i + 1]) for i in range(6)]
     pieces = [(p, a, c) for p, a, c in pieces if bool(p.contains(np.stack([a, c])).all())] or pieces[:1]
     for merge in (False, True):
-        got, lbs = corridor_mod._host_junctions(list(pieces), merge, {})
+        got, lbs = corridor_mod._host_junctions(list(pieces), [p.host_arrays() for p, _, _ in pieces], merge, {})
         for m in range(len(got) - 1):
             x = got[m][2]
             ref = min((got[m][0].b.numpy() - got[m][0].A.numpy() @ x).min(),

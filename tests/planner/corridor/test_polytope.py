@@ -325,3 +325,24 @@ def test_free_segment_near_one_flat_ellipsoid_always_gets_a_polytope(seed, flat,
                       backend="native" if compiled else "python")
     assert bool(P.contains(seg).all())
     assert np.all(polytope_min_distance(*P.to_numpy(), scene) >= scene.camera_radius - 1e-7)
+
+
+def test_host_arrays_are_views_kept_while_the_planes_stay_and_not_pickled():
+    """Polytope.host_arrays: numpy views of the CPU planes (bit for bit A and b), kept on the polytope, made again when
+    A or b is replaced, None off the CPU; from_numpy's polytope starts with them; pickling leaves them out."""
+    import pickle
+
+    A, b = np.random.default_rng(0).normal(size=(7, 3)), np.arange(7.0)
+    p = Polytope(torch.from_numpy(A.copy()), torch.from_numpy(b.copy()), torch.zeros(1, 3))
+    a1, b1 = p.host_arrays()
+    assert np.array_equal(a1, A) and np.array_equal(b1, b) and np.shares_memory(a1, p.A.numpy())
+    assert p.host_arrays()[0] is a1  # kept
+    p.A = torch.from_numpy(2 * A)
+    assert np.array_equal(p.host_arrays()[0], 2 * A)  # replaced planes: new views
+    q = Polytope.from_numpy(A, b, torch.zeros(1, 3))
+    assert q.host_arrays()[0] is A and np.shares_memory(q.A.numpy(), A) and q.A.dtype == torch.float64
+    r = pickle.loads(pickle.dumps(q))
+    assert "_host" not in r.__getstate__() and "_host" not in pickle.loads(pickle.dumps(p)).__dict__
+    assert torch.equal(r.A, q.A) and np.array_equal(r.host_arrays()[1], b)
+    off = Polytope(torch.zeros(1, 3, device="meta"), torch.zeros(1, device="meta"), torch.zeros(1, 3))
+    assert off.host_arrays() is None

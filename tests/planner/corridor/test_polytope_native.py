@@ -337,3 +337,25 @@ def test_home_bits_say_whether_the_previous_cell_lists_the_ellipsoid(seed, cell,
             for i in range(3):
                 prev = tuple(c[j] - (j == i) for j in range(3))
                 assert bool(h >> i & 1) == ((prev, g) not in listed), (L, c, g, i)
+
+
+_EDGE = st.sampled_from([0.0, -0.0, 1.0, -1.0, 1e-300, np.nan, np.inf, -np.inf])
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.one_of(st.floats(-2, 2), _EDGE), min_size=12, max_size=12), st.sampled_from([1, 2]), st.booleans(),
+       st.integers(0, 3))
+def test_box_fits_matches_its_numpy_expression(vals, n_seeds, inside, tie):
+    """aabb_polytope's fast-path test on Python floats (polytope._box_fits) decides as the numpy expression it replaced
+    (NaN, infinities, empty boxes, seeds on and outside the faces); other shapes and types take the general path."""
+    from cinenerf_ns.planner.corridor.polytope import _box_fits
+
+    v = np.array(vals)
+    seeds, lo, hi = v[:3 * n_seeds].reshape(n_seeds, 3), v[6:9].copy(), v[9:12].copy()
+    if tie == 1:  # a seed on the faces
+        lo[0], hi[1] = seeds[0, 0], seeds[-1, 1]
+    with np.errstate(invalid="ignore"):
+        ref = bool(np.isfinite(seeds).all() and np.isfinite(lo).all() and np.isfinite(hi).all() and (hi > lo).all()
+                   and (not inside or ((seeds >= lo).all() and (seeds <= hi).all())))
+    assert _box_fits(seeds, lo, hi, inside) is ref
+    assert _box_fits(seeds, lo.tolist(), hi, inside) is False and _box_fits(seeds, lo[None], hi[None], inside) is False
