@@ -50,6 +50,7 @@ from ..tensor_pickle import NumpyPickled
 from .corridor_trim import MERGE_ROOM, REGION_A, TABLE_MIN_SEGMENTS, merged_runs, region_rows, slack_table
 from .polytope import Polytope, SeedNotFreeError, aabb_polytope, chebyshev_center, safe_polytope
 from .polytope_batched import safe_polytopes_batched
+from .polytope_many import aabb_polytopes
 from .polytope_planes import segment_frame_np
 
 
@@ -423,8 +424,13 @@ def _path_pieces(w, batched, scene, index, box_margin, max_split_depth, kw, stat
     host segments are built at once (host_pool.ordered_map), and a CorridorError is that of the first failing
     segment, as in a serial loop."""
     todo = [m for m in range(w.shape[0] - 1) if batched[m] is None]
+    one = {}  # serial, axis-aligned boxes: one compiled call for all of them (None: that segment's own path)
+    if threads <= 1 and box == "aabb" and todo:
+        one = dict(zip(todo, aabb_polytopes([(w[m], w[m + 1]) for m in todo], scene, index, box_margin, **kw)))
 
     def host(m):
+        if one.get(m) is not None:
+            return [(one[m], w[m], w[m + 1])], 0
         got, st = [], {"splits": 0}
         _segment_polytopes(w[m], w[m + 1], scene, index, box_margin, 0, max_split_depth, kw, got, st, m, box)
         return got, st["splits"]

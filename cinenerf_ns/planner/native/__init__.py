@@ -237,6 +237,18 @@ def safe_polytope_c():
         _I64)
 
 
+def safe_polytopes_aabb_c():
+    """The compiled safe polytopes of K segment seeds in their axis-aligned boxes, one call (polytope.c:
+    cn_safe_polytopes_aabb), or None."""
+    return _function(
+        "polytope", "cn_safe_polytopes_aabb",
+        [*_SCENE_INDEX,
+         _P, _I64, _P, _P,  # seeds [K, 2, 3], K, box lo [K, 3], hi [K, 3]
+         _F64, _F64, _I32, _I32, _F64, _F64,  # camera radius, margin, normal rule, seed inside, near fraction, shrink
+         _I64, _P, _P, _P, _P, _P, _P, _P],  # cap, planes n, b, ids, bad ids, bad slacks (scratch), seg [K, 3], info
+        _I64)
+
+
 def planes_empty_c():
     """The compiled emptiness proof of a polytope's planes (polytope.c: cn_planes_empty), or None."""
     return _function("polytope", "cn_planes_empty", [_P, _P, _I64, _F64, _P, _F64], _I64)

@@ -801,6 +801,57 @@ done:
     return status;
 }
 
+/* cn_safe_polytope for K two-point seeds (segments) in their axis-aligned boxes, one after the other, each polytope's
+   rows written after the last one's in corridor order: its box's 6 faces (+x, +y, +z, -x, -y, -z; b = hi, -lo), the
+   call's F planes (out_id: their ids; the box rows' ids are not written), and where the call stopped (info[4]) the
+   explicit contradiction row (+x, b = lo[0] - (hi[0] - lo[0])): the rows corridor.polytope.aabb_polytope builds
+   around one cn_safe_polytope call. seeds [K, 2, 3], box_lo / box_hi [K, 3]. seg (out, int64 [K, 3]): rows written,
+   F, number of bad ellipsoids (> 0: the seeds are not free; the caller builds that segment again its own way). bad_id
+   / bad_slack: scratch of ``cap`` items. Returns the rows written in all, or -1 (out of memory), -2 (``cap`` rows are
+   too few: info[2] = rows a retry needs at least). */
+int64_t cn_safe_polytopes_aabb(
+    const void *means, const void *rots, const void *radii, const float *pack, int32_t f32,
+    const double *origin, int32_t n_levels, const double *cells, const int64_t *dims,
+    const int64_t *const *offsets, const int64_t *const *ids, const uint8_t *const *homes, double pad,
+    const double *seeds, int64_t K, const double *box_lo, const double *box_hi,
+    double r, double margin, int32_t mode, int32_t require_inside, double near_fraction, double empty_shrink,
+    int64_t cap, double *out_n, double *out_b, int64_t *out_id, int64_t *bad_id, double *bad_slack, int64_t *seg,
+    int64_t *info) {
+    int64_t o = 0;
+    for (int64_t k = 0; k < K; k++) {
+        const double *lo = box_lo + 3 * k, *hi = box_hi + 3 * k;
+        int64_t room = cap - o - 7;
+        if (room < 0) { info[2] = o + 7; return -2; }
+        int64_t F = cn_safe_polytope(means, rots, radii, pack, f32, origin, n_levels, cells, dims, offsets, ids, homes,
+                                     pad, seeds + 6 * k, 2, lo, hi, NULL, r, margin, mode, require_inside,
+                                     near_fraction, empty_shrink, room, out_n + 3 * (o + 6), out_b + o + 6,
+                                     out_id + o + 6, bad_id, bad_slack, info);
+        if (F == -2) { info[2] = o + 7 + info[2]; return -2; }
+        if (F < 0) return F;
+        seg[3 * k + 1] = F;
+        seg[3 * k + 2] = info[0];
+        if (info[0] > 0) { seg[3 * k] = 0; continue; }  /* not free: nothing kept */
+        for (int a = 0; a < 3; a++) {
+            for (int i = 0; i < 3; i++) {
+                out_n[3 * (o + a) + i] = i == a ? 1.0 : 0.0;
+                out_n[3 * (o + 3 + a) + i] = i == a ? -1.0 : -0.0;  /* -np.eye(3): negative zeros */
+            }
+            out_b[o + a] = hi[a];
+            out_b[o + 3 + a] = -lo[a];
+        }
+        int64_t rows = 6 + F;
+        if (info[4]) {
+            out_n[3 * (o + rows)] = 1.0; out_n[3 * (o + rows) + 1] = 0.0; out_n[3 * (o + rows) + 2] = 0.0;
+            out_b[o + rows] = lo[0] - (hi[0] - lo[0]);
+            out_id[o + rows] = -1;
+            rows++;
+        }
+        seg[3 * k] = rows;
+        o += rows;
+    }
+    return o;
+}
+
 /* ------------------------------------------------------------------ point tests (collision.points_collide) */
 /* Corollary 1: K(s) = sum_i w_i^2 s (1 - s) / (s r^2 + (1 - s) a_i^2) */
 static double k_cor1(const double w[3], const double a[3], double r2, double s) {
