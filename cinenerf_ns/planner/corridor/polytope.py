@@ -196,7 +196,7 @@ class PolytopeOptions:
 _OPTION_NAMES = frozenset(f.name for f in dataclasses.fields(PolytopeOptions))
 
 
-def _resolved_options(options: Optional[PolytopeOptions], fields: dict) -> PolytopeOptions:
+def resolved_options(options: Optional[PolytopeOptions], fields: dict) -> PolytopeOptions:
     """``options`` (default PolytopeOptions()) with the named ``fields`` replaced (TypeError for unknown names)."""
     if not fields.keys() <= _OPTION_NAMES:
         raise TypeError(f"safe_polytope() got unexpected keyword arguments {sorted(fields.keys() - _OPTION_NAMES)}")
@@ -530,7 +530,7 @@ def aabb_polytope(seeds: np.ndarray, scene, index, box_lo: np.ndarray, box_hi: n
     S = 2, or a goal, S = 1) in an axis-aligned box (float64 numpy [3] each): the same polytope, the same errors.
     Where the compiled path applies, a few numpy checks (finite seeds inside a finite box) are all the Python it runs:
     safe_polytope's general input handling took half as long as the compiled polytope itself on short segments."""
-    opts = _resolved_options(options, option_fields)
+    opts = resolved_options(options, option_fields)
     from ..native import safe_polytope_c
 
     lo, hi = box_lo, box_hi
@@ -578,7 +578,7 @@ def safe_polytope(
     options: PolytopeOptions (margin, normal rule, pruning, two passes, backend); ``option_fields`` set single
     fields by name on top of it (``margin=1e-3`` is short for ``options=PolytopeOptions(margin=1e-3)``).
     """
-    opts = _resolved_options(options, option_fields)
+    opts = resolved_options(options, option_fields)
     dev = scene.means.device
     seeds_t = _checked_seeds(seed_points, dev)  # [S, 3]
     box = _checked_box(box_lo, box_hi, box_rotation, seeds_t, opts.require_seed_inside)

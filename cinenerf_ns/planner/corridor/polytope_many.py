@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from ..geometry.native_scene import native_applies, native_arrays
-from .polytope import Polytope, _resolved_options
+from .polytope import Polytope, resolved_options
 from .polytope_native import FIRST_CAP, NORMAL_CODE
 
 
@@ -30,7 +30,7 @@ def aabb_polytopes(segments: list, scene, index, box_margin: float, **option_fie
     [p0, p1] in their bounding box grown by ``box_margin``, or None (see the module docstring). option_fields: as
     aabb_polytope's (PolytopeOptions fields)."""
     K = len(segments)
-    opts = _resolved_options(None, option_fields)
+    opts = resolved_options(None, option_fields)
     from ..native import safe_polytopes_aabb_c
 
     fn = safe_polytopes_aabb_c() if opts.backend == "auto" and opts.prune and native_applies(scene, index) else None
