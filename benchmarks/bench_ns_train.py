@@ -397,6 +397,12 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
                     help="with --gpus: 'latin' (every lane runs the whole list, rotated) or 'deal' (the list dealt "
                          "out)")
     args = ap.parse_args(argv)
+    if args.gpus is not None:  # before any run: a bad list would otherwise fail every child in turn
+        ids = [g.strip() for g in args.gpus.split(",")]
+        if not all(g.isdigit() for g in ids) or len(set(ids)) != len(ids):
+            ap.error(f"--gpus: comma-separated GPU indices (0, 1, ...), each once; got {args.gpus!r}")
+    if args.stop_after_s is not None and not args.stop_after_s > 0:
+        ap.error(f"--stop-after-s: seconds > 0; got {args.stop_after_s}")
     lo, hi = (int(x) for x in args.window.split(":"))
     runs = parse_runs(args.runs)
     gpus = [g.strip() for g in args.gpus.split(",")] if args.gpus else [None]

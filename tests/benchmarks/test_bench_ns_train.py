@@ -200,3 +200,13 @@ def test_child_stops_a_real_trainer_loop_through_stop_training(tmp_path, monkeyp
     res = json.loads(out.read_text())
     assert fake.stop_training and res["stopped_at_step"] == 0 and [s for s, _ in res["raw"]] == [0]
     assert res["gaussians"] == 7 and res["eval"] == {"psnr": 20.0} and res["method"] == "fake"
+
+
+@pytest.mark.parametrize("bad", [["--gpus", "0,a"], ["--gpus", "0,0"], ["--gpus", ""], ["--stop-after-s", "0"],
+                                 ["--stop-after-s", "nan"]])
+def test_bad_lane_options_stop_before_any_run(bad, tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(b, "run_one", lambda *a, **k: pytest.fail("a run started"))
+    with pytest.raises(SystemExit) as e:
+        b.main(["--data", str(tmp_path), "--work", str(tmp_path / "w"), "--record", "none", *bad])
+    assert e.value.code == 2 and bad[0] in capsys.readouterr().err
+    assert not (tmp_path / "w").exists()
