@@ -120,26 +120,25 @@ int64_t cn_subject_size(const double *cams, int64_t M, const double *look, const
    (inf for a single point). A sweep along x: a pair further apart in x than the best distance so far cannot be
    nearer, so the scan stops there (pairs no nearer than the best are the only ones left out: the minimum is the
    brute force's). Squared distances as (dx dx + dy dy) + dz dz, then one square root. */
+/* One direction of the sweep from p: order[b], order[b + step], ... up to (not including) order[end]. */
+static inline double gap_scan(const double *pts, const int64_t *order, const double *p, int64_t b, int64_t end,
+                              int64_t step, double best) {
+    for (; b != end; b += step) {
+        const double *q = pts + 3 * order[b];
+        double dx = q[0] - p[0];
+        if (dx * dx > best) break;
+        double dy = q[1] - p[1], dz = q[2] - p[2];
+        double d2 = (dx * dx + dy * dy) + dz * dz;
+        if (d2 < best) best = d2;
+    }
+    return best;
+}
+
 int64_t cn_nearest_gaps(const double *pts, int64_t P, const int64_t *order, double *out) {
     for (int64_t a = 0; a < P; a++) {
         const double *p = pts + 3 * order[a];
-        double best = INFINITY;
-        for (int64_t b = a + 1; b < P; b++) {
-            const double *q = pts + 3 * order[b];
-            double dx = q[0] - p[0];
-            if (dx * dx > best) break;
-            double dy = q[1] - p[1], dz = q[2] - p[2];
-            double d2 = (dx * dx + dy * dy) + dz * dz;
-            if (d2 < best) best = d2;
-        }
-        for (int64_t b = a - 1; b >= 0; b--) {
-            const double *q = pts + 3 * order[b];
-            double dx = q[0] - p[0];
-            if (dx * dx > best) break;
-            double dy = q[1] - p[1], dz = q[2] - p[2];
-            double d2 = (dx * dx + dy * dy) + dz * dz;
-            if (d2 < best) best = d2;
-        }
+        double best = gap_scan(pts, order, p, a + 1, P, 1, INFINITY);
+        best = gap_scan(pts, order, p, a - 1, -1, -1, best);
         out[order[a]] = sqrt(best);
     }
     return 0;
