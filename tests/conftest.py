@@ -54,6 +54,9 @@ def _fuzz_more_examples(items) -> None:
 def pytest_collection_modifyitems(config, items):
     if settings.get_current_profile_name() == "fuzz":
         _fuzz_more_examples(items)
+    # The end-to-end tests (marked slow, 10-25 s each) first: xdist hands out single tests in collection order, and
+    # one of them drawn last kept one worker busy alone for its whole length (both workers end together instead).
+    items.sort(key=lambda item: "slow" not in item.keywords)  # stable: the rest keep their order
     has_cuda = _cuda()
     has_fox = (FOX / "transforms.json").exists()
     for item in items:

@@ -1,5 +1,6 @@
 """The suite's own scheduling under `make test` (pytest-xdist, --dist loadgroup; tests/_xdist.py): free_port never
-hands one port to two tests of a run, and the headless-Chromium tests are one unit of work of the scheduler."""
+hands one port to two tests of a run, the headless-Chromium tests are one unit of work of the scheduler, and the
+end-to-end tests (marked slow) are collected first."""
 from __future__ import annotations
 
 import socket
@@ -30,3 +31,13 @@ def test_the_browser_tests_are_one_unit_of_work(request):
     assert {f: g for f, g in GROUPS.items() if g != "browser"} == grouped
     hooks = request.config.hook.pytest_xdist_make_scheduler.get_hookimpls()
     assert any(h.plugin_name.endswith("conftest.py") for h in hooks), [h.plugin_name for h in hooks]
+
+
+def test_the_slow_tests_are_collected_first(request):
+    """tests/conftest.py puts the tests marked slow before all others (xdist hands out single tests in that order), and
+    keeps the order of the rest."""
+    items = request.session.items
+    slow = ["slow" in item.keywords for item in items]
+    if not any(slow) or all(slow):
+        pytest.skip("this run collected no slow test, or only slow ones")
+    assert slow == sorted(slow, reverse=True), [item.nodeid for item in items if "slow" in item.keywords]

@@ -4,6 +4,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parents[2]
 SCRIPTS = sorted(str(p.relative_to(REPO)) for p in (REPO / "benchmarks").glob("*.py")
                  if p.name.startswith(("bench_", "eval_")))
@@ -35,6 +37,7 @@ def test_every_benchmark_script_starts():
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
 
 
+@pytest.mark.slow
 def test_bench_ab_compares_a_tree_with_itself(tmp_path):
     """bench_ab.py end to end on a tiny room: two warm workers (the repository against itself, one side with another
     PlannerConfig setting) answer the same blocks, and it prints both sides' statistics and the block ratios. A bad
