@@ -348,7 +348,7 @@ def occupancy_c():
                       _P, _P], _I64),  # grid lo [3], voxel size, X, Y, Z, rho; out: first index [N, 3], span [N, 2]
            _function("occupancy", "cn_occupancy_discs",
                      [_P, _P, _P, _I32, _I64, _I64, _P, _P,  # means, rotations, radii, float32 flag, e0, e1, ilo, span
-                      _P, _F64, _F64, _P, _I64, _P, _F64,  # grid lo, voxel size, rho, t [S], S, powers or NULL, 1 + margin
+                      _P, _F64, _F64, _P, _I64, _P, _F64,  # grid lo, voxel, rho, t [S], S, powers or NULL, 1 + margin
                       _P, _P, _P, _P, _I64], _I64),  # out: mc [E, S, 6], m6 [E, S, 6] or NULL, mu [E, 3], disc [cap]
            _function("occupancy", "cn_occupancy_mark",
                      [_I64, _I64, _P, _P, _P, _P, _I64,  # e0, e1, ilo, span, mc, mu, S

@@ -161,7 +161,8 @@ def build_occupancy(
     if _one_covers_the_box(scene, lo, lo + dims.double() * voxel):
         # every voxel is occupied; rasterising would cost one column per ellipsoid and grid column (a splat whose
         # Gaussians are all larger than the scene: minutes of work for this same answer)
-        return OccupancyGrid(lo=lo, voxel_size=voxel, occupied=torch.ones(X, Y, Z, dtype=torch.bool, device=scene.device))
+        full = torch.ones(X, Y, Z, dtype=torch.bool, device=scene.device)
+        return OccupancyGrid(lo=lo, voxel_size=voxel, occupied=full)
     occ = None if fn is None else _rasterise_compiled(fn, scene, lo, voxel, dims, n_s, max_columns)
     if occ is None:
         occ = _rasterise_reference(scene, lo, voxel, dims, n_s, max_columns)
