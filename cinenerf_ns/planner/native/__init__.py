@@ -82,8 +82,10 @@ def compile_library(src: Path, stem: str, flags: Sequence[str]) -> Tuple[Optiona
     return lib, ""
 
 
-_FLAGS = {"visibility": ["-O2", "-pthread"]}
-"""Compiler flags of the libraries that need more than -O2 (visibility.c splits its segments over threads)."""
+_FLAGS = {"visibility": ["-O2", "-pthread"], "occupancy": ["-O3", "-ffp-contract=off", "-fno-math-errno"]}
+"""Compiler flags of the libraries that need more than -O2 (visibility.c splits its segments over threads;
+occupancy.c's column loop is vectorised at -O3, its sqrtf needs no errno, and it must round as torch does: no
+contraction into fused multiply-adds, never -ffast-math)."""
 _THREADS: Optional[int] = None
 MAX_KERNEL_THREADS = 64
 """Most threads a compiled kernel starts (visibility.c's MAX_THREADS)."""
@@ -336,6 +338,24 @@ def grid_polytopes_world_c():
 def hidden_voxels_c():
     """The compiled sampled sight lines (voxelrays.c: cn_hidden_voxels; method/object_centre.hidden_voxels), or None."""
     return _function("voxelrays", "cn_hidden_voxels", [_P, _I64, _I64, _I64, _P, _I64, _P, _I64, _F64, _P], _I64)
+
+
+def occupancy_c():
+    """The compiled occupancy rasterisation (occupancy.c; scene/occupancy.build_occupancy): its entry points
+    (cn_occupancy_footprints, cn_occupancy_discs, cn_occupancy_mark, cn_occupancy_sum) as ctypes functions, or None."""
+    fns = (_function("occupancy", "cn_occupancy_footprints",
+                     [_P, _P, _I32, _I64, _P, _F64, _I64, _I64, _I64, _F64,  # means, half-extents, float32 flag, N,
+                      _P, _P], _I64),  # grid lo [3], voxel size, X, Y, Z, rho; out: first index [N, 3], span [N, 2]
+           _function("occupancy", "cn_occupancy_discs",
+                     [_P, _P, _P, _I32, _I64, _I64, _P, _P,  # means, rotations, radii, float32 flag, e0, e1, ilo, span
+                      _P, _F64, _F64, _P, _I64, _P, _F64,  # grid lo, voxel, rho, t [S], S, powers or NULL, 1 + margin
+                      _P, _P, _P, _P, _I64], _I64),  # out: mc [E, S, 6], m6 [E, S, 6] or NULL, mu [E, 3], disc [cap]
+           _function("occupancy", "cn_occupancy_mark",
+                     [_I64, _I64, _P, _P, _P, _P, _I64,  # e0, e1, ilo, span, mc, mu, S
+                      _P, _I64, _I64, _I64, _P,  # square roots [n], n, Y, Z, diff [X Y (Z + 1)] int32
+                      _P, _P, _P], _I64),  # or (tests) out z0, z1 [columns] float32, ok [columns] uint8; else NULLs
+           _function("occupancy", "cn_occupancy_sum", [_P, _I64, _I64, _I64, _P], None))  # diff, X, Y, Z, out occ
+    return None if any(f is None for f in fns) else fns
 
 
 def project_primal_c():

@@ -141,20 +141,52 @@ def build_occupancy(
     padding: Optional[float] = None,
     n_s: int = 3,
     max_columns: int = 2_000_000,
+    backend: str = "auto",
 ) -> OccupancyGrid:
     """Conservative occupancy grid (see module docstring).
 
     resolution: voxels along the longest side of ``bounds`` (cubic voxels). bounds: (lo [3], hi [3]);
     default the scene's ellipsoid bounds grown by ``padding`` (default 5% of the largest extent +
     the camera radius). ``index`` is accepted for API symmetry and unused (rasterisation is
-    ellipsoid-driven). n_s: s values per ellipsoid (more = tighter, slower)."""
+    ellipsoid-driven). n_s: s values per ellipsoid (more = tighter, slower). max_columns: columns per chunk (the
+    memory of the column maths). backend: "auto" (the compiled rasterisation,
+    native/occupancy.c, for a CPU scene when it loads; the very same grid), "native" or "python"
+    (build_occupancy_reference's torch rasterisation; always for a GPU scene)."""
+    from ..native import choose, occupancy_c
+
+    fn = choose(backend, occupancy_c, "occupancy", "occupancy rasterisation", applies=compiled_applies(scene, n_s),
+                needs=f"a CPU scene of float32 or float64 tensors and 1 <= n_s <= {MAX_COMPILED_S}")
     lo, voxel, dims = _grid_geometry(scene, resolution, bounds, padding)
-    dev = scene.device
     X, Y, Z = (int(d) for d in dims)
     if _one_covers_the_box(scene, lo, lo + dims.double() * voxel):
         # every voxel is occupied; rasterising would cost one column per ellipsoid and grid column (a splat whose
         # Gaussians are all larger than the scene: minutes of work for this same answer)
-        return OccupancyGrid(lo=lo, voxel_size=voxel, occupied=torch.ones(X, Y, Z, dtype=torch.bool, device=dev))
+        full = torch.ones(X, Y, Z, dtype=torch.bool, device=scene.device)
+        return OccupancyGrid(lo=lo, voxel_size=voxel, occupied=full)
+    occ = None if fn is None else _rasterise_compiled(fn, scene, lo, voxel, dims, n_s, max_columns)
+    if occ is None:
+        occ = _rasterise_reference(scene, lo, voxel, dims, n_s, max_columns)
+    return OccupancyGrid(lo=lo, voxel_size=voxel, occupied=occ)
+
+
+def build_occupancy_reference(
+    scene: EllipsoidScene,
+    index=None,
+    resolution: int = 100,
+    bounds: Optional[Tuple[Tensor, Tensor]] = None,
+    padding: Optional[float] = None,
+    n_s: int = 3,
+    max_columns: int = 2_000_000,
+) -> OccupancyGrid:
+    """build_occupancy by the torch rasterisation (any device): what the compiled one is tested against."""
+    return build_occupancy(scene, index, resolution, bounds, padding, n_s, max_columns, backend="python")
+
+
+def _rasterise_reference(scene: EllipsoidScene, lo: Tensor, voxel: float, dims: Tensor, n_s: int,
+                         max_columns: int) -> Tensor:
+    """occupied [X, Y, Z] bool by the torch rasterisation, in chunks of ellipsoids of about max_columns columns."""
+    dev = scene.device
+    X, Y, Z = (int(d) for d in dims)
     rho = scene.camera_radius + 0.5 * math.sqrt(3.0) * voxel
     diff = torch.zeros(X * Y * (Z + 1), dtype=torch.int32, device=dev)
     # s samples per ellipsoid: s = h / (h + rho), h log-spaced in [a_min, a_max]
@@ -168,10 +200,74 @@ def build_occupancy(
         base = int(csum[start - 1]) if start else 0
         end = int(torch.searchsorted(csum, torch.tensor(base + max_columns, device=dev), right=True))
         end = min(max(end, start + 1), n)
-        _mark_chunk(scene, start, end, span, i_lo, lo, voxel, dims, rho, t, diff)
+        _mark_chunk_reference(scene, start, end, span, i_lo, lo, voxel, dims, rho, t, diff)
         start = end
-    occ = torch.cumsum(diff.view(X, Y, Z + 1), dim=2)[:, :, :Z] > 0
-    return OccupancyGrid(lo=lo, voxel_size=voxel, occupied=occ)
+    return torch.cumsum(diff.view(X, Y, Z + 1), dim=2)[:, :, :Z] > 0
+
+
+MAX_COMPILED_S = 64
+"""Most s samples per ellipsoid the compiled rasterisation takes (native/occupancy.c: MAX_S)."""
+_LIBM_POW_S = 3
+"""Up to this many s samples, the compiled rasterisation raises a_max / a_min to the powers t itself (libm's pow, as
+torch's scalar loop does for such short rows); past it, it takes torch's powers (vectorised ones round otherwise)."""
+
+
+def compiled_applies(scene: EllipsoidScene, n_s: int) -> bool:
+    """Whether the compiled rasterisation takes this build: a CPU scene whose means, rotations and radii are all float32
+    or all float64 (the reference's precision is theirs), 1 <= n_s <= MAX_COMPILED_S."""
+    dtypes = {scene.means.dtype, scene.rotations.dtype, scene.radii.dtype}
+    return scene.device.type == "cpu" and len(dtypes) == 1 and dtypes <= {torch.float32, torch.float64} \
+        and 1 <= int(n_s) <= MAX_COMPILED_S
+
+
+def _rasterise_compiled(fns, scene: EllipsoidScene, lo: Tensor, voxel: float, dims: Tensor, n_s: int,
+                        max_columns: int):
+    """occupied [X, Y, Z] bool by native/occupancy.c (the reference's operations in the same order and precision, the
+    square roots by torch), in chunks of about max_columns columns, or None when the reference must run (a bound or an
+    index out of int64's reach: see occupancy.c)."""
+    footprints_c, discs_c, mark_c, sum_c = fns
+    X, Y, Z = (int(d) for d in dims)
+    rho = scene.camera_radius + 0.5 * math.sqrt(3.0) * voxel
+    n, f32 = len(scene), int(scene.means.dtype == torch.float32)
+    means, rot, radii, ext = (np.ascontiguousarray(a.detach().numpy()) for a in
+                              (scene.means, scene.rotations, scene.radii, scene.half_extents()))  # torch's sqrt
+    lo_np = np.ascontiguousarray(lo.detach().numpy(), dtype=np.float64)
+    ilo, span = np.empty((n, 3), np.int64), np.zeros((n, 2), np.int64)
+    if footprints_c(means.ctypes.data, ext.ctypes.data, f32, n, lo_np.ctypes.data, voxel, X, Y, Z, rho,
+                    ilo.ctypes.data, span.ctypes.data) != 0:
+        return None
+    t = torch.linspace(0, 1, n_s, dtype=torch.float64)
+    pw = None
+    if n_s > _LIBM_POW_S:
+        radii_t = scene.radii.double()
+        amin, amax = radii_t.min(-1).values, radii_t.max(-1).values
+        pw = np.ascontiguousarray(((amax / amin)[:, None] ** t[None]).numpy())
+    t_np = np.ascontiguousarray(t.numpy())
+    csum = np.cumsum(span[:, 0] * span[:, 1])
+    diff = np.zeros(X * Y * (Z + 1), dtype=np.int32)
+    start = 0
+    while start < n:
+        base = int(csum[start - 1]) if start else 0
+        end = min(max(int(np.searchsorted(csum, base + max_columns, side="right")), start + 1), n)
+        cols = int(csum[end - 1]) - base
+        if cols:
+            mc, mu = np.empty((end - start, n_s, 6), np.float32), np.empty((end - start, 3))
+            disc = np.empty(cols * n_s, np.float32)
+            k = discs_c(means.ctypes.data, rot.ctypes.data, radii.ctypes.data, f32, start, end, ilo.ctypes.data,
+                        span.ctypes.data, lo_np.ctypes.data, voxel, rho, t_np.ctypes.data, n_s,
+                        None if pw is None else pw.ctypes.data, 1 + _MARGIN, mc.ctypes.data, None, mu.ctypes.data,
+                        disc.ctypes.data, disc.size)
+            sq = torch.sqrt(torch.from_numpy(disc[:max(k, 0)]).clamp_min(0)).numpy()  # the reference's square roots
+            rc = mark_c(start, end, ilo.ctypes.data, span.ctypes.data, mc.ctypes.data, mu.ctypes.data, n_s,
+                        sq.ctypes.data, k, Y, Z, diff.ctypes.data, None, None, None) if k >= 0 else -1
+            if rc == 1:
+                return None
+            if rc != 0:
+                raise RuntimeError(f"occupancy.c: inconsistent columns (discs {k}, mark {rc})")
+        start = end
+    occ = np.empty((X, Y, Z), dtype=np.uint8)
+    sum_c(diff.ctypes.data, X, Y, Z, occ.ctypes.data)
+    return torch.from_numpy(occ.view(np.bool_))
 
 
 def _one_covers_the_box(scene: EllipsoidScene, lo: Tensor, hi: Tensor) -> bool:
@@ -205,23 +301,27 @@ def occupancy_columns(scene: EllipsoidScene, resolution: int, bounds: Tuple[Tens
     return int(_footprints(scene, lo, voxel, dims, scene.camera_radius + 0.5 * math.sqrt(3.0) * voxel)[2].sum())
 
 
-def _mark_chunk(scene, a, b, span, i_lo, lo, voxel, dims, rho, t, diff) -> None:
+def _mark_chunk_reference(scene, a, b, span, i_lo, lo, voxel, dims, rho, t, diff) -> None:
     """Rasterise ellipsoids a..b-1: span [N, 2] footprint columns along x and y, i_lo [N, 3] first index."""
-    dev = scene.device
     X, Y, Z = (int(d) for d in dims)
-    sy = span[a:b, 1]
-    cnt = span[a:b, 0] * sy  # columns per ellipsoid
-    total = int(cnt.sum())
-    if total == 0:
+    cols = _column_roots_reference(scene, a, b, span, i_lo, lo, voxel, rho, t)
+    if cols is None:
         return
-    ends = torch.cumsum(cnt, 0)
-    pos = torch.arange(total, device=dev)
-    e_loc = torch.searchsorted(ends, pos, right=True)  # [C] chunk-local ellipsoid of each column
-    k = pos - (ends - cnt).index_select(0, e_loc)
-    sy_c = sy.index_select(0, e_loc)
-    il = i_lo[a:b].index_select(0, e_loc)  # [C, 3]
-    ci = il[:, 0] + k // sy_c
-    cj = il[:, 1] + k % sy_c
+    ci, cj, mu_z, z0, z1, ok = cols
+    eps = 1e-3  # index rounding may only add voxels
+    k0 = torch.ceil(mu_z + z0.double() - eps).long().clamp_min(0)
+    k1 = torch.floor(mu_z + z1.double() + eps).long().clamp_max(Z - 1)
+    ok &= k1 >= k0
+    base = ((ci * Y + cj) * (Z + 1))[ok]
+    one = torch.ones(base.numel(), dtype=torch.int32, device=scene.device)
+    diff.index_add_(0, base + k0[ok], one)
+    diff.index_add_(0, base + k1[ok] + 1, -one)
+
+
+def _coefficients_reference(scene, a, b, lo, voxel, rho, t):
+    """Per ellipsoid a..b-1 and s sample: (m6 [E, S, 6] float64, the 6 distinct entries m00, m01, m11, m02, m12, m22 of
+    E_s's matrix over 1 + margin; mc [E, S, 6] float32, the same in voxel units; mu_v [E, 3] float64, the centre in
+    voxel-index coordinates)."""
     rot = scene.rotations[a:b].double()
     radii = scene.radii[a:b].double()
     amin, amax = radii.min(-1).values, radii.max(-1).values  # [E]
@@ -234,8 +334,31 @@ def _mark_chunk(scene, a, b, span, i_lo, lo, voxel, dims, rho, t, diff) -> None:
     m6 = torch.stack([m[..., 0, 0], m[..., 0, 1], m[..., 1, 1], m[..., 0, 2], m[..., 1, 2], m[..., 2, 2]], -1)
     # Per-column arithmetic in float32 (bandwidth): offsets are measured in voxels from the column
     # centre so values stay O(10); the K margin (1e-4) and index slack (1e-3 voxel) cover rounding.
-    mc = (m6 * voxel * voxel).float().index_select(0, e_loc)  # [C, S, 6] in voxel units
+    mc = (m6 * voxel * voxel).float()  # [E, S, 6] in voxel units
     mu_v = (scene.means[a:b].double() - lo) / voxel - 0.5  # [E, 3] centre in voxel-index coordinates
+    return m6, mc, mu_v
+
+
+def _column_roots_reference(scene, a, b, span, i_lo, lo, voxel, rho, t):
+    """The footprint columns of ellipsoids a..b-1 (ellipsoid by ellipsoid, then x, then y): (ci, cj [C] long, mu_z [C]
+    the centre's z in voxel-index coordinates, z0, z1 [C] float32 the z-interval from it, ok [C] bool where it is
+    one); None without columns."""
+    dev = scene.device
+    sy = span[a:b, 1]
+    cnt = span[a:b, 0] * sy  # columns per ellipsoid
+    total = int(cnt.sum())
+    if total == 0:
+        return None
+    ends = torch.cumsum(cnt, 0)
+    pos = torch.arange(total, device=dev)
+    e_loc = torch.searchsorted(ends, pos, right=True)  # [C] chunk-local ellipsoid of each column
+    k = pos - (ends - cnt).index_select(0, e_loc)
+    sy_c = sy.index_select(0, e_loc)
+    il = i_lo[a:b].index_select(0, e_loc)  # [C, 3]
+    ci = il[:, 0] + k // sy_c
+    cj = il[:, 1] + k % sy_c
+    _, mc, mu_v = _coefficients_reference(scene, a, b, lo, voxel, rho, t)
+    mc = mc.index_select(0, e_loc)  # [C, S, 6]
     mu_v = mu_v.index_select(0, e_loc)  # [C, 3]
     dx = (ci.double() - mu_v[:, 0]).float()[:, None]  # [C, 1]
     dy = (cj.double() - mu_v[:, 1]).float()[:, None]
@@ -247,11 +370,4 @@ def _mark_chunk(scene, a, b, span, i_lo, lo, voxel, dims, rho, t, diff) -> None:
     z0 = ((-B - sq) / A).max(-1).values  # intersection of the z-intervals over s
     z1 = ((-B + sq) / A).min(-1).values
     ok = (disc >= 0).all(-1) & (z1 >= z0)
-    eps = 1e-3  # index rounding may only add voxels
-    k0 = torch.ceil(mu_v[:, 2] + z0.double() - eps).long().clamp_min(0)
-    k1 = torch.floor(mu_v[:, 2] + z1.double() + eps).long().clamp_max(Z - 1)
-    ok &= k1 >= k0
-    base = ((ci * Y + cj) * (Z + 1))[ok]
-    one = torch.ones(base.numel(), dtype=torch.int32, device=dev)
-    diff.index_add_(0, base + k0[ok], one)
-    diff.index_add_(0, base + k1[ok] + 1, -one)
+    return ci, cj, mu_v[:, 2], z0, z1, ok
