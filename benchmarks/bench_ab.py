@@ -152,7 +152,7 @@ def main() -> None:
         args.family = f"{prefix}:{Path(source).resolve()}"  # make the path absolute
     import numpy as np
 
-    from cinenerf_ns.planner.shots.planner import PlannerConfig
+    from cinenerf_ns.planner.config import PlannerConfig  # the config alone: no torch in this process
 
     fields = {f.name for f in dataclasses.fields(PlannerConfig)}
     for c in args.config_a + args.config_b:

@@ -34,15 +34,16 @@ def demo_args(output_dir: Path, scene: Path = DEMO_SCENE, candidates: int = 1) -
                     candidates=candidates, seed=0)
 
 
-def demo_preview(scene: str, camera_path: str, output_dir: Path, console: Console,
+def demo_preview(scene, camera_path: str, output_dir: Path, console: Console,
                  subject_points=None) -> Optional[dict]:
     """demo.mp4 + demo_sheet.png of the planned shot (the preview's default size and frame rate, 480x270 at 15 fps,
     CPU; the look-at object outlined on the sheet) of any scene scenes.load_scene reads (the procedural fallback's
-    objects in their display colours)."""
+    objects in their display colours). ``scene``: the LoadedScene the plan used, or a scene spec to load."""
     from cinenerf_ns.preview import preview_camera_path
-    from cinenerf_ns.scenes import load_scene, preview_scene
+    from cinenerf_ns.scenes import LoadedScene, load_scene, preview_scene
 
-    return preview_camera_path(preview_scene(load_scene(str(scene), planning=False)), camera_path, output_dir, "demo",
+    loaded = scene if isinstance(scene, LoadedScene) else load_scene(str(scene), planning=False)
+    return preview_camera_path(preview_scene(loaded), camera_path, output_dir, "demo",
                                console=console, subject_points=subject_points)
 
 
@@ -60,9 +61,10 @@ def main(argv=None) -> dict:
     console.print(f"[bold]cinenerf_ns demo[/bold]: scene {lit(args.scene)}\n  go to: {lit(repr(args.go_to))}   "
                   f"look at: {lit(repr(args.look_at))}")
     t0 = time.perf_counter()
-    summary = run_plan(args, console=console)
+    kept: dict = {}
+    summary = run_plan(args, console=console, keep=kept)  # the scene it loaded is rendered below, not loaded again
     cam = summary["candidates"][0]["camera_path"]
-    preview = None if a.no_preview else demo_preview(args.scene, cam, a.output_dir, console,
+    preview = None if a.no_preview else demo_preview(kept["loaded"], cam, a.output_dir, console,
                                                      summary["look_at"].get("extent_points"))
     if preview is not None:
         summary["preview"] = preview

@@ -186,9 +186,10 @@ def _resolve(args: PlanArgs, planner: Planner, gm: Dict[str, Any], lm: Dict[str,
     return goal, look, start
 
 
-def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
+def run_plan(args: PlanArgs, console: Console = CONSOLE, keep: Optional[Dict[str, Any]] = None) -> Dict[str, Any]:
     """Check the options, plan, and write the outputs all together; returns a summary dict (paths, per-candidate
-    metrics). Raises InvalidInputError / PlanningError / CheckpointError with a message for the user."""
+    metrics). Raises InvalidInputError / PlanningError / CheckpointError with a message for the user. ``keep``: a dict
+    that receives the LoadedScene under "loaded" (the demo renders its preview from it instead of loading again)."""
     check_args(args)
     memory_budget_mb = memory_budget(args, console)
     workers = worker_count(args, console)
@@ -203,6 +204,8 @@ def run_plan(args: PlanArgs, console: Console = CONSOLE) -> Dict[str, Any]:
                             object_cluster=args.object_cluster, object_centre=args.object_centre, up=args.up,
                             drop_support=not args.keep_support, centre_relevancy=args.centre_relevancy,
                             unseen_fill=args.unseen_fill)
+        if keep is not None:
+            keep["loaded"] = loaded
         for note in loaded.notes:
             console.print(f"note: {note}", markup=False, highlight=False)
         prog.update(task, advance=1, description="resolving targets", refresh=True)

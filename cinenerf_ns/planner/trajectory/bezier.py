@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import functools
 import math
+import sys
 from dataclasses import dataclass
 from typing import Any, Tuple
 
@@ -23,18 +24,19 @@ import numpy as np
 
 from ..errors import InvalidInputError
 
-try:  # torch is a dependency of the package, but the curve itself does not need it
-    import torch
-except ImportError:  # pragma: no cover
-    torch = None
-
 
 def is_torch(x: Any) -> bool:
+    """Whether x is a torch tensor. torch is not imported here (the curve does not need it; the planner's
+    configuration imports this module, and a command that only checks its options should not load torch): a
+    process that has not imported torch holds no tensor."""
+    torch = sys.modules.get("torch")
     return torch is not None and isinstance(x, torch.Tensor)
 
 
 def to_numpy(x: Any) -> np.ndarray:
     if is_torch(x):
+        import torch
+
         return x.detach().to("cpu", torch.float64).numpy()
     return np.asarray(x, dtype=np.float64)
 
@@ -42,6 +44,8 @@ def to_numpy(x: Any) -> np.ndarray:
 def same_kind_as(out: np.ndarray, ref: Any):
     """Return `out` as the same kind of array as `ref` (torch float64 on ref's device, else numpy)."""
     if is_torch(ref):
+        import torch
+
         return torch.from_numpy(np.ascontiguousarray(out)).to(ref.device)
     return out
 
@@ -228,6 +232,8 @@ class BezierTrajectory:
         times = np.linspace(0.0, self.total_duration, n)
         pos = self.derivative(times, 0)
         if as_torch:
+            import torch
+
             return torch.from_numpy(times), torch.from_numpy(pos)
         return times, pos
 

@@ -23,6 +23,11 @@
 typedef REAL real;
 #define TILE 16
 #define MAX_THREADS 64
+#if defined(__GNUC__) || defined(__clang__)
+#define PREFETCH(p) __builtin_prefetch(p)
+#else
+#define PREFETCH(p) ((void)0)
+#endif
 
 #if defined(REAL_IS_DOUBLE)
 #define EXP exp
@@ -47,7 +52,8 @@ typedef struct {
     int64_t n, width, height, tiles_x, tiles_y;
     real fx, fy, cx, cy, near_plane, eps2d;
     /* work */
-    splat_t *sp;
+    splat_t *sp; /* [n] by Gaussian (written by the projection) */
+    const splat_t *sp_sorted; /* [visible] in depth order (read by the rasteriser; tile lists index it) */
     real *depth;
     uint8_t *valid;
     const int64_t *tile_start, *tile_list;
@@ -130,8 +136,10 @@ static void raster_tile(const job_t *j, int64_t tile) {
     for (int p = 0; p < TILE * TILE; p++) { T[p] = 1; acc[p][0] = acc[p][1] = acc[p][2] = 0; done[p] = 0; }
     int64_t left = nx * ny;
     const real amin = (real)(1.0 / 255.0);
-    for (int64_t k = j->tile_start[tile]; k < j->tile_start[tile + 1] && left > 0; k++) {
-        const splat_t *s = j->sp + j->tile_list[k];
+    const int64_t k_end = j->tile_start[tile + 1];
+    for (int64_t k = j->tile_start[tile]; k < k_end && left > 0; k++) {
+        if (k + 8 < k_end) PREFETCH(j->sp_sorted + j->tile_list[k + 8]); /* scattered reads: ask early */
+        const splat_t *s = j->sp_sorted + j->tile_list[k];
         /* only pixels in the Gaussian's box (+1 px) can reach alpha >= 1/255 (sigma >= ext^2 / 2 outside it) */
         int64_t x0 = (int64_t)floor(s->mx - s->rx - 1) - X0, x1 = (int64_t)ceil(s->mx + s->rx + 1) - X0;
         int64_t y0 = (int64_t)floor(s->my - s->ry - 1) - Y0, y1 = (int64_t)ceil(s->my + s->ry + 1) - Y0;
@@ -139,6 +147,9 @@ static void raster_tile(const job_t *j, int64_t tile) {
         if (y0 < 0) y0 = 0;
         if (x1 > nx) x1 = nx;
         if (y1 > ny) y1 = ny;
+        /* o exp(-sigma) < 1/255 exactly when sigma > log(o * 255); beyond it by a margin far wider than the rounding
+           of exp and of the product, the pixel is skipped without calling exp: the same pixels are skipped */
+        const real skip = LOG(s->op / amin) + (real)1e-3;
         for (int64_t py = y0; py < y1; py++) {
             real dy = s->my - ((real)(Y0 + py) + (real)0.5);
             for (int64_t px = x0; px < x1; px++) {
@@ -146,7 +157,7 @@ static void raster_tile(const job_t *j, int64_t tile) {
                 if (done[p]) continue;
                 real dx = s->mx - ((real)(X0 + px) + (real)0.5);
                 real sigma = (real)0.5 * (s->ca * dx * dx + s->cc * dy * dy) + s->cb * dx * dy;
-                if (sigma < 0) continue;
+                if (sigma < 0 || sigma > skip) continue;
                 real alpha = s->op * EXP(-sigma);
                 if (alpha > (real)0.999) alpha = (real)0.999;
                 if (alpha < amin) continue;
@@ -236,6 +247,7 @@ int64_t cn_render(const real *means, const real *cov, const real *opac, const re
     j.valid = malloc(nn);
     int64_t *order = malloc(sizeof(int64_t) * nn);
     int64_t *start = calloc((size_t)ntiles + 1, sizeof(int64_t)), *list = NULL;
+    splat_t *sorted = NULL;
     int64_t rc = -1;
     if (!j.sp || !j.depth || !j.valid || !order || !start) goto done;
     run_threads(&j, n < 4096 ? 1 : nthreads, 1);
@@ -243,9 +255,14 @@ int64_t cn_render(const real *means, const real *cov, const real *opac, const re
     for (int64_t i = 0; i < n; i++)
         if (j.valid[i]) order[m++] = i;
     if (sort_by_depth(j.depth, order, m) != 0) goto done;
+    /* the visible splats copied in depth order: a tile's list is then increasing positions in one compact array (the
+       rasteriser reads them in memory order instead of jumping through all n) */
+    sorted = malloc(sizeof(splat_t) * (size_t)(m ? m : 1));
+    if (!sorted) goto done;
+    for (int64_t a = 0; a < m; a++) sorted[a] = j.sp[order[a]];
     int64_t x0, x1, y0, y1;
     for (int64_t a = 0; a < m; a++) { /* count, prefix sum, fill: each tile's list stays depth-ordered */
-        tile_box(j.sp + order[a], j.tiles_x, j.tiles_y, &x0, &x1, &y0, &y1);
+        tile_box(sorted + a, j.tiles_x, j.tiles_y, &x0, &x1, &y0, &y1);
         for (int64_t ty = y0; ty < y1; ty++)
             for (int64_t tx = x0; tx < x1; tx++) start[ty * j.tiles_x + tx + 1]++;
     }
@@ -255,17 +272,18 @@ int64_t cn_render(const real *means, const real *cov, const real *opac, const re
     if (!list || !fill) { free(fill); goto done; }
     memcpy(fill, start, sizeof(int64_t) * (size_t)ntiles);
     for (int64_t a = 0; a < m; a++) {
-        tile_box(j.sp + order[a], j.tiles_x, j.tiles_y, &x0, &x1, &y0, &y1);
+        tile_box(sorted + a, j.tiles_x, j.tiles_y, &x0, &x1, &y0, &y1);
         for (int64_t ty = y0; ty < y1; ty++)
-            for (int64_t tx = x0; tx < x1; tx++) list[fill[ty * j.tiles_x + tx]++] = order[a];
+            for (int64_t tx = x0; tx < x1; tx++) list[fill[ty * j.tiles_x + tx]++] = a;
     }
     free(fill);
     volatile int64_t next = 0;
+    j.sp_sorted = sorted;
     j.tile_start = start; j.tile_list = list; j.out_rgb = out_rgb; j.out_alpha = out_alpha; j.next_tile = &next;
     run_threads(&j, nthreads, 0);
     if (stats) { stats[0] = m; stats[1] = start[ntiles]; }
     rc = m;
 done:
-    free(j.sp); free(j.depth); free(j.valid); free(order); free(start); free(list);
+    free(j.sp); free(j.depth); free(j.valid); free(order); free(start); free(list); free(sorted);
     return rc;
 }
