@@ -63,7 +63,7 @@ def _distance_local(w: Tensor, radii: Tensor, max_iter: int = 200, fused: bool =
     lo = torch.where(work, lo, torch.zeros_like(lo))
     hi = torch.where(work, hi, torch.zeros_like(hi))
     # at lo == -1 with no pole, G(-1) = g_m > 0 is finite, fine; with a pole lo > -1.
-    if w.is_cuda or w.requires_grad or radii.requires_grad:
+    if w.device.type != "cpu" or w.requires_grad or radii.requires_grad:
         s = _root(torch, lo, hi, r * z, r, pos, ~work, max_iter)
     else:  # numpy: the same float64 operations on these small arrays at a fraction of torch's per-call overhead
         with np.errstate(all="ignore"):
