@@ -205,13 +205,24 @@ def hidden_voxels(
 
 
 def neighbour_spacing(points: np.ndarray) -> float:
-    """Median distance [scalar] from each point [K, 3] to its nearest other point (0 for fewer than 2)."""
+    """Median distance [scalar] from each point [K, 3] to its nearest other point (0 for fewer than 2).
+
+    Exact, and cheaper than querying every point without a bound (a selection's ~10^5 points): the k-d tree is built
+    unbalanced (faster, the same exact neighbours) and queried in its own point order (nearby queries one after
+    another; the median does not depend on the order), with a bound U (the 90th percentile over ~512 points spread
+    through that order): a distance >= U comes back inf, which leaves the median alone while more than half of them
+    are below U (checked; else the query runs again without the bound)."""
     from scipy.spatial import cKDTree
 
     if points.shape[0] < 2:
         return 0.0
-    d, _ = cKDTree(points).query(points, k=2)
-    return float(np.median(d[:, 1]))
+    tree = cKDTree(points, balanced_tree=False, compact_nodes=False)
+    q = tree.data[tree.indices]
+    bound = float(np.quantile(tree.query(q[:: max(1, len(q) // 512)], k=2)[0][:, 1], 0.9))
+    d = tree.query(q, k=2, distance_upper_bound=bound)[0][:, 1] if bound > 0 else np.full(len(q), np.inf)
+    if np.count_nonzero(np.isfinite(d)) <= len(d) // 2:
+        d = tree.query(q, k=2)[0][:, 1]
+    return float(np.median(d))
 
 
 def surface_voxels(

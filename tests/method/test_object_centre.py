@@ -267,6 +267,13 @@ def test_neighbour_spacing_matches_brute_force():
     np.fill_diagonal(d, np.inf)
     assert neighbour_spacing(p) == pytest.approx(float(np.median(d.min(1))), rel=1e-12)
     assert neighbour_spacing(p[:1]) == 0.0
+    # the bounded query's two ways out: a dense cluster (half the points 1e-4 as far apart) and >90% duplicates (the
+    # sampled bound is 0: every bounded distance inf, so the unbounded query decides)
+    for q in (np.concatenate([p[:100] * 1e-4, p[100:]]), np.concatenate([np.repeat(p[:1], 190, 0), p[:10]])):
+        d = np.linalg.norm(q[:, None] - q[None], axis=-1)
+        np.fill_diagonal(d, np.inf)
+        assert neighbour_spacing(q) == pytest.approx(float(np.median(d.min(1))), rel=1e-12, abs=0.0)
+    assert neighbour_spacing(np.repeat(p[:1], 5, 0)) == 0.0
 
 
 # --- the unseen fill (hidden_voxels): what no training camera sees is filled ------------------------------------

@@ -77,22 +77,20 @@ def point_ellipsoid_distance_brentq(points, scene) -> np.ndarray:
     return out
 
 
-def point_ellipsoid_distance(points, scene) -> np.ndarray:
-    """[P, N] exact Euclidean distance (float64) from each point to each ellipsoid; -1 inside.
-
-    Vectorised bisection on f(t) = sum_i lam_i w_i^2 / (lam_i + t)^2 - 1 over [0, a_max |w|]
-    (f(0) > 0 outside, f(a_max |w|) <= 0), up to 200 halvings: the bracket shrinks below float64
-    resolution, so the root is exact to rounding (no Newton: independent of the package's solver).
-    Only the pairs outside are bisected, and a pair leaves the loop once a halving leaves its bracket unchanged: the
-    halving is a fixed map of (lo, hi), so every later one would too (bit-for-bit the result of 200 full halvings)."""
+def _body_frame(points, scene):
+    """(w [P, N, 3] body-frame points, lam [1, N, 3] squared semi-axes, a [N, 3] semi-axes, inside [P, N])."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     mu = scene.means.double().numpy()
     R = scene.rotations.double().numpy()
     a = scene.radii.double().numpy()
     lam = (a * a)[None]  # [1, N, 3]
     w = np.einsum("nji,pnj->pni", R, pts[:, None, :] - mu[None])  # body frame [P, N, 3]
-    inside = (w * w / lam).sum(-1) <= 1.0
-    pi, ni = np.nonzero(~inside)  # the K pairs outside
+    return w, lam, a, (w * w / lam).sum(-1) <= 1.0
+
+
+def _bisect_pairs(w, lam, a, pi, ni) -> np.ndarray:
+    """Exact distance [K] of the K outside pairs (pi, ni) of _body_frame's w: see point_ellipsoid_distance. Each pair's
+    result depends on that pair alone (elementwise halvings until its fixed point or 200)."""
     wo = w[pi, ni]  # [K, 3]
     lam_o = np.broadcast_to(lam, w.shape)[pi, ni]  # [K, 3]
     c = lam_o * wo * wo
@@ -119,14 +117,42 @@ def point_ellipsoid_distance(points, scene) -> np.ndarray:
     lo_all[act] = lo
     hi_all[act] = hi
     t = 0.5 * (lo_all + hi_all)
+    return np.linalg.norm(wo - lam_o * wo / (lam_o + t[:, None]), axis=-1)
+
+
+def point_ellipsoid_distance(points, scene) -> np.ndarray:
+    """[P, N] exact Euclidean distance (float64) from each point to each ellipsoid; -1 inside.
+
+    Vectorised bisection on f(t) = sum_i lam_i w_i^2 / (lam_i + t)^2 - 1 over [0, a_max |w|]
+    (f(0) > 0 outside, f(a_max |w|) <= 0), up to 200 halvings: the bracket shrinks below float64
+    resolution, so the root is exact to rounding (no Newton: independent of the package's solver).
+    Only the pairs outside are bisected, and a pair leaves the loop once a halving leaves its bracket unchanged: the
+    halving is a fixed map of (lo, hi), so every later one would too (bit-for-bit the result of 200 full halvings)."""
+    w, lam, a, inside = _body_frame(points, scene)
+    pi, ni = np.nonzero(~inside)  # the K pairs outside
     out = np.full(w.shape[:2], -1.0)
-    out[pi, ni] = np.linalg.norm(wo - lam_o * wo / (lam_o + t[:, None]), axis=-1)
+    out[pi, ni] = _bisect_pairs(w, lam, a, pi, ni)
     return out
+
+
+def min_distance(points, scene) -> np.ndarray:
+    """[P] point_ellipsoid_distance(points, scene).min(1), bit for bit (test_polytope.py checks), bisecting only the
+    pairs that can hold the minimum: E_j lies in the ball of radius max(a_j) about mu_j and E_k holds the ball of
+    radius min(a_k), so an outside pair j with |p - mu_j| - max(a_j) > U + 1e-9 (U: the smallest of -1 over the pairs
+    inside and |p - mu_k| - min(a_k) over those outside; 1e-9: far above rounding) is farther than the minimum."""
+    w, lam, a, inside = _body_frame(points, scene)
+    dc = np.linalg.norm(w, axis=-1)  # the bounds hold in the body frame, where the distance is measured
+    u = np.where(inside, -1.0, dc - a.min(-1)[None]).min(1)  # [P] >= the minimum
+    pi, ni = np.nonzero(~inside & (dc - a.max(-1)[None] <= u[:, None] + 1e-9))
+    d = _bisect_pairs(w, lam, a, pi, ni)
+    out = np.full(w.shape[0], np.inf)
+    np.minimum.at(out, pi, d)
+    return np.where(inside.any(1), -1.0, out)
 
 
 def clearance(points, scene) -> np.ndarray:
     """[P] min_j dist(point, E_j) - camera_radius (exact, float64)."""
-    return point_ellipsoid_distance(points, scene).min(axis=1) - scene.camera_radius
+    return min_distance(points, scene) - scene.camera_radius
 
 
 def polytope_min_distance(A, b, scene) -> np.ndarray:

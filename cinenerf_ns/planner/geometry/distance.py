@@ -46,11 +46,6 @@ def _distance_local(w: Tensor, radii: Tensor, max_iter: int = 200, fused: bool =
     inside = (z * z).sum(-1) < 1
     r = (e / e[..., 2:3]) ** 2  # [..., 3] r_i >= 1, r_2 = 1
     pos = z > 0
-
-    def g_and_dg(s: Tensor) -> Tuple[Tensor, Tensor]:
-        q = torch.where(pos, r * z / (s[..., None] + r), torch.zeros_like(z))
-        return (q * q).sum(-1) - 1, (-2 * q * q / (s[..., None] + r)).sum(-1)
-
     # G(-1+): infinite when a term with r_i == 1 has z_i > 0, else finite.
     pole = (pos & (r <= 1)).any(-1)
     with torch.no_grad():
@@ -68,23 +63,12 @@ def _distance_local(w: Tensor, radii: Tensor, max_iter: int = 200, fused: bool =
     lo = torch.where(work, lo, torch.zeros_like(lo))
     hi = torch.where(work, hi, torch.zeros_like(hi))
     # at lo == -1 with no pole, G(-1) = g_m > 0 is finite, fine; with a pole lo > -1.
-    for _ in range(max_iter):
-        g_lo, dg_lo = g_and_dg(lo)
-        newton = lo - g_lo / dg_lo
-        mid = 0.5 * (lo + hi)
-        g_mid, _ = g_and_dg(mid)
-        # bisection step shrinks the bracket; Newton from the (left) lower bound stays left of the root
-        lo2 = torch.where(g_mid > 0, mid, lo)
-        hi2 = torch.where(g_mid > 0, hi, mid)
-        ok = torch.isfinite(newton) & (newton > lo2) & (newton < hi2)
-        g_nt, _ = g_and_dg(torch.where(ok, newton, lo2))
-        lo2 = torch.where(ok & (g_nt >= 0), newton, lo2)
-        hi2 = torch.where(ok & (g_nt < 0), newton, hi2)
-        done = ((hi2 - lo2) <= 1e-15 * (1 + hi2.abs())) | ((newton - lo).abs() <= 1e-15 * (1 + lo.abs()))
-        lo, hi = lo2, hi2
-        if bool((done | ~work).all()):
-            break
-    s = lo  # converged lower bound of the root
+    if w.device.type != "cpu" or w.requires_grad or radii.requires_grad:
+        s = _root(torch, lo, hi, r * z, r, pos, ~work, max_iter)
+    else:  # numpy: the same float64 operations on these small arrays at a fraction of torch's per-call overhead
+        with np.errstate(all="ignore"):
+            s = torch.from_numpy(_root(np, *(t.numpy() for t in (lo, hi, r * z, r, pos, ~work)), max_iter))
+    # s: the converged lower bound of the root
     x = torch.where(pos, e * r * z / (s[..., None] + r), torch.zeros_like(z))
     # degenerate: s = -1
     xd = e * rz
@@ -94,6 +78,39 @@ def _distance_local(w: Tensor, radii: Tensor, max_iter: int = 200, fused: bool =
     # centre with all z = 0 is degenerate too (g_m = -1): x = (0, 0, e2), handled above.
     d = (x - y).norm(dim=-1)
     return torch.where(inside, -d, d)
+
+
+def _root(xp, lo, hi, rz, r, pos, stop, max_iter: int):
+    """_distance_local's root of G(s) = sum_i (rz_i / (s + r_i))^2 - 1 over z_i > 0 (pos) in [lo, hi]: Newton steps
+    from the lower bound (monotone for a convex decreasing G) safeguarded by bisection, until every element converged
+    or is stopped; returns the lower bound. xp: torch or numpy, the same float64 operations in the same order (sums
+    of the three terms left to right, as torch's sum(-1))."""
+    zero = xp.zeros_like(rz)
+
+    def g(s):
+        sr = s[..., None] + r
+        q = xp.where(pos, rz / sr, zero)
+        qq = q * q
+        return ((qq[..., 0] + qq[..., 1]) + qq[..., 2]) - 1, q, sr
+
+    for _ in range(max_iter):
+        g_lo, q, sr = g(lo)
+        t = -2 * q * q / sr
+        newton = lo - g_lo / (((0.0 + t[..., 0]) + t[..., 1]) + t[..., 2])
+        mid = 0.5 * (lo + hi)
+        up = g(mid)[0] > 0
+        # bisection step shrinks the bracket; Newton from the (left) lower bound stays left of the root
+        lo2 = xp.where(up, mid, lo)
+        hi2 = xp.where(up, hi, mid)
+        ok = xp.isfinite(newton) & (newton > lo2) & (newton < hi2)
+        g_nt = g(xp.where(ok, newton, lo2))[0]
+        lo2 = xp.where(ok & (g_nt >= 0), newton, lo2)
+        hi2 = xp.where(ok & (g_nt < 0), newton, hi2)
+        done = ((hi2 - lo2) <= 1e-15 * (1 + abs(hi2))) | (abs(newton - lo) <= 1e-15 * (1 + abs(lo)))
+        lo, hi = lo2, hi2
+        if bool((done | stop).all()):
+            break
+    return lo
 
 
 def point_ellipsoid_distance(

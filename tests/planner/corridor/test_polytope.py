@@ -24,6 +24,7 @@ sys.path.insert(0, str(Path(__file__).parents[1]))  # our float64 references liv
 from _corridor_refs import (  # noqa: E402
     clearance,
     make_scene,
+    min_distance,
     point_ellipsoid_distance,
     polytope_min_distance,
     random_rotations,
@@ -265,6 +266,28 @@ def test_reference_distance_cross_check():
     got = point_ellipsoid_distance(pts, sph)[:, 0]
     assert np.allclose(got[d > 0], d[d > 0], atol=1e-12) and (got[d <= 0] == -1).all()
 
+
+
+def test_min_distance_is_the_dense_minimum_bit_for_bit():
+    """min_distance (the references' clearance; it bisects only the pairs its ball bounds cannot rule out) gives the
+    dense reference's row minimum bit for bit: points inside, near and far, flat ellipsoids and float32 rotations
+    (orthonormal only to ~1e-7)."""
+    for seed in range(6):
+        rng = np.random.default_rng(seed)
+        scene = random_scene(rng, 100, amin=(0.001, 0.02)[seed % 2], amax=(0.12, 0.5)[seed % 2], camera_radius=0.03)
+        if seed % 3 == 1:
+            scene = scene.to(dtype=torch.float32).to(dtype=torch.float64)
+        if seed % 3 == 2:
+            radii = scene.radii.clone()
+            radii[:, 2] *= 1e-3
+            scene = make_scene(scene.means, scene.rotations, radii, 0.03)
+        pts = rng.uniform(-1.3, 1.3, (100, 3))
+        pts[:60] = scene.means.numpy()[:60] + rng.normal(size=(60, 3)) * 0.05
+        pts[:10] = scene.means.numpy()[:10]  # centres: inside
+        want = point_ellipsoid_distance(pts, scene).min(1)
+        assert (want == -1).any() and (want > 0).any()
+        assert np.array_equal(min_distance(pts, scene), want)
+        assert np.array_equal(clearance(pts, scene), want - 0.03)
 
 @settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2**31 - 1), n=st.integers(1, 10), use_index=st.booleans())

@@ -257,10 +257,10 @@ def test_native_points_collide_is_conservative_and_matches_python(seed, dtype, c
     hit_n = points_collide(torch.as_tensor(pts), scene, idx, radius=rad, backend="native").numpy()
     hit_p = points_collide(torch.as_tensor(pts), scene, idx, radius=rad, backend="python").numpy()
     s64 = scene.to(dtype=torch.float64)
-    from _corridor_refs import point_ellipsoid_distance
+    from _corridor_refs import min_distance
 
     r = (np.full(len(pts), s64.camera_radius) if rad is None else rad.numpy())
-    exact = point_ellipsoid_distance(pts, s64).min(1) - r  # [P]
+    exact = min_distance(pts, s64) - r  # [P]
     assert hit_n[exact < 0].all()  # conservative
     clear = np.abs(exact) > 1e-4
     assert (hit_n[clear] == hit_p[clear]).all()
@@ -325,18 +325,19 @@ def test_home_bits_say_whether_the_previous_cell_lists_the_ellipsoid(seed, cell,
     for L, lv in enumerate(idx.levels):
         dims = lv.dims.tolist()
         off = lv.offsets.long().numpy()
-        ids, homes = arr["ids_t"][L].numpy(), arr["homes_t"][L].numpy()
-        listed = set()
-        cells = []
-        for lin in range(len(off) - 1):
-            c = np.unravel_index(lin, dims)
-            for k in range(off[lin], off[lin + 1]):
-                listed.add((tuple(int(v) for v in c), int(ids[k])))
-                cells.append((tuple(int(v) for v in c), int(ids[k]), int(homes[k])))
-        for c, g, h in cells:
-            for i in range(3):
-                prev = tuple(c[j] - (j == i) for j in range(3))
-                assert bool(h >> i & 1) == ((prev, g) not in listed), (L, c, g, i)
+        ids, homes = arr["ids_t"][L].numpy().astype(np.int64), arr["homes_t"][L].numpy()
+        lin = np.repeat(np.arange(len(off) - 1), np.diff(off))  # each entry's cell (linear, C order)
+        c = np.stack(np.unravel_index(lin, dims), -1)  # [E, 3]
+        n_ids = int(ids.max()) + 1 if ids.size else 1
+        listed = lin * n_ids + ids  # the (cell, ellipsoid) pairs the level lists, as one integer each
+        for i in range(3):
+            prev = c.copy()
+            prev[:, i] -= 1
+            has = prev[:, i] >= 0  # a previous cell in the grid (none before cell 0: it lists nothing)
+            in_prev = np.zeros(len(lin), dtype=bool)
+            in_prev[has] = np.isin(np.ravel_multi_index(tuple(prev[has].T), dims) * n_ids + ids[has], listed)
+            bad = np.flatnonzero(((homes >> i & 1) != 0) != ~in_prev)
+            assert bad.size == 0, (L, tuple(c[bad[0]]), int(ids[bad[0]]), i)
 
 
 _EDGE = st.sampled_from([0.0, -0.0, 1.0, -1.0, 1e-300, np.nan, np.inf, -np.inf])

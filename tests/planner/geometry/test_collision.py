@@ -1,7 +1,7 @@
 
 import pytest
 import torch
-from _corridor_refs import point_ellipsoid_distance as exact_distance
+from _corridor_refs import min_distance as exact_min_distance
 from _geom_helpers import random_scene
 from hypothesis import given, settings, strategies as st
 
@@ -147,7 +147,7 @@ def test_segments_conservative(seed, r):
     samples = p0[:, None] + t[None, :, None] * (p1 - p0)[:, None]  # [40, 150, 3]
     # exact float64 distances by the tests' own vectorised bisection (independent of the package; -1 inside, where
     # only the sign matters here)
-    d = torch.as_tensor(exact_distance(samples.reshape(-1, 3).numpy(), sc)).min(-1).values
+    d = torch.as_tensor(exact_min_distance(samples.reshape(-1, 3).numpy(), sc))
     clear = d.reshape(40, 150).min(-1).values - r
     assert hit[clear <= 0].all()
     # tight: the exact clearance along a segment is at least the sampled one minus half the sample

@@ -19,7 +19,28 @@ from cinenerf_ns.planner.search.projection import (
 def projection_reference(A: np.ndarray, b: np.ndarray, t: np.ndarray) -> float:
     """Exact (brute force, float64) distance from t to {x : A x <= b}: the projection lies in the relative interior
     of some face, i.e. it is t's projection onto the affine hull of 0 (t itself), 1, 2 or 3 independent planes; the
-    answer is the nearest of those points that is feasible."""
+    answer is the nearest of those points that is feasible. Every subset of k planes at once (stacked numpy)."""
+    from itertools import combinations
+
+    best = 0.0 if (A @ t <= b + 1e-12).all() else np.inf
+    for k in (1, 2, 3):
+        S = np.array(list(combinations(range(len(b)), k)), dtype=np.int64).reshape(-1, k)  # [C, k]
+        M = A[S]  # [C, k, 3]
+        ok = np.linalg.matrix_rank(M, tol=1e-9) == k if len(S) else np.zeros(0, dtype=bool)
+        M, S = M[ok], S[ok]
+        if not len(S):
+            continue
+        Mt = M.transpose(0, 2, 1)
+        lam = np.linalg.solve(M @ Mt, (M @ t - b[S])[..., None])  # [C, k, 1]
+        x = t - (Mt @ lam)[..., 0]  # [C, 3]
+        feas = (x @ A.T <= b + 1e-9).all(1)
+        if feas.any():
+            best = min(best, float(np.linalg.norm(x[feas] - t, axis=1).min()))
+    return best
+
+
+def _projection_reference_loop(A: np.ndarray, b: np.ndarray, t: np.ndarray) -> float:
+    """projection_reference one subset at a time (the form it had); test_projection_reference_is_its_loop."""
     from itertools import combinations
 
     best = 0.0 if (A @ t <= b + 1e-12).all() else np.inf
@@ -56,6 +77,24 @@ def random_polytope(rng, n_planes: int):
     return A, b, c
 
 
+
+def test_projection_reference_is_its_loop():
+    """The stacked references against their one-subset-at-a-time forms: inside and outside points, apexes, repeated
+    planes, planes through one line, cuts that empty the polytope (inf; negative vertex slack)."""
+    got = []
+    for seed, n_planes, n_line, n_cuts, far in [(0, 6, 2, 2, 2.0), (1, 6, 0, 2, 0.0), (2, 4, 3, 0, 0.05),
+                                                 (3, 6, 2, 4, 1.0), (7, 0, 3, 3, 4.0)]:
+        A, b, c, t = projection_case(seed, n_planes, n_line, n_cuts, far)
+        want, ref = _projection_reference_loop(A, b, t), projection_reference(A, b, t)
+        assert ref == want or abs(ref - want) <= 1e-12, (seed, ref, want)
+        slack, slack_want = vertex_slack_reference(A, b), _vertex_slack_reference_loop(A, b)
+        assert slack == slack_want or abs(slack - slack_want) <= 1e-12, (seed, slack, slack_want)
+        got.append((ref, slack))
+    assert any(r == 0.0 for r, _ in got) and any(0 < r < np.inf for r, _ in got)
+    assert any(s < -1e-3 for _, s in got) and any(abs(s) < 1e-9 for _, s in got)  # empty; a feasible vertex
+    assert _vertex_slack_reference_loop(np.eye(3)[:2], np.ones(2)) == vertex_slack_reference(np.eye(3)[:2], np.ones(2))
+
+
 @settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2**31 - 1), n_planes=st.integers(0, 12), far=st.floats(0.0, 4.0))
 @example(seed=1750, n_planes=2, far=2.75)  # a repeated plane blocked by rounding: singular working set
@@ -82,7 +121,20 @@ def test_active_set_projection_is_the_exact_projection(seed, n_planes, far):
 def vertex_slack_reference(A: np.ndarray, b: np.ndarray) -> float:
     """Brute force (float64): max over the vertices of the plane arrangement (3 independent planes) of the smallest
     slack min_f (b_f - A_f x). A bounded {x : A x <= b} is non-empty iff one of its vertices is feasible, so > 0 means
-    non-empty and < 0 empty (up to rounding near 0)."""
+    non-empty and < 0 empty (up to rounding near 0). Every triple of planes at once (stacked numpy)."""
+    from itertools import combinations
+
+    S = np.array(list(combinations(range(len(b)), 3)), dtype=np.int64).reshape(-1, 3)  # [C, 3]
+    M = A[S]  # [C, 3, 3]
+    ok = np.abs(np.linalg.det(M)) >= 1e-9 if len(S) else np.zeros(0, dtype=bool)
+    if not ok.any():
+        return -np.inf
+    x = np.linalg.solve(M[ok], b[S[ok]][..., None])[..., 0]  # [C', 3]
+    return float((b - x @ A.T).min(1).max())
+
+
+def _vertex_slack_reference_loop(A: np.ndarray, b: np.ndarray) -> float:
+    """vertex_slack_reference one triple at a time (the form it had); test_projection_reference_is_its_loop."""
     from itertools import combinations
 
     best = -np.inf

@@ -208,7 +208,7 @@ def test_grid_clearance_lower_bound_is_never_optimistic_and_capped_clearance_is_
 def test_points_free_grid_filter_is_never_optimistic(seed, res):
     """Planner.points_free decides points in free voxels of the occupancy grid without a distance test: against the
     float64 brute force, every point it calls free (grid or Cor. 1) has clearance >= 0, and the grid decides many."""
-    from _corridor_refs import point_ellipsoid_distance as exact_distance
+    from _corridor_refs import min_distance as exact_min_distance
     from _geom_helpers import random_scene
 
     sc = random_scene(60, seed, rmin=0.02, rmax=0.2, camera_radius=0.03)
@@ -224,7 +224,7 @@ def test_points_free_grid_filter_is_never_optimistic(seed, res):
     pts = torch.cat([pts, near])
     # float64 brute force by the tests' own vectorised bisection (independent of the package; -1 inside, where only
     # the sign matters here)
-    exact = torch.as_tensor(exact_distance(pts.numpy(), sc)).min(-1).values - 0.03
+    exact = torch.as_tensor(exact_min_distance(pts.numpy(), sc)) - 0.03
     grid_free = torch.as_tensor(clearance_queries.in_free_voxel(pl.space, pts.numpy()))
     free = torch.as_tensor(clearance_queries.points_free(pl.space, pts.numpy()))
     assert (exact[grid_free] >= 0).all()
