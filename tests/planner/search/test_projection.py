@@ -91,7 +91,7 @@ def test_projection_reference_is_its_loop():
         assert slack == slack_want or abs(slack - slack_want) <= 1e-12, (seed, slack, slack_want)
         got.append((ref, slack))
     assert any(r == 0.0 for r, _ in got) and any(0 < r < np.inf for r, _ in got)
-    assert any(s < -1e-3 for _, s in got) and any(abs(s) < 1e-9 for _, s in got)  # empty; a feasible vertex
+    assert any(s < -1e-3 for _, s in got) and any(s > 1e-3 for _, s in got)  # empty; a vertex inside the rest
     assert _vertex_slack_reference_loop(np.eye(3)[:2], np.ones(2)) == vertex_slack_reference(np.eye(3)[:2], np.ones(2))
 
 
@@ -120,8 +120,10 @@ def test_active_set_projection_is_the_exact_projection(seed, n_planes, far):
 
 def vertex_slack_reference(A: np.ndarray, b: np.ndarray) -> float:
     """Brute force (float64): max over the vertices of the plane arrangement (3 independent planes) of the smallest
-    slack min_f (b_f - A_f x). A bounded {x : A x <= b} is non-empty iff one of its vertices is feasible, so > 0 means
-    non-empty and < 0 empty (up to rounding near 0). Every triple of planes at once (stacked numpy)."""
+    slack b_f - A_f x of the OTHER planes (its own three hold it with slack 0; +inf when there are no others). A bounded
+    {x : A x <= b} is non-empty iff one of its vertices is feasible: > 0 means a vertex strictly inside every other
+    plane (non-empty, with an interior near that vertex), < 0 empty, ~0 degenerate (up to rounding). Every triple of
+    planes at once (stacked numpy)."""
     from itertools import combinations
 
     S = np.array(list(combinations(range(len(b)), 3)), dtype=np.int64).reshape(-1, 3)  # [C, 3]
@@ -130,11 +132,13 @@ def vertex_slack_reference(A: np.ndarray, b: np.ndarray) -> float:
     if not ok.any():
         return -np.inf
     x = np.linalg.solve(M[ok], b[S[ok]][..., None])[..., 0]  # [C', 3]
-    return float((b - x @ A.T).min(1).max())
+    slack = b - x @ A.T  # [C', F]
+    np.put_along_axis(slack, S[ok], np.inf, axis=1)  # a vertex's own planes
+    return float(slack.min(1).max())
 
 
 def _vertex_slack_reference_loop(A: np.ndarray, b: np.ndarray) -> float:
-    """vertex_slack_reference one triple at a time (the form it had); test_projection_reference_is_its_loop."""
+    """vertex_slack_reference one triple at a time; test_projection_reference_is_its_loop."""
     from itertools import combinations
 
     best = -np.inf
@@ -143,7 +147,8 @@ def _vertex_slack_reference_loop(A: np.ndarray, b: np.ndarray) -> float:
         if abs(np.linalg.det(M)) < 1e-9:
             continue
         x = np.linalg.solve(M, b[list(S)])
-        best = max(best, float((b - A @ x).min()))
+        others = [f for f in range(len(b)) if f not in S]
+        best = max(best, float((b[others] - A[others] @ x).min()) if others else np.inf)
     return best
 
 
