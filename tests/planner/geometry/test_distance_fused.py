@@ -59,6 +59,12 @@ def test_kernel_matches_eager_in_the_triton_interpreter():
     """)
     env = dict(os.environ, TRITON_INTERPRET="1", PYTHONPATH=str(REPO))
     res = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
+    if res.returncode and "only 0-dimensional arrays can be converted to Python scalars" in res.stderr:
+        # Triton's interpreter turns a loop bound into int(a 1-element array), which numpy >= 2.5 refuses (seen with the
+        # GPU image's torch 2.11 + numpy 2.5.2; test_kernel_matches_eager_on_cuda checks the compiled kernel there)
+        import numpy as np
+
+        pytest.skip(f"Triton's interpreter does not run with numpy {np.__version__}")
     assert res.returncode == 0, res.stderr[-3000:]
     line = [ln for ln in res.stdout.splitlines() if ln.startswith("ERR")][-1].split()
     assert line[3] == "False"  # no NaN
