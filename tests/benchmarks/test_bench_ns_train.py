@@ -12,14 +12,15 @@ REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO / "benchmarks"))
 
 import bench_ns_train as b  # noqa: E402
+from _ns_stack import stack_without_sources  # noqa: E402
 
 
 @pytest.fixture(autouse=True)
 def _stack_without_source_lines(monkeypatch):
     """nerfstudio builds its method list (nerfstudio.configs.method_configs, imported by whichever test comes first)
-    reading inspect.stack()[2].function 26 times; the source lines stack() reads beside each frame are never read and
-    cost ~5 s of CPU under pytest's deep stack (as in test_ns_train_cli.py's runner)."""
-    monkeypatch.setattr(inspect, "stack", lambda context=1: inspect.getouterframes(sys._getframe(1), 0))
+    reading inspect.stack()[2].function 26 times: the same frames and names without each frame's source-file lookup
+    (tests/_ns_stack.py says why; test_ns_train_cli.py's runner does the same)."""
+    monkeypatch.setattr(inspect, "stack", stack_without_sources)
 
 
 def test_child_records_nerfstudios_step_timer(tmp_path):

@@ -31,12 +31,12 @@ RUNNER = textwrap.dedent(
     """
     import inspect, io, pickle, runpy, sys, traceback
 
-    # nerfstudio's ExternalMethodDummyTrainerConfig.__post_init__ reads inspect.stack()[2].function, 26 times while its
-    # method list is built; the source lines inspect.stack() reads beside each frame cost ~9 s of CPU on the 2-core
-    # box and are never read. Frames without their source lines: the same .function, the same branch taken.
-    inspect.stack = lambda context=1: inspect.getouterframes(sys._getframe(1), 0)  # stack()'s own body, context 0
-
-    config_yml, ns_train, data, outputs = sys.argv[1:5]
+    config_yml, ns_train, data, outputs, tests_dir = sys.argv[1:6]
+    # nerfstudio reads inspect.stack()[2].function 26 times while its method list is built: the same frames and
+    # names without each frame's source-file lookup (tests/_ns_stack.py says why)
+    sys.path.insert(0, tests_dir)
+    from _ns_stack import stack_without_sources
+    inspect.stack = stack_without_sources
 
     def part(name):
         for f in (sys.stdout, sys.stderr):
@@ -100,8 +100,8 @@ def ns_train_parts(tmp_path_factory) -> dict:
     tmp = tmp_path_factory.mktemp("ns_train")
     (tmp / "config.yml").write_text(yaml.dump(make_cinesplat_config()))
     r = subprocess.run([sys.executable, "-c", RUNNER, str(tmp / "config.yml"), exe, str(tmp / "no_data"),
-                        str(tmp / "outputs")], cwd=REPO, capture_output=True, text=True, timeout=300,
-                       env={**os.environ, "COLUMNS": "200"})
+                        str(tmp / "outputs"), str(REPO / "tests")], cwd=REPO, capture_output=True, text=True,
+                       timeout=300, env={**os.environ, "COLUMNS": "200"})
     out, err = _split(r.stdout), _split(r.stderr)
     assert r.returncode == 0 and set(out) == {"yaml", "help", "stop"}, r.stdout[-3000:] + r.stderr[-3000:]
     res = {}
