@@ -14,8 +14,7 @@ The flow, by module (docs/ARCHITECTURE.md draws it):
 """
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from .lazy_exports import lazy_exports
 
 _WHERE = {
     "EllipsoidScene": "scene.ellipsoids", "SceneConfig": "scene.ellipsoids",
@@ -36,14 +35,4 @@ _WHERE = {
     "PlanningError": "errors", "InvalidInputError": "errors", "GoalUnreachableError": "errors",
     "StartInCollisionError": "errors", "UnsafeTrajectoryError": "errors", "EmptySceneError": "errors",
 }
-__all__ = sorted(_WHERE)
-
-
-def __getattr__(name: str) -> Any:
-    if name not in _WHERE:
-        raise AttributeError(f"module 'cinenerf_ns.planner' has no attribute {name!r}")
-    return getattr(importlib.import_module(f"{__name__}.{_WHERE[name]}"), name)
-
-
-def __dir__() -> list:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__, __all__ = lazy_exports(__name__, _WHERE)

@@ -6,13 +6,18 @@
 
 Frames come from the compiled tile rasteriser (native/raster.c), else the pure-torch tiled renderer
 (raster_torch.py), or gsplat on CUDA (device="cuda"). No nerfstudio, gsplat or viser import at module level.
-"""
-from .cameras import PreviewCameras, path_cameras, viewmat_from_c2w
-from .preview import preview_camera_path
-from .raster_torch import PreviewScene, make_scene, raster_reference
-from .render import NERFSTUDIO_BACKGROUND, render_frame, scene_from_splat
 
-__all__ = [
-    "NERFSTUDIO_BACKGROUND", "PreviewCameras", "PreviewScene", "make_scene", "path_cameras", "preview_camera_path",
-    "render_frame", "raster_reference", "scene_from_splat", "viewmat_from_c2w",
-]
+The public names below load their module on first use (PEP 562): `cinesplat-preview --help` and its option errors
+need only cli.py and cameras.py, not torch.
+"""
+from __future__ import annotations
+
+from cinenerf_ns.planner.lazy_exports import lazy_exports
+
+_WHERE = {
+    "PreviewCameras": "cameras", "path_cameras": "cameras", "viewmat_from_c2w": "cameras",
+    "preview_camera_path": "preview",
+    "PreviewScene": "raster_torch", "make_scene": "raster_torch", "raster_reference": "raster_torch",
+    "NERFSTUDIO_BACKGROUND": "render", "render_frame": "render", "scene_from_splat": "render",
+}
+__getattr__, __dir__, __all__ = lazy_exports(__name__, _WHERE)

@@ -61,14 +61,16 @@ def _check_args(ap: argparse.ArgumentParser, a: argparse.Namespace, console=None
     from cinenerf_ns.planner.file_checks import path_problem
     from cinenerf_ns.planner.shots.camera_path import read_camera_path
     from cinenerf_ns.preview.cameras import path_cameras
-    from cinenerf_ns.preview.preview import check_gif_frames
-    from cinenerf_ns.preview.render import choose_backend
 
     for opt, v in (("--width", a.width), ("--height", a.height)):
         if not MIN_SIZE <= v <= MAX_SIZE:
             ap.error(f"{opt} must be in {MIN_SIZE}..{MAX_SIZE} pixels, got {v}")
     if not MIN_FPS <= a.fps <= MAX_FPS:  # also rejects nan
         ap.error(f"--fps must be in {MIN_FPS:g}..{MAX_FPS:g}, got {a.fps:g}")
+    # torch from here on (the renderer's modules): the checks above answer in a fraction of a second
+    from cinenerf_ns.preview.preview import check_gif_frames
+    from cinenerf_ns.preview.render import choose_backend
+
     try:
         a.device = check_device(a.device)
         choose_backend(a.backend, a.device)

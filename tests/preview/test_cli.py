@@ -69,11 +69,17 @@ def test_bad_input_exits_2_and_writes_nothing(inputs, tmp_path, capsys, args, ne
 
 
 def test_console_entry_exit_status(inputs, tmp_path):
+    """The module run as a command: a size out of range exits 2 with its message, before torch is imported (the
+    range checks need none; the process says at exit whether torch was loaded)."""
     scene, cam = inputs
-    r = subprocess.run([sys.executable, "-m", "cinenerf_ns.preview.cli", "--scene", str(scene), "--camera-path",
+    run_as_command = ("import atexit, runpy, sys; atexit.register(lambda: print('torch loaded:', 'torch' in "
+                      "sys.modules, file=sys.stderr)); "
+                      "runpy.run_module('cinenerf_ns.preview.cli', run_name='__main__')")
+    r = subprocess.run([sys.executable, "-c", run_as_command, "--scene", str(scene), "--camera-path",
                         str(cam), "--output-dir", str(tmp_path / "r"), "--height", "9"], cwd=REPO,
                        capture_output=True, text=True, timeout=120, env={**os.environ, "PYTHONPATH": str(REPO)})
     assert r.returncode == 2 and "--height must be in 16..4096" in r.stderr and not (tmp_path / "r").exists()
+    assert "torch loaded: False" in r.stderr, r.stderr
 
 
 def test_names_and_paths_that_look_like_markup_are_printed_as_typed(inputs, tmp_path, capsys):
