@@ -14,8 +14,8 @@ from typing import Any, Dict, NamedTuple, Sequence, Tuple
 from cinenerf_ns.option_surface import COMMAND_SET, UNPREFIXED, flag_name
 from cinenerf_ns.options import check_number
 from cinenerf_ns.planner.config import GRID_RESOLUTION_RANGE, PlannerConfig
-from cinenerf_ns.planner.scene.ellipsoids import SceneConfig
-from cinenerf_ns.planner.shots.scoring import ScoreConfig
+from cinenerf_ns.planner.scene.scene_config import SceneConfig
+from cinenerf_ns.planner.shots.score_config import ScoreConfig
 from cinenerf_ns.planner.trajectory.qp_config import TrajectoryConfig
 from cinenerf_ns.planner.trajectory.timing import MAX_FPS, MIN_FPS, TimingConfig
 

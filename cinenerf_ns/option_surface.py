@@ -19,10 +19,10 @@ from typing import Annotated, Any, Callable, Dict, List, Optional, Sequence, Typ
 import tyro
 from tyro.constructors import ConstructorRegistry, StructConstructorSpec, StructFieldSpec, StructTypeInfo
 
+from cinenerf_ns.planner.config import PlannerConfig
 from cinenerf_ns.planner.errors import InvalidInputError
-from cinenerf_ns.planner.scene.ellipsoids import SceneConfig
-from cinenerf_ns.planner.shots.planner import PlannerConfig
-from cinenerf_ns.planner.shots.scoring import ScoreConfig
+from cinenerf_ns.planner.scene.scene_config import SceneConfig
+from cinenerf_ns.planner.shots.score_config import ScoreConfig
 from cinenerf_ns.planner.trajectory.timing import TimingConfig
 
 T = TypeVar("T")

@@ -17,15 +17,15 @@ from __future__ import annotations
 from .lazy_exports import lazy_exports
 
 _WHERE = {
-    "EllipsoidScene": "scene.ellipsoids", "SceneConfig": "scene.ellipsoids",
+    "EllipsoidScene": "scene.ellipsoids", "SceneConfig": "scene.scene_config",
     "Planner": "shots.planner", "PlannerConfig": "config", "PreparedScene": "space", "PlanningSpace": "space",
-    "MAX_CANDIDATES": "shots.plan_request",
+    "MAX_CANDIDATES": "config",
     "plan_leg": "shots.stages", "ReachableGoal": "search.reach", "reachable_goal": "search.reach",
     "plan_candidates": "shots.candidates", "RankedShot": "shots.candidates", "score_shots": "shots.candidate_scores",
     "plan_multistop": "shots.multistop", "MultiStopShot": "shots.multistop",
     "Shot": "shots.shot", "TimingConfig": "trajectory.timing", "TrajectoryConfig": "trajectory.qp_config",
     "DynamicLimits": "trajectory.dynamics",
-    "retime_shot": "shots.shot", "ScoreConfig": "shots.scoring",
+    "retime_shot": "shots.shot", "ScoreConfig": "shots.score_config",
     "safety_report": "shots.safety", "verify_shot": "shots.safety", "plot_clearance": "shots.safety",
     "plot_paths_topdown": "shots.safety",
     "shot_to_camera_path": "shots.camera_path", "write_camera_path": "shots.camera_path",

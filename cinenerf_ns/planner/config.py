@@ -18,6 +18,9 @@ REGION_RULES = ("auto", "dense", "robust")
 """PlannerConfig.region_rule: without bounds and training cameras, the region follows the dense content ('auto',
 'dense': planning_region.dense_content_box) or the robust box of all means ('robust': the rule before issue 37)."""
 
+MAX_CANDIDATES = 64
+"""Most candidates one request may ask for (each is a whole plan; more are better drawn as several requests)."""
+
 GRID_RESOLUTION_RANGE = (8, 1024)
 """Allowed PlannerConfig.grid_resolution (voxels along the planning region's longest side)."""
 

@@ -26,18 +26,21 @@ from typing import TYPE_CHECKING, Annotated, Any, List, Optional, Tuple
 import numpy as np
 import tyro
 
+from cinenerf_ns.planner.config import PlannerConfig
 from cinenerf_ns.planner.errors import InvalidInputError, PlanningError
-from cinenerf_ns.planner.scene.ellipsoids import DEFAULT_SAFETY_MARGIN, EllipsoidScene, SceneConfig, quat_wxyz_to_rotmat
-from cinenerf_ns.planner.scene.splat_params import NO_COLOUR_GREY, SplatParams
-from cinenerf_ns.planner.shots.planner import PlannerConfig
+from cinenerf_ns.planner.scene.scene_config import DEFAULT_SAFETY_MARGIN, SceneConfig
 
 from .backend import FunctionBackend, LocateFn, PlanFn, SceneGaussians, label_locate, to_numpy
 from .conventions import VISER_NERFSTUDIO_SCALE_RATIO
-from .region_box import stored_region_config
 from .views import TrainingCameras
 
 if TYPE_CHECKING:
+    from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
+    from cinenerf_ns.planner.scene.splat_params import SplatParams
     from cinenerf_ns.scenes import LoadedScene
+
+# The scene and planner modules (torch) are imported where they are used: `cinesplat-viewer --help` and its option
+# errors need only the config dataclasses above.
 
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
 
@@ -45,6 +48,9 @@ LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
 def display_gaussians(splat: SplatParams) -> SceneGaussians:
     """What the browser draws of a splat: colours (grey where it has none), opacities and covariances."""
     import torch
+
+    from cinenerf_ns.planner.scene.ellipsoids import quat_wxyz_to_rotmat
+    from cinenerf_ns.planner.scene.splat_params import NO_COLOUR_GREY
 
     rot = quat_wxyz_to_rotmat(torch.as_tensor(np.asarray(splat.quats_wxyz, np.float64))).numpy()  # [N, 3, 3]
     s2 = np.exp(2.0 * splat.log_scales.astype(np.float64))  # [N, 3]
@@ -140,6 +146,7 @@ def open_scene(source: str, data_dir: Optional[Path] = None, scene_config: Optio
     """``--load-config`` -> the scene loaded by ``scenes.load_scene`` (the loader of every command: the same
     obstacles, start regions and text semantics as cinesplat-plan), presented for the viewer. 'demo' names the
     bundled trained room; 'demo-tiny' the tiny labelled scene of viewer/demo.py."""
+    from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
     from cinenerf_ns.scenes import DEMO_SCENE, LoadedScene, load_scene
 
     scfg = scene_config or SceneConfig()
@@ -221,6 +228,7 @@ class SplatPreviewer:
 
     def scene(self):
         if self._scene is None:
+            from cinenerf_ns.planner.scene.splat_params import NO_COLOUR_GREY
             from cinenerf_ns.preview.render import scene_from_splat
 
             self._scene = scene_from_splat(self.splat, grey=NO_COLOUR_GREY)
@@ -280,6 +288,7 @@ class StandaloneViewer:
 
         from .panel import PanelConfig, ServerLimits
         from .planner_backend import PreparedPlanner
+        from .region_box import stored_region_config
         from .viser_guard import guard_server
         from .viser_ui import attach_cine_panel
 
@@ -472,7 +481,7 @@ def check_config(cfg: StandaloneConfig) -> None:
     from cinenerf_ns.option_ranges import check_config_ranges
     from cinenerf_ns.option_surface import validated
     from cinenerf_ns.options import check_number
-    from cinenerf_ns.planner.shots.planner import MAX_CANDIDATES
+    from cinenerf_ns.planner.config import MAX_CANDIDATES
 
     if not isinstance(cfg.load_config, str) or not cfg.load_config.strip():
         raise InvalidInputError("--load-config is empty: give a run's config.yml, a compact export, a .ply, "

@@ -262,6 +262,20 @@ def test_cli_help(capsys, monkeypatch):
     assert e.value.code == 0 and "--load-config" in out and "--port" in out
 
 
+def test_help_and_option_errors_come_before_torch():
+    """The command run as the module: --help and an option out of range answer without importing torch (the config
+    dataclasses are torch-free; the scene and planner modules load when the viewer starts). The process says at exit
+    whether torch was loaded."""
+    run_as_command = ("import atexit, runpy, sys; atexit.register(lambda: print('torch loaded:', 'torch' in "
+                      "sys.modules, file=sys.stderr)); "
+                      "runpy.run_module('cinenerf_ns.viewer.standalone', run_name='__main__', alter_sys=True)")
+    for argv, code, said in ((["--help"], 0, "--load-config"), (["--port", "0"], 2, "--port must be an integer")):
+        r = subprocess.run([sys.executable, "-c", run_as_command, *argv], capture_output=True, text=True, timeout=120,
+                           env=dict(os.environ, PYTHONPATH=str(REPO), COLUMNS="120"))
+        assert r.returncode == code and said in r.stdout + r.stderr, r.stderr[-2000:]
+        assert "torch loaded: False" in r.stderr, r.stderr[-2000:]
+
+
 @pytest.mark.parametrize("argv,regex", [
     (["--port", "0"], r"--port must be an integer in \[1, 65535\]"),
     (["--camera-radius", "-1"], r"--camera-radius must be"),

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Optional
 import numpy as np
 import torch
 
+from ..config import MAX_CANDIDATES
 from ..corridor.safe_corridor import CorridorError
 from ..errors import GoalUnreachableError, InvalidInputError, StartInCollisionError
 from ..search.starts import random_starts
@@ -17,8 +18,6 @@ if TYPE_CHECKING:
     from ..space import PlanningSpace
     from .shot import Shot
 
-MAX_CANDIDATES = 64
-"""Most candidates one request may ask for (each is a whole plan; more are better drawn as several requests)."""
 
 
 def check_candidates(n_candidates) -> None:
