@@ -34,15 +34,14 @@ def demo_args(output_dir: Path, scene: Path = DEMO_SCENE, candidates: int = 1) -
                     candidates=candidates, seed=0)
 
 
-def demo_preview(scene, camera_path: str, output_dir: Path, console: Console,
+def demo_preview(loaded, camera_path: str, output_dir: Path, console: Console,
                  subject_points=None) -> Optional[dict]:
     """demo.mp4 + demo_sheet.png of the planned shot (the preview's default size and frame rate, 480x270 at 15 fps,
-    CPU; the look-at object outlined on the sheet) of any scene scenes.load_scene reads (the procedural fallback's
-    objects in their display colours). ``scene``: the LoadedScene the plan used, or a scene spec to load."""
+    CPU; the look-at object outlined on the sheet) through ``loaded``, the LoadedScene the plan used (any scene
+    scenes.load_scene reads; the procedural fallback's objects in their display colours)."""
     from cinenerf_ns.preview import preview_camera_path
-    from cinenerf_ns.scenes import LoadedScene, load_scene, preview_scene
+    from cinenerf_ns.scenes import preview_scene
 
-    loaded = scene if isinstance(scene, LoadedScene) else load_scene(str(scene), planning=False)
     return preview_camera_path(preview_scene(loaded), camera_path, output_dir, "demo",
                                console=console, subject_points=subject_points)
 
