@@ -187,7 +187,7 @@ def _rasterise_reference(scene: EllipsoidScene, lo: Tensor, voxel: float, dims: 
     """occupied [X, Y, Z] bool by the torch rasterisation, in chunks of ellipsoids of about max_columns columns."""
     dev = scene.device
     X, Y, Z = (int(d) for d in dims)
-    rho = scene.camera_radius + 0.5 * math.sqrt(3.0) * voxel
+    rho = _column_reach(scene, voxel)
     diff = torch.zeros(X * Y * (Z + 1), dtype=torch.int32, device=dev)
     # s samples per ellipsoid: s = h / (h + rho), h log-spaced in [a_min, a_max]
     t = torch.linspace(0, 1, n_s, dtype=torch.float64, device=dev)
@@ -227,7 +227,7 @@ def _rasterise_compiled(fns, scene: EllipsoidScene, lo: Tensor, voxel: float, di
     index out of int64's reach: see occupancy.c)."""
     footprints_c, discs_c, mark_c, sum_c = fns
     X, Y, Z = (int(d) for d in dims)
-    rho = scene.camera_radius + 0.5 * math.sqrt(3.0) * voxel
+    rho = _column_reach(scene, voxel)
     n, f32 = len(scene), int(scene.means.dtype == torch.float32)
     means, rot, radii, ext = (np.ascontiguousarray(a.detach().numpy()) for a in
                               (scene.means, scene.rotations, scene.radii, scene.half_extents()))  # torch's sqrt
@@ -270,6 +270,12 @@ def _rasterise_compiled(fns, scene: EllipsoidScene, lo: Tensor, voxel: float, di
     return torch.from_numpy(occ.view(np.bool_))
 
 
+def _column_reach(scene: EllipsoidScene, voxel: float) -> float:
+    """rho: how far an ellipsoid is grown before it marks a voxel (the camera radius plus half a voxel's diagonal).
+    One expression for the footprints, the reference and the compiled rasterisation, which must agree bit for bit."""
+    return scene.camera_radius + 0.5 * math.sqrt(3.0) * voxel
+
+
 def _one_covers_the_box(scene: EllipsoidScene, lo: Tensor, hi: Tensor) -> bool:
     """Whether one ellipsoid holds the whole box [lo, hi] (its 8 corners; an ellipsoid is convex)."""
     if len(scene) == 0:
@@ -298,7 +304,7 @@ def _footprints(scene: EllipsoidScene, lo: Tensor, voxel: float, dims: Tensor, r
 def occupancy_columns(scene: EllipsoidScene, resolution: int, bounds: Tuple[Tensor, Tensor]) -> int:
     """How many voxel columns build_occupancy(scene, resolution=resolution, bounds=bounds) rasterises (its work)."""
     lo, voxel, dims = _grid_geometry(scene, resolution, bounds, None)
-    return int(_footprints(scene, lo, voxel, dims, scene.camera_radius + 0.5 * math.sqrt(3.0) * voxel)[2].sum())
+    return int(_footprints(scene, lo, voxel, dims, _column_reach(scene, voxel))[2].sum())
 
 
 def _mark_chunk_reference(scene, a, b, span, i_lo, lo, voxel, dims, rho, t, diff) -> None:
