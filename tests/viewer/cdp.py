@@ -100,6 +100,12 @@ class Chromium:
             time.sleep(every)
         raise TimeoutError(f"timed out waiting for: {expression}")
 
+    def frames(self, n: int, timeout: float = 60.0) -> None:
+        """Returns once the page has drawn ``n`` more animation frames (requestAnimationFrame callbacks): "the page
+        rendered for a while" as a count of frames, which a loaded box slows down but cannot cut short."""
+        self.js(f"new Promise(done => {{ let k = {int(n)}; const f = () => (--k > 0 ? requestAnimationFrame(f) : "
+                "done(true)); requestAnimationFrame(f); })", timeout=timeout)
+
     def insert_text(self, text: str) -> None:
         self.call("Input.insertText", text=text)
 
