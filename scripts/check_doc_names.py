@@ -32,11 +32,29 @@ def path_exists(name: str) -> bool:
     return any(p.endswith("/" + name) or p.endswith("/" + name + "/") for p in PATHS)
 
 
+def defined_words(text: str) -> set:
+    """The words ``text`` defines (def, class, an assignment, a quoted string): the words for which
+    defines_reference(word, text) holds, found in one pass. Its three alternatives are look-aheads at every line start
+    and every quote, so matches may overlap as that search's do."""
+    found = re.findall(r"^(?=\s*(?:def|class)\s+(\w+)\b)", text, re.M)
+    found += re.findall(r"^(?=\s*(?:self\.)?(\w+)\s*[:=])", text, re.M)
+    return set(found) | set(re.findall(r"\"(?=(\w+)\")", text))
+
+
+def defines_reference(word: str, text: str) -> bool:
+    """Whether ``text`` defines ``word``: one regular-expression search of the whole text."""
+    n = re.escape(word)
+    return bool(re.search(rf"^\s*(def|class)\s+{n}\b|^\s*(self\.)?{n}\s*[:=]|\"{n}\"", text, re.M))
+
+
+DEFINED = defined_words(TEXT)
+
+
 def name_exists(name: str) -> bool:
+    """A name the repository defines (its last part) or mentions dotted."""
     last = name.split(".")[-1]
-    n = re.escape(last)
-    defined = rf"^\s*(def|class)\s+{n}\b|^\s*(self\.)?{n}\s*[:=]|\"{n}\""
-    return name in EXTERNAL or (len(name.split(".")) > 1 and name in TEXT) or bool(re.search(defined, TEXT, re.M))
+    defined = last in DEFINED if re.fullmatch(r"\w+", last) else defines_reference(last, TEXT)
+    return name in EXTERNAL or (len(name.split(".")) > 1 and name in TEXT) or defined
 
 
 # What docstrings may name without it being a file here: other projects' modules and files.
@@ -94,11 +112,16 @@ def check(doc: Path) -> list:
     return missing
 
 
-if __name__ == "__main__":
-    # a folder: its modules' docstrings; a file: the names it mentions
+def main(args: list) -> int:
+    """Prints every missing name of the given docs (a file: the names it mentions; a folder: its modules'
+    docstrings); 1 when there is one."""
     bad = {d: [f"{f}: docstring names {w}" for f, w in check_docstrings(Path(d))] if Path(d).is_dir()
-           else check(Path(d)) for d in sys.argv[1:]}
+           else check(Path(d)) for d in args}
     for d, m in bad.items():
         for w in m:
             print(f"{d}: {w}")
-    sys.exit(1 if any(bad.values()) else 0)
+    return 1 if any(bad.values()) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
