@@ -20,6 +20,7 @@ import time
 import warnings
 from dataclasses import replace
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 
@@ -53,7 +54,7 @@ def stats(ms) -> str:
     return f"median {np.median(a):.1f} ms, p95 {np.percentile(a, 95):.1f} ms, max {a.max():.1f} ms"
 
 
-def main() -> None:
+def main(argv: Optional[list] = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", default="demo", help="the viewer's --load-config (default: the bundled room)")
     ap.add_argument("--requests", type=int, default=10)
@@ -62,7 +63,7 @@ def main() -> None:
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--no-warm", action="store_true", help="leave text queries lazy (the first one smooths)")
     ap.add_argument("--append", action="store_true", help="append the block to benchmarks/RESULTS.md")
-    a = ap.parse_args()
+    a = ap.parse_args(argv)
     vc = StandaloneConfig()
     t0 = time.perf_counter()
     with warnings.catch_warnings():
