@@ -18,7 +18,7 @@ PYTEST_PARALLEL ?= -n auto --dist loadgroup
 FUZZ_FACTOR ?= 10
 # Python's default: cache compiled modules (and pytest's assertion-rewritten tests) in __pycache__. Some sandboxes
 # export PYTHONDONTWRITEBYTECODE=1; then every pytest worker and every CLI subprocess a test starts compiles all its
-# modules again (about 5 s of CPU per worker's collection on the CPU box).
+# modules again (benchmarks/RESULTS.md, "make test time, fourth pass").
 unexport PYTHONDONTWRITEBYTECODE
 
 .PHONY: install demo lint test test-fast fuzz bench clean-venv
