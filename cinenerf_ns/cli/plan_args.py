@@ -18,10 +18,11 @@ from cinenerf_ns.option_ranges import check_config_ranges
 from cinenerf_ns.option_surface import validated
 from cinenerf_ns.options import check_device, check_number
 from cinenerf_ns.output_set import check_file_size_limit, check_name, check_writable
+from cinenerf_ns.planner.config import MAX_CANDIDATES, PlannerConfig
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.native import kernel_threads
-from cinenerf_ns.planner.scene.ellipsoids import DEFAULT_SAFETY_MARGIN, SceneConfig
 from cinenerf_ns.planner.scene.planning_region import user_box
+from cinenerf_ns.planner.scene.scene_config import DEFAULT_SAFETY_MARGIN, SceneConfig
 from cinenerf_ns.planner.shots.camera_path import (
     DEFAULT_FOV_DEG,
     DEFAULT_PREVIEW_FPS,
@@ -29,8 +30,7 @@ from cinenerf_ns.planner.shots.camera_path import (
     DEFAULT_RENDER_SIZE,
 )
 from cinenerf_ns.planner.shots.framing import FramingConfig
-from cinenerf_ns.planner.shots.planner import MAX_CANDIDATES, PlannerConfig
-from cinenerf_ns.planner.shots.scoring import ScoreConfig
+from cinenerf_ns.planner.shots.score_config import ScoreConfig
 from cinenerf_ns.scenes import parse_point
 
 

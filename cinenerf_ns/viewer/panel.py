@@ -24,9 +24,9 @@ from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
+from cinenerf_ns.planner.config import MAX_CANDIDATES
 from cinenerf_ns.planner.errors import GoalUnreachableError, InvalidInputError, PlanningError
 from cinenerf_ns.planner.shots.framing import FRAMINGS
-from cinenerf_ns.planner.shots.plan_request import MAX_CANDIDATES
 
 from .backend import parse_point, to_numpy
 from .conventions import interpolate_pose

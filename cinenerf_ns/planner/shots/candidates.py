@@ -44,6 +44,7 @@ from typing import Any, Callable, Dict, List, Optional
 import numpy as np
 import torch
 
+from ..config import MAX_CANDIDATES
 from ..corridor.corridor_options import corridor_backend, use_grid_polytopes
 from ..corridor.safe_corridor import CorridorError
 from ..errors import GoalUnreachableError, InvalidInputError, PlanningError, StartInCollisionError
@@ -53,7 +54,6 @@ from ..search.starts import random_starts
 from ..trajectory.dynamics import DynamicLimits
 from . import stages
 from .candidate_scores import score_from_parts, score_parts, score_shots, with_visibility
-from .plan_request import MAX_CANDIDATES
 from .planner import Planner
 from .scoring import ScoreConfig, ShotScore
 from .shot import Shot

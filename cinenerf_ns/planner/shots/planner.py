@@ -32,7 +32,7 @@ from ..scene.planning_region import GRID_BYTES_PER_VOXEL, ArrayLike  # noqa: F40
 from ..search import reach, starts
 from ..search.starts import ENCLOSED_COMPONENT_FRACTION, preferred_component  # noqa: F401 (re-exported)
 from ..space import PlanningSpace, PreparedScene
-from .plan_request import MAX_CANDIDATES, check_candidates, plan_request  # noqa: F401 (MAX_CANDIDATES re-exported)
+from .plan_request import check_candidates, plan_request
 from .prepared_scene import prepare_scene
 from .safety import DEFAULT_CLEARANCE_CAP, clearance_report
 from .shot import Shot
