@@ -18,8 +18,9 @@ import torch
 
 from cinenerf_ns.planner.geometry.collision import max_k_sphere, points_collide, segments_collide
 from cinenerf_ns.planner.geometry.distance import clearance
-from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
 from cinenerf_ns.planner.scene.occupancy import build_occupancy
+from cinenerf_ns.planner.scene.scene_config import SceneConfig
 from cinenerf_ns.planner.scene.spatial_index import GridIndex
 
 

@@ -23,7 +23,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks._results import append_results, device_name  # noqa: E402
 from cinenerf_ns.method import object_centre as oc  # noqa: E402
 from cinenerf_ns.planner.native import hidden_voxels_c  # noqa: E402
-from cinenerf_ns.planner.scene.ellipsoids import SceneConfig, quat_wxyz_to_rotmat  # noqa: E402
+from cinenerf_ns.planner.scene.ellipsoids import quat_wxyz_to_rotmat  # noqa: E402
+from cinenerf_ns.planner.scene.scene_config import SceneConfig  # noqa: E402
 from cinenerf_ns.scenes import load_scene  # noqa: E402
 
 

@@ -23,7 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks._results import append_results, device_name  # noqa: E402
 from cinenerf_ns.planner.errors import PlanningError  # noqa: E402
-from cinenerf_ns.planner.scene.ellipsoids import SceneConfig  # noqa: E402
+from cinenerf_ns.planner.scene.scene_config import SceneConfig  # noqa: E402
 from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig  # noqa: E402
 from cinenerf_ns.scenes import load_scene  # noqa: E402
 

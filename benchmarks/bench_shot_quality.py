@@ -33,7 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks._results import append_results, device_name  # noqa: E402
 from benchmarks.eval_synthetic import gaussians_in_object, load_ground_truth, object_names  # noqa: E402
-from cinenerf_ns.planner.scene.ellipsoids import DEFAULT_SAFETY_MARGIN, SceneConfig  # noqa: E402
+from cinenerf_ns.planner.scene.scene_config import DEFAULT_SAFETY_MARGIN, SceneConfig  # noqa: E402
 from cinenerf_ns.planner.shots import stages  # noqa: E402,F401
 from cinenerf_ns.planner.shots.camera_path import shot_to_camera_path  # noqa: E402
 from cinenerf_ns.planner.shots.candidates import plan_candidates  # noqa: E402

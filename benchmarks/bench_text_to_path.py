@@ -29,7 +29,7 @@ sys.path.insert(0, str(REPO))
 
 from benchmarks._results import append_results, device_name  # noqa: E402
 from cinenerf_ns.planner.errors import PlanningError  # noqa: E402
-from cinenerf_ns.planner.scene.ellipsoids import SceneConfig  # noqa: E402
+from cinenerf_ns.planner.scene.scene_config import SceneConfig  # noqa: E402
 from cinenerf_ns.viewer.planner_backend import PreparedPlanner  # noqa: E402
 from cinenerf_ns.viewer.standalone import StandaloneConfig, open_scene, warm_semantics  # noqa: E402
 

@@ -31,7 +31,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks._results import device_name  # noqa: E402
-from cinenerf_ns.planner.scene.ellipsoids import SceneConfig  # noqa: E402
+from cinenerf_ns.planner.scene.scene_config import SceneConfig  # noqa: E402
 from cinenerf_ns.planner.shots.planner import PlannerConfig  # noqa: E402
 from cinenerf_ns.viewer.backend import FunctionBackend  # noqa: E402
 from cinenerf_ns.viewer.panel import PanelConfig  # noqa: E402

@@ -48,7 +48,7 @@ from benchmarks.eval_synthetic import (  # noqa: E402
 )
 from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY  # noqa: E402
 from cinenerf_ns.planner.errors import PlanningError  # noqa: E402
-from cinenerf_ns.planner.scene.ellipsoids import DEFAULT_SAFETY_MARGIN, SceneConfig  # noqa: E402
+from cinenerf_ns.planner.scene.scene_config import DEFAULT_SAFETY_MARGIN, SceneConfig  # noqa: E402
 from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig  # noqa: E402
 from cinenerf_ns.scenes import load_scene  # noqa: E402
 

@@ -64,7 +64,8 @@ class Family:
 
 def load_family(spec: str, n_gaussians: int, seed: int, device: str = "cpu", n_pairs: int = 100) -> Family:
     """--family spec -> Family (n_gaussians / seed only for the generated families, n_pairs for the grove's)."""
-    from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
+    from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
+    from cinenerf_ns.planner.scene.scene_config import SceneConfig
 
     dev = torch.device(device)
     if spec == "procedural":

@@ -13,7 +13,8 @@ from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY, OBJECT_CLUSTER, 
 from cinenerf_ns.method.training_cameras import camera_box, run_config_path, scene_camera_centres, scene_camera_poses
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.file_checks import path_problem
-from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
+from cinenerf_ns.planner.scene.scene_config import SceneConfig
 from cinenerf_ns.planner.scene.splat_params import NO_COLOUR_GREY, SplatParams, rgb_to_dc
 
 ASSETS = Path(__file__).parent / "assets"

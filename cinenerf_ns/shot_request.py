@@ -20,7 +20,7 @@ import numpy as np
 from cinenerf_ns.planner.geometry.visibility import SubjectSamples
 from cinenerf_ns.planner.shots.candidates import RankedShot, plan_candidates, score_shots
 from cinenerf_ns.planner.shots.planner import Planner
-from cinenerf_ns.planner.shots.scoring import ScoreConfig
+from cinenerf_ns.planner.shots.score_config import ScoreConfig
 from cinenerf_ns.planner.shots.shot import retime_shot
 from cinenerf_ns.planner.trajectory.dynamics import DynamicLimits
 

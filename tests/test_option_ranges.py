@@ -14,9 +14,9 @@ from cinenerf_ns.cli.plan_args import RENAMED_FLAGS, check_args
 from cinenerf_ns.option_ranges import RANGES, check_config_ranges, flag_name
 from cinenerf_ns.option_surface import COMMAND_SET, UNPREFIXED, parse
 from cinenerf_ns.planner.errors import InvalidInputError
-from cinenerf_ns.planner.scene.ellipsoids import SceneConfig
+from cinenerf_ns.planner.scene.scene_config import SceneConfig
 from cinenerf_ns.planner.shots.planner import PlannerConfig
-from cinenerf_ns.planner.shots.scoring import ScoreConfig
+from cinenerf_ns.planner.shots.score_config import ScoreConfig
 from cinenerf_ns.planner.trajectory.qp_config import TrajectoryConfig
 from cinenerf_ns.planner.trajectory.timing import TimingConfig
 from cinenerf_ns.viewer.standalone import RENAMED_FLAGS as VIEWER_RENAMED, StandaloneConfig, check_config

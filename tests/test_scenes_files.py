@@ -18,8 +18,8 @@ import torch
 
 from cinenerf_ns.method.checkpoint import CheckpointError, SplatCheckpoint, export_compact
 from cinenerf_ns.planner.errors import InvalidInputError
-from cinenerf_ns.planner.scene.ellipsoids import SceneConfig
 from cinenerf_ns.planner.scene.ply import write_splat_ply
+from cinenerf_ns.planner.scene.scene_config import SceneConfig
 from cinenerf_ns.planner.scene.splat_params import SplatParams
 from cinenerf_ns.scenes import load_scene
 

@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 import torch
 
-from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
 from cinenerf_ns.planner.scene.procedural import procedural_room
+from cinenerf_ns.planner.scene.scene_config import SceneConfig
 from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
 from cinenerf_ns.planner.trajectory.dynamics import DynamicLimits
 from cinenerf_ns.shot_request import ShotRequest, plan_request

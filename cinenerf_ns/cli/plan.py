@@ -44,7 +44,7 @@ from cinenerf_ns.planner.shots.candidates import RankedShot
 from cinenerf_ns.planner.shots.multistop import plan_multistop
 from cinenerf_ns.planner.shots.planner import Planner
 from cinenerf_ns.planner.shots.safety import plot_clearance, plot_paths_topdown
-from cinenerf_ns.planner.shots.scoring import ScoreConfig
+from cinenerf_ns.planner.shots.score_config import ScoreConfig
 from cinenerf_ns.planner.trajectory.dynamics import DynamicLimits
 from cinenerf_ns.scenes import LoadedScene, _word_match, load_scene, parse_point, resolve_match
 from cinenerf_ns.shot_request import ShotRequest, plan_request

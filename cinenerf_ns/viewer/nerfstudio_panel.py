@@ -35,7 +35,8 @@ import numpy as np
 import torch
 
 from cinenerf_ns.method.training_cameras import camera_box
-from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
+from cinenerf_ns.planner.scene.scene_config import SceneConfig
 from cinenerf_ns.planner.scene.splat_params import SplatParams, rgb_to_dc
 
 from .backend import LocateFn, SceneGaussians

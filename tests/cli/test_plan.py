@@ -180,7 +180,7 @@ def test_keep_support_reaches_the_locator(monkeypatch, tmp_path):
 
 @pytest.mark.slow
 def test_load_scene_passes_drop_support():
-    from cinenerf_ns.planner.scene.ellipsoids import SceneConfig
+    from cinenerf_ns.planner.scene.scene_config import SceneConfig
     from cinenerf_ns.scenes import DEMO_SCENE, load_scene
 
     for flag in (True, False):
@@ -207,7 +207,7 @@ def test_load_scene_passes_centre_relevancy():
     many Gaussians the centre came from."""
     import torch
 
-    from cinenerf_ns.planner.scene.ellipsoids import SceneConfig
+    from cinenerf_ns.planner.scene.scene_config import SceneConfig
     from cinenerf_ns.scenes import DEMO_SCENE, label_query, load_scene
 
     for v in (0.0, 0.7):
@@ -232,7 +232,7 @@ def test_no_unseen_fill_reaches_the_locator(monkeypatch, tmp_path):
 def test_load_scene_gives_the_bundled_scene_its_training_cameras():
     """The bundled export carries its 150 training cameras (info["camera_centres"]): load_scene hands them to the
     SemanticScene (unless unseen_fill=False) and draws random starts from their box (+0.1)."""
-    from cinenerf_ns.planner.scene.ellipsoids import SceneConfig
+    from cinenerf_ns.planner.scene.scene_config import SceneConfig
     from cinenerf_ns.scenes import DEMO_SCENE, load_scene
 
     ld = load_scene(str(DEMO_SCENE), SceneConfig(), smooth_neighbors=0)

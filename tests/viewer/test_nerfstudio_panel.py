@@ -287,7 +287,7 @@ def test_model_semantic_scene_gets_the_training_cameras():
 def test_model_backend_plans_with_the_safety_margin():
     """The ns-viewer panel keeps cinesplat-plan's and cinesplat-viewer's distance from the scene: the camera radius
     plus the safety margin (it planned with the bare radius)."""
-    from cinenerf_ns.planner.scene.ellipsoids import DEFAULT_SAFETY_MARGIN, SceneConfig
+    from cinenerf_ns.planner.scene.scene_config import DEFAULT_SAFETY_MARGIN, SceneConfig
 
     scene, _ = SplatModelBackend(TinySplatModel(), Planners())._current("planner")
     assert scene.camera_radius == pytest.approx(SceneConfig.camera_radius + DEFAULT_SAFETY_MARGIN)
@@ -304,7 +304,7 @@ def test_model_semantic_scene_answers_text_as_cinesplat_plan_and_the_standalone_
     from cinenerf_ns.method.checkpoint import load_compact
     from cinenerf_ns.method.relevancy import QueryError
     from cinenerf_ns.method.semantic_scene import SMOOTH_NEIGHBORS
-    from cinenerf_ns.planner.scene.ellipsoids import SceneConfig
+    from cinenerf_ns.planner.scene.scene_config import SceneConfig
     from cinenerf_ns.scenes import load_scene
     from cinenerf_ns.viewer.nerfstudio_panel import ModelSnapshot, model_semantic_scene
 

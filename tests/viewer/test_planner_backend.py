@@ -11,8 +11,9 @@ import pytest
 import torch
 
 from cinenerf_ns.planner.errors import InvalidInputError, StartInCollisionError
-from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
 from cinenerf_ns.planner.scene.procedural import procedural_room
+from cinenerf_ns.planner.scene.scene_config import SceneConfig
 from cinenerf_ns.viewer.backend import NoMatchError, label_locate, parse_point
 from cinenerf_ns.viewer.demo import demo_scene, look_at_rotation
 from cinenerf_ns.viewer.planner_backend import PreparedPlanner

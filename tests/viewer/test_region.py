@@ -12,8 +12,9 @@ import torch
 from viewer_fakes import FakeBackend, FakeView, wait_for
 
 from cinenerf_ns.planner.errors import InvalidInputError
-from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
 from cinenerf_ns.planner.scene.procedural import procedural_room
+from cinenerf_ns.planner.scene.scene_config import SceneConfig
 from cinenerf_ns.planner.shots.planner import PlannerConfig
 from cinenerf_ns.viewer.panel import CinePanel, PanelConfig
 from cinenerf_ns.viewer.planner_backend import PreparedPlanner

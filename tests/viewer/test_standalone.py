@@ -177,7 +177,7 @@ def test_standalone_compact_scene_answers_text_by_relevancy(tmp_path):
               "clip": None},
     )
     path = export_compact(st, tmp_path / "scene_compact.pt", half=False)
-    from cinenerf_ns.planner.scene.ellipsoids import SceneConfig
+    from cinenerf_ns.planner.scene.scene_config import SceneConfig
     from cinenerf_ns.scenes import load_scene as cli_load
 
     v = viewer_for(str(path), tmp_path, output_dir=tmp_path / "out")

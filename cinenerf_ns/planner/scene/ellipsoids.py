@@ -19,7 +19,7 @@ import torch
 from torch import Tensor
 
 from ..errors import EmptySceneError, InvalidInputError
-from .scene_config import DEFAULT_SAFETY_MARGIN, SceneConfig  # noqa: F401 (importers of either name from here)
+from .scene_config import SceneConfig
 from .splat_params import SplatParams
 
 

@@ -19,7 +19,6 @@ if TYPE_CHECKING:
     from .shot import Shot
 
 
-
 def check_candidates(n_candidates) -> None:
     """InvalidInputError unless ``n_candidates`` is an integer in [1, MAX_CANDIDATES]."""
     if int(n_candidates) != n_candidates or not 1 <= n_candidates <= MAX_CANDIDATES:

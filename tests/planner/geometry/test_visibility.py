@@ -17,7 +17,8 @@ from cinenerf_ns.planner.geometry.visibility import (
     optical_depth_reference,
     subject_visibility,
 )
-from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
+from cinenerf_ns.planner.scene.scene_config import SceneConfig
 
 BACKENDS = ["python"] + (["native"] if native.optical_depth_c() is not None else [])
 

@@ -5,8 +5,9 @@ import pytest
 import torch
 
 from cinenerf_ns.planner.errors import EmptySceneError, InvalidInputError
-from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig, quat_wxyz_to_rotmat
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, quat_wxyz_to_rotmat
 from cinenerf_ns.planner.scene.ply import write_splat_ply
+from cinenerf_ns.planner.scene.scene_config import SceneConfig
 
 
 def test_from_splat_axes_and_rotation():

@@ -7,13 +7,14 @@ import pytest
 import torch
 
 from cinenerf_ns.planner.errors import InvalidInputError
-from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
 from cinenerf_ns.planner.scene.floaters import (
     FLOATER_AUTO_FRACTION,
     FLOATER_ISOLATION_RADII,
     apply_floater_rule,
     floater_mask,
 )
+from cinenerf_ns.planner.scene.scene_config import SceneConfig
 from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
 from cinenerf_ns.synthetic.grove import grove_scene
 

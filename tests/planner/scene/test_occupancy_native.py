@@ -147,7 +147,7 @@ def test_bundled_room_at_the_planners_resolution():
 
     from cinenerf_ns.method.checkpoint import load_compact
     from cinenerf_ns.planner.scene import planning_region
-    from cinenerf_ns.planner.scene.ellipsoids import SceneConfig
+    from cinenerf_ns.planner.scene.scene_config import SceneConfig
     from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
     from cinenerf_ns.scenes import DEMO_SCENE
 

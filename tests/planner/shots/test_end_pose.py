@@ -15,8 +15,9 @@ from hypothesis import given, settings, strategies as st
 from cinenerf_ns.planner import native
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.geometry import clearance_queries
-from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
 from cinenerf_ns.planner.scene.procedural import procedural_room
+from cinenerf_ns.planner.scene.scene_config import SceneConfig
 from cinenerf_ns.planner.shots.candidates import plan_candidates
 from cinenerf_ns.planner.shots.end_pose import EndPoseConfig, choose_end_poses
 from cinenerf_ns.planner.shots.framing import FRAMING_BANDS, FramingConfig, in_band, subject_size

@@ -128,8 +128,9 @@ def test_shortcut_filter_only_accepts_proven_free_segments(room):
 
 
 def test_capped_clearance_is_exact_below_the_cap():
-    from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
+    from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
     from cinenerf_ns.planner.scene.procedural import procedural_room
+    from cinenerf_ns.planner.scene.scene_config import SceneConfig
     from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
 
     r = procedural_room(3000, seed=1)

@@ -7,8 +7,9 @@ import pytest
 import torch
 
 from cinenerf_ns.planner.errors import GoalUnreachableError, InvalidInputError
-from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
 from cinenerf_ns.planner.scene.procedural import procedural_room
+from cinenerf_ns.planner.scene.scene_config import SceneConfig
 from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
 
 HANG_GUARD_S = 60.0  # not a performance figure: minutes of rasterising is what this case once took

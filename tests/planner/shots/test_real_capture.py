@@ -5,7 +5,7 @@ by the capped exact clearance report, stays inside the planning region, and ever
 import numpy as np
 import pytest
 
-from cinenerf_ns.planner.scene.ellipsoids import SceneConfig
+from cinenerf_ns.planner.scene.scene_config import SceneConfig
 from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
 from cinenerf_ns.scenes import load_scene
 

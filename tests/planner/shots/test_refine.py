@@ -8,7 +8,8 @@ import torch
 from hypothesis import given, settings, strategies as st
 
 from cinenerf_ns.planner.geometry.distance import clearance
-from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
+from cinenerf_ns.planner.scene.scene_config import SceneConfig
 from cinenerf_ns.planner.shots import refine
 from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
 from cinenerf_ns.synthetic.grove import grove_pairs, grove_scene

@@ -9,8 +9,9 @@ from cinenerf_ns.planner.corridor.polytope import Polytope
 from cinenerf_ns.planner.corridor.safe_corridor import Corridor
 from cinenerf_ns.planner.errors import InvalidInputError, StartInCollisionError
 from cinenerf_ns.planner.geometry import clearance_queries
-from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
 from cinenerf_ns.planner.scene.procedural import procedural_room
+from cinenerf_ns.planner.scene.scene_config import SceneConfig
 from cinenerf_ns.planner.shots.candidates import plan_candidates
 from cinenerf_ns.planner.shots.planner import GRID_BYTES_PER_VOXEL, Planner, PlannerConfig
 from cinenerf_ns.planner.trajectory.timing import TimingConfig

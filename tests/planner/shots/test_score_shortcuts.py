@@ -12,7 +12,7 @@ from cinenerf_ns.planner.geometry.occlusion import sight_lines_blocked, sight_li
 from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, quat_wxyz_to_rotmat
 from cinenerf_ns.planner.shots.candidate_scores import score_parts
 from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
-from cinenerf_ns.planner.shots.scoring import ScoreConfig
+from cinenerf_ns.planner.shots.score_config import ScoreConfig
 from cinenerf_ns.planner.shots.shot import Shot
 from cinenerf_ns.planner.trajectory.orientation import look_at_rotations
 

@@ -10,7 +10,8 @@ from hypothesis import given, settings, strategies as st
 
 from cinenerf_ns.planner import native
 from cinenerf_ns.planner.geometry.visibility import SplatVolume, SubjectSamples
-from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene, SceneConfig
+from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
+from cinenerf_ns.planner.scene.scene_config import SceneConfig
 from cinenerf_ns.planner.shots import target_object as T
 from cinenerf_ns.planner.shots.target_object import (
     TargetObject,
