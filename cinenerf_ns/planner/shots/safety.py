@@ -236,6 +236,32 @@ def _ellipses_xy(obstacles: Any, max_count: int):
     return means[:, :2], widths, heights, angles
 
 
+def _point_density_rgba(xy: np.ndarray, bins: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """Grey RGBA image of how many points fall in each square bin (the longer side cut in ``bins``, from the points'
+    lower corner); empty bins are transparent, the others more opaque the more points they hold (log scale).
+    xy [N, 2] -> (image [H, W, 4], lower corner [2], bin size)."""
+    lo, hi = xy.min(0), xy.max(0)
+    step = max(float((hi - lo).max()) / bins, 1e-9)
+    nx, ny = (np.floor((hi - lo) / step).astype(int) + 1).tolist()
+    ij = np.minimum(np.floor((xy - lo) / step).astype(int), [nx - 1, ny - 1])  # [N, 2] each point's bin (x, y)
+    counts = np.bincount(ij[:, 1] * nx + ij[:, 0], minlength=ny * nx).reshape(ny, nx)  # [H, W]
+    rgba = np.zeros((ny, nx, 4))
+    rgba[..., :3] = 0.3
+    rgba[..., 3] = np.where(counts > 0, 0.35 + 0.6 * np.log1p(counts) / np.log1p(counts.max()), 0.0)
+    return rgba, lo, step
+
+
+def _draw_point_density(ax, xy: np.ndarray, bins: int = 300) -> None:
+    """Obstacle points as a density image, not one marker each: a marker per point costs the PNG about 1 s per
+    100k points (a splat's Gaussians near the paths' heights are 10^4-10^5), an image the same at any count."""
+    if len(xy) == 0:
+        return
+    rgba, lo, step = _point_density_rgba(xy, bins)
+    extent = (lo[0], lo[0] + rgba.shape[1] * step, lo[1], lo[1] + rgba.shape[0] * step)
+    ax.imshow(rgba, extent=extent, origin="lower", interpolation="nearest", zorder=0)
+    ax.plot([], [], "s", color="0.3", alpha=0.6, ms=5, label="obstacles (density of points)")
+
+
 def plot_paths_topdown(
     paths: Sequence[Any],
     png_path: Union[str, Path],
@@ -247,7 +273,7 @@ def plot_paths_topdown(
 ) -> Path:
     """Top view (x-y) of camera paths.
 
-    paths: Shots or positions [T,3]. obstacles: None, points [N,3] (drawn as dots) or an object with
+    paths: Shots or positions [T,3]. obstacles: None, points [N,3] (drawn as a density image) or an object with
     means [N,3], rotations [N,3,3], radii [N,3] (e.g. EllipsoidScene; drawn as projected ellipses, the
     largest max_obstacles). targets: {"look at": [3], "go to": [3], ...} drawn as stars.
     """
@@ -268,8 +294,7 @@ def plot_paths_topdown(
             )
             ax.update_datalim(np.concatenate([xy - np.maximum(w, h)[:, None] / 2, xy + np.maximum(w, h)[:, None] / 2]))
         else:
-            pts = to_numpy(obstacles).reshape(-1, 3)
-            ax.scatter(pts[:, 0], pts[:, 1], s=1, c="0.4", alpha=0.5, label="obstacles")
+            _draw_point_density(ax, to_numpy(obstacles).reshape(-1, 3)[:, :2])
     for k, p in enumerate(paths):
         pos = p.positions if isinstance(p, Shot) else to_numpy(p)
         label = labels[k] if labels is not None and k < len(labels) else f"path {k}"

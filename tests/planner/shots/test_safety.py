@@ -142,6 +142,31 @@ def test_plots_are_valid_pngs(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["one.png", "plots", "pts.png", "top.png"]
 
 
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 300), st.integers(2, 40), st.integers(0, 2**31 - 1), st.floats(1e-3, 1e3))
+def test_point_density_marks_exactly_the_bins_that_hold_points(n, bins, seed, scale):
+    """The top view's obstacle image against a per-point loop: a bin is opaque iff some point falls in it (its index
+    by floor division), more opaque with more points, and the image covers every point."""
+    rng = np.random.default_rng(seed)
+    xy = rng.normal(0, scale, (n, 2)) * rng.uniform(0.01, 1, 2)  # [N, 2], anisotropic
+    if n > 3:
+        xy[: n // 3] = xy[0]  # repeated points: counts above 1
+    rgba, lo, step = safety._point_density_rgba(xy, bins)
+    h, w = rgba.shape[:2]
+    np.testing.assert_array_equal(lo, xy.min(0))
+    # the image covers every point (to rounding: (hi - lo) / step may land an ulp below a whole number of bins)
+    assert max(h, w) <= bins + 1 and np.all(xy.max(0) <= lo + step * np.array([w, h]) + 1e-9 * step)
+    counts = np.zeros((h, w), int)
+    for x, y in xy:
+        i = min(int(np.floor((y - lo[1]) / step)), h - 1)  # the top edge's points: in the last bin
+        j = min(int(np.floor((x - lo[0]) / step)), w - 1)
+        counts[i, j] += 1
+    alpha = rgba[..., 3]
+    np.testing.assert_array_equal(alpha > 0, counts > 0)
+    if counts.max() > counts[counts > 0].min():
+        assert alpha[counts == counts.max()].min() > alpha[counts == counts[counts > 0].min()].max()
+
+
 def test_bad_input():
     fn = sphere_clearance(np.zeros((1, 3)), np.array([0.1]))
     with pytest.raises(InvalidInputError):
