@@ -39,7 +39,7 @@ FOX = REPO.parent / "shared" / "data" / "fox_cinesplat" / "fox3000.npz"
 def demo_camera_path(out_dir: Path) -> dict:
     """The demo's planned shot on the bundled room (run_plan, quiet)."""
     from cinenerf_ns.cli.demo import demo_args
-    from cinenerf_ns.cli.plan import run_plan
+    from cinenerf_ns.cli.plan_run import run_plan
 
     summary = run_plan(demo_args(out_dir), console=Console(file=io.StringIO()))
     return read_camera_path(summary["candidates"][0]["camera_path"])

@@ -9,28 +9,17 @@ from typing import Any, Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 
-from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY, OBJECT_CLUSTER, SMOOTH_NEIGHBORS
 from cinenerf_ns.method.training_cameras import camera_box, run_config_path, scene_camera_centres, scene_camera_poses
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.file_checks import path_problem
 from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
 from cinenerf_ns.planner.scene.scene_config import SceneConfig
 from cinenerf_ns.planner.scene.splat_params import NO_COLOUR_GREY, SplatParams, rgb_to_dc
+from cinenerf_ns.point_text import parse_point
+from cinenerf_ns.semantic_defaults import CENTRE_RELEVANCY, OBJECT_CLUSTER, SMOOTH_NEIGHBORS
 
 ASSETS = Path(__file__).parent / "assets"
 DEMO_SCENE = ASSETS / "room0.npz"  # the bundled trained room (make demo, cinesplat-viewer's 'demo')
-
-def parse_point(text: str) -> Optional[np.ndarray]:
-    """'x y z' / 'x, y, z' / '[x, y, z]' -> [3] (non-finite values such as 'nan' kept, for the caller to refuse);
-    None when the text is not three numbers."""
-    tokens = [t for t in re.split(r"[\s,;\[\]()]+", text.strip()) if t]
-    if len(tokens) != 3:
-        return None
-    try:
-        return np.array([float(t) for t in tokens])
-    except ValueError:
-        return None
-
 
 _STOP_WORDS = {"the", "a", "an", "to", "at", "of", "go", "look", "on", "in"}
 
@@ -344,7 +333,7 @@ def stored_region(info: Dict[str, Any], path: Any) -> Optional[Tuple[np.ndarray,
     if reg is None:
         return None
     from cinenerf_ns.method.scene_files import CheckpointError
-    from cinenerf_ns.planner.scene.planning_region import user_box
+    from cinenerf_ns.planner.scene.user_box import user_box
 
     try:
         return user_box((reg["lo"], reg["hi"]), "the stored planning region")

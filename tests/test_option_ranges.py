@@ -9,8 +9,7 @@ import typing
 
 import pytest
 
-from cinenerf_ns.cli.plan import PlanArgs
-from cinenerf_ns.cli.plan_args import RENAMED_FLAGS, check_args
+from cinenerf_ns.cli.plan_args import RENAMED_FLAGS, PlanArgs, check_args
 from cinenerf_ns.option_ranges import RANGES, check_config_ranges, flag_name
 from cinenerf_ns.option_surface import COMMAND_SET, UNPREFIXED, parse
 from cinenerf_ns.planner.errors import InvalidInputError

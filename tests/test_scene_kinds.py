@@ -86,7 +86,8 @@ def test_cinesplat_preview_renders_each_kind(scene_files, kind, tmp_path):
 
 @pytest.mark.parametrize("kind", KINDS)
 def test_cinesplat_plan_plans_on_each_kind(scene_files, kind, tmp_path):
-    from cinenerf_ns.cli.plan import PlanArgs, run_plan
+    from cinenerf_ns.cli.plan_args import PlanArgs
+    from cinenerf_ns.cli.plan_run import run_plan
     from cinenerf_ns.planner.shots.planner import PlannerConfig
 
     room = procedural_room(N, seed=SEED)

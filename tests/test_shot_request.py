@@ -67,6 +67,6 @@ def test_the_cli_and_the_viewer_plan_through_it(room, monkeypatch):
     assert shots and shots[0].rank == 1 and np.isfinite(shots[0].score)  # one random-start shot is scored too
     import inspect
 
-    import cinenerf_ns.cli.plan as cli_plan
+    import cinenerf_ns.cli.plan_run as cli_plan
 
     assert "plan_request(" in inspect.getsource(cli_plan._plan_shots)

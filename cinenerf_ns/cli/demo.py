@@ -18,7 +18,8 @@ from typing import Optional
 
 from rich.console import Console
 
-from cinenerf_ns.cli.plan import PlanArgs, run_plan
+from cinenerf_ns.cli.plan_args import PlanArgs
+from cinenerf_ns.cli.plan_run import run_plan
 from cinenerf_ns.console_text import error_line, lit
 from cinenerf_ns.planner.errors import PlanningError
 from cinenerf_ns.scenes import ASSETS, DEMO_SCENE  # noqa: F401 (ASSETS: the bundled files)

@@ -13,7 +13,6 @@ from typing import Any, Literal, Optional, Tuple
 import numpy as np
 from rich.console import Console
 
-from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY, OBJECT_CLUSTER, SMOOTH_NEIGHBORS
 from cinenerf_ns.option_ranges import check_config_ranges
 from cinenerf_ns.option_surface import validated
 from cinenerf_ns.options import check_device, check_number
@@ -21,8 +20,8 @@ from cinenerf_ns.output_set import check_file_size_limit, check_name, check_writ
 from cinenerf_ns.planner.config import MAX_CANDIDATES, PlannerConfig
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.native import kernel_threads
-from cinenerf_ns.planner.scene.planning_region import user_box
 from cinenerf_ns.planner.scene.scene_config import DEFAULT_SAFETY_MARGIN, SceneConfig
+from cinenerf_ns.planner.scene.user_box import user_box
 from cinenerf_ns.planner.shots.camera_path import (
     DEFAULT_FOV_DEG,
     DEFAULT_PREVIEW_FPS,
@@ -31,7 +30,8 @@ from cinenerf_ns.planner.shots.camera_path import (
 )
 from cinenerf_ns.planner.shots.framing import FramingConfig
 from cinenerf_ns.planner.shots.score_config import ScoreConfig
-from cinenerf_ns.scenes import parse_point
+from cinenerf_ns.point_text import parse_point
+from cinenerf_ns.semantic_defaults import CENTRE_RELEVANCY, OBJECT_CLUSTER, SMOOTH_NEIGHBORS
 
 
 @dataclass
@@ -300,7 +300,7 @@ def worker_count(args: PlanArgs, console: Console) -> Optional[int]:
 
 def parse_region(text: str) -> Tuple[np.ndarray, np.ndarray]:
     """--region 'x0 y0 z0 x1 y1 z1' -> (lo [3], hi [3]); InvalidInputError unless 6 finite numbers with lo < hi on
-    every axis (planning_region.user_box)."""
+    every axis (user_box.user_box)."""
     tokens = [t for t in re.split(r"[\s,;\[\]()]+", str(text).strip()) if t]
     try:
         vals = [float(t) for t in tokens]

@@ -246,10 +246,10 @@ def check_info(info: Mapping[str, Any], path: Path, where: str) -> None:
 
 def check_planning_region(reg: Any, path: Path, where: str) -> None:
     """A stored planning region (export_compact's planning_region): {"lo": [x, y, z], "hi": [x, y, z]}, finite, lo
-    below hi on every axis (the planner's rule for a user box, planning_region.user_box); CheckpointError naming the
+    below hi on every axis (the planner's rule for a user box, user_box.user_box); CheckpointError naming the
     field otherwise."""
     from cinenerf_ns.planner.errors import InvalidInputError
-    from cinenerf_ns.planner.scene.planning_region import user_box
+    from cinenerf_ns.planner.scene.user_box import user_box
 
     if not isinstance(reg, Mapping) or not {"lo", "hi"} <= set(reg):
         raise CheckpointError(f'{path}: {where}\'s planning_region must be {{"lo": [x, y, z], "hi": [x, y, z]}}, got '

@@ -28,6 +28,7 @@ from cinenerf_ns.method.relevancy import (
 )
 from cinenerf_ns.method.scene_files import CheckpointError
 from cinenerf_ns.planner.scene.splat_params import SplatParams
+from cinenerf_ns.semantic_defaults import CENTRE_RELEVANCY
 
 TextEncoder = Callable[[Sequence[str]], Tensor]
 
@@ -166,13 +167,6 @@ class LocateResult:
 
 
 CENTRES = ("volume", "surface")
-# Relevancy above which a selected Gaussian counts toward the object's centre (SemanticScene.centre_relevancy). 0.65 was
-# chosen on synthetic rooms 0 and 1 and then checked on rooms 2 and 4, trained afterwards: room 4's bookshelf 7.96% ->
-# 0.67% of the room off, room 2's worst object 1.31 -> 1.39% (benchmarks/RESULTS.md has the sweep).
-CENTRE_RELEVANCY = 0.65
-# What text queries use unless told otherwise (cinesplat-plan's --semantic-smoothing / --object-cluster, the viewers):
-SMOOTH_NEIGHBORS = 32  # each Gaussian's latent averaged over this many nearest Gaussians (once per scene)
-OBJECT_CLUSTER = 0.02  # a target is the heaviest cluster of its Gaussians, binned at this fraction of the scene extent
 # Text queries answered from memory per scene (SemanticScene.locate_full): enough for every label of a scene and the
 # free-text queries of a session; each entry holds two [N] tensors (relevancy float, mask bool: ~2 MB at 400k).
 LOCATE_CACHE_SIZE = 64

@@ -5,7 +5,6 @@ Coordinates are nerfstudio scene units throughout; the viser scale is applied on
 """
 from __future__ import annotations
 
-import re
 import threading
 from dataclasses import dataclass
 from typing import Any, Callable, List, Optional, Sequence, Tuple
@@ -49,20 +48,6 @@ class SceneGaussians:
 
     def __len__(self) -> int:
         return int(self.means.shape[0])
-
-
-_NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
-_POINT_RE = re.compile(rf"^\s*\(?\s*({_NUM})\s*[, ]\s*({_NUM})\s*[, ]\s*({_NUM})\s*\)?\s*$")
-
-
-def parse_point(text: str) -> Optional[np.ndarray]:
-    """``"x y z"`` / ``"x, y, z"`` / ``"(x, y, z)"`` -> [3] float64; anything else -> None
-    (then the text is an object query)."""
-    m = _POINT_RE.match(text or "")
-    if m is None:
-        return None
-    p = np.array([float(g) for g in m.groups()], dtype=np.float64)
-    return p if np.all(np.isfinite(p)) else None
 
 
 LocateFn = Callable[[str], Tuple[Any, ...]]  # text -> (centroid [3], mask [N][, what it matched, in words])

@@ -305,8 +305,8 @@ class ModelRegion:
 
     def set_region(self, bounds: Any) -> Any:
         """Checked by the current planner (its rules, before any work; it prepares again in the background) or, before
-        the first Plan, by planning_region.user_box (the rest when the next Plan prepares); kept for later steps."""
-        from cinenerf_ns.planner.scene.planning_region import user_box
+        the first Plan, by user_box.user_box (the rest when the next Plan prepares); kept for later steps."""
+        from cinenerf_ns.planner.scene.user_box import user_box
         from cinenerf_ns.planner.shots.planner import PlannerConfig
 
         planner = self._planner()
@@ -342,7 +342,8 @@ def model_semantic_scene(model: Any, camera_centres: Optional[Callable[[], Optio
         # checked per snapshot: ns-viewer builds the codec when it loads the checkpoint, after construction
         if snap.splat.latents is None or getattr(model, "codec", None) is None or not hasattr(model, "text_encoder"):
             return None
-        from cinenerf_ns.method.semantic_scene import OBJECT_CLUSTER, SMOOTH_NEIGHBORS, SemanticScene
+        from cinenerf_ns.method.semantic_scene import SemanticScene
+        from cinenerf_ns.semantic_defaults import OBJECT_CLUSTER, SMOOTH_NEIGHBORS
 
         if state.get("codec_src") is not model.codec:  # frozen: one copy on the planning device
             state["codec"] = copy.deepcopy(model.codec).to(snap.device).eval()

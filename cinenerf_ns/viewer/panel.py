@@ -27,8 +27,9 @@ import numpy as np
 from cinenerf_ns.planner.config import MAX_CANDIDATES
 from cinenerf_ns.planner.errors import GoalUnreachableError, InvalidInputError, PlanningError
 from cinenerf_ns.planner.shots.framing import FRAMINGS
+from cinenerf_ns.point_text import parse_point
 
-from .backend import parse_point, to_numpy
+from .backend import to_numpy
 from .conventions import interpolate_pose
 from .export import Exporter, default_exporter
 from .panel_output import OutputMixin, Previewer
@@ -237,6 +238,9 @@ class CinePanel(OutputMixin, RegionMixin):
             raise InvalidInputError(f"'{role}' is empty: type an object (e.g. 'the chair') or coordinates 'x y z'")
         point = parse_point(text)
         if point is not None:
+            if not np.all(np.isfinite(point)):
+                raise InvalidInputError(f"'{role}': the point '{text}' is not finite: give three finite numbers "
+                                        "'x y z'")
             return Target(role, text, point, None)
         found = tuple(self.backend.locate(text))  # (centroid [3], mask [N][, what it matched])
         centroid, mask = to_numpy(found[0]).reshape(3), found[1]

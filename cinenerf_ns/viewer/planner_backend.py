@@ -21,6 +21,7 @@ import numpy as np
 from cinenerf_ns.planner.errors import PlanningError
 from cinenerf_ns.planner.scene import planning_region
 from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
+from cinenerf_ns.planner.scene.user_box import user_box
 from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
 
 from .region_box import AUTOMATIC, RegionInfo, notify_all
@@ -175,11 +176,11 @@ class PreparedPlanner:
     def set_region(self, bounds: Optional[Sequence[Any]]) -> RegionInfo:
         """Plan in ``bounds`` (lo [3], hi [3]; bounds_rule 'user box') or, with None, the automatic region (training
         cameras, else the dense content). The box is checked at once, as cinesplat-plan --region is
-        (planning_region.user_box, check_user_box, check_region: InvalidInputError, nothing changes); then the
+        (user_box, planning_region's check_user_box and check_region: InvalidInputError, nothing changes); then the
         planner is prepared again in the background (a Plan waits for it; one asked for while another prepares
         replaces it)."""
         if bounds is not None:
-            lo, hi = planning_region.user_box(bounds, "the planning region")
+            lo, hi = user_box(bounds, "the planning region")
             planning_region.check_user_box(self.scene, lo, hi, "the planning region")
             planning_region.check_region(self.config, float(self.scene.camera_radius), lo, hi)
             bounds = (lo, hi)

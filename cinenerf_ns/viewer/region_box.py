@@ -3,7 +3,7 @@ panel's Apply / Reset to automatic / show-hide logic. No viser import: the widge
 ``region_ui.RegionWidgets``; the region itself belongs to the planner (``planner_backend.PreparedPlanner``, a
 :class:`RegionSource`), shared by every page of a viewer.
 
-The checks are the planner's (``planning_region.user_box`` / ``check_user_box`` / ``check_region``, the same as
+The checks are the planner's (``user_box.user_box``, ``planning_region.check_user_box`` / ``check_region``, the same as
 ``cinesplat-plan --region``): a bad box (empty, inverted, not finite, outside the scene, too thin for the camera, a
 grid over the memory budget) is refused before any preparation, with the planner's message."""
 from __future__ import annotations
@@ -15,7 +15,7 @@ from typing import Any, Callable, Optional, Protocol, Sequence
 import numpy as np
 
 from cinenerf_ns.planner.errors import InvalidInputError, PlanningError
-from cinenerf_ns.planner.scene.planning_region import format_point
+from cinenerf_ns.planner.scene.user_box import format_point
 
 log = logging.getLogger(__name__)
 

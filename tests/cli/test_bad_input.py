@@ -223,9 +223,9 @@ NO_SCENE_CASES = ["start-nan", "then-go-to-nan", "then-go-to-repeat", "then-go-t
 @pytest.mark.parametrize("case", NO_SCENE_CASES)
 def test_checks_that_need_no_scene_come_before_loading(case, tmp_path, capsys, monkeypatch):
     """The README's promise: every option that can be judged without the scene is judged before it is loaded."""
-    import cinenerf_ns.cli.plan as plan
+    import cinenerf_ns.cli.plan_run as plan_run
 
-    monkeypatch.setattr(plan, "load_scene", lambda *a, **k: pytest.fail("the scene was loaded first"))
+    monkeypatch.setattr(plan_run, "load_scene", lambda *a, **k: pytest.fail("the scene was loaded first"))
     _, extra, regex = next(c for c in OPTION_CASES if c[0] == case)
     out = tmp_path / "out"
     code, o, e, dt = _run(SCENE + TARGETS + ["--output-dir", str(out)] + extra, capsys, out)
@@ -527,13 +527,34 @@ def test_a_framing_that_is_not_aimed_for_is_said(extra, said, tmp_path, capsys):
     assert said[:40] in " ".join(o.split())
 
 
+def test_help_and_option_errors_come_before_torch(tmp_path):
+    """The command run as the module: --help, an option out of range and an output folder the file-size limit refuses
+    answer without importing torch (plan.py and plan_args.py are torch-free; plan_run.py loads it). The process says
+    at exit whether torch was loaded."""
+    import subprocess
+    import sys
+
+    run_as_command = ("import atexit, runpy, sys; atexit.register(lambda: print('torch loaded:', 'torch' in "
+                      "sys.modules, file=sys.stderr)); "
+                      "runpy.run_module('cinenerf_ns.cli.plan', run_name='__main__', alter_sys=True)")
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2]), COLUMNS="120")
+    for argv, code, said in ((["--help"], 0, "--planner.grid-resolution"),
+                             (SCENE + TARGETS + ["--candidates", "0"], 2, r"--candidates must be an integer in [1, "),
+                             (SCENE + TARGETS + ["--go-to", "nan 0 0"], 2, "the go-to point 'nan 0 0' is not finite")):
+        r = subprocess.run([sys.executable, "-c", run_as_command, *argv, "--output-dir", str(tmp_path / "out")],
+                           capture_output=True, text=True, timeout=HANG_GUARD_S, env=env)
+        assert r.returncode == code and said in r.stdout + r.stderr, r.stderr[-2000:]
+        assert "torch loaded: False" in r.stderr, r.stderr[-2000:]
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.parametrize("value", ["0", "-3", "65", "lots"])
 def test_kernel_threads_from_the_environment_are_checked_before_loading(value, tmp_path, capsys, monkeypatch):
     """$CINENERF_THREADS out of [1, 64] is refused before the scene is loaded (it was clamped to 1 or 64 silently)."""
-    import cinenerf_ns.cli.plan as plan
+    import cinenerf_ns.cli.plan_run as plan_run
 
     monkeypatch.setenv("CINENERF_THREADS", value)
-    monkeypatch.setattr(plan, "load_scene", lambda *a, **k: pytest.fail("the scene was loaded first"))
+    monkeypatch.setattr(plan_run, "load_scene", lambda *a, **k: pytest.fail("the scene was loaded first"))
     out = tmp_path / "out"
     code, o, e, dt = _run(SCENE + TARGETS + ["--output-dir", str(out)], capsys, out)
     _check(code, o, e, dt, r"CINENERF_THREADS must be a whole number in \[1, 64\]", out)

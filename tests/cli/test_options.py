@@ -12,8 +12,7 @@ import typing
 
 import pytest
 
-from cinenerf_ns.cli.plan import PlanArgs
-from cinenerf_ns.cli.plan_args import RENAMED_FLAGS
+from cinenerf_ns.cli.plan_args import RENAMED_FLAGS, PlanArgs
 from cinenerf_ns.option_surface import COMMAND_SET, SHORT_FLAGS, parse
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.shots.end_pose import EndPoseConfig
@@ -98,7 +97,7 @@ def test_old_flags_parse_into_the_nested_configs():
 
 def test_trajectory_and_score_settings_reach_the_planner(monkeypatch, tmp_path):
     """--trajectory.* (reachable from no command before) and --planner.* arrive in the Planner's config unchanged."""
-    import cinenerf_ns.cli.plan as plan_mod
+    import cinenerf_ns.cli.plan_run as plan_mod
 
     class Stop(Exception):
         pass

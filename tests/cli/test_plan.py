@@ -6,25 +6,18 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from cinenerf_ns.cli.plan import PlanArgs, run_plan
+from cinenerf_ns.cli.plan_args import PlanArgs
+from cinenerf_ns.cli.plan_run import run_plan
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.scene.ply import write_splat_ply
 from cinenerf_ns.planner.scene.procedural import procedural_room
 from cinenerf_ns.planner.shots.planner import PlannerConfig
-from cinenerf_ns.scenes import _word_match, parse_point, word_matches
+from cinenerf_ns.scenes import _word_match, word_matches
 
 
 def grid(resolution: int, **planner) -> PlannerConfig:
     """--grid-resolution (and other --planner.* settings) as PlanArgs takes them."""
     return PlannerConfig(grid_resolution=resolution, **planner)
-
-
-def test_parse_point():
-    assert np.allclose(parse_point("1 2 3"), [1, 2, 3])
-    assert np.allclose(parse_point("[0.1, -2e-1, 3.]"), [0.1, -0.2, 3.0])
-    assert parse_point("the red chair") is None
-    assert parse_point("1 2") is None
-    assert parse_point("chair 1 2 3") is None
 
 
 def test_word_match():
@@ -154,7 +147,7 @@ class _StopAtLoad(Exception):
 def _load_scene_kwargs(monkeypatch, key: str, **plan_kw) -> list:
     """run_plan(PlanArgs(**plan_kw)) up to its load_scene call, which is stubbed: returns [the kwarg `key` it got]
     (empty when run_plan stopped before loading). Other exceptions propagate."""
-    import cinenerf_ns.cli.plan as plan_mod
+    import cinenerf_ns.cli.plan_run as plan_mod
 
     seen = []
 
@@ -191,7 +184,7 @@ def test_load_scene_passes_drop_support():
 def test_centre_relevancy_reaches_the_locator(monkeypatch, tmp_path):
     """--centre-relevancy is passed to load_scene (default CENTRE_RELEVANCY); a bad value is a clear error raised
     before anything is loaded or written."""
-    from cinenerf_ns.method.semantic_scene import CENTRE_RELEVANCY
+    from cinenerf_ns.semantic_defaults import CENTRE_RELEVANCY
 
     assert _load_scene_kwargs(monkeypatch, "centre_relevancy", output_dir=tmp_path / "a") == [CENTRE_RELEVANCY]
     assert _load_scene_kwargs(monkeypatch, "centre_relevancy", output_dir=tmp_path / "b", centre_relevancy=0.8) == [0.8]
@@ -324,11 +317,12 @@ def test_rerun_with_fewer_candidates_leaves_no_stale_shot(tmp_path):
 def test_interrupted_run_writes_nothing(tmp_path, monkeypatch, capsys):
     """Ctrl-C while the plots are drawn: exit 130, a message on stderr, no file in the output folder."""
     import cinenerf_ns.cli.plan as plan_mod
+    import cinenerf_ns.cli.plan_run as plan_run
 
     def interrupt(*a, **k):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(plan_mod, "plot_paths_topdown", interrupt)
+    monkeypatch.setattr(plan_run, "plot_paths_topdown", interrupt)
     out = tmp_path / "out"
     code = plan_mod.main(["--scene", "procedural:3000:1", "--go-to", "armchair", "--look-at", "floor lamp",
                           "--grid-resolution", "48", "--candidates", "2", "--workers", "0", "--output-dir", str(out)])

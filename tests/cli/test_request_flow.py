@@ -23,7 +23,8 @@ from collections import Counter
 import pytest
 
 import cinenerf_ns.shot_request as shot_request
-from cinenerf_ns.cli.plan import PlanArgs, run_plan
+from cinenerf_ns.cli.plan_args import PlanArgs
+from cinenerf_ns.cli.plan_run import run_plan
 from cinenerf_ns.planner.config import PlannerConfig
 
 

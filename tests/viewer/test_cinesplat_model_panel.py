@@ -15,7 +15,8 @@ from torch import nn
 
 from cinenerf_ns.method.codec import CodecConfig, FeatureCodec
 from cinenerf_ns.method.model import META_CODEC_STATE, META_INFO, CineSplatModel, CineSplatModelConfig
-from cinenerf_ns.method.semantic_scene import OBJECT_CLUSTER, SMOOTH_NEIGHBORS, SemanticScene
+from cinenerf_ns.method.semantic_scene import SemanticScene
+from cinenerf_ns.semantic_defaults import OBJECT_CLUSTER, SMOOTH_NEIGHBORS
 from cinenerf_ns.viewer.nerfstudio_panel import CinePanelControl, SplatModelBackend
 from cinenerf_ns.viewer.panel import CinePanel
 

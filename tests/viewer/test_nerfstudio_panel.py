@@ -303,9 +303,9 @@ def test_model_semantic_scene_answers_text_as_cinesplat_plan_and_the_standalone_
 
     from cinenerf_ns.method.checkpoint import load_compact
     from cinenerf_ns.method.relevancy import QueryError
-    from cinenerf_ns.method.semantic_scene import SMOOTH_NEIGHBORS
     from cinenerf_ns.planner.scene.scene_config import SceneConfig
     from cinenerf_ns.scenes import load_scene
+    from cinenerf_ns.semantic_defaults import SMOOTH_NEIGHBORS
     from cinenerf_ns.viewer.nerfstudio_panel import ModelSnapshot, model_semantic_scene
 
     path = compact_scene_with_labels(tmp_path / "scene_compact.pt", 4)

@@ -62,6 +62,8 @@ def test_plan_resolves_text_and_coordinates(tmp_path):
         ("chair", "", "'Look at' is empty"),
         ("the spaceship", "lamp", "matches nothing"),
         ("1 2", "lamp", "matches nothing"),  # two numbers are not a point: treated as a query
+        ("nan 1 2", "lamp", "'Go to': the point 'nan 1 2' is not finite"),  # once a query for 'nan 1 2'
+        ("chair", "[1, inf, 2]", "'Look at': the point '[1, inf, 2]' is not finite"),
     ],
 )
 def test_bad_text_gives_readable_status_and_no_plan(tmp_path, goto, look, needle):

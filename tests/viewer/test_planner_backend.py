@@ -14,7 +14,7 @@ from cinenerf_ns.planner.errors import InvalidInputError, StartInCollisionError
 from cinenerf_ns.planner.scene.ellipsoids import EllipsoidScene
 from cinenerf_ns.planner.scene.procedural import procedural_room
 from cinenerf_ns.planner.scene.scene_config import SceneConfig
-from cinenerf_ns.viewer.backend import NoMatchError, label_locate, parse_point
+from cinenerf_ns.viewer.backend import NoMatchError, label_locate
 from cinenerf_ns.viewer.demo import demo_scene, look_at_rotation
 from cinenerf_ns.viewer.planner_backend import PreparedPlanner
 
@@ -138,7 +138,7 @@ def test_concurrent_plans_are_serialised(room):
     assert not errs and len(out) == 2
 
 
-def test_label_locate_and_parse_point():
+def test_label_locate():
     d = demo_scene()
     locate = label_locate(d.splat.means, d.labels, d.label_of)
     c, m, what = locate("the Red Box")
@@ -152,10 +152,6 @@ def test_label_locate_and_parse_point():
     for fragment in ("ox", "pill", "the red box on the left"):  # a part of a word, or words no label holds
         with pytest.raises(NoMatchError, match="matches no object"):
             locate(fragment)
-    assert parse_point("1 2 3").tolist() == [1, 2, 3]
-    assert parse_point("(1.5, -2e-1, .3)").tolist() == [1.5, -0.2, 0.3]
-    for bad in ["1 2", "chair", "1 2 3 4", "nan 1 2", ""]:
-        assert parse_point(bad) is None
 
 
 def test_look_at_rotation_convention():

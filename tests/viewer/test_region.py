@@ -22,7 +22,7 @@ from cinenerf_ns.viewer.region_box import RegionInfo
 
 torch.set_num_threads(1)
 
-# (box, what the planner says): the messages of cinesplat-plan --region (planning_region.user_box / check_user_box)
+# (box, what the planner says): the messages of cinesplat-plan --region (user_box.user_box / check_user_box)
 BAD_BOXES = [
     (((0.0, 0.0, 0.0), (-1.0, 1.0, 1.0)), "is empty or inverted along x"),
     (((0.0, 0.0, 0.0), (1.0, 0.0, 1.0)), "is empty or inverted along y"),
@@ -123,7 +123,7 @@ class FakeRegion:
         return self.info
 
     def set_region(self, bounds):
-        from cinenerf_ns.planner.scene.planning_region import user_box
+        from cinenerf_ns.planner.scene.user_box import user_box
 
         self.asked.append(bounds)
         if bounds is not None:

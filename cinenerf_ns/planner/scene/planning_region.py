@@ -12,6 +12,7 @@ from torch import Tensor
 
 from ..config import REGION_RULES  # noqa: F401 (re-exported)
 from ..errors import InvalidInputError
+from .user_box import format_point, user_box
 
 if TYPE_CHECKING:
     from ..config import PlannerConfig
@@ -26,11 +27,6 @@ rounded up from the measured peak (docs/PLANNER_DEFAULTS.md)."""
 
 MAX_RADIUS_FRACTION = 0.1
 """The camera sphere's radius may be at most this fraction of the planning region's longest side."""
-
-
-def format_point(p: np.ndarray) -> str:
-    """A point for an error message: "(x, y, z)" with 3 significant digits."""
-    return "(" + ", ".join(f"{v:.3g}" for v in np.asarray(p, dtype=np.float64).reshape(-1)) + ")"
 
 
 def as_point(x: ArrayLike, what: str) -> np.ndarray:
@@ -144,25 +140,6 @@ def region_rule(cfg: "PlannerConfig", scene: Optional["EllipsoidScene"] = None) 
                                  scene.opacities):
             return "robust box of all means (no far content to leave out)"
     return "dense content"
-
-
-def user_box(bounds, what: str = "the planning region (--region)") -> tuple[np.ndarray, np.ndarray]:
-    """(lo [3], hi [3]) float64 of a user box (lo, hi) or 6 numbers x0 y0 z0 x1 y1 z1; InvalidInputError naming
-    ``what`` unless they are 6 finite numbers with lo < hi on every axis."""
-    try:
-        v = np.asarray([np.asarray(b, dtype=np.float64).reshape(-1) for b in bounds], dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError) as e:
-        raise InvalidInputError(f"{what} must be 6 numbers 'x0 y0 z0 x1 y1 z1', got {bounds!r}") from e
-    if v.shape != (6,):
-        raise InvalidInputError(f"{what} must be 6 numbers 'x0 y0 z0 x1 y1 z1' (two corners), got {v.size} numbers")
-    if not np.all(np.isfinite(v)):
-        raise InvalidInputError(f"{what} must be 6 finite numbers, got {v.tolist()}")
-    lo, hi = v[:3], v[3:]
-    if not (hi > lo).all():
-        axes = ", ".join("xyz"[i] for i in np.flatnonzero(hi <= lo))
-        raise InvalidInputError(f"{what} is empty or inverted along {axes}: each of x0 y0 z0 must be below x1 y1 z1, "
-                                f"got {format_point(lo)}..{format_point(hi)}")
-    return lo, hi
 
 
 MAX_USER_BOX_FACTOR = 10.0

@@ -12,7 +12,8 @@ from torch import Tensor
 
 from ..errors import InvalidInputError, StartInCollisionError
 from ..geometry.clearance_queries import clearance, free_test, points_free
-from ..scene.planning_region import distance_outside, format_point
+from ..scene.planning_region import distance_outside
+from ..scene.user_box import format_point
 from .goal import grid_arrays, sample_free_starts
 
 if TYPE_CHECKING:

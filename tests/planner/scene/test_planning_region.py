@@ -16,7 +16,6 @@ from cinenerf_ns.planner.scene.planning_region import (
     check_start_region,
     dense_content_box,
     grid_resolution_for,
-    user_box,
 )
 from cinenerf_ns.planner.shots.planner import Planner, PlannerConfig
 from cinenerf_ns.synthetic.grove import grove_scene
@@ -110,19 +109,6 @@ def test_rules_are_named(grove):
     np.testing.assert_allclose(rlo, box[0])
     assert (rhi >= box[1] - 1e-9).all() and (rhi <= box[1] + vs + 1e-9).all()  # whole voxels
     assert Planner(e, PlannerConfig(region_rule="robust")).region_rule() == "robust box of all means"
-
-
-@pytest.mark.parametrize("bounds,regex", [
-    ((np.zeros(3), np.zeros(3)), r"empty or inverted along x, y, z"),
-    (([0, 0, 0], [1, -1, 1]), r"empty or inverted along y"),
-    (([0, 0, np.nan], [1, 1, 1]), r"must be 6 finite numbers"),
-    (([0, 0, 0], [1, 1, np.inf]), r"must be 6 finite numbers"),
-    (([0, 0], [1, 1]), r"must be 6 numbers .* got 4 numbers"),
-    (("a", "b"), r"must be 6 numbers"),
-])
-def test_bad_boxes_are_clear_errors(bounds, regex):
-    with pytest.raises(InvalidInputError, match=regex):
-        user_box(bounds, "the planning region (--region)")
 
 
 @pytest.mark.parametrize("bounds,regex", [
