@@ -57,7 +57,9 @@ def pytest_collection_modifyitems(config, items):
         _fuzz_more_examples(items)
     # The end-to-end tests (marked slow, 10-25 s each) first: xdist hands out single tests in collection order, and
     # one of them drawn last kept one worker busy alone for its whole length (both workers end together instead).
-    items.sort(key=lambda item: "slow" not in item.keywords)  # stable: the rest keep their order
+    # Then the viewer's: many wait on servers, pages and played shots (1-2.4 s each, idle), and last in file order
+    # they kept one worker waiting while the other had finished; the short computing tests end the run instead.
+    items.sort(key=lambda item: ("slow" not in item.keywords, not item.nodeid.startswith("tests/viewer/")))
     has_cuda = _cuda()
     has_fox = (FOX / "transforms.json").exists()
     for item in items:
