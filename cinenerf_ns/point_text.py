@@ -4,18 +4,24 @@ loads."""
 from __future__ import annotations
 
 import re
-from typing import Optional
+from typing import List, Optional
 
 import numpy as np
 
 _SEPARATORS = re.compile(r"[\s,;\[\]()]+")
 
 
+def number_tokens(text: str) -> List[str]:
+    """The words of a typed list of numbers, split at spaces, commas, semicolons and brackets: '[1, 2; 3]' ->
+    ['1', '2', '3'] (a point here, a box's six numbers in cli/plan_args.parse_region)."""
+    return [t for t in _SEPARATORS.split(str(text or "").strip()) if t]
+
+
 def parse_point(text: str) -> Optional[np.ndarray]:
     """'x y z' / 'x, y, z' / '[x, y, z]' / '(x; y; z)' -> [3] float64, non-finite values such as 'nan' kept for the
-    caller to refuse with its own words (``finite_point``); None when the text is not three numbers (then it names an
-    object)."""
-    tokens = [t for t in _SEPARATORS.split((text or "").strip()) if t]
+    caller to refuse in its own words (naming its option or box); None when the text is not three numbers (then it
+    names an object)."""
+    tokens = number_tokens(text)
     if len(tokens) != 3:
         return None
     try:

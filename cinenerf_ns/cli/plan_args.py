@@ -5,7 +5,6 @@ processes) say what they chose."""
 from __future__ import annotations
 
 import os
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, Optional, Tuple
@@ -30,7 +29,7 @@ from cinenerf_ns.planner.shots.camera_path import (
 )
 from cinenerf_ns.planner.shots.framing import FramingConfig
 from cinenerf_ns.planner.shots.score_config import ScoreConfig
-from cinenerf_ns.point_text import parse_point
+from cinenerf_ns.point_text import number_tokens, parse_point
 from cinenerf_ns.semantic_defaults import CENTRE_RELEVANCY, OBJECT_CLUSTER, SMOOTH_NEIGHBORS
 
 
@@ -301,7 +300,7 @@ def worker_count(args: PlanArgs, console: Console) -> Optional[int]:
 def parse_region(text: str) -> Tuple[np.ndarray, np.ndarray]:
     """--region 'x0 y0 z0 x1 y1 z1' -> (lo [3], hi [3]); InvalidInputError unless 6 finite numbers with lo < hi on
     every axis (user_box.user_box)."""
-    tokens = [t for t in re.split(r"[\s,;\[\]()]+", str(text).strip()) if t]
+    tokens = number_tokens(text)
     try:
         vals = [float(t) for t in tokens]
     except ValueError as e:
