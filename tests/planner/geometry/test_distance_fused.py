@@ -8,7 +8,6 @@ points 1e-5 from an ellipsoid's centre; a pair alone in an eager batch stops exa
 from __future__ import annotations
 
 import importlib.util
-import textwrap
 
 import pytest
 import torch
@@ -18,21 +17,21 @@ from cinenerf_ns.planner.geometry.distance import _distance_local
 
 TOL = 1e-10
 
-CASES = textwrap.dedent("""
-    import torch
-    def cases(n, seed, device="cpu"):
-        g = torch.Generator().manual_seed(seed)
-        w = torch.randn(n, 3, generator=g, dtype=torch.float64) * torch.rand(n, 1, generator=g, dtype=torch.float64) * 3
-        r = torch.rand(n, 3, generator=g, dtype=torch.float64) * 0.9 + 0.05
-        w[:5] = 0                                     # centres
-        w[5:10, 1:] = 0                               # on an axis
-        w[10:20, 2] = 0; w[10:20, :2] *= 0.1          # inside on the medial plane (degenerate branch)
-        r[20:30] = 0.5                                # spheres (pole branch)
-        r[30:40, 2] = 1e-4                            # very flat
-        w[40:50] *= 50                                # far away
-        r[50:60, 0] = r[50:60, 1]                     # two equal axes
-        return w.to(device), r.to(device)
-""")
+def cases(n: int, seed: int, device: str = "cpu"):
+    """n random point-ellipsoid pairs (w [n, 3] float64 in the ellipsoid's frame, r [n, 3] semi-axes) and the
+    branches the kernel special-cases among the first 60."""
+    g = torch.Generator().manual_seed(seed)
+    w = torch.randn(n, 3, generator=g, dtype=torch.float64) * torch.rand(n, 1, generator=g, dtype=torch.float64) * 3
+    r = torch.rand(n, 3, generator=g, dtype=torch.float64) * 0.9 + 0.05
+    w[:5] = 0  # centres
+    w[5:10, 1:] = 0  # on an axis
+    w[10:20, 2] = 0  # inside on the medial plane (degenerate branch)
+    w[10:20, :2] *= 0.1
+    r[20:30] = 0.5  # spheres (pole branch)
+    r[30:40, 2] = 1e-4  # very flat
+    w[40:50] *= 50  # far away
+    r[50:60, 0] = r[50:60, 1]  # two equal axes
+    return w.to(device), r.to(device)
 
 
 def test_cpu_tensors_never_use_the_kernel():
@@ -51,9 +50,7 @@ def test_kernel_matches_eager_in_the_triton_interpreter(monkeypatch):
     spec = importlib.util.spec_from_file_location("_distance_fused_interpreted", distance_fused.__file__)
     interpreted = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(interpreted)
-    ns: dict = {}
-    exec(CASES, ns)
-    w, r = ns["cases"](256, 0)
+    w, r = cases(256, 0)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the interpreter's numpy warns on inf - inf (the kernel's finiteness test)
@@ -72,9 +69,7 @@ def test_kernel_matches_eager_in_the_triton_interpreter(monkeypatch):
 
 @pytest.mark.gpu
 def test_kernel_matches_eager_on_cuda():
-    ns: dict = {}
-    exec(CASES, ns)
-    w, r = ns["cases"](200_000, 1, "cuda")
+    w, r = cases(200_000, 1, "cuda")
     a = _distance_local(w, r)  # fused on CUDA
     b = _distance_local(w, r, fused=False)
     assert distance_fused.available(w)
