@@ -8,6 +8,8 @@ from hypothesis import given, settings, strategies as st
 from cinenerf_ns.planner.errors import InvalidInputError
 from cinenerf_ns.planner.geometry.distance import (
     _distance_local,
+    _mahal2,
+    _mahal2_grad,
     clearance,
     ellipsoid_ellipsoid_distance,
     ellipsoid_scaling_factor,
@@ -103,6 +105,19 @@ def test_clearance_errors_and_float32():
         clearance(torch.tensor([[0.0, float("inf"), 0.0]]), sc)
     c = clearance(torch.zeros(4, 3), sc, GridIndex.build(sc))
     assert c.dtype == F64 and c.shape == (4,)
+
+
+def test_the_references_gradient_is_the_finite_difference_one():
+    """The SLSQP references' exact gradient of the squared Mahalanobis norm against central differences."""
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        rot = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        mu, radii, x = rng.normal(size=3), rng.uniform(0.05, 1.0, 3), rng.normal(size=3)
+        h = 1e-6
+        fd = [(_mahal2(x + h * e, mu, rot, radii) - _mahal2(x - h * e, mu, rot, radii)) / (2 * h) for e in np.eye(3)]
+        np.testing.assert_allclose(_mahal2_grad(x, mu, rot, radii), fd, rtol=1e-6, atol=1e-6)
 
 
 @settings(max_examples=20, deadline=None)
