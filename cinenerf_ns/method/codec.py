@@ -131,7 +131,7 @@ class FeatureCodec(nn.Module):
     def forward(self, feats: Tensor) -> Tensor:
         return self.decode(self.encode(feats))
 
-    def decoded_cosines(self, latents: Tensor, emb: Tensor) -> Tensor:
+    def decoded_cosines(self, latents: Tensor, emb: Tensor, sq_norms: Optional[Tensor] = None) -> Tensor:
         """cos(f_dec(l), e) for latents [N, 3] and unit embeddings emb [T, D] -> [N, T], without building the
         [N, D] decoded features (the 1M-Gaussian relevancy would otherwise write 2 GB per query).
 
@@ -139,6 +139,8 @@ class FeatureCodec(nn.Module):
             y.e   = h (W e) + c.e
             |y|^2 = sum((h G) * h) + 2 h (W c) + c.c,   G = W W^T   [H, H]
         Exact algebra (float32 rounding differs from decode(): ~1e-6). tcnn backend: falls back to decode().
+        sq_norms [N]: |y|^2 of these latents from ``decoded_sq_norms`` (it does not depend on the text: a scene asked
+        many queries computes it once); the same numbers as computing it here.
         """
         if self.backend != "torch":
             return self.decode(latents) @ F.normalize(emb.float(), dim=-1).T
@@ -148,9 +150,21 @@ class FeatureCodec(nn.Module):
         c = last.bias + self.center  # [D]
         e = F.normalize(emb.to(W), dim=-1)  # [T, D]
         dots = h @ (e @ W).T + (e @ c)[None]  # [N, T]
-        G = W.T @ W  # [H, H]
-        sq = ((h @ G) * h).sum(-1) + 2 * (h @ (W.T @ c)) + c @ c  # [N]
+        sq = self._sq_norms(h) if sq_norms is None else sq_norms  # [N]
         return dots * torch.rsqrt(sq.clamp_min(1e-24))[:, None]
+
+    def decoded_sq_norms(self, latents: Tensor) -> Optional[Tensor]:
+        """|y|^2 [N] of decoded_cosines for latents [N, 3] (None for the tcnn backend, which decodes in full)."""
+        if self.backend != "torch":
+            return None
+        return self._sq_norms(self.dec[:-1](latents.float()))
+
+    def _sq_norms(self, h: Tensor) -> Tensor:
+        last = self.dec[-1]
+        W = last.weight  # [D, H]
+        c = last.bias + self.center  # [D]
+        G = W.T @ W  # [H, H]
+        return ((h @ G) * h).sum(-1) + 2 * (h @ (W.T @ c)) + c @ c  # [N]
 
 
 def reconstruction_error(codec: FeatureCodec, feats: Tensor, batch: int = 16384) -> float:

@@ -48,26 +48,33 @@ def relevancy_from_cosines(sims: Tensor, temperature: float = 10.0) -> Tensor:
     return torch.sigmoid(temperature * (sims[:, :1] - sims[:, 1:])).min(dim=1).values
 
 
+CHUNK = 1 << 20
+"""Gaussians decoded at once by relevancy (and by SemanticScene's sq_norms, so that both round alike)."""
+
+
 def relevancy(
     latents: Tensor,  # [N, 3]
     codec,  # FeatureCodec (decode: [M,3] -> unit [M,D]) or any callable doing that
     text_emb: Tensor,  # [D]
     neg_emb: Tensor,  # [K, D]
     temperature: float = 10.0,
-    chunk: int = 1 << 20,
+    chunk: int = CHUNK,
     fast: bool = True,
+    sq_norms: Optional[Tensor] = None,  # [N]
 ) -> Tensor:
     """Eq. 4: decode each Gaussian's latent and compare with the query and the negatives -> [N].
 
     fast: use ``codec.decoded_cosines`` when the codec has it (same numbers without materialising the
-    decoded [N, D] features; see FeatureCodec.decoded_cosines)."""
+    decoded [N, D] features; see FeatureCodec.decoded_cosines). sq_norms: ``codec.decoded_sq_norms(latents)``, the
+    part of the fast path that does not depend on the text (SemanticScene keeps it for its queries)."""
     if neg_emb.ndim == 1:
         neg_emb = neg_emb[None]
     if neg_emb.shape[0] == 0:
         raise QueryError("relevancy needs at least one negative phrase")
     if fast and hasattr(codec, "decoded_cosines"):
         emb = torch.cat([text_emb.reshape(1, -1), neg_emb], dim=0)  # [1+K, D]
-        out = [relevancy_from_cosines(codec.decoded_cosines(latents[i : i + chunk], emb), temperature)
+        out = [relevancy_from_cosines(codec.decoded_cosines(
+                   latents[i : i + chunk], emb, None if sq_norms is None else sq_norms[i : i + chunk]), temperature)
                for i in range(0, latents.shape[0], chunk)]
         return torch.cat(out) if out else latents.new_zeros(0)
     decode: Callable[[Tensor], Tensor] = codec.decode if hasattr(codec, "decode") else codec

@@ -19,6 +19,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from cinenerf_ns.method.relevancy import (
+    CHUNK as RELEVANCY_CHUNK,
     DEFAULT_NEGATIVES,
     QueryError,
     centre_core,
@@ -263,6 +264,7 @@ class SemanticScene:
         self.opacities = opacities.reshape(-1)
         self._raw_latents = latents
         self._smoothed: Optional[Tensor] = None
+        self._sq_norms: Optional[Tuple[Tensor, Optional[Tensor]]] = None  # (latents, codec.decoded_sq_norms of them)
         self.smooth_neighbors = int(smooth_neighbors or 0)
         self.codec = codec
         self.text_encoder = text_encoder
@@ -327,15 +329,16 @@ class SemanticScene:
 
     def warm(self, labels: bool = True, negatives: bool = False,
              stop: Optional[threading.Event] = None) -> Dict[str, float]:
-        """Compute what does not depend on a query's text now, off the request path (the standalone viewer calls
-        this on a background thread after loading; the CLI, which asks one or two queries, leaves it lazy): the latent
-        smoothing, the scene's robust extent, and with ``labels`` the answer of every label name of the scene at the
-        default threshold (a label fully determines it: same embedding, same contrast against the other labels), up to
-        the cache's size; with ``negatives`` the generic negatives' embedding (may load the CLIP text tower; a failure
-        is left for the first free-text query to report). Safe to call while queries run (they wait for the one
-        computation in progress, then find their answer cached). Returns the seconds each part took.
-        stop: set it to end the warm-up early (a viewer shutting down): checked before each part and between labels, so
-        the warm-up returns within one part's time (a part is never interrupted; what is done stays cached); the
+        """Compute what does not depend on a query's text now, off the request path (the standalone viewer calls this on
+        a background thread after loading; the CLI, which asks one or two queries, leaves it lazy): the latent
+        smoothing, the decoded norms every relevancy divides by, the scene's robust extent, and with ``labels`` the
+        answer of every label name of the scene at the default threshold (a label fully determines it: same embedding,
+        same contrast against the other labels), up to the cache's size; with ``negatives`` the generic negatives'
+        embedding (may load the CLIP text tower; a failure is left for the first free-text query to report). Safe to
+        call while queries run (they wait for the one computation in progress, then find their answer cached). Returns
+        the seconds each part took.
+        stop: set it to end the warm-up early (a viewer shutting down): checked before each part and between labels,
+        so the warm-up returns within one part's time (a part is never interrupted; what is done stays cached); the
         result then has "stopped": 1.0 and no entry for the parts not run."""
         import time
 
@@ -352,6 +355,11 @@ class SemanticScene:
         t0 = time.perf_counter()
         _ = self.latents
         out["smooth_s"] = time.perf_counter() - t0
+        if stopped():
+            return out
+        t0 = time.perf_counter()
+        self._decoded_sq_norms()
+        out["norms_s"] = time.perf_counter() - t0
         if stopped():
             return out
         t0 = time.perf_counter()
@@ -412,7 +420,24 @@ class SemanticScene:
     def query(self, text: str) -> Tensor:
         """Relevancy [N] in (0, 1) of every Gaussian for the text (eq. 4)."""
         q, neg = self._embed(text)
-        return relevancy_fn(self.latents, self.codec, q, neg, temperature=self.temperature)
+        return relevancy_fn(self.latents, self.codec, q, neg, temperature=self.temperature, chunk=RELEVANCY_CHUNK,
+                            sq_norms=self._decoded_sq_norms())
+
+    @torch.no_grad()
+    def _decoded_sq_norms(self) -> Optional[Tensor]:
+        """The codec's decoded_sq_norms of the query latents [N] (None when the codec has none), computed once: half
+        of a relevancy's work that does not depend on the text. Chunked as relevancy chunks, so it rounds alike."""
+        lat = self.latents
+        if self._sq_norms is None or self._sq_norms[0] is not lat:
+            with self._compute_lock:
+                if self._sq_norms is None or self._sq_norms[0] is not lat:
+                    norms = None
+                    if hasattr(self.codec, "decoded_sq_norms"):
+                        parts = [self.codec.decoded_sq_norms(lat[i : i + RELEVANCY_CHUNK])
+                                 for i in range(0, lat.shape[0], RELEVANCY_CHUNK)]
+                        norms = None if not parts or parts[0] is None else torch.cat(parts)
+                    self._sq_norms = (lat, norms)
+        return self._sq_norms[1]
 
     @torch.no_grad()
     def locate_full(self, text: str, threshold: Optional[float] = None) -> LocateResult:

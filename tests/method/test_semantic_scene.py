@@ -449,6 +449,31 @@ def test_warm_smooths_once_and_answers_the_labels(monkeypatch):
     assert smooth.calls == 2
 
 
+def test_decoded_norms_are_computed_once_and_change_no_relevancy(monkeypatch):
+    """With a real codec the text-independent half of a relevancy (the decoded norms) is computed once per scene, in
+    relevancy's chunks, and every query's relevancy stays the one relevancy() computes alone, bit for bit."""
+    import cinenerf_ns.method.semantic_scene as ss
+    from cinenerf_ns.method.codec import FeatureCodec
+    from cinenerf_ns.method.relevancy import relevancy
+
+    g = torch.Generator().manual_seed(0)
+    codec = FeatureCodec(16).eval()
+    table = {t: torch.randn(16, generator=g) for t in ("red chair", "palm tree", "object", "things", "stuff",
+                                                      "texture")}
+    enc16 = lambda texts: F.normalize(torch.stack([table[t] for t in texts]), dim=-1)  # noqa: E731
+    n = 1000
+    lat = torch.tanh(torch.randn(n, 3, generator=g))
+    monkeypatch.setattr(ss, "RELEVANCY_CHUNK", 300)  # chunks of 300, 300, 300 and 100
+    norms = Counting(codec.decoded_sq_norms)
+    monkeypatch.setattr(codec, "decoded_sq_norms", norms)
+    s = SemanticScene(torch.randn(n, 3, generator=g), torch.rand(n, generator=g), lat, codec, enc16)
+    assert s.warm(labels=False)["norms_s"] >= 0 and norms.calls == 4
+    for text in ("red chair", "palm tree", "red chair"):
+        q, neg = s._embed(text)
+        assert torch.equal(s.query(text), relevancy(lat, codec, q, neg, temperature=s.temperature, chunk=300))
+    assert norms.calls == 4
+
+
 def test_warm_in_a_thread_while_querying():
     import threading
 
