@@ -51,6 +51,20 @@ def test_floor_under_an_object_is_dropped_and_the_object_kept():
     assert kept_obj > 0.97  # only the object's lowest sliver (at the floor's height) goes with it
 
 
+def test_ring_points_exactly_at_the_outer_distance_count():
+    """The ring is the closed interval [inner, outer]: floor points exactly `outer` from a wall-like footprint (a thin
+    line, the case the distance bound speeds up) form the layer, and the wall's bottom row on it is dropped."""
+    outer = 0.0625  # a power of two: the distance sqrt(outer^2) is outer exactly
+    y, z = np.meshgrid(np.linspace(-0.2, 0.2, 41), np.linspace(0.0, 0.6, 61), indexing="ij")
+    wall = np.column_stack([np.zeros(y.size), y.ravel(), z.ravel()])  # [2501, 3] selected, footprint x = 0
+    ys = np.linspace(-0.2, 0.2, 41)
+    ring = np.concatenate([np.column_stack([np.full(41, sx * outer), ys, np.zeros(41)]) for sx in (-1, 1)])
+    means = np.concatenate([wall, ring])
+    sel = np.arange(len(means)) < len(wall)
+    out = drop_support_layer(means, sel, inner=0.02, outer=outer)
+    assert np.array_equal(out[: len(wall)], wall[:, 2] > 0) and not out[len(wall):].any()
+
+
 def test_a_thick_floor_slab_no_longer_pulls_the_centre_down():
     """A fuzzy floor (sigma 1 cm, as reconstructed floors are) bled into the selection 10 cm around the footprint
     is a slab under the object that drags the centre estimate down; without it the estimate returns toward what
