@@ -49,7 +49,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from cinenerf_ns.planner.native import choose, hidden_voxels_c
+from cinenerf_ns.planner.native import choose, hidden_voxels_c, kernel_threads
 from cinenerf_ns.planner.scene.ellipsoids import quat_wxyz_to_rotmat
 
 ArrayLike = Union[Tensor, np.ndarray, Sequence]
@@ -142,6 +142,7 @@ def hidden_voxels(
     cameras: np.ndarray,  # [C, 3] camera centres in voxel-index coordinates (voxel (i, j, k)'s centre is (i, j, k))
     step: float = 0.5,
     backend: str = "auto",
+    threads: Optional[int] = None,
 ) -> np.ndarray:
     """bool [X, Y, Z]: the candidate voxels (surface voxels excluded) that no camera sees: for every camera, the
     segment from the voxel's centre toward it meets a surface voxel. The segment is sampled every ``step`` voxels
@@ -152,7 +153,8 @@ def hidden_voxels(
     backend: "auto" (the compiled kernel, planner/native/voxelrays.c, when it loads; same arithmetic, same result),
     "native" (it or RuntimeError) or "python" (numpy: voxels are tested camera by camera and dropped once one
     camera sees them, so most of the cost is the truly hidden voxels' rays, each ending at its first surface voxel;
-    benchmarks/bench_hidden_voxels.py compares the two)."""
+    benchmarks/bench_hidden_voxels.py compares the two). threads: the compiled kernel's (default
+    planner.native.kernel_threads(); each voxel's answer is its own, so any number gives the same result)."""
     surf = np.asarray(surface, dtype=bool)
     cams = np.asarray(cameras, dtype=np.float64).reshape(-1, 3)
     if surf.ndim != 3 or np.shape(candidates) != surf.shape:
@@ -168,7 +170,7 @@ def hidden_voxels(
         cc = np.ascontiguousarray(cams, dtype=np.float64)
         flag = np.zeros(len(ii), dtype=np.uint8)  # [V]
         rc = fn(occ.ctypes.data, *surf.shape, ii.ctypes.data, len(ii), cc.ctypes.data, len(cc), float(step),
-                flag.ctypes.data)
+                flag.ctypes.data, int(threads or kernel_threads()))
         if rc != 0:
             raise RuntimeError(f"cn_hidden_voxels failed ({rc})")
         out = np.zeros(surf.shape, dtype=bool)

@@ -82,8 +82,9 @@ def compile_library(src: Path, stem: str, flags: Sequence[str]) -> Tuple[Optiona
     return lib, ""
 
 
-_FLAGS = {"visibility": ["-O2", "-pthread"], "occupancy": ["-O3", "-ffp-contract=off", "-fno-math-errno"]}
-"""Compiler flags of the libraries that need more than -O2 (visibility.c splits its segments over threads;
+_FLAGS = {"visibility": ["-O2", "-pthread"], "voxelrays": ["-O2", "-pthread"],
+          "occupancy": ["-O3", "-ffp-contract=off", "-fno-math-errno"]}
+"""Compiler flags of the libraries that need more than -O2 (visibility.c and voxelrays.c split their work over threads;
 occupancy.c's column loop is vectorised at -O3, its sqrtf needs no errno, and it must round as torch does: no
 contraction into fused multiply-adds, never -ffast-math)."""
 _THREADS: Optional[int] = None
@@ -337,7 +338,8 @@ def grid_polytopes_world_c():
 
 def hidden_voxels_c():
     """The compiled sampled sight lines (voxelrays.c: cn_hidden_voxels; method/object_centre.hidden_voxels), or None."""
-    return _function("voxelrays", "cn_hidden_voxels", [_P, _I64, _I64, _I64, _P, _I64, _P, _I64, _F64, _P], _I64)
+    return _function("voxelrays", "cn_hidden_voxels", [_P, _I64, _I64, _I64, _P, _I64, _P, _I64, _F64, _P, _I64],
+                     _I64)
 
 
 def occupancy_c():
